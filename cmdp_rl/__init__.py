@@ -1,0 +1,35 @@
+"""cmdp_rl: constrained reinforcement learning on TorchRL.
+
+``import cmdp_rl`` registers ``cmdp_rl/Reach1D-v0`` with gymnasium and exposes the pieces
+``train.py`` is built from, for a user's own script::
+
+    cfg = cmdp_rl.RunConfig()                  # or cmdp_rl.load_config({...})
+    env = cmdp_rl.make_env(cfg.env)
+    ac = cmdp_rl.make_actor_critic(cfg.policy, env)
+    algo = cmdp_rl.make_algo(cfg.algo, ac)
+    collector = cmdp_rl.Collector(env, ac.actor, cfg.rollout_steps, seed=0)
+    stats = algo.update(collector.collect())
+"""
+
+import gymnasium as _gym
+
+from cmdp_rl import keys
+from cmdp_rl.algos import ALGORITHMS, PPO, PenaltyPPO, PPOLagrangian, TrainingDiverged, make_algo
+from cmdp_rl.collector import Collector, finished_episodes
+from cmdp_rl.config import ConfigError, RunConfig, load_config, validate
+from cmdp_rl.envs import REACH1D_ID, GymVecEnv, Reach1D, VecEnv, make_env
+from cmdp_rl.evaluation import evaluate
+from cmdp_rl.policies import ActorCritic, make_actor_critic
+from cmdp_rl.trainer import train
+
+__version__ = "0.1.0"
+
+if REACH1D_ID not in _gym.registry:
+    _gym.register(id=REACH1D_ID, entry_point="cmdp_rl.envs.reach1d:Reach1D")
+
+__all__ = [
+    "ALGORITHMS", "ActorCritic", "Collector", "ConfigError", "GymVecEnv", "PPO", "PPOLagrangian",
+    "PenaltyPPO", "REACH1D_ID", "Reach1D", "RunConfig", "TrainingDiverged", "VecEnv", "evaluate",
+    "finished_episodes", "keys", "load_config", "make_actor_critic", "make_algo", "make_env", "train",
+    "validate",
+]

@@ -1,0 +1,40 @@
+"""Twin critics, twin GAEs: advantages and value targets for reward and for cost.
+
+Both GAEs are torchrl's, reading values the critics wrote beforehand (``value_network=None``), so
+one critic pass serves both the estimate and the logging. A truncated step (time limit) is not
+terminal: GAE bootstraps from ``V(next observation)`` unless ``("next", "terminated")`` is set,
+for the reward critic and the cost critic alike.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.objectives.value import GAE
+
+from cmdp_rl import keys
+
+
+class TwinGAE:
+    def __init__(self, gamma: float, cost_gamma: float, lmbda: float) -> None:
+        self.reward = GAE(gamma=gamma, lmbda=lmbda, value_network=None)
+        self.reward.set_keys(
+            reward=keys.REWARD, value=keys.VALUE, advantage=keys.ADVANTAGE, value_target=keys.VALUE_TARGET,
+            done=keys.DONE, terminated=keys.TERMINATED,
+        )
+        self.cost = GAE(gamma=cost_gamma, lmbda=lmbda, value_network=None)
+        self.cost.set_keys(
+            reward=keys.COST, value=keys.COST_VALUE, advantage=keys.COST_ADVANTAGE,
+            value_target=keys.COST_VALUE_TARGET, done=keys.DONE, terminated=keys.TERMINATED,
+        )
+
+    @torch.no_grad()
+    def __call__(self, batch: TensorDictBase, critic: TensorDictModuleBase, cost_critic: TensorDictModuleBase) -> TensorDictBase:
+        """Write values, advantages and value targets of both critics into ``batch`` ([N, T])."""
+        for module in (critic, cost_critic):
+            module(batch)
+            module(batch.get(keys.NEXT))
+        self.reward(batch)
+        self.cost(batch)
+        return batch

@@ -1,0 +1,236 @@
+"""Typed run configuration, checked in one place before anything is built.
+
+The YAML files under ``configs/`` document every option; Hydra composes them and
+:func:`load_config` turns the result into these dataclasses. Each range check names the field and
+what is allowed, so a bad value fails before a single environment step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Union, get_args, get_origin, get_type_hints
+
+
+class ConfigError(ValueError):
+    """A config value is missing, of the wrong type, or out of range."""
+
+
+ENV_NAMES = ("reach1d",)
+ENV_BACKENDS = ("gym",)
+WALL_MODES = ("block", "pass")
+POLICY_NAMES = ("mlp",)
+ACTIVATIONS = ("tanh", "relu", "elu")
+DEVICES = ("cpu", "cuda")
+
+
+@dataclass
+class EnvConfig:
+    name: str = "reach1d"
+    backend: str = "gym"
+    num_envs: int = 8
+    obs_noise: float = 0.02
+    wall_x: float = 0.5
+    goal: float = 0.9
+    max_steps: int = 100
+    wall: str = "block"
+    start: Union[float, list] = 0.1
+    probe: bool = False
+
+
+@dataclass
+class PolicyConfig:
+    name: str = "mlp"
+    hidden_sizes: list = field(default_factory=lambda: [64, 64])
+    activation: str = "tanh"
+    init_log_std: float = -0.5
+
+
+@dataclass
+class PPOConfig:
+    """Clipped PPO (Schulman et al., 2017). Shared by every PPO-family algorithm."""
+
+    name: str = "ppo"
+    lr: float = 3e-4
+    critic_lr: float = 1e-3
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    cost_gamma: float = 0.99
+    clip_epsilon: float = 0.2
+    update_epochs: int = 10
+    num_minibatches: int = 8
+    entropy_coef: float = 0.0
+    max_grad_norm: float = 0.5
+    normalize_advantage: bool = True
+    # The budget d on expected undiscounted episode cost. Only constrained algorithms act on it;
+    # every run reports against it.
+    cost_limit: float = 1.0
+
+
+@dataclass
+class PenaltyConfig(PPOConfig):
+    """PPO on r - penalty * c with a fixed exchange rate."""
+
+    name: str = "penalty"
+    penalty: float = 1.0
+
+
+@dataclass
+class PPOLagConfig(PPOConfig):
+    """PPO-Lagrangian (Ray, Achiam, Amodei 2019): lambda adapted by projected dual ascent."""
+
+    name: str = "ppo_lag"
+    lambda_init: float = 0.0
+    lambda_lr: float = 0.05
+
+
+ALGO_CONFIGS: dict[str, type] = {"ppo": PPOConfig, "penalty": PenaltyConfig, "ppo_lag": PPOLagConfig}
+
+
+@dataclass
+class RunConfig:
+    env: EnvConfig = field(default_factory=EnvConfig)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    algo: PPOConfig = field(default_factory=PPOLagConfig)
+    seed: int = 0
+    total_steps: int = 400_000
+    rollout_steps: int = 256
+    device: str = "cpu"
+    threads: int = 1
+    eval_episodes: int = 20
+    eval_deterministic: bool = True
+    checkpoint_every: int = 10
+    log_interval: int = 5
+
+
+def _check_type(value: Any, hint: Any, name: str) -> Any:
+    """Coerce ``value`` to ``hint`` where that is lossless; otherwise raise naming the field."""
+    origin = get_origin(hint)
+    if origin is Union:
+        for option in get_args(hint):
+            try:
+                return _check_type(value, option, name)
+            except ConfigError:
+                continue
+        raise ConfigError(f"{name}: expected one of {get_args(hint)}, got {value!r}")
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"{name}: expected true or false, got {value!r}")
+    if hint is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        raise ConfigError(f"{name}: expected an integer, got {value!r}")
+    if hint is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise ConfigError(f"{name}: expected a number, got {value!r}")
+    if hint is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"{name}: expected a string, got {value!r}")
+    if hint is list or origin is list:
+        if isinstance(value, (list, tuple)):
+            return list(value)
+        raise ConfigError(f"{name}: expected a list, got {value!r}")
+    return value
+
+
+def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
+    hints = get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(f"{prefix}: unknown option(s) {unknown}; allowed: {sorted(names)}")
+    kwargs = {k: _check_type(v, hints[k], f"{prefix}.{k}") for k, v in data.items()}
+    return cls(**kwargs)
+
+
+def load_config(raw: Mapping[str, Any]) -> RunConfig:
+    """Build and validate a :class:`RunConfig` from a plain mapping (e.g. a resolved Hydra config)."""
+    raw = dict(raw)
+    raw.pop("hydra", None)
+    algo = dict(raw.pop("algo", {}) or {})
+    algo_name = algo.get("name", "ppo_lag")
+    if algo_name not in ALGO_CONFIGS:
+        raise ConfigError(f"algo.name: unknown algorithm {algo_name!r}; allowed: {sorted(ALGO_CONFIGS)}")
+    cfg = _build(
+        RunConfig,
+        {k: v for k, v in raw.items() if k not in ("env", "policy")},
+        "config",
+    )
+    cfg.env = _build(EnvConfig, dict(raw.get("env", {}) or {}), "env")
+    cfg.policy = _build(PolicyConfig, dict(raw.get("policy", {}) or {}), "policy")
+    cfg.algo = _build(ALGO_CONFIGS[algo_name], algo, "algo")
+    validate(cfg)
+    return cfg
+
+
+def _require(ok: bool, name: str, allowed: str, value: Any) -> None:
+    if not ok:
+        raise ConfigError(f"{name} must be {allowed}, got {value!r}")
+
+
+def _finite(x: float) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def validate(cfg: RunConfig) -> None:
+    """Raise :class:`ConfigError` on the first out-of-range field."""
+    e, p, a = cfg.env, cfg.policy, cfg.algo
+    _require(e.name in ENV_NAMES, "env.name", f"one of {ENV_NAMES}", e.name)
+    _require(e.backend in ENV_BACKENDS, "env.backend", f"one of {ENV_BACKENDS}", e.backend)
+    _require(e.num_envs >= 1, "env.num_envs", "a positive integer", e.num_envs)
+    _require(_finite(e.obs_noise) and e.obs_noise >= 0, "env.obs_noise", "a number >= 0", e.obs_noise)
+    _require(0.0 < e.wall_x < 1.0, "env.wall_x", "in (0, 1)", e.wall_x)
+    _require(0.0 <= e.goal <= 1.0, "env.goal", "in [0, 1]", e.goal)
+    _require(e.max_steps >= 1, "env.max_steps", "a positive integer", e.max_steps)
+    _require(e.wall in WALL_MODES, "env.wall", f"one of {WALL_MODES}", e.wall)
+    if isinstance(e.start, list):
+        ok = len(e.start) == 2 and all(_finite(s) for s in e.start) and 0 <= e.start[0] <= e.start[1] <= 1
+        _require(ok, "env.start", "a number in [0, 1] or a pair [low, high] with 0 <= low <= high <= 1", e.start)
+    else:
+        _require(0.0 <= e.start <= 1.0, "env.start", "in [0, 1]", e.start)
+
+    _require(p.name in POLICY_NAMES, "policy.name", f"one of {POLICY_NAMES}", p.name)
+    _require(
+        len(p.hidden_sizes) >= 1 and all(isinstance(h, int) and h > 0 for h in p.hidden_sizes),
+        "policy.hidden_sizes", "a non-empty list of positive integers", p.hidden_sizes,
+    )
+    _require(p.activation in ACTIVATIONS, "policy.activation", f"one of {ACTIVATIONS}", p.activation)
+    _require(_finite(p.init_log_std), "policy.init_log_std", "a finite number", p.init_log_std)
+
+    for lr_name in ("lr", "critic_lr"):
+        v = getattr(a, lr_name)
+        _require(_finite(v) and v > 0, f"algo.{lr_name}", "a positive number", v)
+    for g in ("gamma", "cost_gamma"):
+        v = getattr(a, g)
+        _require(0.0 <= v < 1.0, f"algo.{g}", "in [0, 1)", v)
+    _require(0.0 <= a.gae_lambda <= 1.0, "algo.gae_lambda", "in [0, 1]", a.gae_lambda)
+    _require(0.0 < a.clip_epsilon < 1.0, "algo.clip_epsilon", "in (0, 1)", a.clip_epsilon)
+    _require(a.update_epochs >= 1, "algo.update_epochs", "a positive integer", a.update_epochs)
+    _require(a.num_minibatches >= 1, "algo.num_minibatches", "a positive integer", a.num_minibatches)
+    _require(a.entropy_coef >= 0, "algo.entropy_coef", "a number >= 0", a.entropy_coef)
+    _require(a.max_grad_norm > 0, "algo.max_grad_norm", "a positive number", a.max_grad_norm)
+    _require(_finite(a.cost_limit) and a.cost_limit >= 0, "algo.cost_limit", "a number >= 0 (the budget d)", a.cost_limit)
+    if isinstance(a, PenaltyConfig):
+        _require(_finite(a.penalty) and a.penalty >= 0, "algo.penalty", "a number >= 0", a.penalty)
+    if isinstance(a, PPOLagConfig):
+        _require(a.lambda_init >= 0, "algo.lambda_init", "a number >= 0", a.lambda_init)
+        _require(a.lambda_lr > 0, "algo.lambda_lr", "a positive number", a.lambda_lr)
+
+    _require(cfg.total_steps >= 1, "total_steps", "a positive integer", cfg.total_steps)
+    _require(cfg.rollout_steps >= 1, "rollout_steps", "a positive integer", cfg.rollout_steps)
+    batch = cfg.rollout_steps * e.num_envs
+    _require(
+        batch >= a.num_minibatches, "algo.num_minibatches",
+        f"at most rollout_steps * env.num_envs = {batch}", a.num_minibatches,
+    )
+    _require(cfg.device in DEVICES, "device", f"one of {DEVICES}", cfg.device)
+    _require(cfg.threads >= 1, "threads", "a positive integer", cfg.threads)
+    _require(cfg.eval_episodes >= 1, "eval_episodes", "a positive integer", cfg.eval_episodes)
+    _require(cfg.checkpoint_every >= 1, "checkpoint_every", "a positive integer", cfg.checkpoint_every)
+    _require(cfg.log_interval >= 1, "log_interval", "a positive integer", cfg.log_interval)

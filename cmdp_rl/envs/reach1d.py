@@ -1,0 +1,120 @@
+"""Reach1D: the seed's 1-D reach-to-goal task, a POMDP with a separate collision cost (a CMDP).
+
+A point effector at true position ``x`` (hidden) moves by a box-bounded velocity command towards a
+goal, with a wall between the start and the goal. The agent sees ``[clip(x + noise, 0, 1), goal]``.
+Reward is shaped progress plus 1 on reaching the goal; a move across the wall costs 1 in
+``info["cost"]`` and is never subtracted from the reward.
+
+With default options the arithmetic is the seed's to the last bit (tests/test_reach1d.py checks
+hand-computed trajectories), including one float edge the seed's crossing test has: it is strict,
+``(prev - wall) * (proposed - wall) < 0``, so an effector that lands on the wall exactly passes on
+its next move at no cost. Float32 actions at the bound (0.10000000149...) never land there from the
+default start; float64 actions of exactly 0.1 do (0.1 + 4 * 0.1 == 0.5 in float64). The toolkit's
+own action path always sends float32 actions (see ``envs/vector.py``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+WALL_MODES = ("block", "pass")
+
+
+class Reach1D(gym.Env):
+    """Seed-exact Reach1D with options.
+
+    Args:
+        obs_noise: std of the position sensor.
+        wall_x: wall position.
+        goal: goal position; the episode terminates within 0.02 of it.
+        max_steps: time limit (truncation).
+        wall: ``"block"`` (seed): a crossing move is cancelled and costs 1. ``"pass"``: the move
+            goes through and costs 1, so reaching the goal has to be paid for.
+        start: the start state, a float (seed: 0.1) or a ``[low, high]`` pair drawn uniformly
+            at every reset.
+        probe: adds a second action dimension; when it is > 0 the step is a probe: no motion, and
+            the reading is taken with half the noise. The observation gains a third entry, the last
+            probe reading (-1 until the first probe of the episode).
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self,
+        obs_noise: float = 0.02,
+        wall_x: float = 0.5,
+        max_steps: int = 100,
+        goal: float = 0.9,
+        wall: str = "block",
+        start: float | tuple[float, float] | list[float] = 0.1,
+        probe: bool = False,
+    ) -> None:
+        super().__init__()
+        if wall not in WALL_MODES:
+            raise ValueError(f"env.wall must be one of {WALL_MODES}, got {wall!r}")
+        self.obs_noise = obs_noise
+        self.wall_x = wall_x
+        self.max_steps = max_steps
+        self.goal = goal
+        self.wall = wall
+        self.start = tuple(start) if isinstance(start, (tuple, list)) else float(start)
+        self.probe = probe
+        act_dim = 2 if probe else 1
+        # float32 bounds as in the seed: np.clip against them keeps a float32 action float32.
+        self.action_space = spaces.Box(low=-0.1, high=0.1, shape=(act_dim,), dtype=np.float32)
+        if probe:
+            self.action_space = spaces.Box(
+                low=np.array([-0.1, -1.0], dtype=np.float32),
+                high=np.array([0.1, 1.0], dtype=np.float32),
+                dtype=np.float32,
+            )
+        low = [0.0, 0.0] + ([-1.0] if probe else [])
+        high = [1.0, 1.0] + ([1.0] if probe else [])
+        self.observation_space = spaces.Box(
+            low=np.array(low, dtype=np.float32), high=np.array(high, dtype=np.float32)
+        )
+
+    def _reading(self, noise_std: float) -> float:
+        return float(np.clip(self.x + self.np_random.normal(0.0, noise_std), 0.0, 1.0))
+
+    def _obs(self, reading: float) -> np.ndarray:
+        if self.probe:
+            return np.array([reading, self.goal, self.last_probe], dtype=np.float32)
+        return np.array([reading, self.goal], dtype=np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if isinstance(self.start, tuple):
+            self.x = float(self.np_random.uniform(self.start[0], self.start[1]))
+        else:
+            self.x = self.start
+        self.steps = 0
+        self.last_probe = -1.0
+        return self._obs(self._reading(self.obs_noise)), {"true_x": self.x}
+
+    def step(self, action):
+        clipped = np.clip(action, self.action_space.low, self.action_space.high)
+        probing = self.probe and float(clipped[1]) > 0.0
+        a = 0.0 if probing else float(clipped[0])
+        prev_x = self.x
+        proposed = np.clip(self.x + a, 0.0, 1.0)
+        # Strict test, as the seed: landing exactly on the wall is not a crossing.
+        crossed = (prev_x - self.wall_x) * (proposed - self.wall_x) < 0
+        cost = 1.0 if crossed else 0.0
+        self.x = prev_x if (crossed and self.wall == "block") else proposed
+        dist = abs(self.goal - self.x)
+        reward = abs(self.goal - prev_x) - dist
+        terminated = dist < 0.02
+        if terminated:
+            reward += 1.0
+        self.steps += 1
+        truncated = self.steps >= self.max_steps
+        reading = self._reading(self.obs_noise / 2 if probing else self.obs_noise)
+        if probing:
+            self.last_probe = reading
+        info = {"cost": cost, "true_x": self.x}
+        return self._obs(reading), float(reward), terminated, truncated, info

@@ -1,0 +1,59 @@
+"""Evaluate a policy over a fixed number of whole episodes."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType
+
+from cmdp_rl import keys
+from cmdp_rl.collector import Collector
+from cmdp_rl.envs import VecEnv
+
+
+def _spread(name: str, values: list[float]) -> dict[str, float]:
+    t = torch.tensor(values, dtype=torch.float64)
+    return {
+        name: t.mean().item(),
+        f"{name}_std": t.std(unbiased=False).item(),
+        f"{name}_min": t.min().item(),
+        f"{name}_max": t.max().item(),
+    }
+
+
+def evaluate(
+    actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool = True, seed: int | None = None
+) -> dict[str, float]:
+    """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
+
+    Each env of the batch contributes a fixed quota of its first episodes, so short episodes are
+    not over-represented (counting whichever episodes end first would bias towards them).
+    ``goal_reached`` is the fraction of episodes that ended by termination rather than time limit.
+    """
+    n = env.num_envs
+    quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
+    exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    chunk = 128
+    collector = Collector(env, actor, chunk, seed=seed, exploration=exploration)
+    rows: list[list[tuple[float, float, float, float]]] = [[] for _ in range(n)]
+    while any(len(r) < q for r, q in zip(rows, quota)):
+        batch = collector.collect()
+        nxt = batch.get(keys.NEXT)
+        done = nxt.get(keys.DONE).squeeze(-1)
+        for i, t in done.nonzero().tolist():
+            if len(rows[i]) < quota[i]:
+                rows[i].append((
+                    nxt.get(keys.EPISODE_RETURN)[i, t, 0].item(),
+                    nxt.get(keys.EPISODE_COST)[i, t, 0].item(),
+                    float(nxt.get(keys.EPISODE_LENGTH)[i, t, 0].item()),
+                    float(nxt.get(keys.TERMINATED)[i, t, 0].item()),
+                ))
+    flat = [row for r in rows for row in r]
+    result: dict[str, float] = {"episodes": len(flat), "deterministic": deterministic}
+    for j, name in enumerate(("episode_return", "episode_cost", "episode_length")):
+        result.update(_spread(name, [row[j] for row in flat]))
+    result["goal_reached"] = sum(row[3] for row in flat) / len(flat)
+    assert all(math.isfinite(v) for v in result.values() if isinstance(v, float))
+    return result

@@ -1,0 +1,37 @@
+"""Every TensorDict key the toolkit reads or writes, in one place.
+
+A rollout batch has shape ``[num_envs, time]`` and follows torchrl's layout: what the agent saw and
+did at step t sits at the root, what the env returned sits under ``"next"``. Reward and cost are
+twins: whatever one has (a critic value, a GAE advantage, a value target, an episode sum), the other
+has too, under the paired name below.
+"""
+
+OBS = "observation"
+ACTION = "action"
+LOG_PROB = "action_log_prob"  # torchrl's ProbabilisticActor writes this name
+LOC = "loc"
+SCALE = "scale"
+IS_INIT = "is_init"  # True on the first step of an episode (torchrl's InitTracker convention)
+
+NEXT = "next"
+REWARD = "reward"
+COST = "cost"
+DONE = "done"
+TERMINATED = "terminated"
+TRUNCATED = "truncated"
+
+# Running undiscounted sums of the episode so far, written under "next" on every step;
+# read where ("next", DONE) is True they are the finished episodes' totals.
+EPISODE_RETURN = "episode_return"
+EPISODE_COST = "episode_cost"
+EPISODE_LENGTH = "episode_length"
+
+# Critic outputs, GAE outputs: reward side and cost side.
+VALUE = "state_value"
+COST_VALUE = "cost_value"
+ADVANTAGE = "advantage"
+COST_ADVANTAGE = "cost_advantage"
+VALUE_TARGET = "value_target"
+COST_VALUE_TARGET = "cost_value_target"
+# The advantage the policy loss reads: A_r, (A_r - lambda A_c) or (A_r - lambda A_c)/(1 + lambda).
+POLICY_ADVANTAGE = "policy_advantage"

@@ -1,0 +1,66 @@
+"""MLP actor (a Gaussian over the env's action units) and the twin reward/cost critics."""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.modules import IndependentNormal, ProbabilisticActor
+
+from cmdp_rl import keys
+from cmdp_rl.config import PolicyConfig
+
+_ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+
+def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: str, out_gain: float = 1.0) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for h in hidden:
+        layers += [nn.Linear(in_dim, h), _ACTIVATIONS[activation]()]
+        in_dim = h
+    layers.append(nn.Linear(in_dim, out_dim))
+    # Orthogonal init as in the PPO implementation-details literature (Huang et al., 2022).
+    for m in layers:
+        if isinstance(m, nn.Linear):
+            nn.init.orthogonal_(m.weight, gain=2**0.5)
+            nn.init.zeros_(m.bias)
+    nn.init.orthogonal_(layers[-1].weight, gain=out_gain)
+    return nn.Sequential(*layers)
+
+
+class GaussianHead(nn.Module):
+    """Maps features to (loc, scale) in the env's action units.
+
+    The net works in [-1, 1]; loc is rescaled to the action box and the state-independent std is a
+    fraction of the box's half-width. Samples are not squashed: the env clips them, so the
+    log-probability of a stored action never meets a tanh saturation.
+    """
+
+    def __init__(self, net: nn.Module, low: torch.Tensor, high: torch.Tensor, init_log_std: float) -> None:
+        super().__init__()
+        self.net = net
+        self.register_buffer("center", (high + low) / 2)
+        self.register_buffer("half_width", (high - low) / 2)
+        self.log_std = nn.Parameter(torch.full_like(low, init_log_std))
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        loc = self.center + self.half_width * self.net(obs)
+        scale = (self.half_width * self.log_std.exp()).expand_as(loc)
+        return loc, scale
+
+
+def make_actor(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor) -> ProbabilisticActor:
+    net = mlp(obs_dim, cfg.hidden_sizes, low.numel(), cfg.activation, out_gain=0.01)
+    head = TensorDictModule(GaussianHead(net, low, high, cfg.init_log_std), [keys.OBS], [keys.LOC, keys.SCALE])
+    return ProbabilisticActor(
+        head,
+        in_keys=[keys.LOC, keys.SCALE],
+        out_keys=[keys.ACTION],
+        distribution_class=IndependentNormal,
+        return_log_prob=True,
+        log_prob_key=keys.LOG_PROB,
+    )
+
+
+def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str) -> TensorDictModule:
+    return TensorDictModule(mlp(obs_dim, cfg.hidden_sizes, 1, cfg.activation), [keys.OBS], [out_key])
