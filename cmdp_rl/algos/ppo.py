@@ -82,7 +82,7 @@ class PPO:
                 mb = flat[perm[i * mb_size:(i + 1) * mb_size]]
                 # Policy: clipped surrogate on the combined advantage (Schulman et al. eq. 7).
                 out = self.loss(mb)
-                loss_pi = out["loss_objective"] + out.get("loss_entropy", 0.0)
+                loss_pi = out["loss_objective"] + out.get("loss_entropy", torch.zeros(()))
                 # Critics: regression on the GAE value targets (lambda-returns).
                 v = self.ac.critic(mb.select(keys.OBS)).get(keys.VALUE)
                 vc = self.ac.cost_critic(mb.select(keys.OBS)).get(keys.COST_VALUE)
@@ -94,7 +94,7 @@ class PPO:
                 for k, val in (("loss_pi", loss_pi), ("loss_v", loss_v), ("loss_vc", loss_vc),
                                ("entropy", out["entropy"]), ("kl", out["kl_approx"]),
                                ("clip_fraction", out["clip_fraction"])):
-                    sums[k] += float(val)
+                    sums[k] += val.item()
                 n += 1
         stats = {k: s / n for k, s in sums.items()}
         stats["lagrange_multiplier"] = self.lagrange_multiplier

@@ -1,0 +1,87 @@
+"""One update of each algorithm on a real batch; how each forms its policy advantage; NaN stop."""
+
+import csv
+
+import pytest
+import torch
+
+from cmdp_rl import Collector, TrainingDiverged, keys, load_config, make_actor_critic, make_algo, make_env, train
+from cmdp_rl.algos import PPO
+from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
+
+
+def setup(algo: dict, **env):
+    cfg = load_config({"algo": algo, "env": {"num_envs": 2, "max_steps": 20, **env}, "rollout_steps": 32})
+    torch.manual_seed(0)
+    e = make_env(cfg.env)
+    ac = make_actor_critic(cfg.policy, e)
+    return cfg, make_algo(cfg.algo, ac), Collector(e, ac.actor, cfg.rollout_steps, seed=0)
+
+
+@pytest.mark.parametrize("name", ["ppo", "penalty", "ppo_lag"])
+def test_one_update_changes_every_network(name):
+    cfg, algo, col = setup({"name": name, "update_epochs": 2, "num_minibatches": 2})
+    before = [p.detach().clone() for p in algo.ac.modules().parameters()]
+    stats = algo.update(col.collect())
+    after = list(algo.ac.modules().parameters())
+    assert all(not torch.equal(b, a) for b, a in zip(before, after))
+    assert all(v == v for v in stats.values())  # finite, not NaN
+    assert {"loss_pi", "loss_v", "loss_vc", "kl", "entropy", "lagrange_multiplier"} <= stats.keys()
+
+
+def test_policy_advantages():
+    adv = torch.tensor([[[1.0], [2.0]]])
+    cadv = torch.tensor([[[0.5], [-1.0]]])
+    from tensordict import TensorDict
+    b = TensorDict({keys.ADVANTAGE: adv, keys.COST_ADVANTAGE: cadv}, [1, 2])
+    _, ppo, _ = setup({"name": "ppo"})
+    _, pen, _ = setup({"name": "penalty", "penalty": 2.0})
+    _, lag, _ = setup({"name": "ppo_lag", "lambda_init": 3.0})
+    assert torch.equal(ppo.policy_advantage(b), adv) and ppo.lagrange_multiplier == 0.0
+    assert torch.allclose(pen.policy_advantage(b), adv - 2.0 * cadv) and pen.lagrange_multiplier == 2.0
+    assert torch.allclose(lag.policy_advantage(b), (adv - 3.0 * cadv) / 4.0)
+
+
+def test_lagrangian_update_moves_lambda_with_the_batch_cost():
+    # wall=pass with 3-step episodes from 0.45: almost every episode crosses (cost 1 > d = 0.2)
+    _, lag, col = setup({"name": "ppo_lag", "cost_limit": 0.2, "lambda_lr": 0.5, "update_epochs": 1},
+                        wall="pass", start=0.45, max_steps=3)
+    stats = lag.update(col.collect())
+    assert stats["lagrange_multiplier"] > 0.0
+    _, lag, col = setup({"name": "ppo_lag", "cost_limit": 5.0, "lambda_init": 1.0, "lambda_lr": 0.5, "update_epochs": 1})
+    assert lag.update(col.collect())["lagrange_multiplier"] < 1.0  # cost 0 < d: lambda falls
+
+
+def test_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    original = PPO.policy_advantage
+
+    def poisoned(self, batch):
+        calls["n"] += 1
+        adv = original(self, batch)
+        return adv * float("nan") if calls["n"] >= 3 else adv
+
+    monkeypatch.setattr(PPO, "policy_advantage", poisoned)
+    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1}, "env": {"num_envs": 2},
+                       "rollout_steps": 16, "total_steps": 320, "checkpoint_every": 1})
+    with pytest.raises(TrainingDiverged, match="iteration 3: loss_pi is nan.*last good checkpoint"):
+        train(cfg, tmp_path, echo=lambda s: None)
+    state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo", policy="mlp")
+    assert state["iteration"] == 2 and state["step"] == 64
+    assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())
+    rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    assert [r["iteration"] for r in rows] == ["1", "2"]
+    assert not (tmp_path / "eval.json").exists()
+
+
+def test_checkpoint_errors(tmp_path):
+    with pytest.raises(CheckpointError, match="no file"):
+        load_checkpoint(tmp_path / "missing.pt")
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="corrupt"):
+        load_checkpoint(tmp_path / "bad.pt")
+    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1}, "env": {"num_envs": 2},
+                       "rollout_steps": 16, "total_steps": 32, "eval_episodes": 2})
+    train(cfg, tmp_path, echo=lambda s: None)
+    with pytest.raises(CheckpointError, match="algo='ppo'.*algo='ppo_lag'"):
+        load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo_lag")

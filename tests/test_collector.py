@@ -1,0 +1,56 @@
+"""The collector keeps reward and cost apart and gets episode ends right."""
+
+import torch
+from tensordict.nn import TensorDictModule
+
+from cmdp_rl import Collector, finished_episodes, keys
+from cmdp_rl.envs import GymVecEnv, Reach1D
+
+
+class ConstantPolicy(torch.nn.Module):
+    def __init__(self, value):
+        super().__init__()
+        self.value = value
+
+    def forward(self, obs):
+        return torch.full((obs.shape[0], 1), self.value)
+
+
+def policy(value):
+    return TensorDictModule(ConstantPolicy(value), [keys.OBS], [keys.ACTION])
+
+
+def test_batch_layout_costs_and_episode_ends():
+    # max_steps=7 with 20 steps per call: episodes end inside and across collect() calls
+    env = GymVecEnv(lambda: Reach1D(max_steps=7, obs_noise=0.0), 3)
+    col = Collector(env, policy(0.1), rollout_steps=20, seed=0)
+    b = col.collect()
+    assert b.batch_size == torch.Size([3, 20])
+    nxt = b[keys.NEXT]
+    # pushing at the bound: moves at steps 1-3, bumps the wall at steps 4..7 of each episode
+    per_episode_cost = torch.tensor([0, 0, 0, 1, 1, 1, 1], dtype=torch.float32)
+    expected_cost = per_episode_cost.repeat(3)[:20]
+    assert torch.equal(nxt[keys.COST][0, :, 0], expected_cost)
+    assert torch.equal(nxt[keys.REWARD][0, :, 0] != 0, expected_cost.eq(0) & torch.tensor([1, 1, 1, 0, 0, 0, 0]).repeat(3)[:20].bool())
+    done = nxt[keys.DONE][0, :, 0]
+    assert done.nonzero().view(-1).tolist() == [6, 13]
+    assert torch.equal(nxt[keys.TRUNCATED][0, :, 0], done) and not nxt[keys.TERMINATED].any()
+    # the done step keeps its final observation (x = 0.4); the next step starts from the reset one
+    assert abs(nxt[keys.OBS][0, 6, 0].item() - 0.4) < 1e-6 and abs(b[keys.OBS][0, 7, 0].item() - 0.1) < 1e-6
+    assert b[keys.IS_INIT][0, :, 0].nonzero().view(-1).tolist() == [0, 7, 14]
+    eps = finished_episodes(b)
+    assert eps["cost"].tolist() == [4.0] * 6 and eps["length"].tolist() == [7.0] * 6
+    assert torch.allclose(eps["return"], torch.full((6,), 0.3), atol=1e-6)
+    assert col.total_steps == 60
+    # the episode in progress continues into the next call
+    b2 = col.collect()
+    assert b2[keys.NEXT][keys.DONE][0, :, 0].nonzero().view(-1).tolist() == [0, 7, 14]
+    assert b2[keys.NEXT][keys.EPISODE_COST][0, 0, 0].item() == 4.0
+
+
+def test_cost_on_the_done_step_is_kept():
+    # wall=pass, start right below the wall, 1-step episodes: every step is a done step with cost 1
+    env = GymVecEnv(lambda: Reach1D(wall="pass", start=0.45, max_steps=1), 2)
+    b = Collector(env, policy(0.1), rollout_steps=4, seed=0).collect()
+    assert b[keys.NEXT][keys.COST].sum().item() == 8.0
+    assert finished_episodes(b)["cost"].tolist() == [1.0] * 8

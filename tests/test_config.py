@@ -1,0 +1,74 @@
+"""Every range-checked field rejects a bad value with a message naming it, before training."""
+
+import pytest
+import torch
+
+from cmdp_rl import ConfigError, load_config
+from cmdp_rl.envs import GymVecEnv, Reach1D
+
+BAD = [
+    ({"algo": {"name": "sac"}}, "algo.name"),
+    ({"env": {"name": "cartpole"}}, "env.name"),
+    ({"env": {"backend": "jax"}}, "env.backend"),
+    ({"env": {"num_envs": 0}}, "env.num_envs"),
+    ({"env": {"obs_noise": -0.1}}, "env.obs_noise"),
+    ({"env": {"wall_x": 1.5}}, "env.wall_x"),
+    ({"env": {"goal": 2.0}}, "env.goal"),
+    ({"env": {"max_steps": 0}}, "env.max_steps"),
+    ({"env": {"wall": "soft"}}, "env.wall"),
+    ({"env": {"start": [0.6, 0.2]}}, "env.start"),
+    ({"env": {"start": 1.2}}, "env.start"),
+    ({"env": {"probe": "yes"}}, "env.probe"),
+    ({"policy": {"name": "cnn"}}, "policy.name"),
+    ({"policy": {"hidden_sizes": [64, 0]}}, "policy.hidden_sizes"),
+    ({"policy": {"activation": "gelu2"}}, "policy.activation"),
+    ({"algo": {"name": "ppo_lag", "cost_limit": -1.0}}, "algo.cost_limit"),
+    ({"algo": {"name": "ppo", "gamma": 1.0}}, "algo.gamma"),
+    ({"algo": {"name": "ppo", "gamma": -0.1}}, "algo.gamma"),
+    ({"algo": {"name": "ppo", "cost_gamma": 1.5}}, "algo.cost_gamma"),
+    ({"algo": {"name": "ppo", "lr": 0.0}}, "algo.lr"),
+    ({"algo": {"name": "ppo", "critic_lr": -1e-3}}, "algo.critic_lr"),
+    ({"algo": {"name": "ppo", "gae_lambda": 1.1}}, "algo.gae_lambda"),
+    ({"algo": {"name": "ppo", "clip_epsilon": 0.0}}, "algo.clip_epsilon"),
+    ({"algo": {"name": "ppo", "update_epochs": 0}}, "algo.update_epochs"),
+    ({"algo": {"name": "ppo", "num_minibatches": 0}}, "algo.num_minibatches"),
+    ({"algo": {"name": "ppo", "num_minibatches": 10**9}}, "algo.num_minibatches"),
+    ({"algo": {"name": "ppo", "entropy_coef": -1.0}}, "algo.entropy_coef"),
+    ({"algo": {"name": "ppo", "max_grad_norm": 0.0}}, "algo.max_grad_norm"),
+    ({"algo": {"name": "penalty", "penalty": -2.0}}, "algo.penalty"),
+    ({"algo": {"name": "ppo_lag", "lambda_init": -1.0}}, "algo.lambda_init"),
+    ({"algo": {"name": "ppo_lag", "lambda_lr": 0.0}}, "algo.lambda_lr"),
+    ({"algo": {"name": "ppo", "penalty": 1.0}}, "algo"),  # option of another algorithm
+    ({"algo": {"name": "ppo", "lr": "fast"}}, "algo.lr"),
+    ({"total_steps": 0}, "total_steps"),
+    ({"total_steps": -5}, "total_steps"),
+    ({"rollout_steps": 0}, "rollout_steps"),
+    ({"device": "tpu"}, "device"),
+    ({"threads": 0}, "threads"),
+    ({"eval_episodes": 0}, "eval_episodes"),
+    ({"checkpoint_every": 0}, "checkpoint_every"),
+    ({"log_interval": 0}, "log_interval"),
+    ({"bogus": 1}, "config"),
+]
+
+
+@pytest.mark.parametrize("override,field", BAD, ids=[f for _, f in BAD])
+def test_bad_value_names_the_field(override, field):
+    with pytest.raises(ConfigError) as err:
+        load_config(override)
+    assert str(err.value).startswith(field), str(err.value)
+
+
+def test_defaults_and_coercion():
+    cfg = load_config({"algo": {"name": "penalty", "penalty": 3}, "total_steps": 1000.0})
+    assert cfg.algo.penalty == 3.0 and isinstance(cfg.algo.penalty, float) and cfg.total_steps == 1000
+    assert load_config({}).algo.name == "ppo_lag"
+
+
+def test_wrong_shaped_action_is_rejected():
+    env = GymVecEnv(lambda: Reach1D(), 2)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action: expected shape \(2, 1\)"):
+        env.step(torch.zeros(2, 2))
+    with pytest.raises(ValueError, match="action"):
+        env.step(torch.zeros(1))

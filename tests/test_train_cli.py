@@ -1,0 +1,50 @@
+"""train.py as a user runs it, in a subprocess."""
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = ["total_steps=512", "rollout_steps=64", "env.num_envs=4", "eval_episodes=4",
+         "algo.update_epochs=2", "algo.num_minibatches=2"]
+
+
+def run(*args, cwd=ROOT):
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_each_algorithm_trains_and_writes_its_outputs(tmp_path):
+    proc = run("-m", "algo=ppo,penalty,ppo_lag", "env=reach1d", *SHORT,
+               f"hydra.sweep.dir={tmp_path}", "hydra.sweep.subdir=${algo.name}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    for name, lam in (("ppo", 0.0), ("penalty", 1.0), ("ppo_lag", None)):
+        out = tmp_path / name
+        rows = list(csv.DictReader(open(out / "metrics.csv")))
+        assert len(rows) == 2 and rows[-1]["step"] == "512"
+        assert {"step", "episode_return", "episode_cost", "lagrange_multiplier", "sps"} <= rows[0].keys()
+        if lam is not None:
+            assert all(float(r["lagrange_multiplier"]) == lam for r in rows)
+        ev = json.loads((out / "eval.json").read_text())
+        assert ev["episodes"] == 4 and {"episode_return", "episode_cost", "episode_return_std"} <= ev.keys()
+        assert (out / "checkpoint.pt").is_file() and (out / ".hydra" / "config.yaml").is_file()
+        assert (out / "config.yaml").is_file()
+    assert "done: ppo_lag 512 steps" in proc.stdout
+
+
+@pytest.mark.parametrize("args,message", [
+    (["algo=sac"], "algo"),
+    (["algo.cost_limit=-1"], "algo.cost_limit must be a number >= 0"),
+    (["algo.gamma=1.0"], "algo.gamma must be in [0, 1)"),
+    (["total_steps=0"], "total_steps must be a positive integer"),
+    (["env.wall=soft"], "env.wall must be one of"),
+])
+def test_bad_input_fails_before_training_with_the_field_named(tmp_path, args, message):
+    proc = run(*args, f"hydra.run.dir={tmp_path}")
+    assert proc.returncode != 0
+    assert message in proc.stderr + proc.stdout
+    assert not (tmp_path / "metrics.csv").exists()
