@@ -18,7 +18,7 @@ class ConfigError(ValueError):
 
 
 ENV_NAMES = ("reach1d",)
-ENV_BACKENDS = ("gym",)
+ENV_BACKENDS = ("gym", "torch")  # gymnasium vector env | tensor-native batched env (envs/reach1d_torch.py)
 WALL_MODES = ("block", "pass")
 POLICY_NAMES = ("mlp",)
 ACTIVATIONS = ("tanh", "relu", "elu")
@@ -230,6 +230,10 @@ def validate(cfg: RunConfig) -> None:
         f"at most rollout_steps * env.num_envs = {batch}", a.num_minibatches,
     )
     _require(cfg.device in DEVICES, "device", f"one of {DEVICES}", cfg.device)
+    if cfg.device == "cuda":
+        import torch
+
+        _require(torch.cuda.is_available(), "device", "cpu on this machine (torch sees no CUDA device)", cfg.device)
     _require(cfg.threads >= 1, "threads", "a positive integer", cfg.threads)
     _require(cfg.eval_episodes >= 1, "eval_episodes", "a positive integer", cfg.eval_episodes)
     _require(cfg.checkpoint_every >= 1, "checkpoint_every", "a positive integer", cfg.checkpoint_every)

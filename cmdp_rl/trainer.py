@@ -49,7 +49,7 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
     torch.set_num_threads(cfg.threads)
     seed_everything(cfg.seed)
 
-    env = make_env(cfg.env)
+    env = make_env(cfg.env, device=cfg.device)
     ac = make_actor_critic(cfg.policy, env)
     algo = make_algo(cfg.algo, ac)
     collector = Collector(env, ac.actor, cfg.rollout_steps, seed=cfg.seed)
@@ -92,7 +92,7 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
         env.close()
     train_time = time.perf_counter() - start
 
-    eval_env = make_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs))
+    eval_env = make_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})
