@@ -37,6 +37,9 @@ class EnvConfig:
     wall: str = "block"
     start: Union[float, list] = 0.1
     probe: bool = False
+    # torch backend only: the first episode of each env starts at a random step count, so that
+    # episodes end at different iterations (the envs would otherwise all time out together).
+    stagger: bool = False
 
 
 @dataclass
@@ -194,6 +197,7 @@ def validate(cfg: RunConfig) -> None:
         _require(ok, "env.start", "a number in [0, 1] or a pair [low, high] with 0 <= low <= high <= 1", e.start)
     else:
         _require(0.0 <= e.start <= 1.0, "env.start", "in [0, 1]", e.start)
+    _require(not e.stagger or e.backend == "torch", "env.stagger", "false unless env.backend=torch", e.stagger)
 
     _require(p.name in POLICY_NAMES, "policy.name", f"one of {POLICY_NAMES}", p.name)
     _require(

@@ -92,7 +92,9 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
         env.close()
     train_time = time.perf_counter() - start
 
-    eval_env = make_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
+    # Whole episodes only: no staggered (shortened) first episodes in evaluation.
+    eval_cfg = dataclasses.replace(cfg.env, stagger=False)
+    eval_env = make_env(eval_cfg, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})

@@ -16,8 +16,9 @@ For each setting (the gymnasium Reach1D alone and in gymnasium's SyncVectorEnv o
 - peak memory of each measurement (resident set; CUDA max allocated on cuda), torch's threads.
 
 Gym settings train with the default config; batched settings with the ``env=reach1d_torch``
-preset (rollout 32 steps, 4 epochs of 4 minibatches; ``configs/env/reach1d_torch.yaml``), plus one
-row with the plain defaults at N = 1024 for comparison. The LSTM and transformer heads are measured
+preset (``configs/env/reach1d_torch.yaml``: rollouts of 32 steps, one pass in 64 minibatches; at
+N = 64, rollouts of 256 steps so that minibatches are not tiny), plus one row with the plain
+reach1d defaults at N = 1024 (the target command without the preset) for comparison. The LSTM and transformer heads are measured
 at N = 1024 once ``policy=lstm`` / ``policy=transformer`` exist; until then their rows say skipped.
 
 One table is printed and the same figures are written as JSON. Figures taken while other
@@ -82,16 +83,20 @@ def _sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
+CPU_SHARE: list[float] = []  # this process's CPU time / wall time of each measurement
+
+
 def _rate(run: Callable[[], int], seconds: float, device: str) -> float:
     """Steps per second of ``run`` (which returns the steps it made), after one warm-up call."""
     run()
     _sync(device)
-    steps, start = 0, time.perf_counter()
+    steps, start, cpu = 0, time.perf_counter(), time.process_time()
     while True:
         steps += run()
         _sync(device)
         elapsed = time.perf_counter() - start
         if elapsed >= seconds:
+            CPU_SHARE.append((time.process_time() - cpu) / elapsed)
             return steps / elapsed
 
 
@@ -100,6 +105,7 @@ def _rate(run: Callable[[], int], seconds: float, device: str) -> float:
 class Setting:
     backend: str
     num_envs: int
+    rollout_steps: int  # as in training: the collector's steps per env per call
     train_overrides: list[str] = field(default_factory=list)
     label: str = ""
 
@@ -190,20 +196,28 @@ def plain_loop_rate(num_envs: int, rollout_steps: int, seconds: float) -> float:
         env.close()
 
 
-def train_rate(overrides: list[str], iterations: int, device: str, threads: int) -> dict[str, Any]:
-    """Train ``ppo_lag`` for ``iterations`` on the config ``train.py`` composes for ``overrides``."""
-    from hydra import compose, initialize_config_dir
+def compose(overrides: list[str]) -> cmdp_rl.RunConfig:
+    """The config ``python train.py <overrides>`` runs (Hydra's compose over ``configs/``)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
     from omegaconf import OmegaConf
 
     with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base="1.3"):
-        raw = compose("config", overrides=["algo=ppo_lag", *overrides, f"device={device}", f"threads={threads}"])
-    cfg = load_config(OmegaConf.to_container(raw, resolve=True))
+        raw = hydra_compose("config", overrides=overrides)
+    return load_config(OmegaConf.to_container(raw, resolve=True))
+
+
+def train_rate(overrides: list[str], iterations: int, device: str, threads: int) -> dict[str, Any]:
+    """Train ``ppo_lag`` for ``iterations`` on the config ``train.py`` composes for ``overrides``."""
+    cfg = compose(["algo=ppo_lag", *overrides, f"device={device}", f"threads={threads}"])
     per_iter = cfg.rollout_steps * cfg.env.num_envs
     cfg.total_steps = per_iter * iterations
     cfg.eval_episodes = 1
     cfg.checkpoint_every = 10**9  # one checkpoint, at the end
     with tempfile.TemporaryDirectory() as out:
+        start, cpu = time.perf_counter(), time.process_time()
         cmdp_rl.train(cfg, out, echo=lambda line: None)
+        CPU_SHARE.append((time.process_time() - cpu) / (time.perf_counter() - start))
         import csv
 
         rows = list(csv.DictReader(open(Path(out) / "metrics.csv")))
@@ -217,9 +231,10 @@ def train_rate(overrides: list[str], iterations: int, device: str, threads: int)
 
 
 def measure(name: str, fn: Callable[[], Any], device: str) -> tuple[Any, dict[str, float]]:
+    """``fn()`` and the peak memory and CPU share (CPU time / wall time) it ran with."""
     _reset_peak(device)
     value = fn()
-    return value, _peak(device)
+    return value, {**_peak(device), "cpu_share": CPU_SHARE[-1]}
 
 
 # --- the run -------------------------------------------------------------------------------------
@@ -238,23 +253,22 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     preset = ["env=reach1d_torch"]
     settings = [
-        Setting("gym", 1, ["env=reach1d", "env.num_envs=1"]),
-        Setting("gym", 8, ["env=reach1d"]),
-        Setting("torch", 64, [*preset, "env.num_envs=64"]),
-        Setting("torch", 1024, preset),
-        Setting("torch", 16384, [*preset, "env.num_envs=16384"]),
+        Setting("gym", 1, 256, ["env=reach1d", "env.num_envs=1"]),
+        Setting("gym", 8, 256, ["env=reach1d"]),
+        Setting("torch", 64, 256, [*preset, "env.num_envs=64", "rollout_steps=256"]),
+        Setting("torch", 1024, 32, preset),
+        Setting("torch", 16384, 32, [*preset, "env.num_envs=16384"]),
     ]
     # iterations of training per setting (the first is warm-up, not counted)
-    train_iters = {1: 5, 8: 5, 64: 8, 1024: 8, 16384: 3}
+    train_iters = {1: 5, 8: 5, 64: 6, 1024: 10, 16384: 3}
     quick_train = ["rollout_steps=4", "algo.update_epochs=1", "algo.num_minibatches=1"]
 
     rows: list[dict[str, Any]] = []
     for s in settings:
         row: dict[str, Any] = {"setting": s.label, "backend": s.backend, "num_envs": s.num_envs}
         row["env_sps"], row["env_mem"] = measure("env", lambda: env_rate(s, seconds, args.device), args.device)
-        rollout_steps = 256 if s.backend == "gym" else 32
         row["rollout_sps"], row["rollout_mem"] = measure(
-            "rollout", lambda: rollout_rate(s, rollout_steps, seconds, args.device), args.device)
+            "rollout", lambda: rollout_rate(s, s.rollout_steps, seconds, args.device), args.device)
         overrides = s.train_overrides + (quick_train if args.quick else [])
         iters = 2 if args.quick else train_iters[s.num_envs]
         train, row["train_mem"] = measure("train", lambda: train_rate(overrides, iters, args.device, args.threads), args.device)
@@ -286,6 +300,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "device": args.device, "torch_threads": torch.get_num_threads(), "quick": args.quick,
             "seconds_per_measurement": seconds, "torch": torch.__version__, "python": platform.python_version(),
             "cpu_count": os.cpu_count(), "loadavg_before": load_before, "loadavg_after": os.getloadavg(),
+            # Below about 0.9 (one thread), other processes took CPU time from the measurement:
+            # its steps/s are then lower than on a quiet machine by about this factor.
+            "cpu_share_min": min(CPU_SHARE), "cpu_share_median": statistics.median(CPU_SHARE),
+            "cpu_share_max": max(CPU_SHARE),
             "wall_s": time.perf_counter() - started, "date": time.strftime("%Y-%m-%d %H:%M:%S"),
         },
         "rows": rows,
@@ -312,10 +330,12 @@ def print_table(r: dict[str, Any]) -> None:
     m = r["meta"]
     mem_key = "cuda_max_allocated_mb" if m["device"] == "cuda" else "peak_rss_mb"
     print(f"\nthroughput on {m['device']}, torch {m['torch']}, {m['torch_threads']} thread(s), "
-          f"load average {m['loadavg_before'][0]:.1f} -> {m['loadavg_after'][0]:.1f}"
+          f"load average {m['loadavg_before'][0]:.1f} -> {m['loadavg_after'][0]:.1f}, "
+          f"CPU share of the measurements {m['cpu_share_min']:.2f}..{m['cpu_share_max']:.2f}"
+          f"{' (machine busy: figures noisy and low)' if m['cpu_share_median'] < 0.9 * m['torch_threads'] else ''}"
           f"{' (QUICK smoke run: not meaningful)' if m['quick'] else ''}")
     head = (f"{'setting':34s} {'env steps/s':>12s} {'rollout st/s':>12s} {'train st/s':>11s} {'train/roll':>10s}"
-            f"  {'batch':>7s} {'ep x mb':>7s}  peak MB env/rollout/train")
+            f"  {'batch':>7s} {'ep x mb':>7s}  peak MB env/roll/train  CPU share env/roll/train")
     print(head)
     print("-" * len(head))
 
@@ -325,15 +345,18 @@ def print_table(r: dict[str, Any]) -> None:
     for row in r["rows"]:
         print(f"{row['setting']:34s} {row['env_sps']:12,.0f} {row['rollout_sps']:12,.0f} {row['train_sps']:11,.0f}"
               f" {row['train_over_rollout']:10.2f}  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}"
-              f"  {mb(row, 'env_mem')}/{mb(row, 'rollout_mem')}/{mb(row, 'train_mem')}")
+              f"  {mb(row, 'env_mem')}/{mb(row, 'rollout_mem')}/{mb(row, 'train_mem')}"
+              f"  {row['env_mem']['cpu_share']:.2f}/{row['rollout_mem']['cpu_share']:.2f}/{row['train_mem']['cpu_share']:.2f}")
     for row in r["extra"]:
         if "skipped" in row:
             print(f"{row['setting']:34s} {'skipped: ' + row['skipped']}")
         else:
             print(f"{row['setting']:34s} {'':>12s} {'':>12s} {row['train_sps']:11,.0f} {'':>10s}"
-                  f"  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}  -/-/{mb(row, 'train_mem')}")
+                  f"  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}  -/-/{mb(row, 'train_mem')}"
+                  f"  {row['train_mem']['cpu_share']:.2f}")
     pl = r["plain_loop_sync8"]
-    print(f"{'plain loop, gym N=8 (yardstick)':34s} {'':>12s} {pl['rollout_sps']:12,.0f}")
+    print(f"{'plain loop, gym N=8 (yardstick)':34s} {'':>12s} {pl['rollout_sps']:12,.0f}"
+          f"{'':>40s}{pl['mem']['peak_rss_mb']:.0f}  {pl['mem']['cpu_share']:.2f}")
     t = r["targets"]
     print(f"\ntargets: train sps torch N=1024 {t['train_sps_torch_1024']:,.0f} (>= 100,000: {t['train_sps_torch_1024_ge_100k']}); "
           f"train/rollout {t['train_over_rollout_torch_1024']:.2f} (>= 0.3: {t['train_over_rollout_ge_0.3']}); "

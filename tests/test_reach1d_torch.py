@@ -10,7 +10,7 @@ import pytest
 import torch
 from gymnasium.utils import seeding
 
-from cmdp_rl import Collector, keys, load_config, make_env, train
+from cmdp_rl import Collector, ConfigError, keys, load_config, make_env, train
 from cmdp_rl.envs import GymVecEnv, Reach1D, TorchReach1D
 
 
@@ -175,3 +175,20 @@ def test_cuda_requested_without_cuda_is_a_config_error():
 
     with pytest.raises(ConfigError, match="device must be cpu on this machine"):
         load_config({"device": "cuda", "env": {"backend": "torch"}})
+
+
+def test_stagger_spreads_the_first_episode_ends():
+    env = TorchReach1D(4096, max_steps=10, obs_noise=0.0, stagger=True)
+    env.reset(seed=0)
+    first_end = torch.full((4096,), -1)
+    for t in range(10):
+        s = env.step(torch.zeros(4096, 1))
+        first_end[(first_end < 0) & s.truncated.view(-1)] = t
+    counts = torch.bincount(first_end, minlength=10)
+    assert (first_end >= 0).all() and (counts - 409.6).abs().max() < 80  # uniform over the 10 steps
+    # later episodes are whole: the next time limit comes exactly max_steps after the first
+    for t in range(10):
+        s = env.step(torch.zeros(4096, 1))
+        assert torch.equal(s.truncated.view(-1), first_end == t)
+    with pytest.raises(ConfigError, match="env.stagger must be false unless env.backend=torch"):
+        load_config({"env": {"stagger": True}})

@@ -30,7 +30,7 @@ def make_env(cfg: EnvConfig, num_envs: int | None = None, device: str = "cpu") -
     if cfg.name == "reach1d" and cfg.backend == "gym":
         return GymVecEnv(partial(Reach1D, **reach1d_kwargs(cfg)), n, device=device)
     if cfg.name == "reach1d" and cfg.backend == "torch":
-        return TorchReach1D(n, **reach1d_kwargs(cfg), device=device)
+        return TorchReach1D(n, **reach1d_kwargs(cfg), stagger=cfg.stagger, device=device)
     raise ValueError(f"env: no implementation for name={cfg.name!r} backend={cfg.backend!r}")
 
 

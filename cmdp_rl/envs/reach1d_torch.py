@@ -62,6 +62,15 @@ class TorchNoise:
 class TorchReach1D(VecEnv):
     """N Reach1D envs in tensors; the options and their meaning are :class:`~cmdp_rl.envs.Reach1D`'s.
 
+    ``stagger``: at ``reset``, each env's step counter starts at a random value in
+    ``[0, max_steps)``, so its first episode is cut short by a random amount and the envs' episodes
+    end at different steps from then on, as in massively parallel PPO (Rudin et al., 2022,
+    "Learning to Walk in Minutes Using Massively Parallel Deep RL"). Without it, N envs started
+    together from a fixed start all time out at the same step: with rollouts shorter than an
+    episode, most batches then hold no finished episode (no new cost estimate for the Lagrange
+    multiplier) and each batch covers one phase of the episode only. Off by default (the
+    gymnasium env's behaviour); evaluation always runs without it.
+
     After each step, ``final_x`` holds every env's true position after the move (before any reset,
     gymnasium's ``info["true_x"]``) and ``x`` the position the next step starts from.
     """
@@ -76,6 +85,7 @@ class TorchReach1D(VecEnv):
         wall: str = "block",
         start: float | tuple[float, float] | list[float] = 0.1,
         probe: bool = False,
+        stagger: bool = False,
         device: str | torch.device = "cpu",
         noise: NoiseSource | None = None,
     ) -> None:
@@ -90,6 +100,7 @@ class TorchReach1D(VecEnv):
         self.block = wall == "block"
         self.start = tuple(float(s) for s in start) if isinstance(start, (tuple, list)) else float(start)
         self.probe = probe
+        self.stagger = stagger
         self.noise = noise if noise is not None else TorchNoise(num_envs, self.device)
         self.action_dim = 2 if probe else 1
         self.obs_dim = 3 if probe else 2
@@ -127,9 +138,13 @@ class TorchReach1D(VecEnv):
             self.noise.seed(seed)
         self.x = self._start_x(None)
         self.final_x = self.x.clone()
-        self.steps.zero_()
         self.last_probe.fill_(-1.0)
-        return self._obs(self._reading(self.x, self.obs_noise, None), self.last_probe)
+        obs = self._obs(self._reading(self.x, self.obs_noise, None), self.last_probe)
+        if self.stagger:  # drawn after the gymnasium env's draws, which stay in their order
+            self.steps = (self.noise.uniform(None) * self.max_steps).long().clamp_(max=self.max_steps - 1)
+        else:
+            self.steps.zero_()
+        return obs
 
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
