@@ -24,6 +24,7 @@ from cmdp_rl.config import RunConfig, validate
 from cmdp_rl.envs import make_env
 from cmdp_rl.evaluation import evaluate
 from cmdp_rl.metrics import MetricsLogger
+from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_actor_critic
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation episodes never replay training seeds
@@ -50,7 +51,7 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
     seed_everything(cfg.seed)
 
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env)
+    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, ac)
     collector = Collector(env, ac.actor, cfg.rollout_steps, seed=cfg.seed)
     logger = MetricsLogger(out / "metrics.csv", cfg.log_interval, echo)
@@ -71,11 +72,13 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
         for it in range(1, iterations + 1):
             t0 = time.perf_counter()
             batch = collector.collect()
+            ac.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
             try:
                 stats = algo.update(batch)
             except TrainingDiverged as exc:
                 last = f"the last good checkpoint is {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written yet"
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
+            ac.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
             eps = finished_episodes(batch)
             row = {
                 "iteration": it, "step": collector.total_steps,
