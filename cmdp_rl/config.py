@@ -331,6 +331,10 @@ def _validate_normalize_and_reference(cfg: RunConfig) -> None:
                  "either reference.run or the reference numbers, not both", {"run": r.run, **numbers})
         _require((Path(r.run) / "eval.json").is_file() and (Path(r.run) / "config.yaml").is_file(),
                  "reference.run", "a finished run's directory (holding eval.json and config.yaml)", r.run)
+        from cmdp_rl.safety_metrics import reference_run_problem  # reads the run's files
+
+        problem = reference_run_problem(r.run, cfg)
+        _require(problem is None, "reference.run", f"a usable reference run, but {problem}", r.run)
     for name, v in numbers.items():
         _require(v is None or _finite(v), f"reference.{name}", "null or a finite number", v)
     _require(r.episode_return is None or r.episode_return != 0, "reference.episode_return",

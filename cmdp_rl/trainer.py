@@ -26,6 +26,7 @@ from cmdp_rl.evaluation import evaluate
 from cmdp_rl.metrics import MetricsLogger
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_actor_critic
+from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation episodes never replay training seeds
 
@@ -58,6 +59,9 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
     per_iter = cfg.rollout_steps * env.num_envs
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / "checkpoint.pt"
+    reference, warnings = load_reference(cfg)
+    for warning in warnings:
+        echo(f"warning: {warning}")
 
     def checkpoint(iteration: int) -> None:
         save_checkpoint(ckpt_path, {
@@ -86,7 +90,10 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
                 "episode_length": _mean(eps["length"]), "episodes": int(eps["cost"].numel()),
                 "cost_limit": cfg.algo.cost_limit, "sps": per_iter / (time.perf_counter() - t0),
                 "time_s": time.perf_counter() - start, **stats,
+                "cost_rate": cost_rate(collector.total_cost, collector.total_steps),
             }
+            row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
+                                         cfg.algo.cost_limit, reference))
             logger.log(row, force_echo=it == iterations)
             if it % cfg.checkpoint_every == 0 or it == iterations:
                 checkpoint(it)
@@ -99,6 +106,10 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})
+    result["cost_rate"] = cost_rate(collector.total_cost, collector.total_steps)
+    result.update(normalized_scores(result["episode_return"], result["episode_cost"], result["cost_rate"],
+                                    cfg.algo.cost_limit, reference))
+    result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / "eval.json").write_text(json.dumps(result, indent=2))
     echo(
         f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "
