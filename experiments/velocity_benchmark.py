@@ -132,7 +132,7 @@ def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
             # iterations): plot only the iterations where every seed finished episodes.
             ok = np.isfinite(ys).all(axis=0)
             x, ys = steps[ok], ys[:, ok]
-            (line,) = ax.plot(x, ys.mean(axis=0), label=f"{algo} ({len(group)} seeds)")
+            (line,) = ax.plot(x, ys.mean(axis=0), label=f"{algo} ({len(group)} seed{'s' if len(group) > 1 else ''})")
             ax.fill_between(x, ys.min(axis=0), ys.max(axis=0), color=line.get_color(), alpha=0.2)
     limit = runs[0]["eval"]["cost_limit"]
     axes[1].axhline(limit, color="k", linestyle="--", linewidth=1, label=f"budget d = {limit:g}")
