@@ -72,6 +72,7 @@ class Collector:
         self._ep_cost = torch.zeros(n, 1, device=dev)
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
         self.total_steps = 0
+        self.total_cost = 0.0  # every cost collected so far: the numerator of the cost rate
 
     @torch.no_grad()
     def collect(self) -> TensorDictBase:
@@ -111,6 +112,7 @@ class Collector:
             {k: torch.stack([s[k] for s in steps], dim=1) for k in steps[0]},
             batch_size=[n, self.rollout_steps], device=self.env.device,
         )
+        self.total_cost += batch.get((keys.NEXT, keys.COST)).sum().item()
         return batch
 
 
