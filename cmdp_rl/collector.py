@@ -13,6 +13,13 @@ Per step it handles plain tensors: each step's entries are kept in a dict and st
 batch once at the end. A stateless probabilistic actor (the MLP policy) runs on tensors too
 (:class:`~cmdp_rl.policies.tensor_path.TensorActor`, same numbers); any other policy (a recurrent
 one, which writes its state under ``"next"``) is called on a TensorDict.
+
+History-dependent policies (policies/recurrent.py, transformer.py) get, as torchrl's env transforms
+would give them: their initial state at the root (from torchrl's ``make_tensordict_primer``, via
+``get_primers_from_module``: zeros), the state they write under ``"next"`` carried to the next
+step and reset to the initial state where an episode ended (as ``TensorDictPrimer`` does on
+reset), and, if their ``in_keys`` ask, the previous step's action and cost (``keys.PREV_ACTION``,
+``keys.PREV_COST``; zero at an episode's first step; under ``"next"``, this step's).
 """
 
 from __future__ import annotations
@@ -22,13 +29,34 @@ from typing import Callable
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.transforms import Compose
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules.utils import get_primers_from_module
 
 from cmdp_rl import keys
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.tensor_path import TensorActor
 
 Entries = dict  # key (a string, or a tuple for a nested key) -> tensor of one step, batch [N]
+
+
+def initial_state(policy: TensorDictModuleBase, num_envs: int, device: torch.device) -> Entries:
+    """The recurrent state ``policy`` starts every episode from, ``[num_envs, ...]`` per key: the
+    default values of the primers torchrl's ``make_tensordict_primer`` gives for its submodules
+    (none for a stateless policy)."""
+    primer = get_primers_from_module(policy, warn=False)
+    if primer is None:
+        return {}
+    primers = list(primer.transforms) if isinstance(primer, Compose) else [primer]
+    state: Entries = {}
+    for p in primers:
+        zeros = p.primers.expand(num_envs).zero().to(device)
+        for key, value in zeros.items(include_nested=True, leaves_only=True):
+            default = p.default_value.get(key, 0.0) if isinstance(p.default_value, dict) else p.default_value
+            if callable(default) or default != 0:
+                raise ValueError(f"policy: primer {key!r} has a non-zero default {default!r}; only zero initial states are supported")
+            state[key] = value
+    return state
 
 
 def _td_policy(policy: TensorDictModuleBase, batch_size: int, device: torch.device) -> Callable[[Entries], Entries]:
@@ -67,7 +95,16 @@ class Collector:
         n, dev = env.num_envs, env.device
         fast = TensorActor.wrap(policy) if tensor_path else None
         self._act = fast if fast is not None else _td_policy(policy, n, dev)
-        self._root: Entries = {keys.OBS: env.reset(seed=seed), keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev)}
+        self._state0 = initial_state(policy, n, dev)
+        self._prev_action = keys.PREV_ACTION in policy.in_keys
+        self._prev_cost = keys.PREV_COST in policy.in_keys
+        self._root: Entries = {
+            **self._state0, keys.OBS: env.reset(seed=seed), keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev),
+        }
+        if self._prev_action:
+            self._root[keys.PREV_ACTION] = torch.zeros(n, env.action_dim, device=dev)
+        if self._prev_cost:
+            self._root[keys.PREV_COST] = torch.zeros(n, 1, device=dev)
         self._ep_return = torch.zeros(n, 1, device=dev)
         self._ep_cost = torch.zeros(n, 1, device=dev)
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
@@ -87,9 +124,15 @@ class Collector:
                 ep_return = ep_return + step.reward
                 ep_cost = ep_cost + step.cost
                 ep_length = ep_length + 1
+                action = out[keys.ACTION]
                 carried = {k[1]: v for k, v in out.items() if isinstance(k, tuple) and k[0] == keys.NEXT}
+                history = {}
+                if self._prev_action:
+                    history[keys.PREV_ACTION] = action
+                if self._prev_cost:
+                    history[keys.PREV_COST] = step.cost
                 steps.append({
-                    **root, **out,
+                    **root, **out, **{(keys.NEXT, k): v for k, v in history.items()},
                     (keys.NEXT, keys.OBS): step.next_obs,
                     (keys.NEXT, keys.REWARD): step.reward,
                     (keys.NEXT, keys.COST): step.cost,
@@ -103,6 +146,9 @@ class Collector:
                 ep_return = ep_return.masked_fill(done, 0.0)
                 ep_cost = ep_cost.masked_fill(done, 0.0)
                 ep_length = ep_length.masked_fill(done, 0)
+                if carried or history:  # a new episode starts from the initial state, without history
+                    carried = {k: _reset_where(done, v, self._state0.get(k)) for k, v in carried.items()}
+                    carried.update({k: v.masked_fill(done, 0) for k, v in history.items()})
                 root = {**carried, keys.OBS: step.obs, keys.IS_INIT: done}
         self._root = root
         self._ep_return, self._ep_cost, self._ep_length = ep_return, ep_cost, ep_length
@@ -114,6 +160,12 @@ class Collector:
         )
         self.total_cost += batch.get((keys.NEXT, keys.COST)).sum().item()
         return batch
+
+
+def _reset_where(done: torch.Tensor, value: torch.Tensor, initial: torch.Tensor | None) -> torch.Tensor:
+    """``value`` with the rows of envs whose episode ended (``done``: ``[N, 1]``) set to ``initial``."""
+    where = done.view(done.shape[0], *([1] * (value.dim() - 1)))
+    return torch.where(where, torch.zeros_like(value) if initial is None else initial, value)
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:

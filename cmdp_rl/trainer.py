@@ -54,7 +54,7 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
     env = make_env(cfg.env, device=cfg.device)
     ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, ac)
-    collector = Collector(env, ac.actor, cfg.rollout_steps, seed=cfg.seed)
+    collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
     logger = MetricsLogger(out / "metrics.csv", cfg.log_interval, echo)
     per_iter = cfg.rollout_steps * env.num_envs
     iterations = math.ceil(cfg.total_steps / per_iter)
