@@ -11,8 +11,9 @@ losses and recurrent modules read its output unchanged.
 
 Per step it handles plain tensors: each step's entries are kept in a dict and stacked into the
 batch once at the end. A stateless probabilistic actor (the MLP policy) runs on tensors too
-(:class:`~cmdp_rl.policies.tensor_path.TensorActor`, same numbers); any other policy (a recurrent
-one, which writes its state under ``"next"``) is called on a TensorDict.
+(:class:`~cmdp_rl.policies.tensor_path.TensorActor`, same numbers), and so do the stateful ones
+built of torchrl's recurrent modules and plain modules (``StepProgram``); any other policy is
+called on a TensorDict.
 
 History-dependent policies (policies/recurrent.py, transformer.py) get, as torchrl's env transforms
 would give them: their initial state at the root (from torchrl's ``make_tensordict_primer``, via
@@ -35,7 +36,7 @@ from torchrl.modules.utils import get_primers_from_module
 
 from cmdp_rl import keys
 from cmdp_rl.envs import VecEnv
-from cmdp_rl.policies.tensor_path import TensorActor
+from cmdp_rl.policies.tensor_path import StepProgram, TensorActor
 
 Entries = dict  # key (a string, or a tuple for a nested key) -> tensor of one step, batch [N]
 
@@ -93,7 +94,7 @@ class Collector:
         self.policy = policy
         self.rollout_steps = rollout_steps
         n, dev = env.num_envs, env.device
-        fast = TensorActor.wrap(policy) if tensor_path else None
+        fast = (TensorActor.wrap(policy) or StepProgram.wrap(policy)) if tensor_path else None
         self._act = fast if fast is not None else _td_policy(policy, n, dev)
         self._state0 = initial_state(policy, n, dev)
         self._prev_action = keys.PREV_ACTION in policy.in_keys

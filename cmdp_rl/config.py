@@ -130,7 +130,7 @@ class RecurrentPolicyConfig:
     include_prev_action: bool = True
     include_prev_cost: bool = True
     # Training segments: steps per segment (a divisor of rollout_steps); 0: whole rollout rows.
-    segment_length: int = 0
+    segment_length: int = 32
 
 
 @dataclass
