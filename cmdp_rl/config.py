@@ -129,7 +129,8 @@ class RecurrentPolicyConfig:
     init_log_std: float = -0.5
     include_prev_action: bool = True
     include_prev_cost: bool = True
-    # Training segments: steps per segment (a divisor of rollout_steps); 0: whole rollout rows.
+    # Training segments: steps per segment, a divisor of rollout_steps; 0 or >= rollout_steps:
+    # whole rollout rows.
     segment_length: int = 32
 
 
@@ -391,9 +392,9 @@ def _validate_policy(cfg: RunConfig) -> None:
         _require(p.hidden_size >= 1, "policy.hidden_size", "a positive integer", p.hidden_size)
         _require(p.num_layers >= 1, "policy.num_layers", "a positive integer", p.num_layers)
         L, T = p.segment_length, cfg.rollout_steps
-        _require(L >= 0 and (L == 0 or T % L == 0), "policy.segment_length",
-                 f"0 (whole rollouts) or a divisor of rollout_steps={T}", L)
-        segments = cfg.env.num_envs * (T // L if L else 1)
+        _require(L >= 0 and (L == 0 or L >= T or T % L == 0), "policy.segment_length",
+                 f"0 or >= rollout_steps (whole rollouts), or a divisor of rollout_steps={T}", L)
+        segments = cfg.env.num_envs * (T // L if 0 < L < T else 1)
         _require(cfg.algo.num_minibatches <= segments, "algo.num_minibatches",
                  f"at most the number of training segments, env.num_envs * rollout_steps / "
                  f"policy.segment_length = {segments} (recurrent policies train on whole segments)",

@@ -48,3 +48,29 @@ def test_bad_input_fails_before_training_with_the_field_named(tmp_path, args, me
     assert proc.returncode != 0
     assert message in proc.stderr + proc.stdout
     assert not (tmp_path / "metrics.csv").exists()
+
+
+def test_each_memory_policy_trains_and_evaluates(tmp_path):
+    """One multirun: every history-dependent head with the PPO family (ppo_lag), on the probe env
+    (a 2-D action), from train.py to eval.json and a checkpoint that reloads."""
+    from cmdp_rl import evaluate, load_config, make_actor_critic, make_env
+    from cmdp_rl.checkpoint import load_checkpoint
+    from cmdp_rl.trainer import EVAL_SEED_OFFSET
+
+    proc = run("-m", "policy=lstm,gru,transformer", "algo=ppo_lag", "env.probe=true", *SHORT,
+               f"hydra.sweep.dir={tmp_path}", "hydra.sweep.subdir=${policy.name}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    for name in ("lstm", "gru", "transformer"):
+        out = tmp_path / name
+        rows = list(csv.DictReader(open(out / "metrics.csv")))
+        assert len(rows) == 2 and all(float(r["loss_v"]) > 0 for r in rows)
+        ev = json.loads((out / "eval.json").read_text())
+        assert ev["episodes"] == 4
+        state = load_checkpoint(out / "checkpoint.pt", algo="ppo_lag", policy=name)
+        cfg = load_config(state["config"])
+        ac = make_actor_critic(cfg.policy, make_env(cfg.env))
+        ac.modules().load_state_dict(state["algo_state"]["networks"])
+        # the reloaded memory policy replays the run's own evaluation exactly
+        again = evaluate(ac.actor, make_env(cfg.env, num_envs=4), 4, True, seed=cfg.seed + EVAL_SEED_OFFSET)
+        assert again["episode_return"] == pytest.approx(ev["episode_return"], abs=1e-6)
+        assert again["episode_cost"] == ev["episode_cost"]

@@ -32,8 +32,8 @@ class ActorCritic:
     normalization statistics they use (no parameters; saved with them, see normalization.py).
 
     ``recurrent``: the networks carry a recurrent state of their own (LSTM/GRU). Their training
-    units are then segments of ``segment_length`` consecutive steps of one env (0: the whole
-    rollout row), run in recurrent mode; otherwise single steps, which any minibatch may shuffle
+    units are then segments of ``segment_length`` consecutive steps of one env (0, or not shorter
+    than the rollout: the whole rollout row), run in recurrent mode; otherwise single steps, which any minibatch may shuffle
     (a transformer's window travels with its step).
     """
 
@@ -71,7 +71,7 @@ class ActorCritic:
         out = {}
         for k, v in data.items():
             T = v.shape[1]
-            L = self.segment_length or T
+            L = self.segment_length if 0 < self.segment_length < T else T
             out[k] = v.unflatten(1, (T // L, L)).flatten(0, 1)
         return out
 
