@@ -48,24 +48,31 @@ class PolicyConfig:
 
 
 @dataclass
-class PPOConfig:
-    """Clipped PPO (Schulman et al., 2017). Shared by every PPO-family algorithm."""
+class AlgoConfig:
+    """Options every algorithm shares: discounts, GAE, the critics, the budget."""
 
     name: str = "ppo"
-    lr: float = 3e-4
     critic_lr: float = 1e-3
     gamma: float = 0.99
     gae_lambda: float = 0.95
     cost_gamma: float = 0.99
-    clip_epsilon: float = 0.2
-    update_epochs: int = 10
-    num_minibatches: int = 8
-    entropy_coef: float = 0.0
     max_grad_norm: float = 0.5
     normalize_advantage: bool = True
     # The budget d on expected undiscounted episode cost. Only constrained algorithms act on it;
     # every run reports against it.
     cost_limit: float = 1.0
+
+
+@dataclass
+class PPOConfig(AlgoConfig):
+    """Clipped PPO (Schulman et al., 2017). Shared by every PPO-family algorithm."""
+
+    name: str = "ppo"
+    lr: float = 3e-4
+    clip_epsilon: float = 0.2
+    update_epochs: int = 10
+    num_minibatches: int = 8
+    entropy_coef: float = 0.0
 
 
 @dataclass
@@ -85,14 +92,31 @@ class PPOLagConfig(PPOConfig):
     lambda_lr: float = 0.05
 
 
-ALGO_CONFIGS: dict[str, type] = {"ppo": PPOConfig, "penalty": PenaltyConfig, "ppo_lag": PPOLagConfig}
+@dataclass
+class PIDLagConfig(PPOConfig):
+    """PPO with lambda set by a PID controller (Stooke, Achiam, Abbeel 2020)."""
+
+    name: str = "pid_lag"
+    lambda_init: float = 0.0
+    kp: float = 0.0
+    ki: float = 0.05
+    kd: float = 0.0
+    p_ema_alpha: float = 0.0
+    d_ema_alpha: float = 0.0
+    d_delay: int = 1
+    lambda_max: float = math.inf
+
+
+ALGO_CONFIGS: dict[str, type] = {
+    "ppo": PPOConfig, "penalty": PenaltyConfig, "ppo_lag": PPOLagConfig, "pid_lag": PIDLagConfig,
+}
 
 
 @dataclass
 class RunConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
-    algo: PPOConfig = field(default_factory=PPOLagConfig)
+    algo: AlgoConfig = field(default_factory=PPOLagConfig)
     seed: int = 0
     total_steps: int = 400_000
     rollout_steps: int = 256
@@ -203,32 +227,45 @@ def validate(cfg: RunConfig) -> None:
     _require(p.activation in ACTIVATIONS, "policy.activation", f"one of {ACTIVATIONS}", p.activation)
     _require(_finite(p.init_log_std), "policy.init_log_std", "a finite number", p.init_log_std)
 
-    for lr_name in ("lr", "critic_lr"):
-        v = getattr(a, lr_name)
-        _require(_finite(v) and v > 0, f"algo.{lr_name}", "a positive number", v)
+    _require(_finite(a.critic_lr) and a.critic_lr > 0, "algo.critic_lr", "a positive number", a.critic_lr)
     for g in ("gamma", "cost_gamma"):
         v = getattr(a, g)
         _require(0.0 <= v < 1.0, f"algo.{g}", "in [0, 1)", v)
     _require(0.0 <= a.gae_lambda <= 1.0, "algo.gae_lambda", "in [0, 1]", a.gae_lambda)
-    _require(0.0 < a.clip_epsilon < 1.0, "algo.clip_epsilon", "in (0, 1)", a.clip_epsilon)
-    _require(a.update_epochs >= 1, "algo.update_epochs", "a positive integer", a.update_epochs)
-    _require(a.num_minibatches >= 1, "algo.num_minibatches", "a positive integer", a.num_minibatches)
-    _require(a.entropy_coef >= 0, "algo.entropy_coef", "a number >= 0", a.entropy_coef)
     _require(a.max_grad_norm > 0, "algo.max_grad_norm", "a positive number", a.max_grad_norm)
     _require(_finite(a.cost_limit) and a.cost_limit >= 0, "algo.cost_limit", "a number >= 0 (the budget d)", a.cost_limit)
+    if isinstance(a, PPOConfig):
+        _require(_finite(a.lr) and a.lr > 0, "algo.lr", "a positive number", a.lr)
+        _require(0.0 < a.clip_epsilon < 1.0, "algo.clip_epsilon", "in (0, 1)", a.clip_epsilon)
+        _require(a.update_epochs >= 1, "algo.update_epochs", "a positive integer", a.update_epochs)
+        _require(a.num_minibatches >= 1, "algo.num_minibatches", "a positive integer", a.num_minibatches)
+        _require(a.entropy_coef >= 0, "algo.entropy_coef", "a number >= 0", a.entropy_coef)
     if isinstance(a, PenaltyConfig):
         _require(_finite(a.penalty) and a.penalty >= 0, "algo.penalty", "a number >= 0", a.penalty)
     if isinstance(a, PPOLagConfig):
         _require(a.lambda_init >= 0, "algo.lambda_init", "a number >= 0", a.lambda_init)
         _require(a.lambda_lr > 0, "algo.lambda_lr", "a positive number", a.lambda_lr)
+    if isinstance(a, PIDLagConfig):
+        for gain in ("kp", "ki", "kd"):
+            v = getattr(a, gain)
+            _require(_finite(v) and v >= 0, f"algo.{gain}", "a number >= 0", v)
+        _require(a.kp + a.ki + a.kd > 0, "algo.kp + algo.ki + algo.kd", "> 0 (some gain must act)", a.kp + a.ki + a.kd)
+        for ema in ("p_ema_alpha", "d_ema_alpha"):
+            v = getattr(a, ema)
+            _require(0.0 <= v < 1.0, f"algo.{ema}", "in [0, 1)", v)
+        _require(a.d_delay >= 1, "algo.d_delay", "a positive integer", a.d_delay)
+        _require(a.lambda_max > 0 and not math.isnan(a.lambda_max), "algo.lambda_max", "a positive number or .inf", a.lambda_max)
+        _require(_finite(a.lambda_init) and 0 <= a.lambda_init <= a.lambda_max, "algo.lambda_init",
+                 "a number in [0, algo.lambda_max]", a.lambda_init)
 
     _require(cfg.total_steps >= 1, "total_steps", "a positive integer", cfg.total_steps)
     _require(cfg.rollout_steps >= 1, "rollout_steps", "a positive integer", cfg.rollout_steps)
     batch = cfg.rollout_steps * e.num_envs
-    _require(
-        batch >= a.num_minibatches, "algo.num_minibatches",
-        f"at most rollout_steps * env.num_envs = {batch}", a.num_minibatches,
-    )
+    if isinstance(a, PPOConfig):
+        _require(
+            batch >= a.num_minibatches, "algo.num_minibatches",
+            f"at most rollout_steps * env.num_envs = {batch}", a.num_minibatches,
+        )
     _require(cfg.device in DEVICES, "device", f"one of {DEVICES}", cfg.device)
     _require(cfg.threads >= 1, "threads", "a positive integer", cfg.threads)
     _require(cfg.eval_episodes >= 1, "eval_episodes", "a positive integer", cfg.eval_episodes)

@@ -39,6 +39,16 @@ BAD = [
     ({"algo": {"name": "ppo_lag", "lambda_init": -1.0}}, "algo.lambda_init"),
     ({"algo": {"name": "ppo_lag", "lambda_lr": 0.0}}, "algo.lambda_lr"),
     ({"algo": {"name": "ppo", "penalty": 1.0}}, "algo"),  # option of another algorithm
+    ({"algo": {"name": "pid_lag", "kp": -0.1}}, "algo.kp"),
+    ({"algo": {"name": "pid_lag", "ki": -0.1}}, "algo.ki"),
+    ({"algo": {"name": "pid_lag", "kd": float("nan")}}, "algo.kd"),
+    ({"algo": {"name": "pid_lag", "kp": 0.0, "ki": 0.0, "kd": 0.0}}, "algo.kp + algo.ki + algo.kd"),
+    ({"algo": {"name": "pid_lag", "p_ema_alpha": 1.0}}, "algo.p_ema_alpha"),
+    ({"algo": {"name": "pid_lag", "d_ema_alpha": -0.5}}, "algo.d_ema_alpha"),
+    ({"algo": {"name": "pid_lag", "d_delay": 0}}, "algo.d_delay"),
+    ({"algo": {"name": "pid_lag", "lambda_max": 0.0}}, "algo.lambda_max"),
+    ({"algo": {"name": "pid_lag", "lambda_init": 5.0, "lambda_max": 2.0}}, "algo.lambda_init"),
+    ({"algo": {"name": "pid_lag", "lambda_lr": 0.1}}, "algo"),  # dual ascent's option, not PID's
     ({"algo": {"name": "ppo", "lr": "fast"}}, "algo.lr"),
     ({"total_steps": 0}, "total_steps"),
     ({"total_steps": -5}, "total_steps"),

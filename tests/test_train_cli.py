@@ -19,10 +19,10 @@ def run(*args, cwd=ROOT):
 
 
 def test_each_algorithm_trains_and_writes_its_outputs(tmp_path):
-    proc = run("-m", "algo=ppo,penalty,ppo_lag", "env=reach1d", *SHORT,
+    proc = run("-m", "algo=ppo,penalty,ppo_lag,pid_lag", "env=reach1d", *SHORT,
                f"hydra.sweep.dir={tmp_path}", "hydra.sweep.subdir=${algo.name}")
     assert proc.returncode == 0, proc.stderr[-3000:]
-    for name, lam in (("ppo", 0.0), ("penalty", 1.0), ("ppo_lag", None)):
+    for name, lam in (("ppo", 0.0), ("penalty", 1.0), ("ppo_lag", None), ("pid_lag", None)):
         out = tmp_path / name
         rows = list(csv.DictReader(open(out / "metrics.csv")))
         assert len(rows) == 2 and rows[-1]["step"] == "512"

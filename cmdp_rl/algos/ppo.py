@@ -1,19 +1,19 @@
-"""PPO, reward-penalty PPO and PPO-Lagrangian: one clipped-PPO update, three policy advantages.
+"""PPO, reward-penalty PPO and PPO-Lagrangian (dual ascent or PID): one clipped-PPO update, three
+policy advantages.
 
 - PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms"): ``A = A_r``.
 - Penalty: PPO on the reward ``r - lambda c`` with a fixed lambda. GAE is linear in the reward, so
   with ``V = V_r - lambda V_c`` its advantage is exactly ``A_r - lambda A_c``; the two critics stay
   separate and their targets are the same as for every other algorithm.
 - PPO-Lagrangian (Ray, Achiam, Amodei, 2019, "Benchmarking Safe Exploration in Deep RL"):
-  ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by projected dual ascent on ``J_c - d``.
+  ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by projected dual ascent on ``J_c - d``, or by
+  a PID controller on it (Stooke, Achiam, Abbeel, 2020): see ``lagrange.py``.
 
 The clipped surrogate is torchrl's ``ClipPPOLoss`` (eq. 7 of Schulman et al.) reading the combined
 advantage; both critics regress on their GAE value targets.
 """
 
 from __future__ import annotations
-
-import math
 
 import torch
 from tensordict import TensorDictBase
@@ -22,14 +22,12 @@ from torchrl.objectives import ClipPPOLoss
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.lagrange import DualAscent
+from cmdp_rl.algos.base import check_finite
+from cmdp_rl.algos.critics import critic_losses
+from cmdp_rl.algos.lagrange import DualAscent, MultiplierController, PIDLagrangian
 from cmdp_rl.collector import finished_episodes
-from cmdp_rl.config import PenaltyConfig, PPOConfig, PPOLagConfig
+from cmdp_rl.config import PenaltyConfig, PIDLagConfig, PPOConfig, PPOLagConfig
 from cmdp_rl.policies import ActorCritic
-
-
-class TrainingDiverged(RuntimeError):
-    """A loss or parameter became NaN or infinite."""
 
 
 class PPO:
@@ -84,11 +82,8 @@ class PPO:
                 out = self.loss(mb)
                 loss_pi = out["loss_objective"] + out.get("loss_entropy", torch.zeros(()))
                 # Critics: regression on the GAE value targets (lambda-returns).
-                v = self.ac.critic(mb.select(keys.OBS)).get(keys.VALUE)
-                vc = self.ac.cost_critic(mb.select(keys.OBS)).get(keys.COST_VALUE)
-                loss_v = (v - mb.get(keys.VALUE_TARGET)).pow(2).mean()
-                loss_vc = (vc - mb.get(keys.COST_VALUE_TARGET)).pow(2).mean()
-                self._check_finite(loss_pi=loss_pi, loss_v=loss_v, loss_vc=loss_vc)
+                loss_v, loss_vc = critic_losses(self.ac, mb)
+                check_finite(loss_pi=loss_pi, loss_v=loss_v, loss_vc=loss_vc)
                 self._step(self.actor_opt, loss_pi, self.ac.actor.parameters())
                 self._step(self.critic_opt, loss_v + loss_vc, self.critic_params)
                 for k, val in (("loss_pi", loss_pi), ("loss_v", loss_v), ("loss_vc", loss_vc),
@@ -105,12 +100,6 @@ class PPO:
         loss.backward()
         nn.utils.clip_grad_norm_(list(params), self.cfg.max_grad_norm)
         opt.step()
-
-    @staticmethod
-    def _check_finite(**losses: torch.Tensor) -> None:
-        for name, value in losses.items():
-            if not math.isfinite(value.item()):
-                raise TrainingDiverged(f"{name} is {value.item()}: training diverged")
 
     # --- checkpointing --------------------------------------------------------------------------
     def state_dict(self) -> dict:
@@ -142,11 +131,18 @@ class PenaltyPPO(PPO):
 
 
 class PPOLagrangian(PPO):
+    """Lambda from a :class:`MultiplierController`: projected dual ascent here, PID in
+    :class:`PIDLagrangianPPO`; the policy update is the same."""
+
     name = "ppo_lag"
 
     def __init__(self, cfg: PPOLagConfig, ac: ActorCritic) -> None:
         super().__init__(cfg, ac)
-        self.multiplier = DualAscent(cfg.cost_limit, cfg.lambda_lr, cfg.lambda_init)
+        self.multiplier = self.make_multiplier(cfg)
+
+    @staticmethod
+    def make_multiplier(cfg: PPOLagConfig) -> MultiplierController:
+        return DualAscent(cfg.cost_limit, cfg.lambda_lr, cfg.lambda_init)
 
     @property
     def lagrange_multiplier(self) -> float:
@@ -167,3 +163,19 @@ class PPOLagrangian(PPO):
     def load_state_dict(self, state: dict) -> None:
         super().load_state_dict(state)
         self.multiplier.load_state_dict(state["multiplier"])
+
+
+class PIDLagrangianPPO(PPOLagrangian):
+    """PPO-Lagrangian with lambda from a PID controller on ``J_c - d`` (Stooke, Achiam, Abbeel,
+    2020, "Responsive Safety in RL by PID Lagrangian Methods"): the proportional and derivative
+    terms damp the overshoot and oscillation of the integral-only dual ascent."""
+
+    name = "pid_lag"
+
+    @staticmethod
+    def make_multiplier(cfg: PIDLagConfig) -> MultiplierController:
+        return PIDLagrangian(
+            cfg.cost_limit, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init,
+            p_ema_alpha=cfg.p_ema_alpha, d_ema_alpha=cfg.d_ema_alpha, d_delay=cfg.d_delay,
+            lambda_max=cfg.lambda_max,
+        )

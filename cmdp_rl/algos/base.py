@@ -1,0 +1,38 @@
+"""What the trainer needs from an algorithm, and the failure every algorithm reports the same way."""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol, runtime_checkable
+
+import torch
+from tensordict import TensorDictBase
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss or parameter became NaN or infinite."""
+
+
+def check_finite(**values: torch.Tensor | float) -> None:
+    """Raise :class:`TrainingDiverged` naming the first non-finite value."""
+    for name, value in values.items():
+        x = value.item() if isinstance(value, torch.Tensor) else float(value)
+        if not math.isfinite(x):
+            raise TrainingDiverged(f"{name} is {x}: training diverged")
+
+
+@runtime_checkable
+class Algorithm(Protocol):
+    """An algorithm owns its networks' updates; it never touches the env.
+
+    ``update`` takes one ``[num_envs, T]`` batch from the collector and returns scalars to log
+    (names from ``metrics.COLUMNS``, including ``lagrange_multiplier``).
+    """
+
+    name: str
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]: ...
+
+    def state_dict(self) -> dict: ...
+
+    def load_state_dict(self, state: dict) -> None: ...
