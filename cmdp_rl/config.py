@@ -107,8 +107,23 @@ class PIDLagConfig(PPOConfig):
     lambda_max: float = math.inf
 
 
+@dataclass
+class CPOConfig(AlgoConfig):
+    """Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel 2017)."""
+
+    name: str = "cpo"
+    target_kl: float = 0.01
+    cg_iters: int = 10
+    cg_damping: float = 0.1
+    line_search_steps: int = 10
+    backtrack_coef: float = 0.8
+    critic_epochs: int = 10
+    critic_minibatches: int = 8
+
+
 ALGO_CONFIGS: dict[str, type] = {
     "ppo": PPOConfig, "penalty": PenaltyConfig, "ppo_lag": PPOLagConfig, "pid_lag": PIDLagConfig,
+    "cpo": CPOConfig,
 }
 
 
@@ -257,6 +272,14 @@ def validate(cfg: RunConfig) -> None:
         _require(a.lambda_max > 0 and not math.isnan(a.lambda_max), "algo.lambda_max", "a positive number or .inf", a.lambda_max)
         _require(_finite(a.lambda_init) and 0 <= a.lambda_init <= a.lambda_max, "algo.lambda_init",
                  "a number in [0, algo.lambda_max]", a.lambda_init)
+    if isinstance(a, CPOConfig):
+        _require(_finite(a.target_kl) and a.target_kl > 0, "algo.target_kl", "a positive number (the KL radius delta)", a.target_kl)
+        _require(a.cg_iters >= 1, "algo.cg_iters", "a positive integer", a.cg_iters)
+        _require(_finite(a.cg_damping) and a.cg_damping >= 0, "algo.cg_damping", "a number >= 0", a.cg_damping)
+        _require(a.line_search_steps >= 1, "algo.line_search_steps", "a positive integer", a.line_search_steps)
+        _require(0.0 < a.backtrack_coef < 1.0, "algo.backtrack_coef", "in (0, 1)", a.backtrack_coef)
+        _require(a.critic_epochs >= 1, "algo.critic_epochs", "a positive integer", a.critic_epochs)
+        _require(a.critic_minibatches >= 1, "algo.critic_minibatches", "a positive integer", a.critic_minibatches)
 
     _require(cfg.total_steps >= 1, "total_steps", "a positive integer", cfg.total_steps)
     _require(cfg.rollout_steps >= 1, "rollout_steps", "a positive integer", cfg.rollout_steps)
@@ -265,6 +288,11 @@ def validate(cfg: RunConfig) -> None:
         _require(
             batch >= a.num_minibatches, "algo.num_minibatches",
             f"at most rollout_steps * env.num_envs = {batch}", a.num_minibatches,
+        )
+    if isinstance(a, CPOConfig):
+        _require(
+            batch >= a.critic_minibatches, "algo.critic_minibatches",
+            f"at most rollout_steps * env.num_envs = {batch}", a.critic_minibatches,
         )
     _require(cfg.device in DEVICES, "device", f"one of {DEVICES}", cfg.device)
     _require(cfg.threads >= 1, "threads", "a positive integer", cfg.threads)

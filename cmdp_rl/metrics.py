@@ -7,11 +7,15 @@ import math
 from pathlib import Path
 from typing import Any, Callable
 
-# Stable column order; every algorithm writes the same names.
+# Stable column order; every algorithm writes the same names and leaves blank what it lacks.
 COLUMNS = [
     "iteration", "step", "episode_return", "episode_cost", "episode_length", "episodes",
     "lagrange_multiplier", "cost_limit", "sps", "time_s",
     "loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction",
+    # CPO (algos/cpo.py): the subproblem's case (0 trpo, 1 constrained, 2 recovery), the accepted
+    # fraction of the full step (0: none accepted), the dual's trust-region and cost multipliers,
+    # and the accepted step's change of the reward and cost surrogates.
+    "cpo_case", "step_fraction", "dual_lambda", "dual_nu", "surr_reward_change", "surr_cost_change",
 ]
 
 
