@@ -49,6 +49,16 @@ BAD = [
     ({"algo": {"name": "pid_lag", "lambda_max": 0.0}}, "algo.lambda_max"),
     ({"algo": {"name": "pid_lag", "lambda_init": 5.0, "lambda_max": 2.0}}, "algo.lambda_init"),
     ({"algo": {"name": "pid_lag", "lambda_lr": 0.1}}, "algo"),  # dual ascent's option, not PID's
+    ({"algo": {"name": "cpo", "target_kl": 0.0}}, "algo.target_kl"),
+    ({"algo": {"name": "cpo", "cg_iters": 0}}, "algo.cg_iters"),
+    ({"algo": {"name": "cpo", "cg_damping": -0.1}}, "algo.cg_damping"),
+    ({"algo": {"name": "cpo", "line_search_steps": 0}}, "algo.line_search_steps"),
+    ({"algo": {"name": "cpo", "backtrack_coef": 1.0}}, "algo.backtrack_coef"),
+    ({"algo": {"name": "cpo", "critic_epochs": 0}}, "algo.critic_epochs"),
+    ({"algo": {"name": "cpo", "critic_minibatches": 10**9}}, "algo.critic_minibatches"),
+    ({"algo": {"name": "cpo", "critic_lr": 0.0}}, "algo.critic_lr"),
+    ({"algo": {"name": "cpo", "cost_limit": -1.0}}, "algo.cost_limit"),
+    ({"algo": {"name": "cpo", "clip_epsilon": 0.2}}, "algo"),  # a PPO option: CPO has no clip
     ({"algo": {"name": "ppo", "lr": "fast"}}, "algo.lr"),
     ({"total_steps": 0}, "total_steps"),
     ({"total_steps": -5}, "total_steps"),
