@@ -2,7 +2,7 @@
 Optimization", ICML; Section 6 and Algorithm 1).
 
 Each iteration solves the approximate CPO update around the policy ``pi_k`` that collected the
-batch (Section 6.1), with ``x = theta - theta_k``::
+batch (Section 6), with ``x = theta - theta_k``::
 
     max_x  g^T x    s.t.   c + b^T x <= 0,    1/2 x^T H x <= delta
 
