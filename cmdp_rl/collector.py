@@ -50,6 +50,7 @@ class Collector:
         self._ep_cost = torch.zeros(n, 1, device=dev)
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
         self.total_steps = 0
+        self.total_cost = 0.0  # every cost collected so far: the numerator of the cost rate
 
     @torch.no_grad()
     def collect(self) -> TensorDictBase:
@@ -84,7 +85,9 @@ class Collector:
                 root = TensorDict({**carried, keys.OBS: step.obs, keys.IS_INIT: done}, batch_size=td.batch_size, device=td.device)
         self._root = root
         self.total_steps += self.rollout_steps * self.env.num_envs
-        return torch.stack(steps, dim=1)
+        batch = torch.stack(steps, dim=1)
+        self.total_cost += batch.get((keys.NEXT, keys.COST)).sum().item()
+        return batch
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:
