@@ -160,8 +160,8 @@ class PIDLagConfig(PPOConfig):
 
     name: str = "pid_lag"
     lambda_init: float = 0.0
-    kp: float = 0.0
-    ki: float = 0.05
+    kp: float = 2.0
+    ki: float = 0.1
     kd: float = 0.0
     p_ema_alpha: float = 0.0
     d_ema_alpha: float = 0.0
