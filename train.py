@@ -1,6 +1,8 @@
 """Train a constrained-RL agent: ``python train.py algo=ppo_lag env=reach1d [overrides]``.
 
 Options are documented in ``configs/``; outputs go to Hydra's run directory.
+``python train.py resume=<run dir> [total_steps=...]`` continues that run from its last checkpoint,
+in that directory, with the run's own config (see ``cmdp_rl/resume.py`` for what may change).
 """
 
 from __future__ import annotations
@@ -9,20 +11,38 @@ import sys
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
+from cmdp_rl.checkpoint import CheckpointError
+from cmdp_rl.resume import resume_config
+
+# `hydra.run.dir` and `hydra.output_subdir` in configs/config.yaml: a resumed run writes into its own
+# directory, and Hydra's record of the resume command goes beside the original one.
+OmegaConf.register_new_resolver("cmdp.if_resume", lambda resume, then, otherwise: then if resume else otherwise)
 
 
 @hydra.main(config_path="configs", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
+    raw = OmegaConf.to_container(cfg, resolve=True)
     try:
-        run_cfg = load_config(OmegaConf.to_container(cfg, resolve=True))
+        if raw.get("resume"):
+            overrides = OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
+            run_cfg = resume_config(raw["resume"], raw, [o.key_or_group for o in overrides])
+        else:
+            run_cfg = load_config(raw)
     except ConfigError as exc:
         print(f"config error: {exc}", file=sys.stderr)
         sys.exit(2)
+    except CheckpointError as exc:
+        print(f"cannot resume: {exc}", file=sys.stderr)
+        sys.exit(2)
     try:
         train(run_cfg, HydraConfig.get().runtime.output_dir)
+    except CheckpointError as exc:
+        print(f"cannot resume: {exc}", file=sys.stderr)
+        sys.exit(2)
     except TrainingDiverged as exc:
         print(f"training stopped: {exc}", file=sys.stderr)
         sys.exit(3)

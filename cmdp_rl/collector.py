@@ -12,6 +12,8 @@ losses and recurrent modules read its output unchanged.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
@@ -85,6 +87,28 @@ class Collector:
         self._root = root
         self.total_steps += self.rollout_steps * self.env.num_envs
         return torch.stack(steps, dim=1)
+
+    def state_dict(self) -> dict[str, Any]:
+        """Where the rollout stands: the next root (observation, ``is_init``, carried recurrent
+        state), the running episode sums, the step counter, and the env's own state. A collector
+        built anew on the same config and given this continues the same trajectories."""
+        return {
+            "root": self._root.to_dict(),
+            "episode_return": self._ep_return.clone(),
+            "episode_cost": self._ep_cost.clone(),
+            "episode_length": self._ep_length.clone(),
+            "total_steps": self.total_steps,
+            "env": self.env.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.env.load_state_dict(state["env"])
+        n, dev = self.env.num_envs, self.env.device
+        self._root = TensorDict(state["root"], batch_size=[n], device=dev)
+        self._ep_return = state["episode_return"].to(dev).clone()
+        self._ep_cost = state["episode_cost"].to(dev).clone()
+        self._ep_length = state["episode_length"].to(dev).clone()
+        self.total_steps = int(state["total_steps"])
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:

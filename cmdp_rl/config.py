@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Union, get_args, get_origin, get_type_hints
+from typing import Any, Mapping, Optional, Union, get_args, get_origin, get_type_hints
 
 
 class ConfigError(ValueError):
@@ -102,6 +102,8 @@ class RunConfig:
     eval_deterministic: bool = True
     checkpoint_every: int = 10
     log_interval: int = 5
+    # A run directory to continue from its last checkpoint (see cmdp_rl/resume.py); None: a new run.
+    resume: Optional[str] = None
 
 
 def _check_type(value: Any, hint: Any, name: str) -> Any:
@@ -114,6 +116,10 @@ def _check_type(value: Any, hint: Any, name: str) -> Any:
             except ConfigError:
                 continue
         raise ConfigError(f"{name}: expected one of {get_args(hint)}, got {value!r}")
+    if hint is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{name}: expected null, got {value!r}")
     if hint is bool:
         if isinstance(value, bool):
             return value
@@ -234,3 +240,4 @@ def validate(cfg: RunConfig) -> None:
     _require(cfg.eval_episodes >= 1, "eval_episodes", "a positive integer", cfg.eval_episodes)
     _require(cfg.checkpoint_every >= 1, "checkpoint_every", "a positive integer", cfg.checkpoint_every)
     _require(cfg.log_interval >= 1, "log_interval", "a positive integer", cfg.log_interval)
+    _require(cfg.resume is None or cfg.resume.strip() != "", "resume", "null or a run directory", cfg.resume)

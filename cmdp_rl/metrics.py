@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 from pathlib import Path
 from typing import Any, Callable
 
@@ -15,14 +16,55 @@ COLUMNS = [
 ]
 
 
+def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
+    """Keep the header and rows 1..``iteration`` of a metrics CSV (a resume from the checkpoint of
+    ``iteration``), dropping later rows and a partly written last line. Returns the header.
+
+    Raises ``ValueError`` if a row up to ``iteration`` is missing or out of order: rows are written
+    and synced before each checkpoint, so that would mean the file was edited or lost.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path} is missing; the checkpoint is at iteration {iteration}")
+    # Every complete line ends with a newline; what follows the last one is a row cut by a kill.
+    lines = path.read_text().split("\n")[:-1]
+    if not lines:
+        raise ValueError(f"{path} has no header")
+    header = next(csv.reader([lines[0]]))
+    rows = lines[1:iteration + 1]
+    found = [next(csv.reader([r]))[0] for r in rows]
+    if found != [str(i) for i in range(1, iteration + 1)]:
+        raise ValueError(
+            f"{path} does not hold rows 1..{iteration} in order (found iterations "
+            f"{found[:3]}...{found[-3:]}); the checkpoint is at iteration {iteration}"
+        )
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join([lines[0], *rows]) + "\n")
+    os.replace(tmp, path)
+    return header
+
+
 class MetricsLogger:
-    def __init__(self, path: str | Path, log_interval: int = 1, echo: Callable[[str], None] = print) -> None:
+    """Writes one CSV row per iteration (flushed at once) and echoes a progress line every
+    ``log_interval`` iterations. With ``resume_iteration`` it continues an existing file after
+    that iteration's row (see :func:`truncate_metrics`) instead of starting a new one."""
+
+    def __init__(
+        self, path: str | Path, log_interval: int = 1, echo: Callable[[str], None] = print,
+        resume_iteration: int | None = None,
+    ) -> None:
         self.path = Path(path)
         self.log_interval = log_interval
         self.echo = echo
-        self._file = open(self.path, "w", newline="")
-        self._writer = csv.DictWriter(self._file, fieldnames=COLUMNS, extrasaction="ignore")
-        self._writer.writeheader()
+        if resume_iteration is None:
+            self._file = open(self.path, "w", newline="")
+            self._writer = csv.DictWriter(self._file, fieldnames=COLUMNS, extrasaction="ignore", lineterminator="\n")
+            self._writer.writeheader()
+        else:
+            # The run keeps the columns it started with, even if this version logs more.
+            header = truncate_metrics(self.path, resume_iteration)
+            self._file = open(self.path, "a", newline="")
+            self._writer = csv.DictWriter(self._file, fieldnames=header, extrasaction="ignore", lineterminator="\n")
         self._file.flush()
 
     def log(self, row: dict[str, Any], force_echo: bool = False) -> None:
@@ -30,6 +72,12 @@ class MetricsLogger:
         self._file.flush()
         if force_echo or row["iteration"] == 1 or row["iteration"] % self.log_interval == 0:
             self.echo(format_row(row))
+
+    def sync(self) -> None:
+        """Force the rows written so far to disk; called before each checkpoint, so a checkpoint
+        never refers to a row that a machine crash could still lose."""
+        self._file.flush()
+        os.fsync(self._file.fileno())
 
     def close(self) -> None:
         self._file.close()

@@ -54,3 +54,28 @@ def test_cost_on_the_done_step_is_kept():
     b = Collector(env, policy(0.1), rollout_steps=4, seed=0).collect()
     assert b[keys.NEXT][keys.COST].sum().item() == 8.0
     assert finished_episodes(b)["cost"].tolist() == [1.0] * 8
+
+
+def test_state_dict_continues_the_same_trajectories():
+    """A collector restored from state_dict() on fresh envs collects what the original would
+    have: next observations, running episode sums and each env's generator all come back. Both
+    ways an env saves itself are checked: Reach1D's own state_dict, and pickling (a wrapped env)."""
+    import gymnasium as gym
+    from cmdp_rl.envs import GymVecEnv
+
+    def noisy(value):
+        p = policy(value)
+        return lambda td: p(td).set(keys.ACTION, td.get(keys.ACTION) + 0.05 * torch.randn(td.shape[0], 1))
+
+    for make_one in (lambda: Reach1D(max_steps=9, start=[0.2, 0.45], wall="pass"),
+                     lambda: gym.wrappers.RecordEpisodeStatistics(Reach1D(max_steps=9, start=[0.2, 0.45]))):
+        torch.manual_seed(0)
+        col = Collector(GymVecEnv(make_one, 3), noisy(0.04), rollout_steps=13, seed=5)
+        col.collect()
+        saved, rng = col.state_dict(), torch.get_rng_state()
+        expected = col.collect()
+        fresh = Collector(GymVecEnv(make_one, 3), noisy(0.04), rollout_steps=13, seed=99)
+        fresh.load_state_dict(saved)
+        torch.set_rng_state(rng)
+        got = fresh.collect()
+        assert (got == expected).all() and fresh.total_steps == col.total_steps == 78

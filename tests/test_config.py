@@ -49,6 +49,8 @@ BAD = [
     ({"checkpoint_every": 0}, "checkpoint_every"),
     ({"log_interval": 0}, "log_interval"),
     ({"bogus": 1}, "config"),
+    ({"resume": 5}, "config.resume"),
+    ({"resume": ""}, "resume"),
 ]
 
 

@@ -7,8 +7,9 @@ costs about 1.3 ms per step (specs, step_mdp, info readers), several times the c
 
 from __future__ import annotations
 
+import pickle
 from abc import ABC, abstractmethod
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -49,6 +50,15 @@ class VecEnv(ABC):
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs to continue exactly where this env stands: the episodes
+        in progress and the envs' random generators. ``load_state_dict`` on a fresh env built from
+        the same config restores it."""
+        raise NotImplementedError(f"{type(self).__name__} cannot save its state, so a run on it cannot resume")
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        raise NotImplementedError(f"{type(self).__name__} cannot restore a saved state")
 
     def check_action(self, action: torch.Tensor) -> None:
         expected = (self.num_envs, self.action_dim)
@@ -109,6 +119,27 @@ class GymVecEnv(VecEnv):
             truncated=torch.from_numpy(np.asarray(truncated, dtype=bool)).view(n, 1),
             obs=self._obs(obs),
         )
+
+    def state_dict(self) -> dict[str, Any]:
+        """Each env's own ``state_dict()`` where it has one (Reach1D: its generator and episode),
+        else the pickled env (wrappers included). In SAME_STEP mode the vector env itself holds
+        nothing between steps."""
+        states = []
+        for env in self.envs.envs:
+            if hasattr(env, "state_dict"):
+                states.append({"state": env.state_dict()})
+            else:
+                states.append({"pickle": pickle.dumps(env)})
+        return {"num_envs": self.num_envs, "envs": states}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state["num_envs"] != self.num_envs:
+            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
+        for i, saved in enumerate(state["envs"]):
+            if "state" in saved:
+                self.envs.envs[i].load_state_dict(saved["state"])
+            else:
+                self.envs.envs[i] = pickle.loads(saved["pickle"])
 
     def close(self) -> None:
         self.envs.close()
