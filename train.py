@@ -8,6 +8,7 @@ in that directory, with the run's own config (see ``cmdp_rl/resume.py`` for what
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
@@ -17,10 +18,18 @@ from omegaconf import DictConfig, OmegaConf
 from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.resume import resume_config
+from cmdp_rl.rundir import CHECKPOINT
 
-# `hydra.run.dir` and `hydra.output_subdir` in configs/config.yaml: a resumed run writes into its own
-# directory, and Hydra's record of the resume command goes beside the original one.
-OmegaConf.register_new_resolver("cmdp.if_resume", lambda resume, then, otherwise: then if resume else otherwise)
+
+
+def _if_resumable(resume: str | None, then: str, otherwise: str) -> str:
+    """For `hydra.run.dir` and `hydra.output_subdir` in configs/config.yaml: a resumed run writes
+    into its own directory, and Hydra's record of the resume command goes beside the original one.
+    Only a directory with a checkpoint counts, so a mistyped path is reported, not created."""
+    return then if resume and (Path(resume) / CHECKPOINT).is_file() else otherwise
+
+
+OmegaConf.register_new_resolver("cmdp.if_resumable", _if_resumable)
 
 
 @hydra.main(config_path="configs", config_name="config", version_base="1.3")
@@ -39,7 +48,8 @@ def main(cfg: DictConfig) -> None:
         print(f"cannot resume: {exc}", file=sys.stderr)
         sys.exit(2)
     try:
-        train(run_cfg, HydraConfig.get().runtime.output_dir)
+        # A resumed run writes into its own directory, whatever hydra.run.dir says.
+        train(run_cfg, None if run_cfg.resume else HydraConfig.get().runtime.output_dir)
     except CheckpointError as exc:
         print(f"cannot resume: {exc}", file=sys.stderr)
         sys.exit(2)

@@ -106,6 +106,20 @@ class RunConfig:
     resume: Optional[str] = None
 
 
+@dataclass
+class EvalConfig:
+    """Options of ``evaluate.py`` (``python evaluate.py run=<run dir> [key=value ...]``)."""
+
+    run: Optional[str] = None  # the run directory (required)
+    checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
+    episodes: Optional[int] = None  # default: the run's eval_episodes
+    deterministic: Optional[bool] = None  # mean action; default: the run's eval_deterministic
+    seed: Optional[int] = None  # default: the run's evaluation seed (reproduces its eval.json)
+    plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
+    plot_episodes: int = 3  # episodes drawn in the PNG
+    output: Optional[str] = None  # also write the results as JSON to this path
+
+
 def _check_type(value: Any, hint: Any, name: str) -> Any:
     """Coerce ``value`` to ``hint`` where that is lossless; otherwise raise naming the field."""
     origin = get_origin(hint)
@@ -172,6 +186,16 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
     cfg.policy = _build(PolicyConfig, dict(raw.get("policy", {}) or {}), "policy")
     cfg.algo = _build(ALGO_CONFIGS[algo_name], algo, "algo")
     validate(cfg)
+    return cfg
+
+
+def load_eval_config(raw: Mapping[str, Any]) -> EvalConfig:
+    """Build and check ``evaluate.py``'s options."""
+    cfg = _build(EvalConfig, dict(raw), "evaluate")
+    _require(bool(cfg.run), "run", "a run directory (run=<dir>)", cfg.run)
+    _require(cfg.episodes is None or cfg.episodes >= 1, "episodes", "a positive integer", cfg.episodes)
+    _require(cfg.plot_episodes >= 1, "plot_episodes", "a positive integer", cfg.plot_episodes)
+    _require(cfg.plot is None or cfg.plot.lower().endswith(".png"), "plot", "a path ending in .png", cfg.plot)
     return cfg
 
 

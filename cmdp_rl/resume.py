@@ -20,13 +20,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-import yaml
-
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, load_config
-
-CHECKPOINT = "checkpoint.pt"
-CONFIG = "config.yaml"
+from cmdp_rl.rundir import checkpoint_path, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
 # shape of anything saved. Prefixes: every field under ``logger.``.
@@ -50,25 +46,6 @@ def _resumable(field: str) -> bool:
     return any(field == r or (r.endswith(".") and field.startswith(r)) for r in RESUMABLE)
 
 
-def run_paths(run_dir: str | Path) -> tuple[Path, Path]:
-    """``(checkpoint, config)`` of a run directory; a clear error if there is nothing to resume."""
-    run = Path(run_dir)
-    if not run.is_dir():
-        raise CheckpointError(f"resume: no run directory at {run}")
-    ckpt = run / CHECKPOINT
-    if not ckpt.is_file():
-        raise CheckpointError(f"resume: no {CHECKPOINT} in {run} (the run stopped before its first checkpoint?)")
-    return ckpt, run / CONFIG
-
-
-def saved_config(run_dir: str | Path) -> dict[str, Any]:
-    """The run's own config: its ``config.yaml``, else the one inside its checkpoint."""
-    ckpt, cfg_path = run_paths(run_dir)
-    if cfg_path.is_file():
-        return yaml.safe_load(cfg_path.read_text())
-    return load_checkpoint(ckpt)["config"]
-
-
 def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: Iterable[str]) -> RunConfig:
     """The config to resume ``run_dir`` with: the run's own, plus the options named in ``explicit``
     (dotted keys or group names, as on a command line) taken from ``requested``.
@@ -76,7 +53,7 @@ def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: I
     Selecting another algorithm or policy than the run's raises :class:`CheckpointError`; changing
     a field outside :data:`RESUMABLE` raises :class:`ConfigError` (from :func:`check_resume_config`).
     """
-    merged = copy.deepcopy(saved_config(run_dir))
+    merged = copy.deepcopy(saved_config(run_dir, "resume"))
     for key in explicit:
         if key in GROUPS and isinstance(requested.get(key), Mapping):
             want, have = requested[key].get("name"), (merged.get(key) or {}).get("name")
@@ -102,7 +79,7 @@ def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: I
         cfg = load_config(merged)
     except ConfigError as exc:
         raise ConfigError(f"{exc} (resuming {run_dir})") from exc
-    check_resume_config(load_config({**saved_config(run_dir), "resume": None}), cfg)
+    check_resume_config(load_config({**saved_config(run_dir, "resume"), "resume": None}), cfg)
     return cfg
 
 
@@ -125,7 +102,7 @@ def check_resume_config(saved: RunConfig, cfg: RunConfig) -> None:
 def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
     """The checkpoint ``cfg.resume`` names, checked against ``cfg`` (algorithm, policy, config)."""
     assert cfg.resume is not None
-    ckpt, _ = run_paths(cfg.resume)
+    ckpt = checkpoint_path(cfg.resume, "resume")
     state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
     missing = [k for k in ("collector", "rng", "algo_state", "iteration") if k not in state]
     if missing:

@@ -20,14 +20,12 @@ from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
 from cmdp_rl.envs import make_env
-from cmdp_rl.evaluation import evaluate
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger
 from cmdp_rl.policies import make_actor_critic
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
-
-EVAL_SEED_OFFSET = 1_000_003  # evaluation episodes never replay training seeds
-
+from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS
 
 def _mean(t: torch.Tensor) -> float:
     return t.mean().item() if t.numel() else float("nan")
@@ -57,12 +55,12 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     state = load_resume_state(cfg) if cfg.resume is not None else None
     out.mkdir(parents=True, exist_ok=True)
     try:  # first, as it is the last check a resume can fail: nothing is written before it
-        logger = MetricsLogger(out / "metrics.csv", cfg.log_interval, echo,
+        logger = MetricsLogger(out / METRICS, cfg.log_interval, echo,
                                resume_iteration=None if state is None else state["iteration"])
     except ValueError as exc:
         raise CheckpointError(f"resume: {exc}") from exc
     run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None))  # the run's own config
-    (out / "config.yaml").write_text(yaml.safe_dump(run_cfg, sort_keys=False))
+    (out / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
     torch.set_num_threads(cfg.threads)
     seed_everything(cfg.seed)
 
@@ -78,7 +76,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         first, elapsed = state["iteration"] + 1, state["time_s"]
     per_iter = cfg.rollout_steps * env.num_envs
     iterations = math.ceil(cfg.total_steps / per_iter)
-    ckpt_path = out / "checkpoint.pt"
+    ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
 
     def checkpoint(iteration: int) -> None:
@@ -124,7 +122,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})
-    (out / "eval.json").write_text(json.dumps(result, indent=2))
+    (out / EVAL).write_text(json.dumps(result, indent=2))
     echo(
         f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "
         f"{result['episodes']} episodes: return {result['episode_return']:.3f} ± {result['episode_return_std']:.3f}, "

@@ -162,3 +162,23 @@ def test_resume_refuses_when_rows_before_the_checkpoint_are_gone(tmp_path, quiet
     (run / "metrics.csv").write_text("".join(lines[:3]))  # header + rows 1, 2; checkpoint at 4
     with pytest.raises(CheckpointError, match="does not hold rows 1..4"):
         train(load_config(tiny(resume=str(run))), echo=quiet)
+
+
+def test_resume_cli_refuses_missing_corrupt_and_foreign_checkpoints(tmp_path, quiet):
+    run = tmp_path / "run"
+    train(load_config(tiny(total_steps=64)), run, echo=quiet)
+    good = (run / "checkpoint.pt").read_bytes()
+
+    def refused(message, *args):
+        res = run_script("train.py", *args, f"hydra.run.dir={tmp_path / 'hydra'}")
+        assert res.returncode == 2 and message in res.stderr, res.stderr[-2000:]
+
+    refused("no run directory at", f"resume={tmp_path / 'nowhere'}")
+    refused("run of algo='ppo_lag', but this command asks for algo='ppo'", f"resume={run}", "algo=ppo")
+    state = load_checkpoint(run / "checkpoint.pt")
+    state.pop("format")
+    save_checkpoint(run / "checkpoint.pt", {**state, "policy": "lstm"})  # e.g. copied from another run
+    refused("written by policy='lstm', but this run uses policy='mlp'", f"resume={run}")
+    (run / "checkpoint.pt").write_bytes(good[: len(good) // 2])  # cut short
+    refused("is corrupt or not a cmdp_rl checkpoint", f"resume={run}")
+    assert len(metrics_rows(run)) == 2  # none of these touched the run's rows
