@@ -8,6 +8,7 @@ what is allowed, so a bad value fails before a single environment step.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Union, get_args, get_origin, get_type_hints
@@ -17,6 +18,8 @@ class ConfigError(ValueError):
     """A config value is missing, of the wrong type, or out of range."""
 
 
+LOGGERS = ("csv", "tensorboard")
+TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
 ENV_NAMES = ("reach1d",)
 ENV_BACKENDS = ("gym",)
 WALL_MODES = ("block", "pass")
@@ -85,6 +88,14 @@ class PPOLagConfig(PPOConfig):
     lambda_lr: float = 0.05
 
 
+@dataclass
+class LoggerConfig:
+    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else,
+    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory."""
+
+    name: str = "csv"
+
+
 ALGO_CONFIGS: dict[str, type] = {"ppo": PPOConfig, "penalty": PenaltyConfig, "ppo_lag": PPOLagConfig}
 
 
@@ -93,6 +104,7 @@ class RunConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo: PPOConfig = field(default_factory=PPOLagConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
     seed: int = 0
     total_steps: int = 400_000
     rollout_steps: int = 256
@@ -179,9 +191,10 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
         raise ConfigError(f"algo.name: unknown algorithm {algo_name!r}; allowed: {sorted(ALGO_CONFIGS)}")
     cfg = _build(
         RunConfig,
-        {k: v for k, v in raw.items() if k not in ("env", "policy")},
+        {k: v for k, v in raw.items() if k not in ("env", "policy", "logger")},
         "config",
     )
+    cfg.logger = _build(LoggerConfig, dict(raw.get("logger", {}) or {}), "logger")
     cfg.env = _build(EnvConfig, dict(raw.get("env", {}) or {}), "env")
     cfg.policy = _build(PolicyConfig, dict(raw.get("policy", {}) or {}), "policy")
     cfg.algo = _build(ALGO_CONFIGS[algo_name], algo, "algo")
@@ -265,3 +278,6 @@ def validate(cfg: RunConfig) -> None:
     _require(cfg.checkpoint_every >= 1, "checkpoint_every", "a positive integer", cfg.checkpoint_every)
     _require(cfg.log_interval >= 1, "log_interval", "a positive integer", cfg.log_interval)
     _require(cfg.resume is None or cfg.resume.strip() != "", "resume", "null or a run directory", cfg.resume)
+    _require(cfg.logger.name in LOGGERS, "logger.name", f"one of {LOGGERS}", cfg.logger.name)
+    if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
+        raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")

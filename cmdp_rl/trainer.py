@@ -25,7 +25,7 @@ from cmdp_rl.metrics import MetricsLogger
 from cmdp_rl.policies import make_actor_critic
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
-from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS
+from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD
 
 def _mean(t: torch.Tensor) -> float:
     return t.mean().item() if t.numel() else float("nan")
@@ -55,8 +55,12 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     state = load_resume_state(cfg) if cfg.resume is not None else None
     out.mkdir(parents=True, exist_ok=True)
     try:  # first, as it is the last check a resume can fail: nothing is written before it
-        logger = MetricsLogger(out / METRICS, cfg.log_interval, echo,
-                               resume_iteration=None if state is None else state["iteration"])
+        logger = MetricsLogger(
+            out / METRICS, cfg.log_interval, echo,
+            resume_iteration=None if state is None else state["iteration"],
+            tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
+            resume_step=None if state is None else state["step"],
+        )
     except ValueError as exc:
         raise CheckpointError(f"resume: {exc}") from exc
     run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None))  # the run's own config

@@ -51,6 +51,8 @@ BAD = [
     ({"bogus": 1}, "config"),
     ({"resume": 5}, "config.resume"),
     ({"resume": ""}, "resume"),
+    ({"logger": {"name": "wandb"}}, "logger.name"),
+    ({"logger": {"flush_secs": 5}}, "logger"),
 ]
 
 
