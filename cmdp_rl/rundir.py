@@ -13,6 +13,13 @@
 
 from __future__ import annotations
 
+import datetime
+import json
+import os
+import platform
+import subprocess
+import sys
+from importlib import metadata
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -30,6 +37,62 @@ METRICS = "metrics.csv"
 EVAL = "eval.json"
 RUN_INFO = "run_info.json"
 TENSORBOARD = "tb"
+
+
+LIBRARIES = ("torch", "torchrl", "tensordict", "gymnasium", "numpy", "hydra-core")
+
+
+def _git(*args: str) -> str | None:
+    try:
+        out = subprocess.run(["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True,
+                             text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def provenance() -> dict[str, Any]:
+    """What produced a run: the package version, the git commit of its source (and whether the
+    working tree had uncommitted changes), library versions, Python, platform and command line."""
+    from cmdp_rl import __version__
+
+    # Only the checkout the package's source lives in (not, say, a repo that holds a virtualenv).
+    top = _git("rev-parse", "--show-toplevel")
+    here = Path(__file__).resolve().parent
+    commit = _git("rev-parse", "HEAD") if top and (Path(top) / here.name).resolve() == here else None
+    status = _git("status", "--porcelain") if commit else None
+    libs = {}
+    for lib in LIBRARIES:
+        try:
+            libs[lib] = metadata.version(lib)
+        except metadata.PackageNotFoundError:
+            libs[lib] = None
+    return {
+        "version": __version__,
+        "git_commit": commit,  # None: not run from a git checkout
+        "git_dirty": None if status is None else bool(status),
+        "libraries": libs,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "command": [sys.executable, *sys.argv],
+        "time": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+    }
+
+
+def write_run_info(run_dir: str | Path, resumed_from: int | None = None) -> Path:
+    """Write ``run_info.json`` for a new run, or add a resume (from the checkpoint of iteration
+    ``resumed_from``) to its ``resumes`` list: a resume may run other code than the start did."""
+    path = Path(run_dir) / RUN_INFO
+    now = provenance()
+    if resumed_from is None or not path.is_file():
+        info = {"package": "cmdp_rl", **now, "resumes": []}
+    else:
+        info = json.loads(path.read_text())
+        info.setdefault("resumes", []).append({"from_iteration": resumed_from, **now})
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(info, indent=2))
+    os.replace(tmp, path)
+    return path
 
 
 def checkpoint_path(run_dir: str | Path, what: str = "run") -> Path:

@@ -25,7 +25,7 @@ from cmdp_rl.metrics import MetricsLogger
 from cmdp_rl.policies import make_actor_critic
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
-from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD
+from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
 
 def _mean(t: torch.Tensor) -> float:
     return t.mean().item() if t.numel() else float("nan")
@@ -42,8 +42,9 @@ def _run_dir(cfg: RunConfig, out_dir: str | Path | None) -> Path:
 
 
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
-    """Train as ``cfg`` says, writing ``metrics.csv``, ``checkpoint.pt``, ``config.yaml`` and
-    ``eval.json`` under ``out_dir``. Returns the evaluation summary.
+    """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
+    ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/rundir.py``). Returns the
+    evaluation summary. Same config and seed, same numbers (on the same machine and versions).
 
     With ``cfg.resume`` set to a run directory, continue that run from its last checkpoint, in that
     directory (``out_dir`` may be omitted). Its ``metrics.csv`` keeps the rows up to the
@@ -65,6 +66,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         raise CheckpointError(f"resume: {exc}") from exc
     run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None))  # the run's own config
     (out / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
+    write_run_info(out, resumed_from=None if state is None else state["iteration"])
     torch.set_num_threads(cfg.threads)
     seed_everything(cfg.seed)
 
