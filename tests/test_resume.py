@@ -155,12 +155,18 @@ def test_resume_refuses_another_algorithm_policy_or_config(tmp_path, quiet):
     assert ok.total_steps == 96 and ok.log_interval == 3 and ok.algo.cost_limit == 0.2
 
 
-def test_resume_refuses_when_rows_before_the_checkpoint_are_gone(tmp_path, quiet):
+def test_resume_refuses_lost_rows_a_lost_metrics_file_and_a_missing_checkpoint(tmp_path, quiet):
     run = tmp_path / "run"
     train(load_config(tiny(total_steps=4 * 32)), run, echo=quiet)
     lines = (run / "metrics.csv").read_text().splitlines(keepends=True)
     (run / "metrics.csv").write_text("".join(lines[:3]))  # header + rows 1, 2; checkpoint at 4
     with pytest.raises(CheckpointError, match="does not hold rows 1..4"):
+        train(load_config(tiny(resume=str(run))), echo=quiet)
+    (run / "metrics.csv").unlink()
+    with pytest.raises(CheckpointError, match="metrics.csv is missing"):
+        train(load_config(tiny(resume=str(run))), echo=quiet)
+    (run / "checkpoint.pt").unlink()  # killed before its first checkpoint
+    with pytest.raises(CheckpointError, match="resume: no checkpoint.pt in"):
         train(load_config(tiny(resume=str(run))), echo=quiet)
 
 

@@ -96,6 +96,11 @@ class PPO:
                                ("clip_fraction", out["clip_fraction"])):
                     sums[k] += val.item()
                 n += 1
+        # A last step can leave a parameter infinite with every loss finite: never let such a
+        # network reach a checkpoint.
+        for name, p in self.ac.modules().named_parameters():
+            if not torch.isfinite(p).all():
+                raise TrainingDiverged(f"parameter {name} is not finite after the update: training diverged")
         stats = {k: s / n for k, s in sums.items()}
         stats["lagrange_multiplier"] = self.lagrange_multiplier
         return stats
