@@ -155,7 +155,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="run directories (each with metrics.csv and config.yaml)")
     parser.add_argument("-o", "--out", default="curves.png", help="PNG to write (default: curves.png)")
-    parser.add_argument("--smooth", type=int, default=5, help="trailing mean over this many iterations (default 5; 1: none)")
+    parser.add_argument("--smooth", type=int, default=5,
+                        help="trailing mean over this many iterations (default 5; 1: none)")
     args = parser.parse_args(argv)
     if args.smooth < 1:
         parser.error(f"--smooth must be a positive integer, got {args.smooth}")

@@ -1,5 +1,6 @@
 """evaluate.py: loads a run, repeats its evaluation, draws Reach1D episodes, refuses bad input."""
 
+import importlib.util
 import json
 
 import pytest
@@ -11,8 +12,6 @@ from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.config import EnvConfig
 from cmdp_rl.replay import plot_reach1d, record_reach1d
 from conftest import ROOT, eval_result, run_script, tiny
-
-import importlib.util
 
 _spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
 evaluate_cli = importlib.util.module_from_spec(_spec)
@@ -38,7 +37,8 @@ def test_default_evaluation_repeats_the_runs_eval_json(run, tmp_path, capsys):
 def test_stochastic_evaluation_is_seeded(run, tmp_path):
     a, b, c = (tmp_path / f"{n}.json" for n in "abc")
     for path, seed in ((a, 7), (b, 7), (c, 8)):
-        assert evaluate_cli.main([f"run={run}", "deterministic=false", "episodes=6", f"seed={seed}", f"output={path}"]) == 0
+        args = [f"run={run}", "deterministic=false", "episodes=6", f"seed={seed}", f"output={path}"]
+        assert evaluate_cli.main(args) == 0
     ra, rb, rc = (json.loads(p.read_text()) for p in (a, b, c))
     assert ra == rb and ra["episodes"] == 6 and not ra["deterministic"]
     assert ra["episode_return"] != rc["episode_return"]

@@ -70,7 +70,7 @@ def test_missing_tensorboard_is_a_clear_config_error(monkeypatch):
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "tensorboard" else real(name, *a))
-    with pytest.raises(ConfigError, match=r"^logger.name: logger=tensorboard needs the tensorboard package: pip install"):
+    with pytest.raises(ConfigError, match=r"^logger.name: logger=tensorboard needs the tensorboard package: pip"):
         load_config({"logger": {"name": "tensorboard"}})
     assert load_config({"logger": {"name": "csv"}}).logger.name == "csv"
 

@@ -102,6 +102,9 @@ def test_sigkill_at_a_random_point_then_resume_loses_nothing(tmp_path, quiet):
     assert res.returncode == 0, f"{where}\n{res.stderr[-3000:]}"
     assert "resuming" in res.stdout
     assert_same_run(whole, killed)
+    # Hydra's record of the first command stays; the resume's goes beside it
+    assert (killed / ".hydra" / "overrides.yaml").is_file()
+    assert list((killed / ".hydra").glob("resume_*/overrides.yaml"))
 
 
 def test_a_kill_while_writing_a_checkpoint_leaves_the_previous_one(tmp_path):
