@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType
@@ -68,5 +66,4 @@ def _evaluate(
     for j, name in enumerate(("episode_return", "episode_cost", "episode_length")):
         result.update(_spread(name, [row[j] for row in flat]))
     result["goal_reached"] = sum(row[3] for row in flat) / len(flat)
-    assert all(math.isfinite(v) for v in result.values() if isinstance(v, float))
     return result
