@@ -55,6 +55,8 @@ def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: I
     """
     merged = copy.deepcopy(saved_config(run_dir, "resume"))
     for key in explicit:
+        if key == "hydra" or key.startswith("hydra."):  # Hydra's own settings, not the run's
+            continue
         if key in GROUPS and isinstance(requested.get(key), Mapping):
             want, have = requested[key].get("name"), (merged.get(key) or {}).get("name")
             if want != have:
