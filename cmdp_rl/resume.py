@@ -106,7 +106,12 @@ def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
     assert cfg.resume is not None
     ckpt = checkpoint_path(cfg.resume, "resume")
     state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
-    missing = [k for k in ("collector", "rng", "algo_state", "iteration") if k not in state]
+    missing = [k for k in ("collector", "rng", "algo_state", "iteration") if state.get(k) is None]
+    if missing == ["collector"]:
+        raise CheckpointError(
+            f"resume: {ckpt} holds no env state (env {cfg.env.name!r}, backend {cfg.env.backend!r}, cannot save"
+            " its episodes and generators), so the run cannot continue exactly; evaluate it or start anew"
+        )
     if missing:
         raise CheckpointError(f"resume: {ckpt} lacks {missing}; it cannot continue a run")
     check_resume_config(load_config({**state["config"], "resume": None}), cfg)

@@ -85,12 +85,21 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
 
+    cannot_resume: list[str] = []
+
     def checkpoint(iteration: int) -> None:
         logger.sync()  # the rows up to this iteration are on disk before the checkpoint names it
+        try:
+            rollout = collector.state_dict()
+        except NotImplementedError as exc:  # an env that cannot save itself: evaluable, not resumable
+            rollout = None
+            if not cannot_resume:
+                cannot_resume.append(str(exc))
+                echo(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
         save_checkpoint(ckpt_path, {
             "algo": cfg.algo.name, "policy": cfg.policy.name, "config": run_cfg,
             "iteration": iteration, "step": collector.total_steps, "time_s": time.perf_counter() - start,
-            "algo_state": algo.state_dict(), "collector": collector.state_dict(), "rng": rng_state(),
+            "algo_state": algo.state_dict(), "collector": rollout, "rng": rng_state(),
         })
 
     if state is not None:

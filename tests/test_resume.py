@@ -191,3 +191,15 @@ def test_resume_cli_refuses_missing_corrupt_and_foreign_checkpoints(tmp_path, qu
     (run / "checkpoint.pt").write_bytes(good[: len(good) // 2])  # cut short
     refused("is corrupt or not a cmdp_rl checkpoint", f"resume={run}")
     assert len(metrics_rows(run)) == 2  # none of these touched the run's rows
+
+
+def test_an_env_that_cannot_save_its_state_trains_but_refuses_to_resume(tmp_path, monkeypatch, quiet):
+    from cmdp_rl.envs import GymVecEnv, VecEnv
+
+    monkeypatch.setattr(GymVecEnv, "state_dict", VecEnv.state_dict)  # the interface's default
+    lines = []
+    train(load_config(tiny(total_steps=64)), tmp_path, echo=lines.append)
+    assert any(line.startswith("warning: GymVecEnv cannot save its state") for line in lines)
+    assert load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"]  # still a usable checkpoint
+    with pytest.raises(CheckpointError, match="holds no env state .* cannot continue exactly"):
+        train(load_config(tiny(resume=str(tmp_path))), echo=quiet)
