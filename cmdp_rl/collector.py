@@ -52,6 +52,7 @@ class Collector:
         self._ep_cost = torch.zeros(n, 1, device=dev)
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
         self.total_steps = 0
+        self.total_cost = 0.0  # every cost collected so far: the numerator of the cost rate
 
     @torch.no_grad()
     def collect(self) -> TensorDictBase:
@@ -86,11 +87,13 @@ class Collector:
                 root = TensorDict({**carried, keys.OBS: step.obs, keys.IS_INIT: done}, batch_size=td.batch_size, device=td.device)
         self._root = root
         self.total_steps += self.rollout_steps * self.env.num_envs
-        return torch.stack(steps, dim=1)
+        batch = torch.stack(steps, dim=1)
+        self.total_cost += batch.get((keys.NEXT, keys.COST)).sum().item()
+        return batch
 
     def state_dict(self) -> dict[str, Any]:
         """Where the rollout stands: the next root (observation, ``is_init``, carried recurrent
-        state), the running episode sums, the step counter, and the env's own state. A collector
+        state), the running episode sums, the step and cost counters, and the env's own state. A collector
         built anew on the same config and given this continues the same trajectories."""
         return {
             "root": self._root.to_dict(),
@@ -98,6 +101,7 @@ class Collector:
             "episode_cost": self._ep_cost.clone(),
             "episode_length": self._ep_length.clone(),
             "total_steps": self.total_steps,
+            "total_cost": self.total_cost,
             "env": self.env.state_dict(),
         }
 
@@ -109,6 +113,7 @@ class Collector:
         self._ep_cost = state["episode_cost"].to(dev).clone()
         self._ep_length = state["episode_length"].to(dev).clone()
         self.total_steps = int(state["total_steps"])
+        self.total_cost = float(state["total_cost"])
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:

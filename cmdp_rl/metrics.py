@@ -18,6 +18,8 @@ COLUMNS = [
     "iteration", "step", "episode_return", "episode_cost", "episode_length", "episodes",
     "lagrange_multiplier", "cost_limit", "sps", "time_s",
     "loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction",
+    # the field's metrics (safety_metrics.py): blank where no reference is given
+    "cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate",
 ]
 
 

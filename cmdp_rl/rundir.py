@@ -29,6 +29,7 @@ from cmdp_rl.algos import make_algo
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, load_config
 from cmdp_rl.envs import VecEnv, make_env
+from cmdp_rl.normalization import Normalizers
 from cmdp_rl.policies import ActorCritic, make_actor_critic
 
 CHECKPOINT = "checkpoint.pt"
@@ -142,7 +143,9 @@ def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_
     ckpt = Path(checkpoint) if checkpoint is not None else checkpoint_path(run_dir, "evaluate")
     state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
     env = make_env(cfg.env, num_envs=num_envs)
-    ac = make_actor_critic(cfg.policy, env)
+    # Normalizer buffers are shaped by the training envs (running discounted sums per env).
+    norm = Normalizers.from_config(cfg.normalize, env.obs_dim, cfg.env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
+    ac = make_actor_critic(cfg.policy, env, norm)
     try:  # the algorithm restores its own networks, whatever else it keeps
         make_algo(cfg.algo, ac).load_state_dict(state["algo_state"])
     except (KeyError, RuntimeError) as exc:

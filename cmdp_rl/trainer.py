@@ -22,10 +22,13 @@ from cmdp_rl.config import RunConfig, validate
 from cmdp_rl.envs import make_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger
+from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_actor_critic
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
 from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
+from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
+
 
 def _mean(t: torch.Tensor) -> float:
     return t.mean().item() if t.numel() else float("nan")
@@ -71,7 +74,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     seed_everything(cfg.seed)
 
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env)
+    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, ac)
     collector = Collector(env, ac.actor, cfg.rollout_steps, seed=cfg.seed)
     first, elapsed = 1, 0.0
@@ -85,6 +88,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
 
+    reference, warnings = load_reference(cfg)
+    for warning in warnings:
+        echo(f"warning: {warning}")
     cannot_resume: list[str] = []
 
     def checkpoint(iteration: int) -> None:
@@ -110,11 +116,13 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
             batch = collector.collect()
+            ac.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
             try:
                 stats = algo.update(batch)
             except TrainingDiverged as exc:
                 last = f"the last good checkpoint is {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written yet"
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
+            ac.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
             eps = finished_episodes(batch)
             row = {
                 "iteration": it, "step": collector.total_steps,
@@ -122,7 +130,10 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
                 "episode_length": _mean(eps["length"]), "episodes": int(eps["cost"].numel()),
                 "cost_limit": cfg.algo.cost_limit, "sps": per_iter / (time.perf_counter() - t0),
                 "time_s": time.perf_counter() - start, **stats,
+                "cost_rate": cost_rate(collector.total_cost, collector.total_steps),
             }
+            row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
+                                         cfg.algo.cost_limit, reference))
             logger.log(row, force_echo=it == iterations)
             if it % cfg.checkpoint_every == 0 or it == iterations:
                 checkpoint(it)
@@ -137,6 +148,10 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})
+    result["cost_rate"] = cost_rate(collector.total_cost, collector.total_steps)
+    result.update(normalized_scores(result["episode_return"], result["episode_cost"], result["cost_rate"],
+                                    cfg.algo.cost_limit, reference))
+    result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
     echo(
         f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "

@@ -1,5 +1,6 @@
 """The collector keeps reward and cost apart and gets episode ends right."""
 
+import pytest
 import torch
 from tensordict.nn import TensorDictModule
 
@@ -79,3 +80,36 @@ def test_state_dict_continues_the_same_trajectories():
         torch.set_rng_state(rng)
         got = fresh.collect()
         assert (got == expected).all() and fresh.total_steps == col.total_steps == 78
+
+
+def test_env_state_covers_plain_and_refuses_unknown_state():
+    import gymnasium as gym
+    import numpy as np
+
+    from cmdp_rl.envs.env_state import env_state, load_env_state
+
+    def make():
+        return gym.wrappers.RecordEpisodeStatistics(gym.make("Pendulum-v1", max_episode_steps=30))
+
+    a, b = make(), make()
+    a.reset(seed=1)
+    b.reset(seed=2)
+    for _ in range(11):
+        a.step(np.array([0.5], dtype=np.float32))
+    load_env_state(b, env_state(a))
+    for t in range(40):  # across the time limit and the reset after it
+        act = np.array([np.sin(t)], dtype=np.float32)
+        ra, rb = a.step(act), b.step(act)
+        assert np.array_equal(ra[0], rb[0]) and ra[1:4] == rb[1:4], t
+        if ra[3]:
+            assert np.array_equal(a.reset()[0], b.reset()[0])
+            assert ra[4]["episode"]["r"] == rb[4]["episode"]["r"]  # the wrapper's sums came back
+
+    class World(gym.Env):
+        observation_space = action_space = gym.spaces.Box(-1, 1, (1,))
+
+        def __init__(self):
+            self.world = object()  # say, a physics engine's handle
+
+    with pytest.raises(NotImplementedError, match="World holds 'world' .* cannot resume exactly"):
+        env_state(World())

@@ -12,9 +12,12 @@ from conftest import ROOT, cli_args, eval_result, metrics_rows, tiny
 
 # Loaded at interpreter start through PYTHONPATH: from the CMDP_NAN_AT-th update on, the reward
 # advantage every algorithm builds its policy advantage from is NaN, as after a numerical blow-up.
+# It takes the variable out of the environment first: importing cmdp_rl starts Python subprocesses
+# (mujoco's glfw probe), which would otherwise load this file again, and again.
 POISON = """
 import os
-if os.environ.get("CMDP_NAN_AT"):
+_nan_at = os.environ.pop("CMDP_NAN_AT", None)
+if _nan_at:
     from cmdp_rl import keys
     from cmdp_rl.advantages import TwinGAE
     _original, _calls = TwinGAE.__call__, [0]
@@ -22,7 +25,7 @@ if os.environ.get("CMDP_NAN_AT"):
     def _poisoned(self, batch, critic, cost_critic):
         _calls[0] += 1
         out = _original(self, batch, critic, cost_critic)
-        if _calls[0] >= int(os.environ["CMDP_NAN_AT"]):
+        if _calls[0] >= int(_nan_at):
             out.set(keys.ADVANTAGE, out.get(keys.ADVANTAGE) * float("nan"))
         return out
 

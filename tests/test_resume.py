@@ -203,3 +203,22 @@ def test_an_env_that_cannot_save_its_state_trains_but_refuses_to_resume(tmp_path
     assert load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"]  # still a usable checkpoint
     with pytest.raises(CheckpointError, match="holds no env state .* cannot continue exactly"):
         train(load_config(tiny(resume=str(tmp_path))), echo=quiet)
+
+
+def test_mujoco_run_with_normalization_resumes_exactly(tmp_path, monkeypatch, quiet):
+    """A MuJoCo env (its whole MjData saved) and running normalization statistics come back too."""
+    pytest.importorskip("mujoco")
+    cfg = {"env": {"name": "velocity", "task": "Hopper", "num_envs": 2, "max_steps": 24},
+           "algo": {"name": "ppo_lag", "update_epochs": 1, "num_minibatches": 2, "cost_limit": 1.0},
+           "normalize": {"obs": True, "reward": True, "cost": True},
+           "rollout_steps": 16, "total_steps": 6 * 32, "checkpoint_every": 2, "eval_episodes": 2}
+    whole, broken = tmp_path / "whole", tmp_path / "broken"
+    train(load_config(cfg), whole, echo=quiet)
+    crash_after_row(monkeypatch, 5)
+    with pytest.raises(Crash):
+        train(load_config(cfg), broken, echo=quiet)
+    monkeypatch.undo()
+    train(load_config({**cfg, "resume": str(broken)}), echo=quiet)
+    assert_same_run(whole, broken)
+    stats = final_state(broken)["networks"]
+    assert any(k.startswith("normalizers.") for k in stats)  # the statistics were in the checkpoint

@@ -7,7 +7,6 @@ costs about 1.3 ms per step (specs, step_mdp, info readers), several times the c
 
 from __future__ import annotations
 
-import pickle
 from abc import ABC, abstractmethod
 from typing import Any, Callable, NamedTuple
 
@@ -15,6 +14,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+from cmdp_rl.envs.env_state import env_state, load_env_state
 
 
 class Step(NamedTuple):
@@ -121,25 +122,15 @@ class GymVecEnv(VecEnv):
         )
 
     def state_dict(self) -> dict[str, Any]:
-        """Each env's own ``state_dict()`` where it has one (Reach1D: its generator and episode),
-        else the pickled env (wrappers included). In SAME_STEP mode the vector env itself holds
-        nothing between steps."""
-        states = []
-        for env in self.envs.envs:
-            if hasattr(env, "state_dict"):
-                states.append({"state": env.state_dict()})
-            else:
-                states.append({"pickle": pickle.dumps(env)})
-        return {"num_envs": self.num_envs, "envs": states}
+        """Each env's state, wrappers included (see ``envs/env_state.py``). In SAME_STEP mode the
+        vector env itself holds nothing between steps."""
+        return {"num_envs": self.num_envs, "envs": [env_state(env) for env in self.envs.envs]}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state["num_envs"] != self.num_envs:
             raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
-        for i, saved in enumerate(state["envs"]):
-            if "state" in saved:
-                self.envs.envs[i].load_state_dict(saved["state"])
-            else:
-                self.envs.envs[i] = pickle.loads(saved["pickle"])
+        for env, saved in zip(self.envs.envs, state["envs"]):
+            load_env_state(env, saved)
 
     def close(self) -> None:
         self.envs.close()
