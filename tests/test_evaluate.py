@@ -124,3 +124,15 @@ def test_cli_in_a_subprocess(run):
     proc = run_script("evaluate.py", f"run={run}", "episodes=2")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "2 episodes, deterministic policy" in proc.stdout
+
+
+def test_a_mujoco_run_with_normalization_evaluates_as_it_did_in_training(tmp_path):
+    pytest.importorskip("mujoco")
+    cfg = {"env": {"name": "velocity", "task": "Hopper", "num_envs": 3, "max_steps": 20},
+           "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2},
+           "normalize": {"obs": True, "reward": True}, "rollout_steps": 16, "total_steps": 96, "eval_episodes": 2}
+    train(load_config(cfg), tmp_path, echo=lambda s: None)  # evaluates on 2 envs, trained on 3
+    out = tmp_path / "e.json"
+    assert evaluate_cli.main([f"run={tmp_path}", f"output={out}"]) == 0
+    got, want = json.loads(out.read_text()), eval_result(tmp_path)
+    assert got["episode_return"] == want["episode_return"] and got["episode_cost"] == want["episode_cost"]
