@@ -12,6 +12,8 @@ losses and recurrent modules read its output unchanged.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
@@ -88,6 +90,30 @@ class Collector:
         batch = torch.stack(steps, dim=1)
         self.total_cost += batch.get((keys.NEXT, keys.COST)).sum().item()
         return batch
+
+    def state_dict(self) -> dict[str, Any]:
+        """Where the rollout stands: the next root (observation, ``is_init``, carried recurrent
+        state), the running episode sums, the step and cost counters, and the env's own state. A collector
+        built anew on the same config and given this continues the same trajectories."""
+        return {
+            "root": self._root.to_dict(),
+            "episode_return": self._ep_return.clone(),
+            "episode_cost": self._ep_cost.clone(),
+            "episode_length": self._ep_length.clone(),
+            "total_steps": self.total_steps,
+            "total_cost": self.total_cost,
+            "env": self.env.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.env.load_state_dict(state["env"])
+        n, dev = self.env.num_envs, self.env.device
+        self._root = TensorDict(state["root"], batch_size=[n], device=dev)
+        self._ep_return = state["episode_return"].to(dev).clone()
+        self._ep_cost = state["episode_cost"].to(dev).clone()
+        self._ep_length = state["episode_length"].to(dev).clone()
+        self.total_steps = int(state["total_steps"])
+        self.total_cost = float(state["total_cost"])
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:

@@ -8,6 +8,7 @@ what is allowed, so a bad value fails before a single environment step.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +19,8 @@ class ConfigError(ValueError):
     """A config value is missing, of the wrong type, or out of range."""
 
 
+LOGGERS = ("csv", "tensorboard")
+TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
 ENV_NAMES = ("reach1d", "velocity", "gym")
 ENV_BACKENDS = ("gym",)
 WALL_MODES = ("block", "pass")
@@ -190,10 +193,19 @@ ALGO_CONFIGS: dict[str, type] = {
 
 
 @dataclass
+class LoggerConfig:
+    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else,
+    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory."""
+
+    name: str = "csv"
+
+
+@dataclass
 class RunConfig:
     env: Union[EnvConfig, VelocityEnvConfig, GymEnvConfig] = field(default_factory=EnvConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo: AlgoConfig = field(default_factory=PPOLagConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
     seed: int = 0
     total_steps: int = 400_000
     rollout_steps: int = 256
@@ -203,8 +215,24 @@ class RunConfig:
     eval_deterministic: bool = True
     checkpoint_every: int = 10
     log_interval: int = 5
+    # A run directory to continue from its last checkpoint (see cmdp_rl/resume.py); None: a new run.
+    resume: Optional[str] = None
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+
+
+@dataclass
+class EvalConfig:
+    """Options of ``evaluate.py`` (``python evaluate.py run=<run dir> [key=value ...]``)."""
+
+    run: Optional[str] = None  # the run directory (required)
+    checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
+    episodes: Optional[int] = None  # default: the run's eval_episodes
+    deterministic: Optional[bool] = None  # mean action; default: the run's eval_deterministic
+    seed: Optional[int] = None  # default: the run's evaluation seed (reproduces its eval.json)
+    plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
+    plot_episodes: int = 3  # episodes drawn in the PNG
+    output: Optional[str] = None  # also write the results as JSON to this path
 
 
 def _check_type(value: Any, hint: Any, name: str) -> Any:
@@ -217,6 +245,10 @@ def _check_type(value: Any, hint: Any, name: str) -> Any:
             except ConfigError:
                 continue
         raise ConfigError(f"{name}: expected one of {get_args(hint)}, got {value!r}")
+    if hint is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{name}: expected null, got {value!r}")
     if hint is bool:
         if isinstance(value, bool):
             return value
@@ -262,9 +294,10 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
         raise ConfigError(f"algo.name: unknown algorithm {algo_name!r}; allowed: {sorted(ALGO_CONFIGS)}")
     cfg = _build(
         RunConfig,
-        {k: v for k, v in raw.items() if k not in ("env", "policy", "normalize", "reference")},
+        {k: v for k, v in raw.items() if k not in ("env", "policy", "logger", "normalize", "reference")},
         "config",
     )
+    cfg.logger = _build(LoggerConfig, dict(raw.get("logger", {}) or {}), "logger")
     env = dict(raw.get("env", {}) or {})
     env_name = env.get("name", "reach1d")
     if env_name not in ENV_CONFIGS:
@@ -275,6 +308,16 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
     cfg.policy = _build(PolicyConfig, dict(raw.get("policy", {}) or {}), "policy")
     cfg.algo = _build(ALGO_CONFIGS[algo_name], algo, "algo")
     validate(cfg)
+    return cfg
+
+
+def load_eval_config(raw: Mapping[str, Any]) -> EvalConfig:
+    """Build and check ``evaluate.py``'s options."""
+    cfg = _build(EvalConfig, dict(raw), "evaluate")
+    _require(bool(cfg.run), "run", "a run directory (run=<dir>)", cfg.run)
+    _require(cfg.episodes is None or cfg.episodes >= 1, "episodes", "a positive integer", cfg.episodes)
+    _require(cfg.plot_episodes >= 1, "plot_episodes", "a positive integer", cfg.plot_episodes)
+    _require(cfg.plot is None or cfg.plot.lower().endswith(".png"), "plot", "a path ending in .png", cfg.plot)
     return cfg
 
 
@@ -382,6 +425,10 @@ def validate(cfg: RunConfig) -> None:
     _require(cfg.eval_episodes >= 1, "eval_episodes", "a positive integer", cfg.eval_episodes)
     _require(cfg.checkpoint_every >= 1, "checkpoint_every", "a positive integer", cfg.checkpoint_every)
     _require(cfg.log_interval >= 1, "log_interval", "a positive integer", cfg.log_interval)
+    _require(cfg.resume is None or cfg.resume.strip() != "", "resume", "null or a run directory", cfg.resume)
+    _require(cfg.logger.name in LOGGERS, "logger.name", f"one of {LOGGERS}", cfg.logger.name)
+    if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
+        raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
     _validate_normalize_and_reference(cfg)
 
 

@@ -104,3 +104,24 @@ def test_checkpoint_errors(tmp_path):
     train(cfg, tmp_path, echo=lambda s: None)
     with pytest.raises(CheckpointError, match="algo='ppo'.*algo='ppo_lag'"):
         load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo_lag")
+
+
+def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    original = PPO._step
+
+    def step_then_break(self, opt, loss, params):
+        original(self, opt, loss, params)
+        calls["n"] += 1
+        if calls["n"] == 2 * 2 * 3:  # the last step of iteration 3 (2 minibatches x 2 nets per iteration)
+            with torch.no_grad():
+                next(iter(self.ac.critic.parameters())).fill_(float("inf"))
+
+    monkeypatch.setattr(PPO, "_step", step_then_break)
+    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2}, "env": {"num_envs": 2},
+                       "rollout_steps": 16, "total_steps": 320, "checkpoint_every": 1})
+    with pytest.raises(TrainingDiverged, match=r"iteration 3: parameter critic\..* is not finite"):
+        train(cfg, tmp_path, echo=lambda s: None)
+    state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo")
+    assert state["iteration"] == 2
+    assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())

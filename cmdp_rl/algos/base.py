@@ -7,6 +7,7 @@ from typing import Protocol, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
+from torch import nn
 
 
 class TrainingDiverged(RuntimeError):
@@ -19,6 +20,14 @@ def check_finite(**values: torch.Tensor | float) -> None:
         x = value.item() if isinstance(value, torch.Tensor) else float(value)
         if not math.isfinite(x):
             raise TrainingDiverged(f"{name} is {x}: training diverged")
+
+
+def check_parameters_finite(module: nn.Module) -> None:
+    """A last step can leave a parameter infinite with every loss finite: never let such a network
+    reach a checkpoint."""
+    for name, p in module.named_parameters():
+        if not torch.isfinite(p).all():
+            raise TrainingDiverged(f"parameter {name} is not finite after the update: training diverged")
 
 
 @runtime_checkable

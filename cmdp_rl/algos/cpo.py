@@ -41,7 +41,7 @@ from torch.distributions import kl_divergence
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.base import check_finite
+from cmdp_rl.algos.base import check_finite, check_parameters_finite
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.critics import critic_losses
 from cmdp_rl.collector import finished_episodes
@@ -164,6 +164,7 @@ class CPO:
         flat = batch.reshape(-1)
         stats = self.policy_step(flat, episode_cost, episode_length)
         stats.update(self.fit_critics(flat))
+        check_parameters_finite(self.ac.modules())
         stats["lagrange_multiplier"] = self.nu
         return stats
 

@@ -22,7 +22,7 @@ from torchrl.objectives import ClipPPOLoss
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.base import check_finite
+from cmdp_rl.algos.base import check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import critic_losses
 from cmdp_rl.algos.lagrange import DualAscent, MultiplierController, PIDLagrangian
 from cmdp_rl.collector import finished_episodes
@@ -91,6 +91,7 @@ class PPO:
                                ("clip_fraction", out["clip_fraction"])):
                     sums[k] += val.item()
                 n += 1
+        check_parameters_finite(self.ac.modules())
         stats = {k: s / n for k, s in sums.items()}
         stats["lagrange_multiplier"] = self.lagrange_multiplier
         return stats
