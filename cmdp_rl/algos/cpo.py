@@ -221,7 +221,7 @@ class CPO:
         with torch.no_grad():
             for j in range(cfg.line_search_steps):
                 fraction = cfg.backtrack_coef**j
-                nn.utils.vector_to_parameters(theta0 + fraction * step, params)
+                _assign(params, theta0 + fraction * step)
                 new_reward, new_cost, new_kl = (t.item() for t in surrogates())
                 d_reward, d_cost = new_reward - old_reward, new_cost - old_cost
                 if sol.case == RECOVERY:
@@ -234,7 +234,7 @@ class CPO:
                                 "surr_reward_change": d_reward, "surr_cost_change": d_cost}
                     break
             else:
-                nn.utils.vector_to_parameters(theta0, params)  # no acceptable step: stay at pi_k
+                _assign(params, theta0)  # no acceptable step: stay at pi_k
             entropy = actor.get_dist(obs).entropy().mean().item()
         return {"cpo_case": sol.case, "dual_lambda": sol.lam, "dual_nu": sol.nu, "entropy": entropy, **accepted}
 
@@ -268,3 +268,15 @@ class CPO:
 
 def _flat(tensors: tuple[torch.Tensor, ...]) -> torch.Tensor:
     return torch.cat([t.reshape(-1) for t in tensors])
+
+
+@torch.no_grad()
+def _assign(params: list[nn.Parameter], flat: torch.Tensor) -> None:
+    """Copy a flat vector into the parameters, in place. (``nn.utils.vector_to_parameters``
+    rebinds each parameter to a view of the vector: a different memory alignment, which changes the
+    rounding of the BLAS kernels, so a resumed run, whose parameters are fresh tensors, would drift
+    from an uninterrupted one in the last bits.)"""
+    offset = 0
+    for p in params:
+        p.copy_(flat[offset:offset + p.numel()].view_as(p))
+        offset += p.numel()
