@@ -4,7 +4,7 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup train test bench clean
+.PHONY: setup train test bench bench-velocity bench-velocity-smoke clean
 
 .venv/.installed: pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -14,6 +14,21 @@ TORCH_VERSION := 2.13.0
 	touch $@
 
 setup: .venv/.installed
+
+# MuJoCo (the `mujoco` extra) for env=velocity; the test extra has it too, this makes it explicit.
+.venv/.mujoco: .venv/.installed
+	$(PY) -m pip install -q -e '.[mujoco]'
+	touch $@
+
+# The velocity benchmark (experiments/velocity_benchmark.py): ppo and ppo_lag on HalfCheetah,
+# 3 seeds, about an hour on 2 cores; then the table and the PNG. The smoke version runs in minutes.
+bench-velocity: .venv/.mujoco
+	$(PY) experiments/velocity_speed.py
+	$(PY) experiments/velocity_benchmark.py
+
+bench-velocity-smoke: .venv/.mujoco
+	$(PY) experiments/velocity_benchmark.py total_steps=8192 rollout_steps=256 env.num_envs=4 \
+		eval_episodes=2 env.max_steps=200 hydra.sweep.dir=multirun/velocity_benchmark_smoke
 
 train: setup
 	$(PY) train.py algo=ppo_lag env=reach1d

@@ -17,7 +17,7 @@ one, which writes its state under ``"next"``) is called on a TensorDict.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -72,6 +72,7 @@ class Collector:
         self._ep_cost = torch.zeros(n, 1, device=dev)
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
         self.total_steps = 0
+        self.total_cost = 0.0  # every cost collected so far: the numerator of the cost rate
 
     @torch.no_grad()
     def collect(self) -> TensorDictBase:
@@ -111,7 +112,32 @@ class Collector:
             {k: torch.stack([s[k] for s in steps], dim=1) for k in steps[0]},
             batch_size=[n, self.rollout_steps], device=self.env.device,
         )
+        self.total_cost += batch.get((keys.NEXT, keys.COST)).sum().item()
         return batch
+
+    def state_dict(self) -> dict[str, Any]:
+        """Where the rollout stands: the next root (observation, ``is_init``, carried recurrent
+        state), the running episode sums, the step and cost counters, and the env's own state. A collector
+        built anew on the same config and given this continues the same trajectories."""
+        return {
+            "root": dict(self._root),
+            "episode_return": self._ep_return.clone(),
+            "episode_cost": self._ep_cost.clone(),
+            "episode_length": self._ep_length.clone(),
+            "total_steps": self.total_steps,
+            "total_cost": self.total_cost,
+            "env": self.env.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.env.load_state_dict(state["env"])
+        dev = self.env.device
+        self._root = {k: v.to(dev) for k, v in state["root"].items()}
+        self._ep_return = state["episode_return"].to(dev).clone()
+        self._ep_cost = state["episode_cost"].to(dev).clone()
+        self._ep_length = state["episode_length"].to(dev).clone()
+        self.total_steps = int(state["total_steps"])
+        self.total_cost = float(state["total_cost"])
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:

@@ -122,3 +122,26 @@ def test_fast_tanh_matches_torch_tanh_and_its_gradient():
     assert torch.allclose(g, 1 - torch.tanh(x.detach()) ** 2, atol=1e-6)
     with torch.no_grad():
         assert torch.equal(Tanh()(x), y.detach())
+
+
+def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    original = torch.optim.Adam.step
+
+    def step_then_break(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        calls["n"] += 1
+        # the last step of iteration 3 (2 minibatches x 2 optimizers per iteration, the critics' second)
+        if calls["n"] == 2 * 2 * 3:
+            with torch.no_grad():
+                self.param_groups[0]["params"][0].fill_(float("inf"))  # the reward critic's first weight
+        return out
+
+    monkeypatch.setattr(torch.optim.Adam, "step", step_then_break)
+    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2}, "env": {"num_envs": 2},
+                       "rollout_steps": 16, "total_steps": 320, "checkpoint_every": 1})
+    with pytest.raises(TrainingDiverged, match=r"iteration 3: parameter critic\..* is not finite"):
+        train(cfg, tmp_path, echo=lambda s: None)
+    state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo")
+    assert state["iteration"] == 2
+    assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())

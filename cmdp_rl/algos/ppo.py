@@ -114,6 +114,13 @@ class PPO:
         means = (sums / (cfg.update_epochs * cfg.num_minibatches)).tolist()
         stats = dict(zip(STATS, means))
         self._check_finite(stats)
+        # A last step can leave a parameter infinite with every loss finite: never let such a
+        # network reach a checkpoint (one check for all parameters, one host sync).
+        params = list(self.ac.modules().named_parameters())
+        finite = torch.stack([torch.isfinite(p).all() for _, p in params]).tolist()
+        if not all(finite):
+            name = next(n for (n, _), ok in zip(params, finite) if not ok)
+            raise TrainingDiverged(f"parameter {name} is not finite after the update: training diverged")
         stats["lagrange_multiplier"] = self.lagrange_multiplier
         return stats
 

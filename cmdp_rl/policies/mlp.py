@@ -86,8 +86,14 @@ class GaussianHead(nn.Module):
         return loc, scale
 
 
-def make_actor(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor) -> ProbabilisticActor:
-    net = mlp(obs_dim, cfg.hidden_sizes, low.numel(), cfg.activation, out_gain=0.01)
+def _normalized(net: nn.Module, obs_norm: nn.Module | None) -> nn.Module:
+    return net if obs_norm is None else nn.Sequential(obs_norm, net)
+
+
+def make_actor(
+    cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor, obs_norm: nn.Module | None = None
+) -> ProbabilisticActor:
+    net = _normalized(mlp(obs_dim, cfg.hidden_sizes, low.numel(), cfg.activation, out_gain=0.01), obs_norm)
     head = TensorDictModule(GaussianHead(net, low, high, cfg.init_log_std), [keys.OBS], [keys.LOC, keys.SCALE])
     return ProbabilisticActor(
         head,
@@ -99,5 +105,6 @@ def make_actor(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.T
     )
 
 
-def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str) -> TensorDictModule:
-    return TensorDictModule(mlp(obs_dim, cfg.hidden_sizes, 1, cfg.activation), [keys.OBS], [out_key])
+def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str, obs_norm: nn.Module | None = None) -> TensorDictModule:
+    net = _normalized(mlp(obs_dim, cfg.hidden_sizes, 1, cfg.activation), obs_norm)
+    return TensorDictModule(net, [keys.OBS], [out_key])
