@@ -36,5 +36,10 @@ train: setup
 test: setup
 	$(PY) -m pytest tests
 
+# Throughput table (env, rollout, training steps/s, peak memory); writes outputs/benchmark_throughput.json.
+# Takes a few minutes; pass options with BENCH_ARGS, e.g. `make bench BENCH_ARGS="--device cuda"`.
+bench: setup
+	$(PY) experiments/benchmark_throughput.py $(BENCH_ARGS)
+
 clean:
 	rm -rf .venv outputs multirun

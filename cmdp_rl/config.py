@@ -22,7 +22,7 @@ class ConfigError(ValueError):
 LOGGERS = ("csv", "tensorboard")
 TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
 ENV_NAMES = ("reach1d", "velocity", "gym")
-ENV_BACKENDS = ("gym",)
+ENV_BACKENDS = ("gym", "torch")  # gymnasium vector env | tensor-native batched env (reach1d only)
 WALL_MODES = ("block", "pass")
 POLICY_NAMES = ("mlp",)
 ACTIVATIONS = ("tanh", "relu", "elu")
@@ -41,6 +41,9 @@ class EnvConfig:
     wall: str = "block"
     start: Union[float, list] = 0.1
     probe: bool = False
+    # torch backend only: the first episode of each env starts at a random step count, so that
+    # episodes end at different iterations (the envs would otherwise all time out together).
+    stagger: bool = False
 
 
 # Safety-Gymnasium's velocity tasks (v1 thresholds), on gymnasium's MuJoCo v5 envs: envs/velocity.py.
@@ -347,6 +350,7 @@ def validate(cfg: RunConfig) -> None:
             _require(ok, "env.start", "a number in [0, 1] or a pair [low, high] with 0 <= low <= high <= 1", e.start)
         else:
             _require(0.0 <= e.start <= 1.0, "env.start", "in [0, 1]", e.start)
+        _require(not e.stagger or e.backend == "torch", "env.stagger", "false unless env.backend=torch", e.stagger)
     else:
         _require(e.backend == "gym", "env.backend", f"gym for env={e.name}", e.backend)
     if isinstance(e, VelocityEnvConfig):
@@ -421,6 +425,10 @@ def validate(cfg: RunConfig) -> None:
             f"at most rollout_steps * env.num_envs = {batch}", a.critic_minibatches,
         )
     _require(cfg.device in DEVICES, "device", f"one of {DEVICES}", cfg.device)
+    if cfg.device == "cuda":
+        import torch
+
+        _require(torch.cuda.is_available(), "device", "cpu on this machine (torch sees no CUDA device)", cfg.device)
     _require(cfg.threads >= 1, "threads", "a positive integer", cfg.threads)
     _require(cfg.eval_episodes >= 1, "eval_episodes", "a positive integer", cfg.eval_episodes)
     _require(cfg.checkpoint_every >= 1, "checkpoint_every", "a positive integer", cfg.checkpoint_every)

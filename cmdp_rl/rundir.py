@@ -28,7 +28,7 @@ import yaml
 from cmdp_rl.algos import make_algo
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, load_config
-from cmdp_rl.envs import VecEnv, make_env
+from cmdp_rl.envs import VecEnv, make_eval_env
 from cmdp_rl.normalization import Normalizers
 from cmdp_rl.policies import ActorCritic, make_actor_critic
 
@@ -142,7 +142,7 @@ def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_
     cfg = run_config(run_dir, "evaluate")
     ckpt = Path(checkpoint) if checkpoint is not None else checkpoint_path(run_dir, "evaluate")
     state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
-    env = make_env(cfg.env, num_envs=num_envs)
+    env = make_eval_env(cfg.env, num_envs=num_envs)
     # Normalizer buffers are shaped by the training envs (running discounted sums per env).
     norm = Normalizers.from_config(cfg.normalize, env.obs_dim, cfg.env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
     ac = make_actor_critic(cfg.policy, env, norm)

@@ -19,7 +19,7 @@ from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
-from cmdp_rl.envs import make_env
+from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger
 from cmdp_rl.normalization import make_normalizers
@@ -73,7 +73,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     torch.set_num_threads(cfg.threads)
     seed_everything(cfg.seed)
 
-    env = make_env(cfg.env)
+    env = make_env(cfg.env, device=cfg.device)
     ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, ac)
     collector = Collector(env, ac.actor, cfg.rollout_steps, seed=cfg.seed)
@@ -144,7 +144,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
-    eval_env = make_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs))
+    eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})

@@ -2,7 +2,8 @@
 
 import pytest
 import torch
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType
 
 from cmdp_rl import Collector, finished_episodes, keys
 from cmdp_rl.envs import GymVecEnv, Reach1D
@@ -55,6 +56,67 @@ def test_cost_on_the_done_step_is_kept():
     b = Collector(env, policy(0.1), rollout_steps=4, seed=0).collect()
     assert b[keys.NEXT][keys.COST].sum().item() == 8.0
     assert finished_episodes(b)["cost"].tolist() == [1.0] * 8
+
+
+def _mlp_actor_and_env(backend="gym", n=4):
+    from cmdp_rl import load_config, make_actor_critic, make_env
+
+    cfg = load_config({"env": {"backend": backend, "num_envs": n, "max_steps": 9}})
+    env = make_env(cfg.env)
+    torch.manual_seed(0)
+    return make_actor_critic(cfg.policy, env).actor, cfg
+
+
+@pytest.mark.parametrize("exploration", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_tensor_path_equals_the_tensordict_path(exploration):
+    """The MLP actor runs on tensors (TensorActor); the batch is the one ProbabilisticActor gives."""
+    from cmdp_rl import make_env
+    from cmdp_rl.policies.tensor_path import TensorActor
+
+    actor, cfg = _mlp_actor_and_env()
+    assert TensorActor.wrap(actor) is not None
+    batches = []
+    for tensor_path in (True, False):
+        torch.manual_seed(1)
+        col = Collector(make_env(cfg.env), actor, 20, seed=3, exploration=exploration, tensor_path=tensor_path)
+        batches.append([col.collect(), col.collect()])
+    for fast, slow in zip(*batches):
+        assert set(fast.keys(True, True)) == set(slow.keys(True, True))
+        assert {keys.ACTION, keys.LOG_PROB, keys.LOC, keys.SCALE} <= set(fast.keys())
+        for k in slow.keys(True, True):
+            assert fast[k].shape == slow[k].shape and fast[k].dtype == slow[k].dtype, k
+            assert torch.equal(fast[k], slow[k]), k
+
+
+class CountingPolicy(TensorDictModuleBase):
+    """A stateful policy: it reads its state from the root and writes the next one under "next",
+    as torchrl's recurrent modules do; the state restarts at an episode start (is_init)."""
+
+    in_keys = [keys.OBS, keys.IS_INIT, "count"]
+    out_keys = [keys.ACTION, (keys.NEXT, "count")]
+
+    def forward(self, td):
+        count = td.get("count", torch.zeros(td.shape[0], 1))
+        count = torch.where(td.get(keys.IS_INIT), torch.zeros_like(count), count)
+        td.set(keys.ACTION, torch.full((td.shape[0], 1), 0.1))
+        td.set("count", count)
+        td.set((keys.NEXT, "count"), count + 1)
+        return td
+
+
+def test_state_written_under_next_is_carried_to_the_next_step():
+    from cmdp_rl.policies.tensor_path import TensorActor
+
+    policy = CountingPolicy()
+    assert TensorActor.wrap(policy) is None  # not a stateless actor: the TensorDict path
+    env = GymVecEnv(lambda: Reach1D(max_steps=5, obs_noise=0.0), 2)
+    col = Collector(env, policy, rollout_steps=7, seed=0)
+    b = col.collect()
+    expected = torch.tensor([0, 1, 2, 3, 4, 0, 1], dtype=torch.float32)
+    assert torch.equal(b["count"][0, :, 0], expected)
+    assert torch.equal(b[keys.NEXT]["count"][1, :, 0], expected + 1)
+    b2 = col.collect()  # the state carries across calls
+    assert b2["count"][0, 0, 0].item() == 2.0
 
 
 def test_state_dict_continues_the_same_trajectories():

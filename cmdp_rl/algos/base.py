@@ -24,10 +24,12 @@ def check_finite(**values: torch.Tensor | float) -> None:
 
 def check_parameters_finite(module: nn.Module) -> None:
     """A last step can leave a parameter infinite with every loss finite: never let such a network
-    reach a checkpoint."""
-    for name, p in module.named_parameters():
-        if not torch.isfinite(p).all():
-            raise TrainingDiverged(f"parameter {name} is not finite after the update: training diverged")
+    reach a checkpoint. One check for all parameters, one host sync."""
+    params = list(module.named_parameters())
+    finite = torch.stack([torch.isfinite(p).all() for _, p in params]).tolist()
+    if not all(finite):
+        name = next(n for (n, _), ok in zip(params, finite) if not ok)
+        raise TrainingDiverged(f"parameter {name} is not finite after the update: training diverged")
 
 
 @runtime_checkable

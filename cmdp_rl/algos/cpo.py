@@ -43,7 +43,7 @@ from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import check_finite, check_parameters_finite
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
-from cmdp_rl.algos.critics import critic_losses
+from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.collector import finished_episodes
 from cmdp_rl.config import CPOConfig
 from cmdp_rl.policies import ActorCritic
@@ -150,6 +150,7 @@ class CPO:
         self.policy_params = list(ac.actor.parameters())
         self.critic_params = [*ac.critic.parameters(), *ac.cost_critic.parameters()]
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
+        self.critics = CriticRegression(ac)
         self.nu = 0.0
 
     @property
@@ -241,12 +242,16 @@ class CPO:
     def fit_critics(self, flat: TensorDictBase) -> dict[str, float]:
         """Regress both critics on their GAE value targets (minibatch Adam)."""
         cfg = self.cfg
-        mb_size = flat.shape[0] // cfg.critic_minibatches
+        names = {*self.ac.critic.in_keys, *self.ac.cost_critic.in_keys, keys.VALUE_TARGET, keys.COST_VALUE_TARGET}
+        data = {k: flat.get(k) for k in sorted(names, key=str)}
+        total = flat.shape[0]
+        mb_size = total // cfg.critic_minibatches
         sums, n = {"loss_v": 0.0, "loss_vc": 0.0}, 0
         for _ in range(cfg.critic_epochs):
-            perm = torch.randperm(flat.shape[0], device=flat.device)
+            perm = torch.randperm(total, device=flat.device)
+            shuffled = {k: v[perm] for k, v in data.items()}
             for i in range(cfg.critic_minibatches):
-                loss_v, loss_vc = critic_losses(self.ac, flat[perm[i * mb_size:(i + 1) * mb_size]])
+                loss_v, loss_vc = self.critics.losses({k: v[i * mb_size:(i + 1) * mb_size] for k, v in shuffled.items()})
                 check_finite(loss_v=loss_v, loss_vc=loss_vc)
                 self.critic_opt.zero_grad(set_to_none=True)
                 (loss_v + loss_vc).backward()

@@ -4,17 +4,33 @@
 from __future__ import annotations
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict
 
 from cmdp_rl import keys
 from cmdp_rl.policies import ActorCritic
+from cmdp_rl.policies.tensor_path import TensorModule
 
 
-def critic_losses(ac: ActorCritic, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-    """MSE of the reward critic and of the cost critic on ``batch``'s value targets."""
-    obs = batch.select(keys.OBS)
-    v = ac.critic(obs).get(keys.VALUE)
-    vc = ac.cost_critic(obs).get(keys.COST_VALUE)
-    loss_v = (v - batch.get(keys.VALUE_TARGET)).pow(2).mean()
-    loss_vc = (vc - batch.get(keys.COST_VALUE_TARGET)).pow(2).mean()
-    return loss_v, loss_vc
+class CriticRegression:
+    """MSE of the reward critic and of the cost critic on a minibatch's value targets.
+
+    A minibatch is a dict of flat tensors (root keys). The critics run on their tensor paths where
+    the modules allow (``policies/tensor_path.py``: same numbers, without TensorDict overhead), else
+    as TensorDict modules.
+    """
+
+    def __init__(self, ac: ActorCritic) -> None:
+        self.ac = ac
+        self.fast = TensorModule.wrap(ac.critic)
+        self.cost_fast = TensorModule.wrap(ac.cost_critic)
+
+    def losses(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        v = self._values(mb, self.fast, self.ac.critic, keys.VALUE)
+        vc = self._values(mb, self.cost_fast, self.ac.cost_critic, keys.COST_VALUE)
+        return (v - mb[keys.VALUE_TARGET]).pow(2).mean(), (vc - mb[keys.COST_VALUE_TARGET]).pow(2).mean()
+
+    @staticmethod
+    def _values(mb: dict[str, torch.Tensor], fast: TensorModule | None, module, key: str) -> torch.Tensor:
+        if fast is not None:
+            return fast(mb)
+        return module(TensorDict(mb, batch_size=[len(mb[keys.VALUE_TARGET])])).get(key)

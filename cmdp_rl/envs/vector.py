@@ -75,7 +75,7 @@ class GymVecEnv(VecEnv):
     every episode end.
     """
 
-    def __init__(self, make_one: Callable[[], gym.Env], num_envs: int) -> None:
+    def __init__(self, make_one: Callable[[], gym.Env], num_envs: int, device: str | torch.device = "cpu") -> None:
         self.envs = SyncVectorEnv([make_one for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
         self.num_envs = num_envs
         obs_space = self.envs.single_observation_space
@@ -87,13 +87,14 @@ class GymVecEnv(VecEnv):
         # The env's own dtype (float32 for Reach1D): a float64 action could land exactly on the
         # seed's wall, where the strict crossing test lets it through at no cost.
         self._act_dtype = act_space.dtype
-        self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32)
-        self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32)
-        self.device = torch.device("cpu")
+        # Gymnasium steps on the CPU; tensors handed out live on ``device``.
+        self.device = torch.device(device)
+        self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32, device=self.device)
+        self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32, device=self.device)
         self._zeros = np.zeros(num_envs, dtype=np.float32)
 
     def _obs(self, obs: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(np.asarray(obs, dtype=np.float32).reshape(self.num_envs, self.obs_dim))
+        return torch.from_numpy(np.asarray(obs, dtype=np.float32).reshape(self.num_envs, self.obs_dim)).to(self.device)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         obs, _ = self.envs.reset(seed=seed)
@@ -114,10 +115,10 @@ class GymVecEnv(VecEnv):
         n = self.num_envs
         return Step(
             next_obs=self._obs(next_obs),
-            reward=torch.from_numpy(np.asarray(reward, dtype=np.float32)).view(n, 1),
-            cost=torch.from_numpy(cost).view(n, 1),
-            terminated=torch.from_numpy(np.asarray(terminated, dtype=bool)).view(n, 1),
-            truncated=torch.from_numpy(np.asarray(truncated, dtype=bool)).view(n, 1),
+            reward=torch.from_numpy(np.asarray(reward, dtype=np.float32)).view(n, 1).to(self.device),
+            cost=torch.from_numpy(cost).view(n, 1).to(self.device),
+            terminated=torch.from_numpy(np.asarray(terminated, dtype=bool)).view(n, 1).to(self.device),
+            truncated=torch.from_numpy(np.asarray(truncated, dtype=bool)).view(n, 1).to(self.device),
             obs=self._obs(obs),
         )
 
