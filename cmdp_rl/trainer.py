@@ -95,7 +95,8 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
     eval_env = make_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs))
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
-    result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})
+    result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
+                   "torch_threads": torch.get_num_threads()})
     (out / "eval.json").write_text(json.dumps(result, indent=2))
     echo(
         f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "
