@@ -41,6 +41,7 @@ PENALTY_ALGOS = ("penalty", "ppo")  # a fixed lambda (ppo: lambda = 0)
 TAIL = 0.25  # training cost: mean over the last quarter of iterations (the average iterate)
 PENALTY_TOL = 0.25  # |mean cost - predicted| within this: the runs agree with the analysis
 BUDGET_TOL = 0.05  # mean eval cost <= d + this: the budget is met
+SHOW_NOT_OK = 20  # runs that did not finish listed on the console (all of them in runs.csv)
 
 
 # --------------------------------------------------------------------------------------------
@@ -358,58 +359,73 @@ def answers_markdown(analysis: Analysis | None, rows: list[dict[str, Any]]) -> s
 # --------------------------------------------------------------------------------------------
 # Figure
 # --------------------------------------------------------------------------------------------
-def figure(path: Path, rows: list[dict[str, Any]], analysis: Analysis | None) -> None:
+def figure(path: Path, rows: list[dict[str, Any]], runs: list[Run], analysis: Analysis | None) -> None:
+    """Left: eval cost against lambda (penalty runs), right: against d (constrained runs). Each
+    seed is a small dot, the mean over seeds a large one (3 seeds: a std bar would mislead)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax_p, ax_c) = plt.subplots(1, 2, figsize=(12, 4.6))
+    fig, (ax_p, ax_c) = plt.subplots(1, 2, figsize=(12.5, 4.8))
     starts = sorted({r["start"] for r in rows})
     colors = {s: f"C{i}" for i, s in enumerate(starts)}
-    pen = [r for r in rows if r["knob"] == "lambda" and r["runs_ok"]]
-    con = [r for r in rows if r["knob"] == "d" and r["runs_ok"]]
+    done = [r for r in runs if r.status == OK and r.key is not None]
     budgets = sorted({r["value"] for r in rows if r["knob"] == "d"})
+    lam_max = max([r["value"] for r in rows if r["knob"] == "lambda"] + [2.0]) * 1.1
+    d_max = max(budgets + [1.0]) * 1.05
 
-    lam_max = max([r["value"] for r in pen] + [2.0]) * 1.1
+    def scatter(ax, knob, span, label):
+        for i, s in enumerate(starts):
+            shift = (i - (len(starts) - 1) / 2) * 0.015 * span  # starts side by side, not on top
+            mine = [r for r in done if r.key.knob == knob and r.key.start == s]
+            if not mine:
+                continue
+            ax.plot([r.key.value + shift for r in mine], [r.eval_cost for r in mine], ".", color=colors[s],
+                    alpha=0.45, ms=5)
+            means = sorted((r["value"], r["cost_mean"]) for r in rows
+                           if r["knob"] == knob and r["start"] == s and r["runs_ok"])
+            x, y = map(np.array, zip(*means))
+            ax.plot(x + shift, y, "o", color=colors[s], ms=7, label=f"{label}, {s}")
+
+    scatter(ax_p, "lambda", lam_max, "runs: mean (dots: seeds)")
     for s in starts:
-        pts = sorted((r["value"], r["cost_mean"], r["cost_std"]) for r in pen if r["start"] == s)
-        if pts:
-            x, y, err = map(np.array, zip(*pts))
-            ax_p.errorbar(x, y, yerr=np.nan_to_num(err), fmt="o", color=colors[s], capsize=3,
-                          label=f"penalty runs, {s}")
         if analysis is not None and s in analysis.starts:
             grid = np.linspace(0.0, lam_max, 600)
             ax_p.plot(grid, analysis.thresholds.expected_cost(analysis.starts[s], grid), "--",
                       color=colors[s], alpha=0.8, label=f"penalty-optimal plan (DP), {s}")
+    if analysis is not None and analysis.env.wall == "pass":
+        lam_star = analysis.thresholds.at(0.1)
+        ax_p.axvline(lam_star, color="0.3", lw=0.8)
+        ax_p.annotate(f"λ* = {lam_star:.3f}", (lam_star, 1.08), fontsize=8, ha="center")
     for d in budgets:
         ax_p.axhline(d, color="0.6", lw=0.8, ls=":")
         ax_p.annotate(f"d={d:g}", (lam_max, d), fontsize=7, color="0.4", ha="right", va="bottom")
-    ax_p.set(xlabel="fixed penalty λ", ylabel="episode cost (crossings), eval",
+    ax_p.set(xlabel="fixed penalty λ", ylabel="episode cost (crossings), final eval", ylim=(-0.05, 1.15),
              title="Penalty r − λc: cost against λ (dotted: budgets d)")
-    if not pen:
-        ax_p.text(0.5, 0.5, "no penalty runs", transform=ax_p.transAxes, ha="center")
+    if not any(r.key.knob == "lambda" for r in done):
+        ax_p.text(0.5, 0.5, "no finished penalty runs", transform=ax_p.transAxes, ha="center")
     if ax_p.get_legend_handles_labels()[0]:
-        ax_p.legend(fontsize=7, loc="upper right", bbox_to_anchor=(1.0, 0.9))
+        ax_p.legend(fontsize=7, loc="upper right", bbox_to_anchor=(1.0, 0.93))
 
-    d_max = max(budgets + [1.0]) * 1.05
     ax_c.plot([0, d_max], [0, d_max], "k--", lw=1, label="ideal: cost = d")
-    for s in starts:
-        pts = sorted((r["value"], r["cost_mean"], r["cost_std"], r["train_cost_mean"]) for r in con if r["start"] == s)
-        if pts:
-            x, y, err, tc = map(np.array, zip(*pts))
-            ax_c.errorbar(x, y, yerr=np.nan_to_num(err), fmt="o", color=colors[s], capsize=3,
-                          label=f"{', '.join(sorted({r['algo'] for r in con}))} eval, {s}")
-            ax_c.plot(x, tc, "x", color=colors[s], label=f"training, last 25%, {s}")
+    algos = ", ".join(sorted({r.key.algo for r in done if r.key.knob == "d"}))
+    scatter(ax_c, "d", d_max, f"{algos}: mean (dots: seeds)")
+    for i, s in enumerate(starts):
+        shift = (i - (len(starts) - 1) / 2) * 0.015 * d_max
+        tc = sorted((r["value"], r["train_cost_mean"]) for r in rows if r["knob"] == "d" and r["start"] == s and r["runs_ok"])
+        if tc:
+            x, y = map(np.array, zip(*tc))
+            ax_c.plot(x + shift, y, "x", color=colors[s], ms=7, label=f"training cost, last 25%, {s}")
         if analysis is not None and s in analysis.starts:
             cap = analysis.unconstrained_cost(s)
             if cap < d_max:
                 grid = np.linspace(0, d_max, 100)
-                ax_c.plot(grid, np.minimum(grid, cap), ":", color=colors[s], label=f"ideal capped at λ=0 cost, {s}")
-    ax_c.set(xlabel="budget d (expected crossings per episode)", ylabel="achieved episode cost",
+                ax_c.plot(grid, np.minimum(grid, cap), ":", color=colors[s], label=f"ideal capped at the λ=0 cost, {s}")
+    ax_c.set(xlabel="budget d (expected crossings per episode)", ylabel="episode cost (crossings), final eval",
              title="Constraint J_c ≤ d: achieved cost against d")
-    if not con:
-        ax_c.text(0.5, 0.5, "no constrained runs", transform=ax_c.transAxes, ha="center")
+    if not any(r.key.knob == "d" for r in done):
+        ax_c.text(0.5, 0.5, "no finished constrained runs", transform=ax_c.transAxes, ha="center")
     if ax_c.get_legend_handles_labels()[0]:
         ax_c.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
@@ -428,7 +444,7 @@ def report(dirs: list[Path], out: Path) -> dict[str, Any]:
     write_csv(out / "table.csv", rows)
     write_csv(out / "runs.csv", status_rows(runs))
     (out / "answers.md").write_text(answers_markdown(analysis, rows))
-    figure(out / "penalty_vs_constraint.png", rows, analysis)
+    figure(out / "penalty_vs_constraint.png", rows, runs, analysis)
     counts: dict[str, int] = defaultdict(int)
     for r in runs:
         counts[r.status] += 1
@@ -449,10 +465,12 @@ def main(argv: list[str] | None = None) -> int:
     print(table_markdown(result["rows"]))
     counts = result["counts"]
     print("runs: " + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("ok", "failed", "incomplete", "missing")))
-    for r in result["runs"]:
-        if r.status != OK:
-            where = r.path if r.status != MISSING else f"{r.path}: {' '.join(r.overrides)}"
-            print(f"  {r.status}: {where}" + (f" ({r.error})" if r.error else ""))
+    not_ok = [r for r in result["runs"] if r.status != OK]
+    for r in not_ok[:SHOW_NOT_OK]:
+        where = r.path if r.status != MISSING else f"{r.path}: {' '.join(r.overrides)}"
+        print(f"  {r.status}: {where}" + (f" ({r.error})" if r.error else ""))
+    if len(not_ok) > SHOW_NOT_OK:
+        print(f"  ... and {len(not_ok) - SHOW_NOT_OK} more: see {out}/runs.csv")
     print(f"wrote {out}/table.md, table.csv, runs.csv, answers.md, penalty_vs_constraint.png")
     return 0
 
