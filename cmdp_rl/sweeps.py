@@ -14,7 +14,9 @@ from __future__ import annotations
 import csv
 import itertools
 import json
+import shlex
 import traceback
+from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,6 +31,7 @@ HYDRA_DIR = ".hydra"
 MULTIRUN_FILE = "multirun.yaml"
 
 OK, FAILED, INCOMPLETE, MISSING = "ok", "failed", "incomplete", "missing"
+SUPERSEDED = "superseded"  # the same job ran again (a rerun) and that run is the one kept
 
 
 def clear_outputs(out_dir: str | Path) -> None:
@@ -151,3 +154,40 @@ def missing_jobs(sweep_dir: str | Path, runs: list[RunRecord]) -> list[list[str]
     jobs = expected_jobs(sweep_dir) or []
     seen = {frozenset(r.overrides) for r in runs}
     return [job for job in jobs if frozenset(job) not in seen]
+
+
+def _finished_at(record: RunRecord) -> float:
+    for name in (EVAL_FILE, ERROR_FILE, METRICS_FILE):
+        if (record.path / name).is_file():
+            return (record.path / name).stat().st_mtime
+    return record.path.stat().st_mtime
+
+
+def mark_superseded(records: list[RunRecord]) -> None:
+    """Where several directories hold the same job (same overrides: a rerun of a failed or
+    interrupted job), keep the newest finished one, else the newest; mark the others superseded."""
+    by_job: dict[frozenset, list[RunRecord]] = defaultdict(list)
+    for r in records:
+        if r.overrides:
+            by_job[frozenset(r.overrides)].append(r)
+    for group in by_job.values():
+        if len(group) > 1:
+            keep = max([r for r in group if r.status == OK] or group, key=_finished_at)
+            for r in group:
+                if r is not keep:
+                    r.status = SUPERSEDED
+
+
+def sweep_dir_of(run_dir: Path) -> Path:
+    """The sweep a run directory belongs to: the nearest ancestor holding multirun.yaml."""
+    for parent in run_dir.parents:
+        if (parent / MULTIRUN_FILE).is_file():
+            return parent
+    return run_dir.parent
+
+
+def rerun_command(overrides: list[str], sweep_dir: Path, script: str = "train.py") -> str:
+    """A command that runs one job again, into ``<sweep_dir>/rerun`` (never into the sweep
+    directory itself: that would replace its multirun.yaml, the record of what was expected)."""
+    args = " ".join(shlex.quote(o) for o in overrides)
+    return f"python {script} -m {args} hydra.sweep.dir={shlex.quote(str(sweep_dir / 'rerun'))}"

@@ -10,7 +10,11 @@ is re-trained) and writes, into ``--out`` (default ``<first dir>/report``):
   return and cost, the training episode cost over the last quarter of iterations, the final lambda,
   and what the analysis predicts;
 - ``runs.csv``: every run (and every job the sweeps' multirun.yaml expected but that left nothing)
-  with its status: ok, failed (error.txt says why), incomplete (started, no result), missing;
+  with its status: ok, failed (error.txt says why), incomplete (started, no result: killed, or
+  its joblib pool was broken by another job's hard crash), missing (never started), superseded
+  (the same job ran again: the rerun is used);
+- ``rerun.sh``: one command per job that did not finish, running it again into
+  ``<its sweep>/rerun``;
 - ``penalty_vs_constraint.png``: episode cost against lambda for the penalty runs, each budget d a
   horizontal line, the penalty-optimal step function from the analysis; achieved cost against d
   for the constrained runs, the diagonal the ideal;
@@ -35,7 +39,10 @@ import yaml
 
 from cmdp_rl.config import EnvConfig
 from cmdp_rl.envs.reach1d_dp import CrossingThresholds, closed_form_threshold, crossing_thresholds
-from cmdp_rl.sweeps import MISSING, MULTIRUN_FILE, OK, RunRecord, find_runs, missing_jobs
+from cmdp_rl.sweeps import (
+    MISSING, MULTIRUN_FILE, OK, SUPERSEDED, RunRecord, find_runs, mark_superseded, missing_jobs, rerun_command,
+    sweep_dir_of,
+)
 
 PENALTY_ALGOS = ("penalty", "ppo")  # a fixed lambda (ppo: lambda = 0)
 TAIL = 0.25  # training cost: mean over the last quarter of iterations (the average iterate)
@@ -135,11 +142,12 @@ def gather(dirs: list[Path]) -> tuple[list[Run], list[RunRecord]]:
     for d in dirs:
         recs = find_runs(d)
         records += recs
-        runs += [from_record(r) for r in recs]
         for multirun in sorted(d.rglob(MULTIRUN_FILE)):
             sweep_dir = multirun.parent
             inside = [r for r in recs if sweep_dir in r.path.parents]
             runs += [from_missing(job, sweep_dir) for job in missing_jobs(sweep_dir, inside)]
+    mark_superseded(records)  # a rerun of a failed or interrupted job replaces it
+    runs = [from_record(r) for r in records] + runs
     return runs, records
 
 
@@ -193,7 +201,7 @@ def _stats(values: list[float]) -> tuple[float, float]:
 def table_rows(runs: list[Run], analysis: Analysis | None) -> list[dict[str, Any]]:
     groups: dict[GroupKey, list[Run]] = defaultdict(list)
     for run in runs:
-        if run.key is not None:
+        if run.key is not None and run.status != SUPERSEDED:
             groups[run.key].append(run)
     rows = []
     for key in sorted(groups, key=GroupKey.sort_key):
@@ -444,11 +452,19 @@ def report(dirs: list[Path], out: Path) -> dict[str, Any]:
     write_csv(out / "table.csv", rows)
     write_csv(out / "runs.csv", status_rows(runs))
     (out / "answers.md").write_text(answers_markdown(analysis, rows))
+    redo = [r for r in runs if r.status not in (OK, SUPERSEDED) and r.overrides]
+    (out / "rerun.sh").write_text("# Runs that did not finish, each run again into <its sweep>/rerun;\n"
+                                  "# the report then uses the rerun in place of the original.\n"
+                                  + "".join(rerun_command(r.overrides, _sweep_of(r)) + "\n" for r in redo))
     figure(out / "penalty_vs_constraint.png", rows, runs, analysis)
     counts: dict[str, int] = defaultdict(int)
     for r in runs:
         counts[r.status] += 1
     return {"rows": rows, "runs": runs, "counts": dict(counts), "out": out}
+
+
+def _sweep_of(run: Run) -> Path:
+    return Path(run.path) if run.status == MISSING else sweep_dir_of(Path(run.path))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -464,14 +480,17 @@ def main(argv: list[str] | None = None) -> int:
     result = report(args.dirs, out)
     print(table_markdown(result["rows"]))
     counts = result["counts"]
-    print("runs: " + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("ok", "failed", "incomplete", "missing")))
-    not_ok = [r for r in result["runs"] if r.status != OK]
+    print("runs: " + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("ok", "failed", "incomplete", "missing"))
+          + (f" ({counts[SUPERSEDED]} superseded by reruns)" if counts.get(SUPERSEDED) else ""))
+    not_ok = [r for r in result["runs"] if r.status not in (OK, SUPERSEDED)]
     for r in not_ok[:SHOW_NOT_OK]:
         where = r.path if r.status != MISSING else f"{r.path}: {' '.join(r.overrides)}"
         print(f"  {r.status}: {where}" + (f" ({r.error})" if r.error else ""))
     if len(not_ok) > SHOW_NOT_OK:
         print(f"  ... and {len(not_ok) - SHOW_NOT_OK} more: see {out}/runs.csv")
-    print(f"wrote {out}/table.md, table.csv, runs.csv, answers.md, penalty_vs_constraint.png")
+    if not_ok:
+        print(f"to run them again: sh {out}/rerun.sh")
+    print(f"wrote {out}/table.md, table.csv, runs.csv, answers.md, rerun.sh, penalty_vs_constraint.png")
     return 0
 
 

@@ -60,7 +60,9 @@ def sweep(tmp_path):
 
     pen_run(0, 0.0, 0, eval_=(1.8, 1.0), costs=[3, 2, 1, 1.0])
     pen_run(1, 0.0, 1, eval_=(1.6, 1.0), costs=[3, 2, 1, 0.5])
-    pen_run(2, 0.0, 2, costs=[3, 2])  # interrupted: metrics, no result, no error
+    pen_run(2, 0.0, 2, costs=[3, 2])  # interrupted: metrics, no result, no error ...
+    ovr = ["algo=sweep/penalty", "algo.penalty=0.0", "env.start=0.1", "seed=2"]  # ... then run again
+    write_run(pen / "rerun" / "0_run", ovr, PenaltyConfig(penalty=0.0), 0.1, 2, eval_=(1.7, 1.0), costs=[3, 2, 1, 0.75])
     pen_run(3, 2.0, 0, eval_=(0.4, 0.0), costs=[1, 0, 0, 0])
     pen_run(4, 2.0, 1, error="TrainingDiverged: loss_pi is nan", costs=[1])
     pen_run(5, 2.0, 2, eval_=(0.2, 0.0), costs=[1, 0, 0, 0])
@@ -76,12 +78,13 @@ def test_table_status_and_answers_from_a_fixture_sweep(sweep, capsys):
     rows = {(r["knob"], float(r["value"]), r["start"]): r for r in csv.DictReader(open(out / "table.csv"))}
     assert set(rows) == {("lambda", 0.0, "x0=0.1"), ("lambda", 2.0, "x0=0.1"), ("d", 0.5, "x0~U[0,1]")}
 
-    lam0 = rows[("lambda", 0.0, "x0=0.1")]
-    assert (lam0["runs_ok"], lam0["runs"]) == ("2", "3")
+    lam0 = rows[("lambda", 0.0, "x0=0.1")]  # seed 2's rerun replaces its interrupted run
+    assert (lam0["runs_ok"], lam0["runs"]) == ("3", "3")
     assert float(lam0["return_mean"]) == pytest.approx(1.7)
-    assert float(lam0["return_std"]) == pytest.approx(0.1414214, rel=1e-5)  # over seeds, ddof=1
+    assert float(lam0["return_std"]) == pytest.approx(0.1)  # over seeds, ddof=1
     assert float(lam0["cost_mean"]) == 1.0 and float(lam0["cost_std"]) == 0.0
-    assert float(lam0["train_cost_mean"]) == pytest.approx(0.75)  # last quarter: 1.0 and 0.5
+    assert float(lam0["train_cost_mean"]) == pytest.approx(0.75)  # last quarters: 1.0, 0.5, 0.75
+    assert float(lam0["train_cost_std"]) == pytest.approx(0.25)
     assert float(lam0["final_lambda_mean"]) == pytest.approx(3.7)
     assert float(lam0["predicted_cost"]) == 1.0 and lam0["check"] == "agrees"
 
@@ -96,16 +99,21 @@ def test_table_status_and_answers_from_a_fixture_sweep(sweep, capsys):
     assert float(d05["predicted_cost"]) == pytest.approx(0.5) and d05["check"] == "meets d"
 
     status = [r["status"] for r in csv.DictReader(open(out / "runs.csv"))]
-    assert sorted(status) == ["failed", "incomplete", "missing", "ok", "ok", "ok", "ok", "ok"]
+    assert sorted(status) == ["failed", "missing"] + ["ok"] * 6 + ["superseded"]
     printed = capsys.readouterr().out
-    assert "5 ok, 1 failed, 1 incomplete, 1 missing" in printed
+    assert "6 ok, 1 failed, 0 incomplete, 1 missing (1 superseded by reruns)" in printed
     assert "TrainingDiverged: loss_pi is nan" in printed
     assert "algo.cost_limit=0.5 env.start=[0.0,1.0] seed=1" in printed
+    rerun = (out / "rerun.sh").read_text().splitlines()[2:]
+    assert sorted(rerun) == sorted([
+        f"python train.py -m algo=sweep/penalty algo.penalty=2.0 env.start=0.1 seed=1 +experiment=x hydra.sweep.dir={sweep / 'penalty' / 'rerun'}",
+        f"python train.py -m algo=sweep/ppo_lag algo.cost_limit=0.5 'env.start=[0.0,1.0]' seed=1 +experiment=x hydra.sweep.dir={sweep / 'constraint' / 'rerun'}",
+    ])
 
     answers = (out / "answers.md").read_text()
     assert "lambda* = 1.3643" in answers and "a drop of 0.500 at λ = 1.3643" in answers
     assert (out / "penalty_vs_constraint.png").stat().st_size > 10_000
-    assert "| penalty | λ=0 | x0=0.1 | 2/3 |" in (out / "table.md").read_text()
+    assert "| penalty | λ=2 | x0=0.1 | 2/3 | 0.300 ± 0.141 | 0.000 ± 0.000 |" in (out / "table.md").read_text()
 
 
 def test_an_empty_directory_is_reported_not_a_crash(tmp_path, capsys):
