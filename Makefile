@@ -4,7 +4,7 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup train test bench sweep clean
+.PHONY: setup train test bench bench-velocity bench-velocity-smoke sweep clean
 
 .venv/.installed: pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -15,11 +15,31 @@ TORCH_VERSION := 2.13.0
 
 setup: .venv/.installed
 
+# MuJoCo (the `mujoco` extra) for env=velocity; the test extra has it too, this makes it explicit.
+.venv/.mujoco: .venv/.installed
+	$(PY) -m pip install -q -e '.[mujoco]'
+	touch $@
+
+# The velocity benchmark (experiments/velocity_benchmark.py): ppo and ppo_lag on HalfCheetah,
+# 3 seeds, about an hour on 2 cores; then the table and the PNG. The smoke version runs in minutes.
+bench-velocity: .venv/.mujoco
+	$(PY) experiments/velocity_speed.py
+	$(PY) experiments/velocity_benchmark.py
+
+bench-velocity-smoke: .venv/.mujoco
+	$(PY) experiments/velocity_benchmark.py total_steps=8192 rollout_steps=256 env.num_envs=4 \
+		eval_episodes=2 env.max_steps=200 hydra.sweep.dir=multirun/velocity_benchmark_smoke
+
 train: setup
 	$(PY) train.py algo=ppo_lag env=reach1d
 
 test: setup
 	$(PY) -m pytest tests
+
+# Throughput table (env, rollout, training steps/s, peak memory); writes outputs/benchmark_throughput.json.
+# Takes a few minutes; pass options with BENCH_ARGS, e.g. `make bench BENCH_ARGS="--device cuda"`.
+bench: setup
+	$(PY) experiments/benchmark_throughput.py $(BENCH_ARGS)
 
 # The penalty-versus-constraint study (docs/penalty_vs_constraint.md): both Hydra sweeps into one
 # directory, then the report from their outputs. `make sweep SWEEP_ARGS="hydra/launcher=..."` scales

@@ -8,17 +8,21 @@ what is allowed, so a bad value fails before a single environment step.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Union, get_args, get_origin, get_type_hints
+from pathlib import Path
+from typing import Any, Mapping, Optional, Union, get_args, get_origin, get_type_hints
 
 
 class ConfigError(ValueError):
     """A config value is missing, of the wrong type, or out of range."""
 
 
-ENV_NAMES = ("reach1d",)
-ENV_BACKENDS = ("gym",)
+LOGGERS = ("csv", "tensorboard")
+TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
+ENV_NAMES = ("reach1d", "velocity", "gym")
+ENV_BACKENDS = ("gym", "torch")  # gymnasium vector env | tensor-native batched env (reach1d only)
 WALL_MODES = ("block", "pass")
 POLICY_NAMES = ("mlp",)
 ACTIVATIONS = ("tanh", "relu", "elu")
@@ -37,6 +41,70 @@ class EnvConfig:
     wall: str = "block"
     start: Union[float, list] = 0.1
     probe: bool = False
+    # torch backend only: the first episode of each env starts at a random step count, so that
+    # episodes end at different iterations (the envs would otherwise all time out together).
+    stagger: bool = False
+
+
+# Safety-Gymnasium's velocity tasks (v1 thresholds), on gymnasium's MuJoCo v5 envs: envs/velocity.py.
+VELOCITY_TASKS = ("Ant", "HalfCheetah", "Hopper", "Humanoid", "Swimmer", "Walker2d")
+STEP_APIS = ("five", "six")
+
+
+@dataclass
+class VelocityEnvConfig:
+    """A MuJoCo locomotion task with cost 1 on every step faster than a threshold (envs/velocity.py)."""
+
+    name: str = "velocity"
+    backend: str = "gym"
+    num_envs: int = 8
+    task: str = "HalfCheetah"
+    # None: the task's Safety-Gymnasium v1 threshold (envs/velocity.py); a number overrides it.
+    velocity_threshold: Optional[float] = None
+    max_steps: int = 1000
+
+
+@dataclass
+class GymEnvConfig:
+    """Any registered gymnasium env that reports cost: in ``info["cost"]`` (five-value step) or as
+    the third value of a Safety-Gymnasium six-value step (envs/gym_cost.py)."""
+
+    name: str = "gym"
+    backend: str = "gym"
+    num_envs: int = 8
+    id: str = ""
+    step_api: str = "five"
+    max_steps: int = 0  # 0: the time limit the env was registered with
+    kwargs: dict = field(default_factory=dict)
+
+
+ENV_CONFIGS: dict[str, type] = {"reach1d": EnvConfig, "velocity": VelocityEnvConfig, "gym": GymEnvConfig}
+
+
+@dataclass
+class NormalizeConfig:
+    """Running normalization of observations and scaling of reward and cost (normalization.py)."""
+
+    obs: bool = False
+    obs_clip: float = 10.0
+    reward: bool = False
+    cost: bool = False
+
+
+@dataclass
+class ReferenceConfig:
+    """The unconstrained-PPO reference of Safety Gym's normalized metrics (safety_metrics.py):
+    a finished run's directory, or its numbers."""
+
+    run: Optional[str] = None
+    episode_return: Optional[float] = None
+    episode_cost: Optional[float] = None
+    cost_rate: Optional[float] = None
+
+
+# Cost scaling changes what these algorithms' numbers mean: penalty's fixed lambda prices raw
+# cost, and CPO's constraint step compares the cost surrogate with J_c - d in raw units.
+NO_COST_SCALING = ("penalty", "cpo")
 
 
 @dataclass
@@ -85,14 +153,23 @@ class PPOLagConfig(PPOConfig):
     lambda_lr: float = 0.05
 
 
+@dataclass
+class LoggerConfig:
+    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else,
+    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory."""
+
+    name: str = "csv"
+
+
 ALGO_CONFIGS: dict[str, type] = {"ppo": PPOConfig, "penalty": PenaltyConfig, "ppo_lag": PPOLagConfig}
 
 
 @dataclass
 class RunConfig:
-    env: EnvConfig = field(default_factory=EnvConfig)
+    env: Union[EnvConfig, VelocityEnvConfig, GymEnvConfig] = field(default_factory=EnvConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo: PPOConfig = field(default_factory=PPOLagConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
     seed: int = 0
     total_steps: int = 400_000
     rollout_steps: int = 256
@@ -102,6 +179,24 @@ class RunConfig:
     eval_deterministic: bool = True
     checkpoint_every: int = 10
     log_interval: int = 5
+    # A run directory to continue from its last checkpoint (see cmdp_rl/resume.py); None: a new run.
+    resume: Optional[str] = None
+    normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+
+
+@dataclass
+class EvalConfig:
+    """Options of ``evaluate.py`` (``python evaluate.py run=<run dir> [key=value ...]``)."""
+
+    run: Optional[str] = None  # the run directory (required)
+    checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
+    episodes: Optional[int] = None  # default: the run's eval_episodes
+    deterministic: Optional[bool] = None  # mean action; default: the run's eval_deterministic
+    seed: Optional[int] = None  # default: the run's evaluation seed (reproduces its eval.json)
+    plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
+    plot_episodes: int = 3  # episodes drawn in the PNG
+    output: Optional[str] = None  # also write the results as JSON to this path
 
 
 def _check_type(value: Any, hint: Any, name: str) -> Any:
@@ -114,6 +209,10 @@ def _check_type(value: Any, hint: Any, name: str) -> Any:
             except ConfigError:
                 continue
         raise ConfigError(f"{name}: expected one of {get_args(hint)}, got {value!r}")
+    if hint is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{name}: expected null, got {value!r}")
     if hint is bool:
         if isinstance(value, bool):
             return value
@@ -159,13 +258,30 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
         raise ConfigError(f"algo.name: unknown algorithm {algo_name!r}; allowed: {sorted(ALGO_CONFIGS)}")
     cfg = _build(
         RunConfig,
-        {k: v for k, v in raw.items() if k not in ("env", "policy")},
+        {k: v for k, v in raw.items() if k not in ("env", "policy", "logger", "normalize", "reference")},
         "config",
     )
-    cfg.env = _build(EnvConfig, dict(raw.get("env", {}) or {}), "env")
+    cfg.logger = _build(LoggerConfig, dict(raw.get("logger", {}) or {}), "logger")
+    env = dict(raw.get("env", {}) or {})
+    env_name = env.get("name", "reach1d")
+    if env_name not in ENV_CONFIGS:
+        raise ConfigError(f"env.name: unknown env {env_name!r}; allowed: {sorted(ENV_CONFIGS)}")
+    cfg.env = _build(ENV_CONFIGS[env_name], env, "env")
+    cfg.normalize = _build(NormalizeConfig, dict(raw.get("normalize", {}) or {}), "normalize")
+    cfg.reference = _build(ReferenceConfig, dict(raw.get("reference", {}) or {}), "reference")
     cfg.policy = _build(PolicyConfig, dict(raw.get("policy", {}) or {}), "policy")
     cfg.algo = _build(ALGO_CONFIGS[algo_name], algo, "algo")
     validate(cfg)
+    return cfg
+
+
+def load_eval_config(raw: Mapping[str, Any]) -> EvalConfig:
+    """Build and check ``evaluate.py``'s options."""
+    cfg = _build(EvalConfig, dict(raw), "evaluate")
+    _require(bool(cfg.run), "run", "a run directory (run=<dir>)", cfg.run)
+    _require(cfg.episodes is None or cfg.episodes >= 1, "episodes", "a positive integer", cfg.episodes)
+    _require(cfg.plot_episodes >= 1, "plot_episodes", "a positive integer", cfg.plot_episodes)
+    _require(cfg.plot is None or cfg.plot.lower().endswith(".png"), "plot", "a path ending in .png", cfg.plot)
     return cfg
 
 
@@ -184,16 +300,30 @@ def validate(cfg: RunConfig) -> None:
     _require(e.name in ENV_NAMES, "env.name", f"one of {ENV_NAMES}", e.name)
     _require(e.backend in ENV_BACKENDS, "env.backend", f"one of {ENV_BACKENDS}", e.backend)
     _require(e.num_envs >= 1, "env.num_envs", "a positive integer", e.num_envs)
-    _require(_finite(e.obs_noise) and e.obs_noise >= 0, "env.obs_noise", "a number >= 0", e.obs_noise)
-    _require(0.0 < e.wall_x < 1.0, "env.wall_x", "in (0, 1)", e.wall_x)
-    _require(0.0 <= e.goal <= 1.0, "env.goal", "in [0, 1]", e.goal)
-    _require(e.max_steps >= 1, "env.max_steps", "a positive integer", e.max_steps)
-    _require(e.wall in WALL_MODES, "env.wall", f"one of {WALL_MODES}", e.wall)
-    if isinstance(e.start, list):
-        ok = len(e.start) == 2 and all(_finite(s) for s in e.start) and 0 <= e.start[0] <= e.start[1] <= 1
-        _require(ok, "env.start", "a number in [0, 1] or a pair [low, high] with 0 <= low <= high <= 1", e.start)
+    if isinstance(e, EnvConfig):
+        _require(_finite(e.obs_noise) and e.obs_noise >= 0, "env.obs_noise", "a number >= 0", e.obs_noise)
+        _require(0.0 < e.wall_x < 1.0, "env.wall_x", "in (0, 1)", e.wall_x)
+        _require(0.0 <= e.goal <= 1.0, "env.goal", "in [0, 1]", e.goal)
+        _require(e.max_steps >= 1, "env.max_steps", "a positive integer", e.max_steps)
+        _require(e.wall in WALL_MODES, "env.wall", f"one of {WALL_MODES}", e.wall)
+        if isinstance(e.start, list):
+            ok = len(e.start) == 2 and all(_finite(s) for s in e.start) and 0 <= e.start[0] <= e.start[1] <= 1
+            _require(ok, "env.start", "a number in [0, 1] or a pair [low, high] with 0 <= low <= high <= 1", e.start)
+        else:
+            _require(0.0 <= e.start <= 1.0, "env.start", "in [0, 1]", e.start)
+        _require(not e.stagger or e.backend == "torch", "env.stagger", "false unless env.backend=torch", e.stagger)
     else:
-        _require(0.0 <= e.start <= 1.0, "env.start", "in [0, 1]", e.start)
+        _require(e.backend == "gym", "env.backend", f"gym for env={e.name}", e.backend)
+    if isinstance(e, VelocityEnvConfig):
+        _require(e.task in VELOCITY_TASKS, "env.task", f"one of {VELOCITY_TASKS}", e.task)
+        _require(e.velocity_threshold is None or (_finite(e.velocity_threshold) and e.velocity_threshold >= 0),
+                 "env.velocity_threshold", "null (the task's own) or a number >= 0", e.velocity_threshold)
+        _require(e.max_steps >= 1, "env.max_steps", "a positive integer", e.max_steps)
+    if isinstance(e, GymEnvConfig):
+        _require(e.id.strip() != "", "env.id", "a registered gymnasium id, e.g. env.id=MyCostEnv-v0", e.id)
+        _require(e.step_api in STEP_APIS, "env.step_api", f"one of {STEP_APIS}", e.step_api)
+        _require(e.max_steps >= 0, "env.max_steps", "an integer >= 0 (0: the registered limit)", e.max_steps)
+        _require(isinstance(e.kwargs, dict), "env.kwargs", "a mapping of constructor arguments", e.kwargs)
 
     _require(p.name in POLICY_NAMES, "policy.name", f"one of {POLICY_NAMES}", p.name)
     _require(
@@ -230,7 +360,39 @@ def validate(cfg: RunConfig) -> None:
         f"at most rollout_steps * env.num_envs = {batch}", a.num_minibatches,
     )
     _require(cfg.device in DEVICES, "device", f"one of {DEVICES}", cfg.device)
+    if cfg.device == "cuda":
+        import torch
+
+        _require(torch.cuda.is_available(), "device", "cpu on this machine (torch sees no CUDA device)", cfg.device)
     _require(cfg.threads >= 1, "threads", "a positive integer", cfg.threads)
     _require(cfg.eval_episodes >= 1, "eval_episodes", "a positive integer", cfg.eval_episodes)
     _require(cfg.checkpoint_every >= 1, "checkpoint_every", "a positive integer", cfg.checkpoint_every)
     _require(cfg.log_interval >= 1, "log_interval", "a positive integer", cfg.log_interval)
+    _require(cfg.resume is None or cfg.resume.strip() != "", "resume", "null or a run directory", cfg.resume)
+    _require(cfg.logger.name in LOGGERS, "logger.name", f"one of {LOGGERS}", cfg.logger.name)
+    if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
+        raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
+    _validate_normalize_and_reference(cfg)
+
+
+def _validate_normalize_and_reference(cfg: RunConfig) -> None:
+    n, r = cfg.normalize, cfg.reference
+    _require(_finite(n.obs_clip) and n.obs_clip > 0, "normalize.obs_clip", "a positive number", n.obs_clip)
+    _require(not (n.cost and cfg.algo.name in NO_COST_SCALING), "normalize.cost",
+             f"false with algo={cfg.algo.name} (it reads costs in their own units)", n.cost)
+    numbers = {"episode_return": r.episode_return, "episode_cost": r.episode_cost, "cost_rate": r.cost_rate}
+    if r.run is not None:
+        _require(all(v is None for v in numbers.values()), "reference",
+                 "either reference.run or the reference numbers, not both", {"run": r.run, **numbers})
+        _require((Path(r.run) / "eval.json").is_file() and (Path(r.run) / "config.yaml").is_file(),
+                 "reference.run", "a finished run's directory (holding eval.json and config.yaml)", r.run)
+        from cmdp_rl.safety_metrics import reference_run_problem  # reads the run's files
+
+        problem = reference_run_problem(r.run, cfg)
+        _require(problem is None, "reference.run", f"a usable reference run, but {problem}", r.run)
+    for name, v in numbers.items():
+        _require(v is None or _finite(v), f"reference.{name}", "null or a finite number", v)
+    _require(r.episode_return is None or r.episode_return != 0, "reference.episode_return",
+             "null or a nonzero number (it divides the return)", r.episode_return)
+    _require(r.cost_rate is None or r.cost_rate > 0, "reference.cost_rate",
+             "null or a positive number (it divides the cost rate)", r.cost_rate)

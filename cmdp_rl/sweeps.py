@@ -1,8 +1,9 @@
-"""What a run leaves on disk, and reading a Hydra sweep's run directories back.
+"""Recording a run's failure, and reading a Hydra sweep's run directories back.
 
-A run directory (``train.py``'s Hydra output dir) holds ``.hydra/{config,overrides}.yaml``
-(written by Hydra when the job starts), then ``config.yaml`` and ``metrics.csv`` (training
-started), then ``eval.json`` (training and evaluation finished) or ``error.txt`` (the job raised).
+A run directory (``train.py``'s Hydra output dir; its layout is in ``cmdp_rl/rundir.py``) holds
+``.hydra/{config,overrides}.yaml`` (written by Hydra when the job starts), then ``config.yaml``
+and ``metrics.csv`` (training started), then ``eval.json`` (training and evaluation finished) or
+``error.txt`` (the job raised).
 A sweep directory holds Hydra's ``multirun.yaml`` and one run directory per job.
 
 Aggregators read results from here instead of re-training, and report every run that did not
@@ -23,10 +24,11 @@ from typing import Any
 
 import yaml
 
-EVAL_FILE = "eval.json"
-METRICS_FILE = "metrics.csv"
-CONFIG_FILE = "config.yaml"
-ERROR_FILE = "error.txt"
+from cmdp_rl.rundir import CONFIG as CONFIG_FILE
+from cmdp_rl.rundir import ERROR as ERROR_FILE
+from cmdp_rl.rundir import EVAL as EVAL_FILE
+from cmdp_rl.rundir import METRICS as METRICS_FILE
+
 HYDRA_DIR = ".hydra"
 MULTIRUN_FILE = "multirun.yaml"
 

@@ -85,3 +85,63 @@ def test_checkpoint_errors(tmp_path):
     train(cfg, tmp_path, echo=lambda s: None)
     with pytest.raises(CheckpointError, match="algo='ppo'.*algo='ppo_lag'"):
         load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo_lag")
+
+
+def test_policy_loss_equals_torchrl_clip_ppo_loss():
+    """The hand-written clipped surrogate (fast path, and the TensorDict path) is ClipPPOLoss's."""
+    from torchrl.objectives import ClipPPOLoss
+
+    cfg, algo, col = setup({"name": "ppo", "entropy_coef": 0.01, "clip_epsilon": 0.1})
+    batch = col.collect()
+    algo.gae(batch, algo.ac.critic, algo.ac.cost_critic)
+    batch.set(keys.POLICY_ADVANTAGE, batch.get(keys.ADVANTAGE))
+    with torch.no_grad():  # move the policy so that ratios differ from 1 and some are clipped
+        for p in algo.ac.actor.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    flat = batch.reshape(-1)
+    ref = ClipPPOLoss(algo.ac.actor, critic_network=None, clip_epsilon=0.1, entropy_coeff=0.01, normalize_advantage=False)
+    ref.set_keys(advantage=keys.POLICY_ADVANTAGE, sample_log_prob=keys.LOG_PROB)
+    out = ref(flat)
+    mb = {k: flat.get(k) for k in algo._update_keys(batch)}
+    for fast in (algo.actor_fast, None):
+        algo.actor_fast = fast
+        loss, entropy, kl, clip_fraction = algo.policy_loss(mb)
+        assert torch.allclose(loss, out["loss_objective"] + out["loss_entropy"], rtol=1e-6, atol=1e-7)
+        assert torch.allclose(entropy, out["entropy"]) and torch.allclose(kl, out["kl_approx"])
+        assert clip_fraction == out["clip_fraction"] and 0.05 < clip_fraction.item() < 0.95
+
+
+def test_fast_tanh_matches_torch_tanh_and_its_gradient():
+    from cmdp_rl.policies.mlp import Tanh
+
+    x = torch.linspace(-12, 12, 4 * Tanh.MIN_NUMEL + 1, requires_grad=True)  # large: the sigmoid form
+    y = Tanh()(x)
+    assert not torch.equal(y, torch.tanh(x))  # (it is not torch.tanh's own kernel)
+    assert (y - torch.tanh(x)).abs().max().item() < 3e-7 and y.min() == -1 and y.max() == 1
+    (g,) = torch.autograd.grad(y.sum(), x)
+    assert torch.allclose(g, 1 - torch.tanh(x.detach()) ** 2, atol=1e-6)
+    with torch.no_grad():
+        assert torch.equal(Tanh()(x), y.detach())
+
+
+def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    original = torch.optim.Adam.step
+
+    def step_then_break(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        calls["n"] += 1
+        # the last step of iteration 3 (2 minibatches x 2 optimizers per iteration, the critics' second)
+        if calls["n"] == 2 * 2 * 3:
+            with torch.no_grad():
+                self.param_groups[0]["params"][0].fill_(float("inf"))  # the reward critic's first weight
+        return out
+
+    monkeypatch.setattr(torch.optim.Adam, "step", step_then_break)
+    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2}, "env": {"num_envs": 2},
+                       "rollout_steps": 16, "total_steps": 320, "checkpoint_every": 1})
+    with pytest.raises(TrainingDiverged, match=r"iteration 3: parameter critic\..* is not finite"):
+        train(cfg, tmp_path, echo=lambda s: None)
+    state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo")
+    assert state["iteration"] == 2
+    assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())

@@ -120,3 +120,18 @@ class Reach1D(gym.Env):
             self.last_probe = reading
         info = {"cost": cost, "true_x": self.x}
         return self._obs(reading), float(reward), terminated, truncated, info
+
+    # --- saving and restoring a running episode (for resuming training) ---------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """The episode in progress and the env's generator: restoring them continues the same
+        stream of readings and starts as if the process had never stopped."""
+        return {
+            "np_random": self.np_random.bit_generator.state,
+            "x": getattr(self, "x", None),
+            "steps": getattr(self, "steps", None),
+            "last_probe": getattr(self, "last_probe", None),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.np_random.bit_generator.state = state["np_random"]
+        self.x, self.steps, self.last_probe = state["x"], state["steps"], state["last_probe"]

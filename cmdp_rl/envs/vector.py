@@ -8,12 +8,14 @@ costs about 1.3 ms per step (specs, step_mdp, info readers), several times the c
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+from cmdp_rl.envs.env_state import env_state, load_env_state
 
 
 class Step(NamedTuple):
@@ -50,6 +52,15 @@ class VecEnv(ABC):
     def close(self) -> None:  # noqa: B027 - optional hook
         pass
 
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs to continue exactly where this env stands: the episodes
+        in progress and the envs' random generators. ``load_state_dict`` on a fresh env built from
+        the same config restores it."""
+        raise NotImplementedError(f"{type(self).__name__} cannot save its state, so a run on it cannot resume")
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        raise NotImplementedError(f"{type(self).__name__} cannot restore a saved state")
+
     def check_action(self, action: torch.Tensor) -> None:
         expected = (self.num_envs, self.action_dim)
         if tuple(action.shape) != expected:
@@ -64,7 +75,7 @@ class GymVecEnv(VecEnv):
     every episode end.
     """
 
-    def __init__(self, make_one: Callable[[], gym.Env], num_envs: int) -> None:
+    def __init__(self, make_one: Callable[[], gym.Env], num_envs: int, device: str | torch.device = "cpu") -> None:
         self.envs = SyncVectorEnv([make_one for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
         self.num_envs = num_envs
         obs_space = self.envs.single_observation_space
@@ -76,13 +87,14 @@ class GymVecEnv(VecEnv):
         # The env's own dtype (float32 for Reach1D): a float64 action could land exactly on the
         # seed's wall, where the strict crossing test lets it through at no cost.
         self._act_dtype = act_space.dtype
-        self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32)
-        self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32)
-        self.device = torch.device("cpu")
+        # Gymnasium steps on the CPU; tensors handed out live on ``device``.
+        self.device = torch.device(device)
+        self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32, device=self.device)
+        self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32, device=self.device)
         self._zeros = np.zeros(num_envs, dtype=np.float32)
 
     def _obs(self, obs: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(np.asarray(obs, dtype=np.float32).reshape(self.num_envs, self.obs_dim))
+        return torch.from_numpy(np.asarray(obs, dtype=np.float32).reshape(self.num_envs, self.obs_dim)).to(self.device)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         obs, _ = self.envs.reset(seed=seed)
@@ -103,12 +115,23 @@ class GymVecEnv(VecEnv):
         n = self.num_envs
         return Step(
             next_obs=self._obs(next_obs),
-            reward=torch.from_numpy(np.asarray(reward, dtype=np.float32)).view(n, 1),
-            cost=torch.from_numpy(cost).view(n, 1),
-            terminated=torch.from_numpy(np.asarray(terminated, dtype=bool)).view(n, 1),
-            truncated=torch.from_numpy(np.asarray(truncated, dtype=bool)).view(n, 1),
+            reward=torch.from_numpy(np.asarray(reward, dtype=np.float32)).view(n, 1).to(self.device),
+            cost=torch.from_numpy(cost).view(n, 1).to(self.device),
+            terminated=torch.from_numpy(np.asarray(terminated, dtype=bool)).view(n, 1).to(self.device),
+            truncated=torch.from_numpy(np.asarray(truncated, dtype=bool)).view(n, 1).to(self.device),
             obs=self._obs(obs),
         )
+
+    def state_dict(self) -> dict[str, Any]:
+        """Each env's state, wrappers included (see ``envs/env_state.py``). In SAME_STEP mode the
+        vector env itself holds nothing between steps."""
+        return {"num_envs": self.num_envs, "envs": [env_state(env) for env in self.envs.envs]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state["num_envs"] != self.num_envs:
+            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
+        for env, saved in zip(self.envs.envs, state["envs"]):
+            load_env_state(env, saved)
 
     def close(self) -> None:
         self.envs.close()

@@ -10,7 +10,44 @@ from torchrl.modules import IndependentNormal, ProbabilisticActor
 from cmdp_rl import keys
 from cmdp_rl.config import PolicyConfig
 
-_ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+
+class _SigmoidTanh(torch.autograd.Function):
+    """tanh(x) = 2 sigmoid(2x) - 1, with tanh's own backward ``g (1 - y^2)``."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
+        y = torch.sigmoid(x * 2).mul_(2).sub_(1)
+        ctx.save_for_backward(y)
+        return y
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (y,) = ctx.saved_tensors
+        return torch.ops.aten.tanh_backward(grad, y)
+
+
+class Tanh(nn.Module):
+    """tanh, computed on the CPU as ``2 sigmoid(2x) - 1`` for large inputs.
+
+    Why: torch's CPU tanh kernel (torch 2.13, AVX-512) takes about 2.6 ns per element here against
+    0.7 ns for this form (measured on [8192, 64], forward; forward + backward 1.7 vs 0.9 ms), and
+    tanh was the largest single cost of training. The two agree within 2e-7 (float32 rounding);
+    the gradient is tanh's exactly, from the output. Small inputs (a rollout step over a few envs)
+    keep torch.tanh: one call beats three plus the Python autograd function there; so does CUDA.
+    """
+
+    MIN_NUMEL = 1 << 15  # break-even measured here: about 20k elements
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.device.type != "cpu" or x.numel() < self.MIN_NUMEL:
+            return torch.tanh(x)
+        if torch.is_grad_enabled() and x.requires_grad:
+            return _SigmoidTanh.apply(x)
+        return torch.sigmoid(x * 2).mul_(2).sub_(1)
+
+
+_ACTIVATIONS = {"tanh": Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
 def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: str, out_gain: float = 1.0) -> nn.Sequential:
@@ -49,8 +86,14 @@ class GaussianHead(nn.Module):
         return loc, scale
 
 
-def make_actor(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor) -> ProbabilisticActor:
-    net = mlp(obs_dim, cfg.hidden_sizes, low.numel(), cfg.activation, out_gain=0.01)
+def _normalized(net: nn.Module, obs_norm: nn.Module | None) -> nn.Module:
+    return net if obs_norm is None else nn.Sequential(obs_norm, net)
+
+
+def make_actor(
+    cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor, obs_norm: nn.Module | None = None
+) -> ProbabilisticActor:
+    net = _normalized(mlp(obs_dim, cfg.hidden_sizes, low.numel(), cfg.activation, out_gain=0.01), obs_norm)
     head = TensorDictModule(GaussianHead(net, low, high, cfg.init_log_std), [keys.OBS], [keys.LOC, keys.SCALE])
     return ProbabilisticActor(
         head,
@@ -62,5 +105,6 @@ def make_actor(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.T
     )
 
 
-def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str) -> TensorDictModule:
-    return TensorDictModule(mlp(obs_dim, cfg.hidden_sizes, 1, cfg.activation), [keys.OBS], [out_key])
+def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str, obs_norm: nn.Module | None = None) -> TensorDictModule:
+    net = _normalized(mlp(obs_dim, cfg.hidden_sizes, 1, cfg.activation), obs_norm)
+    return TensorDictModule(net, [keys.OBS], [out_key])

@@ -1,0 +1,84 @@
+"""Any registered gymnasium env that reports a cost, for ``env=gym env.id=<id>``.
+
+Two step protocols are accepted:
+
+- ``five`` (gymnasium's): ``(obs, reward, terminated, truncated, info)`` with the cost in
+  ``info["cost"]``, as Reach1D, the velocity tasks and Safety-Gymnasium's ``...Gymnasium-v0`` ids do.
+  The env is built by ``gymnasium.make``, with its wrappers and checks.
+- ``six`` (Safety-Gymnasium's native one): ``(obs, reward, cost, terminated, truncated, info)``.
+  ``gymnasium.make`` cannot build such an env (its wrappers unpack five values), so it is built from
+  its registered entry point, converted by :class:`SixValueStep`, and given gymnasium's ``TimeLimit``.
+
+An id of the form ``"module:EnvId-v0"`` imports ``module`` first (so it can register its envs), as
+``gymnasium.make`` does.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+import gymnasium as gym
+from gymnasium.envs.registration import load_env_creator
+from gymnasium.wrappers import TimeLimit
+
+
+class SixValueStep(gym.Wrapper):
+    """Adapts a six-value step ``(obs, reward, cost, terminated, truncated, info)`` to gymnasium's
+    five values, with the cost in ``info["cost"]`` (it replaces any cost the info already held)."""
+
+    def step(self, action):
+        out = self.env.step(action)
+        if len(out) != 6:
+            raise ValueError(
+                f"env.step_api=six: the env's step returned {len(out)} values, expected 6 "
+                "(obs, reward, cost, terminated, truncated, info); use env.step_api=five for gymnasium's protocol"
+            )
+        obs, reward, cost, terminated, truncated, info = out
+        info = dict(info)
+        info["cost"] = float(cost)
+        return obs, reward, terminated, truncated, info
+
+
+class RequireCost(gym.Wrapper):
+    """Fails on the first step that reports no ``info["cost"]``: an env without a cost would
+    otherwise train as if it were perfectly safe."""
+
+    def __init__(self, env: gym.Env, env_id: str) -> None:
+        super().__init__(env)
+        self.env_id = env_id
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if "cost" not in info:
+            raise ValueError(
+                f"env.id={self.env_id}: the env's step reports no info['cost'] (keys: {sorted(info)}); "
+                "env=gym needs an env that reports its cost there, or a six-value step with env.step_api=six"
+            )
+        return obs, reward, terminated, truncated, info
+
+
+def _resolve(env_id: str) -> str:
+    module, _, name = env_id.rpartition(":")
+    if module:
+        importlib.import_module(module)
+    return name
+
+
+def make_cost_env(env_id: str, step_api: str = "five", max_steps: int = 0, **kwargs: Any) -> gym.Env:
+    """Build one env of ``env_id`` reporting its cost in ``info["cost"]``.
+
+    ``max_steps``: the time limit (0: the one the env was registered with, if any).
+    ``kwargs`` go to the env's constructor.
+    """
+    name = _resolve(env_id)
+    if step_api == "five":
+        env = gym.make(name, max_episode_steps=max_steps or None, **kwargs)
+        return RequireCost(env, env_id)
+    if step_api == "six":
+        spec = gym.spec(name)
+        creator = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
+        env = SixValueStep(creator(**{**spec.kwargs, **kwargs}))
+        limit = max_steps or spec.max_episode_steps
+        return TimeLimit(env, limit) if limit else env
+    raise ValueError(f"env.step_api must be 'five' or 'six', got {step_api!r}")

@@ -1,0 +1,100 @@
+"""The safe-RL field's run metrics (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep
+Reinforcement Learning", sec. 5; Safety Gym's ``bench/bench_utils.py`` has the same formulas).
+
+- cost rate ``rho_c``: all costs incurred during training divided by the env steps taken so far,
+  safety *during* training rather than of the final policy.
+- Normalized by an unconstrained PPO reference trained on the same env for the same number of steps:
+    normalized return          J_r / J_r^PPO
+    normalized violation       max(0, J_c - d) / max(eps, J_c^PPO - d),   eps = 1e-6
+    normalized cost rate       rho_c / rho_c^PPO
+  with ``J_r``, ``J_c`` the final policy's mean episode return and cost and ``d`` this run's budget.
+  0 violation is within budget; 1 is as far over budget as PPO. Without a reference, blank (None).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Optional
+
+import yaml
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+EPSILON = 1e-6  # Safety Gym's: keeps the violation finite when PPO itself is within the budget
+NORMALIZED = ("normalized_return", "normalized_violation", "normalized_cost_rate")
+
+
+@dataclass
+class Reference:
+    """J_r^PPO, J_c^PPO, rho_c^PPO; any of them may be unknown (None), leaving its metric blank."""
+
+    episode_return: Optional[float] = None
+    episode_cost: Optional[float] = None
+    cost_rate: Optional[float] = None
+    source: str = "config"
+
+
+def cost_rate(total_cost: float, total_steps: int) -> float:
+    return total_cost / total_steps if total_steps else math.nan
+
+
+def normalized_scores(
+    episode_return: float, episode_cost: float, rate: float, cost_limit: float, ref: Reference | None
+) -> dict[str, Optional[float]]:
+    """The three normalized metrics; None where the reference lacks the number (or it is 0 where it
+    divides: a reference return of 0, a reference that never incurred a cost)."""
+    if ref is None:
+        return dict.fromkeys(NORMALIZED)
+    return {
+        "normalized_return": episode_return / ref.episode_return if ref.episode_return else None,
+        "normalized_violation": None if ref.episode_cost is None
+        else max(0.0, episode_cost - cost_limit) / max(EPSILON, ref.episode_cost - cost_limit),
+        "normalized_cost_rate": rate / ref.cost_rate if ref.cost_rate else None,
+    }
+
+
+def _reference_run(run: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    path = Path(run)
+    return json.loads((path / "eval.json").read_text()), yaml.safe_load((path / "config.yaml").read_text())
+
+
+def reference_run_problem(run: str, cfg: RunConfig) -> str | None:
+    """Why the run at ``run`` cannot serve as this run's reference, or None. A reference must be a
+    finished run of this version (its eval.json has ``cost_rate``) on the same env (the number of
+    parallel envs aside)."""
+    try:
+        result, ref_cfg = _reference_run(run)
+    except (OSError, ValueError, yaml.YAMLError) as exc:
+        return f"cannot read its eval.json and config.yaml ({exc})"
+    missing = [k for k in ("episode_return", "episode_cost", "cost_rate") if k not in result]
+    if missing:
+        return f"its eval.json has no {missing} (a run from an older version? give the numbers instead)"
+    ours = {k: v for k, v in dataclasses.asdict(cfg.env).items() if k != "num_envs"}
+    theirs = {k: v for k, v in (ref_cfg.get("env") or {}).items() if k != "num_envs"}
+    if ours != theirs:
+        return f"it ran another env ({theirs}) than this run ({ours})"
+    return None
+
+
+def load_reference(cfg: RunConfig) -> tuple[Reference | None, list[str]]:
+    """The reference ``cfg.reference`` names, and warnings about it worth printing."""
+    r = cfg.reference
+    if r.run is None:
+        if r.episode_return is None and r.episode_cost is None and r.cost_rate is None:
+            return None, []
+        return Reference(r.episode_return, r.episode_cost, r.cost_rate, "config"), []
+    result, ref_cfg = _reference_run(r.run)
+    warnings = []
+    ref_algo = (ref_cfg.get("algo") or {}).get("name")
+    if ref_algo != "ppo":
+        warnings.append(f"reference run {r.run} is algo={ref_algo}, not the unconstrained ppo Safety Gym normalizes by")
+    if ref_cfg.get("total_steps") != cfg.total_steps:
+        warnings.append(f"reference run {r.run} trained for {ref_cfg.get('total_steps')} steps, this run for "
+                        f"{cfg.total_steps}: Safety Gym compares at the same step budget")
+    ref = Reference(result["episode_return"], result["episode_cost"], result["cost_rate"], str(r.run))
+    return ref, warnings

@@ -1,0 +1,368 @@
+"""Throughput of the toolkit on Reach1D: env, rollout and end-to-end training steps per second.
+
+    python experiments/benchmark_throughput.py [--quick] [--device cpu|cuda] [--threads 1]
+                                               [--out outputs/benchmark_throughput.json]
+
+For each setting (the gymnasium Reach1D alone and in gymnasium's SyncVectorEnv of 8; the batched
+``TorchReach1D`` with N = 64, 1024, 16384) it measures:
+
+- env: raw steps/s of the env alone, on pre-drawn random actions;
+- rollout: steps/s of the shared :class:`~cmdp_rl.Collector` (MLP policy sampling + env, no
+  learning), and, for the SyncVectorEnv of 8, a plain Python loop over the same vector env and the
+  same policy network, storing the same step data;
+- train: ``ppo_lag`` with the MLP policy, through :func:`cmdp_rl.train` on the config
+  ``train.py`` composes for the same overrides; steps/s as ``metrics.csv``'s ``sps`` column reports
+  it (median over iterations after the first, which pays for warm-up);
+- peak memory of each measurement (resident set; CUDA max allocated on cuda), torch's threads.
+
+Gym settings train with the default config; batched settings with the ``env=reach1d_torch``
+preset (``configs/env/reach1d_torch.yaml``: rollouts of 32 steps, one pass in 64 minibatches; at
+N = 64, rollouts of 256 steps so that minibatches are not tiny), plus one row with the plain
+reach1d defaults at N = 1024 (the target command without the preset) for comparison. The LSTM and transformer heads are measured
+at N = 1024 once ``policy=lstm`` / ``policy=transformer`` exist; until then their rows say skipped.
+
+One table is printed and the same figures are written as JSON. Figures taken while other
+processes share the CPU are noisy: the JSON records the load average before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import resource
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import cmdp_rl  # noqa: E402
+from cmdp_rl import Collector, keys, load_config, make_actor_critic, make_env  # noqa: E402
+from cmdp_rl.config import POLICY_NAMES, EnvConfig  # noqa: E402
+from cmdp_rl.envs import Reach1D  # noqa: E402
+
+MEMORY_HEADS = ("lstm", "transformer")  # policy heads of the memory-policy issue, benchmarked at N = 1024
+
+
+# --- memory ------------------------------------------------------------------------------------
+def _reset_peak(device: str) -> None:
+    """Restart the peak-RSS counter (Linux: writing 5 to clear_refs resets VmHWM), and CUDA's."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass  # the peak then covers the whole process so far
+    if device == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+
+
+def _peak(device: str) -> dict[str, float]:
+    try:
+        rss_kb = int(re.search(r"VmHWM:\s+(\d+)", Path("/proc/self/status").read_text()).group(1))
+    except (OSError, AttributeError):
+        rss_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    out = {"peak_rss_mb": rss_kb / 1024}
+    if device == "cuda":
+        out["cuda_max_allocated_mb"] = torch.cuda.max_memory_allocated() / 2**20
+    return out
+
+
+def _sync(device: str) -> None:
+    if device == "cuda":
+        torch.cuda.synchronize()
+
+
+CPU_SHARE: list[float] = []  # this process's CPU time / wall time of each measurement
+
+
+def _rate(run: Callable[[], int], seconds: float, device: str) -> float:
+    """Steps per second of ``run`` (which returns the steps it made), after one warm-up call."""
+    run()
+    _sync(device)
+    steps, start, cpu = 0, time.perf_counter(), time.process_time()
+    while True:
+        steps += run()
+        _sync(device)
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds:
+            CPU_SHARE.append((time.process_time() - cpu) / elapsed)
+            return steps / elapsed
+
+
+# --- the measurements --------------------------------------------------------------------------
+@dataclass
+class Setting:
+    backend: str
+    num_envs: int
+    rollout_steps: int  # as in training: the collector's steps per env per call
+    train_overrides: list[str] = field(default_factory=list)
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        self.label = self.label or f"{self.backend} N={self.num_envs}"
+
+
+def env_rate(s: Setting, seconds: float, device: str) -> float:
+    rng = np.random.default_rng(0)
+    if s.backend == "gym" and s.num_envs == 1:
+        env = Reach1D()  # gymnasium's API, no vector wrapper
+        env.reset(seed=0)
+        actions = rng.uniform(-0.1, 0.1, size=(1000, 1)).astype(np.float32)
+
+        def run() -> int:
+            for a in actions:
+                _, _, term, trunc, _ = env.step(a)
+                if term or trunc:
+                    env.reset()
+            return len(actions)
+
+        return _rate(run, seconds, device)
+    venv = make_env(EnvConfig(backend=s.backend, num_envs=s.num_envs), device=device)
+    venv.reset(seed=0)
+    if s.backend == "gym":
+        raw = venv.envs  # gymnasium's SyncVectorEnv itself, SAME_STEP autoreset
+        acts = list(rng.uniform(-0.1, 0.1, size=(100, s.num_envs, 1)).astype(np.float32))
+
+        def run() -> int:
+            for a in acts:
+                raw.step(a)
+            return len(acts) * s.num_envs
+    else:
+        acts = list(torch.rand(20, s.num_envs, 1, device=device) * 0.2 - 0.1)
+
+        def run() -> int:
+            for a in acts:
+                venv.step(a)
+            return len(acts) * s.num_envs
+
+    try:
+        return _rate(run, seconds, device)
+    finally:
+        venv.close()
+
+
+def rollout_rate(s: Setting, rollout_steps: int, seconds: float, device: str) -> float:
+    cfg = load_config({"env": {"backend": s.backend, "num_envs": s.num_envs}, "device": device})
+    env = make_env(cfg.env, device=device)
+    actor = make_actor_critic(cfg.policy, env).actor
+    collector = Collector(env, actor, rollout_steps, seed=0)
+    try:
+        return _rate(lambda: (collector.collect(), rollout_steps * s.num_envs)[1], seconds, device)
+    finally:
+        env.close()
+
+
+def plain_loop_rate(num_envs: int, rollout_steps: int, seconds: float) -> float:
+    """The yardstick for the collector: a hand-written loop over the same SyncVectorEnv with the
+    same MLP network, sampling a Gaussian and keeping what a batch needs (obs, action, log-prob,
+    reward, cost, flags), with none of the collector's generality."""
+    cfg = load_config({"env": {"num_envs": num_envs}})
+    env = make_env(cfg.env)
+    head = make_actor_critic(cfg.policy, env).actor.module[0].module  # the GaussianHead network
+    raw = env.envs
+    state = {"obs": raw.reset(seed=0)[0]}
+    zeros = np.zeros(num_envs)
+
+    @torch.no_grad()
+    def run() -> int:
+        rows = []
+        obs = state["obs"]
+        for _ in range(rollout_steps):
+            o = torch.from_numpy(obs)
+            loc, scale = head(o)
+            a = torch.normal(loc, scale)
+            logp = torch.distributions.Normal(loc, scale).log_prob(a).sum(-1)
+            obs, r, term, trunc, info = raw.step(a.numpy())
+            rows.append((o, a, logp, torch.from_numpy(r), torch.from_numpy(np.asarray(info.get("cost", zeros))),
+                         torch.from_numpy(term), torch.from_numpy(trunc)))
+        state["obs"] = obs
+        [torch.stack(col) for col in zip(*rows)]
+        return rollout_steps * num_envs
+
+    try:
+        return _rate(run, seconds, "cpu")
+    finally:
+        env.close()
+
+
+def compose(overrides: list[str]) -> cmdp_rl.RunConfig:
+    """The config ``python train.py <overrides>`` runs (Hydra's compose over ``configs/``)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+    from omegaconf import OmegaConf
+
+    with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base="1.3"):
+        raw = hydra_compose("config", overrides=overrides)
+    return load_config(OmegaConf.to_container(raw, resolve=True))
+
+
+def train_rate(overrides: list[str], iterations: int, device: str, threads: int) -> dict[str, Any]:
+    """Train ``ppo_lag`` for ``iterations`` on the config ``train.py`` composes for ``overrides``."""
+    cfg = compose(["algo=ppo_lag", *overrides, f"device={device}", f"threads={threads}"])
+    per_iter = cfg.rollout_steps * cfg.env.num_envs
+    cfg.total_steps = per_iter * iterations
+    cfg.eval_episodes = 1
+    cfg.checkpoint_every = 10**9  # one checkpoint, at the end
+    with tempfile.TemporaryDirectory() as out:
+        start, cpu = time.perf_counter(), time.process_time()
+        cmdp_rl.train(cfg, out, echo=lambda line: None)
+        CPU_SHARE.append((time.process_time() - cpu) / (time.perf_counter() - start))
+        import csv
+
+        rows = list(csv.DictReader(open(Path(out) / "metrics.csv")))
+    sps = [float(r["sps"]) for r in rows]
+    steady = sps[1:] or sps
+    return {
+        "train_sps": statistics.median(steady), "train_sps_all": sps, "iterations": len(sps),
+        "batch": per_iter, "rollout_steps": cfg.rollout_steps, "update_epochs": cfg.algo.update_epochs,
+        "num_minibatches": cfg.algo.num_minibatches, "policy": cfg.policy.name, "overrides": overrides,
+    }
+
+
+def measure(name: str, fn: Callable[[], Any], device: str) -> tuple[Any, dict[str, float]]:
+    """``fn()`` and the peak memory and CPU share (CPU time / wall time) it ran with."""
+    _reset_peak(device)
+    value = fn()
+    return value, {**_peak(device), "cpu_share": CPU_SHARE[-1]}
+
+
+# --- the run -------------------------------------------------------------------------------------
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="a smoke run: tiny durations and iterations")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the config's default: 1)")
+    p.add_argument("--out", default=str(ROOT / "outputs" / "benchmark_throughput.json"), help="JSON output path")
+    p.add_argument("--seconds", type=float, default=None, help="time per env/rollout measurement (default 2, quick 0.05)")
+    args = p.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    seconds = args.seconds or (0.05 if args.quick else 2.0)
+    load_before = os.getloadavg()
+    started = time.perf_counter()
+
+    preset = ["env=reach1d_torch"]
+    settings = [
+        Setting("gym", 1, 256, ["env=reach1d", "env.num_envs=1"]),
+        Setting("gym", 8, 256, ["env=reach1d"]),
+        Setting("torch", 64, 256, [*preset, "env.num_envs=64", "rollout_steps=256"]),
+        Setting("torch", 1024, 32, preset),
+        Setting("torch", 16384, 32, [*preset, "env.num_envs=16384"]),
+    ]
+    # iterations of training per setting (the first is warm-up, not counted)
+    train_iters = {1: 5, 8: 5, 64: 6, 1024: 10, 16384: 3}
+    quick_train = ["rollout_steps=4", "algo.update_epochs=1", "algo.num_minibatches=1"]
+
+    rows: list[dict[str, Any]] = []
+    for s in settings:
+        row: dict[str, Any] = {"setting": s.label, "backend": s.backend, "num_envs": s.num_envs}
+        row["env_sps"], row["env_mem"] = measure("env", lambda: env_rate(s, seconds, args.device), args.device)
+        row["rollout_sps"], row["rollout_mem"] = measure(
+            "rollout", lambda: rollout_rate(s, s.rollout_steps, seconds, args.device), args.device)
+        overrides = s.train_overrides + (quick_train if args.quick else [])
+        iters = 2 if args.quick else train_iters[s.num_envs]
+        train, row["train_mem"] = measure("train", lambda: train_rate(overrides, iters, args.device, args.threads), args.device)
+        row.update(train)
+        row["train_over_rollout"] = row["train_sps"] / row["rollout_sps"]
+        rows.append(row)
+
+    extra: list[dict[str, Any]] = []
+    # The literal target command's config (reach1d defaults, only the backend and N changed).
+    defaults_1024 = ["env=reach1d", "env.backend=torch", "env.num_envs=1024"]
+    if args.quick:
+        defaults_1024 += quick_train
+    t, mem = measure("train", lambda: train_rate(defaults_1024, 2 if args.quick else 3, args.device, args.threads), args.device)
+    extra.append({"setting": "torch N=1024, reach1d defaults", "train_mem": mem, **t})
+    # Memory policy heads at N = 1024: a hook until they exist.
+    for head in MEMORY_HEADS:
+        if head not in POLICY_NAMES:
+            extra.append({"setting": f"torch N=1024, policy={head}", "skipped": f"policy head {head!r} not implemented yet"})
+            continue
+        o = [*preset, f"policy={head}"] + (quick_train if args.quick else [])
+        t, mem = measure("train", lambda: train_rate(o, 2 if args.quick else 4, args.device, args.threads), args.device)
+        extra.append({"setting": f"torch N=1024, policy={head}", "train_mem": mem, **t})
+
+    plain, plain_mem = measure("plain", lambda: plain_loop_rate(8, 256, seconds), "cpu")
+    gym8 = next(r for r in rows if r["backend"] == "gym" and r["num_envs"] == 8)
+    t1024 = next(r for r in rows if r["backend"] == "torch" and r["num_envs"] == 1024)
+    result = {
+        "meta": {
+            "device": args.device, "torch_threads": torch.get_num_threads(), "quick": args.quick,
+            "seconds_per_measurement": seconds, "torch": torch.__version__, "python": platform.python_version(),
+            "cpu_count": os.cpu_count(), "loadavg_before": load_before, "loadavg_after": os.getloadavg(),
+            # Below about 0.9 (one thread), other processes took CPU time from the measurement:
+            # its steps/s are then lower than on a quiet machine by about this factor.
+            "cpu_share_min": min(CPU_SHARE), "cpu_share_median": statistics.median(CPU_SHARE),
+            "cpu_share_max": max(CPU_SHARE),
+            "wall_s": time.perf_counter() - started, "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+        },
+        "rows": rows,
+        "extra": extra,
+        "plain_loop_sync8": {"rollout_sps": plain, "mem": plain_mem},
+        "targets": {
+            "train_sps_torch_1024": t1024["train_sps"], "train_sps_torch_1024_ge_100k": t1024["train_sps"] >= 100_000,
+            "train_over_rollout_torch_1024": t1024["train_over_rollout"],
+            "train_over_rollout_ge_0.3": t1024["train_over_rollout"] >= 0.3,
+            "collector_over_plain_loop_sync8": gym8["rollout_sps"] / plain,
+            "collector_over_plain_loop_ge_0.5": gym8["rollout_sps"] / plain >= 0.5,
+        },
+    }
+    result["meta"]["wall_s"] = time.perf_counter() - started
+    print_table(result)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2))
+    print(f"written to {out}")
+    return result
+
+
+def print_table(r: dict[str, Any]) -> None:
+    m = r["meta"]
+    mem_key = "cuda_max_allocated_mb" if m["device"] == "cuda" else "peak_rss_mb"
+    print(f"\nthroughput on {m['device']}, torch {m['torch']}, {m['torch_threads']} thread(s), "
+          f"load average {m['loadavg_before'][0]:.1f} -> {m['loadavg_after'][0]:.1f}, "
+          f"CPU share of the measurements {m['cpu_share_min']:.2f}..{m['cpu_share_max']:.2f}"
+          f"{' (machine busy: figures noisy and low)' if m['cpu_share_median'] < 0.9 * m['torch_threads'] else ''}"
+          f"{' (QUICK smoke run: not meaningful)' if m['quick'] else ''}")
+    head = (f"{'setting':34s} {'env steps/s':>12s} {'rollout st/s':>12s} {'train st/s':>11s} {'train/roll':>10s}"
+            f"  {'batch':>7s} {'ep x mb':>7s}  peak MB env/roll/train  CPU share env/roll/train")
+    print(head)
+    print("-" * len(head))
+
+    def mb(row: dict[str, Any], k: str) -> str:
+        return f"{row[k][mem_key]:.0f}" if k in row else "-"
+
+    for row in r["rows"]:
+        print(f"{row['setting']:34s} {row['env_sps']:12,.0f} {row['rollout_sps']:12,.0f} {row['train_sps']:11,.0f}"
+              f" {row['train_over_rollout']:10.2f}  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}"
+              f"  {mb(row, 'env_mem')}/{mb(row, 'rollout_mem')}/{mb(row, 'train_mem')}"
+              f"  {row['env_mem']['cpu_share']:.2f}/{row['rollout_mem']['cpu_share']:.2f}/{row['train_mem']['cpu_share']:.2f}")
+    for row in r["extra"]:
+        if "skipped" in row:
+            print(f"{row['setting']:34s} {'skipped: ' + row['skipped']}")
+        else:
+            print(f"{row['setting']:34s} {'':>12s} {'':>12s} {row['train_sps']:11,.0f} {'':>10s}"
+                  f"  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}  -/-/{mb(row, 'train_mem')}"
+                  f"  {row['train_mem']['cpu_share']:.2f}")
+    pl = r["plain_loop_sync8"]
+    print(f"{'plain loop, gym N=8 (yardstick)':34s} {'':>12s} {pl['rollout_sps']:12,.0f}"
+          f"{'':>40s}{pl['mem']['peak_rss_mb']:.0f}  {pl['mem']['cpu_share']:.2f}")
+    t = r["targets"]
+    print(f"\ntargets: train sps torch N=1024 {t['train_sps_torch_1024']:,.0f} (>= 100,000: {t['train_sps_torch_1024_ge_100k']}); "
+          f"train/rollout {t['train_over_rollout_torch_1024']:.2f} (>= 0.3: {t['train_over_rollout_ge_0.3']}); "
+          f"collector/plain loop gym N=8 {t['collector_over_plain_loop_sync8']:.2f} (>= 0.5: {t['collector_over_plain_loop_ge_0.5']}); "
+          f"benchmark took {m['wall_s']:.0f}s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,178 @@
+"""The velocity benchmark: ppo and ppo_lag on HalfCheetah with budget 25, 3 seeds; a table and a PNG.
+
+    python experiments/velocity_benchmark.py [overrides]        # the Hydra multirun, then the report
+    python experiments/velocity_benchmark.py --gather SWEEP_DIR # the report again, from finished runs
+
+The sweep is configured in ``configs/velocity_benchmark.yaml`` (algorithms, seeds, steps); every
+train.py option can be overridden. Each run writes its usual outputs under
+``multirun/velocity_benchmark/<time>/<algo>_s<seed>/``; at the end the report lands beside them:
+
+- ``table.md`` / ``table.csv``: per algorithm, mean ± std over seeds of the final policy's return
+  and cost (eval.json), the training cost rate, and Safety Gym's normalized return, violation and
+  cost rate relative to this sweep's own ppo runs (same env, same budget of steps; see
+  docs/benchmarks.md).
+- ``curves.png``: training episode return, episode cost (budget line drawn) and cost rate against
+  env steps, mean over seeds with a min-max band.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import statistics
+import sys
+from pathlib import Path
+from typing import Any
+
+import hydra
+import yaml
+from hydra.core.hydra_config import HydraConfig
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
+
+from cmdp_rl import load_config, train
+from cmdp_rl.safety_metrics import Reference, normalized_scores
+
+REFERENCE_ALGO = "ppo"
+
+
+def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
+    """Every finished run under ``sweep_dir``: its config, eval.json and metrics.csv rows."""
+    runs = []
+    for eval_path in sorted(sweep_dir.glob("*/eval.json")):
+        run_dir = eval_path.parent
+        cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+        runs.append({
+            "dir": run_dir, "algo": cfg["algo"]["name"], "seed": cfg["seed"], "config": cfg,
+            "eval": json.loads(eval_path.read_text()),
+            "rows": list(csv.DictReader(open(run_dir / "metrics.csv"))),
+        })
+    return runs
+
+
+def _mean_std(values: list[float]) -> tuple[float, float]:
+    return statistics.fmean(values), (statistics.pstdev(values) if len(values) > 1 else 0.0)
+
+
+def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per algorithm, means and spreads over its seeds; normalized by the ppo runs' means."""
+    by_algo: dict[str, list[dict[str, Any]]] = {}
+    for run in runs:
+        by_algo.setdefault(run["algo"], []).append(run)
+    ref = None
+    if REFERENCE_ALGO in by_algo:
+        ppo = by_algo[REFERENCE_ALGO]
+        ref = Reference(*(statistics.fmean(r["eval"][k] for r in ppo) for k in ("episode_return", "episode_cost", "cost_rate")),
+                        source=f"{REFERENCE_ALGO} runs of this sweep")
+    table = []
+    for algo, group in sorted(by_algo.items(), key=lambda kv: (kv[0] != REFERENCE_ALGO, kv[0])):
+        row: dict[str, Any] = {"algo": algo, "seeds": len(group), "steps": group[0]["eval"]["steps"],
+                               "cost_limit": group[0]["eval"]["cost_limit"]}
+        for key in ("episode_return", "episode_cost", "cost_rate", "train_time_s"):
+            row[key], row[f"{key}_std"] = _mean_std([r["eval"][key] for r in group])
+        per_seed = [normalized_scores(r["eval"]["episode_return"], r["eval"]["episode_cost"], r["eval"]["cost_rate"],
+                                      r["eval"]["cost_limit"], ref) for r in group]
+        for key in ("normalized_return", "normalized_violation", "normalized_cost_rate"):
+            values = [s[key] for s in per_seed if s[key] is not None]
+            row[key], row[f"{key}_std"] = _mean_std(values) if values else (None, None)
+        table.append(row)
+    return table
+
+
+def _pm(mean: float | None, std: float | None, spec: str) -> str:
+    return "" if mean is None else f"{mean:{spec}} ± {std:{spec}}"
+
+
+def write_table(table: list[dict[str, Any]], out: Path) -> str:
+    header = ["algo", "seeds", "steps", "return (eval)", "cost (eval)", "cost rate (training)",
+              "norm. return", "norm. violation", "norm. cost rate", "minutes / run"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for r in table:
+        lines.append("| " + " | ".join([
+            r["algo"], str(r["seeds"]), f"{r['steps']:,}", _pm(r["episode_return"], r["episode_return_std"], ".1f"),
+            _pm(r["episode_cost"], r["episode_cost_std"], ".1f"), _pm(r["cost_rate"], r["cost_rate_std"], ".4f"),
+            _pm(r["normalized_return"], r["normalized_return_std"], ".2f"),
+            _pm(r["normalized_violation"], r["normalized_violation_std"], ".2f"),
+            _pm(r["normalized_cost_rate"], r["normalized_cost_rate_std"], ".2f"),
+            f"{r['train_time_s'] / 60:.1f}",
+        ]) + " |")
+    limit = table[0]["cost_limit"] if table else math.nan
+    text = "\n".join(lines) + (
+        f"\n\nBudget d = {limit:g} per episode. Return and cost: the final policy over eval_episodes episodes "
+        f"(eval.json), mean ± std over seeds. Normalized metrics relative to the mean of this sweep's "
+        f"{REFERENCE_ALGO} runs (Ray et al. 2019; docs/benchmarks.md).\n"
+    )
+    (out / "table.md").write_text(text)
+    with open(out / "table.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(table[0]) if table else ["algo"])
+        writer.writeheader()
+        writer.writerows(table)
+    return text
+
+
+def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    panels = (("episode_return", "episode return"), ("episode_cost", "episode cost"), ("cost_rate", "cost rate (training)"))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    by_algo: dict[str, list[dict[str, Any]]] = {}
+    for run in runs:
+        by_algo.setdefault(run["algo"], []).append(run)
+    for algo, group in sorted(by_algo.items()):
+        n = min(len(r["rows"]) for r in group)
+        steps = np.array([float(row["step"]) for row in group[0]["rows"][:n]])
+        for ax, (key, _) in zip(axes, panels):
+            ys = np.array([[float(row[key]) for row in r["rows"][:n]] for r in group])
+            # Iterations in which no episode ended log nan (1000-step episodes span several
+            # iterations): plot only the iterations where every seed finished episodes.
+            ok = np.isfinite(ys).all(axis=0)
+            x, ys = steps[ok], ys[:, ok]
+            (line,) = ax.plot(x, ys.mean(axis=0), label=f"{algo} ({len(group)} seed{'s' if len(group) > 1 else ''})")
+            ax.fill_between(x, ys.min(axis=0), ys.max(axis=0), color=line.get_color(), alpha=0.2)
+    limit = runs[0]["eval"]["cost_limit"]
+    axes[1].axhline(limit, color="k", linestyle="--", linewidth=1, label=f"budget d = {limit:g}")
+    task = runs[0]["config"]["env"].get("task", runs[0]["config"]["env"]["name"])
+    for ax, (_, title) in zip(axes, panels):
+        ax.set_xlabel("env steps")
+        ax.set_title(f"{task}: {title}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = out / "curves.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def gather(sweep_dir: Path) -> str:
+    runs = load_runs(sweep_dir)
+    if not runs:
+        raise SystemExit(f"no finished runs (eval.json) under {sweep_dir}")
+    text = write_table(summarize(runs), sweep_dir)
+    png = plot_curves(runs, sweep_dir)
+    print(f"\n{text}\nwrote {sweep_dir / 'table.md'}, {sweep_dir / 'table.csv'}, {png}")
+    return text
+
+
+class GatherRuns(Callback):
+    """Hydra callback: when the multirun ends, write the report into its sweep directory."""
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        gather(Path(config.hydra.sweep.dir))
+
+
+@hydra.main(config_path="../configs", config_name="velocity_benchmark", version_base="1.3")
+def run(cfg: DictConfig) -> None:
+    train(load_config(OmegaConf.to_container(cfg, resolve=True)), HydraConfig.get().runtime.output_dir)
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["--gather"]:
+        gather(Path(sys.argv[2]))
+    else:
+        run()
