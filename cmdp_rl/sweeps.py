@@ -120,8 +120,12 @@ def load_run(path: str | Path) -> RunRecord:
 def find_runs(root: str | Path) -> list[RunRecord]:
     """Every run directory under ``root`` (a directory holding ``.hydra/`` or ``config.yaml``)."""
     root = Path(root)
-    dirs = {p.parent for p in root.rglob(HYDRA_DIR) if p.is_dir()}
-    dirs |= {p.parent for p in root.rglob(CONFIG_FILE) if p.parent.name != HYDRA_DIR}
+
+    def inside_hydra(p: Path) -> bool:  # .hydra/ itself, or a resume's record in .hydra/resume_*/
+        return HYDRA_DIR in p.relative_to(root).parts[:-1]
+
+    dirs = {p.parent for p in root.rglob(HYDRA_DIR) if p.is_dir() and not inside_hydra(p)}
+    dirs |= {p.parent for p in root.rglob(CONFIG_FILE) if not inside_hydra(p)}
     return [load_run(d) for d in sorted(dirs)]
 
 

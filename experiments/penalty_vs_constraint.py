@@ -161,6 +161,7 @@ class Analysis:
     cost_gamma: float
     thresholds: CrossingThresholds
     starts: dict[str, Any] = field(default_factory=dict)  # label -> env.start value
+    mixed_envs: list[str] = field(default_factory=list)  # runs whose env differs beyond the start
 
     def predicted_cost(self, start_lbl: str, penalty: float) -> float:
         return float(self.thresholds.expected_cost(self.starts[start_lbl], penalty)[0])
@@ -185,6 +186,9 @@ def analyse(records: list[RunRecord]) -> Analysis | None:
     for r in configs:
         start = r.config["env"].get("start")
         analysis.starts.setdefault(start_label(start), start)
+        if {k: v for k, v in r.config["env"].items() if k != "start"} != {
+                k: v for k, v in first.config["env"].items() if k != "start"}:
+            analysis.mixed_envs.append(str(r.path))
     return analysis
 
 
@@ -287,6 +291,9 @@ def answers_markdown(analysis: Analysis | None, rows: list[dict[str, Any]]) -> s
         f"gamma={g}, cost_gamma={analysis.cost_gamma}. Exact plans on the true state "
         "(no sensor noise), positions on a 0.001 grid (`cmdp_rl/envs/reach1d_dp.py`).\n"
     )
+    if analysis.mixed_envs:
+        out.append(f"Warning: {len(analysis.mixed_envs)} runs used other env parameters than the first "
+                   f"(e.g. {analysis.mixed_envs[0]}); the analysis below is for the first run's env.\n")
     if e.wall != "pass":
         out.append("With wall=block a crossing move is cancelled: crossing never pays, for any "
                    "lambda >= 0, so there is no threshold to find.\n")

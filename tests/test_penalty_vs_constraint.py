@@ -59,6 +59,10 @@ def sweep(tmp_path):
         write_run(pen / f"{n}_run", ovr, PenaltyConfig(penalty=lam), 0.1, seed, **kw)
 
     pen_run(0, 0.0, 0, eval_=(1.8, 1.0), costs=[3, 2, 1, 1.0])
+    resumed = pen / "0_run" / ".hydra" / "resume_2026-01-01_00-00-00"  # a resume's record: not a run
+    resumed.mkdir()
+    for name in ("config.yaml", "overrides.yaml"):
+        (resumed / name).write_text((pen / "0_run" / ".hydra" / name).read_text())
     pen_run(1, 0.0, 1, eval_=(1.6, 1.0), costs=[3, 2, 1, 0.5])
     pen_run(2, 0.0, 2, costs=[3, 2])  # interrupted: metrics, no result, no error ...
     ovr = ["algo=sweep/penalty", "algo.penalty=0.0", "env.start=0.1", "seed=2"]  # ... then run again
