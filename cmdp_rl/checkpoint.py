@@ -8,7 +8,8 @@ from typing import Any
 
 import torch
 
-FORMAT_VERSION = 1
+# 2: adds what a resume needs (collector and env state, generators, training time).
+FORMAT_VERSION = 2
 
 
 class CheckpointError(RuntimeError):
@@ -25,6 +26,12 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+    # Make the rename itself durable (a power cut after a kill-proof rename could still lose it).
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
 
 
 def load_checkpoint(path: str | Path, algo: str | None = None, policy: str | None = None) -> dict[str, Any]:

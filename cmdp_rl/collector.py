@@ -25,7 +25,7 @@ reset), and, if their ``in_keys`` ask, the previous step's action and cost (``ke
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -58,6 +58,45 @@ def initial_state(policy: TensorDictModuleBase, num_envs: int, device: torch.dev
                 raise ValueError(f"policy: primer {key!r} has a non-zero default {default!r}; only zero initial states are supported")
             state[key] = value
     return state
+
+
+class PolicyMemory:
+    """What a policy carries from one step to the next besides the observation, for N envs: its
+    initial state (:func:`initial_state`), the state it writes under ``"next"`` (reset to the
+    initial one where an episode ended, as torchrl's ``TensorDictPrimer`` does on reset), and the
+    previous action and cost if its ``in_keys`` ask for them. Used by the collector and by
+    ``replay.py``, which steps one plain env."""
+
+    def __init__(self, policy: TensorDictModuleBase, num_envs: int, action_dim: int, device: torch.device) -> None:
+        self.initial = initial_state(policy, num_envs, device)
+        self.prev_action = keys.PREV_ACTION in policy.in_keys
+        self.prev_cost = keys.PREV_COST in policy.in_keys
+        self.num_envs, self.action_dim, self.device = num_envs, action_dim, device
+
+    def start(self) -> Entries:
+        """The root entries of every env's first step (besides observation and ``is_init``)."""
+        root = dict(self.initial)
+        if self.prev_action:
+            root[keys.PREV_ACTION] = torch.zeros(self.num_envs, self.action_dim, device=self.device)
+        if self.prev_cost:
+            root[keys.PREV_COST] = torch.zeros(self.num_envs, 1, device=self.device)
+        return root
+
+    def step(self, out: Entries, cost: torch.Tensor, done: torch.Tensor) -> tuple[Entries, Entries]:
+        """After a step: (the previous action/cost to store under ``"next"``: this step's; the root
+        entries of the next step). ``out``: what the policy wrote; ``done``: ``[N, 1]``."""
+        carried = {k[1]: v for k, v in out.items() if isinstance(k, tuple) and k[0] == keys.NEXT}
+        history = {}
+        if self.prev_action:
+            history[keys.PREV_ACTION] = out[keys.ACTION]
+        if self.prev_cost:
+            history[keys.PREV_COST] = cost
+        if not (carried or history):
+            return {}, {}
+        # A new episode starts from the initial state, without history.
+        root = {k: _reset_where(done, v, self.initial.get(k)) for k, v in carried.items()}
+        root.update({k: v.masked_fill(done, 0) for k, v in history.items()})
+        return {(keys.NEXT, k): v for k, v in history.items()}, root
 
 
 def _td_policy(policy: TensorDictModuleBase, batch_size: int, device: torch.device) -> Callable[[Entries], Entries]:
@@ -96,16 +135,11 @@ class Collector:
         n, dev = env.num_envs, env.device
         fast = (TensorActor.wrap(policy) or StepProgram.wrap(policy)) if tensor_path else None
         self._act = fast if fast is not None else _td_policy(policy, n, dev)
-        self._state0 = initial_state(policy, n, dev)
-        self._prev_action = keys.PREV_ACTION in policy.in_keys
-        self._prev_cost = keys.PREV_COST in policy.in_keys
+        self._memory = PolicyMemory(policy, n, env.action_dim, dev)
         self._root: Entries = {
-            **self._state0, keys.OBS: env.reset(seed=seed), keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev),
+            **self._memory.start(), keys.OBS: env.reset(seed=seed),
+            keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev),
         }
-        if self._prev_action:
-            self._root[keys.PREV_ACTION] = torch.zeros(n, env.action_dim, device=dev)
-        if self._prev_cost:
-            self._root[keys.PREV_COST] = torch.zeros(n, 1, device=dev)
         self._ep_return = torch.zeros(n, 1, device=dev)
         self._ep_cost = torch.zeros(n, 1, device=dev)
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
@@ -125,15 +159,9 @@ class Collector:
                 ep_return = ep_return + step.reward
                 ep_cost = ep_cost + step.cost
                 ep_length = ep_length + 1
-                action = out[keys.ACTION]
-                carried = {k[1]: v for k, v in out.items() if isinstance(k, tuple) and k[0] == keys.NEXT}
-                history = {}
-                if self._prev_action:
-                    history[keys.PREV_ACTION] = action
-                if self._prev_cost:
-                    history[keys.PREV_COST] = step.cost
+                history, carried = self._memory.step(out, step.cost, done)
                 steps.append({
-                    **root, **out, **{(keys.NEXT, k): v for k, v in history.items()},
+                    **root, **out, **history,
                     (keys.NEXT, keys.OBS): step.next_obs,
                     (keys.NEXT, keys.REWARD): step.reward,
                     (keys.NEXT, keys.COST): step.cost,
@@ -147,9 +175,6 @@ class Collector:
                 ep_return = ep_return.masked_fill(done, 0.0)
                 ep_cost = ep_cost.masked_fill(done, 0.0)
                 ep_length = ep_length.masked_fill(done, 0)
-                if carried or history:  # a new episode starts from the initial state, without history
-                    carried = {k: _reset_where(done, v, self._state0.get(k)) for k, v in carried.items()}
-                    carried.update({k: v.masked_fill(done, 0) for k, v in history.items()})
                 root = {**carried, keys.OBS: step.obs, keys.IS_INIT: done}
         self._root = root
         self._ep_return, self._ep_cost, self._ep_length = ep_return, ep_cost, ep_length
@@ -161,6 +186,30 @@ class Collector:
         )
         self.total_cost += batch.get((keys.NEXT, keys.COST)).sum().item()
         return batch
+
+    def state_dict(self) -> dict[str, Any]:
+        """Where the rollout stands: the next root (observation, ``is_init``, carried recurrent
+        state), the running episode sums, the step and cost counters, and the env's own state. A collector
+        built anew on the same config and given this continues the same trajectories."""
+        return {
+            "root": dict(self._root),
+            "episode_return": self._ep_return.clone(),
+            "episode_cost": self._ep_cost.clone(),
+            "episode_length": self._ep_length.clone(),
+            "total_steps": self.total_steps,
+            "total_cost": self.total_cost,
+            "env": self.env.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.env.load_state_dict(state["env"])
+        dev = self.env.device
+        self._root = {k: v.to(dev) for k, v in state["root"].items()}
+        self._ep_return = state["episode_return"].to(dev).clone()
+        self._ep_cost = state["episode_cost"].to(dev).clone()
+        self._ep_length = state["episode_length"].to(dev).clone()
+        self.total_steps = int(state["total_steps"])
+        self.total_cost = float(state["total_cost"])
 
 
 def _reset_where(done: torch.Tensor, value: torch.Tensor, initial: torch.Tensor | None) -> torch.Tensor:

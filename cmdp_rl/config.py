@@ -8,6 +8,7 @@ what is allowed, so a bad value fails before a single environment step.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,8 +19,10 @@ class ConfigError(ValueError):
     """A config value is missing, of the wrong type, or out of range."""
 
 
+LOGGERS = ("csv", "tensorboard")
+TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
 ENV_NAMES = ("reach1d", "velocity", "gym")
-ENV_BACKENDS = ("gym", "torch")  # gymnasium vector env | tensor-native batched env (envs/reach1d_torch.py; reach1d only)
+ENV_BACKENDS = ("gym", "torch")  # gymnasium vector env | tensor-native batched env (reach1d only)
 WALL_MODES = ("block", "pass")
 POLICY_NAMES = ("mlp", "lstm", "gru", "transformer")
 ACTIVATIONS = ("tanh", "relu", "elu")
@@ -160,24 +163,31 @@ POSITIONS = ("learned", "sinusoidal")
 
 
 @dataclass
-class PPOConfig:
-    """Clipped PPO (Schulman et al., 2017). Shared by every PPO-family algorithm."""
+class AlgoConfig:
+    """Options every algorithm shares: discounts, GAE, the critics, the budget."""
 
     name: str = "ppo"
-    lr: float = 3e-4
     critic_lr: float = 1e-3
     gamma: float = 0.99
     gae_lambda: float = 0.95
     cost_gamma: float = 0.99
-    clip_epsilon: float = 0.2
-    update_epochs: int = 10
-    num_minibatches: int = 8
-    entropy_coef: float = 0.0
     max_grad_norm: float = 0.5
     normalize_advantage: bool = True
     # The budget d on expected undiscounted episode cost. Only constrained algorithms act on it;
     # every run reports against it.
     cost_limit: float = 1.0
+
+
+@dataclass
+class PPOConfig(AlgoConfig):
+    """Clipped PPO (Schulman et al., 2017). Shared by every PPO-family algorithm."""
+
+    name: str = "ppo"
+    lr: float = 3e-4
+    clip_epsilon: float = 0.2
+    update_epochs: int = 10
+    num_minibatches: int = 8
+    entropy_coef: float = 0.0
 
 
 @dataclass
@@ -197,14 +207,55 @@ class PPOLagConfig(PPOConfig):
     lambda_lr: float = 0.05
 
 
-ALGO_CONFIGS: dict[str, type] = {"ppo": PPOConfig, "penalty": PenaltyConfig, "ppo_lag": PPOLagConfig}
+@dataclass
+class PIDLagConfig(PPOConfig):
+    """PPO with lambda set by a PID controller (Stooke, Achiam, Abbeel 2020)."""
+
+    name: str = "pid_lag"
+    lambda_init: float = 0.0
+    kp: float = 2.0
+    ki: float = 0.1
+    kd: float = 0.0
+    p_ema_alpha: float = 0.0
+    d_ema_alpha: float = 0.0
+    d_delay: int = 1
+    lambda_max: float = math.inf
+
+
+@dataclass
+class CPOConfig(AlgoConfig):
+    """Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel 2017)."""
+
+    name: str = "cpo"
+    target_kl: float = 0.01
+    cg_iters: int = 10
+    cg_damping: float = 0.1
+    line_search_steps: int = 10
+    backtrack_coef: float = 0.8
+    critic_epochs: int = 10
+    critic_minibatches: int = 8
+
+
+ALGO_CONFIGS: dict[str, type] = {
+    "ppo": PPOConfig, "penalty": PenaltyConfig, "ppo_lag": PPOLagConfig, "pid_lag": PIDLagConfig,
+    "cpo": CPOConfig,
+}
+
+
+@dataclass
+class LoggerConfig:
+    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else,
+    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory."""
+
+    name: str = "csv"
 
 
 @dataclass
 class RunConfig:
     env: Union[EnvConfig, VelocityEnvConfig, GymEnvConfig] = field(default_factory=EnvConfig)
     policy: Union[PolicyConfig, RecurrentPolicyConfig, TransformerPolicyConfig] = field(default_factory=PolicyConfig)
-    algo: PPOConfig = field(default_factory=PPOLagConfig)
+    algo: AlgoConfig = field(default_factory=PPOLagConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
     seed: int = 0
     total_steps: int = 400_000
     rollout_steps: int = 256
@@ -214,8 +265,24 @@ class RunConfig:
     eval_deterministic: bool = True
     checkpoint_every: int = 10
     log_interval: int = 5
+    # A run directory to continue from its last checkpoint (see cmdp_rl/resume.py); None: a new run.
+    resume: Optional[str] = None
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+
+
+@dataclass
+class EvalConfig:
+    """Options of ``evaluate.py`` (``python evaluate.py run=<run dir> [key=value ...]``)."""
+
+    run: Optional[str] = None  # the run directory (required)
+    checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
+    episodes: Optional[int] = None  # default: the run's eval_episodes
+    deterministic: Optional[bool] = None  # mean action; default: the run's eval_deterministic
+    seed: Optional[int] = None  # default: the run's evaluation seed (reproduces its eval.json)
+    plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
+    plot_episodes: int = 3  # episodes drawn in the PNG
+    output: Optional[str] = None  # also write the results as JSON to this path
 
 
 def _check_type(value: Any, hint: Any, name: str) -> Any:
@@ -228,6 +295,10 @@ def _check_type(value: Any, hint: Any, name: str) -> Any:
             except ConfigError:
                 continue
         raise ConfigError(f"{name}: expected one of {get_args(hint)}, got {value!r}")
+    if hint is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{name}: expected null, got {value!r}")
     if hint is bool:
         if isinstance(value, bool):
             return value
@@ -273,9 +344,10 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
         raise ConfigError(f"algo.name: unknown algorithm {algo_name!r}; allowed: {sorted(ALGO_CONFIGS)}")
     cfg = _build(
         RunConfig,
-        {k: v for k, v in raw.items() if k not in ("env", "policy", "normalize", "reference")},
+        {k: v for k, v in raw.items() if k not in ("env", "policy", "logger", "normalize", "reference")},
         "config",
     )
+    cfg.logger = _build(LoggerConfig, dict(raw.get("logger", {}) or {}), "logger")
     env = dict(raw.get("env", {}) or {})
     env_name = env.get("name", "reach1d")
     if env_name not in ENV_CONFIGS:
@@ -290,6 +362,16 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
     cfg.policy = _build(POLICY_CONFIGS[policy_name], policy, "policy")
     cfg.algo = _build(ALGO_CONFIGS[algo_name], algo, "algo")
     validate(cfg)
+    return cfg
+
+
+def load_eval_config(raw: Mapping[str, Any]) -> EvalConfig:
+    """Build and check ``evaluate.py``'s options."""
+    cfg = _build(EvalConfig, dict(raw), "evaluate")
+    _require(bool(cfg.run), "run", "a run directory (run=<dir>)", cfg.run)
+    _require(cfg.episodes is None or cfg.episodes >= 1, "episodes", "a positive integer", cfg.episodes)
+    _require(cfg.plot_episodes >= 1, "plot_episodes", "a positive integer", cfg.plot_episodes)
+    _require(cfg.plot is None or cfg.plot.lower().endswith(".png"), "plot", "a path ending in .png", cfg.plot)
     return cfg
 
 
@@ -335,32 +417,58 @@ def validate(cfg: RunConfig) -> None:
 
     _validate_policy(cfg)
 
-    for lr_name in ("lr", "critic_lr"):
-        v = getattr(a, lr_name)
-        _require(_finite(v) and v > 0, f"algo.{lr_name}", "a positive number", v)
+    _require(_finite(a.critic_lr) and a.critic_lr > 0, "algo.critic_lr", "a positive number", a.critic_lr)
     for g in ("gamma", "cost_gamma"):
         v = getattr(a, g)
         _require(0.0 <= v < 1.0, f"algo.{g}", "in [0, 1)", v)
     _require(0.0 <= a.gae_lambda <= 1.0, "algo.gae_lambda", "in [0, 1]", a.gae_lambda)
-    _require(0.0 < a.clip_epsilon < 1.0, "algo.clip_epsilon", "in (0, 1)", a.clip_epsilon)
-    _require(a.update_epochs >= 1, "algo.update_epochs", "a positive integer", a.update_epochs)
-    _require(a.num_minibatches >= 1, "algo.num_minibatches", "a positive integer", a.num_minibatches)
-    _require(a.entropy_coef >= 0, "algo.entropy_coef", "a number >= 0", a.entropy_coef)
     _require(a.max_grad_norm > 0, "algo.max_grad_norm", "a positive number", a.max_grad_norm)
     _require(_finite(a.cost_limit) and a.cost_limit >= 0, "algo.cost_limit", "a number >= 0 (the budget d)", a.cost_limit)
+    if isinstance(a, PPOConfig):
+        _require(_finite(a.lr) and a.lr > 0, "algo.lr", "a positive number", a.lr)
+        _require(0.0 < a.clip_epsilon < 1.0, "algo.clip_epsilon", "in (0, 1)", a.clip_epsilon)
+        _require(a.update_epochs >= 1, "algo.update_epochs", "a positive integer", a.update_epochs)
+        _require(a.num_minibatches >= 1, "algo.num_minibatches", "a positive integer", a.num_minibatches)
+        _require(a.entropy_coef >= 0, "algo.entropy_coef", "a number >= 0", a.entropy_coef)
     if isinstance(a, PenaltyConfig):
         _require(_finite(a.penalty) and a.penalty >= 0, "algo.penalty", "a number >= 0", a.penalty)
     if isinstance(a, PPOLagConfig):
         _require(a.lambda_init >= 0, "algo.lambda_init", "a number >= 0", a.lambda_init)
         _require(a.lambda_lr > 0, "algo.lambda_lr", "a positive number", a.lambda_lr)
+    if isinstance(a, PIDLagConfig):
+        for gain in ("kp", "ki", "kd"):
+            v = getattr(a, gain)
+            _require(_finite(v) and v >= 0, f"algo.{gain}", "a number >= 0", v)
+        _require(a.kp + a.ki + a.kd > 0, "algo.kp + algo.ki + algo.kd", "> 0 (some gain must act)", a.kp + a.ki + a.kd)
+        for ema in ("p_ema_alpha", "d_ema_alpha"):
+            v = getattr(a, ema)
+            _require(0.0 <= v < 1.0, f"algo.{ema}", "in [0, 1)", v)
+        _require(a.d_delay >= 1, "algo.d_delay", "a positive integer", a.d_delay)
+        _require(a.lambda_max > 0 and not math.isnan(a.lambda_max), "algo.lambda_max", "a positive number or .inf", a.lambda_max)
+        _require(_finite(a.lambda_init) and 0 <= a.lambda_init <= a.lambda_max, "algo.lambda_init",
+                 "a number in [0, algo.lambda_max]", a.lambda_init)
+    if isinstance(a, CPOConfig):
+        _require(_finite(a.target_kl) and a.target_kl > 0, "algo.target_kl", "a positive number (the KL radius delta)", a.target_kl)
+        _require(a.cg_iters >= 1, "algo.cg_iters", "a positive integer", a.cg_iters)
+        _require(_finite(a.cg_damping) and a.cg_damping >= 0, "algo.cg_damping", "a number >= 0", a.cg_damping)
+        _require(a.line_search_steps >= 1, "algo.line_search_steps", "a positive integer", a.line_search_steps)
+        _require(0.0 < a.backtrack_coef < 1.0, "algo.backtrack_coef", "in (0, 1)", a.backtrack_coef)
+        _require(a.critic_epochs >= 1, "algo.critic_epochs", "a positive integer", a.critic_epochs)
+        _require(a.critic_minibatches >= 1, "algo.critic_minibatches", "a positive integer", a.critic_minibatches)
 
     _require(cfg.total_steps >= 1, "total_steps", "a positive integer", cfg.total_steps)
     _require(cfg.rollout_steps >= 1, "rollout_steps", "a positive integer", cfg.rollout_steps)
     batch = cfg.rollout_steps * e.num_envs
-    _require(
-        batch >= a.num_minibatches, "algo.num_minibatches",
-        f"at most rollout_steps * env.num_envs = {batch}", a.num_minibatches,
-    )
+    if isinstance(a, PPOConfig):
+        _require(
+            batch >= a.num_minibatches, "algo.num_minibatches",
+            f"at most rollout_steps * env.num_envs = {batch}", a.num_minibatches,
+        )
+    if isinstance(a, CPOConfig):
+        _require(
+            batch >= a.critic_minibatches, "algo.critic_minibatches",
+            f"at most rollout_steps * env.num_envs = {batch}", a.critic_minibatches,
+        )
     _require(cfg.device in DEVICES, "device", f"one of {DEVICES}", cfg.device)
     if cfg.device == "cuda":
         import torch
@@ -370,6 +478,10 @@ def validate(cfg: RunConfig) -> None:
     _require(cfg.eval_episodes >= 1, "eval_episodes", "a positive integer", cfg.eval_episodes)
     _require(cfg.checkpoint_every >= 1, "checkpoint_every", "a positive integer", cfg.checkpoint_every)
     _require(cfg.log_interval >= 1, "log_interval", "a positive integer", cfg.log_interval)
+    _require(cfg.resume is None or cfg.resume.strip() != "", "resume", "null or a run directory", cfg.resume)
+    _require(cfg.logger.name in LOGGERS, "logger.name", f"one of {LOGGERS}", cfg.logger.name)
+    if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
+        raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
     _validate_normalize_and_reference(cfg)
 
 
@@ -395,10 +507,12 @@ def _validate_policy(cfg: RunConfig) -> None:
         _require(L >= 0 and (L == 0 or L >= T or T % L == 0), "policy.segment_length",
                  f"0 or >= rollout_steps (whole rollouts), or a divisor of rollout_steps={T}", L)
         segments = cfg.env.num_envs * (T // L if 0 < L < T else 1)
-        _require(cfg.algo.num_minibatches <= segments, "algo.num_minibatches",
-                 f"at most the number of training segments, env.num_envs * rollout_steps / "
-                 f"policy.segment_length = {segments} (recurrent policies train on whole segments)",
-                 cfg.algo.num_minibatches)
+        for name in ("num_minibatches", "critic_minibatches"):  # PPO family, CPO's critic fit
+            if hasattr(cfg.algo, name):
+                _require(getattr(cfg.algo, name) <= segments, f"algo.{name}",
+                         f"at most the number of training segments, env.num_envs * rollout_steps / "
+                         f"policy.segment_length = {segments} (recurrent policies train on whole segments)",
+                         getattr(cfg.algo, name))
     if isinstance(p, TransformerPolicyConfig):
         _require(p.window >= 1, "policy.window", "a positive integer (steps attended to)", p.window)
         _require(p.layers >= 1, "policy.layers", "a positive integer", p.layers)

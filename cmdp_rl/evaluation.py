@@ -10,6 +10,8 @@ from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import VecEnv
 
+EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
+
 
 def _spread(name: str, values: list[float]) -> dict[str, float]:
     t = torch.tensor(values, dtype=torch.float64)
@@ -29,7 +31,18 @@ def evaluate(
     Each env of the batch contributes a fixed quota of its first episodes, so short episodes are
     not over-represented (counting whichever episodes end first would bias towards them).
     ``goal_reached`` is the fraction of episodes that ended by termination rather than time limit.
+    With ``seed``, a stochastic policy samples from torch's generator seeded with it, inside
+    ``fork_rng``: the same seed gives the same numbers, and the caller's generator is left as it was.
     """
+    with torch.random.fork_rng(devices=[]):
+        if seed is not None:
+            torch.manual_seed(seed)
+        return _evaluate(actor, env, episodes, deterministic, seed)
+
+
+def _evaluate(
+    actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool, seed: int | None
+) -> dict[str, float]:
     n = env.num_envs
     quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
     exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM

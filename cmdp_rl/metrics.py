@@ -1,40 +1,120 @@
-"""Per-iteration metrics: one CSV row each, and a progress line on the console."""
+"""Per-iteration metrics: one CSV row each (always), TensorBoard scalars (``logger=tensorboard``),
+and a progress line on the console. Every algorithm logs the same names, :data:`COLUMNS`; the
+TensorBoard tags are those names, against the env step.
+"""
 
 from __future__ import annotations
 
 import csv
 import math
+import os
 from pathlib import Path
 from typing import Any, Callable
 
-# Stable column order; every algorithm writes the same names.
+from cmdp_rl.config import TENSORBOARD_MISSING
+
+# Stable column order; every algorithm writes the same names and leaves blank what it lacks.
 COLUMNS = [
     "iteration", "step", "episode_return", "episode_cost", "episode_length", "episodes",
     "lagrange_multiplier", "cost_limit", "sps", "time_s",
     "loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction",
     # the field's metrics (safety_metrics.py): blank where no reference is given
     "cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate",
+    # CPO (algos/cpo.py): the subproblem's case (0 trpo, 1 constrained, 2 recovery), the accepted
+    # fraction of the full step (0: none accepted), the dual's trust-region and cost multipliers,
+    # and the accepted step's change of the reward and cost surrogates.
+    "cpo_case", "step_fraction", "dual_lambda", "dual_nu", "surr_reward_change", "surr_cost_change",
 ]
 
 
+def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
+    """Keep the header and rows 1..``iteration`` of a metrics CSV (a resume from the checkpoint of
+    ``iteration``), dropping later rows and a partly written last line. Returns the header.
+
+    Raises ``ValueError`` if a row up to ``iteration`` is missing or out of order: rows are written
+    and synced before each checkpoint, so that would mean the file was edited or lost.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path} is missing; the checkpoint is at iteration {iteration}")
+    # Every complete line ends with a newline; what follows the last one is a row cut by a kill.
+    lines = path.read_text().split("\n")[:-1]
+    if not lines:
+        raise ValueError(f"{path} has no header")
+    header = next(csv.reader([lines[0]]))
+    rows = lines[1:iteration + 1]
+    found = [next(csv.reader([r]))[0] for r in rows]
+    if found != [str(i) for i in range(1, iteration + 1)]:
+        raise ValueError(
+            f"{path} does not hold rows 1..{iteration} in order (found iterations "
+            f"{found[:3]}...{found[-3:]}); the checkpoint is at iteration {iteration}"
+        )
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join([lines[0], *rows]) + "\n")
+    os.replace(tmp, path)
+    return header
+
+
 class MetricsLogger:
-    def __init__(self, path: str | Path, log_interval: int = 1, echo: Callable[[str], None] = print) -> None:
+    """Writes one CSV row per iteration (flushed at once) and echoes a progress line every
+    ``log_interval`` iterations. With ``resume_iteration`` it continues an existing file after
+    that iteration's row (see :func:`truncate_metrics`) instead of starting a new one.
+
+    With ``tensorboard_dir`` it also writes every numeric column but ``iteration`` and ``step`` as
+    a TensorBoard scalar at ``global_step = step``. On a resume, ``resume_step`` (the checkpoint's
+    step) hides the events a killed run wrote after its checkpoint (``SummaryWriter``'s purge_step).
+    """
+
+    def __init__(
+        self, path: str | Path, log_interval: int = 1, echo: Callable[[str], None] = print,
+        resume_iteration: int | None = None, tensorboard_dir: str | Path | None = None,
+        resume_step: int | None = None,
+    ) -> None:
         self.path = Path(path)
         self.log_interval = log_interval
         self.echo = echo
-        self._file = open(self.path, "w", newline="")
-        self._writer = csv.DictWriter(self._file, fieldnames=COLUMNS, extrasaction="ignore")
-        self._writer.writeheader()
+        self._tb = None
+        if tensorboard_dir is not None:
+            try:
+                from torch.utils.tensorboard import SummaryWriter
+            except ImportError as exc:
+                raise ImportError(TENSORBOARD_MISSING) from exc
+            purge = None if resume_step is None else resume_step + 1
+            self._tb = SummaryWriter(str(tensorboard_dir), purge_step=purge)
+        if resume_iteration is None:
+            self._file = open(self.path, "w", newline="")
+            self._writer = csv.DictWriter(self._file, fieldnames=COLUMNS, extrasaction="ignore", lineterminator="\n")
+            self._writer.writeheader()
+        else:
+            # The run keeps the columns it started with, even if this version logs more.
+            header = truncate_metrics(self.path, resume_iteration)
+            self._file = open(self.path, "a", newline="")
+            self._writer = csv.DictWriter(self._file, fieldnames=header, extrasaction="ignore", lineterminator="\n")
         self._file.flush()
 
     def log(self, row: dict[str, Any], force_echo: bool = False) -> None:
         self._writer.writerow(row)
         self._file.flush()
+        if self._tb is not None:
+            for name in COLUMNS[2:]:
+                value = row.get(name)
+                if isinstance(value, (int, float)) and math.isfinite(value):
+                    self._tb.add_scalar(name, value, global_step=row["step"])
         if force_echo or row["iteration"] == 1 or row["iteration"] % self.log_interval == 0:
             self.echo(format_row(row))
 
+    def sync(self) -> None:
+        """Force the rows written so far to disk; called before each checkpoint, so a checkpoint
+        never refers to a row that a machine crash could still lose."""
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        if self._tb is not None:
+            self._tb.flush()
+
     def close(self) -> None:
         self._file.close()
+        if self._tb is not None:
+            self._tb.close()
 
 
 def _fmt(x: float, spec: str) -> str:

@@ -8,46 +8,68 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import random
 import time
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 import torch
 import yaml
 
 from cmdp_rl.algos import TrainingDiverged, make_algo
-from cmdp_rl.checkpoint import save_checkpoint
+from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
-from cmdp_rl.config import EnvConfig, RunConfig, validate
-from cmdp_rl.envs import make_env
-from cmdp_rl.evaluation import evaluate
+from cmdp_rl.config import RunConfig, validate
+from cmdp_rl.envs import make_env, make_eval_env
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_actor_critic
+from cmdp_rl.resume import load_resume_state
+from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
+from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
 from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
-
-EVAL_SEED_OFFSET = 1_000_003  # evaluation episodes never replay training seeds
-
-
-def seed_everything(seed: int) -> None:
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
 
 
 def _mean(t: torch.Tensor) -> float:
     return t.mean().item() if t.numel() else float("nan")
 
 
-def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = print) -> dict[str, Any]:
-    """Train as ``cfg`` says, writing ``metrics.csv``, ``checkpoint.pt``, ``config.yaml`` and
-    ``eval.json`` under ``out_dir``. Returns the evaluation summary."""
+def _run_dir(cfg: RunConfig, out_dir: str | Path | None) -> Path:
+    if cfg.resume is None:
+        if out_dir is None:
+            raise ValueError("train: out_dir is required for a new run")
+        return Path(out_dir)
+    if out_dir is not None and Path(out_dir).resolve() != Path(cfg.resume).resolve():
+        raise ValueError(f"train: a resumed run writes to its own directory {cfg.resume}, not {out_dir}")
+    return Path(cfg.resume)
+
+
+def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
+    """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
+    ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/rundir.py``). Returns the
+    evaluation summary. Same config and seed, same numbers (on the same machine and versions).
+
+    With ``cfg.resume`` set to a run directory, continue that run from its last checkpoint, in that
+    directory (``out_dir`` may be omitted). Its ``metrics.csv`` keeps the rows up to the
+    checkpoint and continues after them; the run ends with the numbers it would have reached
+    uninterrupted (see ``cmdp_rl/resume.py``).
+    """
     validate(cfg)
-    out = Path(out_dir)
+    out = _run_dir(cfg, out_dir)
+    state = load_resume_state(cfg) if cfg.resume is not None else None
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.yaml").write_text(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False))
+    try:  # first, as it is the last check a resume can fail: nothing is written before it
+        logger = MetricsLogger(
+            out / METRICS, cfg.log_interval, echo,
+            resume_iteration=None if state is None else state["iteration"],
+            tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
+            resume_step=None if state is None else state["step"],
+        )
+    except ValueError as exc:
+        raise CheckpointError(f"resume: {exc}") from exc
+    run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None))  # the run's own config
+    (out / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
+    write_run_info(out, resumed_from=None if state is None else state["iteration"])
     torch.set_num_threads(cfg.threads)
     seed_everything(cfg.seed)
 
@@ -55,25 +77,43 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
     ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, ac)
     collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
-    logger = MetricsLogger(out / "metrics.csv", cfg.log_interval, echo)
+    first, elapsed = 1, 0.0
+    if state is not None:
+        algo.load_state_dict(state["algo_state"])
+        collector.load_state_dict(state["collector"])
+        load_rng_state(state["rng"])
+        first, elapsed = state["iteration"] + 1, state["time_s"]
     per_iter = cfg.rollout_steps * env.num_envs
     iterations = math.ceil(cfg.total_steps / per_iter)
-    ckpt_path = out / "checkpoint.pt"
+    ckpt_path = out / CHECKPOINT
+    start = time.perf_counter() - elapsed
+
     reference, warnings = load_reference(cfg)
     for warning in warnings:
         echo(f"warning: {warning}")
+    cannot_resume: list[str] = []
 
     def checkpoint(iteration: int) -> None:
+        logger.sync()  # the rows up to this iteration are on disk before the checkpoint names it
+        try:
+            rollout = collector.state_dict()
+        except NotImplementedError as exc:  # an env that cannot save itself: evaluable, not resumable
+            rollout = None
+            if not cannot_resume:
+                cannot_resume.append(str(exc))
+                echo(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
         save_checkpoint(ckpt_path, {
-            "algo": cfg.algo.name, "policy": cfg.policy.name, "config": dataclasses.asdict(cfg),
-            "iteration": iteration, "step": collector.total_steps, "algo_state": algo.state_dict(),
+            "algo": cfg.algo.name, "policy": cfg.policy.name, "config": run_cfg,
+            "iteration": iteration, "step": collector.total_steps, "time_s": time.perf_counter() - start,
+            "algo_state": algo.state_dict(), "collector": rollout, "rng": rng_state(),
         })
 
+    if state is not None:
+        echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
     echo(f"training {cfg.algo.name} on {cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs): "
          f"{iterations} iterations of {per_iter} steps, cost limit {cfg.algo.cost_limit}, outputs in {out}")
-    start = time.perf_counter()
     try:
-        for it in range(1, iterations + 1):
+        for it in range(first, iterations + 1):
             t0 = time.perf_counter()
             batch = collector.collect()
             ac.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
@@ -101,18 +141,19 @@ def train(cfg: RunConfig, out_dir: str | Path, echo: Callable[[str], None] = pri
         logger.close()
         env.close()
     train_time = time.perf_counter() - start
+    if first > iterations:
+        echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
-    # Whole episodes only: no staggered (shortened) first episodes in evaluation.
-    eval_cfg = dataclasses.replace(cfg.env, stagger=False) if isinstance(cfg.env, EnvConfig) else cfg.env
-    eval_env = make_env(eval_cfg, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
+    eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
-    result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})
+    result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
+                   "torch_threads": torch.get_num_threads()})
     result["cost_rate"] = cost_rate(collector.total_cost, collector.total_steps)
     result.update(normalized_scores(result["episode_return"], result["episode_cost"], result["cost_rate"],
                                     cfg.algo.cost_limit, reference))
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
-    (out / "eval.json").write_text(json.dumps(result, indent=2))
+    (out / EVAL).write_text(json.dumps(result, indent=2))
     echo(
         f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "
         f"{result['episodes']} episodes: return {result['episode_return']:.3f} ± {result['episode_return_std']:.3f}, "

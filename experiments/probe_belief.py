@@ -36,7 +36,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, make_env, train
 from cmdp_rl.checkpoint import load_checkpoint
-from cmdp_rl.trainer import EVAL_SEED_OFFSET
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 
 POLICY_ORDER = ("mlp", "lstm", "gru", "transformer")
 EARLY_STEPS = 5  # "early" = the first steps of an episode, where a belief-building agent probes

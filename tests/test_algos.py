@@ -18,7 +18,7 @@ def setup(algo: dict, **env):
     return cfg, make_algo(cfg.algo, ac), Collector(e, ac.actor, cfg.rollout_steps, seed=0)
 
 
-@pytest.mark.parametrize("name", ["ppo", "penalty", "ppo_lag"])
+@pytest.mark.parametrize("name", ["ppo", "penalty", "ppo_lag", "pid_lag"])
 def test_one_update_changes_every_network(name):
     cfg, algo, col = setup({"name": name, "update_epochs": 2, "num_minibatches": 2})
     before = [p.detach().clone() for p in algo.ac.modules().parameters()]
@@ -50,6 +50,25 @@ def test_lagrangian_update_moves_lambda_with_the_batch_cost():
     assert stats["lagrange_multiplier"] > 0.0
     _, lag, col = setup({"name": "ppo_lag", "cost_limit": 5.0, "lambda_init": 1.0, "lambda_lr": 0.5, "update_epochs": 1})
     assert lag.update(col.collect())["lagrange_multiplier"] < 1.0  # cost 0 < d: lambda falls
+
+
+def test_pid_lagrangian_algorithm_uses_its_controller_and_checkpoints_it():
+    # Same over-budget batches as above: with Kp > 0 lambda jumps by Kp * (J_c - d) at once.
+    env = dict(wall="pass", start=0.45, max_steps=3)
+    algo_cfg = {"cost_limit": 0.2, "update_epochs": 1}
+    _, lag, col = setup({"name": "ppo_lag", "lambda_lr": 0.5, **algo_cfg}, **env)
+    batch = col.collect()
+    _, pid, pcol = setup({"name": "pid_lag", "ki": 0.5, "kp": 2.0, **algo_cfg}, **env)
+    pbatch = pcol.collect()
+    assert torch.equal(batch.get(("next", "cost")), pbatch.get(("next", "cost")))  # same data
+    lam_i = lag.update(batch)["lagrange_multiplier"]
+    lam_pid = pid.update(pbatch)["lagrange_multiplier"]
+    j_c = (lam_i / 0.5) + 0.2  # dual ascent from 0: lambda = lr * (J_c - d)
+    assert lam_pid == pytest.approx(lam_i + 2.0 * (j_c - 0.2))
+    state = pid.state_dict()
+    _, pid2, _ = setup({"name": "pid_lag", "ki": 0.5, "kp": 2.0, **algo_cfg}, **env)
+    pid2.load_state_dict(state)
+    assert pid2.multiplier.state_dict() == pid.multiplier.state_dict() and pid2.lagrange_multiplier == lam_pid
 
 
 def test_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
@@ -122,3 +141,26 @@ def test_fast_tanh_matches_torch_tanh_and_its_gradient():
     assert torch.allclose(g, 1 - torch.tanh(x.detach()) ** 2, atol=1e-6)
     with torch.no_grad():
         assert torch.equal(Tanh()(x), y.detach())
+
+
+def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    original = torch.optim.Adam.step
+
+    def step_then_break(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        calls["n"] += 1
+        # the last step of iteration 3 (2 minibatches x 2 optimizers per iteration, the critics' second)
+        if calls["n"] == 2 * 2 * 3:
+            with torch.no_grad():
+                self.param_groups[0]["params"][0].fill_(float("inf"))  # the reward critic's first weight
+        return out
+
+    monkeypatch.setattr(torch.optim.Adam, "step", step_then_break)
+    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2}, "env": {"num_envs": 2},
+                       "rollout_steps": 16, "total_steps": 320, "checkpoint_every": 1})
+    with pytest.raises(TrainingDiverged, match=r"iteration 3: parameter critic\..* is not finite"):
+        train(cfg, tmp_path, echo=lambda s: None)
+    state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo")
+    assert state["iteration"] == 2
+    assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())

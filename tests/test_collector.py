@@ -117,3 +117,61 @@ def test_state_written_under_next_is_carried_to_the_next_step():
     assert torch.equal(b[keys.NEXT]["count"][1, :, 0], expected + 1)
     b2 = col.collect()  # the state carries across calls
     assert b2["count"][0, 0, 0].item() == 2.0
+
+
+def test_state_dict_continues_the_same_trajectories():
+    """A collector restored from state_dict() on fresh envs collects what the original would
+    have: next observations, running episode sums and each env's generator all come back. Both
+    ways an env saves itself are checked: Reach1D's own state_dict, and pickling (a wrapped env)."""
+    import gymnasium as gym
+    from cmdp_rl.envs import GymVecEnv
+
+    def noisy(value):
+        p = policy(value)
+        return lambda td: p(td).set(keys.ACTION, td.get(keys.ACTION) + 0.05 * torch.randn(td.shape[0], 1))
+
+    for make_one in (lambda: Reach1D(max_steps=9, start=[0.2, 0.45], wall="pass"),
+                     lambda: gym.wrappers.RecordEpisodeStatistics(Reach1D(max_steps=9, start=[0.2, 0.45]))):
+        torch.manual_seed(0)
+        col = Collector(GymVecEnv(make_one, 3), noisy(0.04), rollout_steps=13, seed=5)
+        col.collect()
+        saved, rng = col.state_dict(), torch.get_rng_state()
+        expected = col.collect()
+        fresh = Collector(GymVecEnv(make_one, 3), noisy(0.04), rollout_steps=13, seed=99)
+        fresh.load_state_dict(saved)
+        torch.set_rng_state(rng)
+        got = fresh.collect()
+        assert (got == expected).all() and fresh.total_steps == col.total_steps == 78
+
+
+def test_env_state_covers_plain_and_refuses_unknown_state():
+    import gymnasium as gym
+    import numpy as np
+
+    from cmdp_rl.envs.env_state import env_state, load_env_state
+
+    def make():
+        return gym.wrappers.RecordEpisodeStatistics(gym.make("Pendulum-v1", max_episode_steps=30))
+
+    a, b = make(), make()
+    a.reset(seed=1)
+    b.reset(seed=2)
+    for _ in range(11):
+        a.step(np.array([0.5], dtype=np.float32))
+    load_env_state(b, env_state(a))
+    for t in range(40):  # across the time limit and the reset after it
+        act = np.array([np.sin(t)], dtype=np.float32)
+        ra, rb = a.step(act), b.step(act)
+        assert np.array_equal(ra[0], rb[0]) and ra[1:4] == rb[1:4], t
+        if ra[3]:
+            assert np.array_equal(a.reset()[0], b.reset()[0])
+            assert ra[4]["episode"]["r"] == rb[4]["episode"]["r"]  # the wrapper's sums came back
+
+    class World(gym.Env):
+        observation_space = action_space = gym.spaces.Box(-1, 1, (1,))
+
+        def __init__(self):
+            self.world = object()  # say, a physics engine's handle
+
+    with pytest.raises(NotImplementedError, match="World holds 'world' .* cannot resume exactly"):
+        env_state(World())

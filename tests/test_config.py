@@ -39,6 +39,26 @@ BAD = [
     ({"algo": {"name": "ppo_lag", "lambda_init": -1.0}}, "algo.lambda_init"),
     ({"algo": {"name": "ppo_lag", "lambda_lr": 0.0}}, "algo.lambda_lr"),
     ({"algo": {"name": "ppo", "penalty": 1.0}}, "algo"),  # option of another algorithm
+    ({"algo": {"name": "pid_lag", "kp": -0.1}}, "algo.kp"),
+    ({"algo": {"name": "pid_lag", "ki": -0.1}}, "algo.ki"),
+    ({"algo": {"name": "pid_lag", "kd": float("nan")}}, "algo.kd"),
+    ({"algo": {"name": "pid_lag", "kp": 0.0, "ki": 0.0, "kd": 0.0}}, "algo.kp + algo.ki + algo.kd"),
+    ({"algo": {"name": "pid_lag", "p_ema_alpha": 1.0}}, "algo.p_ema_alpha"),
+    ({"algo": {"name": "pid_lag", "d_ema_alpha": -0.5}}, "algo.d_ema_alpha"),
+    ({"algo": {"name": "pid_lag", "d_delay": 0}}, "algo.d_delay"),
+    ({"algo": {"name": "pid_lag", "lambda_max": 0.0}}, "algo.lambda_max"),
+    ({"algo": {"name": "pid_lag", "lambda_init": 5.0, "lambda_max": 2.0}}, "algo.lambda_init"),
+    ({"algo": {"name": "pid_lag", "lambda_lr": 0.1}}, "algo"),  # dual ascent's option, not PID's
+    ({"algo": {"name": "cpo", "target_kl": 0.0}}, "algo.target_kl"),
+    ({"algo": {"name": "cpo", "cg_iters": 0}}, "algo.cg_iters"),
+    ({"algo": {"name": "cpo", "cg_damping": -0.1}}, "algo.cg_damping"),
+    ({"algo": {"name": "cpo", "line_search_steps": 0}}, "algo.line_search_steps"),
+    ({"algo": {"name": "cpo", "backtrack_coef": 1.0}}, "algo.backtrack_coef"),
+    ({"algo": {"name": "cpo", "critic_epochs": 0}}, "algo.critic_epochs"),
+    ({"algo": {"name": "cpo", "critic_minibatches": 10**9}}, "algo.critic_minibatches"),
+    ({"algo": {"name": "cpo", "critic_lr": 0.0}}, "algo.critic_lr"),
+    ({"algo": {"name": "cpo", "cost_limit": -1.0}}, "algo.cost_limit"),
+    ({"algo": {"name": "cpo", "clip_epsilon": 0.2}}, "algo"),  # a PPO option: CPO has no clip
     ({"algo": {"name": "ppo", "lr": "fast"}}, "algo.lr"),
     ({"total_steps": 0}, "total_steps"),
     ({"total_steps": -5}, "total_steps"),
@@ -49,6 +69,10 @@ BAD = [
     ({"checkpoint_every": 0}, "checkpoint_every"),
     ({"log_interval": 0}, "log_interval"),
     ({"bogus": 1}, "config"),
+    ({"resume": 5}, "config.resume"),
+    ({"resume": ""}, "resume"),
+    ({"logger": {"name": "wandb"}}, "logger.name"),
+    ({"logger": {"flush_secs": 5}}, "logger"),
 ]
 
 

@@ -19,21 +19,36 @@ def run(*args, cwd=ROOT):
 
 
 def test_each_algorithm_trains_and_writes_its_outputs(tmp_path):
-    proc = run("-m", "algo=ppo,penalty,ppo_lag", "env=reach1d", *SHORT,
+    proc = run("-m", "algo=ppo,penalty,ppo_lag,pid_lag", "env=reach1d", *SHORT,
                f"hydra.sweep.dir={tmp_path}", "hydra.sweep.subdir=${algo.name}")
     assert proc.returncode == 0, proc.stderr[-3000:]
-    for name, lam in (("ppo", 0.0), ("penalty", 1.0), ("ppo_lag", None)):
+    for name, lam in (("ppo", 0.0), ("penalty", 1.0), ("ppo_lag", None), ("pid_lag", None)):
         out = tmp_path / name
         rows = list(csv.DictReader(open(out / "metrics.csv")))
         assert len(rows) == 2 and rows[-1]["step"] == "512"
         assert {"step", "episode_return", "episode_cost", "lagrange_multiplier", "sps"} <= rows[0].keys()
         if lam is not None:
             assert all(float(r["lagrange_multiplier"]) == lam for r in rows)
+        assert all(r["cpo_case"] == "" for r in rows)  # CPO's columns stay blank for the others
         ev = json.loads((out / "eval.json").read_text())
         assert ev["episodes"] == 4 and {"episode_return", "episode_cost", "episode_return_std"} <= ev.keys()
         assert (out / "checkpoint.pt").is_file() and (out / ".hydra" / "config.yaml").is_file()
         assert (out / "config.yaml").is_file()
     assert "done: ppo_lag 512 steps" in proc.stdout
+
+
+def test_cpo_trains_and_logs_its_dual(tmp_path):
+    proc = run("algo=cpo", "env=reach1d", "env.wall=pass", "algo.cost_limit=0.5", "algo.critic_epochs=2",
+               *[a for a in SHORT if not a.startswith("algo.")], f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    assert len(rows) == 2 and rows[-1]["step"] == "512"
+    for r in rows:
+        assert r["cpo_case"] in {"0", "1", "2"} and 0.0 <= float(r["step_fraction"]) <= 1.0
+        assert float(r["kl"]) <= 0.01 and float(r["lagrange_multiplier"]) == float(r["dual_nu"]) >= 0.0
+    ev = json.loads((tmp_path / "eval.json").read_text())
+    assert ev["episodes"] == 4 and ev["cost_limit"] == 0.5
+    assert "done: cpo 512 steps" in proc.stdout
 
 
 @pytest.mark.parametrize("args,message", [
@@ -55,7 +70,7 @@ def test_each_memory_policy_trains_and_evaluates(tmp_path):
     (a 2-D action), from train.py to eval.json and a checkpoint that reloads."""
     from cmdp_rl import evaluate, load_config, make_actor_critic, make_env
     from cmdp_rl.checkpoint import load_checkpoint
-    from cmdp_rl.trainer import EVAL_SEED_OFFSET
+    from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 
     proc = run("-m", "policy=lstm,gru,transformer", "algo=ppo_lag", "env.probe=true", *SHORT,
                f"hydra.sweep.dir={tmp_path}", "hydra.sweep.subdir=${policy.name}")

@@ -1,11 +1,13 @@
-"""PPO, reward-penalty PPO and PPO-Lagrangian: one clipped-PPO update, three policy advantages.
+"""PPO, reward-penalty PPO and PPO-Lagrangian (dual ascent or PID): one clipped-PPO update, three
+policy advantages.
 
 - PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms"): ``A = A_r``.
 - Penalty: PPO on the reward ``r - lambda c`` with a fixed lambda. GAE is linear in the reward, so
   with ``V = V_r - lambda V_c`` its advantage is exactly ``A_r - lambda A_c``; the two critics stay
   separate and their targets are the same as for every other algorithm.
 - PPO-Lagrangian (Ray, Achiam, Amodei, 2019, "Benchmarking Safe Exploration in Deep RL"):
-  ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by projected dual ascent on ``J_c - d``.
+  ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by projected dual ascent on ``J_c - d``, or by
+  a PID controller on it (Stooke, Achiam, Abbeel, 2020): see ``lagrange.py``.
 
 The clipped surrogate (eq. 7 of Schulman et al.) reads the combined advantage; both critics regress
 on their GAE value targets. The surrogate is written out here rather than torchrl's
@@ -21,23 +23,21 @@ from __future__ import annotations
 import math
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torch import distributions as D
 from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.lagrange import DualAscent
+from cmdp_rl.algos.base import check_finite, check_parameters_finite
+from cmdp_rl.algos.critics import CriticRegression
+from cmdp_rl.algos.lagrange import DualAscent, MultiplierController, PIDLagrangian
 from cmdp_rl.collector import finished_episodes
-from cmdp_rl.config import PenaltyConfig, PPOConfig, PPOLagConfig
+from cmdp_rl.config import PenaltyConfig, PIDLagConfig, PPOConfig, PPOLagConfig
 from cmdp_rl.policies import ActorCritic
-from cmdp_rl.policies.tensor_path import TensorActor, TensorModule
+from cmdp_rl.policies.tensor_path import TensorActor
 
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
-
-
-class TrainingDiverged(RuntimeError):
-    """A loss or parameter became NaN or infinite."""
 
 
 class PPO:
@@ -52,8 +52,7 @@ class PPO:
         # Tensor paths for the minibatch loop where the modules allow (see policies/tensor_path.py);
         # otherwise the modules are called on TensorDicts.
         self.actor_fast = TensorActor.wrap(ac.actor)
-        self.critic_fast = TensorModule.wrap(ac.critic)
-        self.cost_critic_fast = TensorModule.wrap(ac.cost_critic)
+        self.critics = CriticRegression(ac)
         self.actor_params = list(ac.actor.parameters())
         self.critic_params = [*ac.critic.parameters(), *ac.cost_critic.parameters()]
         # fused: one kernel per step for all parameters instead of a dozen ops per tensor.
@@ -98,9 +97,7 @@ class PPO:
                 mb = {k: v[i * mb_size:(i + 1) * mb_size] for k, v in shuffled.items()}
                 loss_pi, entropy, kl, clip_fraction = self.policy_loss(mb)
                 # Critics: regression on the GAE value targets (lambda-returns).
-                loss_v = (self._values(mb, self.critic_fast, self.ac.critic, keys.VALUE) - mb[keys.VALUE_TARGET]).pow(2).mean()
-                loss_vc = (self._values(mb, self.cost_critic_fast, self.ac.cost_critic, keys.COST_VALUE)
-                           - mb[keys.COST_VALUE_TARGET]).pow(2).mean()
+                loss_v, loss_vc = self.critics.losses(mb)
                 self.actor_opt.zero_grad(set_to_none=True)
                 self.critic_opt.zero_grad(set_to_none=True)
                 # One backward pass: the three losses have disjoint parameters, so each network's
@@ -114,7 +111,8 @@ class PPO:
         # One host sync per update (not per minibatch): read the statistics, stop on NaN/inf.
         means = (sums / (cfg.update_epochs * cfg.num_minibatches)).tolist()
         stats = dict(zip(STATS, means))
-        self._check_finite(stats)
+        check_finite(**stats)
+        check_parameters_finite(self.ac.modules())
         stats["lagrange_multiplier"] = self.lagrange_multiplier
         return stats
 
@@ -140,13 +138,7 @@ class PPO:
         if self.actor_fast is not None:
             return self.actor_fast.dist(mb)
         with self.ac.sequence_mode():
-            return self.ac.actor.get_dist(_units(mb))
-
-    def _values(self, mb: dict[str, torch.Tensor], fast: TensorModule | None, module, key: str) -> torch.Tensor:
-        if fast is not None:
-            return fast(mb)
-        with self.ac.sequence_mode():
-            return module(_units(mb)).get(key)
+            return self.ac.actor.get_dist(self.ac.units_tensordict(mb))
 
     def _update_keys(self, batch: TensorDictBase) -> list:
         """The batch entries the minibatch loop reads: the networks' inputs, the action and its
@@ -154,12 +146,6 @@ class PPO:
         inputs = {*self.ac.actor.in_keys, *self.ac.critic.in_keys, *self.ac.cost_critic.in_keys}
         fixed = [keys.ACTION, keys.LOG_PROB, keys.POLICY_ADVANTAGE, keys.VALUE_TARGET, keys.COST_VALUE_TARGET]
         return [*fixed, *sorted((k for k in inputs if k in batch.keys(True) and k not in fixed), key=str)]
-
-    @staticmethod
-    def _check_finite(stats: dict[str, float]) -> None:
-        for name, value in stats.items():
-            if not math.isfinite(value):
-                raise TrainingDiverged(f"{name} is {value}: training diverged")
 
     # --- checkpointing --------------------------------------------------------------------------
     def state_dict(self) -> dict:
@@ -173,11 +159,6 @@ class PPO:
         self.ac.modules().load_state_dict(state["networks"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
-
-
-def _units(mb: dict[str, torch.Tensor]) -> TensorDict:
-    """A minibatch as a TensorDict over its units: ``[B]`` steps or ``[B, L]`` segments."""
-    return TensorDict(mb, batch_size=mb[keys.ACTION].shape[:-1])
 
 
 class PenaltyPPO(PPO):
@@ -196,11 +177,18 @@ class PenaltyPPO(PPO):
 
 
 class PPOLagrangian(PPO):
+    """Lambda from a :class:`MultiplierController`: projected dual ascent here, PID in
+    :class:`PIDLagrangianPPO`; the policy update is the same."""
+
     name = "ppo_lag"
 
     def __init__(self, cfg: PPOLagConfig, ac: ActorCritic) -> None:
         super().__init__(cfg, ac)
-        self.multiplier = DualAscent(cfg.cost_limit, cfg.lambda_lr, cfg.lambda_init)
+        self.multiplier = self.make_multiplier(cfg)
+
+    @staticmethod
+    def make_multiplier(cfg: PPOLagConfig) -> MultiplierController:
+        return DualAscent(cfg.cost_limit, cfg.lambda_lr, cfg.lambda_init)
 
     @property
     def lagrange_multiplier(self) -> float:
@@ -221,3 +209,19 @@ class PPOLagrangian(PPO):
     def load_state_dict(self, state: dict) -> None:
         super().load_state_dict(state)
         self.multiplier.load_state_dict(state["multiplier"])
+
+
+class PIDLagrangianPPO(PPOLagrangian):
+    """PPO-Lagrangian with lambda from a PID controller on ``J_c - d`` (Stooke, Achiam, Abbeel,
+    2020, "Responsive Safety in RL by PID Lagrangian Methods"): the proportional and derivative
+    terms damp the overshoot and oscillation of the integral-only dual ascent."""
+
+    name = "pid_lag"
+
+    @staticmethod
+    def make_multiplier(cfg: PIDLagConfig) -> MultiplierController:
+        return PIDLagrangian(
+            cfg.cost_limit, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init,
+            p_ema_alpha=cfg.p_ema_alpha, d_ema_alpha=cfg.d_ema_alpha, d_delay=cfg.d_delay,
+            lambda_max=cfg.lambda_max,
+        )

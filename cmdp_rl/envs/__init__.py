@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
 
 from cmdp_rl.config import EnvConfig, GymEnvConfig, VelocityEnvConfig
@@ -42,7 +43,16 @@ def make_env(
     raise ValueError(f"env: no implementation for name={cfg.name!r} backend={cfg.backend!r}")
 
 
+def make_eval_env(
+    cfg: EnvConfig | VelocityEnvConfig | GymEnvConfig, num_envs: int | None = None, device: str = "cpu"
+) -> VecEnv:
+    """The env evaluation runs on: ``cfg``'s, with whole episodes only (no staggered start)."""
+    if getattr(cfg, "stagger", False):
+        cfg = dataclasses.replace(cfg, stagger=False)
+    return make_env(cfg, num_envs, device)
+
+
 __all__ = [
     "REACH1D_ID", "GymVecEnv", "NoiseSource", "Reach1D", "Step", "TorchNoise", "TorchReach1D", "VecEnv",
-    "make_cost_env", "make_env", "make_velocity_env", "reach1d_kwargs",
+    "make_cost_env", "make_env", "make_eval_env", "make_velocity_env", "reach1d_kwargs",
 ]

@@ -8,12 +8,14 @@ costs about 1.3 ms per step (specs, step_mdp, info readers), several times the c
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+from cmdp_rl.envs.env_state import env_state, load_env_state
 
 
 class Step(NamedTuple):
@@ -49,6 +51,15 @@ class VecEnv(ABC):
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs to continue exactly where this env stands: the episodes
+        in progress and the envs' random generators. ``load_state_dict`` on a fresh env built from
+        the same config restores it."""
+        raise NotImplementedError(f"{type(self).__name__} cannot save its state, so a run on it cannot resume")
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        raise NotImplementedError(f"{type(self).__name__} cannot restore a saved state")
 
     def check_action(self, action: torch.Tensor) -> None:
         expected = (self.num_envs, self.action_dim)
@@ -110,6 +121,17 @@ class GymVecEnv(VecEnv):
             truncated=torch.from_numpy(np.asarray(truncated, dtype=bool)).view(n, 1).to(self.device),
             obs=self._obs(obs),
         )
+
+    def state_dict(self) -> dict[str, Any]:
+        """Each env's state, wrappers included (see ``envs/env_state.py``). In SAME_STEP mode the
+        vector env itself holds nothing between steps."""
+        return {"num_envs": self.num_envs, "envs": [env_state(env) for env in self.envs.envs]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state["num_envs"] != self.num_envs:
+            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
+        for env, saved in zip(self.envs.envs, state["envs"]):
+            load_env_state(env, saved)
 
     def close(self) -> None:
         self.envs.close()

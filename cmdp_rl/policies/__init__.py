@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 from typing import ContextManager, Mapping
 
 import torch
-from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torchrl.modules import ProbabilisticActor, set_recurrent_mode
 
@@ -62,6 +63,24 @@ class ActorCritic:
         """The mode training and value passes call the networks in: recurrent mode for recurrent
         networks on ``[B, L]`` segments (torchrl's ``set_recurrent_mode``), else no change."""
         return set_recurrent_mode(True) if self.recurrent else contextlib.nullcontext()
+
+    @property
+    def unit_dims(self) -> int:
+        """Leading dimensions of a training unit batch: 1 (steps ``[B]``) or 2 (segments ``[B, L]``)."""
+        return 2 if self.recurrent else 1
+
+    def units_tensordict(self, mb: Mapping[str, torch.Tensor]) -> TensorDict:
+        """A minibatch of training units (a dict of tensors) as a TensorDict the networks read."""
+        first = next(iter(mb.values()))
+        return TensorDict(dict(mb), batch_size=first.shape[: self.unit_dims])
+
+    def batch_units(self, batch: TensorDictBase) -> TensorDictBase:
+        """A whole ``[N, T]`` batch as training units: ``[N T]`` steps or ``[U, L]`` segments."""
+        if not self.recurrent:
+            return batch.reshape(-1)
+        N, T = batch.shape
+        L = self.segment_length if 0 < self.segment_length < T else T
+        return batch.reshape(N, T // L, L).reshape(N * (T // L), L)
 
     def training_units(self, data: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """Entries of a ``[N, T, ...]`` batch as training units ``[U, ...]``: steps (``U = N T``) or,

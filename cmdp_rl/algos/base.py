@@ -1,0 +1,49 @@
+"""What the trainer needs from an algorithm, and the failure every algorithm reports the same way."""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol, runtime_checkable
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss or parameter became NaN or infinite."""
+
+
+def check_finite(**values: torch.Tensor | float) -> None:
+    """Raise :class:`TrainingDiverged` naming the first non-finite value."""
+    for name, value in values.items():
+        x = value.item() if isinstance(value, torch.Tensor) else float(value)
+        if not math.isfinite(x):
+            raise TrainingDiverged(f"{name} is {x}: training diverged")
+
+
+def check_parameters_finite(module: nn.Module) -> None:
+    """A last step can leave a parameter infinite with every loss finite: never let such a network
+    reach a checkpoint. One check for all parameters, one host sync."""
+    params = list(module.named_parameters())
+    finite = torch.stack([torch.isfinite(p).all() for _, p in params]).tolist()
+    if not all(finite):
+        name = next(n for (n, _), ok in zip(params, finite) if not ok)
+        raise TrainingDiverged(f"parameter {name} is not finite after the update: training diverged")
+
+
+@runtime_checkable
+class Algorithm(Protocol):
+    """An algorithm owns its networks' updates; it never touches the env.
+
+    ``update`` takes one ``[num_envs, T]`` batch from the collector and returns scalars to log
+    (names from ``metrics.COLUMNS``, including ``lagrange_multiplier``).
+    """
+
+    name: str
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]: ...
+
+    def state_dict(self) -> dict: ...
+
+    def load_state_dict(self, state: dict) -> None: ...

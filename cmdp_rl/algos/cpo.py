@@ -1,0 +1,290 @@
+"""Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel, 2017, "Constrained Policy
+Optimization", ICML; Section 6 and Algorithm 1).
+
+Each iteration solves the approximate CPO update around the policy ``pi_k`` that collected the
+batch (Section 6), with ``x = theta - theta_k``::
+
+    max_x  g^T x    s.t.   c + b^T x <= 0,    1/2 x^T H x <= delta
+
+``g`` and ``b`` are the gradients of the reward and cost surrogates (importance-weighted GAE
+advantages), ``H`` is the Fisher information of the policy (the Hessian of the mean KL, used only
+through products ``H v``) and ``delta`` is ``algo.target_kl``. With ``q = g^T H^-1 g``,
+``r = g^T H^-1 b``, ``s = b^T H^-1 b`` the problem has the two-variable dual of Theorem 2,
+solved in closed form by :func:`solve_dual`; it has three cases:
+
+- ``TRPO`` (case 0): the whole trust region satisfies the linearised constraint (or the cost has
+  no gradient): the constraint is inactive and the step is the natural gradient step of TRPO.
+- ``CONSTRAINED`` (case 1): feasible, and the constraint may bind: ``x* = H^-1 (g - nu* b) / lambda*``.
+- ``RECOVERY`` (case 2): no point of the trust region satisfies the linearised constraint: the
+  step purely reduces cost, ``x = -sqrt(2 delta / s) H^-1 b`` (the paper's recovery rule for
+  infeasible iterates, Section 6).
+
+A backtracking line search then shrinks the step until the sampled KL is within ``delta`` and the
+cost surrogate stays within what the case allows (Algorithm 1). Both critics regress on their GAE
+value targets, as in the paper's experiments.
+
+Signs: ``g`` and ``b`` are gradients of quantities that increase (reward, cost), so maximising the
+dual over nu gives ``nu* = max(0, (lambda c + r) / s)`` (derived in :func:`solve_dual`; the tests
+check the step against a brute-force solution of the subproblem).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torch.distributions import kl_divergence
+
+from cmdp_rl import keys
+from cmdp_rl.advantages import TwinGAE
+from cmdp_rl.algos.base import check_finite, check_parameters_finite
+from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
+from cmdp_rl.algos.critics import CriticRegression
+from cmdp_rl.collector import finished_episodes
+from cmdp_rl.config import CPOConfig
+from cmdp_rl.policies import ActorCritic
+
+TRPO, CONSTRAINED, RECOVERY = 0, 1, 2
+CASE_NAMES = {TRPO: "trpo", CONSTRAINED: "constrained", RECOVERY: "recovery"}
+_EPS = 1e-8
+
+
+@dataclass
+class DualSolution:
+    """The case and the optimal dual variables of the CPO subproblem."""
+
+    case: int
+    lam: float  # trust-region multiplier; 0 in RECOVERY (the reward is ignored there)
+    nu: float  # cost multiplier; in RECOVERY the coefficient of the pure cost step -nu H^-1 b
+
+
+def solve_dual(q: float, r: float, s: float, c: float, delta: float) -> DualSolution:
+    """Solve the dual of the CPO subproblem in closed form.
+
+    The dual (Theorem 2) is ``max_{lambda >= 0, nu >= 0}  -(q - 2 r nu + s nu^2) / (2 lambda) + nu c
+    - lambda delta``. For fixed lambda its maximiser is ``nu = max(0, (lambda c + r) / s)``.
+    Where that is positive, substituting gives ``f_a(lambda) = -(A / lambda + B lambda) / 2 + r c / s``
+    with ``A = q - r^2 / s``, ``B = 2 delta - c^2 / s``; where it is 0, ``f_b(lambda) =
+    -(q / lambda + 2 delta lambda) / 2``. Both are concave, so their maximisers ``sqrt(A / B)`` and
+    ``sqrt(q / (2 delta))`` projected onto their intervals of lambda give the best point of each
+    piece; the dual optimum is the better of the two.
+    """
+    if s <= _EPS:  # the cost surrogate has no gradient: nothing to trade against; plain TRPO
+        return DualSolution(TRPO, math.sqrt(q / (2 * delta)) + _EPS, 0.0)
+    B = 2 * delta - c * c / s
+    if c < 0 and B < 0:  # |c| > sqrt(2 delta s): even the costliest point of the trust region is feasible
+        return DualSolution(TRPO, math.sqrt(q / (2 * delta)) + _EPS, 0.0)
+    if B < 0:  # c > sqrt(2 delta s): the cheapest point of the trust region is still infeasible
+        return DualSolution(RECOVERY, 0.0, math.sqrt(2 * delta / s))
+    A = max(q - r * r / s, 0.0)  # >= 0 by Cauchy-Schwarz in the H^-1 inner product
+    # Intervals of lambda > 0 on which nu* > 0 (piece a) and nu* = 0 (piece b): lambda c + r > 0.
+    inf = math.inf
+    if abs(c) <= _EPS:
+        piece_a, piece_b = ((0.0, inf), None) if r > 0 else (None, (0.0, inf))
+    else:
+        lam_mid = -r / c
+        if c > 0:
+            piece_a, piece_b = ((max(lam_mid, 0.0), inf), (0.0, lam_mid) if lam_mid > 0 else None)
+        else:
+            piece_a, piece_b = ((0.0, lam_mid) if lam_mid > 0 else None, (max(lam_mid, 0.0), inf))
+
+    def f_a(lam: float) -> float:
+        return -0.5 * (A / lam + B * lam) + r * c / s
+
+    def f_b(lam: float) -> float:
+        return -0.5 * (q / lam + 2 * delta * lam)
+
+    candidates = []
+    if piece_a is not None:
+        lam_a = math.sqrt(A / B) if B > _EPS else inf  # B = 0: f_a increases in lambda
+        lam_a = min(max(lam_a, piece_a[0], _EPS), piece_a[1])
+        if math.isfinite(lam_a):
+            candidates.append((f_a(lam_a), lam_a))
+    if piece_b is not None:
+        lam_b = min(max(math.sqrt(q / (2 * delta)), piece_b[0], _EPS), piece_b[1])
+        candidates.append((f_b(lam_b), lam_b))
+    _, lam = max(candidates)
+    nu = max(0.0, (lam * c + r) / s)
+    return DualSolution(CONSTRAINED, lam, nu)
+
+
+def fisher_vector_product(
+    kl: torch.Tensor, params: list[nn.Parameter], damping: float
+) -> Callable[[torch.Tensor], torch.Tensor]:
+    """``v -> (H + damping I) v`` with ``H`` the Hessian of ``kl`` (the mean KL from the old policy,
+    whose value and gradient are 0 at the old parameters, so its Hessian there is the Fisher
+    matrix). Double backprop: one graph for ``grad kl``, then one backward of ``grad kl . v`` per
+    product; the matrix is never formed."""
+    grads = torch.autograd.grad(kl, params, create_graph=True)
+    flat_grad = torch.cat([g.reshape(-1) for g in grads])
+
+    def fvp(v: torch.Tensor) -> torch.Tensor:
+        hv = torch.autograd.grad(flat_grad @ v, params, retain_graph=True)
+        return torch.cat([h.reshape(-1) for h in hv]) + damping * v
+
+    return fvp
+
+
+def episode_cost_estimate(batch: TensorDictBase) -> tuple[float, float]:
+    """Mean undiscounted cost and length of the episodes that ended in ``batch``. If none ended,
+    the running sums at the batch's last step (every episode then spans the whole batch; the cost
+    so far is a lower bound of the episode's)."""
+    eps = finished_episodes(batch)
+    if eps["cost"].numel():
+        return eps["cost"].mean().item(), eps["length"].mean().item()
+    last = batch.get(keys.NEXT)[:, -1]
+    return last.get(keys.EPISODE_COST).float().mean().item(), last.get(keys.EPISODE_LENGTH).float().mean().item()
+
+
+class CPO:
+    name = "cpo"
+
+    def __init__(self, cfg: CPOConfig, ac: ActorCritic) -> None:
+        self.cfg = cfg
+        self.ac = ac
+        self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
+        self.policy_params = list(ac.actor.parameters())
+        self.critic_params = [*ac.critic.parameters(), *ac.cost_critic.parameters()]
+        self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
+        self.critics = CriticRegression(ac)
+        self.nu = 0.0
+
+    @property
+    def lagrange_multiplier(self) -> float:
+        """The dual's cost multiplier nu of the last step."""
+        return self.nu
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One CPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
+        self.gae(batch, self.ac)
+        episode_cost, episode_length = episode_cost_estimate(batch)
+        # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
+        flat = self.ac.batch_units(batch)
+        stats = self.policy_step(flat, episode_cost, episode_length)
+        stats.update(self.fit_critics(flat))
+        check_parameters_finite(self.ac.modules())
+        stats["lagrange_multiplier"] = self.nu
+        return stats
+
+    def policy_step(self, flat: TensorDictBase, episode_cost: float, episode_length: float) -> dict[str, float]:
+        """Solve the CPO subproblem on a batch of training units (steps, or segments for a
+        recurrent policy) carrying GAE advantages and take the step the line search accepts (or none)."""
+        cfg, actor, params = self.cfg, self.ac.actor, self.policy_params
+        adv = flat.get(keys.ADVANTAGE)
+        if cfg.normalize_advantage:
+            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        # The cost advantage is only centred: its scale must stay that of cost, to compare with c.
+        cost_adv = flat.get(keys.COST_ADVANTAGE) - flat.get(keys.COST_ADVANTAGE).mean()
+        obs, action = flat.select(*actor.in_keys), flat.get(keys.ACTION)  # all the actor reads
+        old_log_prob = flat.get(keys.LOG_PROB)
+        # pi_k is the policy that collected the batch: its loc/scale are in the batch.
+        old_dist = actor.build_dist_from_params(flat.select(keys.LOC, keys.SCALE))
+
+        def surrogates() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+            with self.ac.sequence_mode():
+                dist = actor.get_dist(obs)
+            ratio = torch.exp(dist.log_prob(action) - old_log_prob).reshape(adv.shape)
+            return (ratio * adv).mean(), (ratio * cost_adv).mean(), kl_divergence(old_dist, dist).mean()
+
+        reward_surr, cost_surr, kl = surrogates()
+        g = _flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
+        b = _flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
+        fvp = fisher_vector_product(kl, params, cfg.cg_damping)
+        h_inv_g = conjugate_gradient(fvp, g, cfg.cg_iters)
+        h_inv_b = conjugate_gradient(fvp, b, cfg.cg_iters)
+        q, r, s = g.dot(h_inv_g).item(), g.dot(h_inv_b).item(), b.dot(h_inv_b).item()
+        # The budget is on the expected undiscounted episode cost J_c; the surrogate is a per-step
+        # mean. Summed over an episode (T steps on average, sampled on-policy), the surrogate's
+        # change predicts the change of J_c (the performance-difference identity in its
+        # undiscounted episodic form), so J_c + T * dL_c <= d reads dL_c <= -(J_c - d) / T:
+        # c = (J_c - d) / T in the surrogate's per-step units. (The paper's discounted form has
+        # 1 / (1 - gamma) where an episodic budget has the mean episode length T.)
+        c = (episode_cost - cfg.cost_limit) / max(episode_length, 1.0)
+        check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), q=q, r=r, s=s, c=c)
+
+        sol = solve_dual(q, r, s, c, cfg.target_kl)
+        if sol.case == RECOVERY:
+            step = -sol.nu * h_inv_b
+        else:
+            step = (h_inv_g - sol.nu * h_inv_b) / sol.lam
+        self.nu = sol.nu
+
+        # Backtracking line search (Section 6.3): accept the first fraction whose sampled KL is
+        # within delta and whose cost surrogate change is what the case allows: in RECOVERY it
+        # must fall; otherwise it may rise by the slack -c if there is one, and must not rise when
+        # the current policy is over budget. Where the current policy is feasible (c < 0) the
+        # optimum improves the reward surrogate, so the step must do that too.
+        theta0 = nn.utils.parameters_to_vector(params).detach()
+        old_reward, old_cost = reward_surr.item(), cost_surr.item()
+        accepted = {"step_fraction": 0.0, "kl": 0.0, "surr_reward_change": 0.0, "surr_cost_change": 0.0}
+        with torch.no_grad():
+            for j in range(cfg.line_search_steps):
+                fraction = cfg.backtrack_coef**j
+                _assign(params, theta0 + fraction * step)
+                new_reward, new_cost, new_kl = (t.item() for t in surrogates())
+                d_reward, d_cost = new_reward - old_reward, new_cost - old_cost
+                if sol.case == RECOVERY:
+                    cost_ok = d_cost < 0
+                else:
+                    cost_ok = d_cost <= max(-c, 0.0)
+                reward_ok = sol.case == RECOVERY or c >= 0 or d_reward > 0
+                if math.isfinite(new_kl) and new_kl <= cfg.target_kl and cost_ok and reward_ok:
+                    accepted = {"step_fraction": fraction, "kl": new_kl,
+                                "surr_reward_change": d_reward, "surr_cost_change": d_cost}
+                    break
+            else:
+                _assign(params, theta0)  # no acceptable step: stay at pi_k
+            with self.ac.sequence_mode():
+                entropy = actor.get_dist(obs).entropy().mean().item()
+        return {"cpo_case": sol.case, "dual_lambda": sol.lam, "dual_nu": sol.nu, "entropy": entropy, **accepted}
+
+    def fit_critics(self, flat: TensorDictBase) -> dict[str, float]:
+        """Regress both critics on their GAE value targets (minibatch Adam)."""
+        cfg = self.cfg
+        names = {*self.ac.critic.in_keys, *self.ac.cost_critic.in_keys, keys.VALUE_TARGET, keys.COST_VALUE_TARGET}
+        data = {k: flat.get(k) for k in sorted(names, key=str)}
+        total = flat.shape[0]
+        mb_size = total // cfg.critic_minibatches
+        sums, n = {"loss_v": 0.0, "loss_vc": 0.0}, 0
+        for _ in range(cfg.critic_epochs):
+            perm = torch.randperm(total, device=flat.device)
+            shuffled = {k: v[perm] for k, v in data.items()}
+            for i in range(cfg.critic_minibatches):
+                loss_v, loss_vc = self.critics.losses({k: v[i * mb_size:(i + 1) * mb_size] for k, v in shuffled.items()})
+                check_finite(loss_v=loss_v, loss_vc=loss_vc)
+                self.critic_opt.zero_grad(set_to_none=True)
+                (loss_v + loss_vc).backward()
+                nn.utils.clip_grad_norm_(self.critic_params, cfg.max_grad_norm)
+                self.critic_opt.step()
+                sums["loss_v"] += loss_v.item()
+                sums["loss_vc"] += loss_vc.item()
+                n += 1
+        return {k: v / n for k, v in sums.items()}
+
+    def state_dict(self) -> dict:
+        return {"networks": self.ac.modules().state_dict(), "critic_opt": self.critic_opt.state_dict(), "nu": self.nu}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.ac.modules().load_state_dict(state["networks"])
+        self.critic_opt.load_state_dict(state["critic_opt"])
+        self.nu = float(state["nu"])
+
+
+def _flat(tensors: tuple[torch.Tensor, ...]) -> torch.Tensor:
+    return torch.cat([t.reshape(-1) for t in tensors])
+
+
+@torch.no_grad()
+def _assign(params: list[nn.Parameter], flat: torch.Tensor) -> None:
+    """Copy a flat vector into the parameters, in place. (``nn.utils.vector_to_parameters``
+    rebinds each parameter to a view of the vector: a different memory alignment, which changes the
+    rounding of the BLAS kernels, so a resumed run, whose parameters are fresh tensors, would drift
+    from an uninterrupted one in the last bits.)"""
+    offset = 0
+    for p in params:
+        p.copy_(flat[offset:offset + p.numel()].view_as(p))
+        offset += p.numel()

@@ -1,0 +1,112 @@
+"""Saving one gymnasium env in the middle of an episode, and restoring it into a fresh copy.
+
+Gymnasium has no API for this, and pickling does not do it: its MuJoCo envs pickle their
+constructor arguments only (``EzPickle``) and come back freshly built. So we save what an env's
+future depends on, layer by layer:
+
+- each wrapper's plain attributes (``TimeLimit``'s elapsed steps, statistics wrappers' sums);
+- the base env's own ``state_dict()`` where it has one (Reach1D); otherwise its random generator,
+  its plain attributes (classic-control ``state`` arrays, counters) and, for a MuJoCo env, the whole
+  ``MjData`` (copied back with ``mj_copyData``, so even fields derived from the last step, which
+  the next step reads, come back bit for bit).
+
+Attributes that are configuration (spaces, specs, the MuJoCo model, renderers) are skipped. Any
+other attribute is state we do not know how to save (a Box2D world, say): :func:`env_state` raises
+``NotImplementedError`` naming it rather than save a state that would resume inexactly.
+"""
+
+from __future__ import annotations
+
+import collections
+import pickle
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+# Attributes that hold configuration or plumbing, never episode state.
+_SKIPPED_NAMES = {"env", "spec", "metadata", "_saved_kwargs", "_ezpickle_args", "_ezpickle_kwargs",
+                  "_cached_spec", "_metadata", "_action_space", "_observation_space", "_np_random_seed",
+                  "mujoco_renderer", "screen", "clock", "model", "np_random", "_np_random"}
+
+
+def _plain(value: Any) -> bool:
+    """Numbers, strings, arrays and containers of them: state that copies by value."""
+    if value is None or isinstance(value, (bool, int, float, str, np.ndarray, np.generic)):
+        return True
+    if isinstance(value, (list, tuple, collections.deque)):
+        return all(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, (str, int)) and _plain(v) for k, v in value.items())
+    return False
+
+
+def _static(value: Any) -> bool:
+    return isinstance(value, (gym.spaces.Space, gym.envs.registration.EnvSpec))
+
+
+def _attributes(obj: Any, where: str) -> dict[str, Any]:
+    out = {}
+    for name, value in vars(obj).items():
+        if name in _SKIPPED_NAMES or _static(value):
+            continue
+        if name == "data" and _is_mujoco_data(value):
+            continue  # saved whole, below
+        if not _plain(value):
+            raise NotImplementedError(
+                f"{where} holds {name!r} ({type(value).__name__}), which cmdp_rl cannot save, so a run on it "
+                "cannot resume exactly"
+            )
+        out[name] = pickle.loads(pickle.dumps(value))  # a deep copy, detached from the live env
+    return out
+
+
+def _is_mujoco_data(value: Any) -> bool:
+    return type(value).__module__.startswith("mujoco") and type(value).__name__ == "MjData"
+
+
+def _rng(env: gym.Env) -> dict | None:
+    rng = getattr(env, "_np_random", None)
+    return None if rng is None else rng.bit_generator.state
+
+
+def env_state(env: gym.Env) -> dict[str, Any]:
+    """The state of ``env`` (wrappers included) that :func:`load_env_state` restores."""
+    wrappers, base = [], env
+    while isinstance(base, gym.Wrapper):
+        wrappers.append(_attributes(base, type(base).__name__))
+        base = base.env
+    state: dict[str, Any] = {"base_type": type(base).__name__, "wrappers": wrappers}
+    if hasattr(base, "state_dict"):
+        state["own"] = base.state_dict()
+        return state
+    state["np_random"] = _rng(base)
+    state["attributes"] = _attributes(base, type(base).__name__)
+    data = getattr(base, "data", None)
+    if _is_mujoco_data(data):
+        state["mujoco_data"] = pickle.dumps(data)
+    return state
+
+
+def load_env_state(env: gym.Env, state: dict[str, Any]) -> None:
+    """Restore ``state`` (from :func:`env_state` on an env built the same way) into ``env``."""
+    wrappers, base = [], env
+    while isinstance(base, gym.Wrapper):
+        wrappers.append(base)
+        base = base.env
+    if type(base).__name__ != state["base_type"] or len(wrappers) != len(state["wrappers"]):
+        raise ValueError(f"env: saved state is of {state['base_type']}, this env is {type(base).__name__}")
+    for wrapper, attrs in zip(wrappers, state["wrappers"]):
+        for name, value in attrs.items():
+            setattr(wrapper, name, pickle.loads(pickle.dumps(value)))
+    if "own" in state:
+        base.load_state_dict(state["own"])
+        return
+    if state["np_random"] is not None:
+        base.np_random.bit_generator.state = state["np_random"]  # creates the generator if need be
+    for name, value in state["attributes"].items():
+        setattr(base, name, pickle.loads(pickle.dumps(value)))
+    if "mujoco_data" in state:
+        import mujoco
+
+        mujoco.mj_copyData(base.data, base.model, pickle.loads(state["mujoco_data"]))

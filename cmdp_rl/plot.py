@@ -1,0 +1,173 @@
+"""Learning curves of runs: ``python -m cmdp_rl.plot <run dirs...> [-o curves.png] [--smooth K]``.
+
+Draws episode return, episode cost (with each config's budget d as a dashed line) and the Lagrange
+multiplier against env steps, from each run's ``metrics.csv``. Runs whose configs differ only in
+``seed`` are one curve: the mean over seeds, with a band of one standard deviation across seeds
+(none for a single seed). Each run's curve is first smoothed with a trailing mean over ``K``
+iterations that skips iterations in which no episode ended (NaN in the CSV).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import yaml
+
+from cmdp_rl.rundir import CONFIG, METRICS
+
+PANELS = (("episode_return", "episode return"), ("episode_cost", "episode cost"),
+          ("lagrange_multiplier", "Lagrange multiplier λ"))
+IGNORED = ("seed", "resume", "total_steps", "log_interval", "checkpoint_every", "threads", "logger")
+
+
+@dataclass
+class Curve:
+    """One group of runs (configs equal but for the seed): the mean and spread across them."""
+
+    label: str
+    step: np.ndarray
+    mean: dict[str, np.ndarray]
+    std: dict[str, np.ndarray]
+    seeds: int
+    cost_limit: float
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """``(flat config, columns)`` of one run."""
+    run = Path(run_dir)
+    if not (run / METRICS).is_file():
+        raise FileNotFoundError(f"plot: no {METRICS} in {run}")
+    cfg = _flatten(yaml.safe_load((run / CONFIG).read_text())) if (run / CONFIG).is_file() else {}
+    with open(run / METRICS) as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"plot: {run / METRICS} has no rows yet")
+    cols = {k: np.array([float(r[k]) if r[k] not in ("", None) else np.nan for r in rows]) for k in rows[0]}
+    return cfg, cols
+
+
+def smooth(x: np.ndarray, k: int) -> np.ndarray:
+    """Trailing mean over the last ``k`` finite values in a window of ``k`` entries."""
+    if k <= 1:
+        return x
+    out = np.full_like(x, np.nan)
+    for i in range(len(x)):
+        w = x[max(0, i - k + 1):i + 1]
+        w = w[np.isfinite(w)]
+        if w.size:
+            out[i] = w.mean()
+    return out
+
+
+def aggregate(runs: Sequence[dict[str, np.ndarray]], k: int = 1) -> tuple[np.ndarray, dict, dict]:
+    """Mean and standard deviation across runs, per metric, over the iterations all runs reached."""
+    n = min(len(r["step"]) for r in runs)
+    step = runs[0]["step"][:n]
+    mean, std = {}, {}
+    for name, _ in PANELS:
+        stack = np.stack([smooth(r[name][:n], k) for r in runs])
+        with warnings.catch_warnings():  # an iteration where no run has a value stays NaN, quietly
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean[name], std[name] = np.nanmean(stack, axis=0), np.nanstd(stack, axis=0)
+    return step, mean, std
+
+
+def group_runs(run_dirs: Sequence[str | Path], k: int = 1) -> list[Curve]:
+    """Group runs whose configs agree on everything but :data:`IGNORED` and average each group."""
+    loaded = [read_run(d) for d in run_dirs]
+    groups: dict[str, list[tuple[dict, dict]]] = {}
+    for cfg, cols in loaded:
+        key = json.dumps({k_: v for k_, v in cfg.items() if k_ not in IGNORED}, sort_keys=True, default=str)
+        groups.setdefault(key, []).append((cfg, cols))
+    # Label each group by its algorithm and whatever else tells the groups apart (among options all
+    # of them have: one algorithm's own options are implied by its name).
+    cfgs = [members[0][0] for members in groups.values()]
+    shared = set.intersection(*(set(c) for c in cfgs)) - set(IGNORED) - {"algo.name"}
+    varying = sorted(k_ for k_ in shared if len({json.dumps(c[k_], default=str) for c in cfgs}) > 1)
+    curves = []
+    for members in groups.values():
+        cfg = members[0][0]
+        extra = ", ".join(f"{k_}={cfg.get(k_)}" for k_ in varying)
+        label = cfg.get("algo.name", "run") + (f" ({extra})" if extra else "")
+        step, mean, std = aggregate([cols for _, cols in members], k)
+        limit = members[0][1].get("cost_limit", np.array([cfg.get("algo.cost_limit", np.nan)]))[0]
+        curves.append(Curve(f"{label}, {len(members)} seed{'s' if len(members) > 1 else ''}",
+                            step, mean, std, len(members), float(limit)))
+    return curves
+
+
+def plot_runs(run_dirs: Sequence[str | Path], out: str | Path, k: int = 5) -> Path:
+    """Draw :data:`PANELS` for the runs in ``run_dirs`` into the PNG ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curves = group_runs(run_dirs, k)
+    fig, axes = plt.subplots(1, len(PANELS), figsize=(5 * len(PANELS), 3.8))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    limits_drawn: set[float] = set()
+    for i, c in enumerate(curves):
+        color = colors[i % len(colors)]
+        for ax, (name, _) in zip(axes, PANELS):
+            ax.plot(c.step, c.mean[name], color=color, lw=1.6, label=c.label)
+            if c.seeds > 1:
+                ax.fill_between(c.step, c.mean[name] - c.std[name], c.mean[name] + c.std[name],
+                                color=color, alpha=0.2, lw=0)
+        if np.isfinite(c.cost_limit) and c.cost_limit not in limits_drawn:
+            limits_drawn.add(c.cost_limit)
+            axes[1].axhline(c.cost_limit, color="black", ls="--", lw=1, label=f"budget d = {c.cost_limit:g}")
+    for ax, (_, title) in zip(axes, PANELS):
+        ax.set_title(title)
+        ax.set_xlabel("env steps")
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=7, loc="best")
+    band = "mean ± 1 std over seeds" if any(c.seeds > 1 for c in curves) else "one seed per curve"
+    fig.suptitle(f"{band}; trailing mean over {k} iterations", fontsize=9)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m cmdp_rl.plot", description=__doc__.split("\n\n")[1],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("runs", nargs="+", help="run directories (each with metrics.csv and config.yaml)")
+    parser.add_argument("-o", "--out", default="curves.png", help="PNG to write (default: curves.png)")
+    parser.add_argument("--smooth", type=int, default=5,
+                        help="trailing mean over this many iterations (default 5; 1: none)")
+    args = parser.parse_args(argv)
+    if args.smooth < 1:
+        parser.error(f"--smooth must be a positive integer, got {args.smooth}")
+    try:
+        path = plot_runs(args.runs, args.out, args.smooth)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,125 @@
+"""Replaying Reach1D episodes with what the agent could not see, and drawing them.
+
+The collector keeps only what learning needs; the true position lives in the env's ``info`` and
+never reaches a batch. Replay steps one plain Reach1D per episode and records it, away from the
+collector's hot path. It sends actions in the env's own dtype, as ``GymVecEnv`` does.
+
+Video for MuJoCo tasks does not apply yet: the toolkit has no MuJoCo env. When one is added, a
+``render_mode="rgb_array"`` env under gymnasium's ``RecordVideo`` belongs here; headless rendering
+needs ``MUJOCO_GL=egl`` (a GPU driver) or ``MUJOCO_GL=osmesa`` (software).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from cmdp_rl import keys
+from cmdp_rl.collector import PolicyMemory
+from cmdp_rl.config import EnvConfig
+from cmdp_rl.envs import Reach1D, reach1d_kwargs
+
+
+@dataclass
+class Reach1DEpisode:
+    """One episode, step 0 being the reset: ``true_x[t]`` and ``reading[t]`` after ``t`` steps;
+    ``cost[t]``, ``reward[t]``, ``action[t]`` of step ``t + 1``."""
+
+    true_x: list[float] = field(default_factory=list)
+    reading: list[float] = field(default_factory=list)
+    action: list[float] = field(default_factory=list)
+    reward: list[float] = field(default_factory=list)
+    cost: list[float] = field(default_factory=list)
+    terminated: bool = False
+
+    @property
+    def episode_return(self) -> float:
+        return float(sum(self.reward))
+
+    @property
+    def episode_cost(self) -> float:
+        return float(sum(self.cost))
+
+
+@torch.no_grad()
+def record_reach1d(
+    actor: TensorDictModuleBase, env_cfg: EnvConfig, episodes: int, deterministic: bool = True, seed: int = 0
+) -> list[Reach1DEpisode]:
+    """Run ``episodes`` episodes of ``actor`` on one Reach1D (reset with ``seed`` once, as env 0 of
+    a vector env is), recording the true position beside the reading the agent saw."""
+    env = Reach1D(**reach1d_kwargs(env_cfg))
+    memory = PolicyMemory(actor, 1, env.action_space.shape[0], torch.device("cpu"))
+    exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    out: list[Reach1DEpisode] = []
+    with torch.random.fork_rng(devices=[]), set_exploration_type(exploration):
+        torch.manual_seed(seed)
+        obs, info = env.reset(seed=seed)
+        for _ in range(episodes):
+            ep = Reach1DEpisode(true_x=[info["true_x"]], reading=[float(obs[0])])
+            is_init, carried = True, memory.start()
+            while True:
+                td = TensorDict({**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0),
+                                 keys.IS_INIT: torch.tensor([[is_init]])}, batch_size=[1])
+                out = dict(actor(td).items(include_nested=True, leaves_only=True))
+                action = out[keys.ACTION][0].numpy().astype(env.action_space.dtype)
+                obs, reward, terminated, truncated, info = env.step(action)
+                # as in the collector: the policy's next state, previous action and cost
+                _, carried = memory.step(out, torch.tensor([[float(info["cost"])]]), torch.tensor([[False]]))
+                ep.action.append(float(action[0]))
+                ep.reward.append(float(reward))
+                ep.cost.append(float(info["cost"]))
+                ep.true_x.append(float(info["true_x"]))
+                ep.reading.append(float(obs[0]))
+                is_init = False
+                if terminated or truncated:
+                    ep.terminated = bool(terminated)
+                    break
+            out.append(ep)
+            obs, info = env.reset()
+    env.close()
+    return out
+
+
+def plot_reach1d(episodes: list[Reach1DEpisode], env_cfg: EnvConfig, path: str | Path, title: str = "") -> Path:
+    """One panel per episode: true position and noisy reading against time, the wall, the goal
+    (with its 0.02 reach band), and a red cross at every step that crossed the wall (cost 1)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(episodes)
+    fig, axes = plt.subplots(n, 1, figsize=(9.5, 2.4 * n), sharex=True, squeeze=False)
+    for i, (ax, ep) in enumerate(zip(axes[:, 0], episodes)):
+        t = np.arange(len(ep.true_x))
+        ax.axhline(env_cfg.wall_x, color="0.3", lw=3, alpha=0.6, label=f"wall ({env_cfg.wall})")
+        ax.axhspan(env_cfg.goal - 0.02, env_cfg.goal + 0.02, color="tab:green", alpha=0.15)
+        ax.axhline(env_cfg.goal, color="tab:green", ls="--", label="goal")
+        ax.plot(t, ep.reading, ".", color="tab:orange", ms=4, alpha=0.8, label="reading (observed)")
+        ax.plot(t, ep.true_x, "-", color="tab:blue", lw=1.5, label="true x")
+        hits = [s + 1 for s, c in enumerate(ep.cost) if c > 0]
+        if hits:
+            ax.plot(hits, [ep.true_x[s] for s in hits], "x", color="red", ms=8, mew=2,
+                    label=f"collision ({len(hits)})")
+        end = "goal reached" if ep.terminated else "time limit"
+        ax.set_title(f"episode {i + 1}: return {ep.episode_return:.3f}, cost {ep.episode_cost:.0f}, "
+                     f"{len(ep.cost)} steps, {end}", fontsize=9)
+        ax.set_ylabel("position")
+        ax.set_ylim(-0.02, 1.02)
+        if i == 0:
+            ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
+    axes[-1, 0].set_xlabel("step")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,118 @@
+"""Continuing a run from its directory: which config it resumes with, and what may change.
+
+A resumed run must end with the same numbers as one that was never stopped, so its config is the
+run's own (``config.yaml`` in the run directory). Options given on the resume command line are
+applied on top only where they cannot change the trajectory so far or the shape of saved state:
+:data:`RESUMABLE` (e.g. ``total_steps`` to extend a run, ``logger``). Any other change, and any
+checkpoint written by another algorithm or policy than the run's, is refused before training.
+
+What is saved, and restored (see ``trainer.py``): the networks, both optimizers and the
+algorithm's own state (lambda) through ``algo.state_dict()``; the collector's state (next
+observations, running episode sums, step counter) and each env's episode and generator through
+``collector.state_dict()``; torch's, numpy's and Python's generators; the iteration and the
+training time so far.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
+from cmdp_rl.config import ConfigError, RunConfig, load_config
+from cmdp_rl.rundir import checkpoint_path, saved_config
+
+# Fields a resume command line may change: none of them alters what the run has done so far or the
+# shape of anything saved. Prefixes: every field under ``logger.``.
+RESUMABLE = ("total_steps", "checkpoint_every", "log_interval", "eval_episodes", "eval_deterministic",
+             "threads", "resume", "logger.")
+# Config groups selected by name on a command line (``algo=ppo``); they set ``<group>.name``.
+GROUPS = ("algo", "env", "policy", "logger")
+
+
+def _flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _resumable(field: str) -> bool:
+    return any(field == r or (r.endswith(".") and field.startswith(r)) for r in RESUMABLE)
+
+
+def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: Iterable[str]) -> RunConfig:
+    """The config to resume ``run_dir`` with: the run's own, plus the options named in ``explicit``
+    (dotted keys or group names, as on a command line) taken from ``requested``.
+
+    Selecting another algorithm or policy than the run's raises :class:`CheckpointError`; changing
+    a field outside :data:`RESUMABLE` raises :class:`ConfigError` (from :func:`check_resume_config`).
+    """
+    merged = copy.deepcopy(saved_config(run_dir, "resume"))
+    for key in explicit:
+        if key == "hydra" or key.startswith("hydra."):  # Hydra's own settings, not the run's
+            continue
+        if key in GROUPS and isinstance(requested.get(key), Mapping):
+            want, have = requested[key].get("name"), (merged.get(key) or {}).get("name")
+            if want != have:
+                if key in ("algo", "policy"):
+                    raise CheckpointError(
+                        f"resume: {run_dir} is a run of {key}={have!r}, but this command asks for {key}={want!r}"
+                    )
+                if key != "logger":  # another env: refused below with the field named
+                    merged.setdefault(key, {})["name"] = want
+                    continue
+                merged[key] = dict(requested[key])  # another logger: take its whole group
+            continue
+        node, parts = merged, key.split(".")
+        src: Any = requested
+        for p in parts:
+            src = src[p] if isinstance(src, Mapping) and p in src else None
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = src
+    merged["resume"] = str(run_dir)
+    try:
+        cfg = load_config(merged)
+    except ConfigError as exc:
+        raise ConfigError(f"{exc} (resuming {run_dir})") from exc
+    check_resume_config(load_config({**saved_config(run_dir, "resume"), "resume": None}), cfg)
+    return cfg
+
+
+def check_resume_config(saved: RunConfig, cfg: RunConfig) -> None:
+    """Refuse to resume a run saved with ``saved`` under ``cfg`` where that would not continue it."""
+    for group in ("algo", "policy"):
+        have, want = getattr(saved, group).name, getattr(cfg, group).name
+        if have != want:
+            raise CheckpointError(f"resume: the checkpoint is of {group}={have!r}, but this run uses {group}={want!r}")
+    a, b = _flatten(dataclasses.asdict(saved)), _flatten(dataclasses.asdict(cfg))
+    changed = [f for f in sorted(a.keys() | b.keys()) if not _resumable(f) and a.get(f) != b.get(f)]
+    if changed:
+        detail = "; ".join(f"{f}: run has {a.get(f)!r}, asked {b.get(f)!r}" for f in changed)
+        raise ConfigError(
+            f"{changed[0]} cannot change when resuming ({detail}); only these may: "
+            f"{', '.join(r.rstrip('.') for r in RESUMABLE if r != 'resume')}"
+        )
+
+
+def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
+    """The checkpoint ``cfg.resume`` names, checked against ``cfg`` (algorithm, policy, config)."""
+    assert cfg.resume is not None
+    ckpt = checkpoint_path(cfg.resume, "resume")
+    state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
+    missing = [k for k in ("collector", "rng", "algo_state", "iteration") if state.get(k) is None]
+    if missing == ["collector"]:
+        raise CheckpointError(
+            f"resume: {ckpt} holds no env state (env {cfg.env.name!r}, backend {cfg.env.backend!r}, cannot save"
+            " its episodes and generators), so the run cannot continue exactly; evaluate it or start anew"
+        )
+    if missing:
+        raise CheckpointError(f"resume: {ckpt} lacks {missing}; it cannot continue a run")
+    check_resume_config(load_config({**state["config"], "resume": None}), cfg)
+    return state

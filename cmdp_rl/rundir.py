@@ -1,0 +1,156 @@
+"""A run directory: what it holds, and reading a trained policy back from it.
+
+::
+
+    config.yaml     the run's resolved config (cmdp_rl.config.RunConfig), what a resume continues with
+    run_info.json   package version, git commit, library versions, command; one entry per resume
+    metrics.csv     one row per iteration (cmdp_rl.metrics.COLUMNS)
+    checkpoint.pt   the last checkpoint (cmdp_rl.checkpoint), written atomically
+    eval.json       the final evaluation
+    error.txt       why the run failed, if it did (train.py; cmdp_rl.sweeps reads it back)
+    tb/             TensorBoard events, with ``logger=tensorboard``
+    .hydra/         Hydra's record of the command (train.py only)
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import platform
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import yaml
+
+from cmdp_rl.algos import make_algo
+from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
+from cmdp_rl.config import ConfigError, RunConfig, load_config
+from cmdp_rl.envs import VecEnv, make_eval_env
+from cmdp_rl.normalization import Normalizers
+from cmdp_rl.policies import ActorCritic, make_actor_critic
+
+CHECKPOINT = "checkpoint.pt"
+CONFIG = "config.yaml"
+METRICS = "metrics.csv"
+EVAL = "eval.json"
+ERROR = "error.txt"
+RUN_INFO = "run_info.json"
+TENSORBOARD = "tb"
+
+
+LIBRARIES = ("torch", "torchrl", "tensordict", "gymnasium", "numpy", "hydra-core")
+
+
+def _git(*args: str) -> str | None:
+    try:
+        out = subprocess.run(["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True,
+                             text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def provenance() -> dict[str, Any]:
+    """What produced a run: the package version, the git commit of its source (and whether the
+    working tree had uncommitted changes), library versions, Python, platform and command line."""
+    from cmdp_rl import __version__
+
+    # Only the checkout the package's source lives in (not, say, a repo that holds a virtualenv).
+    top = _git("rev-parse", "--show-toplevel")
+    here = Path(__file__).resolve().parent
+    commit = _git("rev-parse", "HEAD") if top and (Path(top) / here.name).resolve() == here else None
+    status = _git("status", "--porcelain") if commit else None
+    libs = {}
+    for lib in LIBRARIES:
+        try:
+            libs[lib] = metadata.version(lib)
+        except metadata.PackageNotFoundError:
+            libs[lib] = None
+    return {
+        "version": __version__,
+        "git_commit": commit,  # None: not run from a git checkout
+        "git_dirty": None if status is None else bool(status),
+        "libraries": libs,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "command": [sys.executable, *sys.argv],
+        "time": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+    }
+
+
+def write_run_info(run_dir: str | Path, resumed_from: int | None = None) -> Path:
+    """Write ``run_info.json`` for a new run, or add a resume (from the checkpoint of iteration
+    ``resumed_from``) to its ``resumes`` list: a resume may run other code than the start did."""
+    path = Path(run_dir) / RUN_INFO
+    now = provenance()
+    if resumed_from is None or not path.is_file():
+        info = {"package": "cmdp_rl", **now, "resumes": []}
+    else:
+        info = json.loads(path.read_text())
+        info.setdefault("resumes", []).append({"from_iteration": resumed_from, **now})
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(info, indent=2))
+    os.replace(tmp, path)
+    return path
+
+
+def checkpoint_path(run_dir: str | Path, what: str = "run") -> Path:
+    """The run's checkpoint; a clear error if the directory or the checkpoint is missing."""
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise CheckpointError(f"{what}: no run directory at {run}")
+    ckpt = run / CHECKPOINT
+    if not ckpt.is_file():
+        raise CheckpointError(f"{what}: no {CHECKPOINT} in {run} (did the run stop before its first checkpoint?)")
+    return ckpt
+
+
+def saved_config(run_dir: str | Path, what: str = "run") -> dict[str, Any]:
+    """The run's own config as a plain mapping: its ``config.yaml``, else the one in its checkpoint."""
+    ckpt = checkpoint_path(run_dir, what)
+    cfg_path = Path(run_dir) / CONFIG
+    if cfg_path.is_file():
+        try:
+            return yaml.safe_load(cfg_path.read_text())
+        except yaml.YAMLError as exc:
+            raise CheckpointError(f"{what}: {cfg_path} is not valid YAML ({exc})") from exc
+    return load_checkpoint(ckpt)["config"]
+
+
+def run_config(run_dir: str | Path, what: str = "run") -> RunConfig:
+    try:
+        return load_config({**saved_config(run_dir, what), "resume": None})
+    except ConfigError as exc:
+        raise CheckpointError(f"{what}: the config of {run_dir} is not valid here: {exc}") from exc
+
+
+class Trained(NamedTuple):
+    cfg: RunConfig
+    env: VecEnv
+    ac: ActorCritic
+    iteration: int
+    step: int
+
+
+def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_envs: int = 1) -> Trained:
+    """Rebuild a run's env (``num_envs`` of them) and actor-critic, and load its checkpoint (or
+    ``checkpoint``) into them. A checkpoint written by another algorithm or policy than the run's
+    config names, or one whose networks do not fit it, raises :class:`CheckpointError`.
+    """
+    cfg = run_config(run_dir, "evaluate")
+    ckpt = Path(checkpoint) if checkpoint is not None else checkpoint_path(run_dir, "evaluate")
+    state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
+    env = make_eval_env(cfg.env, num_envs=num_envs)
+    # Normalizer buffers are shaped by the training envs (running discounted sums per env).
+    norm = Normalizers.from_config(cfg.normalize, env.obs_dim, cfg.env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
+    ac = make_actor_critic(cfg.policy, env, norm)
+    try:  # the algorithm restores its own networks, whatever else it keeps
+        make_algo(cfg.algo, ac).load_state_dict(state["algo_state"])
+    except (KeyError, RuntimeError) as exc:
+        env.close()
+        raise CheckpointError(f"evaluate: {ckpt} does not fit the config of {run_dir} ({exc})") from exc
+    return Trained(cfg, env, ac, int(state["iteration"]), int(state["step"]))

@@ -1,0 +1,89 @@
+"""Evaluate a trained run: ``python evaluate.py run=<run dir> [key=value ...]``.
+
+Loads the run's config and checkpoint, runs whole episodes and prints return, cost and length with
+their spreads. With no options it repeats the run's own final evaluation (same episodes, same seed:
+the numbers in its eval.json).
+
+Options (cmdp_rl.config.EvalConfig):
+  run=<dir>            the run directory (required)
+  episodes=N           episodes to run (default: the run's eval_episodes)
+  deterministic=B      true: the policy's mean action; false: sampled (default: the run's setting)
+  seed=S               evaluation seed (default: the run's, seed + 1000003)
+  checkpoint=<file>    load this checkpoint instead of the run's own (it must be of the same
+                       algorithm and policy)
+  plot=<file.png>      Reach1D: draw plot_episodes replayed episodes, true position and noisy
+                       reading against time, wall, goal and collisions
+  plot_episodes=N      episodes in the PNG (default 3)
+  output=<file.json>   also write the results as JSON
+
+Video: there is no MuJoCo task in the toolkit yet, so nothing here records video; see
+cmdp_rl/replay.py for where it goes and what headless rendering needs.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from cmdp_rl.checkpoint import CheckpointError
+from cmdp_rl.config import ConfigError, load_eval_config
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
+from cmdp_rl.replay import plot_reach1d, record_reach1d
+from cmdp_rl.rundir import load_trained, run_config
+
+
+def _line(name: str, r: dict, fmt: str) -> str:
+    m, s, lo, hi = (r[f"{name}{k}"] for k in ("", "_std", "_min", "_max"))
+    return f"  {name:<15} {m:{fmt}} ± {s:{fmt}}   [min {lo:{fmt}}, max {hi:{fmt}}]"
+
+
+def main(argv: list[str]) -> int:
+    if any(a in ("-h", "--help") for a in argv):
+        print(__doc__)
+        return 0
+    try:
+        bad = [a for a in argv if "=" not in a]
+        if bad:
+            raise ConfigError(f"evaluate: options are key=value, got {bad}; see --help")
+        try:
+            raw = OmegaConf.to_container(OmegaConf.from_dotlist(argv))
+        except OmegaConfBaseException as exc:
+            raise ConfigError(f"evaluate: cannot parse {argv}: {exc}") from exc
+        opts = load_eval_config(raw)
+        run_cfg = run_config(opts.run, "evaluate")
+        episodes = opts.episodes or run_cfg.eval_episodes
+        deterministic = run_cfg.eval_deterministic if opts.deterministic is None else opts.deterministic
+        seed = run_cfg.seed + EVAL_SEED_OFFSET if opts.seed is None else opts.seed
+        if opts.plot is not None and run_cfg.env.name != "reach1d":
+            raise ConfigError(f"plot: episode plots are drawn for env=reach1d only, this run is env={run_cfg.env.name}")
+        cfg, env, ac, iteration, step = load_trained(opts.run, opts.checkpoint, min(episodes, run_cfg.env.num_envs))
+    except (ConfigError, CheckpointError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed)
+    env.close()
+    result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
+    mode = "deterministic" if deterministic else "stochastic"
+    print(f"{opts.run}: {cfg.algo.name} on {cfg.env.name}, checkpoint of iteration {iteration} (step {step:,}); "
+          f"{result['episodes']} episodes, {mode} policy, seed {seed}")
+    print(_line("episode_return", result, ".3f"))
+    print(_line("episode_cost", result, ".2f") + f"   (limit {cfg.algo.cost_limit})")
+    print(_line("episode_length", result, ".1f"))
+    print(f"  goal_reached    {result['goal_reached']:.0%}")
+    if opts.output:
+        Path(opts.output).write_text(json.dumps(result, indent=2))
+        print(f"wrote {opts.output}")
+    if opts.plot:
+        eps = record_reach1d(ac.actor, cfg.env, opts.plot_episodes, deterministic, seed=seed)
+        title = f"{opts.run}: {cfg.algo.name}, {mode} policy, cost limit {cfg.algo.cost_limit}"
+        print(f"wrote {plot_reach1d(eps, cfg.env, opts.plot, title)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,195 @@
+"""Does Kp > 0 damp PID-Lagrangian's cost overshoot and oscillation? (Stooke, Achiam, Abbeel, 2020)
+
+Reads the runs of a ``+experiment=pid_damping`` sweep (each run's ``config.yaml`` and
+``metrics.csv``) and writes, into the sweep directory:
+
+- ``pid_damping.md``: per (Ki, Kp), mean and sample std over seeds of
+  * first crossing: the first iteration at which the batch's episode cost J_c is on the other side
+    of the budget d than at iteration 1 (the first time the cost crosses the budget line);
+  * overshoot: the peak of J_c - d after the first crossing (0 if it never goes above d again),
+    and the same peak of its moving average over 5 iterations, which looks past single-batch noise
+    (a batch holds only 10 to 100 episodes, each costing 0, 1 or more);
+  * violation: the mean of max(0, J_c - d) after the first crossing;
+  * oscillation: the mean of |J_c - d| after the first crossing (how far the cost swings around d);
+  * the final evaluation's return and cost (``eval.json``);
+- ``pid_damping_runs.csv``: the same per run;
+- ``pid_damping.png``: episode cost and lambda against steps, one column per Ki, one colour per Kp
+  (thin: seeds; thick: their mean), the budget drawn as a dashed line.
+
+Usage::
+
+    python experiments/pid_damping.py --run [hydra overrides...]   # run the sweep, then analyse it
+    python experiments/pid_damping.py multirun/pid_damping/<date>  # analyse an existing sweep
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+METRICS = ("first_crossing", "overshoot", "overshoot_smooth", "violation", "oscillation", "eval_return", "eval_cost")
+SMOOTH = 5  # iterations in the moving average of overshoot_smooth
+
+
+def load_run(run_dir: Path) -> dict:
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
+    col = lambda name: np.array([float(r[name]) if r[name] != "" else math.nan for r in rows])  # noqa: E731
+    ev_path = run_dir / "eval.json"
+    ev = json.loads(ev_path.read_text()) if ev_path.exists() else {}
+    return {
+        "dir": run_dir.name, "ki": cfg["algo"]["ki"], "kp": cfg["algo"]["kp"], "kd": cfg["algo"]["kd"],
+        "seed": cfg["seed"], "d": cfg["algo"]["cost_limit"], "step": col("step"),
+        "cost": col("episode_cost"), "lam": col("lagrange_multiplier"),
+        "eval_return": ev.get("episode_return", math.nan), "eval_cost": ev.get("episode_cost", math.nan),
+    }
+
+
+def damping_metrics(cost: np.ndarray, d: float) -> dict[str, float]:
+    """First crossing of the budget line and what the cost does after it (see module docstring)."""
+    valid = np.flatnonzero(~np.isnan(cost))
+    nan = dict.fromkeys(("first_crossing", "overshoot", "overshoot_smooth", "violation", "oscillation"), math.nan)
+    if valid.size == 0:
+        return nan
+    above = cost[valid] > d
+    changed = np.flatnonzero(above != above[0])
+    if changed.size == 0:
+        return nan  # never crossed the budget line
+    k0 = valid[changed[0]]
+    after = cost[valid[valid >= k0]] - d
+    smooth = np.convolve(after, np.ones(SMOOTH) / SMOOTH, mode="valid") if after.size >= SMOOTH else after[:0]
+    return {
+        "first_crossing": float(k0 + 1),  # iterations are numbered from 1
+        "overshoot": float(max(after.max(), 0.0)),
+        "overshoot_smooth": float(max(smooth.max(), 0.0)) if smooth.size else math.nan,
+        "violation": float(np.maximum(after, 0.0).mean()),
+        "oscillation": float(np.abs(after).mean()),
+    }
+
+
+def summarise(runs: list[dict]) -> dict[tuple, dict[str, tuple[float, float, int]]]:
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for run in runs:
+        groups[(run["ki"], run["kp"], run["kd"])].append(run)
+    table = {}
+    for key in sorted(groups):
+        table[key] = {}
+        for m in METRICS:
+            vals = np.array([r[m] for r in groups[key] if not math.isnan(r[m])])
+            std = float(vals.std(ddof=1)) if vals.size > 1 else math.nan
+            table[key][m] = (float(vals.mean()) if vals.size else math.nan, std, int(vals.size), len(groups[key]))
+    return table
+
+
+def _fmt(mean: float, std: float, n: int, total: int) -> str:
+    if n == 0:
+        return "never"
+    s = f"{mean:.3g}" + (f" ± {std:.2g}" if not math.isnan(std) else "")
+    return s + (f" ({n}/{total})" if n < total else "")
+
+
+def write_table(table: dict, runs: list[dict], out: Path) -> str:
+    d = runs[0]["d"]
+    steps = int(max(r["step"][-1] for r in runs))
+    lines = [
+        f"PID-Lagrangian PPO, Reach1D `env.wall=pass`, budget d = {d}, {steps:,} steps per run; "
+        "mean ± sample std over seeds (n/total: runs where the metric exists).",
+        "",
+        "| Ki | Kp | Kd | seeds | first crossing (iter) | overshoot: peak J_c - d after it | "
+        f"peak of its {SMOOTH}-iteration mean | violation: mean (J_c - d)+ after it | "
+        "oscillation: mean abs(J_c - d) after it | eval return | eval cost |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for (ki, kp, kd), row in table.items():
+        n = row["overshoot"][3]
+        cells = " | ".join(_fmt(*row[m]) for m in METRICS)
+        lines.append(f"| {ki:g} | {kp:g} | {kd:g} | {n} | {cells} |")
+    text = "\n".join(lines) + "\n"
+    (out / "pid_damping.md").write_text(text)
+    with open(out / "pid_damping_runs.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["run", "ki", "kp", "kd", "seed", *METRICS])
+        for r in sorted(runs, key=lambda r: (r["ki"], r["kp"], r["kd"], r["seed"])):
+            w.writerow([r["dir"], r["ki"], r["kp"], r["kd"], r["seed"], *(r[m] for m in METRICS)])
+    return text
+
+
+def plot(runs: list[dict], out: Path) -> None:
+    kis = sorted({r["ki"] for r in runs})
+    kps = sorted({(r["kp"], r["kd"]) for r in runs})
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, axes = plt.subplots(2, len(kis), figsize=(5.5 * len(kis), 6.5), sharex=True, squeeze=False)
+    for j, ki in enumerate(kis):
+        for i, (kp, kd) in enumerate(kps):
+            group = [r for r in runs if r["ki"] == ki and (r["kp"], r["kd"]) == (kp, kd)]
+            if not group:
+                continue
+            colour = colours[i % len(colours)]
+            label = f"Kp = {kp:g}" + (f", Kd = {kd:g}" if kd else "")
+            for row, key in enumerate(("cost", "lam")):
+                ax = axes[row, j]
+                for r in group:
+                    ax.plot(r["step"], r[key], color=colour, alpha=0.25, lw=0.8)
+                n = min(len(r["step"]) for r in group)
+                mean = np.nanmean(np.stack([r[key][:n] for r in group]), axis=0)
+                ax.plot(group[0]["step"][:n], mean, color=colour, lw=2.0, label=f"{label} (mean of {len(group)})")
+        axes[0, j].axhline(runs[0]["d"], color="black", ls="--", lw=1.2, label=f"budget d = {runs[0]['d']:g}")
+        axes[0, j].set_title(f"Ki = {ki:g}")
+        axes[0, j].set_ylabel("episode cost J_c (batch mean)")
+        axes[1, j].set_ylabel("lambda")
+        axes[1, j].set_xlabel("environment steps")
+        axes[0, j].legend(fontsize=8)
+    fig.suptitle("PID Lagrangian on Reach1D (wall=pass): episode cost and lambda")
+    fig.tight_layout()
+    fig.savefig(out / "pid_damping.png", dpi=110)
+    plt.close(fig)
+
+
+def analyse(sweep_dir: Path) -> str:
+    run_dirs = sorted(p.parent for p in sweep_dir.glob("*/metrics.csv"))
+    if not run_dirs:
+        raise SystemExit(f"no runs (*/metrics.csv) under {sweep_dir}")
+    runs = [load_run(p) for p in run_dirs]
+    for r in runs:
+        r.update(damping_metrics(r["cost"], r["d"]))
+    text = write_table(summarise(runs), runs, sweep_dir)
+    plot(runs, sweep_dir)
+    return text
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", action="store_true", help="run the sweep first (extra args: Hydra overrides)")
+    parser.add_argument("sweep_dir_or_overrides", nargs="*")
+    args = parser.parse_args()
+    if args.run:
+        sweep_dir = ROOT / "multirun" / "pid_damping" / time.strftime("%Y-%m-%d_%H-%M-%S")
+        cmd = [sys.executable, str(ROOT / "train.py"), "-m", "+experiment=pid_damping",
+               f"hydra.sweep.dir={sweep_dir}", *args.sweep_dir_or_overrides]
+        print(" ".join(cmd), flush=True)
+        subprocess.run(cmd, cwd=ROOT, check=True)
+    elif len(args.sweep_dir_or_overrides) == 1:
+        sweep_dir = Path(args.sweep_dir_or_overrides[0])
+    else:
+        parser.error("give one sweep directory, or --run [overrides]")
+    print(analyse(sweep_dir))
+    print(f"wrote {sweep_dir / 'pid_damping.md'}, {sweep_dir / 'pid_damping_runs.csv'}, {sweep_dir / 'pid_damping.png'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""Shared pieces of the run-lifecycle tests: a tiny run (seconds) and ways to read its outputs."""
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+WALL_CLOCK = ("sps", "time_s")  # the only columns allowed to differ between identical runs
+
+# 2 envs x 16 steps per iteration, random starts (the envs' generators matter), short episodes
+# (several end per iteration), wall=pass with a small budget (lambda moves every iteration).
+TINY = {
+    "env": {"num_envs": 2, "max_steps": 12, "wall": "pass", "start": [0.3, 0.48]},
+    "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.2, "lambda_lr": 0.5},
+    "rollout_steps": 16, "total_steps": 7 * 32, "checkpoint_every": 2, "eval_episodes": 4, "log_interval": 1,
+}
+
+
+def tiny(**overrides) -> dict:
+    """The TINY config with top-level overrides and ``algo``/``env`` entries merged in."""
+    cfg = {k: (dict(v) if isinstance(v, dict) else v) for k, v in TINY.items()}
+    for k, v in overrides.items():
+        if isinstance(v, dict) and k in cfg:
+            cfg[k].update(v)
+        else:
+            cfg[k] = v
+    return cfg
+
+
+def cli_args(cfg: dict) -> list[str]:
+    """Hydra command-line overrides for a config dict like TINY."""
+    out = []
+    for k, v in cfg.items():
+        if isinstance(v, dict):
+            for kk, vv in v.items():
+                if k == "algo" and kk == "name":
+                    out.insert(0, f"algo={vv}")
+                else:
+                    out.append(f"{k}.{kk}={json.dumps(vv)}")
+        else:
+            out.append(f"{k}={json.dumps(v) if not isinstance(v, str) else v}")
+    return out
+
+
+def run_script(script: str, *args: str, timeout: int = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / script), *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def metrics_rows(run_dir: Path, drop=WALL_CLOCK) -> list[dict]:
+    with open(Path(run_dir) / "metrics.csv") as f:
+        return [{k: v for k, v in row.items() if k not in drop} for row in csv.DictReader(f)]
+
+
+def eval_result(run_dir: Path) -> dict:
+    out = json.loads((Path(run_dir) / "eval.json").read_text())
+    out.pop("train_time_s")
+    return out
+
+
+@pytest.fixture
+def quiet():
+    return lambda s: None
