@@ -4,7 +4,7 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup train test bench bench-velocity bench-velocity-smoke clean
+.PHONY: setup train test bench bench-velocity bench-velocity-smoke sweep clean
 
 .venv/.installed: pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -40,6 +40,18 @@ test: setup
 # Takes a few minutes; pass options with BENCH_ARGS, e.g. `make bench BENCH_ARGS="--device cuda"`.
 bench: setup
 	$(PY) experiments/benchmark_throughput.py $(BENCH_ARGS)
+
+# The penalty-versus-constraint study (docs/penalty_vs_constraint.md): both Hydra sweeps into one
+# directory, then the report from their outputs. `make sweep SWEEP_ARGS="hydra/launcher=..."` scales
+# out (see configs/experiment/penalty_vs_constraint.yaml). A sweep with a failed job exits non-zero;
+# the `-` keeps going so that the report can list what failed.
+ifndef SWEEP_DIR
+SWEEP_DIR := multirun/penalty_vs_constraint/$(shell date +%Y-%m-%d_%H-%M-%S)
+endif
+sweep: setup
+	-$(PY) train.py -m +experiment=penalty_sweep hydra.sweep.dir=$(SWEEP_DIR)/penalty $(SWEEP_ARGS)
+	-$(PY) train.py -m +experiment=constraint_sweep hydra.sweep.dir=$(SWEEP_DIR)/constraint $(SWEEP_ARGS)
+	$(PY) experiments/penalty_vs_constraint.py $(SWEEP_DIR)
 
 clean:
 	rm -rf .venv outputs multirun

@@ -3,6 +3,8 @@
 Options are documented in ``configs/``; outputs go to Hydra's run directory.
 ``python train.py resume=<run dir> [total_steps=...]`` continues that run from its last checkpoint,
 in that directory, with the run's own config (see ``cmdp_rl/resume.py`` for what may change).
+Sweeps are Hydra multiruns (``-m``), e.g. ``python train.py -m +experiment=penalty_sweep``; see
+``configs/experiment/``.
 """
 
 from __future__ import annotations
@@ -13,13 +15,18 @@ from pathlib import Path
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.resume import resume_config
 from cmdp_rl.rundir import CHECKPOINT
+from cmdp_rl.sweeps import clear_outputs, record_failure
 
+# How a single run ends on each error (inside a sweep train.py raises instead: see _fail).
+EXIT_CODES = ((ConfigError, 2, "config error"), (CheckpointError, 2, "cannot resume"),
+              (TrainingDiverged, 3, "training stopped"))
 
 
 def _if_resumable(resume: str | None, then: str, otherwise: str) -> str:
@@ -32,30 +39,42 @@ def _if_resumable(resume: str | None, then: str, otherwise: str) -> str:
 OmegaConf.register_new_resolver("cmdp.if_resumable", _if_resumable)
 
 
+def _fail(exc: Exception, run_dir: str | None) -> None:
+    if run_dir is not None:
+        record_failure(run_dir, exc)
+    if HydraConfig.get().mode == RunMode.MULTIRUN:
+        # Raise, never sys.exit, inside a sweep: Hydra then marks only this job failed, lets the
+        # others finish (each writes its own directory) and raises once all are done. SystemExit
+        # would bypass Hydra's per-job handling and stop the whole sweep.
+        raise exc
+    for kind, code, what in EXIT_CODES:
+        if isinstance(exc, kind):
+            print(f"{what}: {exc}", file=sys.stderr)
+            sys.exit(code)
+    raise exc
+
+
 @hydra.main(config_path="configs", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     raw = OmegaConf.to_container(cfg, resolve=True)
+    # A new run's directory records why it failed (error.txt); a resume leaves the run it names as
+    # the resume machinery does (a refused resume must not touch a finished run).
+    new_dir = None if raw.get("resume") else HydraConfig.get().runtime.output_dir
     try:
         if raw.get("resume"):
             overrides = OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
             run_cfg = resume_config(raw["resume"], raw, [o.key_or_group for o in overrides])
         else:
             run_cfg = load_config(raw)
-    except ConfigError as exc:
-        print(f"config error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    except CheckpointError as exc:
-        print(f"cannot resume: {exc}", file=sys.stderr)
-        sys.exit(2)
+    except (ConfigError, CheckpointError) as exc:
+        _fail(exc, new_dir)
     try:
+        if new_dir is not None:
+            clear_outputs(new_dir)  # a rerun into this directory must not pass for a finished one
         # A resumed run writes into its own directory, whatever hydra.run.dir says.
-        train(run_cfg, None if run_cfg.resume else HydraConfig.get().runtime.output_dir)
-    except CheckpointError as exc:
-        print(f"cannot resume: {exc}", file=sys.stderr)
-        sys.exit(2)
-    except TrainingDiverged as exc:
-        print(f"training stopped: {exc}", file=sys.stderr)
-        sys.exit(3)
+        train(run_cfg, new_dir)
+    except Exception as exc:  # noqa: BLE001 - every failure is recorded, then handled by _fail
+        _fail(exc, new_dir)
 
 
 if __name__ == "__main__":

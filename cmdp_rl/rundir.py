@@ -7,6 +7,7 @@
     metrics.csv     one row per iteration (cmdp_rl.metrics.COLUMNS)
     checkpoint.pt   the last checkpoint (cmdp_rl.checkpoint), written atomically
     eval.json       the final evaluation
+    error.txt       why the run failed, if it did (train.py; cmdp_rl.sweeps reads it back)
     tb/             TensorBoard events, with ``logger=tensorboard``
     .hydra/         Hydra's record of the command (train.py only)
 """
@@ -36,6 +37,7 @@ CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.yaml"
 METRICS = "metrics.csv"
 EVAL = "eval.json"
+ERROR = "error.txt"
 RUN_INFO = "run_info.json"
 TENSORBOARD = "tb"
 

@@ -147,7 +147,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.close()
-    result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time})
+    result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
+                   "torch_threads": torch.get_num_threads()})
     result["cost_rate"] = cost_rate(collector.total_cost, collector.total_steps)
     result.update(normalized_scores(result["episode_return"], result["episode_cost"], result["cost_rate"],
                                     cfg.algo.cost_limit, reference))

@@ -22,6 +22,8 @@ import numpy as np
 from gymnasium import spaces
 
 WALL_MODES = ("block", "pass")
+MAX_SPEED = 0.1  # action bound: |velocity command| <= 0.1 per step (stored as float32, as the seed)
+GOAL_TOLERANCE = 0.02  # the episode terminates when |goal - x| < this
 
 
 class Reach1D(gym.Env):
@@ -65,11 +67,11 @@ class Reach1D(gym.Env):
         self.probe = probe
         act_dim = 2 if probe else 1
         # float32 bounds as in the seed: np.clip against them keeps a float32 action float32.
-        self.action_space = spaces.Box(low=-0.1, high=0.1, shape=(act_dim,), dtype=np.float32)
+        self.action_space = spaces.Box(low=-MAX_SPEED, high=MAX_SPEED, shape=(act_dim,), dtype=np.float32)
         if probe:
             self.action_space = spaces.Box(
-                low=np.array([-0.1, -1.0], dtype=np.float32),
-                high=np.array([0.1, 1.0], dtype=np.float32),
+                low=np.array([-MAX_SPEED, -1.0], dtype=np.float32),
+                high=np.array([MAX_SPEED, 1.0], dtype=np.float32),
                 dtype=np.float32,
             )
         low = [0.0, 0.0] + ([-1.0] if probe else [])
@@ -108,7 +110,7 @@ class Reach1D(gym.Env):
         self.x = prev_x if (crossed and self.wall == "block") else proposed
         dist = abs(self.goal - self.x)
         reward = abs(self.goal - prev_x) - dist
-        terminated = dist < 0.02
+        terminated = dist < GOAL_TOLERANCE
         if terminated:
             reward += 1.0
         self.steps += 1

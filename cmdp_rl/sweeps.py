@@ -1,0 +1,199 @@
+"""Recording a run's failure, and reading a Hydra sweep's run directories back.
+
+A run directory (``train.py``'s Hydra output dir; its layout is in ``cmdp_rl/rundir.py``) holds
+``.hydra/{config,overrides}.yaml`` (written by Hydra when the job starts), then ``config.yaml``
+and ``metrics.csv`` (training started), then ``eval.json`` (training and evaluation finished) or
+``error.txt`` (the job raised).
+A sweep directory holds Hydra's ``multirun.yaml`` and one run directory per job.
+
+Aggregators read results from here instead of re-training, and report every run that did not
+finish (failed, interrupted, or never started) rather than crash on it.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import shlex
+import traceback
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cmdp_rl.rundir import CONFIG as CONFIG_FILE
+from cmdp_rl.rundir import ERROR as ERROR_FILE
+from cmdp_rl.rundir import EVAL as EVAL_FILE
+from cmdp_rl.rundir import METRICS as METRICS_FILE
+
+HYDRA_DIR = ".hydra"
+MULTIRUN_FILE = "multirun.yaml"
+
+OK, FAILED, INCOMPLETE, MISSING = "ok", "failed", "incomplete", "missing"
+SUPERSEDED = "superseded"  # the same job ran again (a rerun) and that run is the one kept
+
+
+def clear_outputs(out_dir: str | Path) -> None:
+    """Remove a previous run's result and error from ``out_dir``, so that a rerun into the same
+    directory that dies early cannot be mistaken for a finished one."""
+    for name in (EVAL_FILE, ERROR_FILE):
+        (Path(out_dir) / name).unlink(missing_ok=True)
+
+
+def record_failure(out_dir: str | Path, exc: BaseException) -> None:
+    """Write ``error.txt`` (exception type, message, traceback) into the run directory."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    text = f"{type(exc).__name__}: {exc}\n\n" + "".join(traceback.format_exception(exc))
+    (out / ERROR_FILE).write_text(text)
+
+
+@dataclass
+class RunRecord:
+    """One run directory, read back. ``status`` is ``ok`` (eval.json), ``failed`` (error.txt or an
+    unreadable eval.json) or ``incomplete`` (started, no result: killed, crashed hard, or running)."""
+
+    path: Path
+    status: str
+    overrides: list[str]
+    config: dict[str, Any]
+    eval: dict[str, Any] | None = None
+    metrics: list[dict[str, float]] = field(default_factory=list)
+    error: str | None = None
+
+    def get(self, dotted: str, default: Any = None) -> Any:
+        """A config value by dotted key, e.g. ``run.get("algo.penalty")``."""
+        node: Any = self.config
+        for part in dotted.split("."):
+            if not isinstance(node, dict) or part not in node:
+                return default
+            node = node[part]
+        return node
+
+
+def _read_yaml(path: Path) -> Any:
+    try:
+        return yaml.safe_load(path.read_text()) if path.is_file() else None
+    except (OSError, yaml.YAMLError):
+        return None
+
+
+def _read_metrics(path: Path) -> list[dict[str, float]]:
+    if not path.is_file():
+        return []
+    rows = []
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            try:
+                rows.append({k: float(v) if v not in ("", None) else float("nan") for k, v in row.items()})
+            except ValueError:
+                break  # a row cut short by a kill: keep what came before it
+    return rows
+
+
+def load_run(path: str | Path) -> RunRecord:
+    """Read one run directory; never raises on missing or damaged files."""
+    path = Path(path)
+    overrides = _read_yaml(path / HYDRA_DIR / "overrides.yaml") or []
+    # The validated config (written when training starts) is the truth; Hydra's composed one is
+    # there from the job's start, also for runs that failed validation.
+    config = _read_yaml(path / CONFIG_FILE) or _read_yaml(path / HYDRA_DIR / "config.yaml") or {}
+    record = RunRecord(path, INCOMPLETE, [str(o) for o in overrides], config,
+                       metrics=_read_metrics(path / METRICS_FILE))
+    if (path / EVAL_FILE).is_file():
+        try:
+            record.eval = json.loads((path / EVAL_FILE).read_text())
+            record.status = OK
+            return record
+        except (OSError, ValueError) as exc:
+            record.status, record.error = FAILED, f"{EVAL_FILE} unreadable: {exc}"
+            return record
+    if (path / ERROR_FILE).is_file():
+        record.status = FAILED
+        record.error = (path / ERROR_FILE).read_text().splitlines()[0] if (path / ERROR_FILE).stat().st_size else "error"
+    return record
+
+
+def find_runs(root: str | Path) -> list[RunRecord]:
+    """Every run directory under ``root`` (a directory holding ``.hydra/`` or ``config.yaml``)."""
+    root = Path(root)
+
+    def inside_hydra(p: Path) -> bool:  # .hydra/ itself, or a resume's record in .hydra/resume_*/
+        return HYDRA_DIR in p.relative_to(root).parts[:-1]
+
+    dirs = {p.parent for p in root.rglob(HYDRA_DIR) if p.is_dir() and not inside_hydra(p)}
+    dirs |= {p.parent for p in root.rglob(CONFIG_FILE) if not inside_hydra(p)}
+    return [load_run(d) for d in sorted(dirs)]
+
+
+def _expand(overrides: list[str]) -> list[list[str]]:
+    """The jobs a list of overrides sweeps over: the Cartesian product of every comma-list, as
+    Hydra's basic sweeper builds it (a later override of the same key replaces an earlier one)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    per_key: dict[str, list[str]] = {}
+    for ov in OverridesParser.create().parse_overrides(overrides):
+        key = ov.get_key_element()
+        if ov.is_sweep_override():
+            per_key[key] = [f"{key}={v}" for v in ov.sweep_string_iterator()]
+        else:
+            per_key[key] = [f"{key}={ov.get_value_element_as_str()}"]
+    return [list(job) for job in itertools.product(*per_key.values())]
+
+
+def expected_jobs(sweep_dir: str | Path) -> list[list[str]] | None:
+    """The jobs a sweep was started with, from its ``multirun.yaml`` (None if there is none)."""
+    cfg = _read_yaml(Path(sweep_dir) / MULTIRUN_FILE)
+    if not isinstance(cfg, dict):
+        return None
+    hydra_cfg = cfg.get("hydra", {}) or {}
+    params = (hydra_cfg.get("sweeper", {}) or {}).get("params", {}) or {}
+    task = (hydra_cfg.get("overrides", {}) or {}).get("task", []) or []
+    return _expand([f"{k}={v}" for k, v in params.items()] + [str(t) for t in task])
+
+
+def missing_jobs(sweep_dir: str | Path, runs: list[RunRecord]) -> list[list[str]]:
+    """Jobs listed by the sweep's ``multirun.yaml`` that left no run directory."""
+    jobs = expected_jobs(sweep_dir) or []
+    seen = {frozenset(r.overrides) for r in runs}
+    return [job for job in jobs if frozenset(job) not in seen]
+
+
+def _finished_at(record: RunRecord) -> float:
+    for name in (EVAL_FILE, ERROR_FILE, METRICS_FILE):
+        if (record.path / name).is_file():
+            return (record.path / name).stat().st_mtime
+    return record.path.stat().st_mtime
+
+
+def mark_superseded(records: list[RunRecord]) -> None:
+    """Where several directories hold the same job (same overrides: a rerun of a failed or
+    interrupted job), keep the newest finished one, else the newest; mark the others superseded."""
+    by_job: dict[frozenset, list[RunRecord]] = defaultdict(list)
+    for r in records:
+        if r.overrides:
+            by_job[frozenset(r.overrides)].append(r)
+    for group in by_job.values():
+        if len(group) > 1:
+            keep = max([r for r in group if r.status == OK] or group, key=_finished_at)
+            for r in group:
+                if r is not keep:
+                    r.status = SUPERSEDED
+
+
+def sweep_dir_of(run_dir: Path) -> Path:
+    """The sweep a run directory belongs to: the nearest ancestor holding multirun.yaml."""
+    for parent in run_dir.parents:
+        if (parent / MULTIRUN_FILE).is_file():
+            return parent
+    return run_dir.parent
+
+
+def rerun_command(overrides: list[str], sweep_dir: Path, script: str = "train.py") -> str:
+    """A command that runs one job again, into ``<sweep_dir>/rerun`` (never into the sweep
+    directory itself: that would replace its multirun.yaml, the record of what was expected)."""
+    args = " ".join(shlex.quote(o) for o in overrides)
+    return f"python {script} -m {args} hydra.sweep.dir={shlex.quote(str(sweep_dir / 'rerun'))}"
