@@ -375,40 +375,42 @@ def answers_markdown(analysis: Analysis | None, rows: list[dict[str, Any]]) -> s
 # Figure
 # --------------------------------------------------------------------------------------------
 def figure(path: Path, rows: list[dict[str, Any]], runs: list[Run], analysis: Analysis | None) -> None:
-    """Left: eval cost against lambda (penalty runs), right: against d (constrained runs). Each
-    seed is a small dot, the mean over seeds a large one (3 seeds: a std bar would mislead)."""
+    """Left: eval cost against lambda (penalty runs). Then one panel per start distribution: eval
+    cost against d (constrained runs, one colour per algorithm). Each seed is a small dot, the mean
+    over seeds a large one (3 seeds: a std bar would mislead)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax_p, ax_c) = plt.subplots(1, 2, figsize=(12.5, 4.8))
     starts = sorted({r["start"] for r in rows})
-    colors = {s: f"C{i}" for i, s in enumerate(starts)}
+    con_starts = sorted({r["start"] for r in rows if r["knob"] == "d"})
+    fig, axes = plt.subplots(1, 1 + max(1, len(con_starts)), figsize=(5.6 * (1 + max(1, len(con_starts))), 4.8),
+                             squeeze=False)
+    ax_p, con_axes = axes[0][0], axes[0][1:]
     done = [r for r in runs if r.status == OK and r.key is not None]
     budgets = sorted({r["value"] for r in rows if r["knob"] == "d"})
     lam_max = max([r["value"] for r in rows if r["knob"] == "lambda"] + [2.0]) * 1.1
     d_max = max(budgets + [1.0]) * 1.05
 
-    def scatter(ax, knob, span, label):
-        for i, s in enumerate(starts):
-            shift = (i - (len(starts) - 1) / 2) * 0.015 * span  # starts side by side, not on top
-            mine = [r for r in done if r.key.knob == knob and r.key.start == s]
-            if not mine:
-                continue
-            ax.plot([r.key.value + shift for r in mine], [r.eval_cost for r in mine], ".", color=colors[s],
-                    alpha=0.45, ms=5)
-            means = sorted((r["value"], r["cost_mean"]) for r in rows
-                           if r["knob"] == knob and r["start"] == s and r["runs_ok"])
+    def series(ax, mine, means, x_shift, color, label, marker="o"):
+        ax.plot([r.key.value + x_shift for r in mine], [r.eval_cost for r in mine], ".", color=color, alpha=0.45, ms=5)
+        if means:
             x, y = map(np.array, zip(*means))
-            ax.plot(x + shift, y, "o", color=colors[s], ms=7, label=f"{label}, {s}")
+            ax.plot(x + x_shift, y, marker, color=color, ms=7, label=label)
 
-    scatter(ax_p, "lambda", lam_max, "runs: mean (dots: seeds)")
-    for s in starts:
+    # Penalty runs: one colour per start distribution, the DP's step function dashed.
+    for i, s in enumerate(starts):
+        shift = (i - (len(starts) - 1) / 2) * 0.015 * lam_max  # side by side, not on top
+        mine = [r for r in done if r.key.knob == "lambda" and r.key.start == s]
+        means = sorted((r["value"], r["cost_mean"]) for r in rows
+                       if r["knob"] == "lambda" and r["start"] == s and r["runs_ok"])
+        if mine:
+            series(ax_p, mine, means, shift, f"C{i}", f"runs: mean (dots: seeds), {s}")
         if analysis is not None and s in analysis.starts:
             grid = np.linspace(0.0, lam_max, 600)
             ax_p.plot(grid, analysis.thresholds.expected_cost(analysis.starts[s], grid), "--",
-                      color=colors[s], alpha=0.8, label=f"penalty-optimal plan (DP), {s}")
+                      color=f"C{i}", alpha=0.8, label=f"penalty-optimal plan (DP), {s}")
     if analysis is not None and analysis.env.wall == "pass":
         lam_star = analysis.thresholds.at(0.1)
         ax_p.axvline(lam_star, color="0.3", lw=0.8)
@@ -423,28 +425,33 @@ def figure(path: Path, rows: list[dict[str, Any]], runs: list[Run], analysis: An
     if ax_p.get_legend_handles_labels()[0]:
         ax_p.legend(fontsize=7, loc="upper right", bbox_to_anchor=(1.0, 0.93))
 
-    ax_c.plot([0, d_max], [0, d_max], "k--", lw=1, label="ideal: cost = d")
-    algos = ", ".join(sorted({r.key.algo for r in done if r.key.knob == "d"}))
-    scatter(ax_c, "d", d_max, f"{algos}: mean (dots: seeds)")
-    for i, s in enumerate(starts):
-        shift = (i - (len(starts) - 1) / 2) * 0.015 * d_max
-        tc = sorted((r["value"], r["train_cost_mean"]) for r in rows if r["knob"] == "d" and r["start"] == s and r["runs_ok"])
-        if tc:
-            x, y = map(np.array, zip(*tc))
-            ax_c.plot(x + shift, y, "x", color=colors[s], ms=7, label=f"training cost, last 25%, {s}")
+    # Constrained runs: a panel per start distribution, one colour per algorithm.
+    algos = sorted({r["algo"] for r in rows if r["knob"] == "d"})
+    for ax, s in zip(con_axes, con_starts or ["(none)"]):
+        ax.plot([0, d_max], [0, d_max], "k--", lw=1, label="ideal: cost = d")
         if analysis is not None and s in analysis.starts:
             cap = analysis.unconstrained_cost(s)
             if cap < d_max:
                 grid = np.linspace(0, d_max, 100)
-                ax_c.plot(grid, np.minimum(grid, cap), ":", color=colors[s], label=f"ideal capped at the λ=0 cost, {s}")
-    ax_c.set(xlabel="budget d (expected crossings per episode)", ylabel="episode cost (crossings), final eval",
-             title="Constraint J_c ≤ d: achieved cost against d")
-    if not any(r.key.knob == "d" for r in done):
-        ax_c.text(0.5, 0.5, "no finished constrained runs", transform=ax_c.transAxes, ha="center")
-    if ax_c.get_legend_handles_labels()[0]:
-        ax_c.legend(fontsize=7, loc="upper left")
+                ax.plot(grid, np.minimum(grid, cap), "k:", lw=1, label="ideal, capped at the λ=0 cost")
+        for j, algo in enumerate(algos):
+            color = f"C{j + 2}"
+            shift = (j - (len(algos) - 1) / 2) * 0.015 * d_max
+            mine = [r for r in done if r.key.knob == "d" and r.key.start == s and r.key.algo == algo]
+            mine_rows = [r for r in rows if r["knob"] == "d" and r["start"] == s and r["algo"] == algo and r["runs_ok"]]
+            if mine:
+                series(ax, mine, sorted((r["value"], r["cost_mean"]) for r in mine_rows), shift, color,
+                       f"{algo}: eval mean (dots: seeds)")
+                tc = sorted((r["value"], r["train_cost_mean"]) for r in mine_rows)
+                ax.plot([v + shift for v, _ in tc], [c for _, c in tc], "x", color=color, ms=7,
+                        label=f"{algo}: training cost, last 25%")
+        ax.set(xlabel="budget d (expected crossings per episode)", ylabel="episode cost (crossings)",
+               title=f"Constraint J_c ≤ d, {s}")
+        if not any(r.key.knob == "d" and r.key.start == s for r in done):
+            ax.text(0.5, 0.5, "no finished constrained runs", transform=ax.transAxes, ha="center")
+        ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
