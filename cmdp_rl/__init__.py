@@ -7,7 +7,7 @@
     env = cmdp_rl.make_env(cfg.env)
     ac = cmdp_rl.make_actor_critic(cfg.policy, env)
     algo = cmdp_rl.make_algo(cfg.algo, ac)
-    collector = cmdp_rl.Collector(env, ac.actor, cfg.rollout_steps, seed=0)
+    collector = cmdp_rl.Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=0)
     stats = algo.update(collector.collect())
 """
 

@@ -11,8 +11,16 @@ losses and recurrent modules read its output unchanged.
 
 Per step it handles plain tensors: each step's entries are kept in a dict and stacked into the
 batch once at the end. A stateless probabilistic actor (the MLP policy) runs on tensors too
-(:class:`~cmdp_rl.policies.tensor_path.TensorActor`, same numbers); any other policy (a recurrent
-one, which writes its state under ``"next"``) is called on a TensorDict.
+(:class:`~cmdp_rl.policies.tensor_path.TensorActor`, same numbers), and so do the stateful ones
+built of torchrl's recurrent modules and plain modules (``StepProgram``); any other policy is
+called on a TensorDict.
+
+History-dependent policies (policies/recurrent.py, transformer.py) get, as torchrl's env transforms
+would give them: their initial state at the root (from torchrl's ``make_tensordict_primer``, via
+``get_primers_from_module``: zeros), the state they write under ``"next"`` carried to the next
+step and reset to the initial state where an episode ended (as ``TensorDictPrimer`` does on
+reset), and, if their ``in_keys`` ask, the previous step's action and cost (``keys.PREV_ACTION``,
+``keys.PREV_COST``; zero at an episode's first step; under ``"next"``, this step's).
 """
 
 from __future__ import annotations
@@ -22,13 +30,76 @@ from typing import Any, Callable
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.transforms import Compose
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules.utils import get_primers_from_module
 
 from cmdp_rl import keys
 from cmdp_rl.envs import VecEnv
-from cmdp_rl.policies.tensor_path import TensorActor
+from cmdp_rl.policies.tensor_path import StepProgram, TensorActor
 
 Entries = dict  # key (a string, or a tuple for a nested key) -> tensor of one step, batch [N]
+
+
+def initial_state(policy: TensorDictModuleBase, num_envs: int, device: torch.device) -> Entries:
+    """The recurrent state ``policy`` starts every episode from, ``[num_envs, ...]`` per key: the
+    default values of the primers torchrl's ``make_tensordict_primer`` gives for its submodules
+    (none for a stateless policy)."""
+    if not isinstance(policy, torch.nn.Module):  # a plain function of TensorDicts: no state
+        return {}
+    primer = get_primers_from_module(policy, warn=False)
+    if primer is None:
+        return {}
+    primers = list(primer.transforms) if isinstance(primer, Compose) else [primer]
+    state: Entries = {}
+    for p in primers:
+        zeros = p.primers.expand(num_envs).zero().to(device)
+        for key, value in zeros.items(include_nested=True, leaves_only=True):
+            default = p.default_value.get(key, 0.0) if isinstance(p.default_value, dict) else p.default_value
+            if callable(default) or default != 0:
+                raise ValueError(f"policy: primer {key!r} has a non-zero default {default!r}; only zero initial states are supported")
+            state[key] = value
+    return state
+
+
+class PolicyMemory:
+    """What a policy carries from one step to the next besides the observation, for N envs: its
+    initial state (:func:`initial_state`), the state it writes under ``"next"`` (reset to the
+    initial one where an episode ended, as torchrl's ``TensorDictPrimer`` does on reset), and the
+    previous action and cost if its ``in_keys`` ask for them. Used by the collector and by
+    ``replay.py``, which steps one plain env."""
+
+    def __init__(self, policy: TensorDictModuleBase, num_envs: int, action_dim: int, device: torch.device) -> None:
+        self.initial = initial_state(policy, num_envs, device)
+        in_keys = getattr(policy, "in_keys", ())
+        self.prev_action = keys.PREV_ACTION in in_keys
+        self.prev_cost = keys.PREV_COST in in_keys
+        self.num_envs, self.action_dim, self.device = num_envs, action_dim, device
+
+    def start(self) -> Entries:
+        """The root entries of every env's first step (besides observation and ``is_init``)."""
+        root = dict(self.initial)
+        if self.prev_action:
+            root[keys.PREV_ACTION] = torch.zeros(self.num_envs, self.action_dim, device=self.device)
+        if self.prev_cost:
+            root[keys.PREV_COST] = torch.zeros(self.num_envs, 1, device=self.device)
+        return root
+
+    def step(self, out: Entries, cost: torch.Tensor, done: torch.Tensor) -> tuple[Entries, Entries]:
+        """After a step: (the previous action/cost to store under ``"next"``: this step's; the root
+        entries of the next step). ``out``: what the policy wrote; ``done``: ``[N, 1]``."""
+        carried = {k[1]: v for k, v in out.items() if isinstance(k, tuple) and k[0] == keys.NEXT}
+        history = {}
+        if self.prev_action:
+            history[keys.PREV_ACTION] = out[keys.ACTION]
+        if self.prev_cost:
+            history[keys.PREV_COST] = cost
+        if not (carried or history):
+            return {}, {}
+        # A new episode starts from the initial state, without history.
+        root = {k: _reset_where(done, v, self.initial.get(k)) for k, v in carried.items()}
+        root.update({k: v.masked_fill(done, 0) for k, v in history.items()})
+        return {(keys.NEXT, k): v for k, v in history.items()}, root
 
 
 def _td_policy(policy: TensorDictModuleBase, batch_size: int, device: torch.device) -> Callable[[Entries], Entries]:
@@ -65,9 +136,13 @@ class Collector:
         self.policy = policy
         self.rollout_steps = rollout_steps
         n, dev = env.num_envs, env.device
-        fast = TensorActor.wrap(policy) if tensor_path else None
+        fast = (TensorActor.wrap(policy) or StepProgram.wrap(policy)) if tensor_path else None
         self._act = fast if fast is not None else _td_policy(policy, n, dev)
-        self._root: Entries = {keys.OBS: env.reset(seed=seed), keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev)}
+        self._memory = PolicyMemory(policy, n, env.action_dim, dev)
+        self._root: Entries = {
+            **self._memory.start(), keys.OBS: env.reset(seed=seed),
+            keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev),
+        }
         self._ep_return = torch.zeros(n, 1, device=dev)
         self._ep_cost = torch.zeros(n, 1, device=dev)
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
@@ -87,9 +162,9 @@ class Collector:
                 ep_return = ep_return + step.reward
                 ep_cost = ep_cost + step.cost
                 ep_length = ep_length + 1
-                carried = {k[1]: v for k, v in out.items() if isinstance(k, tuple) and k[0] == keys.NEXT}
+                history, carried = self._memory.step(out, step.cost, done)
                 steps.append({
-                    **root, **out,
+                    **root, **out, **history,
                     (keys.NEXT, keys.OBS): step.next_obs,
                     (keys.NEXT, keys.REWARD): step.reward,
                     (keys.NEXT, keys.COST): step.cost,
@@ -138,6 +213,12 @@ class Collector:
         self._ep_length = state["episode_length"].to(dev).clone()
         self.total_steps = int(state["total_steps"])
         self.total_cost = float(state["total_cost"])
+
+
+def _reset_where(done: torch.Tensor, value: torch.Tensor, initial: torch.Tensor | None) -> torch.Tensor:
+    """``value`` with the rows of envs whose episode ended (``done``: ``[N, 1]``) set to ``initial``."""
+    where = done.view(done.shape[0], *([1] * (value.dim() - 1)))
+    return torch.where(where, torch.zeros_like(value) if initial is None else initial, value)
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:

@@ -24,7 +24,7 @@ TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip ins
 ENV_NAMES = ("reach1d", "velocity", "gym")
 ENV_BACKENDS = ("gym", "torch")  # gymnasium vector env | tensor-native batched env (reach1d only)
 WALL_MODES = ("block", "pass")
-POLICY_NAMES = ("mlp",)
+POLICY_NAMES = ("mlp", "lstm", "gru", "transformer")
 ACTIVATIONS = ("tanh", "relu", "elu")
 DEVICES = ("cpu", "cuda")
 
@@ -109,10 +109,57 @@ NO_COST_SCALING = ("penalty", "cpo")
 
 @dataclass
 class PolicyConfig:
+    """The memoryless MLP policy (policies/mlp.py). ``include_prev_*``: every policy may also read
+    the previous step's action and cost (zero on an episode's first step)."""
+
     name: str = "mlp"
     hidden_sizes: list = field(default_factory=lambda: [64, 64])
     activation: str = "tanh"
     init_log_std: float = -0.5
+    include_prev_action: bool = False
+    include_prev_cost: bool = False
+
+
+@dataclass
+class RecurrentPolicyConfig:
+    """LSTM or GRU memory in the actor and in both critics (policies/recurrent.py)."""
+
+    name: str = "lstm"
+    hidden_size: int = 64       # recurrent units
+    num_layers: int = 1         # stacked recurrent layers
+    head_sizes: list = field(default_factory=lambda: [64])  # MLP after the memory ([]: linear)
+    activation: str = "tanh"
+    init_log_std: float = -0.5
+    include_prev_action: bool = True
+    include_prev_cost: bool = True
+    # Training segments: steps per segment, a divisor of rollout_steps; 0 or >= rollout_steps:
+    # whole rollout rows.
+    segment_length: int = 32
+
+
+@dataclass
+class TransformerPolicyConfig:
+    """Causal self-attention over the last ``window`` steps (policies/transformer.py)."""
+
+    name: str = "transformer"
+    window: int = 16            # K: steps attended to, this one included
+    layers: int = 1
+    heads: int = 2
+    width: int = 32             # model width d (divisible by heads)
+    feedforward: int = 64       # hidden width of each layer's feed-forward block
+    positions: str = "learned"  # learned | sinusoidal
+    head_sizes: list = field(default_factory=lambda: [64])
+    activation: str = "tanh"
+    init_log_std: float = -0.5
+    include_prev_action: bool = True
+    include_prev_cost: bool = True
+
+
+POLICY_CONFIGS: dict[str, type] = {
+    "mlp": PolicyConfig, "lstm": RecurrentPolicyConfig, "gru": RecurrentPolicyConfig,
+    "transformer": TransformerPolicyConfig,
+}
+POSITIONS = ("learned", "sinusoidal")
 
 
 @dataclass
@@ -206,7 +253,7 @@ class LoggerConfig:
 @dataclass
 class RunConfig:
     env: Union[EnvConfig, VelocityEnvConfig, GymEnvConfig] = field(default_factory=EnvConfig)
-    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    policy: Union[PolicyConfig, RecurrentPolicyConfig, TransformerPolicyConfig] = field(default_factory=PolicyConfig)
     algo: AlgoConfig = field(default_factory=PPOLagConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     seed: int = 0
@@ -308,7 +355,11 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
     cfg.env = _build(ENV_CONFIGS[env_name], env, "env")
     cfg.normalize = _build(NormalizeConfig, dict(raw.get("normalize", {}) or {}), "normalize")
     cfg.reference = _build(ReferenceConfig, dict(raw.get("reference", {}) or {}), "reference")
-    cfg.policy = _build(PolicyConfig, dict(raw.get("policy", {}) or {}), "policy")
+    policy = dict(raw.get("policy", {}) or {})
+    policy_name = policy.get("name", "mlp")
+    if policy_name not in POLICY_CONFIGS:
+        raise ConfigError(f"policy.name: unknown policy {policy_name!r}; allowed: {sorted(POLICY_CONFIGS)}")
+    cfg.policy = _build(POLICY_CONFIGS[policy_name], policy, "policy")
     cfg.algo = _build(ALGO_CONFIGS[algo_name], algo, "algo")
     validate(cfg)
     return cfg
@@ -364,13 +415,7 @@ def validate(cfg: RunConfig) -> None:
         _require(e.max_steps >= 0, "env.max_steps", "an integer >= 0 (0: the registered limit)", e.max_steps)
         _require(isinstance(e.kwargs, dict), "env.kwargs", "a mapping of constructor arguments", e.kwargs)
 
-    _require(p.name in POLICY_NAMES, "policy.name", f"one of {POLICY_NAMES}", p.name)
-    _require(
-        len(p.hidden_sizes) >= 1 and all(isinstance(h, int) and h > 0 for h in p.hidden_sizes),
-        "policy.hidden_sizes", "a non-empty list of positive integers", p.hidden_sizes,
-    )
-    _require(p.activation in ACTIVATIONS, "policy.activation", f"one of {ACTIVATIONS}", p.activation)
-    _require(_finite(p.init_log_std), "policy.init_log_std", "a finite number", p.init_log_std)
+    _validate_policy(cfg)
 
     _require(_finite(a.critic_lr) and a.critic_lr > 0, "algo.critic_lr", "a positive number", a.critic_lr)
     for g in ("gamma", "cost_gamma"):
@@ -438,6 +483,44 @@ def validate(cfg: RunConfig) -> None:
     if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
         raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
     _validate_normalize_and_reference(cfg)
+
+
+def _validate_policy(cfg: RunConfig) -> None:
+    p = cfg.policy
+    _require(p.name in POLICY_NAMES, "policy.name", f"one of {POLICY_NAMES}", p.name)
+    _require(isinstance(p, POLICY_CONFIGS[p.name]), "policy", f"a {POLICY_CONFIGS[p.name].__name__} for policy.name={p.name}",
+             type(p).__name__)
+    _require(p.activation in ACTIVATIONS, "policy.activation", f"one of {ACTIVATIONS}", p.activation)
+    _require(_finite(p.init_log_std), "policy.init_log_std", "a finite number", p.init_log_std)
+    if isinstance(p, PolicyConfig):
+        _require(
+            len(p.hidden_sizes) >= 1 and all(isinstance(h, int) and h > 0 for h in p.hidden_sizes),
+            "policy.hidden_sizes", "a non-empty list of positive integers", p.hidden_sizes,
+        )
+        return
+    _require(all(isinstance(h, int) and h > 0 for h in p.head_sizes),
+             "policy.head_sizes", "a list of positive integers (may be empty)", p.head_sizes)
+    if isinstance(p, RecurrentPolicyConfig):
+        _require(p.hidden_size >= 1, "policy.hidden_size", "a positive integer", p.hidden_size)
+        _require(p.num_layers >= 1, "policy.num_layers", "a positive integer", p.num_layers)
+        L, T = p.segment_length, cfg.rollout_steps
+        _require(L >= 0 and (L == 0 or L >= T or T % L == 0), "policy.segment_length",
+                 f"0 or >= rollout_steps (whole rollouts), or a divisor of rollout_steps={T}", L)
+        segments = cfg.env.num_envs * (T // L if 0 < L < T else 1)
+        for name in ("num_minibatches", "critic_minibatches"):  # PPO family, CPO's critic fit
+            if hasattr(cfg.algo, name):
+                _require(getattr(cfg.algo, name) <= segments, f"algo.{name}",
+                         f"at most the number of training segments, env.num_envs * rollout_steps / "
+                         f"policy.segment_length = {segments} (recurrent policies train on whole segments)",
+                         getattr(cfg.algo, name))
+    if isinstance(p, TransformerPolicyConfig):
+        _require(p.window >= 1, "policy.window", "a positive integer (steps attended to)", p.window)
+        _require(p.layers >= 1, "policy.layers", "a positive integer", p.layers)
+        _require(p.heads >= 1, "policy.heads", "a positive integer", p.heads)
+        _require(p.width >= 1 and p.width % p.heads == 0, "policy.width",
+                 f"a positive multiple of policy.heads={p.heads}", p.width)
+        _require(p.feedforward >= 1, "policy.feedforward", "a positive integer", p.feedforward)
+        _require(p.positions in POSITIONS, "policy.positions", f"one of {POSITIONS}", p.positions)
 
 
 def _validate_normalize_and_reference(cfg: RunConfig) -> None:

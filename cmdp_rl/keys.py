@@ -35,3 +35,27 @@ VALUE_TARGET = "value_target"
 COST_VALUE_TARGET = "cost_value_target"
 # The advantage the policy loss reads: A_r, (A_r - lambda A_c) or (A_r - lambda A_c)/(1 + lambda).
 POLICY_ADVANTAGE = "policy_advantage"
+
+# --- What a history-dependent policy reads and carries (policies/recurrent.py, transformer.py) ---
+# The previous step's action and cost, written at the root by the collector when the policy reads
+# them (zero on an episode's first step); under "next" they are this step's action and cost.
+PREV_ACTION = "prev_action"
+PREV_COST = "prev_cost"
+# Recurrent state of each network (torchrl LSTMModule/GRUModule; a GRU has no cell). The network
+# writes ("next", key); the collector carries it to the next step's root, reset to the initial
+# (zero) state where an episode ended, as torchrl's TensorDictPrimer does on reset.
+ACTOR_HIDDEN = "actor_hidden"
+ACTOR_CELL = "actor_cell"
+CRITIC_HIDDEN = "critic_hidden"
+CRITIC_CELL = "critic_cell"
+COST_CRITIC_HIDDEN = "cost_critic_hidden"
+COST_CRITIC_CELL = "cost_critic_cell"
+# The transformer's state: the raw tokens (observation, previous action, previous cost) of the
+# K - 1 steps before this one, oldest first, and which of them belong to the current episode.
+HISTORY = "history"
+HISTORY_MASK = "history_mask"
+# Intermediate entries inside one network's forward pass; never stored in a batch.
+NET_INPUT = "net_input"
+FEATURES = "features"
+WINDOW = "window"
+WINDOW_MASK = "window_mask"

@@ -21,6 +21,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from cmdp_rl import keys
+from cmdp_rl.collector import PolicyMemory
 from cmdp_rl.config import EnvConfig
 from cmdp_rl.envs import Reach1D, reach1d_kwargs
 
@@ -53,6 +54,7 @@ def record_reach1d(
     """Run ``episodes`` episodes of ``actor`` on one Reach1D (reset with ``seed`` once, as env 0 of
     a vector env is), recording the true position beside the reading the agent saw."""
     env = Reach1D(**reach1d_kwargs(env_cfg))
+    memory = PolicyMemory(actor, 1, env.action_space.shape[0], torch.device("cpu"))
     exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     out: list[Reach1DEpisode] = []
     with torch.random.fork_rng(devices=[]), set_exploration_type(exploration):
@@ -60,15 +62,15 @@ def record_reach1d(
         obs, info = env.reset(seed=seed)
         for _ in range(episodes):
             ep = Reach1DEpisode(true_x=[info["true_x"]], reading=[float(obs[0])])
-            is_init, carried = True, {}
+            is_init, carried = True, memory.start()
             while True:
                 td = TensorDict({**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0),
                                  keys.IS_INIT: torch.tensor([[is_init]])}, batch_size=[1])
-                td = actor(td)
-                # as in the collector: what a recurrent policy writes under "next" is its next state
-                carried = dict(td.get(keys.NEXT).items()) if keys.NEXT in td.keys() else {}
-                action = td.get(keys.ACTION)[0].numpy().astype(env.action_space.dtype)
+                wrote = dict(actor(td).items(include_nested=True, leaves_only=True))
+                action = wrote[keys.ACTION][0].numpy().astype(env.action_space.dtype)
                 obs, reward, terminated, truncated, info = env.step(action)
+                # as in the collector: the policy's next state, previous action and cost
+                _, carried = memory.step(wrote, torch.tensor([[float(info["cost"])]]), torch.tensor([[False]]))
                 ep.action.append(float(action[0]))
                 ep.reward.append(float(reward))
                 ep.cost.append(float(info["cost"]))

@@ -76,7 +76,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     env = make_env(cfg.env, device=cfg.device)
     ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, ac)
-    collector = Collector(env, ac.actor, cfg.rollout_steps, seed=cfg.seed)
+    collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
     first, elapsed = 1, 0.0
     if state is not None:
         algo.load_state_dict(state["algo_state"])

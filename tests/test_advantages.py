@@ -7,6 +7,7 @@ from tensordict.nn import TensorDictModule
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
+from cmdp_rl.policies import ActorCritic
 
 GAMMA, LAM = 0.9, 0.8
 V = [0.5, 0.2, 0.1]       # V(s_0..s_2)
@@ -60,16 +61,17 @@ def closed_form(signal, done_at=None, terminal=False):
 
 
 def critics():
+    """Both critics, in an ActorCritic (the actor is not used by GAE)."""
     table = torch.tensor(V + [V_NEXT[-1]])
-    return (TensorDictModule(Lookup(table), [keys.OBS], [keys.VALUE]),
-            TensorDictModule(Lookup(table), [keys.OBS], [keys.COST_VALUE]))
+    return ActorCritic(actor=None, critic=TensorDictModule(Lookup(table), [keys.OBS], [keys.VALUE]),
+                       cost_critic=TensorDictModule(Lookup(table), [keys.OBS], [keys.COST_VALUE]))
 
 
 @pytest.mark.parametrize("case", ["none", "truncated", "terminated"])
 def test_twin_gae_matches_closed_form(case):
     kw = {"truncated": dict(truncated_at=1), "terminated": dict(terminated_at=1)}.get(case, {})
     b = batch(**kw)
-    TwinGAE(GAMMA, GAMMA, LAM)(b, *critics())
+    TwinGAE(GAMMA, GAMMA, LAM)(b, critics())
     done_at = 1 if case != "none" else None
     for sig, adv_key, tgt_key in ((R, keys.ADVANTAGE, keys.VALUE_TARGET), (C, keys.COST_ADVANTAGE, keys.COST_VALUE_TARGET)):
         expected = torch.tensor(closed_form(sig, done_at, terminal=case == "terminated"))

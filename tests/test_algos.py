@@ -112,7 +112,7 @@ def test_policy_loss_equals_torchrl_clip_ppo_loss():
 
     cfg, algo, col = setup({"name": "ppo", "entropy_coef": 0.01, "clip_epsilon": 0.1})
     batch = col.collect()
-    algo.gae(batch, algo.ac.critic, algo.ac.cost_critic)
+    algo.gae(batch, algo.ac)
     batch.set(keys.POLICY_ADVANTAGE, batch.get(keys.ADVANTAGE))
     with torch.no_grad():  # move the policy so that ratios differ from 1 and some are clipped
         for p in algo.ac.actor.parameters():

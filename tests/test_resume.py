@@ -228,3 +228,18 @@ def test_mujoco_run_with_normalization_resumes_exactly(tmp_path, monkeypatch, qu
     assert_same_run(whole, broken)
     stats = final_state(broken)["networks"]
     assert any(k.startswith("normalizers.") for k in stats)  # the statistics were in the checkpoint
+
+
+@pytest.mark.parametrize("policy", ["lstm", "transformer"])
+def test_memory_policy_resumes_exactly(tmp_path, monkeypatch, quiet, policy):
+    """The carried recurrent state / window and the previous action and cost are part of the
+    collector's saved root: a resumed memory-policy run equals an uninterrupted one."""
+    cfg = tiny(policy={"name": policy}, env={"probe": True})
+    whole, broken = tmp_path / "whole", tmp_path / "broken"
+    train(load_config(cfg), whole, echo=quiet)
+    crash_after_row(monkeypatch, 5)
+    with pytest.raises(Crash):
+        train(load_config(cfg), broken, echo=quiet)
+    monkeypatch.undo()
+    train(load_config({**cfg, "resume": str(broken)}), echo=quiet)
+    assert_same_run(whole, broken)

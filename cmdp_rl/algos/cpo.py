@@ -160,9 +160,10 @@ class CPO:
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One CPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
-        self.gae(batch, self.ac.critic, self.ac.cost_critic)
+        self.gae(batch, self.ac)
         episode_cost, episode_length = episode_cost_estimate(batch)
-        flat = batch.reshape(-1)
+        # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
+        flat = self.ac.batch_units(batch)
         stats = self.policy_step(flat, episode_cost, episode_length)
         stats.update(self.fit_critics(flat))
         check_parameters_finite(self.ac.modules())
@@ -170,21 +171,22 @@ class CPO:
         return stats
 
     def policy_step(self, flat: TensorDictBase, episode_cost: float, episode_length: float) -> dict[str, float]:
-        """Solve the CPO subproblem on a flat batch carrying GAE advantages and take the step the
-        line search accepts (or none)."""
+        """Solve the CPO subproblem on a batch of training units (steps, or segments for a
+        recurrent policy) carrying GAE advantages and take the step the line search accepts (or none)."""
         cfg, actor, params = self.cfg, self.ac.actor, self.policy_params
         adv = flat.get(keys.ADVANTAGE)
         if cfg.normalize_advantage:
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         # The cost advantage is only centred: its scale must stay that of cost, to compare with c.
         cost_adv = flat.get(keys.COST_ADVANTAGE) - flat.get(keys.COST_ADVANTAGE).mean()
-        obs, action = flat.select(keys.OBS), flat.get(keys.ACTION)
+        obs, action = flat.select(*actor.in_keys), flat.get(keys.ACTION)  # all the actor reads
         old_log_prob = flat.get(keys.LOG_PROB)
         # pi_k is the policy that collected the batch: its loc/scale are in the batch.
         old_dist = actor.build_dist_from_params(flat.select(keys.LOC, keys.SCALE))
 
         def surrogates() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-            dist = actor.get_dist(obs)
+            with self.ac.sequence_mode():
+                dist = actor.get_dist(obs)
             ratio = torch.exp(dist.log_prob(action) - old_log_prob).reshape(adv.shape)
             return (ratio * adv).mean(), (ratio * cost_adv).mean(), kl_divergence(old_dist, dist).mean()
 
@@ -236,7 +238,8 @@ class CPO:
                     break
             else:
                 _assign(params, theta0)  # no acceptable step: stay at pi_k
-            entropy = actor.get_dist(obs).entropy().mean().item()
+            with self.ac.sequence_mode():
+                entropy = actor.get_dist(obs).entropy().mean().item()
         return {"cpo_case": sol.case, "dual_lambda": sol.lam, "dual_nu": sol.nu, "entropy": entropy, **accepted}
 
     def fit_critics(self, flat: TensorDictBase) -> dict[str, float]:

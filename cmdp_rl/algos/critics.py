@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import torch
-from tensordict import TensorDict
 
 from cmdp_rl import keys
 from cmdp_rl.policies import ActorCritic
@@ -14,9 +13,10 @@ from cmdp_rl.policies.tensor_path import TensorModule
 class CriticRegression:
     """MSE of the reward critic and of the cost critic on a minibatch's value targets.
 
-    A minibatch is a dict of flat tensors (root keys). The critics run on their tensor paths where
+    A minibatch is a dict of tensors (root keys) over training units: steps, or for recurrent
+    critics segments (``ActorCritic.training_units``). The critics run on their tensor paths where
     the modules allow (``policies/tensor_path.py``: same numbers, without TensorDict overhead), else
-    as TensorDict modules.
+    as TensorDict modules, in the mode the ActorCritic says.
     """
 
     def __init__(self, ac: ActorCritic) -> None:
@@ -29,8 +29,8 @@ class CriticRegression:
         vc = self._values(mb, self.cost_fast, self.ac.cost_critic, keys.COST_VALUE)
         return (v - mb[keys.VALUE_TARGET]).pow(2).mean(), (vc - mb[keys.COST_VALUE_TARGET]).pow(2).mean()
 
-    @staticmethod
-    def _values(mb: dict[str, torch.Tensor], fast: TensorModule | None, module, key: str) -> torch.Tensor:
+    def _values(self, mb: dict[str, torch.Tensor], fast: TensorModule | None, module, key: str) -> torch.Tensor:
         if fast is not None:
             return fast(mb)
-        return module(TensorDict(mb, batch_size=[len(mb[keys.VALUE_TARGET])])).get(key)
+        with self.ac.sequence_mode():  # recurrent critics: [B, L] segments in recurrent mode
+            return module(self.ac.units_tensordict(mb)).get(key)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torch import distributions as D
 from torch import nn
 
@@ -74,7 +74,7 @@ class PPO:
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         cfg = self.cfg
-        self.gae(batch, self.ac.critic, self.ac.cost_critic)
+        self.gae(batch, self.ac)
         costs = finished_episodes(batch)["cost"]
         self.update_multiplier(costs.mean().item() if costs.numel() else None)
 
@@ -83,9 +83,10 @@ class PPO:
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         batch.set(keys.POLICY_ADVANTAGE, adv)
 
-        # Only what the minibatch loop reads, flattened to [N*T, ...]; one gather per epoch, then
-        # each minibatch is a slice (a view).
-        data = {k: batch.get(k).flatten(0, 1) for k in self._update_keys(batch)}
+        # Only what the minibatch loop reads, as training units: steps [N*T, ...], or for a
+        # recurrent policy whole segments [U, L, ...] (ActorCritic.training_units); one gather
+        # per epoch, then each minibatch is a slice (a view) of shuffled units.
+        data = self.ac.training_units({k: batch.get(k) for k in self._update_keys(batch)})
         total = next(iter(data.values())).shape[0]
         mb_size = total // cfg.num_minibatches
         sums = torch.zeros(len(STATS), device=batch.device)
@@ -136,7 +137,8 @@ class PPO:
     def _dist(self, mb: dict[str, torch.Tensor]) -> D.Distribution:
         if self.actor_fast is not None:
             return self.actor_fast.dist(mb)
-        return self.ac.actor.get_dist(TensorDict(mb, batch_size=[len(mb[keys.ACTION])]))
+        with self.ac.sequence_mode():
+            return self.ac.actor.get_dist(self.ac.units_tensordict(mb))
 
     def _update_keys(self, batch: TensorDictBase) -> list:
         """The batch entries the minibatch loop reads: the networks' inputs, the action and its

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import torch
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from torch import nn
 from torchrl.modules import IndependentNormal, ProbabilisticActor
 
 from cmdp_rl import keys
 from cmdp_rl.config import PolicyConfig
+from cmdp_rl.policies.inputs import InputEncoder, input_keys
 
 
 
@@ -70,7 +71,8 @@ class GaussianHead(nn.Module):
 
     The net works in [-1, 1]; loc is rescaled to the action box and the state-independent std is a
     fraction of the box's half-width. Samples are not squashed: the env clips them, so the
-    log-probability of a stored action never meets a tanh saturation.
+    log-probability of a stored action never meets a tanh saturation. The net may read several
+    inputs (an :class:`Encoded` net, or a memory trunk).
     """
 
     def __init__(self, net: nn.Module, low: torch.Tensor, high: torch.Tensor, init_log_std: float) -> None:
@@ -80,21 +82,52 @@ class GaussianHead(nn.Module):
         self.register_buffer("half_width", (high - low) / 2)
         self.log_std = nn.Parameter(torch.full_like(low, init_log_std))
 
-    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        loc = self.center + self.half_width * self.net(obs)
+    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        loc = self.center + self.half_width * self.net(*inputs)
         scale = (self.half_width * self.log_std.exp()).expand_as(loc)
         return loc, scale
 
 
-def _normalized(net: nn.Module, obs_norm: nn.Module | None) -> nn.Module:
-    return net if obs_norm is None else nn.Sequential(obs_norm, net)
+class Encoded(nn.Module):
+    """A network on several input entries: ``net(encoder(*inputs))``."""
+
+    def __init__(self, encoder: InputEncoder, net: nn.Module) -> None:
+        super().__init__()
+        self.encoder = encoder
+        self.net = net
+
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        return self.net(self.encoder(*inputs))
+
+
+def _network(cfg: PolicyConfig, obs_dim: int, out_dim: int, out_gain: float,
+             obs_norm: nn.Module | None, encoder: InputEncoder | None) -> tuple[nn.Module, list[str]]:
+    """The MLP on the observation alone (normalized if ``obs_norm``), or on ``encoder``'s inputs."""
+    if encoder is None:
+        net = mlp(obs_dim, cfg.hidden_sizes, out_dim, cfg.activation, out_gain=out_gain)
+        return (net if obs_norm is None else nn.Sequential(obs_norm, net)), [keys.OBS]
+    net = mlp(encoder.out_dim, cfg.hidden_sizes, out_dim, cfg.activation, out_gain=out_gain)
+    return Encoded(encoder, net), input_keys(encoder.include_prev_action, encoder.include_prev_cost)
+
+
+def make_encoder(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor,
+                 obs_norm: nn.Module | None) -> InputEncoder | None:
+    """The input encoder if the policy reads more than the observation, else None."""
+    if not (cfg.include_prev_action or cfg.include_prev_cost):
+        return None
+    return InputEncoder(obs_dim, low, high, cfg.include_prev_action, cfg.include_prev_cost, obs_norm)
 
 
 def make_actor(
-    cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor, obs_norm: nn.Module | None = None
+    cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor, obs_norm: nn.Module | None = None,
+    encoder: InputEncoder | None = None,
 ) -> ProbabilisticActor:
-    net = _normalized(mlp(obs_dim, cfg.hidden_sizes, low.numel(), cfg.activation, out_gain=0.01), obs_norm)
-    head = TensorDictModule(GaussianHead(net, low, high, cfg.init_log_std), [keys.OBS], [keys.LOC, keys.SCALE])
+    net, in_keys = _network(cfg, obs_dim, low.numel(), 0.01, obs_norm, encoder)
+    return gaussian_actor(TensorDictModule(GaussianHead(net, low, high, cfg.init_log_std), in_keys, [keys.LOC, keys.SCALE]))
+
+
+def gaussian_actor(head: TensorDictModuleBase) -> ProbabilisticActor:
+    """The probabilistic actor around a module writing ``loc`` and ``scale`` (any policy head)."""
     return ProbabilisticActor(
         head,
         in_keys=[keys.LOC, keys.SCALE],
@@ -105,6 +138,7 @@ def make_actor(
     )
 
 
-def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str, obs_norm: nn.Module | None = None) -> TensorDictModule:
-    net = _normalized(mlp(obs_dim, cfg.hidden_sizes, 1, cfg.activation), obs_norm)
-    return TensorDictModule(net, [keys.OBS], [out_key])
+def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str, obs_norm: nn.Module | None = None,
+                encoder: InputEncoder | None = None) -> TensorDictModule:
+    net, in_keys = _network(cfg, obs_dim, 1, 1.0, obs_norm, encoder)
+    return TensorDictModule(net, in_keys, [out_key])

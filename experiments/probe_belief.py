@@ -1,0 +1,218 @@
+"""The seed's probe exercise: memoryless and history-dependent policies, with and without a probe.
+
+    python experiments/probe_belief.py [overrides]          # the Hydra multirun, then the report
+    python experiments/probe_belief.py --gather SWEEP_DIR   # the report again, from finished runs
+
+The sweep is configured in ``configs/probe_belief.yaml`` ({mlp, lstm, transformer} x {probe, no
+probe} x 3 seeds, the same steps each, PPO-Lagrangian on a noisy Reach1D with a passable wall; the
+file says which settings and why). Each run writes train.py's outputs under
+``multirun/probe_belief/<time>/<policy>_probe<bool>_s<seed>/`` and, beside them, ``probe.json``:
+how often the trained (stochastic) policy probes, overall and by step of the episode. At the end
+the report lands in the sweep directory:
+
+- ``table.md`` / ``table.csv``: per policy head and probe option, mean ± std over seeds of the final
+  policy's return, cost and goal rate (eval.json), its probe rate, and training steps/s.
+- ``cost_vs_return.png``: every run's final cost against its return, with the group means.
+
+``docs/probe_belief.md`` explains the result in terms of belief states.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import statistics
+import sys
+from pathlib import Path
+from typing import Any
+
+import hydra
+import torch
+import yaml
+from hydra.core.hydra_config import HydraConfig
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
+
+from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, make_env, train
+from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET
+
+POLICY_ORDER = ("mlp", "lstm", "gru", "transformer")
+EARLY_STEPS = 5  # "early" = the first steps of an episode, where a belief-building agent probes
+
+
+@torch.no_grad()
+def probe_stats(cfg: RunConfig, run_dir: Path, steps: int) -> dict[str, Any]:
+    """How often the run's final stochastic policy probes (2nd action dimension > 0, the env's own
+    test), over ``steps`` steps of every env: overall, in the first steps of an episode and later."""
+    if not cfg.env.probe:
+        return {"probe_rate": None, "probe_rate_early": None, "probe_rate_later": None}
+    state = load_checkpoint(run_dir / "checkpoint.pt", policy=cfg.policy.name)
+    env = make_env(dataclasses.replace(cfg.env, stagger=False), device=cfg.device)
+    ac = make_actor_critic(cfg.policy, env)
+    ac.modules().load_state_dict(state["algo_state"]["networks"])
+    batch = Collector(env, ac.actor, steps, seed=cfg.seed + EVAL_SEED_OFFSET + 1).collect()
+    env.close()
+    probing = batch.get(keys.ACTION)[..., 1] > 0
+    step_in_episode = batch.get((keys.NEXT, keys.EPISODE_LENGTH)).squeeze(-1) - 1
+    early = step_in_episode < EARLY_STEPS
+    return {
+        "probe_rate": probing.float().mean().item(),
+        "probe_rate_early": probing[early].float().mean().item(),
+        "probe_rate_later": probing[~early].float().mean().item() if (~early).any() else None,
+        "early_steps": EARLY_STEPS,
+        "steps": int(probing.numel()),
+    }
+
+
+def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
+    """Every finished run under ``sweep_dir``: config, eval.json, probe.json and metrics rows."""
+    runs = []
+    for eval_path in sorted(sweep_dir.glob("*/eval.json")):
+        run_dir = eval_path.parent
+        cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+        probe_path = run_dir / "probe.json"
+        runs.append({
+            "dir": run_dir, "policy": cfg["policy"]["name"], "probe": bool(cfg["env"]["probe"]), "seed": cfg["seed"],
+            "eval": json.loads(eval_path.read_text()),
+            "probe_stats": json.loads(probe_path.read_text()) if probe_path.is_file() else {},
+            "rows": list(csv.DictReader(open(run_dir / "metrics.csv"))),
+        })
+    return runs
+
+
+def _mean_std(values: list[float]) -> tuple[float | None, float | None]:
+    if not values:
+        return None, None
+    return statistics.fmean(values), (statistics.pstdev(values) if len(values) > 1 else 0.0)
+
+
+def _train_sps(rows: list[dict[str, str]]) -> float:
+    """Median steps/s over the iterations after the first (which pays for warm-up)."""
+    sps = [float(r["sps"]) for r in rows[1:]] or [float(r["sps"]) for r in rows]
+    return statistics.median(sps)
+
+
+def _group_key(run: dict[str, Any]) -> tuple[int, bool]:
+    order = POLICY_ORDER.index(run["policy"]) if run["policy"] in POLICY_ORDER else len(POLICY_ORDER)
+    return order, run["probe"]
+
+
+def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (policy head, probe option): means and spreads over its seeds."""
+    groups: dict[tuple[str, bool], list[dict[str, Any]]] = {}
+    for run in sorted(runs, key=_group_key):
+        groups.setdefault((run["policy"], run["probe"]), []).append(run)
+    table = []
+    for (policy, probe), group in groups.items():
+        row: dict[str, Any] = {"policy": policy, "probe": probe, "seeds": len(group),
+                               "steps": group[0]["eval"]["steps"], "cost_limit": group[0]["eval"]["cost_limit"]}
+        for key in ("episode_return", "episode_cost", "goal_reached", "episode_length"):
+            row[key], row[f"{key}_std"] = _mean_std([r["eval"][key] for r in group])
+        for key in ("probe_rate", "probe_rate_early", "probe_rate_later"):
+            row[key], row[f"{key}_std"] = _mean_std([r["probe_stats"][key] for r in group
+                                                     if r["probe_stats"].get(key) is not None])
+        row["train_sps"], row["train_sps_std"] = _mean_std([_train_sps(r["rows"]) for r in group])
+        table.append(row)
+    return table
+
+
+def _pm(mean: float | None, std: float | None, spec: str) -> str:
+    return "n/a" if mean is None else f"{mean:{spec}} ± {std:{spec}}"
+
+
+def write_table(table: list[dict[str, Any]], out: Path) -> str:
+    header = ["policy", "probe", "seeds", "steps", "return", "cost", "goal reached", "episode length",
+              "probe rate", "probe rate, first 5 steps", "probe rate, later", "training steps/s"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for r in table:
+        lines.append("| " + " | ".join([
+            r["policy"], "yes" if r["probe"] else "no", str(r["seeds"]), f"{r['steps']:,}",
+            _pm(r["episode_return"], r["episode_return_std"], ".3f"), _pm(r["episode_cost"], r["episode_cost_std"], ".3f"),
+            _pm(r["goal_reached"], r["goal_reached_std"], ".2f"), _pm(r["episode_length"], r["episode_length_std"], ".1f"),
+            _pm(r["probe_rate"], r["probe_rate_std"], ".2f"), _pm(r["probe_rate_early"], r["probe_rate_early_std"], ".2f"),
+            _pm(r["probe_rate_later"], r["probe_rate_later_std"], ".2f"), _pm(r["train_sps"], r["train_sps_std"], ",.0f"),
+        ]) + " |")
+    limit = table[0]["cost_limit"] if table else float("nan")
+    text = "\n".join(lines) + (
+        f"\n\nBudget d = {limit:g} crossing per episode. Return, cost, goal rate and length: the final stochastic "
+        f"policy over eval_episodes episodes (eval.json); probe rate: fraction of its steps that were probes "
+        f"(probe.json); mean ± std over seeds. Training steps/s: median over iterations, on a shared 2-core "
+        f"machine (noisy).\n"
+    )
+    (out / "table.md").write_text(text)
+    with open(out / "table.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(table[0]) if table else ["policy"])
+        writer.writeheader()
+        writer.writerows(table)
+    return text
+
+
+def plot_cost_vs_return(runs: list[dict[str, Any]], table: list[dict[str, Any]], out: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5.2))
+    colors = {}
+    for row in table:
+        policy, probe = row["policy"], row["probe"]
+        group = [r for r in runs if r["policy"] == policy and r["probe"] == probe]
+        color = colors.setdefault(policy, f"C{len(colors)}")
+        marker = "o" if probe else "s"
+        face = color if probe else "none"
+        ax.scatter([r["eval"]["episode_return"] for r in group], [r["eval"]["episode_cost"] for r in group],
+                   marker=marker, facecolors=face, edgecolors=color, s=28, alpha=0.6)
+        ax.errorbar(row["episode_return"], row["episode_cost"], xerr=row["episode_return_std"],
+                    yerr=row["episode_cost_std"], fmt=marker, color=color, mfc=face, ms=10, capsize=3,
+                    label=f"{policy}, {'probe' if probe else 'no probe'} ({row['seeds']} seed{'s' if row['seeds'] > 1 else ''})")
+    limit = table[0]["cost_limit"]
+    ax.axhline(limit, color="k", linestyle="--", linewidth=1, label=f"budget d = {limit:g}")
+    ax.set_xlabel("episode return (final policy, sampled actions)")
+    ax.set_ylabel("episode cost = wall crossings")
+    ax.set_title("Reach1D, passable wall, obs noise 0.3: small markers = seeds, large = mean ± std")
+    ax.title.set_fontsize(9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = out / "cost_vs_return.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def gather(sweep_dir: Path) -> str:
+    runs = load_runs(sweep_dir)
+    if not runs:
+        raise SystemExit(f"no finished runs (eval.json) under {sweep_dir}")
+    table = summarize(runs)
+    text = write_table(table, sweep_dir)
+    png = plot_cost_vs_return(runs, table, sweep_dir)
+    print(f"\n{text}\nwrote {sweep_dir / 'table.md'}, {sweep_dir / 'table.csv'}, {png}")
+    return text
+
+
+class GatherRuns(Callback):
+    """Hydra callback: when the multirun ends, write the report into its sweep directory."""
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        gather(Path(config.hydra.sweep.dir))
+
+
+@hydra.main(config_path="../configs", config_name="probe_belief", version_base="1.3")
+def run(cfg: DictConfig) -> None:
+    raw = OmegaConf.to_container(cfg, resolve=True)
+    probe_steps = int(raw.pop("probe_rate_steps"))
+    run_cfg = load_config(raw)
+    out = Path(HydraConfig.get().runtime.output_dir)
+    train(run_cfg, out)
+    (out / "probe.json").write_text(json.dumps(probe_stats(run_cfg, out, probe_steps), indent=2))
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["--gather"]:
+        gather(Path(sys.argv[2]))
+    else:
+        run()
