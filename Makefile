@@ -4,7 +4,7 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup train test bench bench-velocity bench-velocity-smoke sweep clean
+.PHONY: setup train test bench bench-velocity bench-velocity-smoke sweep probe-belief clean
 
 .venv/.installed: pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -52,6 +52,11 @@ sweep: setup
 	-$(PY) train.py -m +experiment=penalty_sweep hydra.sweep.dir=$(SWEEP_DIR)/penalty $(SWEEP_ARGS)
 	-$(PY) train.py -m +experiment=constraint_sweep hydra.sweep.dir=$(SWEEP_DIR)/constraint $(SWEEP_ARGS)
 	$(PY) experiments/penalty_vs_constraint.py $(SWEEP_DIR)
+
+# The probe exercise (docs/probe_belief.md): {mlp, lstm, transformer} x {probe, no probe} x 3 seeds,
+# about 20 minutes on 2 cores, then the table and the PNG. Overrides: PROBE_ARGS="total_steps=..."
+probe-belief: setup
+	$(PY) experiments/probe_belief.py --run $(PROBE_ARGS)
 
 clean:
 	rm -rf .venv outputs multirun

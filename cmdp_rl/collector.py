@@ -45,6 +45,8 @@ def initial_state(policy: TensorDictModuleBase, num_envs: int, device: torch.dev
     """The recurrent state ``policy`` starts every episode from, ``[num_envs, ...]`` per key: the
     default values of the primers torchrl's ``make_tensordict_primer`` gives for its submodules
     (none for a stateless policy)."""
+    if not isinstance(policy, torch.nn.Module):  # a plain function of TensorDicts: no state
+        return {}
     primer = get_primers_from_module(policy, warn=False)
     if primer is None:
         return {}
@@ -69,8 +71,9 @@ class PolicyMemory:
 
     def __init__(self, policy: TensorDictModuleBase, num_envs: int, action_dim: int, device: torch.device) -> None:
         self.initial = initial_state(policy, num_envs, device)
-        self.prev_action = keys.PREV_ACTION in policy.in_keys
-        self.prev_cost = keys.PREV_COST in policy.in_keys
+        in_keys = getattr(policy, "in_keys", ())
+        self.prev_action = keys.PREV_ACTION in in_keys
+        self.prev_cost = keys.PREV_COST in in_keys
         self.num_envs, self.action_dim, self.device = num_envs, action_dim, device
 
     def start(self) -> Entries:

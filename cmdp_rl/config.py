@@ -386,7 +386,7 @@ def _finite(x: float) -> bool:
 
 def validate(cfg: RunConfig) -> None:
     """Raise :class:`ConfigError` on the first out-of-range field."""
-    e, p, a = cfg.env, cfg.policy, cfg.algo
+    e, a = cfg.env, cfg.algo
     _require(e.name in ENV_NAMES, "env.name", f"one of {ENV_NAMES}", e.name)
     _require(e.backend in ENV_BACKENDS, "env.backend", f"one of {ENV_BACKENDS}", e.backend)
     _require(e.num_envs >= 1, "env.num_envs", "a positive integer", e.num_envs)

@@ -66,11 +66,11 @@ def record_reach1d(
             while True:
                 td = TensorDict({**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0),
                                  keys.IS_INIT: torch.tensor([[is_init]])}, batch_size=[1])
-                out = dict(actor(td).items(include_nested=True, leaves_only=True))
-                action = out[keys.ACTION][0].numpy().astype(env.action_space.dtype)
+                wrote = dict(actor(td).items(include_nested=True, leaves_only=True))
+                action = wrote[keys.ACTION][0].numpy().astype(env.action_space.dtype)
                 obs, reward, terminated, truncated, info = env.step(action)
                 # as in the collector: the policy's next state, previous action and cost
-                _, carried = memory.step(out, torch.tensor([[float(info["cost"])]]), torch.tensor([[False]]))
+                _, carried = memory.step(wrote, torch.tensor([[float(info["cost"])]]), torch.tensor([[False]]))
                 ep.action.append(float(action[0]))
                 ep.reward.append(float(reward))
                 ep.cost.append(float(info["cost"]))

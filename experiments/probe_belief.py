@@ -1,14 +1,14 @@
 """The seed's probe exercise: memoryless and history-dependent policies, with and without a probe.
 
-    python experiments/probe_belief.py [overrides]          # the Hydra multirun, then the report
-    python experiments/probe_belief.py --gather SWEEP_DIR   # the report again, from finished runs
+    python experiments/probe_belief.py --run [overrides]   # the sweep (train.py -m +experiment=probe_belief), then the report
+    python experiments/probe_belief.py SWEEP_DIR           # the report from a finished sweep's runs
 
-The sweep is configured in ``configs/probe_belief.yaml`` ({mlp, lstm, transformer} x {probe, no
-probe} x 3 seeds, the same steps each, PPO-Lagrangian on a noisy Reach1D with a passable wall; the
-file says which settings and why). Each run writes train.py's outputs under
-``multirun/probe_belief/<time>/<policy>_probe<bool>_s<seed>/`` and, beside them, ``probe.json``:
-how often the trained (stochastic) policy probes, overall and by step of the episode. At the end
-the report lands in the sweep directory:
+The sweep is ``configs/experiment/probe_belief.yaml`` ({mlp, lstm, transformer} x {probe, no probe}
+x 3 seeds, the same steps each, PPO-Lagrangian on a noisy Reach1D with a passable wall; the file
+says which settings and why). Each run writes train.py's outputs under
+``multirun/probe_belief/<time>/<policy>_probe<bool>_s<seed>/``. The report adds ``probe.json`` to
+each run (how often its trained, stochastic policy probes, overall and by step of the episode,
+from its checkpoint; nothing is re-trained) and writes into the sweep directory:
 
 - ``table.md`` / ``table.csv``: per policy head and probe option, mean ± std over seeds of the final
   policy's return, cost and goal rate (eval.json), its probe rate, and training steps/s.
@@ -19,27 +19,28 @@ the report lands in the sweep directory:
 
 from __future__ import annotations
 
+import argparse
 import csv
 import dataclasses
 import json
 import statistics
+import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
-import hydra
 import torch
 import yaml
-from hydra.core.hydra_config import HydraConfig
-from hydra.experimental.callback import Callback
-from omegaconf import DictConfig, OmegaConf
 
-from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, make_env, train
+from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, make_env
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 
+ROOT = Path(__file__).resolve().parents[1]
 POLICY_ORDER = ("mlp", "lstm", "gru", "transformer")
 EARLY_STEPS = 5  # "early" = the first steps of an episode, where a belief-building agent probes
+PROBE_STEPS = 64  # steps per env of the trained stochastic policy in which its probes are counted
 
 
 @torch.no_grad()
@@ -66,17 +67,21 @@ def probe_stats(cfg: RunConfig, run_dir: Path, steps: int) -> dict[str, Any]:
     }
 
 
-def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
-    """Every finished run under ``sweep_dir``: config, eval.json, probe.json and metrics rows."""
+def load_runs(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> list[dict[str, Any]]:
+    """Every finished run under ``sweep_dir``: config, eval.json, probe.json (written first where
+    missing, from the run's checkpoint) and metrics rows."""
     runs = []
     for eval_path in sorted(sweep_dir.glob("*/eval.json")):
         run_dir = eval_path.parent
         cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
         probe_path = run_dir / "probe.json"
+        if not probe_path.is_file():
+            run_cfg = load_config(cfg)
+            probe_path.write_text(json.dumps(probe_stats(run_cfg, run_dir, probe_steps), indent=2))
         runs.append({
             "dir": run_dir, "policy": cfg["policy"]["name"], "probe": bool(cfg["env"]["probe"]), "seed": cfg["seed"],
             "eval": json.loads(eval_path.read_text()),
-            "probe_stats": json.loads(probe_path.read_text()) if probe_path.is_file() else {},
+            "probe_stats": json.loads(probe_path.read_text()),
             "rows": list(csv.DictReader(open(run_dir / "metrics.csv"))),
         })
     return runs
@@ -183,8 +188,8 @@ def plot_cost_vs_return(runs: list[dict[str, Any]], table: list[dict[str, Any]],
     return path
 
 
-def gather(sweep_dir: Path) -> str:
-    runs = load_runs(sweep_dir)
+def gather(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> str:
+    runs = load_runs(sweep_dir, probe_steps)
     if not runs:
         raise SystemExit(f"no finished runs (eval.json) under {sweep_dir}")
     table = summarize(runs)
@@ -194,25 +199,29 @@ def gather(sweep_dir: Path) -> str:
     return text
 
 
-class GatherRuns(Callback):
-    """Hydra callback: when the multirun ends, write the report into its sweep directory."""
-
-    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        gather(Path(config.hydra.sweep.dir))
-
-
-@hydra.main(config_path="../configs", config_name="probe_belief", version_base="1.3")
-def run(cfg: DictConfig) -> None:
-    raw = OmegaConf.to_container(cfg, resolve=True)
-    probe_steps = int(raw.pop("probe_rate_steps"))
-    run_cfg = load_config(raw)
-    out = Path(HydraConfig.get().runtime.output_dir)
-    train(run_cfg, out)
-    (out / "probe.json").write_text(json.dumps(probe_stats(run_cfg, out, probe_steps), indent=2))
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", action="store_true", help="run the sweep first (extra args: Hydra overrides)")
+    parser.add_argument("--probe-steps", type=int, default=PROBE_STEPS, help="steps per env for the probe rate")
+    parser.add_argument("sweep_dir_or_overrides", nargs="*")
+    args = parser.parse_args()
+    if args.run:
+        sweep_dir = ROOT / "multirun" / "probe_belief" / time.strftime("%Y-%m-%d_%H-%M-%S")
+        overrides = list(args.sweep_dir_or_overrides)
+        given = [o.split("=", 1)[1] for o in overrides if o.startswith("hydra.sweep.dir=")]
+        if given:
+            sweep_dir = Path(given[-1])
+        else:
+            overrides.append(f"hydra.sweep.dir={sweep_dir}")
+        cmd = [sys.executable, str(ROOT / "train.py"), "-m", "+experiment=probe_belief", *overrides]
+        print(" ".join(cmd), flush=True)
+        subprocess.run(cmd, cwd=ROOT, check=True)
+    elif len(args.sweep_dir_or_overrides) == 1:
+        sweep_dir = Path(args.sweep_dir_or_overrides[0])
+    else:
+        parser.error("give one sweep directory, or --run [overrides]")
+    gather(Path(sweep_dir), args.probe_steps)
 
 
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["--gather"]:
-        gather(Path(sys.argv[2]))
-    else:
-        run()
+    main()

@@ -22,9 +22,9 @@ if _nan_at:
     from cmdp_rl.advantages import TwinGAE
     _original, _calls = TwinGAE.__call__, [0]
 
-    def _poisoned(self, batch, critic, cost_critic):
+    def _poisoned(self, batch, ac):
         _calls[0] += 1
-        out = _original(self, batch, critic, cost_critic)
+        out = _original(self, batch, ac)
         if _calls[0] >= int(_nan_at):
             out.set(keys.ADVANTAGE, out.get(keys.ADVANTAGE) * float("nan"))
         return out

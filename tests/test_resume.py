@@ -83,7 +83,10 @@ def test_resume_can_extend_a_finished_run(tmp_path, quiet):
 
 
 def test_sigkill_at_a_random_point_then_resume_loses_nothing(tmp_path, quiet):
-    cfg = tiny(total_steps=14 * 32)
+    # 40 iterations with the kill in the first 11 (+ <= 0.2 s): far from the end even on a fast machine,
+    # where 14 iterations once ended within 0.1 s of the kill point.
+    iterations = 40
+    cfg = tiny(total_steps=iterations * 32)
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     train(load_config(cfg), whole, echo=quiet)
 
@@ -102,7 +105,7 @@ def test_sigkill_at_a_random_point_then_resume_loses_nothing(tmp_path, quiet):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     where = f"killed after row {rows_before_kill} + {extra_sleep:.3f}s"
-    assert len(metrics_rows(killed)) < 14, where
+    assert len(metrics_rows(killed)) < iterations, where
 
     res = run_script("train.py", f"resume={killed}")
     assert res.returncode == 0, f"{where}\n{res.stderr[-3000:]}"
@@ -228,3 +231,18 @@ def test_mujoco_run_with_normalization_resumes_exactly(tmp_path, monkeypatch, qu
     assert_same_run(whole, broken)
     stats = final_state(broken)["networks"]
     assert any(k.startswith("normalizers.") for k in stats)  # the statistics were in the checkpoint
+
+
+@pytest.mark.parametrize("policy", ["lstm", "transformer"])
+def test_memory_policy_resumes_exactly(tmp_path, monkeypatch, quiet, policy):
+    """The carried recurrent state / window and the previous action and cost are part of the
+    collector's saved root: a resumed memory-policy run equals an uninterrupted one."""
+    cfg = tiny(policy={"name": policy}, env={"probe": True})
+    whole, broken = tmp_path / "whole", tmp_path / "broken"
+    train(load_config(cfg), whole, echo=quiet)
+    crash_after_row(monkeypatch, 5)
+    with pytest.raises(Crash):
+        train(load_config(cfg), broken, echo=quiet)
+    monkeypatch.undo()
+    train(load_config({**cfg, "resume": str(broken)}), echo=quiet)
+    assert_same_run(whole, broken)

@@ -65,23 +65,29 @@ def test_bad_input_fails_before_training_with_the_field_named(tmp_path, args, me
     assert not (tmp_path / "metrics.csv").exists()
 
 
-def test_each_memory_policy_trains_and_evaluates(tmp_path):
-    """One multirun: every history-dependent head with the PPO family (ppo_lag), on the probe env
-    (a 2-D action), from train.py to eval.json and a checkpoint that reloads."""
+@pytest.mark.parametrize("algo", [
+    ["algo=ppo_lag", "algo.update_epochs=2", "algo.num_minibatches=2"],   # the PPO family
+    ["algo=cpo", "algo.critic_epochs=2", "algo.critic_minibatches=2"],    # CPO (second derivatives)
+], ids=["ppo_lag", "cpo"])
+def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
+    """One multirun per algorithm family: every history-dependent head on the probe env (a 2-D
+    action), from train.py to eval.json and a checkpoint that reloads and replays the evaluation."""
     from cmdp_rl import evaluate, load_config, make_actor_critic, make_env
     from cmdp_rl.checkpoint import load_checkpoint
     from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 
-    proc = run("-m", "policy=lstm,gru,transformer", "algo=ppo_lag", "env.probe=true", *SHORT,
+    short = ["total_steps=512", "rollout_steps=64", "env.num_envs=4", "eval_episodes=4"]
+    proc = run("-m", "policy=lstm,gru,transformer", "env.probe=true", *short, *algo,
                f"hydra.sweep.dir={tmp_path}", "hydra.sweep.subdir=${policy.name}")
     assert proc.returncode == 0, proc.stderr[-3000:]
+    name_of_algo = algo[0].split("=")[1]
     for name in ("lstm", "gru", "transformer"):
         out = tmp_path / name
         rows = list(csv.DictReader(open(out / "metrics.csv")))
         assert len(rows) == 2 and all(float(r["loss_v"]) > 0 for r in rows)
         ev = json.loads((out / "eval.json").read_text())
         assert ev["episodes"] == 4
-        state = load_checkpoint(out / "checkpoint.pt", algo="ppo_lag", policy=name)
+        state = load_checkpoint(out / "checkpoint.pt", algo=name_of_algo, policy=name)
         cfg = load_config(state["config"])
         ac = make_actor_critic(cfg.policy, make_env(cfg.env))
         ac.modules().load_state_dict(state["algo_state"]["networks"])

@@ -28,6 +28,7 @@ import math
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
+from torch.nn.attention import SDPBackend, sdpa_kernel
 from torchrl.data import Binary, Unbounded
 
 from cmdp_rl import keys
@@ -133,6 +134,12 @@ class WindowTransformer(nn.Module):
         return y + layer.linear2(layer.activation(layer.linear1(layer.norm2(y))))
 
     def forward(self, window: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        # torch's math attention kernel: its second derivatives exist (CPO's Fisher-vector products
+        # need them; the fused CPU kernel has none), and at these sizes it was as fast (measured).
+        with sdpa_kernel(SDPBackend.MATH):
+            return self._forward(window, mask)
+
+    def _forward(self, window: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         lead = window.shape[:-2]
         K = window.shape[-2]
         m = mask.reshape(-1, K)
