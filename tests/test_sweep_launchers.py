@@ -43,7 +43,8 @@ def test_two_job_multirun_through_a_launcher(tmp_path, launcher):
 
 
 def test_a_failing_job_does_not_lose_the_others_results(tmp_path):
-    proc = multirun(tmp_path, "+experiment=constraint_sweep", "hydra/launcher=joblib", "algo.cost_limit=-1,0.5")
+    proc = multirun(tmp_path, "+experiment=constraint_sweep", "hydra/launcher=joblib", "algo=sweep/ppo_lag",
+                    "algo.cost_limit=-1,0.5")
     assert proc.returncode != 0  # Hydra raises once every job has finished
     assert "algo.cost_limit must be a number >= 0" in proc.stderr
     runs = {r.get("algo.cost_limit"): r for r in find_runs(tmp_path)}
