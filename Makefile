@@ -20,14 +20,14 @@ setup: .venv/.installed
 	$(PY) -m pip install -q -e '.[mujoco]'
 	touch $@
 
-# The velocity benchmark (experiments/velocity_benchmark.py): ppo and ppo_lag on HalfCheetah,
+# The velocity benchmark (experiments/velocity_benchmark.py): ppo, ppo_lag and cpo on HalfCheetah,
 # 3 seeds, about an hour on 2 cores; then the table and the PNG. The smoke version runs in minutes.
 bench-velocity: .venv/.mujoco
 	$(PY) experiments/velocity_speed.py
-	$(PY) experiments/velocity_benchmark.py
+	$(PY) experiments/velocity_benchmark.py --run $(VELOCITY_ARGS)
 
 bench-velocity-smoke: .venv/.mujoco
-	$(PY) experiments/velocity_benchmark.py total_steps=8192 rollout_steps=256 env.num_envs=4 \
+	$(PY) experiments/velocity_benchmark.py --run total_steps=8192 rollout_steps=256 env.num_envs=4 \
 		eval_episodes=2 env.max_steps=200 hydra.sweep.dir=multirun/velocity_benchmark_smoke
 
 train: setup

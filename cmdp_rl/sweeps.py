@@ -12,10 +12,14 @@ finish (failed, interrupted, or never started) rather than crash on it.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import itertools
 import json
 import shlex
+import subprocess
+import sys
+import time
 import traceback
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -197,3 +201,35 @@ def rerun_command(overrides: list[str], sweep_dir: Path, script: str = "train.py
     directory itself: that would replace its multirun.yaml, the record of what was expected)."""
     args = " ".join(shlex.quote(o) for o in overrides)
     return f"python {script} -m {args} hydra.sweep.dir={shlex.quote(str(sweep_dir / 'rerun'))}"
+
+
+def experiment_arg_parser(doc: str | None) -> argparse.ArgumentParser:
+    """The command line every ``experiments/`` report script shares: ``--run [overrides]`` runs its
+    sweep first, else one sweep directory is read. Scripts add their own options to it."""
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", action="store_true", help="run the sweep first (extra args: Hydra overrides)")
+    parser.add_argument("sweep_dir_or_overrides", nargs="*")
+    return parser
+
+
+def experiment_sweep_dir(parser: argparse.ArgumentParser, args: argparse.Namespace, experiment: str,
+                         root: str | Path) -> Path:
+    """The sweep directory a report reads: with ``--run``, after running
+    ``train.py -m +experiment=<experiment> [overrides]`` from ``root`` (into
+    ``multirun/<experiment>/<time>`` unless ``hydra.sweep.dir=`` is among the overrides). The sweep
+    is a subprocess so that it is exactly what the same command typed by hand would run."""
+    if not args.run:
+        if len(args.sweep_dir_or_overrides) != 1:
+            parser.error("give one sweep directory, or --run [overrides]")
+        return Path(args.sweep_dir_or_overrides[0])
+    overrides = list(args.sweep_dir_or_overrides)
+    given = [o.split("=", 1)[1] for o in overrides if o.startswith("hydra.sweep.dir=")]
+    if given:
+        sweep_dir = Path(given[-1])
+    else:
+        sweep_dir = Path(root) / "multirun" / experiment / time.strftime("%Y-%m-%d_%H-%M-%S")
+        overrides.append(f"hydra.sweep.dir={sweep_dir}")
+    cmd = [sys.executable, str(Path(root) / "train.py"), "-m", f"+experiment={experiment}", *overrides]
+    print(" ".join(cmd), flush=True)
+    subprocess.run(cmd, cwd=root, check=True)
+    return sweep_dir

@@ -48,7 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import cmdp_rl  # noqa: E402
-from cmdp_rl import Collector, keys, load_config, make_actor_critic, make_env  # noqa: E402
+from cmdp_rl import Collector, load_config, make_actor_critic, make_env  # noqa: E402
 from cmdp_rl.config import POLICY_NAMES, EnvConfig  # noqa: E402
 from cmdp_rl.envs import Reach1D  # noqa: E402
 

@@ -24,13 +24,9 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
-import subprocess
-import sys
-import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -40,6 +36,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
+
+from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 METRICS = ("first_crossing", "overshoot", "overshoot_smooth", "violation", "oscillation", "eval_return", "eval_cost")
@@ -173,20 +171,8 @@ def analyse(sweep_dir: Path) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", action="store_true", help="run the sweep first (extra args: Hydra overrides)")
-    parser.add_argument("sweep_dir_or_overrides", nargs="*")
-    args = parser.parse_args()
-    if args.run:
-        sweep_dir = ROOT / "multirun" / "pid_damping" / time.strftime("%Y-%m-%d_%H-%M-%S")
-        cmd = [sys.executable, str(ROOT / "train.py"), "-m", "+experiment=pid_damping",
-               f"hydra.sweep.dir={sweep_dir}", *args.sweep_dir_or_overrides]
-        print(" ".join(cmd), flush=True)
-        subprocess.run(cmd, cwd=ROOT, check=True)
-    elif len(args.sweep_dir_or_overrides) == 1:
-        sweep_dir = Path(args.sweep_dir_or_overrides[0])
-    else:
-        parser.error("give one sweep directory, or --run [overrides]")
+    parser = experiment_arg_parser(__doc__)
+    sweep_dir = experiment_sweep_dir(parser, parser.parse_args(), "pid_damping", ROOT)
     print(analyse(sweep_dir))
     print(f"wrote {sweep_dir / 'pid_damping.md'}, {sweep_dir / 'pid_damping_runs.csv'}, {sweep_dir / 'pid_damping.png'}")
 

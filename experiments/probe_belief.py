@@ -19,14 +19,10 @@ from its checkpoint; nothing is re-trained) and writes into the sweep directory:
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import json
 import statistics
-import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +32,7 @@ import yaml
 from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, make_env
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
+from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 POLICY_ORDER = ("mlp", "lstm", "gru", "transformer")
@@ -200,26 +197,10 @@ def gather(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", action="store_true", help="run the sweep first (extra args: Hydra overrides)")
+    parser = experiment_arg_parser(__doc__)
     parser.add_argument("--probe-steps", type=int, default=PROBE_STEPS, help="steps per env for the probe rate")
-    parser.add_argument("sweep_dir_or_overrides", nargs="*")
     args = parser.parse_args()
-    if args.run:
-        sweep_dir = ROOT / "multirun" / "probe_belief" / time.strftime("%Y-%m-%d_%H-%M-%S")
-        overrides = list(args.sweep_dir_or_overrides)
-        given = [o.split("=", 1)[1] for o in overrides if o.startswith("hydra.sweep.dir=")]
-        if given:
-            sweep_dir = Path(given[-1])
-        else:
-            overrides.append(f"hydra.sweep.dir={sweep_dir}")
-        cmd = [sys.executable, str(ROOT / "train.py"), "-m", "+experiment=probe_belief", *overrides]
-        print(" ".join(cmd), flush=True)
-        subprocess.run(cmd, cwd=ROOT, check=True)
-    elif len(args.sweep_dir_or_overrides) == 1:
-        sweep_dir = Path(args.sweep_dir_or_overrides[0])
-    else:
-        parser.error("give one sweep directory, or --run [overrides]")
+    sweep_dir = experiment_sweep_dir(parser, args, "probe_belief", ROOT)
     gather(Path(sweep_dir), args.probe_steps)
 
 

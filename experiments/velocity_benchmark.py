@@ -1,11 +1,11 @@
-"""The velocity benchmark: ppo and ppo_lag on HalfCheetah with budget 25, 3 seeds; a table and a PNG.
+"""The velocity benchmark: ppo, ppo_lag and cpo on HalfCheetah with budget 25, 3 seeds; a table and a PNG.
 
-    python experiments/velocity_benchmark.py [overrides]        # the Hydra multirun, then the report
-    python experiments/velocity_benchmark.py --gather SWEEP_DIR # the report again, from finished runs
+    python experiments/velocity_benchmark.py --run [overrides]  # the sweep (train.py -m +experiment=velocity_benchmark), then the report
+    python experiments/velocity_benchmark.py SWEEP_DIR          # the report again, from finished runs
 
-The sweep is configured in ``configs/velocity_benchmark.yaml`` (algorithms, seeds, steps); every
+The sweep is ``configs/experiment/velocity_benchmark.yaml`` (algorithms, seeds, steps); every
 train.py option can be overridden. Each run writes its usual outputs under
-``multirun/velocity_benchmark/<time>/<algo>_s<seed>/``; at the end the report lands beside them:
+``multirun/velocity_benchmark/<time>/<algo>_s<seed>/``; the report lands beside them:
 
 - ``table.md`` / ``table.csv``: per algorithm, mean ± std over seeds of the final policy's return
   and cost (eval.json), the training cost rate, and Safety Gym's normalized return, violation and
@@ -21,19 +21,15 @@ import csv
 import json
 import math
 import statistics
-import sys
 from pathlib import Path
 from typing import Any
 
-import hydra
 import yaml
-from hydra.core.hydra_config import HydraConfig
-from hydra.experimental.callback import Callback
-from omegaconf import DictConfig, OmegaConf
 
-from cmdp_rl import load_config, train
 from cmdp_rl.safety_metrics import Reference, normalized_scores
+from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
+ROOT = Path(__file__).resolve().parents[1]
 REFERENCE_ALGO = "ppo"
 
 
@@ -159,20 +155,10 @@ def gather(sweep_dir: Path) -> str:
     return text
 
 
-class GatherRuns(Callback):
-    """Hydra callback: when the multirun ends, write the report into its sweep directory."""
-
-    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        gather(Path(config.hydra.sweep.dir))
-
-
-@hydra.main(config_path="../configs", config_name="velocity_benchmark", version_base="1.3")
-def run(cfg: DictConfig) -> None:
-    train(load_config(OmegaConf.to_container(cfg, resolve=True)), HydraConfig.get().runtime.output_dir)
+def main() -> None:
+    parser = experiment_arg_parser(__doc__)
+    gather(experiment_sweep_dir(parser, parser.parse_args(), "velocity_benchmark", ROOT))
 
 
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["--gather"]:
-        gather(Path(sys.argv[2]))
-    else:
-        run()
+    main()

@@ -32,6 +32,7 @@ contact forces: 105 values instead of 27). Numbers are comparable in kind, not t
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -89,7 +90,7 @@ class VelocityCost(gym.Wrapper):
 
 def require_mujoco() -> None:
     try:
-        import mujoco  # noqa: F401
+        importlib.import_module("mujoco")
     except ImportError as exc:
         raise ImportError(
             "env=velocity needs MuJoCo: `pip install -e '.[mujoco]'` (or a make target that installs it, "
