@@ -27,6 +27,7 @@ WALL_MODES = ("block", "pass")
 POLICY_NAMES = ("mlp", "lstm", "gru", "transformer")
 ACTIVATIONS = ("tanh", "relu", "elu")
 DEVICES = ("cpu", "cuda")
+AUTO = "auto"  # rollout_steps, algo.update_epochs, algo.num_minibatches: follow env.num_envs
 
 
 @dataclass
@@ -185,8 +186,9 @@ class PPOConfig(AlgoConfig):
     name: str = "ppo"
     lr: float = 3e-4
     clip_epsilon: float = 0.2
-    update_epochs: int = 10
-    num_minibatches: int = 8
+    # "auto": about 80 minibatch steps per iteration (resolve_auto), 10 x 8 for a batch of 2048.
+    update_epochs: Union[int, str] = AUTO
+    num_minibatches: Union[int, str] = AUTO
     entropy_coef: float = 0.0
 
 
@@ -258,7 +260,7 @@ class RunConfig:
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     seed: int = 0
     total_steps: int = 400_000
-    rollout_steps: int = 256
+    rollout_steps: Union[int, str] = AUTO  # "auto": from env.num_envs (resolve_auto)
     device: str = "cpu"
     threads: int = 1
     eval_episodes: int = 20
@@ -384,8 +386,45 @@ def _finite(x: float) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
+def resolve_auto(cfg: RunConfig) -> None:
+    """Replace the ``"auto"`` batch-shape options by numbers that follow ``env.num_envs``.
+
+    A few envs (the gymnasium default of 8) want long rollouts and many passes over a small batch;
+    a thousand batched envs want short rollouts and one pass over a large one, as in massively
+    parallel PPO (Rudin et al., 2022, "Learning to Walk in Minutes Using Massively Parallel Deep RL").
+    The rules keep what the gym default does at N <= 8 exactly and scale from there:
+
+    - ``rollout_steps`` = 2048 / N, within [32, 256]: 256 for N <= 8, 32 for N >= 64;
+    - ``algo.num_minibatches``: 8 while the batch is at most 2048 steps, else one per 512 steps,
+      at most 64 (minibatches of 512 at N = 1024, larger beyond);
+    - ``algo.update_epochs`` = 80 / num_minibatches rounded, at least 1: about 80 minibatch steps per
+      iteration, the gym default's 10 x 8. (PPO-Lagrangian moves lambda once per iteration; with
+      16 or 32 steps per iteration at N = 1024, lambda overshot and the policy collapsed.)
+
+    Numbers given in the config are kept. Works in place; called by :func:`validate`.
+    """
+    n = cfg.env.num_envs
+    if not (isinstance(n, int) and n >= 1):
+        return  # validate names env.num_envs
+    if cfg.rollout_steps == AUTO:
+        cfg.rollout_steps = min(256, max(32, 2048 // n))
+    a = cfg.algo
+    if isinstance(a, PPOConfig) and isinstance(cfg.rollout_steps, int):
+        batch = cfg.rollout_steps * n
+        if a.num_minibatches == AUTO:
+            a.num_minibatches = 8 if batch <= 2048 else min(64, batch // 512)
+        _require(isinstance(a.num_minibatches, int) and a.num_minibatches >= 1, "algo.num_minibatches",
+                 f"a positive integer or {AUTO!r}", a.num_minibatches)
+        if a.update_epochs == AUTO:
+            a.update_epochs = max(1, round(80 / a.num_minibatches))
+    for name, value in (("rollout_steps", cfg.rollout_steps), ("algo.update_epochs", getattr(a, "update_epochs", 1))):
+        _require(isinstance(value, int), name, f"a positive integer or {AUTO!r}", value)
+
+
 def validate(cfg: RunConfig) -> None:
-    """Raise :class:`ConfigError` on the first out-of-range field."""
+    """Fill the ``"auto"`` options (:func:`resolve_auto`), then raise :class:`ConfigError` on the
+    first out-of-range field."""
+    resolve_auto(cfg)
     e, a = cfg.env, cfg.algo
     _require(e.name in ENV_NAMES, "env.name", f"one of {ENV_NAMES}", e.name)
     _require(e.backend in ENV_BACKENDS, "env.backend", f"one of {ENV_BACKENDS}", e.backend)

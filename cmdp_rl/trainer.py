@@ -18,7 +18,7 @@ import yaml
 from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
-from cmdp_rl.config import RunConfig, validate
+from cmdp_rl.config import PPOConfig, RunConfig, validate
 from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger
@@ -110,8 +110,11 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
 
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
+    shape = f"{per_iter} steps ({cfg.rollout_steps} per env"
+    if isinstance(cfg.algo, PPOConfig):
+        shape += f"; {cfg.algo.update_epochs} x {cfg.algo.num_minibatches} minibatches"
     echo(f"training {cfg.algo.name} on {cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs): "
-         f"{iterations} iterations of {per_iter} steps, cost limit {cfg.algo.cost_limit}, outputs in {out}")
+         f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}")
     try:
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
