@@ -377,6 +377,17 @@ def load_eval_config(raw: Mapping[str, Any]) -> EvalConfig:
     return cfg
 
 
+def flatten_dict(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested config as dotted keys: ``{"algo": {"lr": 1}}`` -> ``{"algo.lr": 1}``."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(flatten_dict(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
 def _require(ok: bool, name: str, allowed: str, value: Any) -> None:
     if not ok:
         raise ConfigError(f"{name} must be {allowed}, got {value!r}")

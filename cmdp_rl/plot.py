@@ -21,6 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 import yaml
 
+from cmdp_rl.config import flatten_dict
 from cmdp_rl.rundir import CONFIG, METRICS
 
 PANELS = (("episode_return", "episode return"), ("episode_cost", "episode cost"),
@@ -40,22 +41,12 @@ class Curve:
     cost_limit: float
 
 
-def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
 def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """``(flat config, columns)`` of one run."""
     run = Path(run_dir)
     if not (run / METRICS).is_file():
         raise FileNotFoundError(f"plot: no {METRICS} in {run}")
-    cfg = _flatten(yaml.safe_load((run / CONFIG).read_text())) if (run / CONFIG).is_file() else {}
+    cfg = flatten_dict(yaml.safe_load((run / CONFIG).read_text())) if (run / CONFIG).is_file() else {}
     with open(run / METRICS) as f:
         rows = list(csv.DictReader(f))
     if not rows:
@@ -116,11 +107,7 @@ def group_runs(run_dirs: Sequence[str | Path], k: int = 1) -> list[Curve]:
 
 def plot_runs(run_dirs: Sequence[str | Path], out: str | Path, k: int = 5) -> Path:
     """Draw :data:`PANELS` for the runs in ``run_dirs`` into the PNG ``out``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     curves = group_runs(run_dirs, k)
     fig, axes = plt.subplots(1, len(PANELS), figsize=(5 * len(PANELS), 3.8))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -142,12 +129,29 @@ def plot_runs(run_dirs: Sequence[str | Path], out: str | Path, k: int = 5) -> Pa
     axes[1].legend(fontsize=7, loc="best")
     band = "mean ± 1 std over seeds" if any(c.seeds > 1 for c in curves) else "one seed per curve"
     fig.suptitle(f"{band}; trailing mean over {k} iterations", fontsize=9)
+    return save_figure(fig, out)
+
+
+def pyplot() -> Any:
+    """matplotlib's pyplot on the file-only Agg backend (no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig: Any, path: str | Path, dpi: int = 100) -> Path:
+    """Lay out ``fig``, write it to ``path`` (making its folder) and close it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
-    return out
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:

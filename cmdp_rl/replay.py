@@ -24,6 +24,7 @@ from cmdp_rl import keys
 from cmdp_rl.collector import PolicyMemory
 from cmdp_rl.config import EnvConfig
 from cmdp_rl.envs import Reach1D, reach1d_kwargs
+from cmdp_rl.plot import pyplot, save_figure
 
 
 @dataclass
@@ -89,11 +90,7 @@ def record_reach1d(
 def plot_reach1d(episodes: list[Reach1DEpisode], env_cfg: EnvConfig, path: str | Path, title: str = "") -> Path:
     """One panel per episode: true position and noisy reading against time, the wall, the goal
     (with its 0.02 reach band), and a red cross at every step that crossed the wall (cost 1)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     n = len(episodes)
     fig, axes = plt.subplots(n, 1, figsize=(9.5, 2.4 * n), sharex=True, squeeze=False)
     for i, (ax, ep) in enumerate(zip(axes[:, 0], episodes)):
@@ -117,9 +114,4 @@ def plot_reach1d(episodes: list[Reach1DEpisode], env_cfg: EnvConfig, path: str |
     axes[-1, 0].set_xlabel("step")
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

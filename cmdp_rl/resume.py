@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.config import ConfigError, RunConfig, load_config
+from cmdp_rl.config import ConfigError, RunConfig, flatten_dict, load_config
 from cmdp_rl.rundir import checkpoint_path, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
@@ -30,16 +30,6 @@ RESUMABLE = ("total_steps", "checkpoint_every", "log_interval", "eval_episodes",
              "threads", "resume", "logger.")
 # Config groups selected by name on a command line (``algo=ppo``); they set ``<group>.name``.
 GROUPS = ("algo", "env", "policy", "logger")
-
-
-def _flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, Mapping):
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
 
 
 def _resumable(field: str) -> bool:
@@ -91,7 +81,7 @@ def check_resume_config(saved: RunConfig, cfg: RunConfig) -> None:
         have, want = getattr(saved, group).name, getattr(cfg, group).name
         if have != want:
             raise CheckpointError(f"resume: the checkpoint is of {group}={have!r}, but this run uses {group}={want!r}")
-    a, b = _flatten(dataclasses.asdict(saved)), _flatten(dataclasses.asdict(cfg))
+    a, b = flatten_dict(dataclasses.asdict(saved)), flatten_dict(dataclasses.asdict(cfg))
     changed = [f for f in sorted(a.keys() | b.keys()) if not _resumable(f) and a.get(f) != b.get(f)]
     if changed:
         detail = "; ".join(f"{f}: run has {a.get(f)!r}, asked {b.get(f)!r}" for f in changed)

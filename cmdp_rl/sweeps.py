@@ -203,6 +203,18 @@ def rerun_command(overrides: list[str], sweep_dir: Path, script: str = "train.py
     return f"python {script} -m {args} hydra.sweep.dir={shlex.quote(str(sweep_dir / 'rerun'))}"
 
 
+def write_table(out: str | Path, text: str, rows: list[dict[str, Any]]) -> str:
+    """Write a report's table as ``table.md`` (``text``) and ``table.csv`` (``rows``, one dict
+    each, the columns from the first) into ``out``; returns ``text``."""
+    out = Path(out)
+    (out / "table.md").write_text(text)
+    with open(out / "table.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else [])
+        writer.writeheader()
+        writer.writerows(rows)
+    return text
+
+
 def experiment_arg_parser(doc: str | None) -> argparse.ArgumentParser:
     """The command line every ``experiments/`` report script shares: ``--run [overrides]`` runs its
     sweep first, else one sweep directory is read. Scripts add their own options to it."""

@@ -32,6 +32,7 @@ import yaml
 from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, make_env
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
+from cmdp_rl import sweeps
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -143,12 +144,7 @@ def write_table(table: list[dict[str, Any]], out: Path) -> str:
         f"(probe.json); mean ± std over seeds. Training steps/s: median over iterations, on a shared 2-core "
         f"machine (noisy).\n"
     )
-    (out / "table.md").write_text(text)
-    with open(out / "table.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(table[0]) if table else ["policy"])
-        writer.writeheader()
-        writer.writerows(table)
-    return text
+    return sweeps.write_table(out, text, table)
 
 
 def plot_cost_vs_return(runs: list[dict[str, Any]], table: list[dict[str, Any]], out: Path) -> Path:

@@ -27,6 +27,7 @@ from typing import Any
 import yaml
 
 from cmdp_rl.safety_metrics import Reference, normalized_scores
+from cmdp_rl import sweeps
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -99,12 +100,7 @@ def write_table(table: list[dict[str, Any]], out: Path) -> str:
         f"(eval.json), mean ± std over seeds. Normalized metrics relative to the mean of this sweep's "
         f"{REFERENCE_ALGO} runs (Ray et al. 2019; docs/benchmarks.md).\n"
     )
-    (out / "table.md").write_text(text)
-    with open(out / "table.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(table[0]) if table else ["algo"])
-        writer.writeheader()
-        writer.writerows(table)
-    return text
+    return sweeps.write_table(out, text, table)
 
 
 def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 import pytest
 import torch
@@ -35,6 +36,22 @@ def crash_after_row(monkeypatch, iteration: int) -> None:
     monkeypatch.setattr(MetricsLogger, "log", log)
 
 
+def crash_then_resume(cfg: dict, tmp_path: Path, monkeypatch, quiet, crash_after: int = 5,
+                      checked: Callable[[Path], None] | None = None) -> tuple[Path, Path]:
+    """Train ``cfg`` whole, then again dying after row ``crash_after`` and resumed from its last
+    checkpoint (``checked(broken)`` runs between the crash and the resume); both run dirs."""
+    whole, broken = tmp_path / "whole", tmp_path / "broken"
+    train(load_config(cfg), whole, echo=quiet)
+    crash_after_row(monkeypatch, crash_after)
+    with pytest.raises(Crash):
+        train(load_config(cfg), broken, echo=quiet)
+    monkeypatch.undo()
+    if checked is not None:
+        checked(broken)
+    train(load_config({**cfg, "resume": str(broken)}), echo=quiet)
+    return whole, broken
+
+
 def final_state(run_dir: Path) -> dict:
     return load_checkpoint(run_dir / "checkpoint.pt")["algo_state"]
 
@@ -61,17 +78,10 @@ def test_crash_between_checkpoints_then_resume_equals_uninterrupted(tmp_path, mo
         for k in ("update_epochs", "num_minibatches"):
             cfg["algo"].pop(k)
         cfg["algo"].update(critic_epochs=2, critic_minibatches=2)
-    whole, broken = tmp_path / "whole", tmp_path / "broken"
-    train(load_config(cfg), whole, echo=quiet)
+    def crashed_past_the_last_checkpoint(broken: Path) -> None:  # checkpoints at 2 and 4, then row 5
+        assert len(metrics_rows(broken)) == 5 and load_checkpoint(broken / "checkpoint.pt")["iteration"] == 4
 
-    crash_after_row(monkeypatch, 5)  # checkpoints at 2 and 4: row 5 is past the last one
-    with pytest.raises(Crash):
-        train(load_config(cfg), broken, echo=quiet)
-    monkeypatch.undo()
-    assert len(metrics_rows(broken)) == 5 and load_checkpoint(broken / "checkpoint.pt")["iteration"] == 4
-
-    train(load_config({**cfg, "resume": str(broken)}), echo=quiet)
-    assert_same_run(whole, broken)
+    assert_same_run(*crash_then_resume(cfg, tmp_path, monkeypatch, quiet, checked=crashed_past_the_last_checkpoint))
 
 
 def test_resume_can_extend_a_finished_run(tmp_path, quiet):
@@ -221,13 +231,7 @@ def test_mujoco_run_with_normalization_resumes_exactly(tmp_path, monkeypatch, qu
            "algo": {"name": "ppo_lag", "update_epochs": 1, "num_minibatches": 2, "cost_limit": 1.0},
            "normalize": {"obs": True, "reward": True, "cost": True},
            "rollout_steps": 16, "total_steps": 6 * 32, "checkpoint_every": 2, "eval_episodes": 2}
-    whole, broken = tmp_path / "whole", tmp_path / "broken"
-    train(load_config(cfg), whole, echo=quiet)
-    crash_after_row(monkeypatch, 5)
-    with pytest.raises(Crash):
-        train(load_config(cfg), broken, echo=quiet)
-    monkeypatch.undo()
-    train(load_config({**cfg, "resume": str(broken)}), echo=quiet)
+    whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
     assert_same_run(whole, broken)
     stats = final_state(broken)["networks"]
     assert any(k.startswith("normalizers.") for k in stats)  # the statistics were in the checkpoint
@@ -238,11 +242,5 @@ def test_memory_policy_resumes_exactly(tmp_path, monkeypatch, quiet, policy):
     """The carried recurrent state / window and the previous action and cost are part of the
     collector's saved root: a resumed memory-policy run equals an uninterrupted one."""
     cfg = tiny(policy={"name": policy}, env={"probe": True})
-    whole, broken = tmp_path / "whole", tmp_path / "broken"
-    train(load_config(cfg), whole, echo=quiet)
-    crash_after_row(monkeypatch, 5)
-    with pytest.raises(Crash):
-        train(load_config(cfg), broken, echo=quiet)
-    monkeypatch.undo()
-    train(load_config({**cfg, "resume": str(broken)}), echo=quiet)
+    whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
     assert_same_run(whole, broken)
