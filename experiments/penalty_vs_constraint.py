@@ -39,6 +39,7 @@ import yaml
 
 from cmdp_rl.config import EnvConfig
 from cmdp_rl.envs.reach1d_dp import CrossingThresholds, closed_form_threshold, crossing_thresholds
+from cmdp_rl.plot import pyplot, save_figure
 from cmdp_rl.sweeps import (
     MISSING, MULTIRUN_FILE, OK, SUPERSEDED, RunRecord, find_runs, mark_superseded, missing_jobs, rerun_command,
     sweep_dir_of,
@@ -378,10 +379,7 @@ def figure(path: Path, rows: list[dict[str, Any]], runs: list[Run], analysis: An
     """Left: eval cost against lambda (penalty runs). Then one panel per start distribution: eval
     cost against d (constrained runs, one colour per algorithm). Each seed is a small dot, the mean
     over seeds a large one (3 seeds: a std bar would mislead)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     starts = sorted({r["start"] for r in rows})
     con_starts = sorted({r["start"] for r in rows if r["knob"] == "d"})
@@ -450,9 +448,7 @@ def figure(path: Path, rows: list[dict[str, Any]], runs: list[Run], analysis: An
         if not any(r.key.knob == "d" and r.key.start == s for r in done):
             ax.text(0.5, 0.5, "no finished constrained runs", transform=ax.transAxes, ha="center")
         ax.legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 # --------------------------------------------------------------------------------------------

@@ -30,14 +30,11 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import yaml
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import yaml  # noqa: E402
-
-from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir  # noqa: E402
+from cmdp_rl.plot import pyplot, save_figure
+from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 METRICS = ("first_crossing", "overshoot", "overshoot_smooth", "violation", "oscillation", "eval_return", "eval_cost")
@@ -130,6 +127,7 @@ def write_table(table: dict, runs: list[dict], out: Path) -> str:
 def plot(runs: list[dict], out: Path) -> None:
     kis = sorted({r["ki"] for r in runs})
     kps = sorted({(r["kp"], r["kd"]) for r in runs})
+    plt = pyplot()
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     fig, axes = plt.subplots(2, len(kis), figsize=(5.5 * len(kis), 6.5), sharex=True, squeeze=False)
     for j, ki in enumerate(kis):
@@ -153,9 +151,7 @@ def plot(runs: list[dict], out: Path) -> None:
         axes[1, j].set_xlabel("environment steps")
         axes[0, j].legend(fontsize=8)
     fig.suptitle("PID Lagrangian on Reach1D (wall=pass): episode cost and lambda")
-    fig.tight_layout()
-    fig.savefig(out / "pid_damping.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "pid_damping.png", dpi=110)
 
 
 def analyse(sweep_dir: Path) -> str:

@@ -33,6 +33,7 @@ from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, 
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 from cmdp_rl import sweeps
+from cmdp_rl.plot import pyplot, save_figure
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -148,10 +149,7 @@ def write_table(table: list[dict[str, Any]], out: Path) -> str:
 
 
 def plot_cost_vs_return(runs: list[dict[str, Any]], table: list[dict[str, Any]], out: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(7.5, 5.2))
     colors = {}
@@ -174,11 +172,7 @@ def plot_cost_vs_return(runs: list[dict[str, Any]], table: list[dict[str, Any]],
     ax.title.set_fontsize(9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = out / "cost_vs_return.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, out / "cost_vs_return.png", dpi=120)
 
 
 def gather(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> str:

@@ -28,6 +28,7 @@ import yaml
 
 from cmdp_rl.safety_metrics import Reference, normalized_scores
 from cmdp_rl import sweeps
+from cmdp_rl.plot import pyplot, save_figure
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -104,10 +105,7 @@ def write_table(table: list[dict[str, Any]], out: Path) -> str:
 
 
 def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     panels = (("episode_return", "episode return"), ("episode_cost", "episode cost"), ("cost_rate", "cost rate (training)"))
@@ -134,11 +132,7 @@ def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
         ax.set_title(f"{task}: {title}")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = out / "curves.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, out / "curves.png", dpi=120)
 
 
 def gather(sweep_dir: Path) -> str:
