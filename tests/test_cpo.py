@@ -11,7 +11,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from cmdp_rl import Collector, keys, load_config, make_actor_critic, make_algo, make_env
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
-from cmdp_rl.algos.cpo import CONSTRAINED, RECOVERY, TRPO, fisher_vector_product, solve_dual
+from cmdp_rl.algos.cpo import CONSTRAINED, RECOVERY, TRPO, episode_cost_estimate, fisher_vector_product, solve_dual
 from cmdp_rl.policies.mlp import make_actor
 
 
@@ -190,3 +190,35 @@ def test_cpo_update_on_collected_batch_changes_the_networks_and_checkpoints():
     cpo2.load_state_dict(state)
     assert cpo2.lagrange_multiplier == cpo.lagrange_multiplier
     assert all(torch.equal(a, b) for a, b in zip(cpo2.ac.modules().parameters(), ac.modules().parameters()))
+
+
+def _episode_batch(ends_at: list[int], cost_per_step: float = 1.0, T: int = 8) -> TensorDict:
+    """[1, T] batch of running episode sums (an episode started before it), ending at ``ends_at``."""
+    done = torch.zeros(1, T, 1, dtype=torch.bool)
+    length = torch.arange(1, T + 1, dtype=torch.float32).reshape(1, T, 1) + 100  # 100 steps in already
+    for t in ends_at:
+        done[0, t] = True
+    nxt = {keys.DONE: done, keys.EPISODE_LENGTH: length, keys.EPISODE_COST: length * cost_per_step,
+           keys.EPISODE_RETURN: torch.zeros(1, T, 1)}
+    return TensorDict({keys.NEXT: TensorDict(nxt, [1, T])}, [1, T])
+
+
+def test_cpo_cost_estimate_carries_the_last_finished_episodes_over_batches_where_none_ended():
+    """A long episode spans several batches: its cost so far is a lower bound, not J_c."""
+    assert episode_cost_estimate(_episode_batch([3])) == (104.0, 104.0)  # the episode that ended
+    assert episode_cost_estimate(_episode_batch([]), previous=(104.0, 104.0)) == (104.0, 104.0)
+    assert episode_cost_estimate(_episode_batch([])) == (108.0, 108.0)  # nothing ended yet: running sums
+    cpo = _cpo()
+    cpo.policy_step = lambda flat, cost, length: {"seen": (cost, length)}  # only what update passes on
+    cpo.fit_critics = lambda flat: {}
+    cpo.gae = lambda batch, ac: batch
+    cpo.ac.batch_units = lambda batch: batch
+    seen = []
+    for ends in ([], [5], [], []):
+        batch = _episode_batch(ends, cost_per_step=0.5)
+        seen.append(cpo.update(batch)["seen"])
+    assert seen == [(54.0, 108.0), (53.0, 106.0), (53.0, 106.0), (53.0, 106.0)]
+    assert cpo.state_dict()["episode_estimate"] == (53.0, 106.0)
+    fresh = _cpo()
+    fresh.load_state_dict(cpo.state_dict())
+    assert fresh.episode_estimate == (53.0, 106.0)

@@ -129,13 +129,22 @@ def fisher_vector_product(
     return fvp
 
 
-def episode_cost_estimate(batch: TensorDictBase) -> tuple[float, float]:
-    """Mean undiscounted cost and length of the episodes that ended in ``batch``. If none ended,
-    the running sums at the batch's last step (every episode then spans the whole batch; the cost
-    so far is a lower bound of the episode's)."""
+def episode_cost_estimate(batch: TensorDictBase, previous: tuple[float, float] | None = None) -> tuple[float, float]:
+    """J_c and the mean episode length, for CPO's constraint: the mean undiscounted cost and length
+    of the episodes that ended in ``batch``.
+
+    If none ended, ``previous``: the estimate from the last batch in which some did. Episodes
+    longer than a rollout span several batches, and an unfinished episode's cost so far is only a
+    lower bound of its cost: with 1000-step episodes and 256-step rollouts (the MuJoCo tasks), three
+    batches in four would otherwise see J_c far below the budget, and CPO would step as if the
+    constraint were slack. Only before any episode has ended: the running sums at the batch's last
+    step (that lower bound; nothing better is known yet).
+    """
     eps = finished_episodes(batch)
     if eps["cost"].numel():
         return eps["cost"].mean().item(), eps["length"].mean().item()
+    if previous is not None:
+        return previous
     last = batch.get(keys.NEXT)[:, -1]
     return last.get(keys.EPISODE_COST).float().mean().item(), last.get(keys.EPISODE_LENGTH).float().mean().item()
 
@@ -152,6 +161,8 @@ class CPO:
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
         self.critics = CriticRegression(ac)
         self.nu = 0.0
+        # (J_c, episode length) from the last batch in which episodes ended (episode_cost_estimate)
+        self.episode_estimate: tuple[float, float] | None = None
 
     @property
     def lagrange_multiplier(self) -> float:
@@ -161,7 +172,9 @@ class CPO:
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One CPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         self.gae(batch, self.ac)
-        episode_cost, episode_length = episode_cost_estimate(batch)
+        episode_cost, episode_length = episode_cost_estimate(batch, self.episode_estimate)
+        if batch.get((keys.NEXT, keys.DONE)).any():  # episodes ended here: the estimate to carry on
+            self.episode_estimate = (episode_cost, episode_length)
         # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
         flat = self.ac.batch_units(batch)
         stats = self.policy_step(flat, episode_cost, episode_length)
@@ -266,12 +279,15 @@ class CPO:
         return {k: v / n for k, v in sums.items()}
 
     def state_dict(self) -> dict:
-        return {"networks": self.ac.modules().state_dict(), "critic_opt": self.critic_opt.state_dict(), "nu": self.nu}
+        return {"networks": self.ac.modules().state_dict(), "critic_opt": self.critic_opt.state_dict(), "nu": self.nu,
+                "episode_estimate": self.episode_estimate}
 
     def load_state_dict(self, state: dict) -> None:
         self.ac.modules().load_state_dict(state["networks"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.nu = float(state["nu"])
+        estimate = state.get("episode_estimate")  # absent from checkpoints written before it existed
+        self.episode_estimate = None if estimate is None else (float(estimate[0]), float(estimate[1]))
 
 
 def _flat(tensors: tuple[torch.Tensor, ...]) -> torch.Tensor:
