@@ -126,6 +126,10 @@ def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
             ax.fill_between(x, ys.min(axis=0), ys.max(axis=0), color=line.get_color(), alpha=0.2)
     limit = runs[0]["eval"]["cost_limit"]
     axes[1].axhline(limit, color="k", linestyle="--", linewidth=1, label=f"budget d = {limit:g}")
+    # Linear up to the budget, logarithmic above: an unconstrained run's cost (hundreds) and the
+    # constrained runs' distance from d (a few units) both stay readable.
+    axes[1].set_yscale("symlog", linthresh=max(limit, 1e-3))
+    axes[1].set_ylim(bottom=0)
     task = runs[0]["config"]["env"].get("task", runs[0]["config"]["env"]["name"])
     for ax, (_, title) in zip(axes, panels):
         ax.set_xlabel("env steps")
