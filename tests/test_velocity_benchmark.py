@@ -10,6 +10,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import velocity_benchmark  # noqa: E402
+from conftest import run_script  # noqa: E402
 
 # algo, seed -> final eval return, eval cost, training cost rate
 RUNS = {("ppo", 0): (3000.0, 500.0, 0.4), ("ppo", 1): (1000.0, 300.0, 0.2),
@@ -46,3 +47,16 @@ def test_report_normalizes_by_the_sweeps_own_ppo_runs(tmp_path):
     assert float(rows["ppo"]["normalized_return"]) == pytest.approx(1.0)
     assert "| ppo_lag | 2 | 4,096 | 1000.0 ± 500.0 | 32.5 ± 12.5 |" in (tmp_path / "table.md").read_text()
     assert (tmp_path / "curves.png").stat().st_size > 10_000
+
+
+def test_run_launches_the_experiment_through_train_py_and_reports(tmp_path):
+    """`--run` is `train.py -m +experiment=velocity_benchmark` (train.py's resolvers and all), then
+    the report, here for one tiny job of each algorithm."""
+    pytest.importorskip("mujoco")
+    sweep = tmp_path / "sweep"
+    proc = run_script("experiments/velocity_benchmark.py", "--run", "seed=0", "total_steps=256", "rollout_steps=64",
+                      "env.num_envs=2", "env.max_steps=64", "eval_episodes=1", f"hydra.sweep.dir={sweep}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = {r["algo"]: r for r in csv.DictReader(open(sweep / "table.csv"))}
+    assert set(rows) == {"ppo", "ppo_lag", "cpo"} and all(r["steps"] == "256" for r in rows.values())
+    assert (sweep / "curves.png").is_file() and (sweep / "cpo_s0" / "eval.json").is_file()
