@@ -25,15 +25,14 @@ Usage::
 from __future__ import annotations
 
 import csv
-import json
 import math
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from cmdp_rl.plot import pyplot, save_figure
+from cmdp_rl import sweeps
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,11 +41,9 @@ SMOOTH = 5  # iterations in the moving average of overshoot_smooth
 
 
 def load_run(run_dir: Path) -> dict:
-    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
-    rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
-    col = lambda name: np.array([float(r[name]) if r[name] != "" else math.nan for r in rows])  # noqa: E731
-    ev_path = run_dir / "eval.json"
-    ev = json.loads(ev_path.read_text()) if ev_path.exists() else {}
+    run = sweeps.load_run(run_dir)
+    cfg, ev = run.config, run.eval or {}
+    col = lambda name: np.array([r[name] for r in run.metrics])  # noqa: E731
     return {
         "dir": run_dir.name, "ki": cfg["algo"]["ki"], "kp": cfg["algo"]["kp"], "kd": cfg["algo"]["kd"],
         "seed": cfg["seed"], "d": cfg["algo"]["cost_limit"], "step": col("step"),

@@ -19,7 +19,6 @@ from its checkpoint; nothing is re-trained) and writes into the sweep directory:
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import statistics
@@ -27,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import yaml
 
 from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, make_env
 from cmdp_rl.checkpoint import load_checkpoint
@@ -72,16 +70,17 @@ def load_runs(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> list[dict[str,
     runs = []
     for eval_path in sorted(sweep_dir.glob("*/eval.json")):
         run_dir = eval_path.parent
-        cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+        run = sweeps.load_run(run_dir)
+        cfg = run.config
         probe_path = run_dir / "probe.json"
         if not probe_path.is_file():
             run_cfg = load_config(cfg)
             probe_path.write_text(json.dumps(probe_stats(run_cfg, run_dir, probe_steps), indent=2))
         runs.append({
             "dir": run_dir, "policy": cfg["policy"]["name"], "probe": bool(cfg["env"]["probe"]), "seed": cfg["seed"],
-            "eval": json.loads(eval_path.read_text()),
+            "eval": run.eval,
             "probe_stats": json.loads(probe_path.read_text()),
-            "rows": list(csv.DictReader(open(run_dir / "metrics.csv"))),
+            "rows": run.metrics,
         })
     return runs
 
@@ -92,9 +91,9 @@ def _mean_std(values: list[float]) -> tuple[float | None, float | None]:
     return statistics.fmean(values), (statistics.pstdev(values) if len(values) > 1 else 0.0)
 
 
-def _train_sps(rows: list[dict[str, str]]) -> float:
+def _train_sps(rows: list[dict[str, float]]) -> float:
     """Median steps/s over the iterations after the first (which pays for warm-up)."""
-    sps = [float(r["sps"]) for r in rows[1:]] or [float(r["sps"]) for r in rows]
+    sps = [r["sps"] for r in rows[1:]] or [r["sps"] for r in rows]
     return statistics.median(sps)
 
 

@@ -17,14 +17,11 @@ train.py option can be overridden. Each run writes its usual outputs under
 
 from __future__ import annotations
 
-import csv
-import json
 import math
 import statistics
 from pathlib import Path
 from typing import Any
 
-import yaml
 
 from cmdp_rl.safety_metrics import Reference, normalized_scores
 from cmdp_rl import sweeps
@@ -39,13 +36,9 @@ def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
     """Every finished run under ``sweep_dir``: its config, eval.json and metrics.csv rows."""
     runs = []
     for eval_path in sorted(sweep_dir.glob("*/eval.json")):
-        run_dir = eval_path.parent
-        cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
-        runs.append({
-            "dir": run_dir, "algo": cfg["algo"]["name"], "seed": cfg["seed"], "config": cfg,
-            "eval": json.loads(eval_path.read_text()),
-            "rows": list(csv.DictReader(open(run_dir / "metrics.csv"))),
-        })
+        run = sweeps.load_run(eval_path.parent)
+        runs.append({"dir": run.path, "algo": run.get("algo.name"), "seed": run.get("seed"), "config": run.config,
+                     "eval": run.eval, "rows": run.metrics})
     return runs
 
 
@@ -115,9 +108,9 @@ def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
         by_algo.setdefault(run["algo"], []).append(run)
     for algo, group in sorted(by_algo.items()):
         n = min(len(r["rows"]) for r in group)
-        steps = np.array([float(row["step"]) for row in group[0]["rows"][:n]])
+        steps = np.array([row["step"] for row in group[0]["rows"][:n]])
         for ax, (key, _) in zip(axes, panels):
-            ys = np.array([[float(row[key]) for row in r["rows"][:n]] for r in group])
+            ys = np.array([[row[key] for row in r["rows"][:n]] for r in group])
             # Iterations in which no episode ended log nan (1000-step episodes span several
             # iterations): plot only the iterations where every seed finished episodes.
             ok = np.isfinite(ys).all(axis=0)
