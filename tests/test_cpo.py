@@ -11,7 +11,9 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from cmdp_rl import Collector, keys, load_config, make_actor_critic, make_algo, make_env
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
-from cmdp_rl.algos.cpo import CONSTRAINED, RECOVERY, TRPO, episode_cost_estimate, fisher_vector_product, solve_dual
+from cmdp_rl.algos.cpo import (
+    CONSTRAINED, RECOVERY, TRPO, finished_episode_cost, fisher_vector_product, running_episode_cost, solve_dual,
+)
 from cmdp_rl.policies.mlp import make_actor
 
 
@@ -205,9 +207,9 @@ def _episode_batch(ends_at: list[int], cost_per_step: float = 1.0, T: int = 8) -
 
 def test_cpo_cost_estimate_carries_the_last_finished_episodes_over_batches_where_none_ended():
     """A long episode spans several batches: its cost so far is a lower bound, not J_c."""
-    assert episode_cost_estimate(_episode_batch([3])) == (104.0, 104.0)  # the episode that ended
-    assert episode_cost_estimate(_episode_batch([]), previous=(104.0, 104.0)) == (104.0, 104.0)
-    assert episode_cost_estimate(_episode_batch([])) == (108.0, 108.0)  # nothing ended yet: running sums
+    assert finished_episode_cost(_episode_batch([3])) == (104.0, 104.0)  # the episode that ended
+    assert finished_episode_cost(_episode_batch([])) is None
+    assert running_episode_cost(_episode_batch([])) == (108.0, 108.0)  # nothing ended yet: running sums
     cpo = _cpo()
     cpo.policy_step = lambda flat, cost, length: {"seen": (cost, length)}  # only what update passes on
     cpo.fit_critics = lambda flat: {}

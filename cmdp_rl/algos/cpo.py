@@ -129,22 +129,17 @@ def fisher_vector_product(
     return fvp
 
 
-def episode_cost_estimate(batch: TensorDictBase, previous: tuple[float, float] | None = None) -> tuple[float, float]:
-    """J_c and the mean episode length, for CPO's constraint: the mean undiscounted cost and length
-    of the episodes that ended in ``batch``.
-
-    If none ended, ``previous``: the estimate from the last batch in which some did. Episodes
-    longer than a rollout span several batches, and an unfinished episode's cost so far is only a
-    lower bound of its cost: with 1000-step episodes and 256-step rollouts (the MuJoCo tasks), three
-    batches in four would otherwise see J_c far below the budget, and CPO would step as if the
-    constraint were slack. Only before any episode has ended: the running sums at the batch's last
-    step (that lower bound; nothing better is known yet).
-    """
+def finished_episode_cost(batch: TensorDictBase) -> tuple[float, float] | None:
+    """Mean undiscounted cost and length of the episodes that ended in ``batch``; None if none did."""
     eps = finished_episodes(batch)
-    if eps["cost"].numel():
-        return eps["cost"].mean().item(), eps["length"].mean().item()
-    if previous is not None:
-        return previous
+    if not eps["cost"].numel():
+        return None
+    return eps["cost"].mean().item(), eps["length"].mean().item()
+
+
+def running_episode_cost(batch: TensorDictBase) -> tuple[float, float]:
+    """Mean cost and length so far of the episodes running at the batch's last step: a lower bound
+    of their cost, for when no episode has ended yet."""
     last = batch.get(keys.NEXT)[:, -1]
     return last.get(keys.EPISODE_COST).float().mean().item(), last.get(keys.EPISODE_LENGTH).float().mean().item()
 
@@ -161,7 +156,11 @@ class CPO:
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
         self.critics = CriticRegression(ac)
         self.nu = 0.0
-        # (J_c, episode length) from the last batch in which episodes ended (episode_cost_estimate)
+        # (J_c, episode length) from the last batch in which episodes ended. Episodes longer than a
+        # rollout span several batches, and an unfinished episode's cost so far is only a lower bound
+        # of its cost: with 1000-step episodes and 256-step rollouts (the MuJoCo tasks), three batches
+        # in four would otherwise see J_c far below the budget, and CPO would step as if the
+        # constraint were slack. Before any episode has ended, the running sums (the lower bound).
         self.episode_estimate: tuple[float, float] | None = None
 
     @property
@@ -172,9 +171,8 @@ class CPO:
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One CPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         self.gae(batch, self.ac)
-        episode_cost, episode_length = episode_cost_estimate(batch, self.episode_estimate)
-        if batch.get((keys.NEXT, keys.DONE)).any():  # episodes ended here: the estimate to carry on
-            self.episode_estimate = (episode_cost, episode_length)
+        self.episode_estimate = finished_episode_cost(batch) or self.episode_estimate
+        episode_cost, episode_length = self.episode_estimate or running_episode_cost(batch)
         # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
         flat = self.ac.batch_units(batch)
         stats = self.policy_step(flat, episode_cost, episode_length)
