@@ -424,11 +424,12 @@ def resolve_auto(cfg: RunConfig) -> None:
         batch = cfg.rollout_steps * n
         if a.num_minibatches == AUTO:
             a.num_minibatches = 8 if batch <= 2048 else min(64, batch // 512)
-        _require(isinstance(a.num_minibatches, int) and a.num_minibatches >= 1, "algo.num_minibatches",
-                 f"a positive integer or {AUTO!r}", a.num_minibatches)
-        if a.update_epochs == AUTO:
-            a.update_epochs = max(1, round(80 / a.num_minibatches))
-    for name, value in (("rollout_steps", cfg.rollout_steps), ("algo.update_epochs", getattr(a, "update_epochs", 1))):
+        if a.update_epochs == AUTO and isinstance(a.num_minibatches, int):
+            # (validate names a num_minibatches below 1; max() only keeps this from dividing by it)
+            a.update_epochs = max(1, round(80 / max(1, a.num_minibatches)))
+    for name, value in (("rollout_steps", cfg.rollout_steps),  # words other than "auto"
+                        ("algo.num_minibatches", getattr(a, "num_minibatches", 1)),
+                        ("algo.update_epochs", getattr(a, "update_epochs", 1))):
         _require(isinstance(value, int), name, f"a positive integer or {AUTO!r}", value)
 
 
