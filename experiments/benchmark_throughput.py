@@ -18,7 +18,9 @@ For each setting (the gymnasium Reach1D alone and in gymnasium's SyncVectorEnv o
 Gym settings train with the default config; batched settings with the ``env=reach1d_torch``
 preset (``configs/env/reach1d_torch.yaml``; its batch shape is the "auto" one: rollouts of 32
 steps, one pass in 64 minibatches; at N = 64, rollouts of 256 steps in the same 1 x 64 so that
-minibatches are not tiny). One more row trains the issue's target command as typed,
+minibatches are not tiny), tuning included (``configs/tuning/``: the MLP is 32 x 32 there, and the
+rollout measurement runs the same network; the ``net`` column says which). One more row trains the
+issue's target command as typed,
 ``env=reach1d env.backend=torch env.num_envs=1024`` (the reach1d defaults, batch shape "auto"),
 and the LSTM and transformer heads at N = 1024 with the preset.
 
@@ -50,7 +52,7 @@ sys.path.insert(0, str(ROOT))
 
 import cmdp_rl  # noqa: E402
 from cmdp_rl import Collector, load_config, make_actor_critic, make_env  # noqa: E402
-from cmdp_rl.config import EnvConfig  # noqa: E402
+from cmdp_rl.config import EnvConfig, PolicyConfig  # noqa: E402
 from cmdp_rl.envs import Reach1D  # noqa: E402
 
 MEMORY_HEADS = ("lstm", "transformer")  # history-dependent heads, benchmarked at N = 1024
@@ -156,7 +158,9 @@ def env_rate(s: Setting, seconds: float, device: str) -> float:
 def rollout_rate(s: Setting, rollout_steps: int, seconds: float, device: str) -> float:
     cfg = load_config({"env": {"backend": s.backend, "num_envs": s.num_envs}, "device": device})
     env = make_env(cfg.env, device=device)
-    actor = make_actor_critic(cfg.policy, env).actor
+    # The policy the setting trains (a preset's tuning may set its width): train/rollout compares
+    # the same network.
+    actor = make_actor_critic(compose(["algo=ppo_lag", *s.train_overrides]).policy, env).actor
     collector = Collector(env, actor, rollout_steps, seed=0)
     try:
         return _rate(lambda: (collector.collect(), rollout_steps * s.num_envs)[1], seconds, device)
@@ -227,8 +231,16 @@ def train_rate(overrides: list[str], iterations: int, device: str, threads: int)
     return {
         "train_sps": statistics.median(steady), "train_sps_all": sps, "iterations": len(sps),
         "batch": per_iter, "rollout_steps": cfg.rollout_steps, "update_epochs": cfg.algo.update_epochs,
-        "num_minibatches": cfg.algo.num_minibatches, "policy": cfg.policy.name, "overrides": overrides,
+        "num_minibatches": cfg.algo.num_minibatches, "policy": cfg.policy.name, "net": _net(cfg.policy),
+        "overrides": overrides,
     }
+
+
+def _net(policy: PolicyConfig) -> str:
+    """The policy's kind and width, e.g. ``mlp 32x32``."""
+    if policy.name == "mlp":
+        return "mlp " + "x".join(map(str, policy.hidden_sizes))
+    return policy.name
 
 
 def measure(name: str, fn: Callable[[], Any], device: str) -> tuple[Any, dict[str, float]]:
@@ -336,7 +348,7 @@ def print_table(r: dict[str, Any]) -> None:
           f"{' (machine busy: figures noisy and low)' if m['cpu_share_median'] < 0.9 * m['torch_threads'] else ''}"
           f"{' (QUICK smoke run: not meaningful)' if m['quick'] else ''}")
     head = (f"{'setting':34s} {'env steps/s':>12s} {'rollout st/s':>12s} {'train st/s':>11s} {'train/roll':>10s}"
-            f"  {'batch':>7s} {'ep x mb':>7s}  peak MB env/roll/train  CPU share env/roll/train")
+            f"  {'batch':>7s} {'ep x mb':>7s} {'net':>11s}  peak MB env/roll/train  CPU share env/roll/train")
     print(head)
     print("-" * len(head))
 
@@ -346,11 +358,13 @@ def print_table(r: dict[str, Any]) -> None:
     for row in r["rows"]:
         print(f"{row['setting']:34s} {row['env_sps']:12,.0f} {row['rollout_sps']:12,.0f} {row['train_sps']:11,.0f}"
               f" {row['train_over_rollout']:10.2f}  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}"
+              f" {row['net']:>11s}"
               f"  {mb(row, 'env_mem')}/{mb(row, 'rollout_mem')}/{mb(row, 'train_mem')}"
               f"  {row['env_mem']['cpu_share']:.2f}/{row['rollout_mem']['cpu_share']:.2f}/{row['train_mem']['cpu_share']:.2f}")
     for row in r["extra"]:
         print(f"{row['setting']:34s} {'':>12s} {'':>12s} {row['train_sps']:11,.0f} {'':>10s}"
-              f"  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}  -/-/{mb(row, 'train_mem')}"
+              f"  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d} {row['net']:>11s}"
+              f"  -/-/{mb(row, 'train_mem')}"
               f"  {row['train_mem']['cpu_share']:.2f}")
     pl = r["plain_loop_sync8"]
     print(f"{'plain loop, gym N=8 (yardstick)':34s} {'':>12s} {pl['rollout_sps']:12,.0f}"
