@@ -12,7 +12,7 @@ import importlib.util
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Optional, Union, get_args, get_origin, get_type_hints
+from typing import Any, Mapping, Optional, Sequence, Union, get_args, get_origin, get_type_hints
 
 
 class ConfigError(ValueError):
@@ -334,6 +334,21 @@ def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
         raise ConfigError(f"{prefix}: unknown option(s) {unknown}; allowed: {sorted(names)}")
     kwargs = {k: _check_type(v, hints[k], f"{prefix}.{k}") for k, v in data.items()}
     return cls(**kwargs)
+
+
+# The repository's Hydra configs (train.py's config_path), beside the package in a source checkout.
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+
+
+def compose_config(overrides: Sequence[str] = (), config_dir: str | Path = CONFIG_DIR) -> RunConfig:
+    """The validated config ``python train.py <overrides>`` runs: Hydra's compose over
+    ``config_dir`` (groups, presets and tuning files included), then :func:`load_config`."""
+    from hydra import compose, initialize_config_dir  # here: the rest of this module needs no Hydra
+    from omegaconf import OmegaConf
+
+    with initialize_config_dir(config_dir=str(config_dir), version_base="1.3"):
+        raw = compose("config", overrides=list(overrides))
+    return load_config(OmegaConf.to_container(raw, resolve=True))
 
 
 def load_config(raw: Mapping[str, Any]) -> RunConfig:

@@ -52,7 +52,7 @@ sys.path.insert(0, str(ROOT))
 
 import cmdp_rl  # noqa: E402
 from cmdp_rl import Collector, load_config, make_actor_critic, make_env  # noqa: E402
-from cmdp_rl.config import EnvConfig, PolicyConfig  # noqa: E402
+from cmdp_rl.config import EnvConfig, PolicyConfig, compose_config  # noqa: E402
 from cmdp_rl.envs import Reach1D  # noqa: E402
 
 MEMORY_HEADS = ("lstm", "transformer")  # history-dependent heads, benchmarked at N = 1024
@@ -160,7 +160,7 @@ def rollout_rate(s: Setting, rollout_steps: int, seconds: float, device: str) ->
     env = make_env(cfg.env, device=device)
     # The policy the setting trains (a preset's tuning may set its width): train/rollout compares
     # the same network.
-    actor = make_actor_critic(compose(["algo=ppo_lag", *s.train_overrides]).policy, env).actor
+    actor = make_actor_critic(compose_config(["algo=ppo_lag", *s.train_overrides]).policy, env).actor
     collector = Collector(env, actor, rollout_steps, seed=0)
     try:
         return _rate(lambda: (collector.collect(), rollout_steps * s.num_envs)[1], seconds, device)
@@ -201,20 +201,9 @@ def plain_loop_rate(num_envs: int, rollout_steps: int, seconds: float) -> float:
         env.close()
 
 
-def compose(overrides: list[str]) -> cmdp_rl.RunConfig:
-    """The config ``python train.py <overrides>`` runs (Hydra's compose over ``configs/``)."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-    from omegaconf import OmegaConf
-
-    with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base="1.3"):
-        raw = hydra_compose("config", overrides=overrides)
-    return load_config(OmegaConf.to_container(raw, resolve=True))
-
-
 def train_rate(overrides: list[str], iterations: int, device: str, threads: int) -> dict[str, Any]:
     """Train ``ppo_lag`` for ``iterations`` on the config ``train.py`` composes for ``overrides``."""
-    cfg = compose(["algo=ppo_lag", *overrides, f"device={device}", f"threads={threads}"])
+    cfg = compose_config(["algo=ppo_lag", *overrides, f"device={device}", f"threads={threads}"])
     per_iter = cfg.rollout_steps * cfg.env.num_envs
     cfg.total_steps = per_iter * iterations
     cfg.eval_episodes = 1
@@ -231,12 +220,12 @@ def train_rate(overrides: list[str], iterations: int, device: str, threads: int)
     return {
         "train_sps": statistics.median(steady), "train_sps_all": sps, "iterations": len(sps),
         "batch": per_iter, "rollout_steps": cfg.rollout_steps, "update_epochs": cfg.algo.update_epochs,
-        "num_minibatches": cfg.algo.num_minibatches, "policy": cfg.policy.name, "net": _net(cfg.policy),
+        "num_minibatches": cfg.algo.num_minibatches, "policy": cfg.policy.name, "net": net_label(cfg.policy),
         "overrides": overrides,
     }
 
 
-def _net(policy: PolicyConfig) -> str:
+def net_label(policy: PolicyConfig) -> str:
     """The policy's kind and width, e.g. ``mlp 32x32``."""
     if policy.name == "mlp":
         return "mlp " + "x".join(map(str, policy.hidden_sizes))

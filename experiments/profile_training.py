@@ -17,16 +17,15 @@ import time
 
 import torch
 
-from benchmark_throughput import compose  # same folder
-
 import cmdp_rl
+from cmdp_rl.config import compose_config
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("overrides", nargs="*", help="train.py overrides, e.g. env=reach1d_torch total_steps=131072")
     p.add_argument("--top", type=int, default=30)
     args = p.parse_args()
-    cfg = compose(args.overrides)
+    cfg = compose_config(args.overrides)
     cfg.eval_episodes = 1
     torch.set_num_threads(cfg.threads)
     prof = cProfile.Profile(time.process_time)

@@ -18,9 +18,10 @@ import time
 
 import torch
 
-from benchmark_throughput import compose  # same folder
+from benchmark_throughput import net_label  # same folder
 
 from cmdp_rl import Collector, make_actor_critic, make_algo, make_env
+from cmdp_rl.config import compose_config
 
 
 def main() -> None:
@@ -29,7 +30,7 @@ def main() -> None:
     p.add_argument("--sizes", type=int, nargs="+", default=[512, 1024, 2048, 4096, 8192])
     p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args()
-    cfg = compose(["algo=ppo_lag", *(args.overrides or ["env=reach1d_torch"])])
+    cfg = compose_config(["algo=ppo_lag", *(args.overrides or ["env=reach1d_torch"])])
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
@@ -37,8 +38,8 @@ def main() -> None:
     collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
     batch = collector.collect()
     steps = batch.numel()
-    print(f"{cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs), {cfg.policy.name} "
-          f"{getattr(cfg.policy, 'hidden_sizes', '')}, batch {steps} steps, one pass, {torch.get_num_threads()} thread(s)")
+    print(f"{cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs), {net_label(cfg.policy)}, batch {steps} steps, "
+          f"one pass, {torch.get_num_threads()} thread(s)")
     print(f"{'minibatch':>9s} {'minibatches':>11s} {'update ms':>9s} {'ms / minibatch':>14s} {'us / step':>9s}")
     for size in args.sizes:
         if steps % size:

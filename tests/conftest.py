@@ -66,13 +66,3 @@ def eval_result(run_dir: Path) -> dict:
 def quiet():
     return lambda s: None
 
-
-def compose_config(*overrides: str):
-    """The validated config ``python train.py <overrides>`` runs (Hydra's compose over configs/)."""
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
-    from cmdp_rl import load_config
-
-    with initialize_config_dir(str(ROOT / "configs"), version_base="1.3"):
-        return load_config(OmegaConf.to_container(compose("config", list(overrides)), resolve=True))

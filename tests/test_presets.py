@@ -4,7 +4,7 @@ policy, and that the batched Reach1D preset reaches the foundation issue's quali
 import pytest
 
 from cmdp_rl import train
-from conftest import compose_config
+from cmdp_rl.config import compose_config
 
 ALGOS = ["ppo", "penalty", "ppo_lag", "pid_lag", "cpo"]
 POLICIES = ["mlp", "lstm", "gru", "transformer"]
@@ -14,32 +14,32 @@ POLICIES = ["mlp", "lstm", "gru", "transformer"]
 @pytest.mark.parametrize("policy", POLICIES)
 def test_the_batched_preset_composes_with_every_algorithm_and_policy(algo, policy):
     # The preset once set algo.lr in the env file, and CPO has no such field: a config error.
-    cfg = compose_config("env=reach1d_torch", f"algo={algo}", f"policy={policy}")
+    cfg = compose_config(["env=reach1d_torch", f"algo={algo}", f"policy={policy}"])
     assert cfg.env.backend == "torch" and cfg.env.num_envs == 1024
     assert cfg.algo.name == algo and cfg.policy.name == policy
 
 
 def test_tuning_files_reach_only_their_own_pair():
-    lag = compose_config("env=reach1d_torch")  # ppo_lag and mlp: both tuning files apply
+    lag = compose_config(["env=reach1d_torch"])  # ppo_lag and mlp: both tuning files apply
     assert (lag.algo.lr, lag.algo.critic_lr, lag.algo.lambda_init) == (2e-3, 3e-3, 0.3)
     assert (lag.policy.hidden_sizes, lag.policy.init_log_std) == ([32, 32], -1.5)
-    ppo = compose_config("env=reach1d_torch", "algo=ppo")  # the PPO family's rates, no lambda
+    ppo = compose_config(["env=reach1d_torch", "algo=ppo"])  # the PPO family's rates, no lambda
     assert (ppo.algo.lr, ppo.algo.critic_lr) == (1e-3, 3e-3)
-    lstm = compose_config("env=reach1d_torch", "policy=lstm")  # the MLP's tuning stays with the MLP
+    lstm = compose_config(["env=reach1d_torch", "policy=lstm"])  # the MLP's tuning stays with the MLP
     assert lstm.policy.init_log_std == -0.5
-    gym = compose_config("env=reach1d")  # the gym env has no tuning files: the groups' own defaults
+    gym = compose_config(["env=reach1d"])  # the gym env has no tuning files: the groups' own defaults
     assert (gym.algo.lr, gym.algo.lambda_init, gym.policy.hidden_sizes) == (3e-4, 0.0, [64, 64])
 
 
 def test_the_command_line_wins_over_tuning():
-    cfg = compose_config("env=reach1d_torch", "algo.lr=5e-4", "algo.lambda_init=0", "policy.hidden_sizes=[16]")
+    cfg = compose_config(["env=reach1d_torch", "algo.lr=5e-4", "algo.lambda_init=0", "policy.hidden_sizes=[16]"])
     assert (cfg.algo.lr, cfg.algo.lambda_init, cfg.policy.hidden_sizes) == (5e-4, 0.0, [16])
 
 
 def test_the_batched_preset_reaches_the_gym_runs_quality_on_its_budget(tmp_path):
     # The foundation issue's criterion: eval cost <= 1.5 and eval return within 0.05 of PPO's 0.385.
     # The preset's budget is 1M steps (32 iterations, about 5 s); 8 seeds met it (docs/throughput.md).
-    cfg = compose_config("env=reach1d_torch", "seed=0")
+    cfg = compose_config(["env=reach1d_torch", "seed=0"])
     result = train(cfg, tmp_path, echo=lambda s: None)
     assert result["steps"] == 1_048_576
     assert result["episode_return"] >= 0.335, result

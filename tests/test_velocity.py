@@ -14,10 +14,9 @@ import torch
 from tensordict.nn import TensorDictModule
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, train
-from cmdp_rl.config import VELOCITY_TASKS as CONFIG_TASKS
+from cmdp_rl.config import VELOCITY_TASKS as CONFIG_TASKS, compose_config
 from cmdp_rl.envs import GymVecEnv
 from cmdp_rl.envs.velocity import VELOCITY_TASKS, VelocityCost, make_velocity_env
-from conftest import compose_config
 
 PLANAR = {"Ant", "Humanoid"}  # planar speed sqrt(vx^2 + vy^2); the others: signed x velocity
 
@@ -164,19 +163,19 @@ def test_mujoco_cost_matches_the_simulated_speed(task, tmp_path, monkeypatch):
 
 
 def test_env_velocity_turns_observation_normalization_on_by_default():
-    assert compose_config("env=velocity").normalize.obs
-    assert not compose_config("env=velocity", "normalize=none").normalize.obs
-    assert not compose_config("env=velocity", "normalize.obs=false").normalize.obs
-    assert not compose_config("env=reach1d").normalize.obs
-    cfg = compose_config("env=velocity", "env.task=Walker2d", "normalize.reward=true")
+    assert compose_config(["env=velocity"]).normalize.obs
+    assert not compose_config(["env=velocity", "normalize=none"]).normalize.obs
+    assert not compose_config(["env=velocity", "normalize.obs=false"]).normalize.obs
+    assert not compose_config(["env=reach1d"]).normalize.obs
+    cfg = compose_config(["env=velocity", "env.task=Walker2d", "normalize.reward=true"])
     assert cfg.env.task == "Walker2d" and cfg.normalize.obs and cfg.normalize.reward
 
 
 def test_a_short_training_run_on_halfcheetah(tmp_path, monkeypatch):
     pytest.importorskip("mujoco")
     monkeypatch.chdir(tmp_path)
-    cfg = compose_config("env=velocity", "env.num_envs=2", "env.max_steps=40", "rollout_steps=40", "total_steps=160",
-                   "eval_episodes=2", "algo=ppo_lag", "algo.cost_limit=25", "algo.update_epochs=1")
+    cfg = compose_config(["env=velocity", "env.num_envs=2", "env.max_steps=40", "rollout_steps=40", "total_steps=160",
+                          "eval_episodes=2", "algo=ppo_lag", "algo.cost_limit=25", "algo.update_epochs=1"])
     result = train(cfg, tmp_path / "run", echo=lambda _: None)
     assert result["episodes"] == 2 and result["episode_length"] == 40.0
     assert 0.0 <= result["episode_cost"] <= 40.0
