@@ -65,7 +65,8 @@ def main(argv: list[str]) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
-    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed)
+    metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
+    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed, termination_metric=metric)
     env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
     mode = "deterministic" if deterministic else "stochastic"
@@ -74,7 +75,8 @@ def main(argv: list[str]) -> int:
     print(_line("episode_return", result, ".3f"))
     print(_line("episode_cost", result, ".2f") + f"   (limit {cfg.algo.cost_limit})")
     print(_line("episode_length", result, ".1f"))
-    print(f"  goal_reached    {result['goal_reached']:.0%}")
+    if metric:
+        print(f"  {metric:<15} {result[metric]:.0%}")
     if opts.output:
         Path(opts.output).write_text(json.dumps(result, indent=2))
         print(f"wrote {opts.output}")

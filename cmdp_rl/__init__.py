@@ -14,12 +14,14 @@
 import gymnasium as _gym
 
 from cmdp_rl import keys
-from cmdp_rl.algos import ALGORITHMS, PPO, PenaltyPPO, PIDLagrangianPPO, PPOLagrangian, TrainingDiverged, make_algo
+from cmdp_rl.algos import TrainingDiverged, make_algo
+from cmdp_rl.algos.ppo import PPO, PenaltyPPO, PIDLagrangianPPO, PPOLagrangian
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import ConfigError, RunConfig, load_config, validate
 from cmdp_rl.envs import REACH1D_ID, GymVecEnv, Reach1D, VecEnv, make_env
 from cmdp_rl.evaluation import evaluate
 from cmdp_rl.policies import ActorCritic, make_actor_critic
+from cmdp_rl.registry import register
 from cmdp_rl.trainer import train
 
 __version__ = "0.1.0"
@@ -28,8 +30,8 @@ if REACH1D_ID not in _gym.registry:
     _gym.register(id=REACH1D_ID, entry_point="cmdp_rl.envs.reach1d:Reach1D")
 
 __all__ = [
-    "ALGORITHMS", "ActorCritic", "Collector", "ConfigError", "GymVecEnv", "PIDLagrangianPPO", "PPO", "PPOLagrangian",
+    "ActorCritic", "Collector", "ConfigError", "GymVecEnv", "PIDLagrangianPPO", "PPO", "PPOLagrangian",
     "PenaltyPPO", "REACH1D_ID", "Reach1D", "RunConfig", "TrainingDiverged", "VecEnv", "evaluate",
-    "finished_episodes", "keys", "load_config", "make_actor_critic", "make_algo", "make_env", "train",
+    "finished_episodes", "keys", "load_config", "make_actor_critic", "make_algo", "make_env", "register", "train",
     "validate",
 ]

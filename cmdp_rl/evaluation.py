@@ -24,24 +24,28 @@ def _spread(name: str, values: list[float]) -> dict[str, float]:
 
 
 def evaluate(
-    actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool = True, seed: int | None = None
+    actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool = True, seed: int | None = None,
+    termination_metric: str | None = None,
 ) -> dict[str, float]:
     """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
 
     Each env of the batch contributes a fixed quota of its first episodes, so short episodes are
     not over-represented (counting whichever episodes end first would bias towards them).
-    ``goal_reached`` is the fraction of episodes that ended by termination rather than time limit.
+    With ``termination_metric`` (an env's name for what termination means, e.g. Reach1D's
+    ``goal_reached``), the result also has the fraction of episodes that ended by termination rather
+    than the time limit, under that name.
     With ``seed``, a stochastic policy samples from torch's generator seeded with it, inside
     ``fork_rng``: the same seed gives the same numbers, and the caller's generator is left as it was.
     """
     with torch.random.fork_rng(devices=[]):
         if seed is not None:
             torch.manual_seed(seed)
-        return _evaluate(actor, env, episodes, deterministic, seed)
+        return _evaluate(actor, env, episodes, deterministic, seed, termination_metric)
 
 
 def _evaluate(
-    actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool, seed: int | None
+    actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool, seed: int | None,
+    termination_metric: str | None,
 ) -> dict[str, float]:
     n = env.num_envs
     quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
@@ -65,5 +69,6 @@ def _evaluate(
     result: dict[str, float] = {"episodes": len(flat), "deterministic": deterministic}
     for j, name in enumerate(("episode_return", "episode_cost", "episode_length")):
         result.update(_spread(name, [row[j] for row in flat]))
-    result["goal_reached"] = sum(row[3] for row in flat) / len(flat)
+    if termination_metric:
+        result[termination_metric] = sum(row[3] for row in flat) / len(flat)
     return result

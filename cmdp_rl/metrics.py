@@ -1,6 +1,8 @@
 """Per-iteration metrics: one CSV row each (always), TensorBoard scalars (``logger=tensorboard``),
-and a progress line on the console. Every algorithm logs the same names, :data:`COLUMNS`; the
-TensorBoard tags are those names, against the env step.
+and a progress line on the console. The columns are the run's own (:data:`RUN_COLUMNS`), then the
+statistics the algorithm declares (its ``stats``), then the field's safety metrics; the TensorBoard
+tags are those names, against the env step. A row with a name that is not a column is an error,
+never dropped.
 """
 
 from __future__ import annotations
@@ -9,22 +11,23 @@ import csv
 import math
 import os
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from cmdp_rl.config import TENSORBOARD_MISSING
 
-# Stable column order; every algorithm writes the same names and leaves blank what it lacks.
-COLUMNS = [
+# What the loop measures every iteration, for every algorithm. lagrange_multiplier is the lambda in
+# force (0 for unconstrained PPO); every algorithm reports it.
+RUN_COLUMNS = [
     "iteration", "step", "episode_return", "episode_cost", "episode_length", "episodes",
     "lagrange_multiplier", "cost_limit", "sps", "time_s",
-    "loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction",
-    # the field's metrics (safety_metrics.py): blank where no reference is given
-    "cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate",
-    # CPO (algos/cpo.py): the subproblem's case (0 trpo, 1 constrained, 2 recovery), the accepted
-    # fraction of the full step (0: none accepted), the dual's trust-region and cost multipliers,
-    # and the accepted step's change of the reward and cost surrogates.
-    "cpo_case", "step_fraction", "dual_lambda", "dual_nu", "surr_reward_change", "surr_cost_change",
 ]
+# The field's metrics (safety_metrics.py): blank where no reference is given.
+SAFETY_COLUMNS = ["cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate"]
+
+
+def columns(stats: Sequence[str]) -> list[str]:
+    """A run's metrics.csv columns, for an algorithm that declares ``stats``."""
+    return [*RUN_COLUMNS, *(s for s in stats if s not in RUN_COLUMNS and s not in SAFETY_COLUMNS), *SAFETY_COLUMNS]
 
 
 def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
@@ -66,7 +69,7 @@ class MetricsLogger:
     """
 
     def __init__(
-        self, path: str | Path, log_interval: int = 1, echo: Callable[[str], None] = print,
+        self, path: str | Path, fieldnames: Sequence[str], log_interval: int = 1, echo: Callable[[str], None] = print,
         resume_iteration: int | None = None, tensorboard_dir: str | Path | None = None,
         resume_step: int | None = None,
     ) -> None:
@@ -82,21 +85,30 @@ class MetricsLogger:
             purge = None if resume_step is None else resume_step + 1
             self._tb = SummaryWriter(str(tensorboard_dir), purge_step=purge)
         if resume_iteration is None:
+            self.columns = list(fieldnames)
             self._file = open(self.path, "w", newline="")
-            self._writer = csv.DictWriter(self._file, fieldnames=COLUMNS, extrasaction="ignore", lineterminator="\n")
+            self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
             self._writer.writeheader()
         else:
-            # The run keeps the columns it started with, even if this version logs more.
-            header = truncate_metrics(self.path, resume_iteration)
+            # The run keeps the columns it started with (a run from an older version may have more);
+            # a column it lacks cannot be added to the file, so it is an error here, not a dropped stat.
+            self.columns = truncate_metrics(self.path, resume_iteration)
+            missing = [c for c in fieldnames if c not in self.columns]
+            if missing:
+                raise ValueError(f"{self.path} has no column for {missing}, which this version logs")
             self._file = open(self.path, "a", newline="")
-            self._writer = csv.DictWriter(self._file, fieldnames=header, extrasaction="ignore", lineterminator="\n")
+            self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
         self._file.flush()
 
     def log(self, row: dict[str, Any], force_echo: bool = False) -> None:
+        unknown = [k for k in row if k not in self.columns]
+        if unknown:
+            raise ValueError(f"metrics: {unknown} are not columns of {self.path}; an algorithm must declare "
+                             f"every statistic it returns (its `stats`)")
         self._writer.writerow(row)
         self._file.flush()
         if self._tb is not None:
-            for name in COLUMNS[2:]:
+            for name in self.columns[2:]:
                 value = row.get(name)
                 if isinstance(value, (int, float)) and math.isfinite(value):
                     self._tb.add_scalar(name, value, global_step=row["step"])

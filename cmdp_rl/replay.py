@@ -22,7 +22,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from cmdp_rl import keys
 from cmdp_rl.collector import PolicyMemory
-from cmdp_rl.config import EnvConfig
+from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.envs import Reach1D, reach1d_kwargs
 from cmdp_rl.plot import pyplot, save_figure
 
@@ -50,7 +50,7 @@ class Reach1DEpisode:
 
 @torch.no_grad()
 def record_reach1d(
-    actor: TensorDictModuleBase, env_cfg: EnvConfig, episodes: int, deterministic: bool = True, seed: int = 0
+    actor: TensorDictModuleBase, env_cfg: Reach1DConfig, episodes: int, deterministic: bool = True, seed: int = 0
 ) -> list[Reach1DEpisode]:
     """Run ``episodes`` episodes of ``actor`` on one Reach1D (reset with ``seed`` once, as env 0 of
     a vector env is), recording the true position beside the reading the agent saw."""
@@ -87,7 +87,7 @@ def record_reach1d(
     return out
 
 
-def plot_reach1d(episodes: list[Reach1DEpisode], env_cfg: EnvConfig, path: str | Path, title: str = "") -> Path:
+def plot_reach1d(episodes: list[Reach1DEpisode], env_cfg: Reach1DConfig, path: str | Path, title: str = "") -> Path:
     """One panel per episode: true position and noisy reading against time, the wall, the goal
     (with its 0.02 reach band), and a red cross at every step that crossed the wall (cost 1)."""
     plt = pyplot()

@@ -18,12 +18,13 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Optional
+from typing import Annotated, Any, Optional
 
 import yaml
 
-if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+from cmdp_rl.validation import finite, options, require
+
+RunConfig = Any  # cmdp_rl.config.RunConfig, which imports this module
 
 EPSILON = 1e-6  # Safety Gym's: keeps the violation finite when PPO itself is within the budget
 NORMALIZED = ("normalized_return", "normalized_violation", "normalized_cost_rate")
@@ -37,6 +38,35 @@ class Reference:
     episode_cost: Optional[float] = None
     cost_rate: Optional[float] = None
     source: str = "config"
+
+
+FiniteOrNull = Optional[Annotated[float, finite()]]
+
+
+@options
+class ReferenceConfig:
+    """``reference:``: the unconstrained-PPO reference of the normalized metrics, as a finished
+    run's directory or as its numbers."""
+
+    run: Optional[str] = None
+    episode_return: FiniteOrNull = None
+    episode_cost: FiniteOrNull = None
+    cost_rate: FiniteOrNull = None
+
+    def check(self, run: RunConfig) -> None:
+        numbers = {"episode_return": self.episode_return, "episode_cost": self.episode_cost,
+                   "cost_rate": self.cost_rate}
+        if self.run is not None:
+            require(all(v is None for v in numbers.values()), "reference",
+                    "either reference.run or the reference numbers, not both", {"run": self.run, **numbers})
+            require((Path(self.run) / "eval.json").is_file() and (Path(self.run) / "config.yaml").is_file(),
+                    "reference.run", "a finished run's directory (holding eval.json and config.yaml)", self.run)
+            problem = reference_run_problem(self.run, run)
+            require(problem is None, "reference.run", f"a usable reference run, but {problem}", self.run)
+        require(self.episode_return is None or self.episode_return != 0, "reference.episode_return",
+                "null or a nonzero number (it divides the return)", self.episode_return)
+        require(self.cost_rate is None or self.cost_rate > 0, "reference.cost_rate",
+                "null or a positive number (it divides the cost rate)", self.cost_rate)
 
 
 def cost_rate(total_cost: float, total_steps: int) -> float:

@@ -18,10 +18,10 @@ import yaml
 from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
-from cmdp_rl.config import PPOConfig, RunConfig, validate
+from cmdp_rl.config import RunConfig, validate
 from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
-from cmdp_rl.metrics import MetricsLogger
+from cmdp_rl.metrics import MetricsLogger, columns
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_actor_critic
 from cmdp_rl.resume import load_resume_state
@@ -57,26 +57,27 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     validate(cfg)
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
+    torch.set_num_threads(cfg.threads)
+    seed_everything(cfg.seed)
+    env = make_env(cfg.env, device=cfg.device)
+    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
+    algo = make_algo(cfg.algo, ac)
+    collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
     out.mkdir(parents=True, exist_ok=True)
-    try:  # first, as it is the last check a resume can fail: nothing is written before it
+    try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
-            out / METRICS, cfg.log_interval, echo,
+            out / METRICS, columns(algo.stats), cfg.log_interval, echo,
             resume_iteration=None if state is None else state["iteration"],
             tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
             resume_step=None if state is None else state["step"],
         )
     except ValueError as exc:
+        env.close()
         raise CheckpointError(f"resume: {exc}") from exc
     run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None))  # the run's own config
     (out / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
     write_run_info(out, resumed_from=None if state is None else state["iteration"])
-    torch.set_num_threads(cfg.threads)
-    seed_everything(cfg.seed)
 
-    env = make_env(cfg.env, device=cfg.device)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
-    algo = make_algo(cfg.algo, ac)
-    collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
     first, elapsed = 1, 0.0
     if state is not None:
         algo.load_state_dict(state["algo_state"])
@@ -111,8 +112,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
     shape = f"{per_iter} steps ({cfg.rollout_steps} per env"
-    if isinstance(cfg.algo, PPOConfig):
-        shape += f"; {cfg.algo.update_epochs} x {cfg.algo.num_minibatches} minibatches"
+    if hasattr(cfg.algo, "describe_update"):
+        shape += f"; {cfg.algo.describe_update()}"
     echo(f"training {cfg.algo.name} on {cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs): "
          f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}")
     try:
@@ -147,8 +148,10 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
+    metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
     eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
-    result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET)
+    result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
+                      termination_metric=metric)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
                    "torch_threads": torch.get_num_threads()})
@@ -157,10 +160,10 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
                                     cfg.algo.cost_limit, reference))
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
+    task = f", {metric.replace('_', ' ')} {result[metric]:.0%}" if metric else ""
     echo(
         f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "
         f"{result['episodes']} episodes: return {result['episode_return']:.3f} ± {result['episode_return_std']:.3f}, "
-        f"cost {result['episode_cost']:.2f} ± {result['episode_cost_std']:.2f} (limit {cfg.algo.cost_limit}), "
-        f"goal reached {result['goal_reached']:.0%}"
+        f"cost {result['episode_cost']:.2f} ± {result['episode_cost_std']:.2f} (limit {cfg.algo.cost_limit}){task}"
     )
     return result

@@ -52,7 +52,9 @@ sys.path.insert(0, str(ROOT))
 
 import cmdp_rl  # noqa: E402
 from cmdp_rl import Collector, load_config, make_actor_critic, make_env  # noqa: E402
-from cmdp_rl.config import EnvConfig, PolicyConfig, compose_config  # noqa: E402
+from cmdp_rl.config import compose_config  # noqa: E402
+from cmdp_rl.envs.reach1d_task import Reach1DConfig  # noqa: E402
+from cmdp_rl.policies.mlp import PolicyConfig  # noqa: E402
 from cmdp_rl.envs import Reach1D  # noqa: E402
 
 MEMORY_HEADS = ("lstm", "transformer")  # history-dependent heads, benchmarked at N = 1024
@@ -131,7 +133,7 @@ def env_rate(s: Setting, seconds: float, device: str) -> float:
             return len(actions)
 
         return _rate(run, seconds, device)
-    venv = make_env(EnvConfig(backend=s.backend, num_envs=s.num_envs), device=device)
+    venv = make_env(Reach1DConfig(backend=s.backend, num_envs=s.num_envs), device=device)
     venv.reset(seed=0)
     if s.backend == "gym":
         raw = venv.envs  # gymnasium's SyncVectorEnv itself, SAME_STEP autoreset

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from cmdp_rl.config import EnvConfig
+from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.envs.reach1d_dp import CrossingThresholds, closed_form_threshold, crossing_thresholds
 from cmdp_rl.plot import pyplot, save_figure
 from cmdp_rl.sweeps import (
@@ -157,7 +157,7 @@ def gather(dirs: list[Path]) -> tuple[list[Run], list[RunRecord]]:
 # --------------------------------------------------------------------------------------------
 @dataclass
 class Analysis:
-    env: EnvConfig
+    env: Reach1DConfig
     gamma: float
     cost_gamma: float
     thresholds: CrossingThresholds
@@ -179,8 +179,8 @@ def analyse(records: list[RunRecord]) -> Analysis | None:
     if not configs:
         return None
     first = configs[0]
-    env_fields = {f.name for f in dataclasses.fields(EnvConfig)}
-    env = EnvConfig(**{k: v for k, v in first.config["env"].items() if k in env_fields})
+    env_fields = {f.name for f in dataclasses.fields(Reach1DConfig)}
+    env = Reach1DConfig(**{k: v for k, v in first.config["env"].items() if k in env_fields})
     gamma = float(first.get("algo.gamma", 0.99))
     cost_gamma = float(first.get("algo.cost_gamma", gamma))
     analysis = Analysis(env, gamma, cost_gamma, crossing_thresholds(env, gamma, cost_gamma))

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from cmdp_rl import Collector, TrainingDiverged, keys, load_config, make_actor_critic, make_algo, make_env, train
-from cmdp_rl.algos import PPO
+from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 
 

@@ -69,7 +69,7 @@ BAD = [
     ({"checkpoint_every": 0}, "checkpoint_every"),
     ({"log_interval": 0}, "log_interval"),
     ({"bogus": 1}, "config"),
-    ({"resume": 5}, "config.resume"),
+    ({"resume": 5}, "resume must be null or a run directory"),
     ({"resume": ""}, "resume"),
     ({"logger": {"name": "wandb"}}, "logger.name"),
     ({"logger": {"flush_secs": 5}}, "logger"),

@@ -9,7 +9,7 @@ from tensordict.nn import TensorDictModule
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
-from cmdp_rl.config import EnvConfig
+from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.replay import plot_reach1d, record_reach1d
 from conftest import ROOT, eval_result, run_script, tiny
 
@@ -60,7 +60,7 @@ def test_replay_records_the_true_position_and_collisions(tmp_path):
             return torch.full((obs.shape[0], 1), 0.1)
 
     actor = TensorDictModule(Forward(), [keys.OBS], [keys.ACTION])
-    cfg = EnvConfig(max_steps=8)
+    cfg = Reach1DConfig(max_steps=8)
     (ep,) = record_reach1d(actor, cfg, 1, seed=0)
     # float32 0.1 steps from 0.1: 0.2, 0.3, 0.4, 0.5000000x would cross, so blocked at ~0.4 from step 4
     assert len(ep.true_x) == 9 and ep.true_x[0] == 0.1

@@ -144,7 +144,7 @@ def test_transformer_incremental_equals_the_explicit_window(positions):
 
 
 def test_transformer_last_query_equals_the_full_layer():
-    from cmdp_rl.config import TransformerPolicyConfig
+    from cmdp_rl.policies.transformer import TransformerPolicyConfig
     from cmdp_rl.policies.inputs import InputEncoder
     from cmdp_rl.policies.transformer import WindowTransformer
 

@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cmdp_rl.config import PenaltyConfig, PPOLagConfig, RunConfig
+from cmdp_rl.algos.ppo import PenaltyConfig, PPOLagConfig
+from cmdp_rl.config import RunConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location("penalty_vs_constraint", ROOT / "experiments" / "penalty_vs_constraint.py")

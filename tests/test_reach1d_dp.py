@@ -4,10 +4,10 @@ against brute-force value iteration on r - lambda * c."""
 import numpy as np
 import pytest
 
-from cmdp_rl.config import EnvConfig
+from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.envs.reach1d_dp import closed_form_threshold, crossing_thresholds, penalized_crosses
 
-PASS = EnvConfig(wall="pass")
+PASS = Reach1DConfig(wall="pass")
 
 
 def by_hand(g):
@@ -39,7 +39,7 @@ def test_thresholds_agree_with_brute_force_value_iteration():
 
 
 def test_blocking_wall_never_pays():
-    assert crossing_thresholds(EnvConfig(wall="block"), 0.99).threshold.max() == 0.0
+    assert crossing_thresholds(Reach1DConfig(wall="block"), 0.99).threshold.max() == 0.0
 
 
 def test_expected_cost_is_a_step_function_of_the_penalty():

@@ -198,7 +198,7 @@ def test_state_dict_resumes_the_same_trajectories():
     """Resume: a collector on a fresh TorchReach1D restored from state_dict() collects what the
     original would have (positions, step counters, probe readings, the generator's state)."""
     from cmdp_rl.policies.mlp import make_actor
-    from cmdp_rl.config import PolicyConfig
+    from cmdp_rl.policies.mlp import PolicyConfig
 
     def build():
         env = TorchReach1D(6, max_steps=7, start=[0.0, 0.8], probe=True, stagger=True)

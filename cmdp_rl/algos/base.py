@@ -3,11 +3,35 @@
 from __future__ import annotations
 
 import math
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Annotated, Protocol, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
 from torch import nn
+
+from cmdp_rl.validation import Bool, Discount, Field, PositiveFloat, finite, options
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+
+@options
+class AlgoConfig:
+    """Options every algorithm shares: discounts, GAE, the critics, the budget."""
+
+    name: str = "ppo"
+    critic_lr: PositiveFloat = 1e-3
+    gamma: Discount = 0.99
+    gae_lambda: Annotated[float, finite(ge=0, le=1)] = 0.95
+    cost_gamma: Discount = 0.99
+    max_grad_norm: Annotated[float, Field(gt=0)] = 0.5
+    normalize_advantage: Bool = True
+    # The budget d on expected undiscounted episode cost. Only constrained algorithms act on it;
+    # every run reports against it.
+    cost_limit: Annotated[float, finite(ge=0, description="a number >= 0 (the budget d)")] = 1.0
+
+    def check(self, run: RunConfig) -> None:
+        """Rules that relate this algorithm's options to the rest of the run (none here)."""
 
 
 class TrainingDiverged(RuntimeError):
@@ -36,11 +60,13 @@ def check_parameters_finite(module: nn.Module) -> None:
 class Algorithm(Protocol):
     """An algorithm owns its networks' updates; it never touches the env.
 
-    ``update`` takes one ``[num_envs, T]`` batch from the collector and returns scalars to log
-    (names from ``metrics.COLUMNS``, including ``lagrange_multiplier``).
+    ``update`` takes one ``[num_envs, T]`` batch from the collector and returns scalars to log:
+    ``lagrange_multiplier`` (the lambda in force; 0 if none) and the names it declares in ``stats``,
+    which become metrics.csv's columns (``metrics.columns``).
     """
 
     name: str
+    stats: tuple[str, ...]
 
     def update(self, batch: TensorDictBase) -> dict[str, float]: ...
 

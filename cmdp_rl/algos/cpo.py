@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Annotated, ClassVar, Callable
 
 import torch
 from tensordict import TensorDictBase
@@ -41,12 +41,39 @@ from torch.distributions import kl_divergence
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.base import check_finite, check_parameters_finite
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.collector import finished_episodes
-from cmdp_rl.config import CPOConfig
 from cmdp_rl.policies import ActorCritic
+from cmdp_rl.registry import register
+from cmdp_rl.validation import Field, NonNegativeFloat, PositiveInt, UnitOpen, options, require
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+
+@options
+class CPOConfig(AlgoConfig):
+    """Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel 2017)."""
+
+    name: str = "cpo"
+    target_kl: Annotated[float, Field(gt=0, allow_inf_nan=False,
+                                      description="a positive number (the KL radius delta)")] = 0.01
+    cg_iters: PositiveInt = 10
+    cg_damping: NonNegativeFloat = 0.1
+    line_search_steps: PositiveInt = 10
+    backtrack_coef: UnitOpen = 0.8
+    critic_epochs: PositiveInt = 10
+    critic_minibatches: PositiveInt = 8
+    # The constraint step compares the cost surrogate with J_c - d in raw units: no cost scaling.
+    reads_raw_cost: ClassVar[bool] = True
+
+    def check(self, run: RunConfig) -> None:
+        batch = run.rollout_steps * run.env.num_envs
+        require(batch >= self.critic_minibatches, "algo.critic_minibatches",
+                f"at most rollout_steps * env.num_envs = {batch}", self.critic_minibatches)
+
 
 TRPO, CONSTRAINED, RECOVERY = 0, 1, 2
 CASE_NAMES = {TRPO: "trpo", CONSTRAINED: "constrained", RECOVERY: "recovery"}
@@ -146,6 +173,12 @@ def running_episode_cost(batch: TensorDictBase) -> tuple[float, float]:
 
 class CPO:
     name = "cpo"
+    # What update() returns besides lagrange_multiplier (metrics.csv's columns): the subproblem's
+    # case (0 trpo, 1 constrained, 2 recovery), the accepted fraction of the full step (0: none
+    # accepted), the dual's trust-region and cost multipliers, the accepted step's change of the
+    # reward and cost surrogates, and the critics' losses.
+    stats = ("loss_v", "loss_vc", "entropy", "kl", "cpo_case", "step_fraction", "dual_lambda", "dual_nu",
+             "surr_reward_change", "surr_cost_change")
 
     def __init__(self, cfg: CPOConfig, ac: ActorCritic) -> None:
         self.cfg = cfg
@@ -302,3 +335,6 @@ def _assign(params: list[nn.Parameter], flat: torch.Tensor) -> None:
     for p in params:
         p.copy_(flat[offset:offset + p.numel()].view_as(p))
         offset += p.numel()
+
+
+register("algo", "cpo", CPOConfig, CPO)

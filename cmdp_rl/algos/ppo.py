@@ -21,6 +21,7 @@ default gymnasium run's training (measured with cProfile, see ``experiments/``).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Annotated, ClassVar
 
 import torch
 from tensordict import TensorDictBase
@@ -29,19 +30,101 @@ from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.base import check_finite, check_parameters_finite
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.lagrange import DualAscent, MultiplierController, PIDLagrangian
 from cmdp_rl.collector import finished_episodes
-from cmdp_rl.config import PenaltyConfig, PIDLagConfig, PPOConfig, PPOLagConfig
 from cmdp_rl.policies import ActorCritic
+from cmdp_rl.registry import register
+from cmdp_rl.validation import (
+    AUTO, AutoInt, Field, NonNegativeFloat, PositiveFloat, PositiveInt, UnitOpen, finite, options, require,
+)
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
 from cmdp_rl.policies.tensor_path import TensorActor
+
+
+@options
+class PPOConfig(AlgoConfig):
+    """Clipped PPO (Schulman et al., 2017). Shared by every PPO-family algorithm."""
+
+    name: str = "ppo"
+    lr: PositiveFloat = 3e-4
+    clip_epsilon: UnitOpen = 0.2
+    # "auto": about 80 minibatch steps per iteration (resolve_auto), 10 x 8 for a batch of 2048.
+    update_epochs: AutoInt = AUTO
+    num_minibatches: AutoInt = AUTO
+    entropy_coef: NonNegativeFloat = 0.0
+
+    def resolve_auto(self, run: RunConfig) -> None:
+        """``num_minibatches`` and ``update_epochs`` from the batch (see ``config.resolve_auto``):
+        8 minibatches while the batch is at most 2048 steps, else one per 512 steps, at most 64;
+        epochs = 80 / minibatches rounded, at least 1 (about 80 minibatch steps per iteration, the
+        gym default's 10 x 8; PPO-Lagrangian moves lambda once per iteration, and with 16 or 32
+        steps per iteration at N = 1024, lambda overshot and the policy collapsed)."""
+        batch = run.rollout_steps * run.env.num_envs
+        if self.num_minibatches == AUTO:
+            self.num_minibatches = 8 if batch <= 2048 else min(64, batch // 512)
+        if self.update_epochs == AUTO:
+            self.update_epochs = max(1, round(80 / self.num_minibatches))
+
+    def describe_update(self) -> str:
+        return f"{self.update_epochs} x {self.num_minibatches} minibatches"
+
+    def check(self, run: RunConfig) -> None:
+        batch = run.rollout_steps * run.env.num_envs
+        require(batch >= self.num_minibatches, "algo.num_minibatches",
+                f"at most rollout_steps * env.num_envs = {batch}", self.num_minibatches)
+
+
+@options
+class PenaltyConfig(PPOConfig):
+    """PPO on r - penalty * c with a fixed exchange rate."""
+
+    name: str = "penalty"
+    penalty: NonNegativeFloat = 1.0
+    # Its fixed lambda prices raw cost: cost scaling would change what the number means.
+    reads_raw_cost: ClassVar[bool] = True
+
+
+@options
+class PPOLagConfig(PPOConfig):
+    """PPO-Lagrangian (Ray, Achiam, Amodei 2019): lambda adapted by projected dual ascent."""
+
+    name: str = "ppo_lag"
+    lambda_init: NonNegativeFloat = 0.0
+    lambda_lr: PositiveFloat = 0.05
+
+
+@options
+class PIDLagConfig(PPOConfig):
+    """PPO with lambda set by a PID controller (Stooke, Achiam, Abbeel 2020)."""
+
+    name: str = "pid_lag"
+    lambda_init: NonNegativeFloat = 0.0
+    kp: NonNegativeFloat = 2.0
+    ki: NonNegativeFloat = 0.1
+    kd: NonNegativeFloat = 0.0
+    p_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
+    d_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
+    d_delay: PositiveInt = 1
+    lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
+
+    def check(self, run: RunConfig) -> None:
+        super().check(run)
+        gains = self.kp + self.ki + self.kd
+        require(gains > 0, "algo.kp + algo.ki + algo.kd", "> 0 (some gain must act)", gains)
+        require(self.lambda_init <= self.lambda_max, "algo.lambda_init", "a number in [0, algo.lambda_max]",
+                self.lambda_init)
+
 
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
 
 
 class PPO:
     name = "ppo"
+    stats = STATS  # what update() returns besides lagrange_multiplier: metrics.csv's columns
 
     def __init__(self, cfg: PPOConfig, ac: ActorCritic) -> None:
         self.cfg = cfg
@@ -225,3 +308,9 @@ class PIDLagrangianPPO(PPOLagrangian):
             p_ema_alpha=cfg.p_ema_alpha, d_ema_alpha=cfg.d_ema_alpha, d_delay=cfg.d_delay,
             lambda_max=cfg.lambda_max,
         )
+
+
+register("algo", "ppo", PPOConfig, PPO)
+register("algo", "penalty", PenaltyConfig, PenaltyPPO)
+register("algo", "ppo_lag", PPOLagConfig, PPOLagrangian)
+register("algo", "pid_lag", PIDLagConfig, PIDLagrangianPPO)

@@ -16,11 +16,19 @@ An id of the form ``"module:EnvId-v0"`` imports ``module`` first (so it can regi
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from dataclasses import field
+from functools import partial
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import gymnasium as gym
 from gymnasium.envs.registration import load_env_creator
 from gymnasium.wrappers import TimeLimit
+
+from cmdp_rl.registry import register
+from cmdp_rl.validation import Field, NonNegativeInt, PositiveInt, options
+
+if TYPE_CHECKING:
+    from cmdp_rl.envs.vector import VecEnv
 
 
 class SixValueStep(gym.Wrapper):
@@ -82,3 +90,26 @@ def make_cost_env(env_id: str, step_api: str = "five", max_steps: int = 0, **kwa
         limit = max_steps or spec.max_episode_steps
         return TimeLimit(env, limit) if limit else env
     raise ValueError(f"env.step_api must be 'five' or 'six', got {step_api!r}")
+
+
+@options
+class GymEnvConfig:
+    """``env=gym``: any registered gymnasium env that reports cost, in ``info["cost"]`` (five-value
+    step) or as the third value of a Safety-Gymnasium six-value step."""
+
+    name: str = "gym"
+    backend: Literal["gym"] = "gym"
+    num_envs: PositiveInt = 8
+    id: Annotated[str, Field(pattern=r"\S", description="a registered gymnasium id, e.g. env.id=MyCostEnv-v0")] = ""
+    step_api: Literal["five", "six"] = "five"
+    max_steps: Annotated[NonNegativeInt, Field(description="an integer >= 0 (0: the registered limit)")] = 0
+    kwargs: Annotated[dict, Field(description="a mapping of constructor arguments")] = field(default_factory=dict)
+
+
+def make_gym_vec_env(cfg: GymEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
+    from cmdp_rl.envs.vector import GymVecEnv
+
+    return GymVecEnv(partial(make_cost_env, cfg.id, cfg.step_api, cfg.max_steps, **cfg.kwargs), num_envs, device=device)
+
+
+register("env", "gym", GymEnvConfig, make_gym_vec_env)

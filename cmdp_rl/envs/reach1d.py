@@ -135,3 +135,4 @@ class Reach1D(gym.Env):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.np_random.bit_generator.state = state["np_random"]
         self.x, self.steps, self.last_probe = state["x"], state["steps"], state["last_probe"]
+

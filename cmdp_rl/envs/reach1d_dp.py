@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmdp_rl.config import EnvConfig
+from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.envs.reach1d import GOAL_TOLERANCE, MAX_SPEED
 
 
@@ -79,7 +79,7 @@ class CrossingThresholds:
         return [(float(v), float(c / th.size)) for v, c in zip(values, counts) if v > 0]
 
 
-def _grid(env: EnvConfig, resolution: float):
+def _grid(env: Reach1DConfig, resolution: float):
     """Transition tables over grid positions k (x = k * resolution) and moves m."""
     n = int(round(1.0 / resolution))
     wall = env.wall_x / resolution
@@ -96,7 +96,7 @@ def _grid(env: EnvConfig, resolution: float):
 
 
 def crossing_thresholds(
-    env: EnvConfig, gamma: float, cost_gamma: float | None = None, resolution: float = 1e-3
+    env: Reach1DConfig, gamma: float, cost_gamma: float | None = None, resolution: float = 1e-3
 ) -> CrossingThresholds:
     """Penalty thresholds ``lambda*(x0)`` for every grid start, from ``env``'s parameters."""
     cost_gamma = gamma if cost_gamma is None else cost_gamma
@@ -119,7 +119,7 @@ def crossing_thresholds(
 
 
 def penalized_crosses(
-    env: EnvConfig, penalty: float, gamma: float, resolution: float = 1e-3
+    env: Reach1DConfig, penalty: float, gamma: float, resolution: float = 1e-3
 ) -> np.ndarray:
     """Brute force for checking: full value iteration on ``r - penalty * c`` (with
     ``cost_gamma == gamma``); True where the optimal value beats every never-crossing path."""
@@ -133,7 +133,7 @@ def penalized_crosses(
     return value > never + 1e-9
 
 
-def closed_form_threshold(env: EnvConfig, gamma: float) -> float:
+def closed_form_threshold(env: Reach1DConfig, gamma: float) -> float:
     """lambda* for a start left of the wall, by hand (``cost_gamma == gamma``, ``wall="pass"``).
 
     Walking to the wall and stopping is the best path that never crosses; the best crossing path

@@ -34,10 +34,17 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Any
+from functools import partial
+from typing import TYPE_CHECKING, Any, Literal, Optional
 
 import gymnasium as gym
 import numpy as np
+
+from cmdp_rl.registry import register
+from cmdp_rl.validation import NonNegativeFloat, PositiveInt, options
+
+if TYPE_CHECKING:
+    from cmdp_rl.envs.vector import VecEnv
 
 
 @dataclass(frozen=True)
@@ -107,3 +114,25 @@ def make_velocity_env(task: str, velocity_threshold: float | None = None, max_st
     threshold = spec.threshold if velocity_threshold is None else velocity_threshold
     env = gym.make(f"{task}-v5", max_episode_steps=max_steps, **kwargs)
     return VelocityCost(env, threshold, spec.planar)
+
+
+@options
+class VelocityEnvConfig:
+    """``env=velocity``: a MuJoCo locomotion task with cost 1 on every step faster than a threshold."""
+
+    name: str = "velocity"
+    backend: Literal["gym"] = "gym"
+    num_envs: PositiveInt = 8
+    task: Literal[tuple(VELOCITY_TASKS)] = "HalfCheetah"
+    # None: the task's Safety-Gymnasium v1 threshold (VELOCITY_TASKS); a number overrides it.
+    velocity_threshold: Optional[NonNegativeFloat] = None
+    max_steps: PositiveInt = 1000
+
+
+def make_velocity_vec_env(cfg: VelocityEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
+    from cmdp_rl.envs.vector import GymVecEnv
+
+    return GymVecEnv(partial(make_velocity_env, cfg.task, cfg.velocity_threshold, cfg.max_steps), num_envs, device=device)
+
+
+register("env", "velocity", VelocityEnvConfig, make_velocity_vec_env)

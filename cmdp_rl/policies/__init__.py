@@ -19,12 +19,11 @@ from torch import nn
 from torchrl.modules import ProbabilisticActor, set_recurrent_mode
 
 from cmdp_rl import keys
-from cmdp_rl.config import PolicyConfig, RecurrentPolicyConfig, TransformerPolicyConfig
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.normalization import Normalizers
-from cmdp_rl.policies.mlp import make_actor, make_critic, make_encoder
-from cmdp_rl.policies.recurrent import make_recurrent_networks
-from cmdp_rl.policies.transformer import make_transformer_networks
+from cmdp_rl.policies.mlp import PolicyConfig, make_actor, make_critic, make_encoder
+from cmdp_rl.policies.recurrent import RecurrentPolicyConfig, make_recurrent_networks
+from cmdp_rl.policies.transformer import TransformerPolicyConfig, make_transformer_networks
 
 
 @dataclass

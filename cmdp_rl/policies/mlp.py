@@ -2,14 +2,42 @@
 
 from __future__ import annotations
 
+from dataclasses import field
+from typing import Annotated, Any, Literal
+
 import torch
 from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from torch import nn
 from torchrl.modules import IndependentNormal, ProbabilisticActor
 
 from cmdp_rl import keys
-from cmdp_rl.config import PolicyConfig
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
+from cmdp_rl.registry import register
+from cmdp_rl.validation import Bool, Field, finite, options
+
+Activation = Literal["tanh", "relu", "elu"]
+LogStd = Annotated[float, finite()]
+
+
+@options
+class PolicyConfig:
+    """``policy=mlp``: the memoryless MLP policy. ``include_prev_*``: every policy may also read
+    the previous step's action and cost (zero on an episode's first step)."""
+
+    name: str = "mlp"
+    hidden_sizes: Annotated[list[Annotated[int, Field(ge=1)]], Field(
+        min_length=1, description="a non-empty list of positive integers")] = field(default_factory=lambda: [64, 64])
+    activation: Activation = "tanh"
+    init_log_std: LogStd = -0.5
+    include_prev_action: Bool = False
+    include_prev_cost: Bool = False
+
+
+def build_agent(cfg: Any, env: Any, normalizers: Any = None) -> Any:
+    """The registry's factory for every policy head (``policies.make_actor_critic`` dispatches)."""
+    from cmdp_rl.policies import make_actor_critic  # the package imports this module
+
+    return make_actor_critic(cfg, env, normalizers)
 
 
 
@@ -142,3 +170,6 @@ def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str, obs_norm: nn.Modu
                 encoder: InputEncoder | None = None) -> TensorDictModule:
     net, in_keys = _network(cfg, obs_dim, 1, 1.0, obs_norm, encoder)
     return TensorDictModule(net, in_keys, [out_key])
+
+
+register("policy", "mlp", PolicyConfig, build_agent)

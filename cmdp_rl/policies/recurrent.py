@@ -25,15 +25,53 @@ critic can only be re-run on a segment from a stored state (see ``advantages.py`
 
 from __future__ import annotations
 
+from dataclasses import field
+from typing import TYPE_CHECKING, Annotated, Literal
+
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.modules import GRUModule, LSTMModule
 
 from cmdp_rl import keys
-from cmdp_rl.config import RecurrentPolicyConfig
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
-from cmdp_rl.policies.mlp import GaussianHead, gaussian_actor, mlp
+from cmdp_rl.policies.mlp import Activation, GaussianHead, LogStd, build_agent, gaussian_actor, mlp
+from cmdp_rl.registry import register
+from cmdp_rl.validation import Bool, Field, NonNegativeInt, PositiveInt, options, require
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+HeadSizes = Annotated[list[Annotated[int, Field(ge=1)]], Field(description="a list of positive integers (may be empty)")]
+
+
+@options
+class RecurrentPolicyConfig:
+    """``policy=lstm`` or ``policy=gru``: LSTM or GRU memory in the actor and in both critics."""
+
+    name: Literal["lstm", "gru"] = "lstm"
+    hidden_size: PositiveInt = 64       # recurrent units
+    num_layers: PositiveInt = 1         # stacked recurrent layers
+    head_sizes: HeadSizes = field(default_factory=lambda: [64])  # MLP after the memory ([]: linear)
+    activation: Activation = "tanh"
+    init_log_std: LogStd = -0.5
+    include_prev_action: Bool = True
+    include_prev_cost: Bool = True
+    # Training segments: steps per segment, a divisor of rollout_steps; 0 or >= rollout_steps:
+    # whole rollout rows.
+    segment_length: NonNegativeInt = 32
+
+    def check(self, run: RunConfig) -> None:
+        L, T = self.segment_length, run.rollout_steps
+        require(L == 0 or L >= T or T % L == 0, "policy.segment_length",
+                f"0 or >= rollout_steps (whole rollouts), or a divisor of rollout_steps={T}", L)
+        segments = run.env.num_envs * (T // L if 0 < L < T else 1)
+        for name in ("num_minibatches", "critic_minibatches"):  # PPO family, CPO's critic fit
+            if hasattr(run.algo, name):
+                require(getattr(run.algo, name) <= segments, f"algo.{name}",
+                        f"at most the number of training segments, env.num_envs * rollout_steps / "
+                        f"policy.segment_length = {segments} (recurrent policies train on whole segments)",
+                        getattr(run.algo, name))
 
 STATE_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
     "lstm": {
@@ -85,3 +123,7 @@ def make_recurrent_networks(
                         low, high, cfg.init_log_std)
     actor = gaussian_actor(_network(cfg, encoder(), states["actor"], head, [keys.LOC, keys.SCALE]))
     return actor, critic(states["critic"], keys.VALUE), critic(states["cost_critic"], keys.COST_VALUE)
+
+
+register("policy", "lstm", RecurrentPolicyConfig, build_agent)
+register("policy", "gru", RecurrentPolicyConfig, build_agent)

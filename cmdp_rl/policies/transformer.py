@@ -24,6 +24,8 @@ when they are read, so a stored window always meets the current statistics.
 from __future__ import annotations
 
 import math
+from dataclasses import field
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
@@ -32,9 +34,36 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 from torchrl.data import Binary, Unbounded
 
 from cmdp_rl import keys
-from cmdp_rl.config import TransformerPolicyConfig
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
-from cmdp_rl.policies.mlp import GaussianHead, gaussian_actor, mlp
+from cmdp_rl.policies.mlp import Activation, GaussianHead, LogStd, build_agent, gaussian_actor, mlp
+from cmdp_rl.policies.recurrent import HeadSizes
+from cmdp_rl.registry import register
+from cmdp_rl.validation import Bool, Field, PositiveInt, options, require
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+
+@options
+class TransformerPolicyConfig:
+    """``policy=transformer``: causal self-attention over the last ``window`` steps."""
+
+    name: str = "transformer"
+    window: Annotated[int, Field(ge=1, description="a positive integer (steps attended to)")] = 16  # K, this step included
+    layers: PositiveInt = 1
+    heads: PositiveInt = 2
+    width: PositiveInt = 32             # model width d (divisible by heads)
+    feedforward: PositiveInt = 64       # hidden width of each layer's feed-forward block
+    positions: Literal["learned", "sinusoidal"] = "learned"
+    head_sizes: HeadSizes = field(default_factory=lambda: [64])
+    activation: Activation = "tanh"
+    init_log_std: LogStd = -0.5
+    include_prev_action: Bool = True
+    include_prev_cost: Bool = True
+
+    def check(self, run: RunConfig) -> None:
+        require(self.width % self.heads == 0, "policy.width", f"a positive multiple of policy.heads={self.heads}",
+                self.width)
 
 
 class HistoryWindow(nn.Module):
@@ -198,3 +227,6 @@ def make_transformer_networks(
         selected_out_keys=[keys.LOC, keys.SCALE, (keys.NEXT, keys.HISTORY), (keys.NEXT, keys.HISTORY_MASK)],
     ))
     return actor, critic(keys.VALUE), critic(keys.COST_VALUE)
+
+
+register("policy", "transformer", TransformerPolicyConfig, build_agent)

@@ -1,0 +1,65 @@
+"""Reach1D as a component (``env=reach1d``): its options, checked before anything is built, and
+the backend that runs them: the seed-exact gymnasium env (``reach1d.py``) in a synchronous vector
+env, or its batched torch twin (``reach1d_torch.py``)."""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
+
+from cmdp_rl.envs.reach1d import Reach1D
+from cmdp_rl.envs.reach1d_torch import TorchReach1D
+from cmdp_rl.envs.vector import GymVecEnv, VecEnv
+from cmdp_rl.registry import register
+from cmdp_rl.validation import Bool, Field, NonNegativeFloat, PositiveInt, finite, is_finite, options, require
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+ALLOWED_START = "a number in [0, 1] or a pair [low, high] with 0 <= low <= high <= 1"
+
+
+@options
+class Reach1DConfig:
+    """``env=reach1d``: Reach1D's options, on the gymnasium backend or the batched torch twin."""
+
+    name: str = "reach1d"
+    # gym: gymnasium envs in a synchronous vector env; torch: one batched tensor program (reach1d_torch.py)
+    backend: Literal["gym", "torch"] = "gym"
+    num_envs: PositiveInt = 8
+    obs_noise: NonNegativeFloat = 0.02
+    wall_x: Annotated[float, finite(gt=0, lt=1)] = 0.5
+    goal: Annotated[float, finite(ge=0, le=1)] = 0.9
+    max_steps: PositiveInt = 100
+    wall: Literal["block", "pass"] = "block"
+    start: Annotated[Union[float, list[float]], Field(description=ALLOWED_START)] = 0.1
+    probe: Bool = False
+    # torch backend only: the first episode of each env starts at a random step count, so that
+    # episodes end at different iterations (the envs would otherwise all time out together).
+    stagger: Bool = False
+    # Evaluation reports the fraction of episodes that terminated under this name: in Reach1D an
+    # episode terminates only at the goal.
+    termination_metric: ClassVar[str] = "goal_reached"
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """The :class:`Reach1D` constructor arguments these options ask for."""
+        return dict(obs_noise=self.obs_noise, wall_x=self.wall_x, max_steps=self.max_steps, goal=self.goal,
+                    wall=self.wall, start=self.start, probe=self.probe)
+
+    def check(self, run: RunConfig) -> None:
+        if isinstance(self.start, list):
+            ok = len(self.start) == 2 and all(is_finite(s) for s in self.start) and 0 <= self.start[0] <= self.start[1] <= 1
+        else:
+            ok = 0.0 <= self.start <= 1.0
+        require(ok, "env.start", ALLOWED_START, self.start)
+        require(not self.stagger or self.backend == "torch", "env.stagger", "false unless env.backend=torch", self.stagger)
+
+
+def make_reach1d(cfg: Reach1DConfig, num_envs: int, device: str = "cpu") -> VecEnv:
+    """``num_envs`` Reach1D envs on ``cfg.backend``."""
+    if cfg.backend == "torch":
+        return TorchReach1D(num_envs, **cfg.env_kwargs(), stagger=cfg.stagger, device=device)
+    return GymVecEnv(partial(Reach1D, **cfg.env_kwargs()), num_envs, device=device)
+
+
+register("env", "reach1d", Reach1DConfig, make_reach1d)

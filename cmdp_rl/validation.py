@@ -1,0 +1,154 @@
+"""Declared config constraints, and the one-line error a violated one gives.
+
+Every component (an algorithm, an env, a policy head) declares its options as a :func:`options`
+dataclass beside its code, with each field's allowed range in its type annotation, e.g.
+``gamma: Annotated[float, Field(ge=0, lt=1)] = 0.99``. pydantic checks types and ranges; this module
+only turns pydantic's report into the toolkit's one line, which names the field and everything it
+allows (``algo.gamma must be in [0, 1), got 1.0``) rather than the one bound that failed.
+
+Rules that relate several fields stay in the component, as a ``check(self, run)`` method that calls
+:func:`require` (see ``config.validate``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Annotated, Any, Literal, Mapping, TypeVar, Union, get_args, get_origin
+
+import annotated_types as at
+from pydantic import ConfigDict, Field, StrictBool, ValidationError
+from pydantic.dataclasses import dataclass as _pydantic_dataclass
+
+
+class ConfigError(ValueError):
+    """A config value is missing, of the wrong type, or out of range."""
+
+
+AUTO = "auto"  # batch-shape options that follow env.num_envs (config.resolve_auto)
+
+# Unknown keys are reported by build() with the allowed names; strict bools refuse "yes" and 1.
+_OPTIONS = ConfigDict(extra="forbid", validate_assignment=False)
+
+T = TypeVar("T")
+
+
+def options(cls: type[T]) -> type[T]:
+    """Declare ``cls`` as a validated options dataclass (pydantic checks every field on creation,
+    ``dataclasses.replace`` included). Plain ``dataclasses`` functions keep working on it."""
+    return _pydantic_dataclass(cls, config=_OPTIONS)
+
+
+def finite(**kw: Any) -> Any:
+    """A ``Field`` of finite floats with the given bounds (``ge``, ``gt``, ``le``, ``lt``)."""
+    return Field(allow_inf_nan=False, **kw)
+
+
+# The shapes most options take, declared once.
+PositiveInt = Annotated[int, Field(ge=1)]
+NonNegativeInt = Annotated[int, Field(ge=0)]
+PositiveFloat = Annotated[float, finite(gt=0)]
+NonNegativeFloat = Annotated[float, finite(ge=0)]
+Discount = Annotated[float, finite(ge=0, lt=1)]
+UnitOpen = Annotated[float, finite(gt=0, lt=1)]  # (0, 1)
+Bool = StrictBool
+AutoInt = Annotated[Union[PositiveInt, Literal["auto"]], Field(description=f"a positive integer or {AUTO!r}")]
+
+
+def _fmt(x: Any) -> str:
+    return str(int(x)) if isinstance(x, float) and x.is_integer() else str(x)
+
+
+def _describe(annotation: Any, metadata: list) -> str:
+    """What a field allows, in words, from its type and its declared bounds."""
+    for m in metadata:
+        if getattr(m, "description", None):
+            return m.description
+    origin = get_origin(annotation)
+    if origin is Annotated:
+        base, *extra = get_args(annotation)
+        return _describe(base, [*extra, *metadata])
+    if origin is Literal:
+        return f"one of {get_args(annotation)}"
+    if origin is Union:
+        opts = [a for a in get_args(annotation) if a is not type(None)]
+        inner = " or ".join(_describe(a, metadata) for a in opts)
+        return f"null or {inner}" if len(opts) < len(get_args(annotation)) else inner
+    if origin is list:
+        (item,) = get_args(annotation) or (Any,)
+        return f"a list of {_describe(item, []).removeprefix('a ').removeprefix('an ')}s"
+    bounds = {}
+    for m in metadata:
+        for name in ("ge", "gt", "le", "lt"):
+            if isinstance(m, getattr(at, name.capitalize())):
+                bounds[name] = getattr(m, name)
+        if isinstance(m, at.Interval):
+            bounds.update({k: v for k, v in vars(m).items() if v is not None})
+    if annotation is bool:
+        return "true or false"
+    if annotation is str:
+        return "a string"
+    noun = {int: "integer", float: "number"}.get(annotation)
+    if noun is None:
+        return f"a {getattr(annotation, '__name__', annotation)}"
+    lo = ("[", bounds["ge"]) if "ge" in bounds else ("(", bounds["gt"]) if "gt" in bounds else None
+    hi = (bounds["le"], "]") if "le" in bounds else (bounds["lt"], ")") if "lt" in bounds else None
+    if lo and hi:
+        return f"in {lo[0]}{_fmt(lo[1])}, {_fmt(hi[0])}{hi[1]}"
+    if lo:
+        if (lo == ("(", 0)) or (noun == "integer" and lo == ("[", 1)):
+            return f"a positive {noun}"
+        return f"a{'n' if noun == 'integer' else ''} {noun} {'>=' if lo[0] == '[' else '>'} {_fmt(lo[1])}"
+    if hi:
+        return f"a{'n' if noun == 'integer' else ''} {noun} {'<=' if hi[1] == ']' else '<'} {_fmt(hi[0])}"
+    return f"a{'n' if noun == 'integer' else ''} {noun}"
+
+
+def allowed(cls: type, name: str) -> str:
+    """What field ``name`` of the options class ``cls`` allows, in words."""
+    info = cls.__pydantic_fields__[name]
+    return _describe(info.annotation, [info, *info.metadata])
+
+
+def require(ok: bool, name: str, allowed_values: str, value: Any) -> None:
+    """Raise the toolkit's one-line :class:`ConfigError` unless ``ok``."""
+    if not ok:
+        raise ConfigError(f"{name} must be {allowed_values}, got {value!r}")
+
+
+def _dotted(prefix: str, name: str) -> str:
+    return f"{prefix}.{name}" if prefix else name
+
+
+def build(cls: type[T], data: Mapping[str, Any], prefix: str) -> T:
+    """``cls(**data)``, or a :class:`ConfigError` naming the first bad field (``prefix.field``)."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise ConfigError(f"{prefix or 'config'}: unknown option(s) {unknown}; allowed: {sorted(names)}")
+    try:
+        return cls(**data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = str(err["loc"][0]) if err["loc"] else ""
+        if field not in names:  # not a field's value: pass pydantic's own words on
+            raise ConfigError(f"{prefix or 'config'}: {err['msg']}") from None
+        raise ConfigError(
+            f"{_dotted(prefix, field)} must be {allowed(cls, field)}, got {data.get(field)!r}") from None
+
+
+def recheck(obj: T, prefix: str) -> T:
+    """``obj`` validated again (after its fields were assigned directly); returns a new instance."""
+    return build(type(obj), {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}, prefix)
+
+
+def is_finite(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+__all__ = [
+    "AUTO", "AutoInt", "Bool", "ConfigError", "Discount", "Field", "NonNegativeFloat", "NonNegativeInt",
+    "PositiveFloat", "PositiveInt", "UnitOpen", "allowed", "build", "finite", "is_finite", "options", "recheck",
+    "require",
+]
+
