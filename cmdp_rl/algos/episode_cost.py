@@ -1,0 +1,66 @@
+"""The estimate of J_c, the expected undiscounted episode cost, that every constrained algorithm
+compares with its budget d: one definition, so that PPO-Lagrangian's lambda, PID's error and CPO's
+constraint all read the same number.
+
+Per iteration:
+1. episodes ended in this batch: the mean cost (and length) of those episodes;
+2. none ended (episodes longer than a rollout, as on MuJoCo with 1000-step episodes and 256-step
+   rollouts): the mean of the last ``window`` episodes that ended in earlier batches (a running
+   window, by default one episode per env);
+3. none has ended yet in the run: the mean cost so far of the running episodes, a lower bound.
+
+So the estimate exists at every iteration and a multiplier moves every iteration (before, PPO's
+lambda stood still in a batch without a finished episode, about three iterations in four on MuJoCo,
+while CPO reused its last estimate). Where episodes end in every batch, case 1 is what PPO and
+CPO always used: their numbers are unchanged (tests/test_golden.py).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import NamedTuple
+
+import torch
+from tensordict import TensorDictBase
+
+from cmdp_rl import keys
+from cmdp_rl.collector import finished_episodes
+
+FINISHED, WINDOW, RUNNING = "finished", "window", "running"
+
+
+class EpisodeCost(NamedTuple):
+    cost: float  # J_c estimate
+    length: float  # mean episode length of the same episodes
+    source: str  # FINISHED, WINDOW or RUNNING (see the module's docstring)
+
+
+class EpisodeCostEstimate:
+    """J_c per iteration from the collector's batches (see the module's docstring)."""
+
+    def __init__(self, window: int) -> None:
+        if window < 1:
+            raise ValueError(f"window must be a positive integer, got {window}")
+        self.window = window
+        self._recent: deque[tuple[float, float]] = deque(maxlen=window)  # (cost, length) per episode
+
+    def update(self, batch: TensorDictBase) -> EpisodeCost:
+        eps = finished_episodes(batch)
+        if eps["cost"].numel():
+            self._recent.extend(zip(eps["cost"].tolist(), eps["length"].tolist()))
+            return EpisodeCost(eps["cost"].mean().item(), eps["length"].mean().item(), FINISHED)
+        if self._recent:
+            recent = torch.tensor(list(self._recent), dtype=torch.float64)
+            return EpisodeCost(recent[:, 0].mean().item(), recent[:, 1].mean().item(), WINDOW)
+        last = batch.get(keys.NEXT)[:, -1]
+        return EpisodeCost(last.get(keys.EPISODE_COST).float().mean().item(),
+                           last.get(keys.EPISODE_LENGTH).float().mean().item(), RUNNING)
+
+    def state_dict(self) -> dict:
+        return {"recent": list(self._recent)}
+
+    def load_state_dict(self, state: dict) -> None:
+        self._recent = deque((tuple(r) for r in state.get("recent", [])), maxlen=self.window)
+
+
+__all__ = ["FINISHED", "RUNNING", "WINDOW", "EpisodeCost", "EpisodeCostEstimate"]
