@@ -166,6 +166,58 @@ def missing_jobs(sweep_dir: str | Path, runs: list[RunRecord]) -> list[list[str]
     return [job for job in jobs if frozenset(job) not in seen]
 
 
+def job_values(overrides: list[str]) -> dict[str, Any]:
+    """A job's overrides as ``{key: value}``, each value read as YAML (``env.start=[0.0,1.0]`` is
+    a list); ``+``/``~`` prefixes dropped. For jobs that left no config to read."""
+    values: dict[str, Any] = {}
+    for ov in overrides:
+        key, _, value = ov.lstrip("+~").partition("=")
+        try:
+            values[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            values[key] = value
+    return values
+
+
+@dataclass(frozen=True)
+class MissingJob:
+    """A job a sweep's ``multirun.yaml`` expected that left no run directory."""
+
+    sweep_dir: Path
+    overrides: list[str]
+
+
+def read_sweeps(dirs: list[Path]) -> tuple[list[RunRecord], list[MissingJob]]:
+    """Every run directory under ``dirs`` (reruns marked: the superseded runs keep their status
+    ``superseded``) and every job that some ``multirun.yaml`` under them expected but that left
+    nothing, in directory order."""
+    records: list[RunRecord] = []
+    missing: list[MissingJob] = []
+    for d in dirs:
+        found = find_runs(d)
+        records += found
+        for multirun in sorted(Path(d).rglob(MULTIRUN_FILE)):
+            sweep_dir = multirun.parent
+            inside = [r for r in found if sweep_dir in r.path.parents]
+            missing += [MissingJob(sweep_dir, job) for job in missing_jobs(sweep_dir, inside)]
+    mark_superseded(records)  # a rerun of a failed or interrupted job replaces it
+    return records, missing
+
+
+def _runs_holding(sweep_dir: str | Path, name: str) -> list[RunRecord]:
+    return [load_run(p.parent) for p in sorted(Path(sweep_dir).glob(f"*/{name}"))]
+
+
+def finished_runs(sweep_dir: str | Path) -> list[RunRecord]:
+    """The sweep's run directories (one level down) that hold a result (``eval.json``)."""
+    return _runs_holding(sweep_dir, EVAL_FILE)
+
+
+def started_runs(sweep_dir: str | Path) -> list[RunRecord]:
+    """The sweep's run directories (one level down) whose training started (``metrics.csv``)."""
+    return _runs_holding(sweep_dir, METRICS_FILE)
+
+
 def _finished_at(record: RunRecord) -> float:
     for name in (EVAL_FILE, ERROR_FILE, METRICS_FILE):
         if (record.path / name).is_file():
@@ -201,18 +253,6 @@ def rerun_command(overrides: list[str], sweep_dir: Path, script: str = "train.py
     directory itself: that would replace its multirun.yaml, the record of what was expected)."""
     args = " ".join(shlex.quote(o) for o in overrides)
     return f"python {script} -m {args} hydra.sweep.dir={shlex.quote(str(sweep_dir / 'rerun'))}"
-
-
-def write_table(out: str | Path, text: str, rows: list[dict[str, Any]]) -> str:
-    """Write a report's table as ``table.md`` (``text``) and ``table.csv`` (``rows``, one dict
-    each, the columns from the first) into ``out``; returns ``text``."""
-    out = Path(out)
-    (out / "table.md").write_text(text)
-    with open(out / "table.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else [])
-        writer.writeheader()
-        writer.writerows(rows)
-    return text
 
 
 def experiment_arg_parser(doc: str | None) -> argparse.ArgumentParser:

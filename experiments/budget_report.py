@@ -17,24 +17,24 @@ Example (CPO against PPO-Lagrangian at one budget, three seeds)::
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import math
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-import yaml
+
+from cmdp_rl.analysis.stats import sample_mean_std
+from cmdp_rl.analysis.tables import markdown_table, pm
+from cmdp_rl.sweeps import RunRecord, finished_runs
 
 
-def run_summary(run_dir: Path) -> dict:
-    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
-    d = cfg["algo"]["cost_limit"]
-    costs = np.array([float(r["episode_cost"]) for r in csv.DictReader(open(run_dir / "metrics.csv"))
-                      if r["episode_cost"] not in ("", "nan")])
-    ev = json.loads((run_dir / "eval.json").read_text())
+def run_summary(run: RunRecord) -> dict:
+    d = run.get("algo.cost_limit")
+    costs = np.array([r["episode_cost"] for r in run.metrics])
+    costs = costs[np.isfinite(costs)]  # iterations in which no episode ended log nan
+    ev = run.eval
     return {
-        "algo": cfg["algo"]["name"], "d": d, "seed": cfg["seed"],
+        "algo": run.get("algo.name"), "d": d, "seed": run.get("seed"),
         "eval_return": ev["episode_return"], "eval_cost": ev["episode_cost"],
         "within_budget": float((costs <= d).mean()) if costs.size else math.nan,
         "train_cost": float(costs.mean()) if costs.size else math.nan,
@@ -43,28 +43,24 @@ def run_summary(run_dir: Path) -> dict:
 
 
 def _ms(vals: list[float]) -> str:
-    a = np.array(vals, dtype=float)
-    return f"{a.mean():.3f} ± {a.std(ddof=1):.3f}" if a.size > 1 else f"{a.mean():.3f}"
+    return pm(*sample_mean_std(vals))
 
 
 def report(sweep_dir: Path) -> str:
-    runs = [run_summary(p.parent) for p in sorted(sweep_dir.glob("*/eval.json"))]
+    runs = [run_summary(r) for r in finished_runs(sweep_dir)]
     if not runs:
         raise SystemExit(f"no finished runs (*/eval.json) under {sweep_dir}")
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in runs:
         groups[(r["algo"], r["d"])].append(r)
-    lines = [
-        "| algo | d | seeds | eval return | eval cost | iterations with J_c <= d | mean training J_c | per-seed within-budget |",
-        "|---|---:|---:|---:|---:|---:|---:|---|",
-    ]
+    header = ["algo", "d", "seeds", "eval return", "eval cost", "iterations with J_c <= d", "mean training J_c",
+              "per-seed within-budget"]
+    cells = []
     for (algo, d), g in sorted(groups.items()):
         per_seed = ", ".join(f"s{r['seed']}: {r['within_budget']:.2f}" for r in sorted(g, key=lambda r: r["seed"]))
-        lines.append(
-            f"| {algo} | {d:g} | {len(g)} | {_ms([r['eval_return'] for r in g])} | {_ms([r['eval_cost'] for r in g])} "
-            f"| {_ms([r['within_budget'] for r in g])} | {_ms([r['train_cost'] for r in g])} | {per_seed} |"
-        )
-    text = "\n".join(lines) + "\n"
+        cells.append([algo, f"{d:g}", str(len(g)), _ms([r["eval_return"] for r in g]), _ms([r["eval_cost"] for r in g]),
+                      _ms([r["within_budget"] for r in g]), _ms([r["train_cost"] for r in g]), per_seed])
+    text = markdown_table(header, cells, "lrrrrrrl") + "\n"
     (sweep_dir / "budget_report.md").write_text(text)
     return text
 

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cmdp_rl.analysis.stats import count_finite, sample_mean_std
+from cmdp_rl.analysis.tables import markdown_table, pm
 from cmdp_rl.plot import pyplot, save_figure
 from cmdp_rl import sweeps
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
@@ -40,12 +42,11 @@ METRICS = ("first_crossing", "overshoot", "overshoot_smooth", "violation", "osci
 SMOOTH = 5  # iterations in the moving average of overshoot_smooth
 
 
-def load_run(run_dir: Path) -> dict:
-    run = sweeps.load_run(run_dir)
+def load_run(run: sweeps.RunRecord) -> dict:
     cfg, ev = run.config, run.eval or {}
     col = lambda name: np.array([r[name] for r in run.metrics])  # noqa: E731
     return {
-        "dir": run_dir.name, "ki": cfg["algo"]["ki"], "kp": cfg["algo"]["kp"], "kd": cfg["algo"]["kd"],
+        "dir": run.path.name, "ki": cfg["algo"]["ki"], "kp": cfg["algo"]["kp"], "kd": cfg["algo"]["kd"],
         "seed": cfg["seed"], "d": cfg["algo"]["cost_limit"], "step": col("step"),
         "cost": col("episode_cost"), "lam": col("lagrange_multiplier"),
         "eval_return": ev.get("episode_return", math.nan), "eval_cost": ev.get("episode_cost", math.nan),
@@ -82,36 +83,26 @@ def summarise(runs: list[dict]) -> dict[tuple, dict[str, tuple[float, float, int
     for key in sorted(groups):
         table[key] = {}
         for m in METRICS:
-            vals = np.array([r[m] for r in groups[key] if not math.isnan(r[m])])
-            std = float(vals.std(ddof=1)) if vals.size > 1 else math.nan
-            table[key][m] = (float(vals.mean()) if vals.size else math.nan, std, int(vals.size), len(groups[key]))
+            vals = [r[m] for r in groups[key]]
+            table[key][m] = (*sample_mean_std(vals), count_finite(vals), len(vals))
     return table
 
 
 def _fmt(mean: float, std: float, n: int, total: int) -> str:
-    if n == 0:
-        return "never"
-    s = f"{mean:.3g}" + (f" ± {std:.2g}" if not math.isnan(std) else "")
-    return s + (f" ({n}/{total})" if n < total else "")
+    return pm(mean, std, ".3g", ".2g", missing="never") + (f" ({n}/{total})" if 0 < n < total else "")
 
 
 def write_table(table: dict, runs: list[dict], out: Path) -> str:
     d = runs[0]["d"]
     steps = int(max(r["step"][-1] for r in runs))
-    lines = [
-        f"PID-Lagrangian PPO, Reach1D `env.wall=pass`, budget d = {d}, {steps:,} steps per run; "
-        "mean ± sample std over seeds (n/total: runs where the metric exists).",
-        "",
-        "| Ki | Kp | Kd | seeds | first crossing (iter) | overshoot: peak J_c - d after it | "
-        f"peak of its {SMOOTH}-iteration mean | violation: mean (J_c - d)+ after it | "
-        "oscillation: mean abs(J_c - d) after it | eval return | eval cost |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-    ]
-    for (ki, kp, kd), row in table.items():
-        n = row["overshoot"][3]
-        cells = " | ".join(_fmt(*row[m]) for m in METRICS)
-        lines.append(f"| {ki:g} | {kp:g} | {kd:g} | {n} | {cells} |")
-    text = "\n".join(lines) + "\n"
+    intro = (f"PID-Lagrangian PPO, Reach1D `env.wall=pass`, budget d = {d}, {steps:,} steps per run; "
+             "mean ± sample std over seeds (n/total: runs where the metric exists).")
+    header = ["Ki", "Kp", "Kd", "seeds", "first crossing (iter)", "overshoot: peak J_c - d after it",
+              f"peak of its {SMOOTH}-iteration mean", "violation: mean (J_c - d)+ after it",
+              "oscillation: mean abs(J_c - d) after it", "eval return", "eval cost"]
+    cells = [[f"{ki:g}", f"{kp:g}", f"{kd:g}", str(row["overshoot"][3]), *(_fmt(*row[m]) for m in METRICS)]
+             for (ki, kp, kd), row in table.items()]
+    text = intro + "\n\n" + markdown_table(header, cells, "r" * len(header)) + "\n"
     (out / "pid_damping.md").write_text(text)
     with open(out / "pid_damping_runs.csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -152,10 +143,9 @@ def plot(runs: list[dict], out: Path) -> None:
 
 
 def analyse(sweep_dir: Path) -> str:
-    run_dirs = sorted(p.parent for p in sweep_dir.glob("*/metrics.csv"))
-    if not run_dirs:
+    runs = [load_run(r) for r in sweeps.started_runs(sweep_dir)]
+    if not runs:
         raise SystemExit(f"no runs (*/metrics.csv) under {sweep_dir}")
-    runs = [load_run(p) for p in run_dirs]
     for r in runs:
         r.update(damping_metrics(r["cost"], r["d"]))
     text = write_table(summarise(runs), runs, sweep_dir)

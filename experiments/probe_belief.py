@@ -31,6 +31,9 @@ from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, 
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 from cmdp_rl import sweeps
+from cmdp_rl.analysis.stats import population_mean_std
+from cmdp_rl.analysis import tables
+from cmdp_rl.analysis.tables import markdown_table, pm
 from cmdp_rl.plot import pyplot, save_figure
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
@@ -68,10 +71,8 @@ def load_runs(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> list[dict[str,
     """Every finished run under ``sweep_dir``: config, eval.json, probe.json (written first where
     missing, from the run's checkpoint) and metrics rows."""
     runs = []
-    for eval_path in sorted(sweep_dir.glob("*/eval.json")):
-        run_dir = eval_path.parent
-        run = sweeps.load_run(run_dir)
-        cfg = run.config
+    for run in sweeps.finished_runs(sweep_dir):
+        run_dir, cfg = run.path, run.config
         probe_path = run_dir / "probe.json"
         if not probe_path.is_file():
             run_cfg = load_config(cfg)
@@ -83,12 +84,6 @@ def load_runs(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> list[dict[str,
             "rows": run.metrics,
         })
     return runs
-
-
-def _mean_std(values: list[float]) -> tuple[float | None, float | None]:
-    if not values:
-        return None, None
-    return statistics.fmean(values), (statistics.pstdev(values) if len(values) > 1 else 0.0)
 
 
 def _train_sps(rows: list[dict[str, float]]) -> float:
@@ -112,39 +107,33 @@ def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"policy": policy, "probe": probe, "seeds": len(group),
                                "steps": group[0]["eval"]["steps"], "cost_limit": group[0]["eval"]["cost_limit"]}
         for key in ("episode_return", "episode_cost", "goal_reached", "episode_length"):
-            row[key], row[f"{key}_std"] = _mean_std([r["eval"][key] for r in group])
+            row[key], row[f"{key}_std"] = population_mean_std([r["eval"][key] for r in group])
         for key in ("probe_rate", "probe_rate_early", "probe_rate_later"):
-            row[key], row[f"{key}_std"] = _mean_std([r["probe_stats"][key] for r in group
-                                                     if r["probe_stats"].get(key) is not None])
-        row["train_sps"], row["train_sps_std"] = _mean_std([_train_sps(r["rows"]) for r in group])
+            row[key], row[f"{key}_std"] = population_mean_std([r["probe_stats"][key] for r in group
+                                                               if r["probe_stats"].get(key) is not None])
+        row["train_sps"], row["train_sps_std"] = population_mean_std([_train_sps(r["rows"]) for r in group])
         table.append(row)
     return table
-
-
-def _pm(mean: float | None, std: float | None, spec: str) -> str:
-    return "n/a" if mean is None else f"{mean:{spec}} ± {std:{spec}}"
 
 
 def write_table(table: list[dict[str, Any]], out: Path) -> str:
     header = ["policy", "probe", "seeds", "steps", "return", "cost", "goal reached", "episode length",
               "probe rate", "probe rate, first 5 steps", "probe rate, later", "training steps/s"]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for r in table:
-        lines.append("| " + " | ".join([
-            r["policy"], "yes" if r["probe"] else "no", str(r["seeds"]), f"{r['steps']:,}",
-            _pm(r["episode_return"], r["episode_return_std"], ".3f"), _pm(r["episode_cost"], r["episode_cost_std"], ".3f"),
-            _pm(r["goal_reached"], r["goal_reached_std"], ".2f"), _pm(r["episode_length"], r["episode_length_std"], ".1f"),
-            _pm(r["probe_rate"], r["probe_rate_std"], ".2f"), _pm(r["probe_rate_early"], r["probe_rate_early_std"], ".2f"),
-            _pm(r["probe_rate_later"], r["probe_rate_later_std"], ".2f"), _pm(r["train_sps"], r["train_sps_std"], ",.0f"),
-        ]) + " |")
+    cells = [[
+        r["policy"], "yes" if r["probe"] else "no", str(r["seeds"]), f"{r['steps']:,}",
+        pm(r["episode_return"], r["episode_return_std"], ".3f"), pm(r["episode_cost"], r["episode_cost_std"], ".3f"),
+        pm(r["goal_reached"], r["goal_reached_std"], ".2f"), pm(r["episode_length"], r["episode_length_std"], ".1f"),
+        pm(r["probe_rate"], r["probe_rate_std"], ".2f"), pm(r["probe_rate_early"], r["probe_rate_early_std"], ".2f"),
+        pm(r["probe_rate_later"], r["probe_rate_later_std"], ".2f"), pm(r["train_sps"], r["train_sps_std"], ",.0f"),
+    ] for r in table]
     limit = table[0]["cost_limit"] if table else float("nan")
-    text = "\n".join(lines) + (
+    text = markdown_table(header, cells) + (
         f"\n\nBudget d = {limit:g} crossing per episode. Return, cost, goal rate and length: the final stochastic "
         f"policy over eval_episodes episodes (eval.json); probe rate: fraction of its steps that were probes "
         f"(probe.json); mean ± std over seeds. Training steps/s: median over iterations, on a shared 2-core "
         f"machine (noisy).\n"
     )
-    return sweeps.write_table(out, text, table)
+    return tables.write_table(out, text, table)
 
 
 def plot_cost_vs_return(runs: list[dict[str, Any]], table: list[dict[str, Any]], out: Path) -> Path:

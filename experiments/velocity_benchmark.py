@@ -23,6 +23,9 @@ from pathlib import Path
 from typing import Any
 
 
+from cmdp_rl.analysis.stats import population_mean_std
+from cmdp_rl.analysis import tables
+from cmdp_rl.analysis.tables import markdown_table, pm
 from cmdp_rl.safety_metrics import Reference, normalized_scores
 from cmdp_rl import sweeps
 from cmdp_rl.plot import pyplot, save_figure
@@ -34,16 +37,8 @@ REFERENCE_ALGO = "ppo"
 
 def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
     """Every finished run under ``sweep_dir``: its config, eval.json and metrics.csv rows."""
-    runs = []
-    for eval_path in sorted(sweep_dir.glob("*/eval.json")):
-        run = sweeps.load_run(eval_path.parent)
-        runs.append({"dir": run.path, "algo": run.get("algo.name"), "seed": run.get("seed"), "config": run.config,
-                     "eval": run.eval, "rows": run.metrics})
-    return runs
-
-
-def _mean_std(values: list[float]) -> tuple[float, float]:
-    return statistics.fmean(values), (statistics.pstdev(values) if len(values) > 1 else 0.0)
+    return [{"dir": run.path, "algo": run.get("algo.name"), "seed": run.get("seed"), "config": run.config,
+             "eval": run.eval, "rows": run.metrics} for run in sweeps.finished_runs(sweep_dir)]
 
 
 def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -61,40 +56,35 @@ def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"algo": algo, "seeds": len(group), "steps": group[0]["eval"]["steps"],
                                "cost_limit": group[0]["eval"]["cost_limit"]}
         for key in ("episode_return", "episode_cost", "cost_rate", "train_time_s"):
-            row[key], row[f"{key}_std"] = _mean_std([r["eval"][key] for r in group])
+            row[key], row[f"{key}_std"] = population_mean_std([r["eval"][key] for r in group])
         per_seed = [normalized_scores(r["eval"]["episode_return"], r["eval"]["episode_cost"], r["eval"]["cost_rate"],
                                       r["eval"]["cost_limit"], ref) for r in group]
         for key in ("normalized_return", "normalized_violation", "normalized_cost_rate"):
             values = [s[key] for s in per_seed if s[key] is not None]
-            row[key], row[f"{key}_std"] = _mean_std(values) if values else (None, None)
+            row[key], row[f"{key}_std"] = population_mean_std(values)
         table.append(row)
     return table
-
-
-def _pm(mean: float | None, std: float | None, spec: str) -> str:
-    return "" if mean is None else f"{mean:{spec}} ± {std:{spec}}"
 
 
 def write_table(table: list[dict[str, Any]], out: Path) -> str:
     header = ["algo", "seeds", "steps", "return (eval)", "cost (eval)", "cost rate (training)",
               "norm. return", "norm. violation", "norm. cost rate", "minutes / run"]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for r in table:
-        lines.append("| " + " | ".join([
-            r["algo"], str(r["seeds"]), f"{r['steps']:,}", _pm(r["episode_return"], r["episode_return_std"], ".1f"),
-            _pm(r["episode_cost"], r["episode_cost_std"], ".1f"), _pm(r["cost_rate"], r["cost_rate_std"], ".4f"),
-            _pm(r["normalized_return"], r["normalized_return_std"], ".2f"),
-            _pm(r["normalized_violation"], r["normalized_violation_std"], ".2f"),
-            _pm(r["normalized_cost_rate"], r["normalized_cost_rate_std"], ".2f"),
-            f"{r['train_time_s'] / 60:.1f}",
-        ]) + " |")
+    cells = [[
+        r["algo"], str(r["seeds"]), f"{r['steps']:,}", pm(r["episode_return"], r["episode_return_std"], ".1f", missing=""),
+        pm(r["episode_cost"], r["episode_cost_std"], ".1f", missing=""),
+        pm(r["cost_rate"], r["cost_rate_std"], ".4f", missing=""),
+        pm(r["normalized_return"], r["normalized_return_std"], ".2f", missing=""),
+        pm(r["normalized_violation"], r["normalized_violation_std"], ".2f", missing=""),
+        pm(r["normalized_cost_rate"], r["normalized_cost_rate_std"], ".2f", missing=""),
+        f"{r['train_time_s'] / 60:.1f}",
+    ] for r in table]
     limit = table[0]["cost_limit"] if table else math.nan
-    text = "\n".join(lines) + (
+    text = markdown_table(header, cells) + (
         f"\n\nBudget d = {limit:g} per episode. Return and cost: the final policy over eval_episodes episodes "
         f"(eval.json), mean ± std over seeds. Normalized metrics relative to the mean of this sweep's "
         f"{REFERENCE_ALGO} runs (Ray et al. 2019; docs/benchmarks.md).\n"
     )
-    return sweeps.write_table(out, text, table)
+    return tables.write_table(out, text, table)
 
 
 def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
