@@ -14,7 +14,8 @@ Altman does, so the LP's value is ``J`` itself.
 
 The LP's dual variables are the rest of the answer: the multipliers ``lambda_k >= 0`` of the cost
 rows (``d J* / d d_k``, zero where a constraint does not bind) and, on the flow rows, the optimal
-values of the Lagrangian MDP with reward ``r - lambda . c``, for which the LP's policy is optimal.
+values of the Lagrangian MDP with reward ``r - lambda . c``, for which the LP's policy is optimal
+(in the states that policy visits; elsewhere the dual only bounds them from above).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ class ConstrainedOptimum:
     policy: np.ndarray  # [S, A] pi*(a | s); uniform in states pi* never visits
     occupancy: np.ndarray  # [S, A] rho*
     multipliers: np.ndarray  # [K] lambda* >= 0, the cost rows' duals (0 for an infinite budget)
-    lagrangian_values: np.ndarray  # [S] the flow rows' duals: V* of the MDP with reward r - lambda*.c
+    lagrangian_values: np.ndarray  # [S] the flow rows' duals: V* of the MDP with reward r - lambda*.c where pi* goes, >= elsewhere
     budgets: np.ndarray  # [K]
 
 
