@@ -35,7 +35,8 @@ class ConstrainedOptimum:
     policy: np.ndarray  # [S, A] pi*(a | s); uniform in states pi* never visits
     occupancy: np.ndarray  # [S, A] rho*
     multipliers: np.ndarray  # [K] lambda* >= 0, the cost rows' duals (0 for an infinite budget)
-    lagrangian_values: np.ndarray  # [S] the flow rows' duals: V* of the MDP with reward r - lambda*.c where pi* goes, >= elsewhere
+    # [S] the flow rows' duals: V* of the MDP with reward r - lambda*.c where pi* goes, >= it elsewhere
+    lagrangian_values: np.ndarray
     budgets: np.ndarray  # [K]
 
 
