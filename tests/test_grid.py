@@ -227,6 +227,13 @@ def test_default_grid_constrained_optimum_lies_strictly_between_and_both_constra
     # the optimum mixes the three routes at the start: up (over the top), right (through 'a'), down
     start = default.state_of_cell(default.layout.starts[0])
     assert opt.policy[start] == pytest.approx([0.416, 0.325, 0.259, 0.0], abs=1e-3)
+    # each first move at S, then pi*: return and costs (the docs' second table)
+    v = evaluate(default, opt.policy)
+    q_ret = default.r[start] + default.gamma * default.P[start] @ v.value
+    q_cost = default.c[:, start].T + default.gamma * default.P[start] @ v.cost_value.T
+    np.testing.assert_allclose(q_ret, [0.6018, 0.7198, 0.5454, 0.5912], atol=1e-4)
+    np.testing.assert_allclose(q_cost, [[0.0588, 0.2019], [0.8013, 0.1893], [0.0588, 0.0171], [0.2565, 0.1385]],
+                               atol=1e-4)
 
 
 @pytest.mark.parametrize("layout, match", [
