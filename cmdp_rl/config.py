@@ -80,6 +80,10 @@ class EvalConfig:
     plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
     plot_episodes: int = 3  # episodes drawn in the PNG
     output: Optional[str] = None  # also write the results as JSON to this path
+    video: Bool = False  # write mp4s of the policy (cmdp_rl/video.py): Reach1D, the velocity tasks
+    video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
+    video_dir: Optional[str] = None  # default: <run>/videos
+    video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps
 
 
 # The repository's Hydra configs (train.py's config_path), beside the package in a source checkout.

@@ -105,6 +105,11 @@ class GymEnvConfig:
     max_steps: Annotated[NonNegativeInt, Field(description="an integer >= 0 (0: the registered limit)")] = 0
     kwargs: Annotated[dict, Field(description="a mapping of constructor arguments")] = field(default_factory=dict)
 
+    def render_env(self) -> gym.Env:
+        """One env of this id asked for ``rgb_array`` frames (for video; ``cmdp_rl.video`` refuses
+        an env whose render modes lack it)."""
+        return make_cost_env(self.id, self.step_api, self.max_steps, **{"render_mode": "rgb_array", **self.kwargs})
+
 
 def make_gym_vec_env(cfg: GymEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
     from cmdp_rl.envs.vector import GymVecEnv
