@@ -174,6 +174,7 @@ class WandbRun:
             # dir: wandb writes its files to <dir>/wandb (WANDB_DIR)
             project=self.project, entity=self.entity, mode=self.mode, dir=str(self.run_dir), id=run_id,
             resume="allow", name=self.run_dir.name, config=self.config,
+            reinit="finish_previous",  # a train() that failed in this process left its run open
             settings=wandb.Settings(console="off", silent=True),
         )
         self.run.define_metric("step")

@@ -85,7 +85,9 @@ def make_render_env(env_cfg: Any) -> gym.Env:
             frame = env.render()
         except Exception as exc:  # noqa: BLE001 - OpenGL's failures come as many types; all mean the same here
             first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            failure = f"video: env={env_cfg.name} cannot render here (MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {first}); {HEADLESS_GL}"
+            failure = f"video: env={env_cfg.name} cannot render here ({first})"
+            if "mujoco" in type(env.unwrapped).__module__:
+                failure = f"video: env={env_cfg.name} cannot render here (MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {first}); {HEADLESS_GL}"
         if failure is not None:
             env.close()
             gc.collect()

@@ -136,3 +136,22 @@ def test_missing_wandb_is_a_one_line_config_error(monkeypatch):
 def test_csv_runs_write_no_wandb_files(tmp_path):
     train(load_config(tiny(total_steps=32)), tmp_path, echo=lambda _: None)
     assert not (tmp_path / "wandb").exists() and not (tmp_path / "wandb_id.txt").exists()
+
+
+def test_a_run_left_open_by_a_failed_train_is_finished_by_the_next(tmp_path):
+    from cmdp_rl.metrics import WandbRun
+
+    dirs = [tmp_path / "a", tmp_path / "b"]
+    for d in dirs:
+        d.mkdir()
+    first = WandbRun(dirs[0], "cmdp_rl", None, "offline", {"seed": 0})
+    first.start(resume=False)
+    first.log({"iteration": 1, "step": 32, "episode_return": 0.5}, ["iteration", "step", "episode_return"])
+    second = WandbRun(dirs[1], "cmdp_rl", None, "offline", {"seed": 1})
+    second.start(resume=False)  # without finish(): as after an exception in train()
+    assert second.run.id != first.run.id
+    second.finish({"episode_return": 0.25})
+    (log,) = offline_runs(dirs[0])[0].glob("run-*.wandb")
+    assert records(log)[-1].WhichOneof("record_type") == "exit"  # the first run was closed, not reused
+    assert read_run(offline_runs(dirs[1])[0])[2]["episode_return"] == 0.25
+    assert [h["step"] for h in read_run(offline_runs(dirs[0])[0])[1]] == [32]
