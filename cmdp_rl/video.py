@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import importlib.util
+import math
 import os
 import sys
 from dataclasses import dataclass
@@ -101,6 +102,14 @@ def make_render_env(env_cfg: Any) -> gym.Env:
     return env
 
 
+def exact_fps(fps: float) -> int:
+    """The power of two nearest ``fps`` (within a factor of 1.42 of it). moviepy counts a clip's
+    frames as ``int(sum(n * [1 / fps]) * fps)``, which for most rates rounds some counts down and
+    drops the last frame (at 10 fps: 393 of the counts 1..1001; moviepy issue #2507); with a power
+    of two the sum is exact and every frame is written."""
+    return 2 ** max(0, round(math.log2(fps)))
+
+
 @contextlib.contextmanager
 def _unraisable_ignored() -> Iterator[None]:
     """Drop the errors raised in ``__del__`` meanwhile: after a renderer failed to start, Python
@@ -148,7 +157,8 @@ def record_video(
     from gymnasium.wrappers import RecordVideo
 
     env = make_render_env(env_cfg)
-    env = RecordVideo(env, str(video_dir), episode_trigger=lambda i: i < episodes, name_prefix=name_prefix)
+    env = RecordVideo(env, str(video_dir), episode_trigger=lambda i: i < episodes, name_prefix=name_prefix,
+                      fps=exact_fps(env.metadata.get("render_fps", 30)))
     policy = _PolicyOnOneEnv(actor, int(np.prod(env.action_space.shape)))
     exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     out: list[VideoEpisode] = []

@@ -18,7 +18,7 @@ from cmdp_rl.envs.reach1d import FRAME_H, FRAME_W, Reach1D, render_reach1d
 from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.replay import record_reach1d
 from cmdp_rl.rundir import load_trained
-from cmdp_rl.video import VideoError, make_render_env, record_video
+from cmdp_rl.video import VideoError, exact_fps, make_render_env, record_video
 from conftest import ROOT, tiny
 
 pytest.importorskip("moviepy")  # the test extra installs it (pip install -e '.[test]')
@@ -91,12 +91,13 @@ def test_reach1d_video_has_a_frame_per_step_and_replays_the_evaluation_episodes(
 
 
 def test_evaluate_cli_writes_videos_into_the_run(run, capsys):
-    assert evaluate_cli.main([f"run={run}", "video=true", "video_episodes=2", "video_steps=5", "episodes=2"]) == 0
+    assert evaluate_cli.main([f"run={run}", "video=true", "video_episodes=2", "video_steps=10", "episodes=2"]) == 0
     files = sorted((run / "videos").iterdir())
     assert [f.name for f in files] == ["policy-episode-0.mp4", "policy-episode-1.mp4"]
-    assert [frames_in(f) for f in files] == [6, 6]  # cut after 5 steps: the reset frame and 5 more
+    # cut after 10 steps: the reset frame and 10 more (a count moviepy would cut to 10 at 10 fps)
+    assert [frames_in(f) for f in files] == [11, 11]
     out = capsys.readouterr().out
-    assert out.count("wrote ") == 2 and "(6 frames" in out
+    assert out.count("wrote ") == 2 and "(11 frames" in out
 
 
 def test_the_torch_backend_renders_through_its_gym_twin():
@@ -123,7 +124,7 @@ def test_velocity_video_renders_headless(tmp_path, monkeypatch):
     from moviepy import VideoFileClip
 
     clip = VideoFileClip(str(video))
-    assert clip.size == [320, 240] and clip.fps == 20  # HalfCheetah's render_fps
+    assert clip.size == [320, 240] and clip.fps == 16  # HalfCheetah's render_fps 20, as a power of two
     assert np.asarray(clip.get_frame(0)).std() > 10  # a scene, not a blank frame
     clip.close()
 
@@ -163,6 +164,13 @@ def test_an_env_that_cannot_render_is_refused_in_one_line(tmp_path, capsys):
 
     with pytest.raises(ConfigError, match="env=mine cannot render"):
         make_render_env(Mine())
+
+
+def test_every_frame_count_survives_moviepy_at_a_power_of_two_fps():
+    assert [exact_fps(f) for f in (8, 10, 20, 25, 30, 67, 125)] == [8, 8, 16, 32, 32, 64, 128]
+    for fps in (8, 16, 32, 64, 128):  # moviepy's count of an n-frame clip is exact for every n
+        assert all(int(sum([1.0 / fps] * n) * fps) == n for n in range(1, 1002))
+    assert int(sum([1.0 / 10] * 11) * 10) == 10  # ...and at 10 fps it is not
 
 
 def test_missing_moviepy_is_one_line(monkeypatch):

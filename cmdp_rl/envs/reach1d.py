@@ -43,8 +43,9 @@ class Reach1D(gym.Env):
             probe reading (-1 until the first probe of the episode).
     """
 
-    # rgb_array: a drawn frame (render_reach1d below), for gymnasium's RecordVideo; 10 steps a second.
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    # rgb_array: a drawn frame (render_reach1d below), for gymnasium's RecordVideo; 8 steps a second
+    # (a power of two: see cmdp_rl/video.py's exact_fps).
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
 
     def __init__(
         self,
