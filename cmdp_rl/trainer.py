@@ -21,7 +21,7 @@ from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
 from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
-from cmdp_rl.metrics import MetricsLogger, columns
+from cmdp_rl.metrics import MetricsLogger, columns, wandb_for
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_actor_critic
 from cmdp_rl.resume import load_resume_state
@@ -70,6 +70,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             resume_iteration=None if state is None else state["iteration"],
             tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
             resume_step=None if state is None else state["step"],
+            wandb=wandb_for(cfg, out),
         )
     except ValueError as exc:
         env.close()
@@ -160,6 +161,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
                                     cfg.algo.cost_limit, reference))
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
+    logger.finish(result)  # the summary beside the metrics (logger=wandb)
     task = f", {metric.replace('_', ' ')} {result[metric]:.0%}" if metric else ""
     echo(
         f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "

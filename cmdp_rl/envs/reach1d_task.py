@@ -46,6 +46,11 @@ class Reach1DConfig:
         return dict(obs_noise=self.obs_noise, wall_x=self.wall_x, max_steps=self.max_steps, goal=self.goal,
                     wall=self.wall, start=self.start, probe=self.probe)
 
+    def render_env(self) -> Reach1D:
+        """One gymnasium Reach1D of these options drawing ``rgb_array`` frames (for video; the torch
+        backend renders through this gym twin)."""
+        return Reach1D(**self.env_kwargs(), render_mode="rgb_array")
+
     def check(self, run: RunConfig) -> None:
         if isinstance(self.start, list):
             ok = len(self.start) == 2 and all(is_finite(s) for s in self.start) and 0 <= self.start[0] <= self.start[1] <= 1
