@@ -10,6 +10,7 @@ import csv
 import importlib.util
 import json
 import struct
+import time
 
 import pytest
 
@@ -18,6 +19,7 @@ from cmdp_rl.config import ConfigError, compose_config
 from conftest import tiny
 
 pytest.importorskip("wandb")  # the test extra installs it (pip install -e '.[test]')
+import wandb  # noqa: E402
 from wandb.proto import wandb_internal_pb2 as pb  # noqa: E402
 
 
@@ -52,14 +54,21 @@ def offline_runs(run_dir):
 
 def read_run(offline_dir):
     """(config, history rows, summary) of one offline run directory, values decoded from JSON."""
+    # wandb's service process writes the log on its own schedule after run.finish() returns; shut it
+    # down so every record is on disk (the next wandb.init starts a new one)
+    wandb.teardown()
     (log,) = offline_dir.glob("run-*.wandb")
     config, history, summary = {}, [], {}
     for rec in records(log):
         kind = rec.WhichOneof("record_type")
-        if kind == "run":
-            config.update({u.key: json.loads(u.value_json) for u in rec.run.config.update})
-        elif kind == "config":
-            config.update({u.key: json.loads(u.value_json) for u in rec.config.update})
+        if kind in ("run", "config"):
+            # wandb sends an update under a plain key or, depending on timing, a nested key path
+            for u in (rec.run.config.update if kind == "run" else rec.config.update):
+                path = [u.key] if u.key else list(u.nested_key)
+                node = config
+                for part in path[:-1]:
+                    node = node.setdefault(part, {})
+                node[path[-1]] = json.loads(u.value_json)
         elif kind == "history":
             history.append({(i.key or i.nested_key[0]): json.loads(i.value_json) for i in rec.history.item})
         elif kind == "summary":
@@ -112,6 +121,9 @@ def test_a_resume_continues_under_the_same_wandb_id(tmp_path):
     run = tmp_path / "run"
     train(load_config(tiny(total_steps=64, logger={"name": "wandb"})), run, echo=lambda _: None)
     run_id = (run / "wandb_id.txt").read_text().strip()
+    # wandb names an offline run's directory by the second it starts; a second session in the same
+    # second gets a "-1" suffix and shares its files, so keep the two sessions a second apart.
+    time.sleep(1.1)
     train(load_config(tiny(total_steps=128, logger={"name": "wandb"}, resume=str(run))), echo=lambda _: None)
     assert (run / "wandb_id.txt").read_text().strip() == run_id
     first, second = offline_runs(run)  # offline, each session writes its own directory with that id
