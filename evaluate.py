@@ -1,7 +1,9 @@
 """Evaluate a trained run: ``python evaluate.py run=<run dir> [key=value ...]``.
 
 Loads the run's config and checkpoint, runs whole episodes and prints return, cost and length with
-their spreads. With no options it repeats the run's own final evaluation (same episodes, same seed:
+their spreads, then 95% intervals over the episodes: mean return and mean cost (BCa bootstrap), an
+upper bound on mean cost, and the rate of episodes over the budget (exact binomial); see
+docs/evaluation.md. With no options it repeats the run's own final evaluation (same episodes, same seed:
 the numbers in its eval.json).
 
 Options (cmdp_rl.config.EvalConfig):
@@ -39,6 +41,7 @@ from omegaconf.errors import OmegaConfBaseException
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.config import ConfigError, load_eval_config
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
+from cmdp_rl.intervals import summary_lines
 from cmdp_rl.replay import plot_reach1d, record_reach1d
 from cmdp_rl.rundir import load_trained, run_config
 from cmdp_rl.video import VideoError, make_render_env, record_video
@@ -76,7 +79,8 @@ def main(argv: list[str]) -> int:
         return 2
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
-    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed, termination_metric=metric)
+    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed, termination_metric=metric,
+                      cost_limit=cfg.algo.cost_limit)
     env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
     mode = "deterministic" if deterministic else "stochastic"
@@ -87,6 +91,8 @@ def main(argv: list[str]) -> int:
     print(_line("episode_length", result, ".1f"))
     if metric:
         print(f"  {metric:<15} {result[metric]:.0%}")
+    for line in summary_lines(result, cfg.algo.cost_limit):
+        print(f"  {line}")
     if opts.output:
         Path(opts.output).write_text(json.dumps(result, indent=2))
         print(f"wrote {opts.output}")

@@ -152,7 +152,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
     eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
-                      termination_metric=metric)
+                      termination_metric=metric, cost_limit=cfg.algo.cost_limit)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
                    "torch_threads": torch.get_num_threads()})
