@@ -30,8 +30,10 @@ bench-velocity-smoke: .venv/.mujoco
 	$(PY) experiments/velocity_benchmark.py --run total_steps=8192 rollout_steps=256 env.num_envs=4 \
 		eval_episodes=2 env.max_steps=200 hydra.sweep.dir=multirun/velocity_benchmark_smoke
 
+# The first run: the batched Reach1D preset (configs/env/reach1d_torch.yaml, tuned in configs/tuning/)
+# for 3M steps, 96 iterations; experiments/first_run.py runs this recipe over seeds (README figures).
 train: setup
-	$(PY) train.py algo=ppo_lag env=reach1d
+	$(PY) train.py algo=ppo_lag env=reach1d_torch total_steps=3145728
 
 test: setup
 	$(PY) -m pytest tests

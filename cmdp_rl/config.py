@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal, Mapping, Optional, Sequence
 
 from cmdp_rl.registry import KINDS, component
 from cmdp_rl.safety_metrics import ReferenceConfig
+from cmdp_rl.threads import apply_threads
 from cmdp_rl.validation import (
     AUTO, AutoInt, Bool, ConfigError, Field, PositiveFloat, PositiveInt, build, options, recheck, require,
 )
@@ -109,7 +110,9 @@ def compose_config(overrides: Sequence[str] = (), config_dir: str | Path = CONFI
 
 
 def load_config(raw: Mapping[str, Any]) -> RunConfig:
-    """Build and validate a :class:`RunConfig` from a plain mapping (e.g. a resolved Hydra config)."""
+    """Build and validate a :class:`RunConfig` from a plain mapping (e.g. a resolved Hydra config),
+    and set torch's thread count to its ``threads`` (process-wide, as :func:`cmdp_rl.train` does), so
+    that a script building the pieces itself from this config gets the same speed."""
     raw = dict(raw)
     raw.pop("hydra", None)
     parts: dict[str, Any] = {}
@@ -124,6 +127,7 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
     for name, value in parts.items():
         setattr(cfg, name, value)
     validate(cfg)
+    apply_threads(cfg)  # as train() does: a script building its own pieces runs as fast (threads.py)
     return cfg
 
 

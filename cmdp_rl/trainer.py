@@ -24,10 +24,13 @@ from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger, columns, wandb_for
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_actor_critic
+from cmdp_rl.progress import Progress
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
 from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
 from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
+from cmdp_rl.summary import summary_lines
+from cmdp_rl.threads import apply_threads
 
 
 def _mean(t: torch.Tensor) -> float:
@@ -57,7 +60,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     validate(cfg)
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
-    torch.set_num_threads(cfg.threads)
+    apply_threads(cfg)
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
     ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
@@ -103,7 +106,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             rollout = None
             if not cannot_resume:
                 cannot_resume.append(str(exc))
-                echo(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
+                progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
         save_checkpoint(ckpt_path, {
             "algo": cfg.algo.name, "policy": cfg.policy.name, "config": run_cfg,
             "iteration": iteration, "step": collector.total_steps, "time_s": time.perf_counter() - start,
@@ -117,6 +120,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         shape += f"; {cfg.algo.describe_update()}"
     echo(f"training {cfg.algo.name} on {cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs): "
          f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}")
+    progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
+    logger.echo = progress.row_echo
     try:
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
@@ -140,9 +145,11 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
                                          cfg.algo.cost_limit, reference))
             logger.log(row, force_echo=it == iterations)
+            progress.update(row)
             if it % cfg.checkpoint_every == 0 or it == iterations:
                 checkpoint(it)
     finally:
+        progress.close()
         logger.close()
         env.close()
     train_time = time.perf_counter() - start
@@ -162,10 +169,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
-    task = f", {metric.replace('_', ' ')} {result[metric]:.0%}" if metric else ""
-    echo(
-        f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "
-        f"{result['episodes']} episodes: return {result['episode_return']:.3f} ± {result['episode_return_std']:.3f}, "
-        f"cost {result['episode_cost']:.2f} ± {result['episode_cost_std']:.2f} (limit {cfg.algo.cost_limit}){task}"
-    )
+    header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s"
+    for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header):
+        echo(line)
     return result
