@@ -4,7 +4,7 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup train test bench bench-velocity bench-velocity-smoke sweep probe-belief clean
+.PHONY: setup setup-safety-gym train test bench bench-velocity bench-velocity-smoke sweep probe-belief clean
 
 .venv/.installed: pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -30,10 +30,25 @@ bench-velocity-smoke: .venv/.mujoco
 	$(PY) experiments/velocity_benchmark.py --run total_steps=8192 rollout_steps=256 env.num_envs=4 \
 		eval_episodes=2 env.max_steps=200 hydra.sweep.dir=multirun/velocity_benchmark_smoke
 
-train: setup
-	$(PY) train.py algo=ppo_lag env=reach1d
+# Safety-Gymnasium (env=safety_gym, docs/safety_gym.md). Its only release, 1.0.0, pins gymnasium 0.28,
+# mujoco 2.3 and pygame 2.1, which would downgrade our stack (pygame 2.1 has no wheel for Python
+# 3.11): it goes in with --no-deps, after the few packages it really needs (the `safety_gym` extra).
+# Our pins are untouched; cmdp_rl/envs/safety_gym_compat.py makes it import on gymnasium 1.x.
+SAFETY_GYM_VERSION := 1.0.0
+.venv/.safety_gym: .venv/.installed
+	$(PY) -m pip install -q -e '.[safety_gym]'
+	$(PY) -m pip install -q --no-deps safety-gymnasium==$(SAFETY_GYM_VERSION)
+	touch $@
 
-test: setup
+setup-safety-gym: .venv/.safety_gym
+
+# The first run: the batched Reach1D preset (configs/env/reach1d_torch.yaml, tuned in configs/tuning/)
+# for 3M steps, 96 iterations; experiments/first_run.py runs this recipe over seeds (README figures).
+train: setup
+	$(PY) train.py algo=ppo_lag env=reach1d_torch total_steps=3145728
+
+# The tests include Safety-Gymnasium's tasks (tests/test_safety_gym.py), so CI installs it.
+test: setup setup-safety-gym
 	$(PY) -m pytest tests
 
 # Throughput table (env, rollout, training steps/s, peak memory); writes outputs/benchmark_throughput.json.

@@ -1,7 +1,9 @@
 """Evaluate a trained run: ``python evaluate.py run=<run dir> [key=value ...]``.
 
 Loads the run's config and checkpoint, runs whole episodes and prints return, cost and length with
-their spreads. With no options it repeats the run's own final evaluation (same episodes, same seed:
+their spreads, then 95% intervals over the episodes: mean return and mean cost (BCa bootstrap), an
+upper bound on mean cost, and the rate of episodes over the budget (exact binomial); see
+docs/evaluation.md. With no options it repeats the run's own final evaluation (same episodes, same seed:
 the numbers in its eval.json).
 
 Options (cmdp_rl.config.EvalConfig):
@@ -15,9 +17,16 @@ Options (cmdp_rl.config.EvalConfig):
                        reading against time, wall, goal and collisions
   plot_episodes=N      episodes in the PNG (default 3)
   output=<file.json>   also write the results as JSON
+  video=true           write mp4s of the policy through gymnasium's RecordVideo (needs
+                       pip install 'cmdp_rl[video]'): Reach1D as a drawn frame (the torch backend
+                       through its gym twin), the velocity tasks through MuJoCo; an env that
+                       cannot render is refused. Same seed and policy mode as the evaluation.
+  video_episodes=N     episodes recorded, one file each (default 1)
+  video_dir=<dir>      where the mp4s go (default <run>/videos)
+  video_steps=N        cut each recorded episode after N steps (default: whole episodes)
 
-Video: there is no MuJoCo task in the toolkit yet, so nothing here records video; see
-cmdp_rl/replay.py for where it goes and what headless rendering needs.
+Video without a display: MuJoCo renders through EGL (MUJOCO_GL=egl is set when no DISPLAY is);
+on Debian that needs libegl1, libegl-mesa0 and libgl1-mesa-dri (see cmdp_rl/video.py).
 """
 
 from __future__ import annotations
@@ -32,8 +41,10 @@ from omegaconf.errors import OmegaConfBaseException
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.config import ConfigError, load_eval_config
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
+from cmdp_rl.intervals import summary_lines
 from cmdp_rl.replay import plot_reach1d, record_reach1d
 from cmdp_rl.rundir import load_trained, run_config
+from cmdp_rl.video import VideoError, make_render_env, record_video
 
 
 def _line(name: str, r: dict, fmt: str) -> str:
@@ -60,13 +71,16 @@ def main(argv: list[str]) -> int:
         seed = run_cfg.seed + EVAL_SEED_OFFSET if opts.seed is None else opts.seed
         if opts.plot is not None and run_cfg.env.name != "reach1d":
             raise ConfigError(f"plot: episode plots are drawn for env=reach1d only, this run is env={run_cfg.env.name}")
+        if opts.video:  # one frame now: an env or a machine that cannot render fails before the evaluation
+            make_render_env(run_cfg.env).close()
         cfg, env, ac, iteration, step = load_trained(opts.run, opts.checkpoint, min(episodes, run_cfg.env.num_envs))
-    except (ConfigError, CheckpointError) as exc:
+    except (ConfigError, CheckpointError, VideoError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
-    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed, termination_metric=metric)
+    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed, termination_metric=metric,
+                      cost_limit=cfg.algo.cost_limit)
     env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
     mode = "deterministic" if deterministic else "stochastic"
@@ -77,6 +91,8 @@ def main(argv: list[str]) -> int:
     print(_line("episode_length", result, ".1f"))
     if metric:
         print(f"  {metric:<15} {result[metric]:.0%}")
+    for line in summary_lines(result, cfg.algo.cost_limit):
+        print(f"  {line}")
     if opts.output:
         Path(opts.output).write_text(json.dumps(result, indent=2))
         print(f"wrote {opts.output}")
@@ -84,6 +100,10 @@ def main(argv: list[str]) -> int:
         eps = record_reach1d(ac.actor, cfg.env, opts.plot_episodes, deterministic, seed=seed)
         title = f"{opts.run}: {cfg.algo.name}, {mode} policy, cost limit {cfg.algo.cost_limit}"
         print(f"wrote {plot_reach1d(eps, cfg.env, opts.plot, title)}")
+    if opts.video:
+        video_dir = Path(opts.video_dir) if opts.video_dir else Path(opts.run) / "videos"
+        for v in record_video(ac.actor, cfg.env, video_dir, opts.video_episodes, deterministic, seed, opts.video_steps):
+            print(f"wrote {v.path} ({v.frames} frames: return {v.episode_return:.3f}, cost {v.episode_cost:.0f})")
     return 0
 
 

@@ -16,11 +16,13 @@ from typing import Annotated, Any, Literal, Mapping, Optional, Sequence
 
 from cmdp_rl.registry import KINDS, component
 from cmdp_rl.safety_metrics import ReferenceConfig
+from cmdp_rl.threads import apply_threads
 from cmdp_rl.validation import (
     AUTO, AutoInt, Bool, ConfigError, Field, PositiveFloat, PositiveInt, build, options, recheck, require,
 )
 
 TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
+WANDB_MISSING = "logger=wandb needs the wandb package: pip install 'cmdp_rl[wandb]'"
 # What a config names when it leaves a component out.
 DEFAULTS = {"env": "reach1d", "algo": "ppo_lag", "policy": "mlp"}
 
@@ -42,9 +44,15 @@ class NormalizeConfig:
 @options
 class LoggerConfig:
     """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else,
-    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory."""
+    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory, ``wandb`` also a
+    Weights & Biases run (files in the run's ``wandb/`` directory; ``project``, ``entity`` and
+    ``mode`` are wandb's, read only with ``logger=wandb``)."""
 
-    name: Literal["csv", "tensorboard"] = "csv"
+    name: Literal["csv", "tensorboard", "wandb"] = "csv"
+    project: Annotated[str, Field(pattern=r"\S", description="a wandb project name")] = "cmdp_rl"
+    entity: Optional[str] = None  # a wandb user or team; None: the account's default
+    # offline: files only, no network (upload later with `wandb sync`); online: stream to the server
+    mode: Literal["offline", "online"] = "offline"
 
 
 @options
@@ -80,6 +88,10 @@ class EvalConfig:
     plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
     plot_episodes: int = 3  # episodes drawn in the PNG
     output: Optional[str] = None  # also write the results as JSON to this path
+    video: Bool = False  # write mp4s of the policy (cmdp_rl/video.py): Reach1D, the velocity tasks
+    video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
+    video_dir: Optional[str] = None  # default: <run>/videos
+    video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps
 
 
 # The repository's Hydra configs (train.py's config_path), beside the package in a source checkout.
@@ -98,7 +110,9 @@ def compose_config(overrides: Sequence[str] = (), config_dir: str | Path = CONFI
 
 
 def load_config(raw: Mapping[str, Any]) -> RunConfig:
-    """Build and validate a :class:`RunConfig` from a plain mapping (e.g. a resolved Hydra config)."""
+    """Build and validate a :class:`RunConfig` from a plain mapping (e.g. a resolved Hydra config),
+    and set torch's thread count to its ``threads`` (process-wide, as :func:`cmdp_rl.train` does), so
+    that a script building the pieces itself from this config gets the same speed."""
     raw = dict(raw)
     raw.pop("hydra", None)
     parts: dict[str, Any] = {}
@@ -113,6 +127,7 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
     for name, value in parts.items():
         setattr(cfg, name, value)
     validate(cfg)
+    apply_threads(cfg)  # as train() does: a script building its own pieces runs as fast (threads.py)
     return cfg
 
 
@@ -176,6 +191,8 @@ def validate(cfg: RunConfig) -> None:
         require(torch.cuda.is_available(), "device", "cpu on this machine (torch sees no CUDA device)", cfg.device)
     if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
         raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
+    if cfg.logger.name == "wandb" and importlib.util.find_spec("wandb") is None:
+        raise ConfigError(f"logger.name: {WANDB_MISSING}")
     _validate_normalize(cfg)
     cfg.reference.check(cfg)
 

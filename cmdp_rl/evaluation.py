@@ -9,6 +9,7 @@ from torchrl.envs.utils import ExplorationType
 from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import VecEnv
+from cmdp_rl.intervals import summarize as interval_estimates
 
 EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
 
@@ -25,7 +26,7 @@ def _spread(name: str, values: list[float]) -> dict[str, float]:
 
 def evaluate(
     actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool = True, seed: int | None = None,
-    termination_metric: str | None = None,
+    termination_metric: str | None = None, cost_limit: float | None = None,
 ) -> dict[str, float]:
     """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
 
@@ -36,16 +37,19 @@ def evaluate(
     than the time limit, under that name.
     With ``seed``, a stochastic policy samples from torch's generator seeded with it, inside
     ``fork_rng``: the same seed gives the same numbers, and the caller's generator is left as it was.
+    With ``cost_limit`` (the budget d), the result also has 95% intervals over the episodes: of mean
+    return and mean cost, cost's upper bound, and the rate of episodes with cost above d
+    (:func:`cmdp_rl.intervals.summarize`).
     """
     with torch.random.fork_rng(devices=[]):
         if seed is not None:
             torch.manual_seed(seed)
-        return _evaluate(actor, env, episodes, deterministic, seed, termination_metric)
+        return _evaluate(actor, env, episodes, deterministic, seed, termination_metric, cost_limit)
 
 
 def _evaluate(
     actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool, seed: int | None,
-    termination_metric: str | None,
+    termination_metric: str | None, cost_limit: float | None = None,
 ) -> dict[str, float]:
     n = env.num_envs
     quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
@@ -71,4 +75,6 @@ def _evaluate(
         result.update(_spread(name, [row[j] for row in flat]))
     if termination_metric:
         result[termination_metric] = sum(row[3] for row in flat) / len(flat)
+    if cost_limit is not None:
+        result.update(interval_estimates([row[0] for row in flat], [row[1] for row in flat], cost_limit))
     return result

@@ -1,19 +1,24 @@
-"""Per-iteration metrics: one CSV row each (always), TensorBoard scalars (``logger=tensorboard``),
-and a progress line on the console. The columns are the run's own (:data:`RUN_COLUMNS`), then the
-statistics the algorithm declares (its ``stats``), then the field's safety metrics; the TensorBoard
-tags are those names, against the env step. A row with a name that is not a column is an error,
-never dropped.
+"""Per-iteration metrics: one CSV row each (always), TensorBoard scalars (``logger=tensorboard``)
+or a Weights & Biases run (``logger=wandb``), and a progress line on the console. The columns are
+the run's own (:data:`RUN_COLUMNS`), then the statistics the algorithm declares (its ``stats``),
+then the field's safety metrics; the TensorBoard tags and wandb keys are those names, against the
+env step. A row with a name that is not a column is an error, never dropped.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import os
+import secrets
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
-from cmdp_rl.config import TENSORBOARD_MISSING
+from cmdp_rl.config import TENSORBOARD_MISSING, WANDB_MISSING, RunConfig
+
+WANDB_DIR = "wandb"  # wandb's files, under the run directory
+WANDB_ID = "wandb_id.txt"  # the wandb run's id, for a resume to continue the same run
 
 # What the loop measures every iteration, for every algorithm. lagrange_multiplier is the lambda in
 # force (0 for unconstrained PPO); every algorithm reports it.
@@ -66,12 +71,15 @@ class MetricsLogger:
     With ``tensorboard_dir`` it also writes every numeric column but ``iteration`` and ``step`` as
     a TensorBoard scalar at ``global_step = step``. On a resume, ``resume_step`` (the checkpoint's
     step) hides the events a killed run wrote after its checkpoint (``SummaryWriter``'s purge_step).
+
+    With ``wandb`` (:func:`wandb_for`) it also logs every row to a wandb run, which :meth:`finish`
+    ends with the run's summary.
     """
 
     def __init__(
         self, path: str | Path, fieldnames: Sequence[str], log_interval: int = 1, echo: Callable[[str], None] = print,
         resume_iteration: int | None = None, tensorboard_dir: str | Path | None = None,
-        resume_step: int | None = None,
+        resume_step: int | None = None, wandb: WandbRun | None = None,
     ) -> None:
         self.path = Path(path)
         self.log_interval = log_interval
@@ -99,6 +107,9 @@ class MetricsLogger:
             self._file = open(self.path, "a", newline="")
             self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
         self._file.flush()
+        self._wandb = wandb
+        if wandb is not None:
+            wandb.start(resume_iteration is not None)  # last: a resume refused above starts no wandb run
 
     def log(self, row: dict[str, Any], force_echo: bool = False) -> None:
         unknown = [k for k in row if k not in self.columns]
@@ -112,6 +123,8 @@ class MetricsLogger:
                 value = row.get(name)
                 if isinstance(value, (int, float)) and math.isfinite(value):
                     self._tb.add_scalar(name, value, global_step=row["step"])
+        if self._wandb is not None:
+            self._wandb.log(row, self.columns)
         if force_echo or row["iteration"] == 1 or row["iteration"] % self.log_interval == 0:
             self.echo(format_row(row))
 
@@ -124,9 +137,68 @@ class MetricsLogger:
             self._tb.flush()
 
     def close(self) -> None:
+        """Close the files; a wandb run stays open for :meth:`finish`'s summary."""
         self._file.close()
         if self._tb is not None:
             self._tb.close()
+
+    def finish(self, summary: Mapping[str, Any]) -> None:
+        """The end-of-run summary (eval.json's contents): attached to the wandb run, which ends here."""
+        if self._wandb is not None:
+            self._wandb.finish(summary)
+
+
+class WandbRun:
+    """A Weights & Biases run beside metrics.csv (``logger=wandb``): the run's config attached at the
+    start, one ``log`` per metrics row with ``step`` (the env step) as every metric's x axis, the
+    summary at the end. Its files go to ``<run>/wandb/``; its id is kept in ``<run>/wandb_id.txt``
+    so a resume continues the same wandb run (``resume="allow"``). wandb's console capture is off:
+    it would wrap stdout, which the progress lines own."""
+
+    def __init__(self, run_dir: Path, project: str, entity: str | None, mode: str, config: dict[str, Any]) -> None:
+        self.run_dir, self.project, self.entity, self.mode, self.config = run_dir, project, entity, mode, config
+        self.run: Any = None
+
+    def start(self, resume: bool) -> None:
+        try:
+            import wandb
+        except ImportError as exc:
+            raise ImportError(WANDB_MISSING) from exc
+        id_file = self.run_dir / WANDB_ID
+        if resume and id_file.is_file():
+            run_id = id_file.read_text().strip()
+        else:
+            run_id = secrets.token_hex(4)  # as wandb makes them: 8 characters of [0-9a-z]
+            id_file.write_text(run_id + "\n")
+        self.run = wandb.init(
+            # dir: wandb writes its files to <dir>/wandb (WANDB_DIR)
+            project=self.project, entity=self.entity, mode=self.mode, dir=str(self.run_dir), id=run_id,
+            resume="allow", name=self.run_dir.name, config=self.config,
+            reinit="finish_previous",  # a train() that failed in this process left its run open
+            settings=wandb.Settings(console="off", silent=True),
+        )
+        self.run.define_metric("step")
+        self.run.define_metric("*", step_metric="step")
+
+    def log(self, row: Mapping[str, Any], columns: Sequence[str]) -> None:
+        values = {"step": row["step"]}
+        for name in columns[2:]:
+            value = row.get(name)
+            if isinstance(value, (int, float)) and math.isfinite(value):
+                values[name] = value
+        self.run.log(values)
+
+    def finish(self, summary: Mapping[str, Any]) -> None:
+        self.run.summary.update(dict(summary))
+        self.run.finish()
+
+
+def wandb_for(cfg: RunConfig, run_dir: str | Path) -> WandbRun | None:
+    """The wandb run ``cfg.logger`` asks for (None unless ``logger=wandb``), with the run's own config."""
+    if cfg.logger.name != "wandb":
+        return None
+    config = dataclasses.asdict(dataclasses.replace(cfg, resume=None))
+    return WandbRun(Path(run_dir), cfg.logger.project, cfg.logger.entity, cfg.logger.mode, config)
 
 
 def _fmt(x: float, spec: str) -> str:

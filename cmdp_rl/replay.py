@@ -4,9 +4,7 @@ The collector keeps only what learning needs; the true position lives in the env
 never reaches a batch. Replay steps one plain Reach1D per episode and records it, away from the
 collector's hot path. It sends actions in the env's own dtype, as ``GymVecEnv`` does.
 
-Video for MuJoCo tasks does not apply yet: the toolkit has no MuJoCo env. When one is added, a
-``render_mode="rgb_array"`` env under gymnasium's ``RecordVideo`` belongs here; headless rendering
-needs ``MUJOCO_GL=egl`` (a GPU driver) or ``MUJOCO_GL=osmesa`` (software).
+Videos of a policy (Reach1D's drawn frame, the MuJoCo velocity tasks) are ``cmdp_rl/video.py``'s.
 """
 
 from __future__ import annotations

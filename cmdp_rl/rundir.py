@@ -9,6 +9,7 @@
     eval.json       the final evaluation
     error.txt       why the run failed, if it did (train.py; cmdp_rl.sweeps reads it back)
     tb/             TensorBoard events, with ``logger=tensorboard``
+    wandb/          Weights & Biases files, with ``logger=wandb`` (wandb_id.txt: its run id, for a resume)
     .hydra/         Hydra's record of the command (train.py only)
 """
 

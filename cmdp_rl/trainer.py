@@ -21,13 +21,16 @@ from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
 from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
-from cmdp_rl.metrics import MetricsLogger, columns
+from cmdp_rl.metrics import MetricsLogger, columns, wandb_for
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_actor_critic
+from cmdp_rl.progress import Progress
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
 from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
 from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
+from cmdp_rl.summary import summary_lines
+from cmdp_rl.threads import apply_threads
 
 
 def _mean(t: torch.Tensor) -> float:
@@ -57,7 +60,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     validate(cfg)
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
-    torch.set_num_threads(cfg.threads)
+    apply_threads(cfg)
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
     ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
@@ -70,6 +73,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             resume_iteration=None if state is None else state["iteration"],
             tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
             resume_step=None if state is None else state["step"],
+            wandb=wandb_for(cfg, out),
         )
     except ValueError as exc:
         env.close()
@@ -102,7 +106,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             rollout = None
             if not cannot_resume:
                 cannot_resume.append(str(exc))
-                echo(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
+                progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
         save_checkpoint(ckpt_path, {
             "algo": cfg.algo.name, "policy": cfg.policy.name, "config": run_cfg,
             "iteration": iteration, "step": collector.total_steps, "time_s": time.perf_counter() - start,
@@ -116,6 +120,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         shape += f"; {cfg.algo.describe_update()}"
     echo(f"training {cfg.algo.name} on {cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs): "
          f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}")
+    progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
+    logger.echo = progress.row_echo
     try:
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
@@ -139,9 +145,11 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
                                          cfg.algo.cost_limit, reference))
             logger.log(row, force_echo=it == iterations)
+            progress.update(row)
             if it % cfg.checkpoint_every == 0 or it == iterations:
                 checkpoint(it)
     finally:
+        progress.close()
         logger.close()
         env.close()
     train_time = time.perf_counter() - start
@@ -151,7 +159,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
     eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
     result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
-                      termination_metric=metric)
+                      termination_metric=metric, cost_limit=cfg.algo.cost_limit)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
                    "torch_threads": torch.get_num_threads()})
@@ -160,10 +168,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
                                     cfg.algo.cost_limit, reference))
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
-    task = f", {metric.replace('_', ' ')} {result[metric]:.0%}" if metric else ""
-    echo(
-        f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s | eval over "
-        f"{result['episodes']} episodes: return {result['episode_return']:.3f} ± {result['episode_return_std']:.3f}, "
-        f"cost {result['episode_cost']:.2f} ± {result['episode_cost_std']:.2f} (limit {cfg.algo.cost_limit}){task}"
-    )
+    logger.finish(result)  # the summary beside the metrics (logger=wandb)
+    header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s"
+    for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header):
+        echo(line)
     return result

@@ -71,7 +71,7 @@ BAD = [
     ({"bogus": 1}, "config"),
     ({"resume": 5}, "resume must be null or a run directory"),
     ({"resume": ""}, "resume"),
-    ({"logger": {"name": "wandb"}}, "logger.name"),
+    ({"logger": {"name": "mlflow"}}, "logger.name"),
     ({"logger": {"flush_secs": 5}}, "logger"),
 ]
 

@@ -136,3 +136,19 @@ def test_a_mujoco_run_with_normalization_evaluates_as_it_did_in_training(tmp_pat
     assert evaluate_cli.main([f"run={tmp_path}", f"output={out}"]) == 0
     got, want = json.loads(out.read_text()), eval_result(tmp_path)
     assert got["episode_return"] == want["episode_return"] and got["episode_cost"] == want["episode_cost"]
+
+
+def test_eval_json_has_the_interval_estimates(run, capsys):
+    ev = eval_result(run)
+    n, d = ev["episodes"], ev["cost_limit"]
+    assert ev["intervals"]["level"] == 0.95 and ev["intervals"]["violation"] == f"episode cost > {d:g}"
+    for name in ("episode_return", "episode_cost"):
+        lo, hi = ev[f"{name}_ci95"]
+        assert ev[f"{name}_min"] <= lo <= ev[name] <= hi <= ev[f"{name}_max"]
+    assert ev["episode_cost_ci95"][0] <= ev["episode_cost_ucb95"] <= ev["episode_cost_ci95"][1]
+    assert 0 <= ev["violations"] <= n and ev["violation_rate"] == ev["violations"] / n
+    lo, hi = ev["violation_rate_ci95"]
+    assert lo <= ev["violation_rate"] <= ev["violation_rate_ucb95"] <= hi
+    assert evaluate_cli.main([f"run={run}"]) == 0
+    text = capsys.readouterr().out
+    assert f"violations {ev['violations']}/{n} episodes (cost > {d:g})" in text and "95% CI" in text

@@ -25,7 +25,7 @@ from gymnasium.envs.registration import load_env_creator
 from gymnasium.wrappers import TimeLimit
 
 from cmdp_rl.registry import register
-from cmdp_rl.validation import Field, NonNegativeInt, PositiveInt, options
+from cmdp_rl.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options
 
 if TYPE_CHECKING:
     from cmdp_rl.envs.vector import VecEnv
@@ -104,6 +104,15 @@ class GymEnvConfig:
     step_api: Literal["five", "six"] = "five"
     max_steps: Annotated[NonNegativeInt, Field(description="an integer >= 0 (0: the registered limit)")] = 0
     kwargs: Annotated[dict, Field(description="a mapping of constructor arguments")] = field(default_factory=dict)
+
+    def render_env(self) -> gym.Env:
+        """One env of this id drawing ``rgb_array`` frames (for video), if its class offers them."""
+        spec = gym.spec(_resolve(self.id))
+        creator = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
+        modes = list(getattr(creator, "metadata", {}).get("render_modes", []))
+        if "rgb_array" not in modes:
+            raise ConfigError(f"video: env=gym env.id={self.id} cannot render rgb_array frames (its render modes: {modes})")
+        return make_cost_env(self.id, self.step_api, self.max_steps, **{"render_mode": "rgb_array", **self.kwargs})
 
 
 def make_gym_vec_env(cfg: GymEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:

@@ -43,7 +43,9 @@ class Reach1D(gym.Env):
             probe reading (-1 until the first probe of the episode).
     """
 
-    metadata = {"render_modes": []}
+    # rgb_array: a drawn frame (render_reach1d below), for gymnasium's RecordVideo; 8 steps a second
+    # (a power of two: see cmdp_rl/video.py's exact_fps).
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
 
     def __init__(
         self,
@@ -54,10 +56,14 @@ class Reach1D(gym.Env):
         wall: str = "block",
         start: float | tuple[float, float] | list[float] = 0.1,
         probe: bool = False,
+        render_mode: str | None = None,
     ) -> None:
         super().__init__()
         if wall not in WALL_MODES:
             raise ValueError(f"env.wall must be one of {WALL_MODES}, got {wall!r}")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"Reach1D: render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
         self.obs_noise = obs_noise
         self.wall_x = wall_x
         self.max_steps = max_steps
@@ -96,7 +102,8 @@ class Reach1D(gym.Env):
             self.x = self.start
         self.steps = 0
         self.last_probe = -1.0
-        return self._obs(self._reading(self.obs_noise)), {"true_x": self.x}
+        self._seen = (self._reading(self.obs_noise), 0.0)  # (reading, cost) for render()
+        return self._obs(self._seen[0]), {"true_x": self.x}
 
     def step(self, action):
         clipped = np.clip(action, self.action_space.low, self.action_space.high)
@@ -118,8 +125,17 @@ class Reach1D(gym.Env):
         reading = self._reading(self.obs_noise / 2 if probing else self.obs_noise)
         if probing:
             self.last_probe = reading
+        self._seen = (reading, cost)
         info = {"cost": cost, "true_x": self.x}
         return self._obs(reading), float(reward), terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """With ``render_mode="rgb_array"``: the current state as an RGB frame (draws no random
+        numbers, so rendering leaves the episode as it would have been)."""
+        if self.render_mode != "rgb_array":
+            return None
+        reading, cost = self._seen
+        return render_reach1d(self.x, reading, cost > 0, self.steps / self.max_steps, self.wall_x, self.goal)
 
     # --- saving and restoring a running episode (for resuming training) ---------------------------
     def state_dict(self) -> dict[str, Any]:
@@ -136,3 +152,34 @@ class Reach1D(gym.Env):
         self.np_random.bit_generator.state = state["np_random"]
         self.x, self.steps, self.last_probe = state["x"], state["steps"], state["last_probe"]
 
+
+
+FRAME_H, FRAME_W = 128, 512  # multiples of 16: video encoders want even sizes, macroblocks of 16
+_MARGIN = 16
+
+
+def render_reach1d(
+    x: float, reading: float, collided: bool, elapsed: float, wall_x: float, goal: float,
+) -> np.ndarray:
+    """A ``FRAME_H x FRAME_W`` RGB frame of Reach1D drawn with numpy: the track [0, 1] left to right,
+    the wall (dark bar), the goal (green line in its reach band), the true position (blue disc),
+    the noisy reading the agent saw (orange tick above the track), a red border on a step that
+    crossed the wall (cost 1), and the elapsed fraction of the time limit (grey bar at the bottom)."""
+    img = np.full((FRAME_H, FRAME_W, 3), 250, dtype=np.uint8)
+    mid = FRAME_H // 2
+
+    def px(pos: float) -> int:
+        return _MARGIN + int(round(float(np.clip(pos, 0.0, 1.0)) * (FRAME_W - 2 * _MARGIN - 1)))
+
+    img[mid - 1:mid + 2, px(0):px(1) + 1] = 190  # track
+    img[24:FRAME_H - 24, px(goal - GOAL_TOLERANCE):px(goal + GOAL_TOLERANCE) + 1] = (200, 235, 200)
+    img[24:FRAME_H - 24, px(goal) - 1:px(goal) + 2] = (40, 150, 40)
+    img[16:FRAME_H - 16, px(wall_x) - 3:px(wall_x) + 3] = (70, 70, 70)
+    r = px(reading)
+    img[mid - 26:mid - 12, max(r - 2, 0):r + 3] = (240, 140, 20)
+    yy, xx = np.ogrid[:FRAME_H, :FRAME_W]
+    img[(yy - mid) ** 2 + (xx - px(x)) ** 2 <= 81] = (30, 90, 200)
+    img[FRAME_H - 8:FRAME_H - 4, _MARGIN:px(elapsed) + 1] = 150
+    if collided:
+        img[:4], img[-4:], img[:, :4], img[:, -4:] = (220, 30, 30), (220, 30, 30), (220, 30, 30), (220, 30, 30)
+    return img

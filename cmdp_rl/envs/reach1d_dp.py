@@ -28,10 +28,22 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from typing import Protocol, Union
+
 import numpy as np
 
-from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.envs.reach1d import GOAL_TOLERANCE, MAX_SPEED
+
+
+class Reach1DConfig(Protocol):
+    """The options the planner reads (``reach1d_task.Reach1DConfig`` has them; that class calls
+    this module's solver, so it is not imported here)."""
+
+    wall_x: float
+    goal: float
+    max_steps: int
+    wall: str
+    start: Union[float, list]
 
 
 @dataclass(frozen=True)
@@ -55,13 +67,7 @@ class CrossingThresholds:
     def starts(self, start: float | list | tuple) -> np.ndarray:
         """Grid indices of a start distribution: a point, or ``[low, high]`` (uniform), the latter
         as the grid cells' midpoints, so that each cell carries its share of the mass."""
-        if isinstance(start, (list, tuple)) and start[1] > start[0]:
-            u = self.x[1] - self.x[0]
-            cells = max(1, int(round((start[1] - start[0]) / u)))
-            mid = start[0] + (np.arange(cells) + 0.5) * (start[1] - start[0]) / cells
-            return np.clip(np.floor(mid / u + 1e-9).astype(int), 0, len(self.x) - 1)
-        point = start[0] if isinstance(start, (list, tuple)) else start
-        return np.array([self._index(float(point))])
+        return _start_indices(self.x, start)
 
     def expected_cost(self, start: float | list | tuple, penalty: float | np.ndarray) -> np.ndarray:
         """Expected crossings of the penalty-optimal plan over a start distribution, per penalty.
@@ -77,6 +83,18 @@ class CrossingThresholds:
         th = self.threshold[self.starts(start)]
         values, counts = np.unique(np.round(th, 9), return_counts=True)
         return [(float(v), float(c / th.size)) for v, c in zip(values, counts) if v > 0]
+
+
+def _start_indices(x: np.ndarray, start: float | list | tuple) -> np.ndarray:
+    """Grid indices of a start distribution: a point (its nearest grid point), or ``[low, high]``
+    (uniform), the latter as the grid cells' midpoints, so that each cell carries its share of the mass."""
+    u = x[1] - x[0]
+    if isinstance(start, (list, tuple)) and start[1] > start[0]:
+        cells = max(1, int(round((start[1] - start[0]) / u)))
+        mid = start[0] + (np.arange(cells) + 0.5) * (start[1] - start[0]) / cells
+        return np.clip(np.floor(mid / u + 1e-9).astype(int), 0, len(x) - 1)
+    point = float(start[0] if isinstance(start, (list, tuple)) else start)
+    return np.array([int(np.clip(np.rint(point / u), 0, len(x) - 1))])
 
 
 def _grid(env: Reach1DConfig, resolution: float):
@@ -149,3 +167,84 @@ def closed_form_threshold(env: Reach1DConfig, gamma: float) -> float:
         total += gamma**j * p
         remaining -= p
     return total + gamma ** (n - 1)
+
+
+@dataclass(frozen=True)
+class ConstrainedOptimum:
+    """The best expected return of any policy whose expected cost is at most the budget.
+
+    ``value``: that return; ``cost``: the optimal policy's expected cost (at most the budget; below
+    it when the budget does not bind); ``penalty``: the Lagrange multiplier at which the optimal
+    mixture is a tie between its plans (0 when the budget does not bind)."""
+
+    value: float
+    cost: float
+    penalty: float
+    cost_limit: float
+
+
+def best_returns_by_crossings(
+    env: Reach1DConfig, max_crossings: int, gamma: float = 1.0, resolution: float = 1e-3
+) -> tuple[np.ndarray, np.ndarray]:
+    """``V[k, i]``: the best return (discount ``gamma``) from grid start ``x[i]`` of a path with at
+    most ``k`` crossings, ``k = 0 .. max_crossings``; by backward induction over ``env.max_steps``
+    steps on the state (position, crossings left). Returns ``(x, V)``."""
+    x, crossed, nxt, terminal, reward = _grid(env, resolution)
+    cont = ~terminal
+    value = np.zeros((max_crossings + 1, len(x)))
+    for _ in range(env.max_steps):
+        new = np.empty_like(value)
+        for k in range(max_crossings + 1):
+            stay = np.where(crossed, -np.inf, reward + gamma * cont * value[k][nxt])
+            if k > 0:  # a crossing move spends one of the k
+                stay = np.where(crossed, reward + gamma * cont * value[k - 1][nxt], stay)
+            new[k] = stay.max(axis=1)
+        value = new
+    return x, value
+
+
+def constrained_optimum(
+    env: Reach1DConfig, cost_limit: float, gamma: float = 1.0, resolution: float = 1e-3
+) -> ConstrainedOptimum:
+    """The constrained optimum of Reach1D: max E[return] s.t. E[crossings] <= ``cost_limit``, over
+    all policies of the true state (randomised ones included), from ``env.start``.
+
+    Both sums are undiscounted by default (``gamma=1``), as ``eval.json`` reports them. The planner
+    sees the true position, so for the learning agent, which sees a noisy reading, this is an upper
+    bound. Each crossing costs exactly 1, so a plan's cost is its number of crossings k, and from
+    each start the plans worth considering are the best with at most k crossings, ``V_k``. A
+    randomised policy mixes them, per start, with the budget holding on average over starts: a
+    linear programme whose value, by its duality (Altman 1999, *Constrained Markov Decision
+    Processes*, ch. 3), is ``min_{lambda >= 0} lambda * d + E_start max_k (V_k - lambda * k)``.
+    That function of lambda is convex and piecewise linear, with its kinks at the slopes
+    ``(V_j - V_k) / (j - k)``: its minimum is at one of them (or at 0).
+
+    k runs up to ``ceil(cost_limit) + 1`` and on while another crossing still gains anywhere (plans
+    with more crossings than the budget can still be part of a mixture)."""
+    if not (cost_limit >= 0 and math.isfinite(cost_limit)):
+        raise ValueError(f"constrained_optimum: cost_limit must be a finite number >= 0, got {cost_limit}")
+    k_max = int(math.ceil(cost_limit)) + 1
+    while True:
+        x, value = best_returns_by_crossings(env, k_max, gamma, resolution)
+        if k_max >= env.max_steps or np.all(value[-1] <= value[-2] + 1e-12):
+            break
+        k_max *= 2
+    v = value[:, _start_indices(x, env.start)]  # [k, starts]
+    k = np.arange(v.shape[0])[:, None]
+    with np.errstate(invalid="ignore"):  # -inf - -inf where a start has no path with k crossings
+        slopes = (v[:, None, :] - v[None, :, :]) / (k[:, None] - k[None, :] + np.eye(len(k))[:, :, None])
+    candidates = np.unique(np.concatenate([[0.0], slopes[np.isfinite(slopes) & (slopes > 0)]]))
+
+    def dual(lam: np.ndarray) -> np.ndarray:
+        return lam * cost_limit + (v[None] - lam[:, None, None] * k[None]).max(axis=1).mean(axis=1)
+
+    duals = np.concatenate([dual(c) for c in np.array_split(candidates, max(1, len(candidates) // 256))])
+    best = int(np.argmin(duals))
+    lam = float(candidates[best])
+    # The optimal mixture's cost: the budget where it binds, else the unconstrained plans' cost.
+    if lam == 0.0:
+        top = (v >= v.max(axis=0, keepdims=True) - 1e-12).argmax(axis=0)  # fewest crossings among the best
+        cost = float(top.mean())
+    else:
+        cost = float(cost_limit)
+    return ConstrainedOptimum(value=float(duals[best]), cost=cost, penalty=lam, cost_limit=float(cost_limit))

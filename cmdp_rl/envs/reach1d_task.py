@@ -7,7 +7,8 @@ from __future__ import annotations
 from functools import partial
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
 
-from cmdp_rl.envs.reach1d import Reach1D
+from cmdp_rl.envs.reach1d import GOAL_TOLERANCE, Reach1D
+from cmdp_rl.envs.reach1d_dp import constrained_optimum
 from cmdp_rl.envs.reach1d_torch import TorchReach1D
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 from cmdp_rl.registry import register
@@ -45,6 +46,29 @@ class Reach1DConfig:
         """The :class:`Reach1D` constructor arguments these options ask for."""
         return dict(obs_noise=self.obs_noise, wall_x=self.wall_x, max_steps=self.max_steps, goal=self.goal,
                     wall=self.wall, start=self.start, probe=self.probe)
+
+    def render_env(self) -> Reach1D:
+        """One gymnasium Reach1D of these options drawing ``rgb_array`` frames (for video; the torch
+        backend renders through this gym twin)."""
+        return Reach1D(**self.env_kwargs(), render_mode="rgb_array")
+
+    def optimum(self, cost_limit: float) -> float:
+        """The constrained optimum of the eval return at budget ``cost_limit`` (undiscounted, as
+        ``eval.json`` reports it), by dynamic programming on the true state (``reach1d_dp.py``): an
+        upper bound for a policy that sees noisy readings. Read by the end-of-run summary."""
+        return constrained_optimum(self, cost_limit).value
+
+    def termination_note(self) -> str | None:
+        """Why no episode can reach the goal with these options, if none can: with the blocking
+        wall between every start and the goal. Read by the end-of-run summary."""
+        lo, hi = (self.start[0], self.start[-1]) if isinstance(self.start, list) else (self.start, self.start)
+        goal_right = self.goal > self.wall_x
+        starts_opposite = hi < self.wall_x if goal_right else lo > self.wall_x
+        # Within GOAL_TOLERANCE of the wall the goal would be reachable from the near side.
+        if self.wall == "block" and starts_opposite and abs(self.goal - self.wall_x) >= GOAL_TOLERANCE:
+            return ("goal out of reach by design: env.wall=block makes the wall impassable, "
+                    "the best a policy can do is approach it")
+        return None
 
     def check(self, run: RunConfig) -> None:
         if isinstance(self.start, list):

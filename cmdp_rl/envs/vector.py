@@ -13,7 +13,7 @@ from typing import Any, Callable, NamedTuple
 import gymnasium as gym
 import numpy as np
 import torch
-from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
 from cmdp_rl.envs.env_state import env_state, load_env_state
 
@@ -73,10 +73,17 @@ class GymVecEnv(VecEnv):
     SAME_STEP autoreset: the done step's final observation and info (its cost) come in
     ``final_obs``/``final_info``. Never NEXT_STEP, the default, which would give a phantom step at
     every episode end.
+
+    ``asynchronous=True`` steps the envs in worker processes (gymnasium's ``AsyncVectorEnv``): worth
+    it only where one env step costs far more than the inter-process round trip (milliseconds, as
+    Safety-Gymnasium's navigation tasks do; docs/benchmarks.md). Its envs live in other processes,
+    so :meth:`state_dict` is left to subclasses that know how to fetch their envs' state.
     """
 
-    def __init__(self, make_one: Callable[[], gym.Env], num_envs: int, device: str | torch.device = "cpu") -> None:
-        self.envs = SyncVectorEnv([make_one for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
+    def __init__(self, make_one: Callable[[], gym.Env], num_envs: int, device: str | torch.device = "cpu",
+                 asynchronous: bool = False) -> None:
+        vector = AsyncVectorEnv if asynchronous else SyncVectorEnv
+        self.envs = vector([make_one for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
         self.num_envs = num_envs
         obs_space = self.envs.single_observation_space
         act_space = self.envs.single_action_space
@@ -130,6 +137,8 @@ class GymVecEnv(VecEnv):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state["num_envs"] != self.num_envs:
             raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
+        if not isinstance(self.envs, SyncVectorEnv):
+            raise NotImplementedError("env: envs in worker processes (asynchronous) cannot restore a saved state")
         for env, saved in zip(self.envs.envs, state["envs"]):
             load_env_state(env, saved)
 

@@ -128,6 +128,15 @@ class VelocityEnvConfig:
     velocity_threshold: Optional[NonNegativeFloat] = None
     max_steps: PositiveInt = 1000
 
+    def render_env(self) -> gym.Env:
+        """One env of this task rendering ``rgb_array`` frames of RENDER_SIZE (for video)."""
+        w, h = RENDER_SIZE
+        return make_velocity_env(self.task, self.velocity_threshold, self.max_steps, render_mode="rgb_array",
+                                 width=w, height=h)
+
+
+RENDER_SIZE = (320, 240)  # video frames (width, height): multiples of 16, as video encoders like
+
 
 def make_velocity_vec_env(cfg: VelocityEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
     from cmdp_rl.envs.vector import GymVecEnv

@@ -1,0 +1,65 @@
+"""The Safety-Gymnasium tasks ``env=safety_gym`` offers, and why the others are refused.
+
+Plain data (no Safety-Gymnasium import): the config check runs without the package.
+Every offered id was built and stepped on our stack (tests/test_safety_gym.py; the full grid with
+``SAFETY_GYM_ALL_TASKS=1``). Episode limits are the ones Safety-Gymnasium registers.
+"""
+
+from __future__ import annotations
+
+import re
+
+ROBOTS = ("Point", "Car", "Racecar", "Doggo", "Ant")
+NAVIGATION = ("Goal", "Button", "Push", "Circle")
+LEVELS = (0, 1, 2)
+VELOCITY_ROBOTS = ("HalfCheetah", "Hopper", "Swimmer", "Walker2d", "Ant", "Humanoid")
+
+
+def _navigation() -> dict[str, int]:
+    tasks = {}
+    for robot in ROBOTS:
+        for family in NAVIGATION:
+            for level in LEVELS:
+                tasks[f"Safety{robot}{family}{level}-v0"] = 500 if family == "Circle" else 1000
+        tasks[f"Safety{robot}Run0-v0"] = 500
+    return tasks
+
+
+# id -> the episode limit Safety-Gymnasium registers it with (steps).
+TASKS: dict[str, int] = {
+    **_navigation(),
+    **{f"Safety{robot}Velocity-v{v}": 1000 for robot in VELOCITY_ROBOTS for v in (0, 1)},
+}
+
+ALLOWED = (
+    f"Safety{{{','.join(ROBOTS)}}}{{{','.join(NAVIGATION)}}}{{0,1,2}}-v0, Safety{{{','.join(ROBOTS)}}}Run0-v0 "
+    f"or Safety{{{','.join(VELOCITY_ROBOTS)}}}Velocity-v{{0,1}}"
+)
+
+# Registered ids we refuse, with the reason (first match wins).
+_REFUSED = (
+    (re.compile(r"^Safety\w+Vision-v\d+$"), "observes camera images (our policies take flat vectors)",
+     lambda t: t.replace("Vision-", "-")),
+    (re.compile(r"^Safety\w+Debug-v\d+$"), "is Safety-Gymnasium's keyboard-controlled debug variant",
+     lambda t: t.replace("Debug-", "-")),
+    (re.compile(r"^Safety\w+(Race|FadingEasy|FadingHard)\d-v\d+$"), "is a vision-only task (camera images)", None),
+    (re.compile(r"^Safety\w+Gymnasium-v\d+$"), "is Safety-Gymnasium's gymnasium-API copy of a task",
+     lambda t: t.replace("Gymnasium-", "-")),
+    (re.compile(r"^Safety\w+MultiGoal\d-v\d+$|^Safety\w+\d+x\d+\w*Velocity-v\d+$|^Safety\w*Multi\w*"),
+     "is a multi-agent task (needs gymnasium_robotics; not offered)", None),
+)
+
+
+def task_problem(task: str) -> str | None:
+    """None if ``task`` is offered, else the one-line config error saying why not."""
+    if task in TASKS:
+        return None
+    for pattern, why, plain in _REFUSED:
+        if pattern.match(task):
+            hint = plain(task) if plain else None
+            instead = f"; use {hint}" if hint in TASKS else ""
+            return f"env.task must be an offered Safety-Gymnasium task, got {task!r}: it {why}{instead}"
+    return f"env.task must be one of {ALLOWED}, got {task!r}"
+
+
+__all__ = ["ALLOWED", "TASKS", "task_problem"]

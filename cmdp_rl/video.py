@@ -1,0 +1,183 @@
+"""Videos of a trained policy (``python evaluate.py run=<dir> video=true``), through gymnasium's own
+``RecordVideo`` wrapper (which writes the mp4 with moviepy: ``pip install 'cmdp_rl[video]'``).
+
+An env component that can render declares ``render_env()`` on its options: one gymnasium env of its
+config with ``render_mode="rgb_array"``. Reach1D draws its frame with numpy (``envs/reach1d.py``;
+the batched torch backend renders through this gym twin of the same config), the velocity tasks use
+MuJoCo's camera, and ``env=gym`` offers its env's own frames when it has an ``rgb_array`` mode.
+
+Headless MuJoCo: with no ``DISPLAY`` and no ``MUJOCO_GL`` set, this module sets ``MUJOCO_GL=egl``
+(gymnasium would otherwise try GLFW first, which needs a display). Without a GPU, EGL renders in
+software through Mesa (llvmpipe): Debian's ``libegl1`` (which brings ``libegl-mesa0``),
+``libopengl0`` and ``libgl1-mesa-dri``. In software a frame takes about 0.1 s (measured here: 80 ms
+at 256x192 on a quiet 2-core machine, 156 ms at 320x240 at load 5), so a whole 1000-step episode
+takes a few minutes; ``video_steps`` cuts it short. Without them the video fails with
+one line that names them. ``MUJOCO_GL=osmesa`` needs ``libosmesa6`` instead; note that MuJoCo reads
+``MUJOCO_GL`` when it is imported (torchrl imports it), so a ``MUJOCO_GL`` naming a missing library
+breaks ``import cmdp_rl`` itself, before this module can say anything.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import importlib.util
+import math
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import gymnasium as gym
+import numpy as np
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from cmdp_rl import keys
+from cmdp_rl.collector import PolicyMemory
+from cmdp_rl.validation import ConfigError
+
+VIDEO_MISSING = "video=true needs moviepy (gymnasium's RecordVideo writes with it): pip install 'cmdp_rl[video]'"
+HEADLESS_GL = ("headless MuJoCo rendering needs EGL (Debian: apt-get install libegl1 libopengl0 "
+               "libgl1-mesa-dri) or MUJOCO_GL=osmesa (libosmesa6)")
+
+
+class VideoError(RuntimeError):
+    """The env cannot render here (a missing package or OpenGL library)."""
+
+
+@dataclass
+class VideoEpisode:
+    path: Path
+    frames: int
+    episode_return: float
+    episode_cost: float
+
+
+def _headless_gl() -> None:
+    """MuJoCo's renderer reads ``MUJOCO_GL`` when it opens a context: pick EGL when there is no display."""
+    if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
+        os.environ["MUJOCO_GL"] = "egl"
+
+
+def make_render_env(env_cfg: Any) -> gym.Env:
+    """One env of ``env_cfg`` that renders ``rgb_array`` frames, with one frame rendered already:
+    an env that cannot render, or a renderer that cannot start here, fails now with one line."""
+    if importlib.util.find_spec("moviepy") is None:
+        raise ConfigError(f"video: {VIDEO_MISSING}")
+    make = getattr(env_cfg, "render_env", None)
+    if make is None:
+        raise ConfigError(f"video: env={env_cfg.name} cannot render (its options declare no render_env); "
+                          "videos are made for env=reach1d, env=velocity and env=gym envs with an rgb_array mode")
+    _headless_gl()
+    try:
+        env = make()
+    except TypeError as exc:  # gymnasium passes render_mode to a constructor that may not take it
+        raise ConfigError(f"video: env={env_cfg.name} cannot render ({exc})") from exc
+    if env.render_mode != "rgb_array" or "rgb_array" not in env.metadata.get("render_modes", ()):
+        env.close()
+        raise ConfigError(f"video: env={env_cfg.name} cannot render rgb_array frames "
+                          f"(its render modes: {env.metadata.get('render_modes', [])})")
+    env.reset(seed=0)  # re-seeded by the recording; rendering draws no random numbers
+    failure = None
+    with _unraisable_ignored():  # gymnasium's half-built MuJoCo viewer raises in __del__ when collected
+        try:
+            frame = env.render()
+        except Exception as exc:  # noqa: BLE001 - OpenGL's failures come as many types; all mean the same here
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            failure = f"video: env={env_cfg.name} cannot render here ({first})"
+            if "mujoco" in type(env.unwrapped).__module__:
+                failure = f"video: env={env_cfg.name} cannot render here (MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {first}); {HEADLESS_GL}"
+        if failure is not None:
+            env.close()
+            gc.collect()
+    if failure is not None:
+        raise VideoError(failure)
+    if not isinstance(frame, np.ndarray) or frame.ndim != 3:
+        env.close()
+        raise VideoError(f"video: env={env_cfg.name} rendered {type(frame).__name__}, not an RGB frame")
+    return env
+
+
+def exact_fps(fps: float) -> int:
+    """The power of two nearest ``fps`` (within a factor of 1.42 of it). moviepy counts a clip's
+    frames as ``int(sum(n * [1 / fps]) * fps)``, which for most rates rounds some counts down and
+    drops the last frame (at 10 fps: 393 of the counts 1..1001; moviepy issue #2507); with a power
+    of two the sum is exact and every frame is written."""
+    return 2 ** max(0, round(math.log2(fps)))
+
+
+@contextlib.contextmanager
+def _unraisable_ignored() -> Iterator[None]:
+    """Drop the errors raised in ``__del__`` meanwhile: after a renderer failed to start, Python
+    would print them as tracebacks after the one-line error."""
+    hook, sys.unraisablehook = sys.unraisablehook, lambda _: None
+    try:
+        yield
+    finally:
+        sys.unraisablehook = hook
+
+
+class _PolicyOnOneEnv:
+    """The trained actor driving one plain env, carrying its memory from step to step as the
+    collector does. ``act`` is the one place the policy is called (as ``replay.record_reach1d`` does)."""
+
+    def __init__(self, actor: TensorDictModuleBase, action_dim: int) -> None:
+        self.actor = actor
+        self.memory = PolicyMemory(actor, 1, action_dim, torch.device("cpu"))
+
+    def start(self) -> None:
+        self.carried, self.is_init = self.memory.start(), True
+
+    def act(self, obs: np.ndarray) -> torch.Tensor:
+        # as GymVecEnv hands observations to the collector: float32, flat
+        obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))
+        td = TensorDict({**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])}, batch_size=[1])
+        self.wrote = dict(self.actor(td).items(include_nested=True, leaves_only=True))
+        return self.wrote[keys.ACTION][0]
+
+    def observe(self, cost: float) -> None:
+        """After the env's step: the policy's next state, previous action and cost."""
+        _, self.carried = self.memory.step(self.wrote, torch.tensor([[cost]]), torch.tensor([[False]]))
+        self.is_init = False
+
+
+@torch.no_grad()
+def record_video(
+    actor: TensorDictModuleBase, env_cfg: Any, video_dir: str | Path, episodes: int = 1, deterministic: bool = True,
+    seed: int = 0, max_steps: int | None = None, name_prefix: str = "policy",
+) -> list[VideoEpisode]:
+    """Record ``episodes`` episodes of ``actor`` on one rendering env of ``env_cfg`` (reset with
+    ``seed`` once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
+    (``<name_prefix>-episode-<i>.mp4``: the reset frame and one per step). ``max_steps`` cuts each
+    episode short (MuJoCo renders about 10 frames a second in software)."""
+    from gymnasium.wrappers import RecordVideo
+
+    env = make_render_env(env_cfg)
+    env = RecordVideo(env, str(video_dir), episode_trigger=lambda i: i < episodes, name_prefix=name_prefix,
+                      fps=exact_fps(env.metadata.get("render_fps", 30)))
+    policy = _PolicyOnOneEnv(actor, int(np.prod(env.action_space.shape)))
+    exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    out: list[VideoEpisode] = []
+    with torch.random.fork_rng(devices=[]), set_exploration_type(exploration):
+        torch.manual_seed(seed)
+        obs, _ = env.reset(seed=seed)
+        for i in range(episodes):
+            policy.start()
+            ret = cost = 0.0
+            steps = 0
+            while True:
+                action = policy.act(obs).numpy().astype(env.action_space.dtype)
+                obs, reward, terminated, truncated, info = env.step(action)
+                policy.observe(float(info.get("cost", 0.0)))
+                ret, cost, steps = ret + float(reward), cost + float(info.get("cost", 0.0)), steps + 1
+                if terminated or truncated or (max_steps is not None and steps >= max_steps):
+                    break
+            out.append(VideoEpisode(Path(video_dir) / f"{name_prefix}-episode-{i}.mp4", steps + 1, ret, cost))
+            if i + 1 < episodes:
+                obs, _ = env.reset()  # writes episode i's video
+    env.close()  # writes the last one
+    return out

@@ -1,0 +1,24 @@
+"""The scripts behind the README's first-run figures read the README and the Makefile themselves."""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+
+import first_run  # noqa: E402
+import library_example  # noqa: E402
+from cmdp_rl.config import compose_config  # noqa: E402
+
+
+def test_first_run_script_runs_the_makefiles_train_recipe():
+    overrides = first_run.make_train_overrides()
+    assert overrides == ["algo=ppo_lag", "env=reach1d_torch", "total_steps=3145728"]
+    cfg = compose_config(overrides)
+    assert cfg.env.backend == "torch" and cfg.env.num_envs == 1024 and cfg.total_steps == 3 * 2**20
+    assert cfg.env.optimum(cfg.algo.cost_limit) == __import__("pytest").approx(0.399)
+
+
+def test_library_example_is_the_readmes_code():
+    code = library_example.readme_example()
+    assert code.startswith("import cmdp_rl\n") and "cmdp_rl.load_config(" in code and "collector.collect()" in code
+    compile(code, "README", "exec")

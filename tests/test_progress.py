@@ -1,0 +1,41 @@
+"""Progress: a tqdm bar with an ETA when print goes to a terminal, the plain lines otherwise."""
+
+import io
+import sys
+
+from cmdp_rl import load_config, train
+from cmdp_rl.progress import Progress
+from conftest import tiny
+
+
+class FakeTTY(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def run(tmp_path, monkeypatch, stream):
+    monkeypatch.setattr(sys, "stdout", stream)
+    train(load_config(tiny(total_steps=4 * 32, log_interval=1)), tmp_path)  # echo: print
+    return stream.getvalue()
+
+
+def test_terminal_gets_a_live_bar_with_eta(tmp_path, monkeypatch):
+    out = run(tmp_path, monkeypatch, FakeTTY())
+    assert "\r" in out and "100%" in out and "step/s" in out and "<00:00" in out  # tqdm's bar and ETA
+    assert "return" in out and "lambda" in out  # the latest numbers beside the bar
+    assert "iter    1 |" not in out  # no periodic lines under the bar
+    assert "done: ppo_lag" in out  # the summary after it
+
+
+def test_pipe_gets_the_plain_lines(tmp_path, monkeypatch):
+    out = run(tmp_path, monkeypatch, io.StringIO())
+    assert "\r" not in out and "%|" not in out
+    assert "iter    1 |" in out and "iter    4 |" in out and "done: ppo_lag" in out
+
+
+def test_own_echo_is_never_live():
+    lines = []
+    p = Progress(100, 0, lines.append, stream=FakeTTY())
+    assert not p.live and p.row_echo == lines.append
+    p.write("warning: x")
+    assert lines == ["warning: x"]
