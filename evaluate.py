@@ -60,13 +60,13 @@ def main(argv: list[str]) -> int:
         seed = run_cfg.seed + EVAL_SEED_OFFSET if opts.seed is None else opts.seed
         if opts.plot is not None and run_cfg.env.name != "reach1d":
             raise ConfigError(f"plot: episode plots are drawn for env=reach1d only, this run is env={run_cfg.env.name}")
-        cfg, env, ac, iteration, step = load_trained(opts.run, opts.checkpoint, min(episodes, run_cfg.env.num_envs))
+        cfg, env, agent, iteration, step = load_trained(opts.run, opts.checkpoint, min(episodes, run_cfg.env.num_envs))
     except (ConfigError, CheckpointError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
-    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed, termination_metric=metric)
+    result = evaluate(agent, env, episodes, deterministic, seed=seed, termination_metric=metric)
     env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
     mode = "deterministic" if deterministic else "stochastic"
@@ -81,7 +81,7 @@ def main(argv: list[str]) -> int:
         Path(opts.output).write_text(json.dumps(result, indent=2))
         print(f"wrote {opts.output}")
     if opts.plot:
-        eps = record_reach1d(ac.actor, cfg.env, opts.plot_episodes, deterministic, seed=seed)
+        eps = record_reach1d(agent, cfg.env, opts.plot_episodes, deterministic, seed=seed)
         title = f"{opts.run}: {cfg.algo.name}, {mode} policy, cost limit {cfg.algo.cost_limit}"
         print(f"wrote {plot_reach1d(eps, cfg.env, opts.plot, title)}")
     return 0

@@ -23,7 +23,7 @@ from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger, columns
 from cmdp_rl.normalization import make_normalizers
-from cmdp_rl.policies import make_actor_critic
+from cmdp_rl.policies import make_agent
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
 from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
@@ -60,9 +60,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     torch.set_num_threads(cfg.threads)
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
-    algo = make_algo(cfg.algo, ac)
-    collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    algo = make_algo(cfg.algo, agent)
+    collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed)
     out.mkdir(parents=True, exist_ok=True)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
@@ -120,13 +120,13 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
             batch = collector.collect()
-            ac.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
+            agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
             try:
                 stats = algo.update(batch)
             except TrainingDiverged as exc:
                 last = f"the last good checkpoint is {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written yet"
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
-            ac.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
+            agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
             eps = finished_episodes(batch)
             row = {
                 "iteration": it, "step": collector.total_steps,
@@ -150,7 +150,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
     eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
-    result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
+    result = evaluate(agent, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
                       termination_metric=metric)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
