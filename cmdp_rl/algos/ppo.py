@@ -44,7 +44,8 @@ if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
 
 # KL early stopping (``algo.target_kl``): the update stops at the first minibatch whose approximate
-# KL from the behaviour policy exceeds KL_STOP * target_kl, before that minibatch's step. The
+# KL from the behaviour policy, E[(r - 1) - log r] (never negative), exceeds KL_STOP * target_kl,
+# before that minibatch's step; the logged statistics average the minibatches evaluated. The
 # factor 1.5 is the one Spinning Up's PPO and Stable-Baselines3's PPO use with their target_kl.
 KL_STOP = 1.5
 
@@ -182,7 +183,7 @@ class PPO:
             stats = {"loss_pi": loss_pi.detach(), **{k: v.detach() for k, v in critic_losses.items()}, **stats}
             sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
             steps += 1
-            if cfg.target_kl is not None and stats["kl"].item() > KL_STOP * cfg.target_kl:
+            if cfg.target_kl is not None and stats["kl_stop"].item() > KL_STOP * cfg.target_kl:
                 break  # KL early stopping: this minibatch's step would leave the trust region
             self.actor_opt.zero_grad(set_to_none=True)
             self.critic_opt.zero_grad(set_to_none=True)
@@ -220,8 +221,11 @@ class PPO:
         loss = -gain.mean() - self.cfg.entropy_coef * entropy
         with torch.no_grad():
             kl = (old_log_prob - log_prob).mean()
+            # Non-negative estimate for early stopping: E[(r - 1) - log r] (Schulman, 2020,
+            # "Approximating KL Divergence"; the one Stable-Baselines3 stops on).
+            kl_stop = (log_ratio.exp() - 1 - log_ratio).mean()
             clip_fraction = (log_ratio_clip != log_ratio).float().mean()
-        return loss, {"entropy": entropy.detach(), "kl": kl, "clip_fraction": clip_fraction}
+        return loss, {"entropy": entropy.detach(), "kl": kl, "clip_fraction": clip_fraction, "kl_stop": kl_stop}
 
     def _update_keys(self, batch: TensorDictBase) -> list:
         """The batch entries the minibatch loop reads: the networks' inputs, the action and its
