@@ -89,13 +89,13 @@ def test_hand_numbers_for_the_no_end_case():
 def test_critic_values_of_a_collector_batch_equal_a_full_evaluation():
     """write_values evaluates V(next obs) only at episode ends and the last step; the values are
     those of evaluating the critic on every observation and every next observation."""
-    from cmdp_rl import Collector, load_config, make_actor_critic, make_env
+    from cmdp_rl import Collector, load_config, make_agent, make_env
     from cmdp_rl.advantages import write_values
 
     cfg = load_config({"env": {"backend": "torch", "num_envs": 16, "max_steps": 7, "start": [0.0, 0.8]}})
     env = make_env(cfg.env)
     torch.manual_seed(0)
-    ac = make_actor_critic(cfg.policy, env)
+    ac = make_agent(cfg.policy, env)
     b = Collector(env, ac.actor, 30, seed=0).collect()
     assert b[keys.NEXT][keys.DONE].any()
     with torch.no_grad():

@@ -59,12 +59,12 @@ def test_cost_on_the_done_step_is_kept():
 
 
 def _mlp_actor_and_env(backend="gym", n=4):
-    from cmdp_rl import load_config, make_actor_critic, make_env
+    from cmdp_rl import load_config, make_agent, make_env
 
     cfg = load_config({"env": {"backend": backend, "num_envs": n, "max_steps": 9}})
     env = make_env(cfg.env)
     torch.manual_seed(0)
-    return make_actor_critic(cfg.policy, env).actor, cfg
+    return make_agent(cfg.policy, env).actor, cfg
 
 
 @pytest.mark.parametrize("exploration", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])

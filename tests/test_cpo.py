@@ -9,7 +9,7 @@ from tensordict import TensorDict
 from torch.distributions import kl_divergence
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from cmdp_rl import Collector, keys, load_config, make_actor_critic, make_algo, make_env
+from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.cpo import (
     CONSTRAINED, RECOVERY, TRPO, finished_episode_cost, fisher_vector_product, running_episode_cost, solve_dual,
@@ -139,7 +139,7 @@ def _surrogates(actor, td):
 def _cpo(**algo):
     cfg = load_config({"algo": {"name": "cpo", "cost_limit": 1.0, **algo}, "policy": {"hidden_sizes": [16]}})
     torch.manual_seed(0)
-    ac = make_actor_critic(cfg.policy, make_env(cfg.env, num_envs=1))
+    ac = make_agent(cfg.policy, make_env(cfg.env, num_envs=1))
     return make_algo(cfg.algo, ac)
 
 
@@ -179,7 +179,7 @@ def test_cpo_update_on_collected_batch_changes_the_networks_and_checkpoints():
                        "env": {"num_envs": 2, "max_steps": 20}, "rollout_steps": 32})
     torch.manual_seed(0)
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env)
+    ac = make_agent(cfg.policy, env)
     cpo = make_algo(cfg.algo, ac)
     col = Collector(env, ac.actor, cfg.rollout_steps, seed=0)
     before = [p.detach().clone() for p in ac.modules().parameters()]
@@ -188,7 +188,7 @@ def test_cpo_update_on_collected_batch_changes_the_networks_and_checkpoints():
     assert {"cpo_case", "step_fraction", "kl", "dual_lambda", "dual_nu", "lagrange_multiplier", "loss_v", "loss_vc"} <= stats.keys()
     assert stats["lagrange_multiplier"] == stats["dual_nu"] >= 0.0 and stats["kl"] <= cfg.algo.target_kl
     state = cpo.state_dict()
-    cpo2 = make_algo(cfg.algo, make_actor_critic(cfg.policy, env))
+    cpo2 = make_algo(cfg.algo, make_agent(cfg.policy, env))
     cpo2.load_state_dict(state)
     assert cpo2.lagrange_multiplier == cpo.lagrange_multiplier
     assert all(torch.equal(a, b) for a, b in zip(cpo2.ac.modules().parameters(), ac.modules().parameters()))

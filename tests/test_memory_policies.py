@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.modules import set_recurrent_mode
 
-from cmdp_rl import Collector, keys, load_config, make_actor_critic, make_env
+from cmdp_rl import Collector, keys, load_config, make_agent, make_env
 from cmdp_rl.advantages import write_values
 from cmdp_rl.config import ConfigError
 from cmdp_rl.policies.tensor_path import StepProgram
@@ -20,7 +20,7 @@ def setup(policy: dict, rollout: int = 20, tensor_path: bool = True, seed: int =
     cfg = load_config({"policy": policy, "env": ENV, "rollout_steps": rollout, "algo": {"num_minibatches": 2}})
     env = make_env(cfg.env)
     torch.manual_seed(seed)
-    ac = make_actor_critic(cfg.policy, env)
+    ac = make_agent(cfg.policy, env)
     return ac, Collector(env, ac.rollout_policy, rollout, seed=seed, tensor_path=tensor_path)
 
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from cmdp_rl import ConfigError, keys, load_config, make_actor_critic, make_algo, make_env, train
+from cmdp_rl import ConfigError, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
 from cmdp_rl.evaluation import evaluate
@@ -64,7 +64,7 @@ def _reach1d_cfg(**normalize):
 def test_statistics_survive_save_and_load(tmp_path):
     cfg = _reach1d_cfg(obs=True, reward=True, cost=True)
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
+    ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, ac)
     batch = Collector(env, ac.actor, cfg.rollout_steps, seed=0).collect()
     ac.normalizers.scale_batch(batch)
@@ -72,7 +72,7 @@ def test_statistics_survive_save_and_load(tmp_path):
     ac.normalizers.update_observation_stats(batch)
     save_checkpoint(tmp_path / "c.pt", {"algo_state": algo.state_dict()})
 
-    fresh = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
+    fresh = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     make_algo(cfg.algo, fresh).load_state_dict(load_checkpoint(tmp_path / "c.pt")["algo_state"])
     for name in ("obs", "reward", "cost"):
         a, b = getattr(ac.normalizers, name), getattr(fresh.normalizers, name)
@@ -94,7 +94,7 @@ def test_training_updates_statistics_from_collected_data_and_evaluation_leaves_t
     })
     train(cfg, tmp_path, echo=lambda _: None)
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
+    ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     make_algo(cfg.algo, ac).load_state_dict(load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"])
     stats = ac.normalizers.obs.stats
     # one observation per collected step, nothing from evaluation
@@ -112,7 +112,7 @@ def test_off_by_default_and_nothing_extra_in_the_checkpoint():
     cfg = load_config({})
     assert not (cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost)
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
+    ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     assert not any(k.startswith("normalizers") for k in ac.modules().state_dict())
     assert isinstance(ac.normalizers, Normalizers) and ac.normalizers.obs is None
 
