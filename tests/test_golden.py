@@ -2,18 +2,30 @@
 ``metrics.csv`` and ``eval.json`` recorded in ``tests/golden/`` (written by the code before the
 architecture change of issue 14), bit for bit except the wall-clock columns.
 
+Bit for bit holds on one machine: another CPU (vendor, SIMD width) sums floats in another order and
+moves the last bits, and a few iterations of training carry that to relative differences of about
+1e-3 in quantities near zero (measured: AMD EPYC/AVX2 against the recording machine, largest 4e-3
+on a ``loss_pi`` of 8e-6). So each case passes if it equals, exactly, the outputs recorded on any
+machine in ``tests/golden/`` (the original recording, then ``machines/<cpu>/``); on a machine with
+no recording it must agree with the original within ``rel=1e-2, abs=1e-6``, far tighter than any
+change of algorithm moves a number.
+
 Regenerate only when a change is *meant* to alter numbers, and say so in the commit:
 ``CMDP_RL_WRITE_GOLDEN=1 python -m pytest tests/test_golden.py``.
 """
 
 import json
+import math
 import os
+import re
 from pathlib import Path
 
 import pytest
+import torch
 
 from cmdp_rl import load_config, train
 from conftest import eval_result, metrics_rows, tiny
+
 
 GOLDEN = Path(__file__).parent / "golden"
 WRITE = os.environ.get("CMDP_RL_WRITE_GOLDEN") == "1"
@@ -47,19 +59,60 @@ def _outputs(run_dir: Path) -> dict:
     return {"metrics": metrics_rows(run_dir), "eval": res}
 
 
+def machine() -> str:
+    """CPU model and the SIMD level torch uses: what decides the order of float sums here."""
+    model = "unknown-cpu"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return re.sub(r"[^A-Za-z0-9]+", "-", model).strip("-") + "_" + torch.backends.cpu.get_cpu_capability()
+
+
+def _mismatch(got: dict, want: dict, close: bool) -> str | None:
+    """First difference between two outputs (``None`` if none); ``close`` compares numbers with
+    the cross-machine tolerance instead of exactly."""
+    def same(g, w) -> bool:
+        if g == w:
+            return True
+        if not close:
+            return False
+        try:
+            return math.isclose(float(g), float(w), rel_tol=1e-2, abs_tol=1e-6)
+        except (TypeError, ValueError):
+            return False
+
+    for k, w in want["eval"].items():
+        if not same(got["eval"].get(k), w):
+            return f"eval.json {k}: {got['eval'].get(k)} != {w}"
+    if len(got["metrics"]) != len(want["metrics"]):
+        return f"metrics.csv has {len(got['metrics'])} rows, recorded {len(want['metrics'])}"
+    # Columns another algorithm fills were blank in the recorded file; since each algorithm writes
+    # only the statistics it declares, they may now be absent. Every recorded number must match.
+    for i, (g, w) in enumerate(zip(got["metrics"], want["metrics"])):
+        diff = {k: (g.get(k), w[k]) for k in w if not same(g.get(k, ""), w[k])}
+        if diff:
+            return f"metrics.csv row {i + 1} differs: {diff}"
+    return None
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_same_numbers_as_before(name, tmp_path, quiet):
     train(load_config(CASES[name]), tmp_path, echo=quiet)
     got = _outputs(tmp_path)
-    path = GOLDEN / f"{name}.json"
     if WRITE:
+        path = GOLDEN / "machines" / machine() / f"{name}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(got, indent=1, sort_keys=True))
         pytest.skip(f"wrote {path}")
-    want = json.loads(path.read_text())
-    assert got["eval"] == want["eval"]
-    # Columns another algorithm fills were blank in the recorded file; since each algorithm writes
-    # only the statistics it declares, they may now be absent. Every recorded number must match.
-    assert len(got["metrics"]) == len(want["metrics"])
-    for i, (g, w) in enumerate(zip(got["metrics"], want["metrics"])):
-        diff = {k: (g.get(k), w[k]) for k in w if g.get(k, "") != w[k]}
-        assert not diff, f"{name}: metrics.csv row {i + 1} differs: {diff}"
+    recorded = [GOLDEN / f"{name}.json", *sorted(GOLDEN.glob(f"machines/*/{name}.json"))]
+    exact = {p: _mismatch(got, json.loads(p.read_text()), close=False) for p in recorded}
+    if any(m is None for m in exact.values()):
+        return
+    own = GOLDEN / "machines" / machine() / f"{name}.json"
+    assert own not in exact, f"{name}: differs from this machine's own recording: {exact[own]}"
+    problem = _mismatch(got, json.loads(recorded[0].read_text()), close=True)
+    assert problem is None, f"{name}: {problem}"
