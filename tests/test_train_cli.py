@@ -90,9 +90,9 @@ def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
         state = load_checkpoint(out / "checkpoint.pt", algo=name_of_algo, policy=name)
         cfg = load_config(state["config"])
         ac = make_agent(cfg.policy, make_env(cfg.env))
-        ac.modules().load_state_dict(state["algo_state"]["networks"])
+        ac.load_state_dict(state["algo_state"]["networks"])
         # the reloaded memory policy replays the run's own evaluation exactly
-        again = evaluate(ac.actor, make_env(cfg.env, num_envs=4), 4, True, seed=cfg.seed + EVAL_SEED_OFFSET,
+        again = evaluate(ac, make_env(cfg.env, num_envs=4), 4, True, seed=cfg.seed + EVAL_SEED_OFFSET,
                          termination_metric=cfg.env.termination_metric)
         assert again["episode_return"] == pytest.approx(ev["episode_return"], abs=1e-6)
         assert again["episode_cost"] == ev["episode_cost"]
