@@ -30,6 +30,7 @@ import torch
 from cmdp_rl import Collector, RunConfig, keys, load_config, make_agent, make_env
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
+from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl import sweeps
 from cmdp_rl.plot import pyplot, save_figure
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
@@ -49,7 +50,7 @@ def probe_stats(cfg: RunConfig, run_dir: Path, steps: int) -> dict[str, Any]:
     state = load_checkpoint(run_dir / "checkpoint.pt", policy=cfg.policy.name)
     env = make_env(dataclasses.replace(cfg.env, stagger=False), device=cfg.device)
     ac = make_agent(cfg.policy, env)
-    ac.modules().load_state_dict(state["algo_state"]["networks"])
+    ac.load_state_dict(upgrade_algo_state(state["algo_state"], ac)["networks"])  # runs before the agent model too
     batch = Collector(env, ac, steps, seed=cfg.seed + EVAL_SEED_OFFSET + 1).collect()
     env.close()
     probing = batch.get(keys.ACTION)[..., 1] > 0
