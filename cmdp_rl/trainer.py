@@ -24,6 +24,7 @@ from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger, columns
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
+from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
 from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
@@ -80,7 +81,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
 
     first, elapsed = 1, 0.0
     if state is not None:
-        algo.load_state_dict(state["algo_state"])
+        algo.load_state_dict(upgrade_algo_state(state["algo_state"], agent))  # a run from before the agent model too
         collector.load_state_dict(state["collector"])
         load_rng_state(state["rng"])
         first, elapsed = state["iteration"] + 1, state["time_s"]
