@@ -8,7 +8,8 @@ the observation normalizer sat inside each network (``...net.0.stats.mean``) as 
 ``normalizers.``. So, network by network, the old entries other than the normalizer's statistics
 are the new ones in the same order; each pair must agree in shape and in its last name
 (``weight``, ``log_std``, ``weight_ih_l0``, ...), else the checkpoint is refused. The normalizer's
-statistics come from ``normalizers.``, the one copy every network shares.
+statistics come from ``normalizers.``, the one copy every network shares. One exception to the
+order: the old MLP actor's input encoder, which now comes first (see :func:`convert_networks`).
 
 Optimizer states need no change: each optimizer's parameters are in the same order as before.
 Used wherever a checkpoint is loaded: ``rundir.load_trained`` (evaluate.py) and a resume
@@ -55,6 +56,10 @@ def convert_networks(networks: dict[str, torch.Tensor], agent: nn.Module) -> dic
             out[key] = out[source]
     for old_prefix, new_prefix in NETWORKS.items():
         old = [k for k in networks if k.startswith(old_prefix) and not _is_statistic(k)]
+        # The old MLP actor kept its input encoder (previous action and cost) inside the Gaussian
+        # head's network (``...module.net.encoder.``); the agent keeps it in the body, which comes
+        # first.
+        old.sort(key=lambda k: 0 if ".module.net.encoder." in k else 1)
         new = [k for k in target if k.startswith(new_prefix) and k not in out]
         if len(old) != len(new):
             raise KeyError(f"old checkpoint has {len(old)} entries under {old_prefix!r}, the agent "
