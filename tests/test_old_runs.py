@@ -114,3 +114,24 @@ def test_resume_continues_the_old_run(name, tmp_path):
             assert float(new[k]) == pytest.approx(float(old[k]), rel=1e-5, abs=1e-7), k
     state = load_checkpoint(run / "checkpoint.pt")
     assert state["step"] == 192 and not is_legacy(state["algo_state"]["networks"])
+
+
+def test_converted_variants_act_as_before():
+    """Policy variants the runs above do not cover (record_variants.py: the MLP with its input
+    encoder, observation normalization, GRU, two-layer LSTM and transformer): the converted
+    networks give the old deterministic actions."""
+    from cmdp_rl import load_config, make_agent, make_env
+    from cmdp_rl.normalization import make_normalizers
+    from cmdp_rl.policies.legacy import convert_networks
+
+    variants = torch.load(FIXTURES / "variants.pt")
+    assert len(variants) == 5
+    for name, old in variants.items():
+        cfg = load_config(old["overrides"])
+        env = make_env(cfg.env)
+        torch.manual_seed(123)  # other initial parameters than the old ones: only the loaded ones count
+        agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+        agent.load_state_dict(convert_networks(old["networks"], agent))
+        loc = Collector(env, agent, 16, seed=1, deterministic=True).collect()[keys.LOC]
+        assert old["loc"].std() > 1e-4, name  # actions that vary: a wrong mapping would show
+        assert torch.allclose(loc, old["loc"], rtol=0, atol=1e-7), name
