@@ -23,7 +23,7 @@ first step; under ``"next"``, this step's).
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
