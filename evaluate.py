@@ -73,13 +73,13 @@ def main(argv: list[str]) -> int:
             raise ConfigError(f"plot: episode plots are drawn for env=reach1d only, this run is env={run_cfg.env.name}")
         if opts.video:  # one frame now: an env or a machine that cannot render fails before the evaluation
             make_render_env(run_cfg.env).close()
-        cfg, env, ac, iteration, step = load_trained(opts.run, opts.checkpoint, min(episodes, run_cfg.env.num_envs))
+        cfg, env, agent, iteration, step = load_trained(opts.run, opts.checkpoint, min(episodes, run_cfg.env.num_envs))
     except (ConfigError, CheckpointError, VideoError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
-    result = evaluate(ac.actor, env, episodes, deterministic, seed=seed, termination_metric=metric,
+    result = evaluate(agent, env, episodes, deterministic, seed=seed, termination_metric=metric,
                       cost_limit=cfg.algo.cost_limit)
     env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
@@ -97,12 +97,12 @@ def main(argv: list[str]) -> int:
         Path(opts.output).write_text(json.dumps(result, indent=2))
         print(f"wrote {opts.output}")
     if opts.plot:
-        eps = record_reach1d(ac.actor, cfg.env, opts.plot_episodes, deterministic, seed=seed)
+        eps = record_reach1d(agent, cfg.env, opts.plot_episodes, deterministic, seed=seed)
         title = f"{opts.run}: {cfg.algo.name}, {mode} policy, cost limit {cfg.algo.cost_limit}"
         print(f"wrote {plot_reach1d(eps, cfg.env, opts.plot, title)}")
     if opts.video:
         video_dir = Path(opts.video_dir) if opts.video_dir else Path(opts.run) / "videos"
-        for v in record_video(ac.actor, cfg.env, video_dir, opts.video_episodes, deterministic, seed, opts.video_steps):
+        for v in record_video(agent, cfg.env, video_dir, opts.video_episodes, deterministic, seed, opts.video_steps):
             print(f"wrote {v.path} ({v.frames} frames: return {v.episode_return:.3f}, cost {v.episode_cost:.0f})")
     return 0
 

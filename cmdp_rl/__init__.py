@@ -5,9 +5,9 @@
 
     cfg = cmdp_rl.RunConfig()                  # or cmdp_rl.load_config({...})
     env = cmdp_rl.make_env(cfg.env)
-    ac = cmdp_rl.make_actor_critic(cfg.policy, env)
-    algo = cmdp_rl.make_algo(cfg.algo, ac)
-    collector = cmdp_rl.Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=0)
+    agent = cmdp_rl.make_agent(cfg.policy, env)
+    algo = cmdp_rl.make_algo(cfg.algo, agent)
+    collector = cmdp_rl.Collector(env, agent, cfg.rollout_steps, seed=0)
     stats = algo.update(collector.collect())
 """
 
@@ -20,7 +20,7 @@ from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import ConfigError, RunConfig, load_config, validate
 from cmdp_rl.envs import REACH1D_ID, GymVecEnv, Reach1D, VecEnv, make_env
 from cmdp_rl.evaluation import evaluate
-from cmdp_rl.policies import ActorCritic, make_actor_critic
+from cmdp_rl.policies import Agent, make_agent
 from cmdp_rl.registry import register
 from cmdp_rl.trainer import train
 
@@ -30,8 +30,8 @@ if REACH1D_ID not in _gym.registry:
     _gym.register(id=REACH1D_ID, entry_point="cmdp_rl.envs.reach1d:Reach1D")
 
 __all__ = [
-    "ActorCritic", "Collector", "ConfigError", "GymVecEnv", "PIDLagrangianPPO", "PPO", "PPOLagrangian",
+    "Agent", "Collector", "ConfigError", "GymVecEnv", "PIDLagrangianPPO", "PPO", "PPOLagrangian",
     "PenaltyPPO", "REACH1D_ID", "Reach1D", "RunConfig", "TrainingDiverged", "VecEnv", "evaluate",
-    "finished_episodes", "keys", "load_config", "make_actor_critic", "make_algo", "make_env", "register", "train",
+    "finished_episodes", "keys", "load_config", "make_agent", "make_algo", "make_env", "register", "train",
     "validate",
 ]

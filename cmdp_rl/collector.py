@@ -1,77 +1,50 @@
 """The one rollout collector every algorithm shares.
 
-It steps a :class:`~cmdp_rl.envs.VecEnv` with a TensorDict policy and returns one ``[num_envs, T]``
-TensorDict in torchrl's layout, reward and cost side by side under ``"next"``, with the running
-undiscounted episode return and cost written on every step.
+It steps a :class:`~cmdp_rl.envs.VecEnv` with an :class:`~cmdp_rl.policies.agent.Agent` and returns
+one ``[num_envs, T]`` TensorDict in torchrl's layout, reward and cost side by side under ``"next"``,
+with the running undiscounted episode return and cost written on every step.
 
 Why not torchrl's ``Collector``: it costs about 1.3 ms per step here (measured, see
 ``../shared/notes``), more than stepping eight Reach1D envs; this loop does only what the batch
-needs. It keeps torchrl's conventions (``is_init``, ``"next"``, exploration type), so torchrl's GAE,
-losses and recurrent modules read its output unchanged.
+needs. It keeps torchrl's conventions (``is_init``, ``"next"``), so torchrl's GAE reads its output
+unchanged.
 
-Per step it handles plain tensors: each step's entries are kept in a dict and stacked into the
-batch once at the end. A stateless probabilistic actor (the MLP policy) runs on tensors too
-(:class:`~cmdp_rl.policies.tensor_path.TensorActor`, same numbers), and so do the stateful ones
-built of torchrl's recurrent modules and plain modules (``StepProgram``); any other policy is
-called on a TensorDict.
+Per step it handles plain tensors: the agent acts on a dict of the step's entries
+(``Agent.act``), each step's entries are kept in a dict, and they are stacked into the batch once at
+the end.
 
-History-dependent policies (policies/recurrent.py, transformer.py) get, as torchrl's env transforms
-would give them: their initial state at the root (from torchrl's ``make_tensordict_primer``, via
-``get_primers_from_module``: zeros), the state they write under ``"next"`` carried to the next
-step and reset to the initial state where an episode ended (as ``TensorDictPrimer`` does on
-reset), and, if their ``in_keys`` ask, the previous step's action and cost (``keys.PREV_ACTION``,
-``keys.PREV_COST``; zero at an episode's first step; under ``"next"``, this step's).
+History-dependent agents (policies/recurrent.py, transformer.py) get, as torchrl's env transforms
+would give them: their initial state at the root (``Agent.initial_state``: zeros), the state they
+return under ``"next"`` carried to the next step and reset to the initial state where an episode
+ended (as torchrl's ``TensorDictPrimer`` does on reset), and, if their ``in_keys`` ask, the
+previous step's action and cost (``keys.PREV_ACTION``, ``keys.PREV_COST``; zero at an episode's
+first step; under ``"next"``, this step's).
 """
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModuleBase
-from torchrl.envs.transforms import Compose
-from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.modules.utils import get_primers_from_module
 
 from cmdp_rl import keys
 from cmdp_rl.envs import VecEnv
-from cmdp_rl.policies.tensor_path import StepProgram, TensorActor
+from cmdp_rl.policies.agent import Agent
 
 Entries = dict  # key (a string, or a tuple for a nested key) -> tensor of one step, batch [N]
 
 
-def initial_state(policy: TensorDictModuleBase, num_envs: int, device: torch.device) -> Entries:
-    """The recurrent state ``policy`` starts every episode from, ``[num_envs, ...]`` per key: the
-    default values of the primers torchrl's ``make_tensordict_primer`` gives for its submodules
-    (none for a stateless policy)."""
-    if not isinstance(policy, torch.nn.Module):  # a plain function of TensorDicts: no state
-        return {}
-    primer = get_primers_from_module(policy, warn=False)
-    if primer is None:
-        return {}
-    primers = list(primer.transforms) if isinstance(primer, Compose) else [primer]
-    state: Entries = {}
-    for p in primers:
-        zeros = p.primers.expand(num_envs).zero().to(device)
-        for key, value in zeros.items(include_nested=True, leaves_only=True):
-            default = p.default_value.get(key, 0.0) if isinstance(p.default_value, dict) else p.default_value
-            if callable(default) or default != 0:
-                raise ValueError(f"policy: primer {key!r} has a non-zero default {default!r}; only zero initial states are supported")
-            state[key] = value
-    return state
-
-
 class PolicyMemory:
-    """What a policy carries from one step to the next besides the observation, for N envs: its
-    initial state (:func:`initial_state`), the state it writes under ``"next"`` (reset to the
+    """What an agent carries from one step to the next besides the observation, for N envs: its
+    initial state (``Agent.initial_state``), the state it returns under ``"next"`` (reset to the
     initial one where an episode ended, as torchrl's ``TensorDictPrimer`` does on reset), and the
     previous action and cost if its ``in_keys`` ask for them. Used by the collector and by
     ``replay.py``, which steps one plain env."""
 
-    def __init__(self, policy: TensorDictModuleBase, num_envs: int, action_dim: int, device: torch.device) -> None:
-        self.initial = initial_state(policy, num_envs, device)
-        in_keys = getattr(policy, "in_keys", ())
+    def __init__(self, agent: Agent, num_envs: int, action_dim: int, device: torch.device) -> None:
+        self.initial = agent.initial_state(num_envs, device)
+        in_keys = agent.in_keys
         self.prev_action = keys.PREV_ACTION in in_keys
         self.prev_cost = keys.PREV_COST in in_keys
         self.num_envs, self.action_dim, self.device = num_envs, action_dim, device
@@ -102,43 +75,28 @@ class PolicyMemory:
         return {(keys.NEXT, k): v for k, v in history.items()}, root
 
 
-def _td_policy(policy: TensorDictModuleBase, batch_size: int, device: torch.device) -> Callable[[Entries], Entries]:
-    """Any TensorDict policy as a function of step entries; keys it writes under ``"next"`` (a
-    recurrent state) come back as ``("next", key)``."""
-
-    def act(inputs: Entries) -> Entries:
-        td = policy(TensorDict(inputs, batch_size=[batch_size], device=device))
-        return dict(td.items(include_nested=True, leaves_only=True))
-
-    return act
-
-
 class Collector:
     """Collects ``rollout_steps`` steps from every env of ``env`` per call to :meth:`collect`.
 
     Episodes run on across calls; the env is reset once, at construction, with ``seed``. Actions
-    are sampled (``ExplorationType.RANDOM``) unless ``exploration`` says otherwise.
-    Keys a policy writes under ``"next"`` (a recurrent state) are carried to the next step's root.
-    ``tensor_path=False`` forces the TensorDict call of the policy (for comparison).
+    are sampled, or the distribution's mode if ``deterministic``. The state the agent returns under
+    ``"next"`` (a recurrent state, a transformer's history) is carried to the next step's root.
     """
 
     def __init__(
         self,
         env: VecEnv,
-        policy: TensorDictModuleBase,
+        agent: Agent,
         rollout_steps: int,
         seed: int | None = None,
-        exploration: ExplorationType = ExplorationType.RANDOM,
-        tensor_path: bool = True,
+        deterministic: bool = False,
     ) -> None:
         self.env = env
-        self.exploration = exploration
-        self.policy = policy
+        self.deterministic = deterministic
+        self.agent = agent
         self.rollout_steps = rollout_steps
         n, dev = env.num_envs, env.device
-        fast = (TensorActor.wrap(policy) or StepProgram.wrap(policy)) if tensor_path else None
-        self._act = fast if fast is not None else _td_policy(policy, n, dev)
-        self._memory = PolicyMemory(policy, n, env.action_dim, dev)
+        self._memory = PolicyMemory(agent, n, env.action_dim, dev)
         self._root: Entries = {
             **self._memory.start(), keys.OBS: env.reset(seed=seed),
             keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev),
@@ -154,31 +112,30 @@ class Collector:
         steps: list[Entries] = []
         root = self._root
         ep_return, ep_cost, ep_length = self._ep_return, self._ep_cost, self._ep_length
-        with set_exploration_type(self.exploration):
-            for _ in range(self.rollout_steps):
-                out = self._act(root)
-                step = self.env.step(out[keys.ACTION])
-                done = step.terminated | step.truncated
-                ep_return = ep_return + step.reward
-                ep_cost = ep_cost + step.cost
-                ep_length = ep_length + 1
-                history, carried = self._memory.step(out, step.cost, done)
-                steps.append({
-                    **root, **out, **history,
-                    (keys.NEXT, keys.OBS): step.next_obs,
-                    (keys.NEXT, keys.REWARD): step.reward,
-                    (keys.NEXT, keys.COST): step.cost,
-                    (keys.NEXT, keys.TERMINATED): step.terminated,
-                    (keys.NEXT, keys.TRUNCATED): step.truncated,
-                    (keys.NEXT, keys.DONE): done,
-                    (keys.NEXT, keys.EPISODE_RETURN): ep_return,
-                    (keys.NEXT, keys.EPISODE_COST): ep_cost,
-                    (keys.NEXT, keys.EPISODE_LENGTH): ep_length,
-                })
-                ep_return = ep_return.masked_fill(done, 0.0)
-                ep_cost = ep_cost.masked_fill(done, 0.0)
-                ep_length = ep_length.masked_fill(done, 0)
-                root = {**carried, keys.OBS: step.obs, keys.IS_INIT: done}
+        for _ in range(self.rollout_steps):
+            out = self.agent.act(root, self.deterministic)
+            step = self.env.step(out[keys.ACTION])
+            done = step.terminated | step.truncated
+            ep_return = ep_return + step.reward
+            ep_cost = ep_cost + step.cost
+            ep_length = ep_length + 1
+            history, carried = self._memory.step(out, step.cost, done)
+            steps.append({
+                **root, **out, **history,
+                (keys.NEXT, keys.OBS): step.next_obs,
+                (keys.NEXT, keys.REWARD): step.reward,
+                (keys.NEXT, keys.COST): step.cost,
+                (keys.NEXT, keys.TERMINATED): step.terminated,
+                (keys.NEXT, keys.TRUNCATED): step.truncated,
+                (keys.NEXT, keys.DONE): done,
+                (keys.NEXT, keys.EPISODE_RETURN): ep_return,
+                (keys.NEXT, keys.EPISODE_COST): ep_cost,
+                (keys.NEXT, keys.EPISODE_LENGTH): ep_length,
+            })
+            ep_return = ep_return.masked_fill(done, 0.0)
+            ep_cost = ep_cost.masked_fill(done, 0.0)
+            ep_length = ep_length.masked_fill(done, 0)
+            root = {**carried, keys.OBS: step.obs, keys.IS_INIT: done}
         self._root = root
         self._ep_return, self._ep_cost, self._ep_length = ep_return, ep_cost, ep_length
         self.total_steps += self.rollout_steps * self.env.num_envs

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import torch
-from tensordict.nn import TensorDictModuleBase
-from torchrl.envs.utils import ExplorationType
 
 from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.intervals import summarize as interval_estimates
+from cmdp_rl.policies.agent import Agent
 
 EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
 
@@ -25,7 +24,7 @@ def _spread(name: str, values: list[float]) -> dict[str, float]:
 
 
 def evaluate(
-    actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool = True, seed: int | None = None,
+    agent: Agent, env: VecEnv, episodes: int, deterministic: bool = True, seed: int | None = None,
     termination_metric: str | None = None, cost_limit: float | None = None,
 ) -> dict[str, float]:
     """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
@@ -44,18 +43,17 @@ def evaluate(
     with torch.random.fork_rng(devices=[]):
         if seed is not None:
             torch.manual_seed(seed)
-        return _evaluate(actor, env, episodes, deterministic, seed, termination_metric, cost_limit)
+        return _evaluate(agent, env, episodes, deterministic, seed, termination_metric, cost_limit)
 
 
 def _evaluate(
-    actor: TensorDictModuleBase, env: VecEnv, episodes: int, deterministic: bool, seed: int | None,
+    agent: Agent, env: VecEnv, episodes: int, deterministic: bool, seed: int | None,
     termination_metric: str | None, cost_limit: float | None = None,
 ) -> dict[str, float]:
     n = env.num_envs
     quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
-    exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     chunk = 128
-    collector = Collector(env, actor, chunk, seed=seed, exploration=exploration)
+    collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
     rows: list[list[tuple[float, float, float, float]]] = [[] for _ in range(n)]
     while any(len(r) < q for r, q in zip(rows, quota)):
         batch = collector.collect()

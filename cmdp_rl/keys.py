@@ -11,6 +11,7 @@ ACTION = "action"
 LOG_PROB = "action_log_prob"  # torchrl's ProbabilisticActor writes this name
 LOC = "loc"
 SCALE = "scale"
+LOGITS = "logits"  # a categorical actor's parameters (gymnasium Discrete actions)
 IS_INIT = "is_init"  # True on the first step of an episode (torchrl's InitTracker convention)
 
 NEXT = "next"
@@ -33,6 +34,11 @@ ADVANTAGE = "advantage"
 COST_ADVANTAGE = "cost_advantage"
 VALUE_TARGET = "value_target"
 COST_VALUE_TARGET = "cost_value_target"
+# What each critic signal is called in a batch: (reward or cost entry, value, advantage, value target).
+SIGNALS = {
+    "reward": (REWARD, VALUE, ADVANTAGE, VALUE_TARGET),
+    "cost": (COST, COST_VALUE, COST_ADVANTAGE, COST_VALUE_TARGET),
+}
 # The advantage the policy loss reads: A_r, (A_r - lambda A_c) or (A_r - lambda A_c)/(1 + lambda).
 POLICY_ADVANTAGE = "policy_advantage"
 

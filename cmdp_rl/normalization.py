@@ -87,7 +87,7 @@ class ReturnScaler(nn.Module):
 
 class Normalizers(nn.Module):
     """The normalizers a run uses; each is ``None`` when off. ``obs`` is also placed inside the
-    actor and critics by :func:`~cmdp_rl.policies.make_actor_critic`."""
+    actor and critics by :func:`~cmdp_rl.policies.make_agent`."""
 
     def __init__(
         self,

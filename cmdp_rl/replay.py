@@ -14,12 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tensordict import TensorDict
-from tensordict.nn import TensorDictModuleBase
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from cmdp_rl import keys
 from cmdp_rl.collector import PolicyMemory
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.envs import Reach1D, reach1d_kwargs
 from cmdp_rl.plot import pyplot, save_figure
@@ -48,24 +46,22 @@ class Reach1DEpisode:
 
 @torch.no_grad()
 def record_reach1d(
-    actor: TensorDictModuleBase, env_cfg: Reach1DConfig, episodes: int, deterministic: bool = True, seed: int = 0
+    agent: Agent, env_cfg: Reach1DConfig, episodes: int, deterministic: bool = True, seed: int = 0
 ) -> list[Reach1DEpisode]:
-    """Run ``episodes`` episodes of ``actor`` on one Reach1D (reset with ``seed`` once, as env 0 of
+    """Run ``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once, as env 0 of
     a vector env is), recording the true position beside the reading the agent saw."""
     env = Reach1D(**reach1d_kwargs(env_cfg))
-    memory = PolicyMemory(actor, 1, env.action_space.shape[0], torch.device("cpu"))
-    exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    memory = PolicyMemory(agent, 1, env.action_space.shape[0], torch.device("cpu"))
     out: list[Reach1DEpisode] = []
-    with torch.random.fork_rng(devices=[]), set_exploration_type(exploration):
+    with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         obs, info = env.reset(seed=seed)
         for _ in range(episodes):
             ep = Reach1DEpisode(true_x=[info["true_x"]], reading=[float(obs[0])])
             is_init, carried = True, memory.start()
             while True:
-                td = TensorDict({**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0),
-                                 keys.IS_INIT: torch.tensor([[is_init]])}, batch_size=[1])
-                wrote = dict(actor(td).items(include_nested=True, leaves_only=True))
+                wrote = agent.act({**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0),
+                                   keys.IS_INIT: torch.tensor([[is_init]])}, deterministic)
                 action = wrote[keys.ACTION][0].numpy().astype(env.action_space.dtype)
                 obs, reward, terminated, truncated, info = env.step(action)
                 # as in the collector: the policy's next state, previous action and cost

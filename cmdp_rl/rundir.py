@@ -32,7 +32,8 @@ from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, load_config
 from cmdp_rl.envs import VecEnv, make_eval_env
 from cmdp_rl.normalization import Normalizers
-from cmdp_rl.policies import ActorCritic, make_actor_critic
+from cmdp_rl.policies.legacy import upgrade_algo_state
+from cmdp_rl.policies import Agent, make_agent
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.yaml"
@@ -132,13 +133,13 @@ def run_config(run_dir: str | Path, what: str = "run") -> RunConfig:
 class Trained(NamedTuple):
     cfg: RunConfig
     env: VecEnv
-    ac: ActorCritic
+    agent: Agent
     iteration: int
     step: int
 
 
 def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_envs: int = 1) -> Trained:
-    """Rebuild a run's env (``num_envs`` of them) and actor-critic, and load its checkpoint (or
+    """Rebuild a run's env (``num_envs`` of them) and agent, and load its checkpoint (or
     ``checkpoint``) into them. A checkpoint written by another algorithm or policy than the run's
     config names, or one whose networks do not fit it, raises :class:`CheckpointError`.
     """
@@ -148,10 +149,10 @@ def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_
     env = make_eval_env(cfg.env, num_envs=num_envs)
     # Normalizer buffers are shaped by the training envs (running discounted sums per env).
     norm = Normalizers.from_config(cfg.normalize, env.obs_dim, cfg.env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
-    ac = make_actor_critic(cfg.policy, env, norm)
+    agent = make_agent(cfg.policy, env, norm)
     try:  # the algorithm restores its own networks, whatever else it keeps
-        make_algo(cfg.algo, ac).load_state_dict(state["algo_state"])
+        make_algo(cfg.algo, agent).load_state_dict(upgrade_algo_state(state["algo_state"], agent))
     except (KeyError, RuntimeError) as exc:
         env.close()
         raise CheckpointError(f"evaluate: {ckpt} does not fit the config of {run_dir} ({exc})") from exc
-    return Trained(cfg, env, ac, int(state["iteration"]), int(state["step"]))
+    return Trained(cfg, env, agent, int(state["iteration"]), int(state["step"]))

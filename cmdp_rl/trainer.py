@@ -23,7 +23,8 @@ from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger, columns, wandb_for
 from cmdp_rl.normalization import make_normalizers
-from cmdp_rl.policies import make_actor_critic
+from cmdp_rl.policies import make_agent
+from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl.progress import Progress
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
@@ -63,9 +64,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     apply_threads(cfg)
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
-    algo = make_algo(cfg.algo, ac)
-    collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    algo = make_algo(cfg.algo, agent)
+    collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed)
     out.mkdir(parents=True, exist_ok=True)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
@@ -84,7 +85,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
 
     first, elapsed = 1, 0.0
     if state is not None:
-        algo.load_state_dict(state["algo_state"])
+        algo.load_state_dict(upgrade_algo_state(state["algo_state"], agent))  # a run from before the agent model too
         collector.load_state_dict(state["collector"])
         load_rng_state(state["rng"])
         first, elapsed = state["iteration"] + 1, state["time_s"]
@@ -126,13 +127,13 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
             batch = collector.collect()
-            ac.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
+            agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
             try:
                 stats = algo.update(batch)
             except TrainingDiverged as exc:
                 last = f"the last good checkpoint is {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written yet"
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
-            ac.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
+            agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
             eps = finished_episodes(batch)
             row = {
                 "iteration": it, "step": collector.total_steps,
@@ -158,7 +159,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
     eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
-    result = evaluate(ac.actor, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
+    result = evaluate(agent, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
                       termination_metric=metric, cost_limit=cfg.algo.cost_limit)
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,

@@ -32,12 +32,10 @@ from typing import Any, Iterator
 import gymnasium as gym
 import numpy as np
 import torch
-from tensordict import TensorDict
-from tensordict.nn import TensorDictModuleBase
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from cmdp_rl import keys
 from cmdp_rl.collector import PolicyMemory
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.validation import ConfigError
 
 VIDEO_MISSING = "video=true needs moviepy (gymnasium's RecordVideo writes with it): pip install 'cmdp_rl[video]'"
@@ -125,9 +123,9 @@ class _PolicyOnOneEnv:
     """The trained actor driving one plain env, carrying its memory from step to step as the
     collector does. ``act`` is the one place the policy is called (as ``replay.record_reach1d`` does)."""
 
-    def __init__(self, actor: TensorDictModuleBase, action_dim: int) -> None:
-        self.actor = actor
-        self.memory = PolicyMemory(actor, 1, action_dim, torch.device("cpu"))
+    def __init__(self, agent: Agent, action_dim: int, deterministic: bool) -> None:
+        self.agent, self.deterministic = agent, deterministic
+        self.memory = PolicyMemory(agent, 1, action_dim, torch.device("cpu"))
 
     def start(self) -> None:
         self.carried, self.is_init = self.memory.start(), True
@@ -135,8 +133,8 @@ class _PolicyOnOneEnv:
     def act(self, obs: np.ndarray) -> torch.Tensor:
         # as GymVecEnv hands observations to the collector: float32, flat
         obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))
-        td = TensorDict({**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])}, batch_size=[1])
-        self.wrote = dict(self.actor(td).items(include_nested=True, leaves_only=True))
+        self.wrote = self.agent.act({**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])},
+                                    self.deterministic)
         return self.wrote[keys.ACTION][0]
 
     def observe(self, cost: float) -> None:
@@ -147,10 +145,10 @@ class _PolicyOnOneEnv:
 
 @torch.no_grad()
 def record_video(
-    actor: TensorDictModuleBase, env_cfg: Any, video_dir: str | Path, episodes: int = 1, deterministic: bool = True,
+    agent: Agent, env_cfg: Any, video_dir: str | Path, episodes: int = 1, deterministic: bool = True,
     seed: int = 0, max_steps: int | None = None, name_prefix: str = "policy",
 ) -> list[VideoEpisode]:
-    """Record ``episodes`` episodes of ``actor`` on one rendering env of ``env_cfg`` (reset with
+    """Record ``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with
     ``seed`` once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
     (``<name_prefix>-episode-<i>.mp4``: the reset frame and one per step). ``max_steps`` cuts each
     episode short (MuJoCo renders about 10 frames a second in software)."""
@@ -159,10 +157,9 @@ def record_video(
     env = make_render_env(env_cfg)
     env = RecordVideo(env, str(video_dir), episode_trigger=lambda i: i < episodes, name_prefix=name_prefix,
                       fps=exact_fps(env.metadata.get("render_fps", 30)))
-    policy = _PolicyOnOneEnv(actor, int(np.prod(env.action_space.shape)))
-    exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    policy = _PolicyOnOneEnv(agent, int(np.prod(env.action_space.shape)), deterministic)
     out: list[VideoEpisode] = []
-    with torch.random.fork_rng(devices=[]), set_exploration_type(exploration):
+    with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         obs, _ = env.reset(seed=seed)
         for i in range(episodes):

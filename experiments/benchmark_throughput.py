@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import cmdp_rl  # noqa: E402
-from cmdp_rl import Collector, load_config, make_actor_critic, make_env  # noqa: E402
+from cmdp_rl import Collector, load_config, make_agent, make_env  # noqa: E402
 from cmdp_rl.config import compose_config  # noqa: E402
 from cmdp_rl.envs.reach1d_task import Reach1DConfig  # noqa: E402
 from cmdp_rl.policies.mlp import PolicyConfig  # noqa: E402
@@ -162,8 +162,8 @@ def rollout_rate(s: Setting, rollout_steps: int, seconds: float, device: str) ->
     env = make_env(cfg.env, device=device)
     # The policy the setting trains (a preset's tuning may set its width): train/rollout compares
     # the same network.
-    actor = make_actor_critic(compose_config(["algo=ppo_lag", *s.train_overrides]).policy, env).actor
-    collector = Collector(env, actor, rollout_steps, seed=0)
+    agent = make_agent(compose_config(["algo=ppo_lag", *s.train_overrides]).policy, env)
+    collector = Collector(env, agent, rollout_steps, seed=0)
     try:
         return _rate(lambda: (collector.collect(), rollout_steps * s.num_envs)[1], seconds, device)
     finally:
@@ -176,7 +176,8 @@ def plain_loop_rate(num_envs: int, rollout_steps: int, seconds: float) -> float:
     reward, cost, flags), with none of the collector's generality."""
     cfg = load_config({"env": {"num_envs": num_envs}})
     env = make_env(cfg.env)
-    head = make_actor_critic(cfg.policy, env).actor.module[0].module  # the GaussianHead network
+    actor = make_agent(cfg.policy, env).actor
+    head = lambda o: tuple(actor.head(o).values())  # noqa: E731 - the GaussianHead: (loc, scale)
     raw = env.envs
     state = {"obs": raw.reset(seed=0)[0]}
     zeros = np.zeros(num_envs)

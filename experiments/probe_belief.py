@@ -27,9 +27,10 @@ from typing import Any
 
 import torch
 
-from cmdp_rl import Collector, RunConfig, keys, load_config, make_actor_critic, make_env
+from cmdp_rl import Collector, RunConfig, keys, load_config, make_agent, make_env
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
+from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl import sweeps
 from cmdp_rl.analysis.stats import population_mean_std
 from cmdp_rl.analysis import tables
@@ -51,9 +52,9 @@ def probe_stats(cfg: RunConfig, run_dir: Path, steps: int) -> dict[str, Any]:
         return {"probe_rate": None, "probe_rate_early": None, "probe_rate_later": None}
     state = load_checkpoint(run_dir / "checkpoint.pt", policy=cfg.policy.name)
     env = make_env(dataclasses.replace(cfg.env, stagger=False), device=cfg.device)
-    ac = make_actor_critic(cfg.policy, env)
-    ac.modules().load_state_dict(state["algo_state"]["networks"])
-    batch = Collector(env, ac.actor, steps, seed=cfg.seed + EVAL_SEED_OFFSET + 1).collect()
+    ac = make_agent(cfg.policy, env)
+    ac.load_state_dict(upgrade_algo_state(state["algo_state"], ac)["networks"])  # runs before the agent model too
+    batch = Collector(env, ac, steps, seed=cfg.seed + EVAL_SEED_OFFSET + 1).collect()
     env.close()
     probing = batch.get(keys.ACTION)[..., 1] > 0
     step_in_episode = batch.get((keys.NEXT, keys.EPISODE_LENGTH)).squeeze(-1) - 1

@@ -20,7 +20,7 @@ import torch
 
 from benchmark_throughput import net_label  # same folder
 
-from cmdp_rl import Collector, make_actor_critic, make_algo, make_env
+from cmdp_rl import Collector, make_agent, make_algo, make_env
 from cmdp_rl.config import compose_config
 
 
@@ -34,8 +34,8 @@ def main() -> None:
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
-    ac = make_actor_critic(cfg.policy, env)
-    collector = Collector(env, ac.rollout_policy, cfg.rollout_steps, seed=cfg.seed)
+    ac = make_agent(cfg.policy, env)
+    collector = Collector(env, ac, cfg.rollout_steps, seed=cfg.seed)
     batch = collector.collect()
     steps = batch.numel()
     print(f"{cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs), {net_label(cfg.policy)}, batch {steps} steps, "

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
-from cmdp_rl import Collector, load_config, make_actor_critic, make_env, train
+from cmdp_rl import Collector, load_config, make_agent, make_env, train
 from cmdp_rl.envs.velocity import make_velocity_env
 from cmdp_rl.normalization import make_normalizers
 
@@ -57,8 +57,8 @@ def raw_vector(task: str, steps: int, n: int) -> float:
 def collection(task: str, steps: int, n: int) -> float:
     cfg = load_config({"env": {"name": "velocity", "task": task, "num_envs": n}, "normalize": {"obs": True}})
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
-    collector = Collector(env, ac.actor, rollout_steps=max(1, steps // n), seed=0)
+    ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    collector = Collector(env, ac, rollout_steps=max(1, steps // n), seed=0)
     t0 = time.perf_counter()
     collector.collect()
     return collector.total_steps / (time.perf_counter() - t0)

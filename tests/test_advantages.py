@@ -3,11 +3,11 @@
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictModule
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.policies import ActorCritic
+from cmdp_rl.policies import Agent, Critic
+from cmdp_rl.policies.mlp import MLPBody
 
 GAMMA, LAM = 0.9, 0.8
 V = [0.5, 0.2, 0.1]       # V(s_0..s_2)
@@ -61,10 +61,9 @@ def closed_form(signal, done_at=None, terminal=False):
 
 
 def critics():
-    """Both critics, in an ActorCritic (the actor is not used by GAE)."""
+    """Both critics, on the observation, in an Agent (the actor is not used by GAE)."""
     table = torch.tensor(V + [V_NEXT[-1]])
-    return ActorCritic(actor=None, critic=TensorDictModule(Lookup(table), [keys.OBS], [keys.VALUE]),
-                       cost_critic=TensorDictModule(Lookup(table), [keys.OBS], [keys.COST_VALUE]))
+    return Agent(actor=None, critics={signal: Critic(MLPBody(None, None), Lookup(table)) for signal in ("reward", "cost")})
 
 
 @pytest.mark.parametrize("case", ["none", "truncated", "terminated"])
@@ -86,21 +85,28 @@ def test_hand_numbers_for_the_no_end_case():
     assert closed_form(R, 1, terminal=True) == pytest.approx([0.536, -0.2, 2.17])
 
 
-def test_critic_values_of_a_collector_batch_equal_a_full_evaluation():
-    """write_values evaluates V(next obs) only at episode ends and the last step; the values are
-    those of evaluating the critic on every observation and every next observation."""
-    from cmdp_rl import Collector, load_config, make_actor_critic, make_env
-    from cmdp_rl.advantages import write_values
+@pytest.mark.parametrize("chunk_rows", [8192, 100])
+def test_critic_values_of_a_collector_batch_equal_a_full_evaluation(chunk_rows, monkeypatch):
+    """Agent.rollout_values evaluates V(next obs) only at episode ends and the last step (and in
+    chunks of CHUNK_ROWS rows); the values are those of evaluating the critic on every observation
+    and every next observation."""
+    from cmdp_rl import Collector, load_config, make_agent, make_env
+    from cmdp_rl.policies import agent as agent_module
+
+    monkeypatch.setattr(agent_module, "CHUNK_ROWS", chunk_rows)
 
     cfg = load_config({"env": {"backend": "torch", "num_envs": 16, "max_steps": 7, "start": [0.0, 0.8]}})
     env = make_env(cfg.env)
     torch.manual_seed(0)
-    ac = make_actor_critic(cfg.policy, env)
-    b = Collector(env, ac.actor, 30, seed=0).collect()
+    ac = make_agent(cfg.policy, env)
+    b = Collector(env, ac, 30, seed=0).collect()
     assert b[keys.NEXT][keys.DONE].any()
-    with torch.no_grad():
-        write_values(b, ac.critic)
-        full_now = ac.critic.module(b[keys.OBS])
-        full_next = ac.critic.module(b[keys.NEXT][keys.OBS])
-    assert torch.allclose(b[keys.VALUE], full_now, atol=1e-6)
-    assert torch.allclose(b[keys.NEXT][keys.VALUE], full_next, atol=1e-6)
+    for signal in ("reward", "cost"):
+        with torch.no_grad():
+            values, next_values = ac.rollout_values(b, signal)
+            full_now = ac.critics[signal].net(b[keys.OBS])
+            full_next = ac.critics[signal].net(b[keys.NEXT][keys.OBS])
+        assert values.shape == next_values.shape == (16, 30, 1)
+        assert torch.allclose(values, full_now, atol=1e-6)
+        assert torch.allclose(next_values, full_next, atol=1e-6)
+    assert not torch.allclose(ac.critics["reward"].net(b[keys.OBS]), ac.critics["cost"].net(b[keys.OBS]))

@@ -5,7 +5,7 @@ import csv
 import pytest
 import torch
 
-from cmdp_rl import Collector, TrainingDiverged, keys, load_config, make_actor_critic, make_algo, make_env, train
+from cmdp_rl import Collector, TrainingDiverged, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 
@@ -14,16 +14,16 @@ def setup(algo: dict, **env):
     cfg = load_config({"algo": algo, "env": {"num_envs": 2, "max_steps": 20, **env}, "rollout_steps": 32})
     torch.manual_seed(0)
     e = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, e)
-    return cfg, make_algo(cfg.algo, ac), Collector(e, ac.actor, cfg.rollout_steps, seed=0)
+    ac = make_agent(cfg.policy, e)
+    return cfg, make_algo(cfg.algo, ac), Collector(e, ac, cfg.rollout_steps, seed=0)
 
 
 @pytest.mark.parametrize("name", ["ppo", "penalty", "ppo_lag", "pid_lag"])
 def test_one_update_changes_every_network(name):
     cfg, algo, col = setup({"name": name, "update_epochs": 2, "num_minibatches": 2})
-    before = [p.detach().clone() for p in algo.ac.modules().parameters()]
+    before = [p.detach().clone() for p in algo.agent.parameters()]
     stats = algo.update(col.collect())
-    after = list(algo.ac.modules().parameters())
+    after = list(algo.agent.parameters())
     assert all(not torch.equal(b, a) for b, a in zip(before, after))
     assert all(v == v for v in stats.values())  # finite, not NaN
     assert {"loss_pi", "loss_v", "loss_vc", "kl", "entropy", "lagrange_multiplier"} <= stats.keys()
@@ -107,27 +107,51 @@ def test_checkpoint_errors(tmp_path):
 
 
 def test_policy_loss_equals_torchrl_clip_ppo_loss():
-    """The hand-written clipped surrogate (fast path, and the TensorDict path) is ClipPPOLoss's."""
+    """The hand-written clipped surrogate is ClipPPOLoss's, on a TensorDict wrapper of the same actor."""
+    from tensordict.nn import TensorDictModule
+    from torchrl.modules import IndependentNormal, ProbabilisticActor
     from torchrl.objectives import ClipPPOLoss
 
     cfg, algo, col = setup({"name": "ppo", "entropy_coef": 0.01, "clip_epsilon": 0.1})
     batch = col.collect()
-    algo.gae(batch, algo.ac)
+    algo.gae(batch, algo.agent)
     batch.set(keys.POLICY_ADVANTAGE, batch.get(keys.ADVANTAGE))
+    actor = algo.agent.actor
     with torch.no_grad():  # move the policy so that ratios differ from 1 and some are clipped
-        for p in algo.ac.actor.parameters():
+        for p in actor.parameters():
             p.add_(0.3 * torch.randn_like(p))
     flat = batch.reshape(-1)
-    ref = ClipPPOLoss(algo.ac.actor, critic_network=None, clip_epsilon=0.1, entropy_coeff=0.01, normalize_advantage=False)
+
+    class Params(torch.nn.Module):
+        def forward(self, obs):
+            return tuple(actor.params({keys.OBS: obs}).values())
+
+    td_actor = ProbabilisticActor(TensorDictModule(Params(), [keys.OBS], [keys.LOC, keys.SCALE]),
+                                  in_keys=[keys.LOC, keys.SCALE], out_keys=[keys.ACTION],
+                                  distribution_class=IndependentNormal, return_log_prob=True, log_prob_key=keys.LOG_PROB)
+    ref = ClipPPOLoss(td_actor, critic_network=None, clip_epsilon=0.1, entropy_coeff=0.01, normalize_advantage=False)
     ref.set_keys(advantage=keys.POLICY_ADVANTAGE, sample_log_prob=keys.LOG_PROB)
     out = ref(flat)
     mb = {k: flat.get(k) for k in algo._update_keys(batch)}
-    for fast in (algo.actor_fast, None):
-        algo.actor_fast = fast
-        loss, entropy, kl, clip_fraction = algo.policy_loss(mb)
-        assert torch.allclose(loss, out["loss_objective"] + out["loss_entropy"], rtol=1e-6, atol=1e-7)
-        assert torch.allclose(entropy, out["entropy"]) and torch.allclose(kl, out["kl_approx"])
-        assert clip_fraction == out["clip_fraction"] and 0.05 < clip_fraction.item() < 0.95
+    loss, stats = algo.policy_loss(mb)
+    assert torch.allclose(loss, out["loss_objective"] + out["loss_entropy"], rtol=1e-6, atol=1e-7)
+    assert torch.allclose(stats["entropy"], out["entropy"]) and torch.allclose(stats["kl"], out["kl_approx"])
+    assert stats["clip_fraction"] == out["clip_fraction"] and 0.05 < stats["clip_fraction"].item() < 0.95
+
+
+def test_kl_early_stopping_stops_the_update_at_the_first_minibatch_past_1_5_target_kl():
+    """With a tiny target_kl the first minibatch (ratio 1, KL 0) steps, the second is past
+    1.5 * target_kl and stops the update: the policy moved once; with target_kl=None, all 4 steps."""
+    steps = {}
+    for target in (1e-12, None):
+        cfg, algo, col = setup({"name": "ppo", "update_epochs": 2, "num_minibatches": 2, "target_kl": target,
+                                "lr": 1e-2})
+        taken = []
+        step = algo.actor_opt.step
+        algo.actor_opt.step = lambda *a, **k: (taken.append(1), step(*a, **k))[1]
+        algo.update(col.collect())
+        steps[target] = len(taken)
+    assert steps == {1e-12: 1, None: 4}
 
 
 def test_fast_tanh_matches_torch_tanh_and_its_gradient():
@@ -159,7 +183,7 @@ def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monk
     monkeypatch.setattr(torch.optim.Adam, "step", step_then_break)
     cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2}, "env": {"num_envs": 2},
                        "rollout_steps": 16, "total_steps": 320, "checkpoint_every": 1})
-    with pytest.raises(TrainingDiverged, match=r"iteration 3: parameter critic\..* is not finite"):
+    with pytest.raises(TrainingDiverged, match=r"iteration 3: parameter critics\.reward\.net\.0\.weight is not finite"):
         train(cfg, tmp_path, echo=lambda s: None)
     state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo")
     assert state["iteration"] == 2

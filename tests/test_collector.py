@@ -2,24 +2,32 @@
 
 import pytest
 import torch
-from tensordict.nn import TensorDictModule, TensorDictModuleBase
-from torchrl.envs.utils import ExplorationType
 
 from cmdp_rl import Collector, finished_episodes, keys
 from cmdp_rl.envs import GymVecEnv, Reach1D
 
 
-class ConstantPolicy(torch.nn.Module):
-    def __init__(self, value):
-        super().__init__()
-        self.value = value
+class ConstantPolicy:
+    """The collector's side of an agent (``act``, ``in_keys``, ``initial_state``): a constant
+    action, plus Gaussian noise of std ``noise`` from torch's global generator."""
 
-    def forward(self, obs):
-        return torch.full((obs.shape[0], 1), self.value)
+    in_keys = [keys.OBS]
+
+    def __init__(self, value, noise=0.0):
+        self.value, self.noise = value, noise
+
+    def initial_state(self, num_envs, device="cpu"):
+        return {}
+
+    def act(self, d, deterministic=False):
+        action = torch.full((d[keys.OBS].shape[0], 1), self.value)
+        if self.noise:
+            action = action + self.noise * torch.randn_like(action)
+        return {keys.ACTION: action}
 
 
 def policy(value):
-    return TensorDictModule(ConstantPolicy(value), [keys.OBS], [keys.ACTION])
+    return ConstantPolicy(value)
 
 
 def test_batch_layout_costs_and_episode_ends():
@@ -58,57 +66,65 @@ def test_cost_on_the_done_step_is_kept():
     assert finished_episodes(b)["cost"].tolist() == [1.0] * 8
 
 
-def _mlp_actor_and_env(backend="gym", n=4):
-    from cmdp_rl import load_config, make_actor_critic, make_env
+def _mlp_agent_and_env(backend="gym", n=4):
+    from cmdp_rl import load_config, make_agent, make_env
 
     cfg = load_config({"env": {"backend": backend, "num_envs": n, "max_steps": 9}})
     env = make_env(cfg.env)
     torch.manual_seed(0)
-    return make_actor_critic(cfg.policy, env).actor, cfg
+    return make_agent(cfg.policy, env), cfg
 
 
-@pytest.mark.parametrize("exploration", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
-def test_tensor_path_equals_the_tensordict_path(exploration):
-    """The MLP actor runs on tensors (TensorActor); the batch is the one ProbabilisticActor gives."""
+@pytest.mark.parametrize("deterministic", [False, True])
+def test_agent_batch_equals_the_training_pass(deterministic):
+    """What the agent stores while acting one step at a time (distribution parameters, action,
+    log-prob) is what the training pass (``Agent.dist`` on the batch's training units) gives for
+    the same steps; the deterministic action is the mean, a sampled one is not; a seeded collector
+    repeats its batches."""
     from cmdp_rl import make_env
-    from cmdp_rl.policies.tensor_path import TensorActor
 
-    actor, cfg = _mlp_actor_and_env()
-    assert TensorActor.wrap(actor) is not None
+    agent, cfg = _mlp_agent_and_env()
     batches = []
-    for tensor_path in (True, False):
+    for _ in range(2):
         torch.manual_seed(1)
-        col = Collector(make_env(cfg.env), actor, 20, seed=3, exploration=exploration, tensor_path=tensor_path)
+        col = Collector(make_env(cfg.env), agent, 20, seed=3, deterministic=deterministic)
         batches.append([col.collect(), col.collect()])
-    for fast, slow in zip(*batches):
-        assert set(fast.keys(True, True)) == set(slow.keys(True, True))
-        assert {keys.ACTION, keys.LOG_PROB, keys.LOC, keys.SCALE} <= set(fast.keys())
-        for k in slow.keys(True, True):
-            assert fast[k].shape == slow[k].shape and fast[k].dtype == slow[k].dtype, k
-            assert torch.equal(fast[k], slow[k]), k
+    for b, again in zip(*batches):
+        assert {keys.ACTION, keys.LOG_PROB, keys.LOC, keys.SCALE} <= set(b.keys())
+        assert b[keys.ACTION].shape == b[keys.LOC].shape == (4, 20, 1) and b[keys.LOG_PROB].shape == (4, 20)
+        assert b[keys.ACTION].dtype == b[keys.LOG_PROB].dtype == torch.float32
+        assert (b == again).all()
+        units = agent.training_units({k: b.get(k) for k in [*agent.in_keys, keys.ACTION]})
+        with torch.no_grad():
+            dist = agent.dist(units)
+            log_prob = dist.log_prob(units[keys.ACTION])
+        assert torch.allclose(dist.mean, b[keys.LOC].flatten(0, 1), atol=1e-6)
+        assert torch.allclose(dist.stddev, b[keys.SCALE].flatten(0, 1))
+        assert torch.allclose(log_prob, b[keys.LOG_PROB].flatten(0, 1), atol=1e-5)
+        if deterministic:
+            assert torch.equal(b[keys.ACTION], b[keys.LOC])
+        else:
+            assert (b[keys.ACTION] != b[keys.LOC]).all()
+            z = (b[keys.ACTION] - b[keys.LOC]) / b[keys.SCALE]  # standardized samples: about N(0, 1)
+            assert abs(z.mean().item()) < 0.5 and 0.6 < z.std().item() < 1.4
 
 
-class CountingPolicy(TensorDictModuleBase):
-    """A stateful policy: it reads its state from the root and writes the next one under "next",
-    as torchrl's recurrent modules do; the state restarts at an episode start (is_init)."""
+class CountingPolicy:
+    """A stateful policy: it reads its state from the root and returns the next one under "next",
+    as the agent's recurrent bodies do; its initial state is given by ``initial_state``."""
 
     in_keys = [keys.OBS, keys.IS_INIT, "count"]
-    out_keys = [keys.ACTION, (keys.NEXT, "count")]
 
-    def forward(self, td):
-        count = td.get("count", torch.zeros(td.shape[0], 1))
-        count = torch.where(td.get(keys.IS_INIT), torch.zeros_like(count), count)
-        td.set(keys.ACTION, torch.full((td.shape[0], 1), 0.1))
-        td.set("count", count)
-        td.set((keys.NEXT, "count"), count + 1)
-        return td
+    def initial_state(self, num_envs, device="cpu"):
+        return {"count": torch.zeros(num_envs, 1)}
+
+    def act(self, d, deterministic=False):
+        count = d["count"]
+        return {keys.ACTION: torch.full((count.shape[0], 1), 0.1), (keys.NEXT, "count"): count + 1}
 
 
 def test_state_written_under_next_is_carried_to_the_next_step():
-    from cmdp_rl.policies.tensor_path import TensorActor
-
     policy = CountingPolicy()
-    assert TensorActor.wrap(policy) is None  # not a stateless actor: the TensorDict path
     env = GymVecEnv(lambda: Reach1D(max_steps=5, obs_noise=0.0), 2)
     col = Collector(env, policy, rollout_steps=7, seed=0)
     b = col.collect()
@@ -127,8 +143,7 @@ def test_state_dict_continues_the_same_trajectories():
     from cmdp_rl.envs import GymVecEnv
 
     def noisy(value):
-        p = policy(value)
-        return lambda td: p(td).set(keys.ACTION, td.get(keys.ACTION) + 0.05 * torch.randn(td.shape[0], 1))
+        return ConstantPolicy(value, noise=0.05)
 
     for make_one in (lambda: Reach1D(max_steps=9, start=[0.2, 0.45], wall="pass"),
                      lambda: gym.wrappers.RecordEpisodeStatistics(Reach1D(max_steps=9, start=[0.2, 0.45]))):

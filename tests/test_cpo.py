@@ -7,14 +7,14 @@ import pytest
 import torch
 from tensordict import TensorDict
 from torch.distributions import kl_divergence
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from cmdp_rl import Collector, keys, load_config, make_actor_critic, make_algo, make_env
+from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
-from cmdp_rl.algos.cpo import (
-    CONSTRAINED, RECOVERY, TRPO, finished_episode_cost, fisher_vector_product, running_episode_cost, solve_dual,
-)
-from cmdp_rl.policies.mlp import make_actor
+from cmdp_rl.algos.cpo import CONSTRAINED, RECOVERY, TRPO, fisher_vector_product, solve_dual
+from cmdp_rl.algos.episode_cost import FINISHED, RUNNING, WINDOW, EpisodeCost, EpisodeCostEstimate
+from cmdp_rl.policies.agent import Actor
+from cmdp_rl.policies.distributions import GaussianHead
+from cmdp_rl.policies.mlp import MLPBody, mlp
 
 
 def test_conjugate_gradient_solves_a_random_spd_system():
@@ -30,32 +30,35 @@ def test_conjugate_gradient_solves_a_random_spd_system():
 
 
 def _tiny_actor(hidden=(3,)):
+    """The MLP policy's actor on a 2-D observation, actions in [-0.1, 0.1]."""
     cfg = load_config({"policy": {"hidden_sizes": list(hidden)}}).policy
     torch.manual_seed(0)
-    return make_actor(cfg, 2, torch.tensor([-0.1]), torch.tensor([0.1])).double()
+    net = mlp(2, cfg.hidden_sizes, 1, cfg.activation, out_gain=0.01)
+    head = GaussianHead(net, torch.tensor([-0.1]), torch.tensor([0.1]), cfg.init_log_std)
+    return Actor(MLPBody(None, None), head).double()
 
 
 def test_fisher_vector_product_matches_the_analytic_fisher_of_the_gaussian_policy():
     actor = _tiny_actor()
     params = list(actor.parameters())
     n_params = sum(p.numel() for p in params)
-    obs = TensorDict({keys.OBS: torch.rand(7, 2, dtype=torch.float64)}, [7])
+    obs = {keys.OBS: torch.rand(7, 2, dtype=torch.float64)}
     with torch.no_grad():
-        old = actor(obs.clone())
-    old_dist = actor.build_dist_from_params(old.select(keys.LOC, keys.SCALE))
-    kl = kl_divergence(old_dist, actor.get_dist(obs)).mean()
+        old = actor.params(obs)
+    old_dist = actor.head.dist(old)
+    kl = kl_divergence(old_dist, actor.dist(obs)).mean()
     fvp = fisher_vector_product(kl, params, damping=0.0)
     fvp_matrix = torch.stack([fvp(e) for e in torch.eye(n_params, dtype=torch.float64)], dim=1)
 
     # Analytic Fisher of N(mu, sigma) in (mu, log sigma): diag(1 / sigma^2, 2); chain rule through
     # the network's Jacobian, averaged over the states.
     fisher = torch.zeros(n_params, n_params, dtype=torch.float64)
-    out = actor(obs.clone())
-    loc, log_scale = out.get(keys.LOC)[:, 0], out.get(keys.SCALE)[:, 0].log()
+    out = actor.params(obs)
+    loc, log_scale = out[keys.LOC][:, 0], out[keys.SCALE][:, 0].log()
     for i in range(7):
         j_mu = torch.cat([g.reshape(-1) for g in torch.autograd.grad(loc[i], params, retain_graph=True, materialize_grads=True)])
         j_ls = torch.cat([g.reshape(-1) for g in torch.autograd.grad(log_scale[i], params, retain_graph=True, materialize_grads=True)])
-        sigma2 = out.get(keys.SCALE)[i, 0].detach() ** 2
+        sigma2 = out[keys.SCALE][i, 0].detach() ** 2
         fisher += (torch.outer(j_mu, j_mu) / sigma2 + 2.0 * torch.outer(j_ls, j_ls)) / 7
     assert fisher.abs().max() > 1.0  # a real matrix, not zeros
     assert torch.allclose(fvp_matrix, fisher, rtol=1e-8, atol=1e-8)
@@ -117,29 +120,33 @@ def test_dual_solution_is_the_optimum_of_the_trust_region_subproblem():
     assert seen == {TRPO, CONSTRAINED, RECOVERY, "active", "inactive"}
 
 
-def _hand_built_batch(actor, n=512, seed=0):
-    """Actions sampled from the actor; moving right (action above the mean) is rewarded and costs."""
+def _hand_built_units(actor, n=512, seed=0):
+    """Training units with actions sampled from the actor; moving right (action above the mean) is
+    rewarded and costs."""
     torch.manual_seed(seed)
-    td = TensorDict({keys.OBS: torch.rand(n, 2)}, [n])
-    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-        td = actor(td)
-    push = (td.get(keys.ACTION) - td.get(keys.LOC)) / td.get(keys.SCALE)
-    td.set(keys.ADVANTAGE, push + 0.3 * torch.randn(n, 1))
-    td.set(keys.COST_ADVANTAGE, 0.5 * push + 0.1 * torch.randn(n, 1))
-    return td
-
-
-def _surrogates(actor, td):
+    units = {keys.OBS: torch.rand(n, 2)}
     with torch.no_grad():
-        ratio = torch.exp(actor.get_dist(td.select(keys.OBS)).log_prob(td.get(keys.ACTION)) - td.get(keys.LOG_PROB))
-        cost_adv = td.get(keys.COST_ADVANTAGE) - td.get(keys.COST_ADVANTAGE).mean()
-        return (ratio[:, None] * td.get(keys.ADVANTAGE)).mean().item(), (ratio[:, None] * cost_adv).mean().item()
+        params = actor.params(units)
+        dist = actor.head.dist(params)
+        action = dist.sample()
+        units.update(params, **{keys.ACTION: action, keys.LOG_PROB: dist.log_prob(action)})
+    push = (units[keys.ACTION] - units[keys.LOC]) / units[keys.SCALE]
+    units[keys.ADVANTAGE] = push + 0.3 * torch.randn(n, 1)
+    units[keys.COST_ADVANTAGE] = 0.5 * push + 0.1 * torch.randn(n, 1)
+    return units
+
+
+def _surrogates(actor, units):
+    with torch.no_grad():
+        ratio = torch.exp(actor.dist({keys.OBS: units[keys.OBS]}).log_prob(units[keys.ACTION]) - units[keys.LOG_PROB])
+        cost_adv = units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
+        return (ratio[:, None] * units[keys.ADVANTAGE]).mean().item(), (ratio[:, None] * cost_adv).mean().item()
 
 
 def _cpo(**algo):
     cfg = load_config({"algo": {"name": "cpo", "cost_limit": 1.0, **algo}, "policy": {"hidden_sizes": [16]}})
     torch.manual_seed(0)
-    ac = make_actor_critic(cfg.policy, make_env(cfg.env, num_envs=1))
+    ac = make_agent(cfg.policy, make_env(cfg.env, num_envs=1))
     return make_algo(cfg.algo, ac)
 
 
@@ -147,17 +154,17 @@ def _cpo(**algo):
 def test_accepted_cpo_step_keeps_kl_within_delta_and_obeys_its_case(episode_cost, case):
     delta = 0.005
     cpo = _cpo(target_kl=delta, cg_damping=0.01, cg_iters=20)
-    actor = cpo.ac.actor
-    td = _hand_built_batch(actor)
+    actor = cpo.agent.actor
+    td = _hand_built_units(actor)
     old_reward, old_cost = _surrogates(actor, td)
-    old_dist = actor.build_dist_from_params(td.select(keys.LOC, keys.SCALE))
+    old_dist = actor.head.dist({k: td[k] for k in (keys.LOC, keys.SCALE)})
     before = [p.detach().clone() for p in actor.parameters()]
     info = cpo.policy_step(td, episode_cost=episode_cost, episode_length=10.0)
     assert info["cpo_case"] == case
     assert info["step_fraction"] > 0.0  # a step was accepted ...
     assert any(not torch.equal(b, p) for b, p in zip(before, actor.parameters()))  # ... and taken
     with torch.no_grad():
-        kl = kl_divergence(old_dist, actor.get_dist(td.select(keys.OBS))).mean().item()
+        kl = kl_divergence(old_dist, actor.dist({keys.OBS: td[keys.OBS]})).mean().item()
     assert kl == pytest.approx(info["kl"], rel=1e-5) and 0.0 < kl <= delta
     new_reward, new_cost = _surrogates(actor, td)
     assert new_cost - old_cost == pytest.approx(info["surr_cost_change"], abs=1e-6)
@@ -179,19 +186,20 @@ def test_cpo_update_on_collected_batch_changes_the_networks_and_checkpoints():
                        "env": {"num_envs": 2, "max_steps": 20}, "rollout_steps": 32})
     torch.manual_seed(0)
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env)
+    ac = make_agent(cfg.policy, env)
     cpo = make_algo(cfg.algo, ac)
-    col = Collector(env, ac.actor, cfg.rollout_steps, seed=0)
-    before = [p.detach().clone() for p in ac.modules().parameters()]
+    col = Collector(env, ac, cfg.rollout_steps, seed=0)
+    before = [p.detach().clone() for p in ac.parameters()]
     stats = cpo.update(col.collect())
-    assert all(not torch.equal(b, a) for b, a in zip(before, ac.modules().parameters()))
+    assert all(not torch.equal(b, a) for b, a in zip(before, ac.parameters()))
     assert {"cpo_case", "step_fraction", "kl", "dual_lambda", "dual_nu", "lagrange_multiplier", "loss_v", "loss_vc"} <= stats.keys()
     assert stats["lagrange_multiplier"] == stats["dual_nu"] >= 0.0 and stats["kl"] <= cfg.algo.target_kl
     state = cpo.state_dict()
-    cpo2 = make_algo(cfg.algo, make_actor_critic(cfg.policy, env))
+    cpo2 = make_algo(cfg.algo, make_agent(cfg.policy, env))
     cpo2.load_state_dict(state)
     assert cpo2.lagrange_multiplier == cpo.lagrange_multiplier
-    assert all(torch.equal(a, b) for a, b in zip(cpo2.ac.modules().parameters(), ac.modules().parameters()))
+    assert all(torch.equal(a, b) for a, b in zip(cpo2.agent.parameters(), ac.parameters()))
+    assert len(list(ac.parameters())) == len(list(cpo2.agent.parameters())) > 0
 
 
 def _episode_batch(ends_at: list[int], cost_per_step: float = 1.0, T: int = 8) -> TensorDict:
@@ -206,21 +214,27 @@ def _episode_batch(ends_at: list[int], cost_per_step: float = 1.0, T: int = 8) -
 
 
 def test_cpo_cost_estimate_carries_the_last_finished_episodes_over_batches_where_none_ended():
-    """A long episode spans several batches: its cost so far is a lower bound, not J_c."""
-    assert finished_episode_cost(_episode_batch([3])) == (104.0, 104.0)  # the episode that ended
-    assert finished_episode_cost(_episode_batch([])) is None
-    assert running_episode_cost(_episode_batch([])) == (108.0, 108.0)  # nothing ended yet: running sums
+    """A long episode spans several batches: its cost so far is a lower bound, not J_c. CPO reads
+    the shared estimate (algos/episode_cost.py): the episodes that ended in the batch, else the last
+    ones that ended (a window of one per env), else the running sums."""
+    assert EpisodeCostEstimate().update(_episode_batch([3])) == EpisodeCost(104.0, 104.0, FINISHED)
+    assert EpisodeCostEstimate().update(_episode_batch([])) == EpisodeCost(108.0, 108.0, RUNNING)
     cpo = _cpo()
-    cpo.policy_step = lambda flat, cost, length: {"seen": (cost, length)}  # only what update passes on
-    cpo.fit_critics = lambda flat: {}
-    cpo.gae = lambda batch, ac: batch
-    cpo.ac.batch_units = lambda batch: batch
+    cpo.policy_step = lambda units, cost, length: {"seen": (cost, length)}  # only what update passes on
+    cpo.fit_critics = lambda units: {}
+    cpo.gae = lambda batch, agent: batch
     seen = []
     for ends in ([], [5], [], []):
         batch = _episode_batch(ends, cost_per_step=0.5)
         seen.append(cpo.update(batch)["seen"])
     assert seen == [(54.0, 108.0), (53.0, 106.0), (53.0, 106.0), (53.0, 106.0)]
-    assert cpo.state_dict()["episode_estimate"] == (53.0, 106.0)
+    assert cpo.state_dict()["episode_cost"] == {"recent": [(53.0, 106.0)], "window": 1}
     fresh = _cpo()
     fresh.load_state_dict(cpo.state_dict())
-    assert fresh.episode_estimate == (53.0, 106.0)
+    assert fresh.episode_cost.update(_episode_batch([])) == EpisodeCost(53.0, 106.0, WINDOW)
+    # A checkpoint from before the shared estimate kept CPO's last J_c as "episode_estimate".
+    old = {k: v for k, v in cpo.state_dict().items() if k != "episode_cost"}
+    old["episode_estimate"] = (51.0, 102.0)
+    fresh = _cpo()
+    fresh.load_state_dict(old)
+    assert fresh.episode_cost.update(_episode_batch([])) == EpisodeCost(51.0, 102.0, WINDOW)

@@ -5,7 +5,6 @@ import json
 
 import pytest
 import torch
-from tensordict.nn import TensorDictModule
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
@@ -55,11 +54,19 @@ def test_plot_writes_a_png(run, tmp_path):
 
 
 def test_replay_records_the_true_position_and_collisions(tmp_path):
-    class Forward(torch.nn.Module):
-        def forward(self, obs):
-            return torch.full((obs.shape[0], 1), 0.1)
+    class Forward:
+        """An agent that always pushes forward by 0.1 (what replay needs of one: act, in_keys,
+        initial_state)."""
 
-    actor = TensorDictModule(Forward(), [keys.OBS], [keys.ACTION])
+        in_keys = [keys.OBS]
+
+        def initial_state(self, num_envs, device="cpu"):
+            return {}
+
+        def act(self, d, deterministic=False):
+            return {keys.ACTION: torch.full((d[keys.OBS].shape[0], 1), 0.1)}
+
+    actor = Forward()
     cfg = Reach1DConfig(max_steps=8)
     (ep,) = record_reach1d(actor, cfg, 1, seed=0)
     # float32 0.1 steps from 0.1: 0.2, 0.3, 0.4, 0.5000000x would cross, so blocked at ~0.4 from step 4

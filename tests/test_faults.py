@@ -37,7 +37,9 @@ def test_nan_stops_the_cli_run_and_its_last_checkpoint_evaluates_and_resumes(tmp
     (tmp_path / "site").mkdir()
     (tmp_path / "site" / "sitecustomize.py").write_text(POISON)
     run = tmp_path / "run"
-    env = {**os.environ, "PYTHONPATH": str(tmp_path / "site"), "CMDP_NAN_AT": "6"}
+    # ROOT too: the poison must patch the cmdp_rl that train.py runs (this checkout's), which an
+    # installed copy elsewhere would otherwise shadow at interpreter start.
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "site"), str(ROOT)]), "CMDP_NAN_AT": "6"}
     cfg = tiny()
     proc = subprocess.run([sys.executable, str(ROOT / "train.py"), *cli_args(cfg), f"hydra.run.dir={run}"],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)

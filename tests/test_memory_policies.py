@@ -1,27 +1,23 @@
 """History-dependent policies: recurrent step mode equals recurrent mode, states reset at episode
 starts, the value pass is the step-by-step one, the transformer's carried window equals the
-explicit window, and the collector's previous action/cost and tensor path."""
+explicit window, the collector's previous action/cost, and acting equals the training pass."""
 
 import pytest
 import torch
-from tensordict import TensorDict
-from torchrl.modules import set_recurrent_mode
 
-from cmdp_rl import Collector, keys, load_config, make_actor_critic, make_env
-from cmdp_rl.advantages import write_values
+from cmdp_rl import Collector, keys, load_config, make_agent, make_env
 from cmdp_rl.config import ConfigError
-from cmdp_rl.policies.tensor_path import StepProgram
 
 # Short episodes (7 steps) over 20-step rollouts: episodes start mid-batch and span batches.
 ENV = {"num_envs": 4, "max_steps": 7, "probe": True, "start": [0.0, 0.8], "backend": "torch", "obs_noise": 0.1}
 
 
-def setup(policy: dict, rollout: int = 20, tensor_path: bool = True, seed: int = 0):
+def setup(policy: dict, rollout: int = 20, seed: int = 0):
     cfg = load_config({"policy": policy, "env": ENV, "rollout_steps": rollout, "algo": {"num_minibatches": 2}})
     env = make_env(cfg.env)
     torch.manual_seed(seed)
-    ac = make_actor_critic(cfg.policy, env)
-    return ac, Collector(env, ac.rollout_policy, rollout, seed=seed, tensor_path=tensor_path)
+    ac = make_agent(cfg.policy, env)
+    return ac, Collector(env, ac, rollout, seed=seed)
 
 
 def second_batch(col):
@@ -32,12 +28,26 @@ def second_batch(col):
     return b
 
 
+def actor_units(ac, b):
+    return ac.training_units({k: b.get(k) for k in [*ac.actor.body.in_keys, keys.ACTION]})
+
+
 def recurrent_log_probs(ac, b):
-    data = ac.training_units({k: b.get(k) for k in [*ac.actor.in_keys, keys.ACTION]})
-    td = TensorDict(data, batch_size=data[keys.ACTION].shape[:-1])
-    with torch.no_grad(), ac.sequence_mode():
-        dist = ac.actor.get_dist(td)
-    return dist.log_prob(td[keys.ACTION]), dist.base_dist.loc, ac.training_units({keys.LOG_PROB: b[keys.LOG_PROB], keys.LOC: b[keys.LOC]})
+    """The training pass (``Agent.dist`` on the batch's training units) on the rollout's steps."""
+    data = actor_units(ac, b)
+    with torch.no_grad():
+        dist = ac.dist(data)
+    return dist.log_prob(data[keys.ACTION]), dist.mean, ac.training_units({keys.LOG_PROB: b[keys.LOG_PROB], keys.LOC: b[keys.LOC]})
+
+
+def step_mode_log_prob(ac, data):
+    """The actor run one step at a time (acting's ``Body.step``) on every unit's steps, each from
+    the state stored with it."""
+    flat = {k: v.flatten(0, 1) for k, v in data.items()}
+    with torch.no_grad():
+        features, _ = ac.actor.body.step(flat)
+        dist = ac.actor.head.dist(ac.actor.head(*features))
+    return dist.log_prob(flat[keys.ACTION]).unflatten(0, data[keys.ACTION].shape[:2])
 
 
 @pytest.mark.parametrize("name", ["lstm", "gru"])
@@ -53,18 +63,18 @@ def test_recurrent_policy_step_by_step_equals_recurrent_mode(name, segment):
     assert torch.allclose(loc, stored[keys.LOC], atol=1e-6)
     # Recurrent mode really runs through time: garbage stored states inside a segment (not at its
     # start, not at an episode start) change nothing ...
-    data = ac.training_units({k: b.get(k) for k in [*ac.actor.in_keys, keys.ACTION]})
+    data = actor_units(ac, b)
+    # step mode on the stored states gives the rollout's log-probs too ...
+    assert torch.allclose(step_mode_log_prob(ac, data), stored[keys.LOG_PROB], atol=1e-5)
     keep = data[keys.IS_INIT].squeeze(-1).clone()
     keep[:, 0] = True
     for k in (keys.ACTOR_HIDDEN, keys.ACTOR_CELL):
         if k in data:
             data[k] = torch.where(keep[..., None, None], data[k], torch.randn_like(data[k]) * 5)
-    td = TensorDict(data, batch_size=data[keys.ACTION].shape[:-1])
-    with torch.no_grad(), ac.sequence_mode():
-        assert torch.allclose(ac.actor.get_dist(td).log_prob(td[keys.ACTION]), stored[keys.LOG_PROB], atol=1e-5)
-    # ... whereas step mode reads them.
     with torch.no_grad():
-        assert not torch.allclose(ac.actor.get_dist(td.clone()).log_prob(td[keys.ACTION]), stored[keys.LOG_PROB], atol=1e-3)
+        assert torch.allclose(ac.dist(data).log_prob(data[keys.ACTION]), stored[keys.LOG_PROB], atol=1e-5)
+    # ... whereas step mode reads them.
+    assert not torch.allclose(step_mode_log_prob(ac, data), stored[keys.LOG_PROB], atol=1e-3)
 
 
 @pytest.mark.parametrize("name", ["lstm", "gru"])
@@ -76,42 +86,50 @@ def test_recurrent_state_resets_where_an_episode_starts_mid_batch(name):
     for k in (keys.ACTOR_HIDDEN, keys.CRITIC_HIDDEN, keys.COST_CRITIC_HIDDEN):
         assert (b[k][is_init] == 0).all() and (b[k][~is_init] != 0).any()
     row, t = next((i, t) for i, t in is_init.nonzero().tolist() if t > 0)
-    with torch.no_grad(), set_recurrent_mode(True):
-        full = ac.actor.get_dist(b[row: row + 1].select(*ac.actor.in_keys)).base_dist.loc
+    in_keys = ac.actor.body.in_keys
+    with torch.no_grad():
+        full = ac.dist({k: b[k][row: row + 1] for k in in_keys}).mean
         # The episode alone, from a zero state ...
-        alone = b[row: row + 1, t:].select(*ac.actor.in_keys)
+        alone = {k: b[k][row: row + 1, t:] for k in in_keys}
         for k in (keys.ACTOR_HIDDEN, keys.ACTOR_CELL):
-            if k in alone.keys():
+            if k in alone:
                 alone[k] = torch.zeros_like(alone[k])
-        loc_alone = ac.actor.get_dist(alone).base_dist.loc
+        loc_alone = ac.dist(alone).mean
         # ... and the row with the steps before it scrambled: the new episode does not see them.
-        scrambled = b[row: row + 1].select(*ac.actor.in_keys).clone()
+        scrambled = {k: b[k][row: row + 1].clone() for k in in_keys}
         scrambled[keys.OBS][:, :t] = torch.rand_like(scrambled[keys.OBS][:, :t])
         scrambled[keys.PREV_ACTION][:, :t] = torch.rand_like(scrambled[keys.PREV_ACTION][:, :t])
-        loc_scrambled = ac.actor.get_dist(scrambled).base_dist.loc
+        loc_scrambled = ac.dist(scrambled).mean
     assert torch.allclose(full[:, t:], loc_alone, atol=1e-6)
     assert torch.allclose(full[:, t:], loc_scrambled[:, t:], atol=1e-6)
     assert not torch.allclose(full[:, :t], loc_scrambled[:, :t], atol=1e-4)
 
 
 @pytest.mark.parametrize("policy", [{"name": "lstm"}, {"name": "gru"}, {"name": "transformer", "window": 4}])
-def test_value_pass_equals_the_critic_stepped_through_the_rollout(policy):
+@pytest.mark.parametrize("signal", ["reward", "cost"])
+def test_value_pass_equals_the_critic_stepped_through_the_rollout(policy, signal):
     """Root values are the critic's stepwise values; next values at episode ends and the last step
     are one more critic step from the state after that step, on the final observation."""
     ac, col = setup({**policy, **({"segment_length": 0} if policy["name"] != "transformer" else {})})
     b = second_batch(col)
+    critic = ac.critics[signal]
     with torch.no_grad():
-        stepped = b.get(keys.VALUE, None)  # a recurrent critic is stepped in the rollout
-        write_values(b, ac.critic, ac)
-        if stepped is not None:
-            assert torch.allclose(b[keys.VALUE], stepped, atol=1e-5)
+        values, next_values = ac.rollout_values(b, signal)
+        # The critic stepped through the rollout, one step at a time from the state stored at
+        # each step (the collector stepped it too: its state at every step is in the batch).
+        stepped = torch.stack([critic.step({k: b[k][:, t] for k in critic.body.in_keys}) for t in range(20)], dim=1)
+        assert values.shape == next_values.shape == (4, 20, 1)
+        assert torch.allclose(values, stepped, atol=1e-5)
         fresh = b[keys.NEXT][keys.DONE].squeeze(-1).clone()
         fresh[:, -1] = True
-        assert torch.equal(b[keys.NEXT][keys.VALUE][:, :-1][~fresh[:, :-1]], b[keys.VALUE][:, 1:][~fresh[:, :-1]])
-        nxt = b[keys.NEXT][fresh].select(*[k for k in ac.critic.in_keys if k != keys.IS_INIT])
-        nxt[keys.IS_INIT] = torch.zeros(nxt.shape[0], 1, dtype=torch.bool)
-        expected = ac.critic(nxt)[keys.VALUE]
-    assert torch.allclose(b[keys.NEXT][keys.VALUE][fresh], expected, atol=1e-5)
+        assert torch.equal(next_values[:, :-1][~fresh[:, :-1]], values[:, 1:][~fresh[:, :-1]])
+        nxt = {k: b[keys.NEXT][k][fresh] for k in critic.body.in_keys if k != keys.IS_INIT}
+        nxt[keys.IS_INIT] = torch.zeros(int(fresh.sum()), 1, dtype=torch.bool)
+        expected = critic.step(nxt)
+        # at an episode end the next value is not the following step's (a new episode's reset one)
+        ends = b[keys.NEXT][keys.DONE].squeeze(-1)[:, :-1]
+        assert not torch.allclose(next_values[:, :-1][ends], values[:, 1:][ends], atol=1e-4)
+    assert torch.allclose(next_values[fresh], expected, atol=1e-5)
 
 
 @pytest.mark.parametrize("positions", ["learned", "sinusoidal"])
@@ -123,7 +141,7 @@ def test_transformer_incremental_equals_the_explicit_window(positions):
     b = col.collect()  # from reset: every row starts an episode at t = 0
     tokens = torch.cat([b[keys.OBS], b[keys.PREV_ACTION], b[keys.PREV_COST]], dim=-1)
     is_init = b[keys.IS_INIT].squeeze(-1)
-    head = ac.actor.module[0].module[1]  # the TensorDictModule around the GaussianHead
+    head = ac.actor.head  # the transformer and its MLP, then the Gaussian's parameters
     windows, masks = [], []
     for i in range(4):
         start = 0
@@ -138,7 +156,8 @@ def test_transformer_incremental_equals_the_explicit_window(positions):
             windows.append(w)
             masks.append(m)
     with torch.no_grad():
-        loc, scale = head.module(torch.stack(windows), torch.stack(masks))
+        params = head(torch.stack(windows), torch.stack(masks))
+    loc, scale = params[keys.LOC], params[keys.SCALE]
     assert torch.allclose(loc, b[keys.LOC].reshape(-1, loc.shape[-1]), atol=1e-5)
     assert torch.allclose(scale, b[keys.SCALE].reshape(-1, loc.shape[-1]))
 
@@ -176,19 +195,25 @@ def test_collector_writes_previous_action_and_cost():
     assert (b[keys.PREV_COST] != 0).any() or (b[keys.NEXT][keys.COST][:, :-1] == 0).all()
 
 
-@pytest.mark.parametrize("name", ["lstm", "transformer"])
-def test_stateful_tensor_path_equals_the_tensordict_path(name):
-    ac, _ = setup({"name": name})
-    assert StepProgram.wrap(ac.rollout_policy) is not None
-    batches = []
-    for tensor_path in (True, False):
-        _, col = setup({"name": name}, tensor_path=tensor_path)
-        col.policy.load_state_dict(ac.rollout_policy.state_dict())
-        batches.append(second_batch(col))
-    a, b = batches
-    assert set(a.keys(True, True)) == set(b.keys(True, True))
-    for k in a.keys(True, True):
-        assert torch.allclose(a[k].float(), b[k].float(), atol=1e-6), k
+@pytest.mark.parametrize("policy", [{"name": "lstm", "segment_length": 5}, {"name": "transformer"},
+                                    {"name": "mlp", "include_prev_action": True, "include_prev_cost": True}])
+def test_acting_equals_the_training_pass(policy):
+    """One execution path: the distribution the agent acted from, step by step with its carried
+    state (the collector), is the one the training pass gives on the batch's training units
+    (recurrent segments from their stored states, the transformer's stored windows, single steps);
+    and a collector on the same seed and parameters repeats the batch exactly."""
+    ac, col = setup(policy)
+    a = second_batch(col)
+    ac2, col2 = setup(policy, seed=0)
+    ac2.load_state_dict(ac.state_dict())
+    assert (second_batch(col2) == a).all()
+    data = actor_units(ac, a)
+    stored = ac.training_units({k: a[k] for k in (keys.LOG_PROB, keys.LOC, keys.SCALE)})
+    with torch.no_grad():
+        dist = ac.dist(data)
+    assert torch.allclose(dist.mean, stored[keys.LOC], atol=1e-6)
+    assert torch.allclose(dist.stddev, stored[keys.SCALE])
+    assert torch.allclose(dist.log_prob(data[keys.ACTION]), stored[keys.LOG_PROB], atol=1e-5)
 
 
 @pytest.mark.parametrize("overrides,message", [

@@ -5,9 +5,8 @@ import json
 import numpy as np
 import pytest
 import torch
-from tensordict import TensorDict
 
-from cmdp_rl import ConfigError, keys, load_config, make_actor_critic, make_algo, make_env, train
+from cmdp_rl import ConfigError, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
 from cmdp_rl.evaluation import evaluate
@@ -64,27 +63,34 @@ def _reach1d_cfg(**normalize):
 def test_statistics_survive_save_and_load(tmp_path):
     cfg = _reach1d_cfg(obs=True, reward=True, cost=True)
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
+    ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, ac)
-    batch = Collector(env, ac.actor, cfg.rollout_steps, seed=0).collect()
+    batch = Collector(env, ac, cfg.rollout_steps, seed=0).collect()
     ac.normalizers.scale_batch(batch)
     algo.update(batch)
     ac.normalizers.update_observation_stats(batch)
     save_checkpoint(tmp_path / "c.pt", {"algo_state": algo.state_dict()})
 
-    fresh = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
+    fresh = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     make_algo(cfg.algo, fresh).load_state_dict(load_checkpoint(tmp_path / "c.pt")["algo_state"])
     for name in ("obs", "reward", "cost"):
         a, b = getattr(ac.normalizers, name), getattr(fresh.normalizers, name)
         assert a.stats.count.item() > 1 and torch.equal(a.stats.mean, b.stats.mean) and torch.equal(a.stats.var, b.stats.var)
     # the networks of the loaded copy normalize with the loaded statistics: the same outputs
-    probe = TensorDict({keys.OBS: torch.tensor([[0.3, 0.9], [0.7, 0.9]])}, [2])
-    for net in ("critic", "cost_critic"):
-        assert torch.equal(getattr(ac, net)(probe.clone()).get(keys.VALUE if net == "critic" else keys.COST_VALUE),
-                           getattr(fresh, net)(probe.clone()).get(keys.VALUE if net == "critic" else keys.COST_VALUE))
-    assert torch.equal(ac.actor(probe.clone()).get(keys.LOC), fresh.actor(probe.clone()).get(keys.LOC))
+    probe = {keys.OBS: torch.tensor([[0.3, 0.9], [0.7, 0.9]])}
+    with torch.no_grad():
+        for signal in ("reward", "cost"):
+            assert torch.equal(ac.value(signal, probe), fresh.value(signal, probe))
+        assert torch.equal(ac.actor.params(probe)[keys.LOC], fresh.actor.params(probe)[keys.LOC])
+        # ... which are not those of fresh statistics
+        unloaded = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+        unloaded.load_state_dict({k: v for k, v in fresh.state_dict().items() if ".stats." not in k},
+                                 strict=False)
+        assert not torch.equal(ac.value("reward", probe), unloaded.value("reward", probe))
     # one shared normalizer instance sits in front of all three networks
-    assert fresh.actor.module[0].module.net[0] is fresh.normalizers.obs is fresh.critic.module[0]
+    assert fresh.normalizers.obs is not None
+    assert (fresh.actor.body.prep is fresh.normalizers.obs is fresh.critics["reward"].body.prep
+            is fresh.critics["cost"].body.prep)
 
 
 def test_training_updates_statistics_from_collected_data_and_evaluation_leaves_them(tmp_path):
@@ -94,7 +100,7 @@ def test_training_updates_statistics_from_collected_data_and_evaluation_leaves_t
     })
     train(cfg, tmp_path, echo=lambda _: None)
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
+    ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     make_algo(cfg.algo, ac).load_state_dict(load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"])
     stats = ac.normalizers.obs.stats
     # one observation per collected step, nothing from evaluation
@@ -103,7 +109,7 @@ def test_training_updates_statistics_from_collected_data_and_evaluation_leaves_t
     assert stats.var[1].item() < 1e-5  # (the prior of count 1e-4, var 1 leaves ~1e-6)
     assert 0 < stats.mean[0].item() < 1
     before = {k: v.clone() for k, v in ac.normalizers.state_dict().items()}
-    evaluate(ac.actor, make_env(cfg.env), episodes=2)
+    evaluate(ac, make_env(cfg.env), episodes=2)
     assert all(torch.equal(before[k], v) for k, v in ac.normalizers.state_dict().items())
     assert json.loads((tmp_path / "eval.json").read_text())["episodes"] == 2
 
@@ -112,8 +118,8 @@ def test_off_by_default_and_nothing_extra_in_the_checkpoint():
     cfg = load_config({})
     assert not (cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost)
     env = make_env(cfg.env)
-    ac = make_actor_critic(cfg.policy, env, make_normalizers(cfg, env))
-    assert not any(k.startswith("normalizers") for k in ac.modules().state_dict())
+    ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    assert not any(k.startswith("normalizers") for k in ac.state_dict())
     assert isinstance(ac.normalizers, Normalizers) and ac.normalizers.obs is None
 
 

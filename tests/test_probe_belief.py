@@ -12,7 +12,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import probe_belief  # noqa: E402
 
-from cmdp_rl import load_config, make_actor_critic, make_env  # noqa: E402
+from cmdp_rl import load_config, make_agent, make_env  # noqa: E402
 from cmdp_rl.checkpoint import save_checkpoint  # noqa: E402
 
 
@@ -23,11 +23,11 @@ def test_probe_rate_counts_the_policys_probes(tmp_path, policy, probe_loc):
     with mean -0.9, on none."""
     cfg = load_config({"policy": {"name": policy, "init_log_std": -3.0}, "seed": 0, "rollout_steps": 64,
                        "env": {"backend": "torch", "num_envs": 16, "probe": True, "max_steps": 10}})
-    ac = make_actor_critic(cfg.policy, make_env(cfg.env))
-    head = ac.actor.module[0].module if policy == "mlp" else ac.actor.module[0].module[2].module
+    ac = make_agent(cfg.policy, make_env(cfg.env))
+    head = ac.actor.head  # the Gaussian head, whatever the body
     with torch.no_grad():
         head.center[1] = probe_loc  # the probe dimension's mean, whatever the network outputs
-    save_checkpoint(tmp_path / "checkpoint.pt", {"policy": policy, "algo_state": {"networks": ac.modules().state_dict()}})
+    save_checkpoint(tmp_path / "checkpoint.pt", {"policy": policy, "algo_state": {"networks": ac.state_dict()}})
     stats = probe_belief.probe_stats(cfg, tmp_path, steps=20)
     expected = 1.0 if probe_loc > 0 else 0.0
     assert stats["probe_rate"] == pytest.approx(expected, abs=1e-3) and stats["steps"] == 320

@@ -72,7 +72,7 @@ def test_bad_input_fails_before_training_with_the_field_named(tmp_path, args, me
 def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
     """One multirun per algorithm family: every history-dependent head on the probe env (a 2-D
     action), from train.py to eval.json and a checkpoint that reloads and replays the evaluation."""
-    from cmdp_rl import evaluate, load_config, make_actor_critic, make_env
+    from cmdp_rl import evaluate, load_config, make_agent, make_env
     from cmdp_rl.checkpoint import load_checkpoint
     from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 
@@ -89,10 +89,10 @@ def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
         assert ev["episodes"] == 4
         state = load_checkpoint(out / "checkpoint.pt", algo=name_of_algo, policy=name)
         cfg = load_config(state["config"])
-        ac = make_actor_critic(cfg.policy, make_env(cfg.env))
-        ac.modules().load_state_dict(state["algo_state"]["networks"])
+        ac = make_agent(cfg.policy, make_env(cfg.env))
+        ac.load_state_dict(state["algo_state"]["networks"])
         # the reloaded memory policy replays the run's own evaluation exactly
-        again = evaluate(ac.actor, make_env(cfg.env, num_envs=4), 4, True, seed=cfg.seed + EVAL_SEED_OFFSET,
+        again = evaluate(ac, make_env(cfg.env, num_envs=4), 4, True, seed=cfg.seed + EVAL_SEED_OFFSET,
                          termination_metric=cfg.env.termination_metric)
         assert again["episode_return"] == pytest.approx(ev["episode_return"], abs=1e-6)
         assert again["episode_cost"] == ev["episode_cost"]

@@ -79,8 +79,8 @@ def test_reach1d_video_has_a_frame_per_step_and_replays_the_evaluation_episodes(
     cfg, env, ac, _, _ = load_trained(run)
     env.close()
     seed = 11
-    videos = record_video(ac.actor, cfg.env, tmp_path / "v", episodes=3, deterministic=False, seed=seed)
-    replayed = record_reach1d(ac.actor, cfg.env, 3, deterministic=False, seed=seed)
+    videos = record_video(ac, cfg.env, tmp_path / "v", episodes=3, deterministic=False, seed=seed)
+    replayed = record_reach1d(ac, cfg.env, 3, deterministic=False, seed=seed)
     assert [v.path.name for v in videos] == [f"policy-episode-{i}.mp4" for i in range(3)]
     for v, ep in zip(videos, replayed):
         # the same episodes as replay.py's: same policy call, same seed, same env stream

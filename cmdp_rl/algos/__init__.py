@@ -7,9 +7,9 @@ from cmdp_rl.algos.base import AlgoConfig, Algorithm, TrainingDiverged
 from cmdp_rl.registry import component
 
 
-def make_algo(cfg: AlgoConfig, ac) -> Algorithm:
-    """The algorithm ``cfg.name`` names, training the networks of ``ac``."""
-    return component("algo", cfg.name).build(cfg, ac)
+def make_algo(cfg: AlgoConfig, agent) -> Algorithm:
+    """The algorithm ``cfg.name`` names, training the networks of ``agent``."""
+    return component("algo", cfg.name).build(cfg, agent)
 
 
 __all__ = ["AlgoConfig", "Algorithm", "TrainingDiverged", "make_algo"]

@@ -44,8 +44,9 @@ from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.critics import CriticRegression
-from cmdp_rl.collector import finished_episodes
-from cmdp_rl.policies import ActorCritic
+from cmdp_rl.algos.episode_cost import EpisodeCostEstimate
+from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import Field, NonNegativeFloat, PositiveInt, UnitOpen, options, require
 
@@ -156,21 +157,6 @@ def fisher_vector_product(
     return fvp
 
 
-def finished_episode_cost(batch: TensorDictBase) -> tuple[float, float] | None:
-    """Mean undiscounted cost and length of the episodes that ended in ``batch``; None if none did."""
-    eps = finished_episodes(batch)
-    if not eps["cost"].numel():
-        return None
-    return eps["cost"].mean().item(), eps["length"].mean().item()
-
-
-def running_episode_cost(batch: TensorDictBase) -> tuple[float, float]:
-    """Mean cost and length so far of the episodes running at the batch's last step: a lower bound
-    of their cost, for when no episode has ended yet."""
-    last = batch.get(keys.NEXT)[:, -1]
-    return last.get(keys.EPISODE_COST).float().mean().item(), last.get(keys.EPISODE_LENGTH).float().mean().item()
-
-
 class CPO:
     name = "cpo"
     # What update() returns besides lagrange_multiplier (metrics.csv's columns): the subproblem's
@@ -180,21 +166,20 @@ class CPO:
     stats = ("loss_v", "loss_vc", "entropy", "kl", "cpo_case", "step_fraction", "dual_lambda", "dual_nu",
              "surr_reward_change", "surr_cost_change")
 
-    def __init__(self, cfg: CPOConfig, ac: ActorCritic) -> None:
+    def __init__(self, cfg: CPOConfig, agent: Agent) -> None:
         self.cfg = cfg
-        self.ac = ac
+        self.agent = agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
-        self.policy_params = list(ac.actor.parameters())
-        self.critic_params = [*ac.critic.parameters(), *ac.cost_critic.parameters()]
+        self.policy_params = list(agent.actor.parameters())
+        self.critic_params = list(agent.critics.parameters())
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
-        self.critics = CriticRegression(ac)
+        self.critics = CriticRegression(agent)
         self.nu = 0.0
-        # (J_c, episode length) from the last batch in which episodes ended. Episodes longer than a
-        # rollout span several batches, and an unfinished episode's cost so far is only a lower bound
-        # of its cost: with 1000-step episodes and 256-step rollouts (the MuJoCo tasks), three batches
-        # in four would otherwise see J_c far below the budget, and CPO would step as if the
-        # constraint were slack. Before any episode has ended, the running sums (the lower bound).
-        self.episode_estimate: tuple[float, float] | None = None
+        # J_c and the mean episode length the constraint is measured with (algos/episode_cost.py):
+        # an unfinished episode's cost so far is only a lower bound of its cost, so batches in
+        # which no episode ended (1000-step episodes, 256-step rollouts) use the last episodes
+        # that did end.
+        self.episode_cost = EpisodeCostEstimate()
 
     @property
     def lagrange_multiplier(self) -> float:
@@ -203,34 +188,35 @@ class CPO:
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One CPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
-        self.gae(batch, self.ac)
-        self.episode_estimate = finished_episode_cost(batch) or self.episode_estimate
-        episode_cost, episode_length = self.episode_estimate or running_episode_cost(batch)
+        self.gae(batch, self.agent)
+        estimate = self.episode_cost.update(batch)
         # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
-        flat = self.ac.batch_units(batch)
-        stats = self.policy_step(flat, episode_cost, episode_length)
-        stats.update(self.fit_critics(flat))
-        check_parameters_finite(self.ac.modules())
+        needed = [*self.agent.in_keys, keys.ACTION, keys.LOG_PROB, *self.agent.actor.head.param_keys,
+                  keys.ADVANTAGE, keys.COST_ADVANTAGE, *self.critics.target_keys()]
+        present = batch.keys(True)
+        units = self.agent.training_units({k: batch.get(k) for k in dict.fromkeys(needed) if k in present})
+        stats = self.policy_step(units, estimate.cost, estimate.length)
+        stats.update(self.fit_critics(units))
+        check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.nu
         return stats
 
-    def policy_step(self, flat: TensorDictBase, episode_cost: float, episode_length: float) -> dict[str, float]:
-        """Solve the CPO subproblem on a batch of training units (steps, or segments for a
-        recurrent policy) carrying GAE advantages and take the step the line search accepts (or none)."""
-        cfg, actor, params = self.cfg, self.ac.actor, self.policy_params
-        adv = flat.get(keys.ADVANTAGE)
+    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float) -> dict[str, float]:
+        """Solve the CPO subproblem on training units (steps, or segments for a recurrent policy)
+        carrying GAE advantages and take the step the line search accepts (or none)."""
+        cfg, agent, params = self.cfg, self.agent, self.policy_params
+        adv = units[keys.ADVANTAGE]
         if cfg.normalize_advantage:
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         # The cost advantage is only centred: its scale must stay that of cost, to compare with c.
-        cost_adv = flat.get(keys.COST_ADVANTAGE) - flat.get(keys.COST_ADVANTAGE).mean()
-        obs, action = flat.select(*actor.in_keys), flat.get(keys.ACTION)  # all the actor reads
-        old_log_prob = flat.get(keys.LOG_PROB)
+        cost_adv = units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
+        action, old_log_prob = units[keys.ACTION], units[keys.LOG_PROB]
         # pi_k is the policy that collected the batch: its loc/scale are in the batch.
-        old_dist = actor.build_dist_from_params(flat.select(keys.LOC, keys.SCALE))
+        head = agent.actor.head
+        old_dist = head.dist({k: units[k] for k in head.param_keys})
 
         def surrogates() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-            with self.ac.sequence_mode():
-                dist = actor.get_dist(obs)
+            dist = agent.dist(units)
             ratio = torch.exp(dist.log_prob(action) - old_log_prob).reshape(adv.shape)
             return (ratio * adv).mean(), (ratio * cost_adv).mean(), kl_divergence(old_dist, dist).mean()
 
@@ -282,43 +268,41 @@ class CPO:
                     break
             else:
                 _assign(params, theta0)  # no acceptable step: stay at pi_k
-            with self.ac.sequence_mode():
-                entropy = actor.get_dist(obs).entropy().mean().item()
+            entropy = agent.dist(units).entropy().mean().item()
         return {"cpo_case": sol.case, "dual_lambda": sol.lam, "dual_nu": sol.nu, "entropy": entropy, **accepted}
 
-    def fit_critics(self, flat: TensorDictBase) -> dict[str, float]:
-        """Regress both critics on their GAE value targets (minibatch Adam)."""
+    def fit_critics(self, units: dict[str, torch.Tensor]) -> dict[str, float]:
+        """Regress the critics on their GAE value targets (minibatch Adam)."""
         cfg = self.cfg
-        names = {*self.ac.critic.in_keys, *self.ac.cost_critic.in_keys, keys.VALUE_TARGET, keys.COST_VALUE_TARGET}
-        data = {k: flat.get(k) for k in sorted(names, key=str)}
-        total = flat.shape[0]
-        mb_size = total // cfg.critic_minibatches
-        sums, n = {"loss_v": 0.0, "loss_vc": 0.0}, 0
-        for _ in range(cfg.critic_epochs):
-            perm = torch.randperm(total, device=flat.device)
-            shuffled = {k: v[perm] for k, v in data.items()}
-            for i in range(cfg.critic_minibatches):
-                loss_v, loss_vc = self.critics.losses({k: v[i * mb_size:(i + 1) * mb_size] for k, v in shuffled.items()})
-                check_finite(loss_v=loss_v, loss_vc=loss_vc)
-                self.critic_opt.zero_grad(set_to_none=True)
-                (loss_v + loss_vc).backward()
-                nn.utils.clip_grad_norm_(self.critic_params, cfg.max_grad_norm)
-                self.critic_opt.step()
-                sums["loss_v"] += loss_v.item()
-                sums["loss_vc"] += loss_vc.item()
-                n += 1
+        sums: dict[str, float] = {}
+        n = 0
+        for _, mb in minibatches(units, cfg.critic_minibatches, cfg.critic_epochs):
+            losses = self.critics.losses(mb)
+            check_finite(**losses)
+            self.critic_opt.zero_grad(set_to_none=True)
+            total = None
+            for loss in losses.values():
+                total = loss if total is None else total + loss
+            total.backward()
+            nn.utils.clip_grad_norm_(self.critic_params, cfg.max_grad_norm)
+            self.critic_opt.step()
+            for k, v in losses.items():
+                sums[k] = sums.get(k, 0.0) + v.item()
+            n += 1
         return {k: v / n for k, v in sums.items()}
 
     def state_dict(self) -> dict:
-        return {"networks": self.ac.modules().state_dict(), "critic_opt": self.critic_opt.state_dict(), "nu": self.nu,
-                "episode_estimate": self.episode_estimate}
+        return {"networks": self.agent.state_dict(), "critic_opt": self.critic_opt.state_dict(), "nu": self.nu,
+                "episode_cost": self.episode_cost.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
-        self.ac.modules().load_state_dict(state["networks"])
+        self.agent.load_state_dict(state["networks"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.nu = float(state["nu"])
-        estimate = state.get("episode_estimate")  # absent from checkpoints written before it existed
-        self.episode_estimate = None if estimate is None else (float(estimate[0]), float(estimate[1]))
+        if "episode_cost" in state:
+            self.episode_cost.load_state_dict(state["episode_cost"])
+        elif state.get("episode_estimate") is not None:  # a checkpoint from before the shared estimate:
+            self.episode_cost.load_state_dict({"recent": [tuple(state["episode_estimate"])]})  # its last J_c
 
 
 def _flat(tensors: tuple[torch.Tensor, ...]) -> torch.Tensor:

@@ -38,13 +38,17 @@ class EpisodeCost(NamedTuple):
 class EpisodeCostEstimate:
     """J_c per iteration from the collector's batches (see the module's docstring)."""
 
-    def __init__(self, window: int) -> None:
-        if window < 1:
+    def __init__(self, window: int | None = None) -> None:
+        """``window``: episodes kept; None: one per env, the first batch's ``num_envs``."""
+        if window is not None and window < 1:
             raise ValueError(f"window must be a positive integer, got {window}")
         self.window = window
         self._recent: deque[tuple[float, float]] = deque(maxlen=window)  # (cost, length) per episode
 
     def update(self, batch: TensorDictBase) -> EpisodeCost:
+        if self.window is None:
+            self.window = batch.shape[0]
+            self._recent = deque(self._recent, maxlen=self.window)
         eps = finished_episodes(batch)
         if eps["cost"].numel():
             self._recent.extend(zip(eps["cost"].tolist(), eps["length"].tolist()))
@@ -57,9 +61,10 @@ class EpisodeCostEstimate:
                            last.get(keys.EPISODE_LENGTH).float().mean().item(), RUNNING)
 
     def state_dict(self) -> dict:
-        return {"recent": list(self._recent)}
+        return {"recent": list(self._recent), "window": self.window}
 
     def load_state_dict(self, state: dict) -> None:
+        self.window = state.get("window", self.window)
         self._recent = deque((tuple(r) for r in state.get("recent", [])), maxlen=self.window)
 
 

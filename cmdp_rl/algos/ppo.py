@@ -21,20 +21,20 @@ default gymnasium run's training (measured with cProfile, see ``experiments/``).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, ClassVar
+from typing import TYPE_CHECKING, Annotated, ClassVar, Optional
 
 import torch
 from tensordict import TensorDictBase
-from torch import distributions as D
 from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
+from cmdp_rl.algos.episode_cost import EpisodeCost, EpisodeCostEstimate
 from cmdp_rl.algos.lagrange import DualAscent, MultiplierController, PIDLagrangian
-from cmdp_rl.collector import finished_episodes
-from cmdp_rl.policies import ActorCritic
+from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import (
     AUTO, AutoInt, Field, NonNegativeFloat, PositiveFloat, PositiveInt, UnitOpen, finite, options, require,
@@ -42,7 +42,12 @@ from cmdp_rl.validation import (
 
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
-from cmdp_rl.policies.tensor_path import TensorActor
+
+# KL early stopping (``algo.target_kl``): the update stops at the first minibatch whose approximate
+# KL from the behaviour policy, E[(r - 1) - log r] (never negative), exceeds KL_STOP * target_kl,
+# before that minibatch's step; the logged statistics average the minibatches evaluated. The
+# factor 1.5 is the one Spinning Up's PPO and Stable-Baselines3's PPO use with their target_kl.
+KL_STOP = 1.5
 
 
 @options
@@ -56,6 +61,9 @@ class PPOConfig(AlgoConfig):
     update_epochs: AutoInt = AUTO
     num_minibatches: AutoInt = AUTO
     entropy_coef: NonNegativeFloat = 0.0
+    # KL early stopping: null (off), or stop the epoch loop at the first minibatch whose approximate
+    # KL exceeds 1.5 * target_kl (KL_STOP).
+    target_kl: Optional[PositiveFloat] = None
 
     def resolve_auto(self, run: RunConfig) -> None:
         """``num_minibatches`` and ``update_epochs`` from the batch (see ``config.resolve_auto``):
@@ -126,18 +134,16 @@ class PPO:
     name = "ppo"
     stats = STATS  # what update() returns besides lagrange_multiplier: metrics.csv's columns
 
-    def __init__(self, cfg: PPOConfig, ac: ActorCritic) -> None:
+    def __init__(self, cfg: PPOConfig, agent: Agent) -> None:
         self.cfg = cfg
-        self.ac = ac
+        self.agent = agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
+        self.episode_cost = EpisodeCostEstimate()  # J_c, for the constrained variants
         # Clip bounds on the log-ratio, as ClipPPOLoss: log(1 - eps) <= log r <= log(1 + eps).
         self.log_clip = (math.log1p(-cfg.clip_epsilon), math.log1p(cfg.clip_epsilon))
-        # Tensor paths for the minibatch loop where the modules allow (see policies/tensor_path.py);
-        # otherwise the modules are called on TensorDicts.
-        self.actor_fast = TensorActor.wrap(ac.actor)
-        self.critics = CriticRegression(ac)
-        self.actor_params = list(ac.actor.parameters())
-        self.critic_params = [*ac.critic.parameters(), *ac.cost_critic.parameters()]
+        self.critics = CriticRegression(agent)
+        self.actor_params = list(agent.actor.parameters())
+        self.critic_params = list(agent.critics.parameters())
         # fused: one kernel per step for all parameters instead of a dozen ops per tensor.
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, fused=True)
@@ -147,7 +153,7 @@ class PPO:
     def lagrange_multiplier(self) -> float:
         return 0.0
 
-    def update_multiplier(self, episode_cost: float | None) -> None:
+    def update_multiplier(self, estimate: EpisodeCost) -> None:
         """Constrained variants adapt lambda here, before the policy update."""
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
@@ -157,9 +163,8 @@ class PPO:
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         cfg = self.cfg
-        self.gae(batch, self.ac)
-        costs = finished_episodes(batch)["cost"]
-        self.update_multiplier(costs.mean().item() if costs.numel() else None)
+        self.gae(batch, self.agent)
+        self.update_multiplier(self.episode_cost.update(batch))
 
         adv = self.policy_advantage(batch)
         if cfg.normalize_advantage:
@@ -167,43 +172,45 @@ class PPO:
         batch.set(keys.POLICY_ADVANTAGE, adv)
 
         # Only what the minibatch loop reads, as training units: steps [N*T, ...], or for a
-        # recurrent policy whole segments [U, L, ...] (ActorCritic.training_units); one gather
-        # per epoch, then each minibatch is a slice (a view) of shuffled units.
-        data = self.ac.training_units({k: batch.get(k) for k in self._update_keys(batch)})
-        total = next(iter(data.values())).shape[0]
-        mb_size = total // cfg.num_minibatches
-        sums = torch.zeros(len(STATS), device=batch.device)
-        for _ in range(cfg.update_epochs):
-            perm = torch.randperm(total, device=batch.device)
-            shuffled = {k: v[perm] for k, v in data.items()}
-            for i in range(cfg.num_minibatches):
-                mb = {k: v[i * mb_size:(i + 1) * mb_size] for k, v in shuffled.items()}
-                loss_pi, entropy, kl, clip_fraction = self.policy_loss(mb)
-                # Critics: regression on the GAE value targets (lambda-returns).
-                loss_v, loss_vc = self.critics.losses(mb)
-                self.actor_opt.zero_grad(set_to_none=True)
-                self.critic_opt.zero_grad(set_to_none=True)
-                # One backward pass: the three losses have disjoint parameters, so each network's
-                # gradient is that of its own loss.
-                (loss_pi + loss_v + loss_vc).backward()
-                nn.utils.clip_grad_norm_(self.actor_params, cfg.max_grad_norm)
-                nn.utils.clip_grad_norm_(self.critic_params, cfg.max_grad_norm)
-                self.actor_opt.step()
-                self.critic_opt.step()
-                sums += torch.stack([loss_pi, loss_v, loss_vc, entropy, kl, clip_fraction]).detach()
+        # recurrent policy whole segments [U, L, ...] (Agent.training_units).
+        data = self.agent.training_units({k: batch.get(k) for k in self._update_keys(batch)})
+        sums: dict[str, torch.Tensor] = {}
+        steps = 0
+        for _, mb in minibatches(data, cfg.num_minibatches, cfg.update_epochs):
+            loss_pi, stats = self.policy_loss(mb)
+            # Critics: regression on the GAE value targets (lambda-returns).
+            critic_losses = self.critics.losses(mb)
+            stats = {"loss_pi": loss_pi.detach(), **{k: v.detach() for k, v in critic_losses.items()}, **stats}
+            sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
+            steps += 1
+            if cfg.target_kl is not None and stats["kl_stop"].item() > KL_STOP * cfg.target_kl:
+                break  # KL early stopping: this minibatch's step would leave the trust region
+            self.actor_opt.zero_grad(set_to_none=True)
+            self.critic_opt.zero_grad(set_to_none=True)
+            # One backward pass: the losses have disjoint parameters, so each network's gradient
+            # is that of its own loss.
+            total = loss_pi
+            for loss in critic_losses.values():
+                total = total + loss
+            total.backward()
+            nn.utils.clip_grad_norm_(self.actor_params, cfg.max_grad_norm)
+            nn.utils.clip_grad_norm_(self.critic_params, cfg.max_grad_norm)
+            self.actor_opt.step()
+            self.critic_opt.step()
         # One host sync per update (not per minibatch): read the statistics, stop on NaN/inf.
-        means = (sums / (cfg.update_epochs * cfg.num_minibatches)).tolist()
-        stats = dict(zip(STATS, means))
+        means = (torch.stack(list(sums.values())) / steps).tolist()
+        stats = {k: means[i] for i, k in enumerate(sums) if k in STATS}
         check_finite(**stats)
-        check_parameters_finite(self.ac.modules())
+        check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
         return stats
 
-    def policy_loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
+    def policy_loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Clipped surrogate (Schulman et al. 2017, eq. 7) on the policy advantage, minus the
-        entropy bonus; returns (loss, entropy, kl_approx, clip_fraction), the last three detached.
-        The same arithmetic as torchrl's ``ClipPPOLoss`` (clip on the log-ratio)."""
-        dist = self._dist(mb)
+        entropy bonus; returns the loss and its statistics (entropy, the approximate KL
+        ``E[log pi_old - log pi]``, the fraction of clipped ratios), detached. The same arithmetic
+        as torchrl's ``ClipPPOLoss`` (clip on the log-ratio)."""
+        dist = self.agent.dist(mb)
         log_prob = dist.log_prob(mb[keys.ACTION])
         old_log_prob = mb[keys.LOG_PROB]
         adv = mb[keys.POLICY_ADVANTAGE]
@@ -214,41 +221,40 @@ class PPO:
         loss = -gain.mean() - self.cfg.entropy_coef * entropy
         with torch.no_grad():
             kl = (old_log_prob - log_prob).mean()
+            # Non-negative estimate for early stopping: E[(r - 1) - log r] (Schulman, 2020,
+            # "Approximating KL Divergence"; the one Stable-Baselines3 stops on).
+            kl_stop = (log_ratio.exp() - 1 - log_ratio).mean()
             clip_fraction = (log_ratio_clip != log_ratio).float().mean()
-        return loss, entropy.detach(), kl, clip_fraction
-
-    def _dist(self, mb: dict[str, torch.Tensor]) -> D.Distribution:
-        if self.actor_fast is not None:
-            return self.actor_fast.dist(mb)
-        with self.ac.sequence_mode():
-            return self.ac.actor.get_dist(self.ac.units_tensordict(mb))
+        return loss, {"entropy": entropy.detach(), "kl": kl, "clip_fraction": clip_fraction, "kl_stop": kl_stop}
 
     def _update_keys(self, batch: TensorDictBase) -> list:
         """The batch entries the minibatch loop reads: the networks' inputs, the action and its
-        behaviour log-prob, the policy advantage and both value targets."""
-        inputs = {*self.ac.actor.in_keys, *self.ac.critic.in_keys, *self.ac.cost_critic.in_keys}
-        fixed = [keys.ACTION, keys.LOG_PROB, keys.POLICY_ADVANTAGE, keys.VALUE_TARGET, keys.COST_VALUE_TARGET]
-        return [*fixed, *sorted((k for k in inputs if k in batch.keys(True) and k not in fixed), key=str)]
+        behaviour log-prob, the policy advantage and the critics' value targets."""
+        fixed = [keys.ACTION, keys.LOG_PROB, keys.POLICY_ADVANTAGE, *self.critics.target_keys()]
+        present = batch.keys(True)
+        return [*fixed, *(k for k in self.agent.in_keys if k in present and k not in fixed)]
 
     # --- checkpointing --------------------------------------------------------------------------
     def state_dict(self) -> dict:
         return {
-            "networks": self.ac.modules().state_dict(),
+            "networks": self.agent.state_dict(),
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
+            "episode_cost": self.episode_cost.state_dict(),
         }
 
     def load_state_dict(self, state: dict) -> None:
-        self.ac.modules().load_state_dict(state["networks"])
+        self.agent.load_state_dict(state["networks"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
+        self.episode_cost.load_state_dict(state.get("episode_cost", {}))  # absent before it existed
 
 
 class PenaltyPPO(PPO):
     name = "penalty"
 
-    def __init__(self, cfg: PenaltyConfig, ac: ActorCritic) -> None:
-        super().__init__(cfg, ac)
+    def __init__(self, cfg: PenaltyConfig, agent: Agent) -> None:
+        super().__init__(cfg, agent)
         self.penalty = cfg.penalty
 
     @property
@@ -265,8 +271,8 @@ class PPOLagrangian(PPO):
 
     name = "ppo_lag"
 
-    def __init__(self, cfg: PPOLagConfig, ac: ActorCritic) -> None:
-        super().__init__(cfg, ac)
+    def __init__(self, cfg: PPOLagConfig, agent: Agent) -> None:
+        super().__init__(cfg, agent)
         self.multiplier = self.make_multiplier(cfg)
 
     @staticmethod
@@ -277,10 +283,8 @@ class PPOLagrangian(PPO):
     def lagrange_multiplier(self) -> float:
         return self.multiplier.value
 
-    def update_multiplier(self, episode_cost: float | None) -> None:
-        # No episode ended in this batch: no new estimate of J_c, lambda stays.
-        if episode_cost is not None:
-            self.multiplier.update(episode_cost)
+    def update_multiplier(self, estimate: EpisodeCost) -> None:
+        self.multiplier.update(estimate.cost)  # every iteration (algos/episode_cost.py)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         lam = self.multiplier.value

@@ -61,6 +61,13 @@ class VecEnv(ABC):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         raise NotImplementedError(f"{type(self).__name__} cannot restore a saved state")
 
+    @property
+    def action_space(self) -> gym.Space:
+        """One env's action space, which the agent's action distribution is chosen from
+        (``policies/distributions.py``): the box ``[action_low, action_high]`` unless the env says
+        otherwise."""
+        return gym.spaces.Box(self.action_low.cpu().numpy(), self.action_high.cpu().numpy(), dtype=np.float32)
+
     def check_action(self, action: torch.Tensor) -> None:
         expected = (self.num_envs, self.action_dim)
         if tuple(action.shape) != expected:

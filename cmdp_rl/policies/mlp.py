@@ -1,19 +1,23 @@
-"""MLP actor (a Gaussian over the env's action units) and the twin reward/cost critics."""
+"""``policy=mlp``: the memoryless policy; actor and critics are MLPs on the step's own entries."""
 
 from __future__ import annotations
 
 from dataclasses import field
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Literal, Mapping
 
 import torch
-from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from torch import nn
-from torchrl.modules import IndependentNormal, ProbabilisticActor
 
 from cmdp_rl import keys
+from cmdp_rl.normalization import Normalizers
+from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
+from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.registry import register
 from cmdp_rl.validation import Bool, Field, finite, options
+
+if TYPE_CHECKING:
+    from cmdp_rl.envs import VecEnv
 
 Activation = Literal["tanh", "relu", "elu"]
 LogStd = Annotated[float, finite()]
@@ -31,14 +35,6 @@ class PolicyConfig:
     init_log_std: LogStd = -0.5
     include_prev_action: Bool = False
     include_prev_cost: Bool = False
-
-
-def build_agent(cfg: Any, env: Any, normalizers: Any = None) -> Any:
-    """The registry's factory for every policy head (``policies.make_actor_critic`` dispatches)."""
-    from cmdp_rl.policies import make_actor_critic  # the package imports this module
-
-    return make_actor_critic(cfg, env, normalizers)
-
 
 
 class _SigmoidTanh(torch.autograd.Function):
@@ -94,48 +90,20 @@ def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: str, out_gain:
     return nn.Sequential(*layers)
 
 
-class GaussianHead(nn.Module):
-    """Maps features to (loc, scale) in the env's action units.
+class MLPBody(Body):
+    """The MLP's inputs: the observation (normalized if ``obs_norm``), or ``encoder``'s
+    concatenation of observation, previous action and cost. No state, no parameters: the MLP is the
+    output network after it."""
 
-    The net works in [-1, 1]; loc is rescaled to the action box and the state-independent std is a
-    fraction of the box's half-width. Samples are not squashed: the env clips them, so the
-    log-probability of a stored action never meets a tanh saturation. The net may read several
-    inputs (an :class:`Encoded` net, or a memory trunk).
-    """
-
-    def __init__(self, net: nn.Module, low: torch.Tensor, high: torch.Tensor, init_log_std: float) -> None:
+    def __init__(self, obs_norm: nn.Module | None, encoder: InputEncoder | None) -> None:
         super().__init__()
-        self.net = net
-        self.register_buffer("center", (high + low) / 2)
-        self.register_buffer("half_width", (high - low) / 2)
-        self.log_std = nn.Parameter(torch.full_like(low, init_log_std))
+        self.prep = encoder if encoder is not None else obs_norm
+        self.in_keys = (input_keys(encoder.include_prev_action, encoder.include_prev_cost) if encoder is not None
+                        else [keys.OBS])
 
-    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        loc = self.center + self.half_width * self.net(*inputs)
-        scale = (self.half_width * self.log_std.exp()).expand_as(loc)
-        return loc, scale
-
-
-class Encoded(nn.Module):
-    """A network on several input entries: ``net(encoder(*inputs))``."""
-
-    def __init__(self, encoder: InputEncoder, net: nn.Module) -> None:
-        super().__init__()
-        self.encoder = encoder
-        self.net = net
-
-    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
-        return self.net(self.encoder(*inputs))
-
-
-def _network(cfg: PolicyConfig, obs_dim: int, out_dim: int, out_gain: float,
-             obs_norm: nn.Module | None, encoder: InputEncoder | None) -> tuple[nn.Module, list[str]]:
-    """The MLP on the observation alone (normalized if ``obs_norm``), or on ``encoder``'s inputs."""
-    if encoder is None:
-        net = mlp(obs_dim, cfg.hidden_sizes, out_dim, cfg.activation, out_gain=out_gain)
-        return (net if obs_norm is None else nn.Sequential(obs_norm, net)), [keys.OBS]
-    net = mlp(encoder.out_dim, cfg.hidden_sizes, out_dim, cfg.activation, out_gain=out_gain)
-    return Encoded(encoder, net), input_keys(encoder.include_prev_action, encoder.include_prev_cost)
+    def forward(self, d: Mapping) -> tuple[torch.Tensor]:
+        inputs = [d[k] for k in self.in_keys]
+        return (inputs[0] if self.prep is None else self.prep(*inputs),)
 
 
 def make_encoder(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor,
@@ -146,30 +114,19 @@ def make_encoder(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch
     return InputEncoder(obs_dim, low, high, cfg.include_prev_action, cfg.include_prev_cost, obs_norm)
 
 
-def make_actor(
-    cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor, obs_norm: nn.Module | None = None,
-    encoder: InputEncoder | None = None,
-) -> ProbabilisticActor:
-    net, in_keys = _network(cfg, obs_dim, low.numel(), 0.01, obs_norm, encoder)
-    return gaussian_actor(TensorDictModule(GaussianHead(net, low, high, cfg.init_log_std), in_keys, [keys.LOC, keys.SCALE]))
+def make_mlp_agent(cfg: PolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
+    """Actor and critics, each an MLP of its own on the same inputs."""
+    obs_norm = normalizers.obs
+    encoder = make_encoder(cfg, env.obs_dim, env.action_low, env.action_high, obs_norm)
+    in_dim = env.obs_dim if encoder is None else encoder.out_dim
+
+    def net(out_dim: int, out_gain: float) -> nn.Sequential:
+        return mlp(in_dim, cfg.hidden_sizes, out_dim, cfg.activation, out_gain=out_gain)
+
+    head = make_action_head(env.action_space, net(action_outputs(env.action_space), 0.01), cfg.init_log_std)
+    actor = Actor(MLPBody(obs_norm, encoder), head)
+    critics = {signal: Critic(MLPBody(obs_norm, encoder), net(1, 1.0)) for signal in ("reward", "cost")}
+    return Agent(actor, critics, normalizers)
 
 
-def gaussian_actor(head: TensorDictModuleBase) -> ProbabilisticActor:
-    """The probabilistic actor around a module writing ``loc`` and ``scale`` (any policy head)."""
-    return ProbabilisticActor(
-        head,
-        in_keys=[keys.LOC, keys.SCALE],
-        out_keys=[keys.ACTION],
-        distribution_class=IndependentNormal,
-        return_log_prob=True,
-        log_prob_key=keys.LOG_PROB,
-    )
-
-
-def make_critic(cfg: PolicyConfig, obs_dim: int, out_key: str, obs_norm: nn.Module | None = None,
-                encoder: InputEncoder | None = None) -> TensorDictModule:
-    net, in_keys = _network(cfg, obs_dim, 1, 1.0, obs_norm, encoder)
-    return TensorDictModule(net, in_keys, [out_key])
-
-
-register("policy", "mlp", PolicyConfig, build_agent)
+register("policy", "mlp", PolicyConfig, make_mlp_agent)

@@ -7,40 +7,42 @@ Acting in Partially Observable Stochastic Domains", sec. 3). A recurrent network
 statistic in its state (Wierstra et al., 2007, "Solving Deep Memory POMDPs with Recurrent Policy
 Gradients"; Hausknecht & Stone, 2015, "Deep Recurrent Q-Learning for POMDPs").
 
-Each of the three networks is ``inputs -> torchrl LSTMModule/GRUModule -> MLP head`` with its
-own recurrent state (``keys.ACTOR_HIDDEN`` ... ``keys.COST_CRITIC_CELL``):
+The actor and each critic is a :class:`RecurrentBody`, ``inputs -> torchrl LSTMModule/GRUModule ->
+MLP head``, with its own recurrent state (``keys.ACTOR_HIDDEN`` ... ``keys.COST_CRITIC_CELL``):
 
-- Acting (the collector, evaluation): step mode. The module reads the state at the root and
-  writes the next one under ``"next"``; the collector carries it to the next step and resets it to
-  the initial state (zeros, from torchrl's ``make_tensordict_primer``) where an episode ended;
-  ``is_init`` (torchrl's InitTracker convention) also makes the module zero the state it reads.
-- Training: recurrent mode (``set_recurrent_mode(True)``) on ``[B, L]`` segments of the batch.
-  torchrl's module starts each segment from the state stored at its first step and restarts from
-  that step's stored (zero) state wherever ``is_init`` marks an episode start inside it.
+- Acting (the collector, evaluation): one step. The body reads the state at the root and returns
+  the next one, which the agent writes under ``"next"``; the collector carries it to the next step
+  and resets it to the initial state (zeros) where an episode ended; ``is_init`` (torchrl's
+  InitTracker convention) also makes the body zero the state it reads.
+- Training: recurrent mode on ``[B, L]`` segments of the batch (see :class:`RecurrentBody`).
 
-The critics are stepped in the rollout too (:attr:`ActorCritic.rollout_policy`) so that their
-state at every step is in the batch as well: a rollout of 32 steps starts mid-episode, and a
-critic can only be re-run on a segment from a stored state (see ``advantages.py``).
+The critics are stepped in the rollout too (``Agent.act``) so that their state at every step is in
+the batch as well: a rollout of 32 steps starts mid-episode, and a critic can only be re-run on a
+segment from a stored state (see ``Agent.rollout_values``).
 """
 
 from __future__ import annotations
 
 from dataclasses import field
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal, Mapping
 
 import torch
-from tensordict.nn import TensorDictModule, TensorDictSequential
+from tensordict import TensorDict
 from torch import nn
-from torchrl.modules import GRUModule, LSTMModule
+from torchrl.modules import GRUModule, LSTMModule, set_recurrent_mode
 
 from cmdp_rl import keys
+from cmdp_rl.normalization import Normalizers
+from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
+from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
-from cmdp_rl.policies.mlp import Activation, GaussianHead, LogStd, build_agent, gaussian_actor, mlp
+from cmdp_rl.policies.mlp import Activation, LogStd, mlp
 from cmdp_rl.registry import register
 from cmdp_rl.validation import Bool, Field, NonNegativeInt, PositiveInt, options, require
 
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
+    from cmdp_rl.envs import VecEnv
 
 HeadSizes = Annotated[list[Annotated[int, Field(ge=1)]], Field(description="a list of positive integers (may be empty)")]
 
@@ -96,34 +98,74 @@ def memory_module(cfg: RecurrentPolicyConfig, input_size: int, state: tuple[str,
     return GRUModule(**common, in_keys=[keys.NET_INPUT, *state, keys.IS_INIT], out_keys=[keys.FEATURES, *out_state])
 
 
-def _network(cfg: RecurrentPolicyConfig, encoder: InputEncoder, state: tuple[str, ...], head: nn.Module,
-             out_keys: list[str]) -> TensorDictSequential:
-    """inputs -> encoder -> memory -> head; writes only ``out_keys`` and the next state."""
-    return TensorDictSequential(
-        TensorDictModule(encoder, input_keys(cfg.include_prev_action, cfg.include_prev_cost), [keys.NET_INPUT]),
-        memory_module(cfg, encoder.out_dim, state),
-        TensorDictModule(head, [keys.FEATURES], out_keys),
-        selected_out_keys=[*out_keys, *((keys.NEXT, k) for k in state)],
-    )
+class RecurrentBody(Body):
+    """inputs -> encoder -> torchrl LSTM/GRU module, with a recurrent state of its own (the MLP
+    after it is the network's output network).
+
+    Acting steps the module's ``nn.LSTM``/``nn.GRU`` once on ``[N, ...]`` entries (the state read is
+    zeroed where ``is_init``). Training runs torchrl's module in recurrent mode
+    (``set_recurrent_mode``) on ``[B, L]`` segments, through a TensorDict: the one place torchrl
+    needs one. It starts each segment from the state stored at its first step and restarts from
+    that step's stored (zero) state wherever ``is_init`` marks an episode start inside it.
+    """
+
+    recurrent = True
+
+    def __init__(self, cfg: RecurrentPolicyConfig, encoder: InputEncoder, state: tuple[str, ...]) -> None:
+        super().__init__()
+        self.encoder = encoder
+        self.memory = memory_module(cfg, encoder.out_dim, state)
+        self.inputs = input_keys(cfg.include_prev_action, cfg.include_prev_cost)
+        self.state_keys = state
+        self.in_keys = [*self.inputs, *state, keys.IS_INIT]
+        self.state_shape = (cfg.num_layers, cfg.hidden_size)
+
+    def forward(self, d: Mapping) -> tuple[torch.Tensor]:
+        return self.forward_with_state(d)[0]
+
+    def forward_with_state(self, d: Mapping) -> tuple[tuple[torch.Tensor], dict]:
+        x = self.encoder(*(d[k] for k in self.inputs))
+        td = TensorDict({keys.NET_INPUT: x, keys.IS_INIT: d[keys.IS_INIT], **{k: d[k] for k in self.state_keys}},
+                        batch_size=x.shape[:-1])
+        with set_recurrent_mode(True):
+            out = self.memory(td)
+        return (out.get(keys.FEATURES),), {k: out.get((keys.NEXT, k)) for k in self.state_keys}
+
+    def step(self, d: Mapping) -> tuple[tuple[torch.Tensor], dict]:
+        x = self.encoder(*(d[k] for k in self.inputs))
+        rnn = self.memory.lstm if isinstance(self.memory, LSTMModule) else self.memory.gru
+        fresh = d[keys.IS_INIT].view(-1, 1, 1)
+        # torchrl's state layout is [batch, layers, hidden]; nn.LSTM's [layers, batch, hidden].
+        states = [torch.where(fresh, torch.zeros_like(d[k]), d[k]).transpose(0, 1).contiguous() for k in self.state_keys]
+        y, new = rnn(x.unsqueeze(1), tuple(states) if len(states) == 2 else states[0])
+        new = new if isinstance(new, tuple) else (new,)
+        return (y.squeeze(1),), {k: h.transpose(0, 1) for k, h in zip(self.state_keys, new)}
+
+    def initial_state(self, num_envs: int, device: torch.device) -> dict:
+        return {k: torch.zeros(num_envs, *self.state_shape, device=device) for k in self.state_keys}
 
 
-def make_recurrent_networks(
-    cfg: RecurrentPolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor, obs_norm: nn.Module | None
-) -> tuple[nn.Module, TensorDictSequential, TensorDictSequential]:
-    """(actor, critic, cost critic), each with a memory of its own."""
+def make_recurrent_agent(cfg: RecurrentPolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
+    """Actor and critics, each with a memory of its own and an MLP after it."""
     states = STATE_KEYS[cfg.name]
 
-    def encoder() -> InputEncoder:
-        return InputEncoder(obs_dim, low, high, cfg.include_prev_action, cfg.include_prev_cost, obs_norm)
+    def body(net: str) -> RecurrentBody:
+        encoder = InputEncoder(env.obs_dim, env.action_low, env.action_high, cfg.include_prev_action,
+                               cfg.include_prev_cost, normalizers.obs)
+        return RecurrentBody(cfg, encoder, states[net])
 
-    def critic(state: tuple[str, ...], out_key: str) -> TensorDictSequential:
-        return _network(cfg, encoder(), state, mlp(cfg.hidden_size, cfg.head_sizes, 1, cfg.activation), [out_key])
+    def head_mlp(out_dim: int, out_gain: float = 1.0) -> nn.Sequential:
+        return mlp(cfg.hidden_size, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain)
 
-    head = GaussianHead(mlp(cfg.hidden_size, cfg.head_sizes, low.numel(), cfg.activation, out_gain=0.01),
-                        low, high, cfg.init_log_std)
-    actor = gaussian_actor(_network(cfg, encoder(), states["actor"], head, [keys.LOC, keys.SCALE]))
-    return actor, critic(states["critic"], keys.VALUE), critic(states["cost_critic"], keys.COST_VALUE)
+    # Each network's output MLP is built before its memory: the parameters' init order.
+    net = head_mlp(action_outputs(env.action_space), 0.01)
+    actor = Actor(body("actor"), make_action_head(env.action_space, net, cfg.init_log_std))
+    critics = {}
+    for signal, name in (("reward", "critic"), ("cost", "cost_critic")):
+        net = head_mlp(1)
+        critics[signal] = Critic(body(name), net)
+    return Agent(actor, critics, normalizers, segment_length=cfg.segment_length)
 
 
-register("policy", "lstm", RecurrentPolicyConfig, build_agent)
-register("policy", "gru", RecurrentPolicyConfig, build_agent)
+register("policy", "lstm", RecurrentPolicyConfig, make_recurrent_agent)
+register("policy", "gru", RecurrentPolicyConfig, make_recurrent_agent)

@@ -14,7 +14,7 @@ so it is built on ``torch.nn.TransformerEncoder``.
 The window is policy state carried by the collector like a recurrent state: the root holds the
 raw tokens of the K - 1 steps before this one (``keys.HISTORY``, oldest first) and which belong to
 the current episode (``keys.HISTORY_MASK``); :class:`HistoryWindow` appends this step's token and
-writes the shifted history under ``"next"``. Because each step of a batch carries its own window,
+returns the shifted history, which the agent writes under ``"next"``. Because each step of a batch carries its own window,
 the networks are stateless functions of a step's entries: training uses ordinary shuffled
 minibatches of steps, and the output equals a pass over the explicit window of the trajectory
 (``tests/test_memory_policies.py``). Tokens are stored raw; observation normalization is applied
@@ -25,23 +25,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import field
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal, Mapping
 
 import torch
-from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torch.nn.attention import SDPBackend, sdpa_kernel
-from torchrl.data import Binary, Unbounded
 
 from cmdp_rl import keys
+from cmdp_rl.normalization import Normalizers
+from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
+from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
-from cmdp_rl.policies.mlp import Activation, GaussianHead, LogStd, build_agent, gaussian_actor, mlp
+from cmdp_rl.policies.mlp import Activation, LogStd, mlp
 from cmdp_rl.policies.recurrent import HeadSizes
 from cmdp_rl.registry import register
 from cmdp_rl.validation import Bool, Field, PositiveInt, options, require
 
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
+    from cmdp_rl.envs import VecEnv
 
 
 @options
@@ -85,16 +87,6 @@ class HistoryWindow(nn.Module):
         window = torch.cat([history, token.unsqueeze(-2)], dim=-2)
         mask = torch.cat([valid, torch.ones_like(is_init)], dim=-1)
         return window, mask, window[..., 1:, :], mask[..., 1:]
-
-    def make_tensordict_primer(self):
-        """The initial state (empty history), in torchrl's primer form: the collector reads it with
-        ``get_primers_from_module`` as it does an LSTM's."""
-        from torchrl.envs.transforms import TensorDictPrimer
-
-        return TensorDictPrimer({
-            keys.HISTORY: Unbounded(shape=(self.window - 1, self.token_dim)),
-            keys.HISTORY_MASK: Binary(n=self.window - 1, dtype=torch.bool),
-        }, expand_specs=True)
 
 
 def sinusoidal_positions(length: int, width: int) -> torch.Tensor:
@@ -194,39 +186,51 @@ class _Trunk(nn.Module):
         return self.head(self.body(window, mask))
 
 
-def make_transformer_networks(
-    cfg: TransformerPolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor, obs_norm: nn.Module | None
-) -> tuple[nn.Module, TensorDictSequential, TensorDictSequential]:
-    """(actor, critic, cost critic): three transformers over the same carried window."""
-    inputs = input_keys(cfg.include_prev_action, cfg.include_prev_cost)
+class TransformerBody(Body):
+    """The step's window (:class:`HistoryWindow`, from the carried history) and its mask: the
+    features the transformer (the output network after it) reads. Stateless as a function of a
+    step's entries (the window travels with its step), so training uses shuffled single steps;
+    acting also returns the next step's history."""
+
+    def __init__(self, cfg: TransformerPolicyConfig, token_dim: int) -> None:
+        super().__init__()
+        self.inputs = input_keys(cfg.include_prev_action, cfg.include_prev_cost)
+        self.in_keys = [*self.inputs, keys.HISTORY, keys.HISTORY_MASK, keys.IS_INIT]
+        self.state_keys = (keys.HISTORY, keys.HISTORY_MASK)
+        self.window = HistoryWindow(cfg.window, token_dim)
+
+    def forward(self, d: Mapping) -> tuple[torch.Tensor, torch.Tensor]:
+        window, mask, _, _ = self.window(*(d[k] for k in self.in_keys))
+        return window, mask
+
+    def step(self, d: Mapping) -> tuple[tuple[torch.Tensor, torch.Tensor], dict]:
+        window, mask, history, history_mask = self.window(*(d[k] for k in self.in_keys))
+        return (window, mask), {keys.HISTORY: history, keys.HISTORY_MASK: history_mask}
+
+    def initial_state(self, num_envs: int, device: torch.device) -> dict:
+        """An empty history: no token of the window belongs to the episode yet."""
+        K, dim = self.window.window, self.window.token_dim
+        return {keys.HISTORY: torch.zeros(num_envs, K - 1, dim, device=device),
+                keys.HISTORY_MASK: torch.zeros(num_envs, K - 1, dtype=torch.bool, device=device)}
+
+
+def make_transformer_agent(cfg: TransformerPolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
+    """Actor and critics: a transformer each (then an MLP), over the same carried window (the actor
+    carries it)."""
 
     def encoder() -> InputEncoder:
-        return InputEncoder(obs_dim, low, high, cfg.include_prev_action, cfg.include_prev_cost, obs_norm)
-
-    token_dim = encoder().out_dim
-    window = TensorDictModule(
-        HistoryWindow(cfg.window, token_dim),
-        [*inputs, keys.HISTORY, keys.HISTORY_MASK, keys.IS_INIT],
-        [keys.WINDOW, keys.WINDOW_MASK, (keys.NEXT, keys.HISTORY), (keys.NEXT, keys.HISTORY_MASK)],
-    )
+        return InputEncoder(env.obs_dim, env.action_low, env.action_high, cfg.include_prev_action,
+                            cfg.include_prev_cost, normalizers.obs)
 
     def network(out_dim: int, out_gain: float) -> _Trunk:
-        return _Trunk(WindowTransformer(cfg, encoder(), obs_dim),
+        return _Trunk(WindowTransformer(cfg, encoder(), env.obs_dim),
                       mlp(cfg.width, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain))
 
-    def critic(out_key: str) -> TensorDictSequential:
-        # The critics read the window the actor carried; they write no state of their own.
-        return TensorDictSequential(
-            window, TensorDictModule(network(1, 1.0), [keys.WINDOW, keys.WINDOW_MASK], [out_key]),
-            selected_out_keys=[out_key],
-        )
-
-    head = GaussianHead(network(low.numel(), 0.01), low, high, cfg.init_log_std)
-    actor = gaussian_actor(TensorDictSequential(
-        window, TensorDictModule(head, [keys.WINDOW, keys.WINDOW_MASK], [keys.LOC, keys.SCALE]),
-        selected_out_keys=[keys.LOC, keys.SCALE, (keys.NEXT, keys.HISTORY), (keys.NEXT, keys.HISTORY_MASK)],
-    ))
-    return actor, critic(keys.VALUE), critic(keys.COST_VALUE)
+    token_dim = encoder().out_dim
+    head = make_action_head(env.action_space, network(action_outputs(env.action_space), 0.01), cfg.init_log_std)
+    actor = Actor(TransformerBody(cfg, token_dim), head)
+    critics = {signal: Critic(TransformerBody(cfg, token_dim), network(1, 1.0)) for signal in ("reward", "cost")}
+    return Agent(actor, critics, normalizers)
 
 
-register("policy", "transformer", TransformerPolicyConfig, build_agent)
+register("policy", "transformer", TransformerPolicyConfig, make_transformer_agent)

@@ -1,0 +1,136 @@
+"""Run directories written before the agent model (commit 6e31f3c: the ``ActorCritic`` triple,
+other parameter names) still evaluate and resume.
+
+The fixtures (tests/fixtures/old_runs/, made as ``record_reference.py`` there says): short runs of
+ppo_lag with the mlp, lstm and transformer policies and of cpo (mlp, observation normalization), on
+Reach1D with 10-step episodes, so that episodes end in every batch (J_c is then the same number
+before and after the shared estimate, and a resumed run's numbers are comparable). Each holds what
+the old code gave: ``eval.json``, ``reference.pt`` (a deterministic and a sampled rollout of the
+loaded networks with both critics' values) and ``resumed_metrics.csv`` (``metrics.csv`` after
+resuming the run to 192 steps).
+"""
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from cmdp_rl import Collector, keys
+from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.policies.legacy import is_legacy
+from cmdp_rl.rundir import load_trained
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURES = ROOT / "tests" / "fixtures" / "old_runs"
+RUNS = ["mlp", "lstm", "transformer", "cpo"]
+STEPS, SEED = 24, 11  # as record_reference.py
+# Columns that measure the machine, not the run.
+TIMING = {"sps", "time_s"}
+
+
+def _copy(name: str, tmp_path: Path) -> Path:
+    run = tmp_path / name
+    shutil.copytree(FIXTURES / name, run)
+    return run
+
+
+def _run(script: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, script, *args], cwd=ROOT, capture_output=True, text=True, timeout=600)
+
+
+def _rows(path: Path) -> list[dict]:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_fixture_is_an_old_checkpoint(name):
+    """The fixtures really hold the old parameter names (else the tests below prove nothing)."""
+    state = load_checkpoint(FIXTURES / name / "checkpoint.pt")
+    assert is_legacy(state["algo_state"]["networks"])
+    assert any(k.startswith("actor.module.") for k in state["algo_state"]["networks"])
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_converted_networks_give_the_old_outputs(name, tmp_path):
+    """The loaded (converted) agent acts and values as the old networks did: same distribution
+    parameters and actions, deterministic and sampled, and the same values of both critics."""
+    reference = torch.load(FIXTURES / name / "reference.pt")
+    for mode, ref in reference.items():
+        trained = load_trained(_copy(name, tmp_path / mode), num_envs=2)
+        agent = trained.agent
+        torch.manual_seed(SEED)
+        batch = Collector(trained.env, agent, STEPS, seed=SEED, deterministic=mode == "deterministic").collect()
+        for signal in ("reward", "cost"):
+            values, next_values = agent.rollout_values(batch, signal)
+            value_key = keys.SIGNALS[signal][1]
+            assert torch.allclose(values, ref[value_key], atol=1e-5), (mode, signal)
+            assert torch.allclose(next_values, ref[f"{keys.NEXT}/{value_key}"], atol=1e-5), (mode, signal)
+        for k in (keys.LOC, keys.SCALE, keys.ACTION):
+            assert batch[k].shape == ref[k].shape
+            assert torch.allclose(batch[k], ref[k], atol=1e-5), (mode, k)
+        trained.env.close()
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_evaluate_reproduces_the_old_eval_json(name, tmp_path):
+    run = _copy(name, tmp_path)
+    out = tmp_path / "again.json"
+    proc = _run("evaluate.py", f"run={run}", f"output={out}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    old, new = json.loads((run / "eval.json").read_text()), json.loads(out.read_text())
+    assert new["episodes"] == old["episodes"] == 4
+    for k in ("episode_return", "episode_return_std", "episode_return_min", "episode_return_max"):
+        assert new[k] == pytest.approx(old[k], abs=1e-6), k
+    for k in ("episode_cost", "episode_cost_min", "episode_cost_max", "episode_length", "goal_reached"):
+        assert new[k] == old[k], k
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_resume_continues_the_old_run(name, tmp_path):
+    """Resuming to 192 steps writes one more metrics row, the one the old code wrote when resumed
+    the same way, bit for bit (the J_c estimate is the same here: episodes end in every batch):
+    networks, optimizer states, multiplier, collector and generators all came back."""
+    run = _copy(name, tmp_path)
+    before = _rows(run / "metrics.csv")
+    proc = _run("train.py", f"resume={run}", "total_steps=192")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = _rows(run / "metrics.csv")
+    assert len(before) == 2 and len(rows) == 3
+    assert [r["step"] for r in rows] == ["64", "128", "192"]
+    assert rows[:2] == before
+    old = _rows(FIXTURES / name / "resumed_metrics.csv")[2]
+    new = rows[2]
+    common = sorted(set(old) & set(new) - TIMING)
+    assert {"loss_v", "loss_vc", "episode_return", "lagrange_multiplier"} <= set(common)
+    assert set(old) == set(new)
+    for k in common:  # bit-exact: the same numbers, written the same way
+        assert new[k] == old[k], k
+    state = load_checkpoint(run / "checkpoint.pt")
+    assert state["step"] == 192 and not is_legacy(state["algo_state"]["networks"])
+
+
+def test_converted_variants_act_as_before():
+    """Policy variants the runs above do not cover (record_variants.py: the MLP with its input
+    encoder, observation normalization, GRU, two-layer LSTM and transformer): the converted
+    networks give the old deterministic actions."""
+    from cmdp_rl import load_config, make_agent, make_env
+    from cmdp_rl.normalization import make_normalizers
+    from cmdp_rl.policies.legacy import convert_networks
+
+    variants = torch.load(FIXTURES / "variants.pt")
+    assert len(variants) == 5
+    for name, old in variants.items():
+        cfg = load_config(old["overrides"])
+        env = make_env(cfg.env)
+        torch.manual_seed(123)  # other initial parameters than the old ones: only the loaded ones count
+        agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+        agent.load_state_dict(convert_networks(old["networks"], agent))
+        loc = Collector(env, agent, 16, seed=1, deterministic=True).collect()[keys.LOC]
+        assert old["loc"].std() > 1e-4, name  # actions that vary: a wrong mapping would show
+        assert torch.allclose(loc, old["loc"], rtol=0, atol=1e-7), name
