@@ -66,7 +66,6 @@ class TargetEnvConfig:
     """``env=toy_target``: options checked before anything is built."""
 
     name: str = "toy_target"
-    backend: str = "gym"
     num_envs: PositiveInt = 4
     max_steps: PositiveInt = 4
     # Evaluation reports the fraction of episodes that terminated, under this name.
@@ -177,9 +176,10 @@ EXPECTED_COLUMNS = [
 ]
 
 
-def test_toy_algorithm_and_env_train_through_train(tmp_path, quiet):
-    out = tmp_path / "run"
-    result = train(load_config(toy()), out, echo=quiet)
+def test_toy_algorithm_and_env_train_through_train(tmp_path):
+    out, said = tmp_path / "run", []
+    result = train(load_config(toy()), out, echo=said.append)
+    assert said[0].startswith("training toy_reinforce on toy_target (4 envs): 6 iterations of 64 steps")
     with open(out / "metrics.csv") as f:
         reader = csv.DictReader(f)
         rows = list(reader)
