@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from functools import partial
 from typing import ClassVar
 
@@ -30,7 +31,7 @@ from cmdp_rl.metrics import MetricsLogger
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import PositiveFloat, PositiveInt, options
-from conftest import eval_result, metrics_rows
+from conftest import ROOT, eval_result, metrics_rows
 
 
 # --- A toy env: a gymnasium env that reports its cost in info["cost"] ----------------------------
@@ -247,3 +248,14 @@ def test_toy_algorithm_learns_the_toy_env(tmp_path, quiet):
     assert untrained["on_target"] <= 0.25 and untrained["episode_return"] < -1.0
     assert trained["on_target"] >= 0.4
     assert trained["episode_return"] > -0.1
+
+
+def test_architecture_doc_shows_this_files_code():
+    """docs/architecture.md's "Add an algorithm" and "Add an env" are copied from this file: every
+    python block there must appear here verbatim, so the doc cannot drift from code that runs."""
+    doc = (ROOT / "docs" / "architecture.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", doc, flags=re.S)
+    assert len(blocks) == 2
+    here = (ROOT / "tests" / "test_components.py").read_text()
+    for block in blocks:
+        assert block in here, block[:200]
