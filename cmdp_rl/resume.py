@@ -99,7 +99,8 @@ def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
     missing = [k for k in ("collector", "rng", "algo_state", "iteration") if state.get(k) is None]
     if missing == ["collector"]:
         raise CheckpointError(
-            f"resume: {ckpt} holds no env state (env {cfg.env.name!r}, backend {cfg.env.backend!r}, cannot save"
+            f"resume: {ckpt} holds no env state (env {cfg.env.name!r}, "
+            f"backend {getattr(cfg.env, 'backend', None)!r}, cannot save"
             " its episodes and generators), so the run cannot continue exactly; evaluate it or start anew"
         )
     if missing:

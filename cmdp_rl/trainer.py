@@ -119,7 +119,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     shape = f"{per_iter} steps ({cfg.rollout_steps} per env"
     if hasattr(cfg.algo, "describe_update"):
         shape += f"; {cfg.algo.describe_update()}"
-    echo(f"training {cfg.algo.name} on {cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs): "
+    backend = getattr(cfg.env, "backend", None)  # only envs with several implementations have one
+    where = f"{backend}, " if backend else ""
+    echo(f"training {cfg.algo.name} on {cfg.env.name} ({where}{env.num_envs} envs): "
          f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}")
     progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
     logger.echo = progress.row_echo
