@@ -1,0 +1,90 @@
+"""Projection-based Constrained Policy Optimization (Yang, Rosca, Narasimhan, Ramadge 2020,
+"Projection-Based Constrained Policy Optimization", ICLR).
+
+Two steps per iteration, with ``x = theta - theta_k``, ``g`` and ``b`` the gradients of the reward
+and cost surrogates, ``H`` the Fisher matrix, ``c`` the constraint value (J_c - d, in the
+surrogate's per-step units: natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``:
+
+1. reward improvement (eq. 3, linearised as in Section 4): the TRPO step
+   ``x_r = sqrt(2 delta / g^T H^-1 g) H^-1 g``, the best point of the KL trust region;
+2. projection (eq. 4, linearised): the point of ``{x : c + b^T x <= 0}`` closest to ``x_r`` in the
+   metric ``L``: ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``, with ``L = H`` for
+   the KL projection and ``L = I`` for the L2 projection (``algo.projection``; Section 4's closed
+   form of the two steps).
+
+A step already inside the linearised constraint set is not moved by the projection; an infeasible
+iterate is projected back onto its boundary (no separate recovery rule, unlike CPO). The paper
+takes the projected step as it is: there is no line search here.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, ClassVar, Literal
+
+import torch
+
+from cmdp_rl.algos.base import check_finite
+from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
+from cmdp_rl.algos.natural_gradient import (
+    NaturalGradient, NaturalGradientConfig, Surrogates, assign, fisher_vector_product, flat, per_step_constraint,
+)
+from cmdp_rl.registry import register
+from cmdp_rl.validation import options
+
+_EPS = 1e-12
+
+
+@options
+class PCPOConfig(NaturalGradientConfig):
+    """PCPO (Yang et al. 2020): a TRPO reward step, then a projection onto the linearised constraint."""
+
+    name: str = "pcpo"
+    projection: Literal["kl", "l2"] = "kl"
+    # The projection compares the cost surrogate with J_c - d in raw units: no cost scaling.
+    reads_raw_cost: ClassVar[bool] = True
+
+
+def projected_step(g: torch.Tensor, b: torch.Tensor, c: float, delta: float,
+                   h_solve: Callable[[torch.Tensor], torch.Tensor], projection: str) -> tuple[torch.Tensor, float]:
+    """PCPO's step ``x`` and the projection's coefficient (0: the reward step was feasible).
+
+    ``h_solve(v)`` approximates ``H^-1 v`` (conjugate gradient on Fisher-vector products)."""
+    h_inv_g = h_solve(g)
+    q = g.dot(h_inv_g).item()
+    x_r = math.sqrt(2 * delta / q) * h_inv_g if q > _EPS else torch.zeros_like(g)  # eq. 3
+    l_inv_b = h_solve(b) if projection == "kl" else b
+    s = b.dot(l_inv_b).item()
+    violation = c + b.dot(x_r).item()
+    if s <= _EPS or violation <= 0.0:  # feasible already (or no cost gradient to project along)
+        return x_r, 0.0
+    coef = violation / s
+    return x_r - coef * l_inv_b, coef  # eq. 4
+
+
+class PCPO(NaturalGradient):
+    name = "pcpo"
+    # Besides lagrange_multiplier (0: PCPO has none): the sampled KL of the step taken, the
+    # projection's coefficient (0: the reward step was feasible), and the changes of the surrogates.
+    stats = ("loss_v", "loss_vc", "entropy", "kl", "projection_coef", "surr_reward_change", "surr_cost_change")
+
+    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float) -> dict[str, float]:
+        cfg, params = self.cfg, self.policy_params
+        surrogates = Surrogates(self.agent, units, *self.advantages(units))
+        reward_surr, cost_surr, kl = surrogates()
+        g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
+        b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
+        fvp = fisher_vector_product(kl, params, cfg.cg_damping)
+        c = per_step_constraint(episode_cost, cfg.cost_limit, episode_length)
+        check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), c=c)
+        step, coef = projected_step(g, b, c, cfg.target_kl, lambda v: conjugate_gradient(fvp, v, cfg.cg_iters),
+                                    cfg.projection)
+        with torch.no_grad():
+            assign(params, torch.nn.utils.parameters_to_vector(params) + step)
+            new_reward, new_cost, new_kl = (t.item() for t in surrogates())
+        check_finite(kl=new_kl)
+        return {"kl": new_kl, "projection_coef": coef, "surr_reward_change": new_reward - reward_surr.item(),
+                "surr_cost_change": new_cost - cost_surr.item(), "entropy": self.entropy(units)}
+
+
+register("algo", "pcpo", PCPOConfig, PCPO)

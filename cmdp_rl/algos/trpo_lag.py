@@ -1,0 +1,88 @@
+"""TRPO-Lagrangian (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep Reinforcement
+Learning", Section 5: the Lagrangian baselines).
+
+TRPO's update (Schulman et al. 2015, "Trust Region Policy Optimization", eq. 14 and Appendix C) on
+the Lagrangian's advantage ``A = (A_r - lambda A_c) / (1 + lambda)``, the same policy advantage as
+PPO-Lagrangian (dividing by ``1 + lambda`` keeps its scale as lambda grows)::
+
+    max_x  g^T x   s.t.   1/2 x^T H x <= delta     =>     x = sqrt(2 delta / g^T H^-1 g) H^-1 g
+
+with ``g`` the gradient of the Lagrangian surrogate and ``H`` the Fisher matrix (conjugate
+gradient on Fisher-vector products), then a backtracking line search that keeps the first
+fraction whose sampled KL is within delta and whose Lagrangian surrogate improves. lambda >= 0 by
+projected dual ascent on ``J_c - d`` (lagrange.DualAscent, as ppo_lag), once per iteration, before
+the step.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import torch
+
+from cmdp_rl import keys
+from cmdp_rl.algos.base import check_finite
+from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
+from cmdp_rl.algos.cpo import CPOConfig
+from cmdp_rl.algos.lagrange import DualAscent
+from cmdp_rl.algos.natural_gradient import NO_STEP, NaturalGradient, Surrogates, fisher_vector_product, flat, line_search
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.registry import register
+from cmdp_rl.validation import NonNegativeFloat, PositiveFloat, options
+
+
+@options
+class TRPOLagConfig(CPOConfig):
+    """TRPO-Lagrangian: CPO's trust region and line search, ppo_lag's multiplier."""
+
+    name: str = "trpo_lag"
+    lambda_init: NonNegativeFloat = 0.0
+    lambda_lr: PositiveFloat = 0.05
+    # lambda reads J_c from the episodes' raw cost sums; the policy advantage may be scaled.
+    reads_raw_cost: ClassVar[bool] = False
+
+
+class TRPOLagrangian(NaturalGradient):
+    name = "trpo_lag"
+    # Besides lagrange_multiplier: the accepted fraction of the full step (0: none), its sampled
+    # KL, the change of the Lagrangian surrogate (surr_reward_change) and of the cost surrogate.
+    stats = ("loss_v", "loss_vc", "entropy", "kl", "step_fraction", "surr_reward_change", "surr_cost_change")
+
+    def __init__(self, cfg: TRPOLagConfig, agent: Agent) -> None:
+        super().__init__(cfg, agent)
+        self.multiplier = DualAscent(cfg.cost_limit, cfg.lambda_lr, cfg.lambda_init)
+
+    @property
+    def lagrange_multiplier(self) -> float:
+        return self.multiplier.value
+
+    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float) -> dict[str, float]:
+        cfg, params = self.cfg, self.policy_params
+        lam = self.multiplier.update(episode_cost)
+        adv = (units[keys.ADVANTAGE] - lam * units[keys.COST_ADVANTAGE]) / (1.0 + lam)
+        if cfg.normalize_advantage:
+            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        cost_adv = units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()  # logged only
+        surrogates = Surrogates(self.agent, units, adv, cost_adv)
+        surr, cost_surr, kl = surrogates()
+        g = flat(torch.autograd.grad(surr, params, retain_graph=True))
+        h_inv_g = conjugate_gradient(fisher_vector_product(kl, params, cfg.cg_damping), g, cfg.cg_iters)
+        q = g.dot(h_inv_g).item()
+        check_finite(gradient=g.norm(), q=q)
+        if q <= 0.0:  # no gradient (e.g. all advantages equal): nothing to follow
+            return {**NO_STEP, "entropy": self.entropy(units)}
+        step = math.sqrt(2 * cfg.target_kl / q) * h_inv_g  # the trust region's boundary along H^-1 g
+        accepted = line_search(params, step, surrogates, (surr.item(), cost_surr.item()), cfg.target_kl,
+                               cfg.line_search_steps, cfg.backtrack_coef, lambda d_reward, d_cost: d_reward > 0)
+        return {"entropy": self.entropy(units), **accepted}
+
+    def state_dict(self) -> dict:
+        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.multiplier.load_state_dict(state["multiplier"])
+
+
+register("algo", "trpo_lag", TRPOLagConfig, TRPOLagrangian)
