@@ -201,7 +201,7 @@ class PPO:
             self.critic_opt.step()
         # One host sync per update (not per minibatch): read the statistics, stop on NaN/inf.
         means = (torch.stack(list(sums.values())) / steps).tolist()
-        stats = {k: means[i] for i, k in enumerate(sums) if k in STATS}
+        stats = {k: means[i] for i, k in enumerate(sums) if k in self.stats}
         check_finite(**stats)
         check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
