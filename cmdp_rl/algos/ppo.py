@@ -142,6 +142,8 @@ class PPO:
         # Clip bounds on the log-ratio, as ClipPPOLoss: log(1 - eps) <= log r <= log(1 + eps).
         self.log_clip = (math.log1p(-cfg.clip_epsilon), math.log1p(cfg.clip_epsilon))
         self.critics = CriticRegression(agent)
+        # The KL past which the epoch loop stops (before that minibatch's step); None: never.
+        self.kl_limit = None if cfg.target_kl is None else KL_STOP * cfg.target_kl
         self.actor_params = list(agent.actor.parameters())
         self.critic_params = list(agent.critics.parameters())
         # fused: one kernel per step for all parameters instead of a dozen ops per tensor.
@@ -183,7 +185,7 @@ class PPO:
             stats = {"loss_pi": loss_pi.detach(), **{k: v.detach() for k, v in critic_losses.items()}, **stats}
             sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
             steps += 1
-            if cfg.target_kl is not None and stats["kl_stop"].item() > KL_STOP * cfg.target_kl:
+            if self.kl_limit is not None and stats["kl_stop"].item() > self.kl_limit:
                 break  # KL early stopping: this minibatch's step would leave the trust region
             self.actor_opt.zero_grad(set_to_none=True)
             self.critic_opt.zero_grad(set_to_none=True)
@@ -199,7 +201,7 @@ class PPO:
             self.critic_opt.step()
         # One host sync per update (not per minibatch): read the statistics, stop on NaN/inf.
         means = (torch.stack(list(sums.values())) / steps).tolist()
-        stats = {k: means[i] for i, k in enumerate(sums) if k in STATS}
+        stats = {k: means[i] for i, k in enumerate(sums) if k in self.stats}
         check_finite(**stats)
         check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.lagrange_multiplier

@@ -1,0 +1,59 @@
+"""Constraint-Rectified Policy Optimization (Xu, Liang, Lan, 2021, "CRPO: A New Approach for Safe
+Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1).
+
+Each iteration looks at the constraint's slack: if the estimate ``J_c`` is within the budget plus a
+tolerance, ``J_c <= d + eta``, the policy takes a step that improves the reward (here: PPO's clipped
+surrogate on ``A_r``); otherwise it takes a step that reduces the cost (the same surrogate on
+``-A_c``). No multiplier: the update switches objectives, it never mixes them. The paper's steps are
+natural policy gradient steps; the clipped-PPO step is the practical choice of its later
+implementations and keeps the one PPO loop (``ppo.py``) for every member of the family.
+
+The paper handles several constraints by stepping on any one that is violated; this toolkit has
+one cost signal, so the switch reads that one.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+
+from cmdp_rl import keys
+from cmdp_rl.algos.episode_cost import EpisodeCost
+from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.registry import register
+from cmdp_rl.validation import NonNegativeFloat, options
+
+
+@options
+class CRPOConfig(PPOConfig):
+    """CRPO (Xu, Liang, Lan 2021): reward step while J_c <= cost_limit + tolerance, else cost step."""
+
+    name: str = "crpo"
+    tolerance: NonNegativeFloat = 0.0  # eta of Algorithm 1
+
+
+class CRPO(PPO):
+    name = "crpo"
+    # cost_step: 1 where the iteration took a cost step, else 0 (its mean over a log interval is
+    # the fraction of cost steps).
+    stats = (*STATS, "cost_step")
+
+    def __init__(self, cfg: CRPOConfig, agent: Agent) -> None:
+        super().__init__(cfg, agent)
+        self.cost_step = False
+
+    def update_multiplier(self, estimate: EpisodeCost) -> None:
+        """Algorithm 1, line 5: the constraint is violated beyond the tolerance -> a cost step."""
+        self.cost_step = estimate.cost > self.cfg.cost_limit + self.cfg.tolerance
+
+    def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
+        return -batch.get(keys.COST_ADVANTAGE) if self.cost_step else batch.get(keys.ADVANTAGE)
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        stats = super().update(batch)
+        stats["cost_step"] = float(self.cost_step)
+        return stats
+
+
+register("algo", "crpo", CRPOConfig, CRPO)

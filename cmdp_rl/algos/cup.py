@@ -1,0 +1,130 @@
+"""Constrained Update Projection (Yang, Ji, Dai, Zhang, Zhou, Li, Yang, Pan, 2022, "Constrained
+Update Projection Approach to Safe Policy Optimization", NeurIPS; Section 4 and Algorithm 1).
+
+Two stages per iteration:
+
+1. Policy improvement: ``pi_{k+1/2}`` maximises the reward surrogate near ``pi_k``; as in the
+   paper's practical version, PPO's clipped surrogate on ``A_r`` (the whole PPO update of
+   ``ppo.py``, critics included).
+2. Projection: ``pi_{k+1}`` minimises, from ``pi_{k+1/2}``::
+
+       E_s[ KL(pi_theta || pi_{k+1/2})[s] ]
+         + nu * (1 - gamma_c gae_lambda) / (1 - gamma_c) * E[ pi_theta(a|s) / pi_k(a|s) A_c(s, a) ]
+
+   the distance to the improved policy plus the multiplier times the cost surrogate around the
+   behaviour policy ``pi_k`` (the factor is the paper's, from its GAE-based bound). With ``nu = 0``
+   the minimiser is ``pi_{k+1/2}`` itself, and the stage leaves it unchanged: it runs its own Adam,
+   fresh every iteration, since momentum from stage 1 or from earlier projections would move the
+   policy with a zero gradient (``tests/test_cup.py``).
+
+``nu`` by projected dual ascent once per iteration, ``nu <- max(0, nu + nu_lr (J_c - d))``
+(:class:`~cmdp_rl.algos.lagrange.DualAscent`). ``A_c`` is standardized when
+``algo.normalize_advantage`` is, as PPO's advantage is. One cost signal.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torch.distributions import kl_divergence
+
+from cmdp_rl import keys
+from cmdp_rl.algos.base import check_finite, check_parameters_finite
+from cmdp_rl.algos.episode_cost import EpisodeCost
+from cmdp_rl.algos.lagrange import DualAscent
+from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.registry import register
+from cmdp_rl.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+HALF = "cup_half"  # key prefix of pi_{k+1/2}'s distribution parameters in the projection's units
+
+
+@options
+class CUPConfig(PPOConfig):
+    """CUP (Yang et al. 2022): PPO on A_r, then a projection that trades KL for cost."""
+
+    name: str = "cup"
+    nu_init: NonNegativeFloat = 0.0
+    nu_lr: PositiveFloat = 0.05
+    projection_epochs: AutoInt = AUTO  # auto: update_epochs
+
+    def resolve_auto(self, run: RunConfig) -> None:
+        super().resolve_auto(run)
+        if self.projection_epochs == AUTO:
+            self.projection_epochs = self.update_epochs
+
+
+class CUP(PPO):
+    name = "cup"
+    # loss_projection: the stage-2 loss; kl_projection: KL(pi_theta || pi_{k+1/2}) during it.
+    stats = (*STATS, "loss_projection", "kl_projection")
+
+    def __init__(self, cfg: CUPConfig, agent: Agent) -> None:
+        super().__init__(cfg, agent)
+        self.multiplier = DualAscent(cfg.cost_limit, cfg.nu_lr, cfg.nu_init)
+        self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
+
+    @property
+    def lagrange_multiplier(self) -> float:
+        return self.multiplier.value
+
+    def update_multiplier(self, estimate: EpisodeCost) -> None:
+        self.multiplier.update(estimate.cost)
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        stats = super().update(batch)  # stage 1 (PPO on A_r, the policy_advantage of PPO) and nu
+        stats.update(self.project(batch))
+        check_parameters_finite(self.agent)
+        return stats
+
+    def project(self, batch: TensorDictBase) -> dict[str, float]:
+        """Stage 2 on a batch whose GAE stage 1 computed: returns its mean loss and KL."""
+        cfg, head = self.cfg, self.agent.actor.head
+        cost_adv = batch.get(keys.COST_ADVANTAGE)
+        if cfg.normalize_advantage:
+            cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
+        present = batch.keys(True)
+        inputs = [k for k in self.agent.in_keys if k in present and k not in (keys.ACTION, keys.LOG_PROB)]
+        units = self.agent.training_units({keys.ACTION: batch.get(keys.ACTION), keys.LOG_PROB: batch.get(keys.LOG_PROB),
+                                           keys.COST_ADVANTAGE: cost_adv, **{k: batch.get(k) for k in inputs}})
+        with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
+            units.update({(HALF, k): v for k, v in self.agent.actor.params(units).items()})
+        nu_coef = self.multiplier.value * self.cost_coef
+        opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)  # fresh: see the docstring
+        sums, steps = torch.zeros(2), 0
+        for _, mb in minibatches(units, cfg.num_minibatches, cfg.projection_epochs):
+            dist = self.agent.dist(mb)
+            half = head.dist({k: mb[(HALF, k)] for k in head.param_keys})
+            adv = mb[keys.COST_ADVANTAGE]
+            kl = kl_divergence(dist, half).reshape(adv.shape)
+            ratio = (dist.log_prob(mb[keys.ACTION]) - mb[keys.LOG_PROB]).reshape(adv.shape).exp()
+            loss = (kl + nu_coef * ratio * adv).mean()
+            sums += torch.stack([loss.detach(), kl.detach().mean()])
+            steps += 1
+            if self.kl_limit is not None and kl.mean().item() > self.kl_limit:
+                break  # as PPO's stage: this step would leave the trust region
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            nn.utils.clip_grad_norm_(self.actor_params, cfg.max_grad_norm)
+            opt.step()
+        loss_projection, kl_projection = (sums / steps).tolist()
+        check_finite(loss_projection=loss_projection)
+        return {"loss_projection": loss_projection, "kl_projection": kl_projection}
+
+    def state_dict(self) -> dict:
+        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.multiplier.load_state_dict(state["multiplier"])
+
+
+register("algo", "cup", CUPConfig, CUP)

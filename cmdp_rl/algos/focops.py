@@ -1,0 +1,124 @@
+"""First Order Constrained Optimization in Policy Space (Zhang, Vuong, Ross, 2020, NeurIPS;
+Sections 4-5 and Algorithm 1).
+
+Two steps per iteration, both first order:
+
+1. The optimal update policy in the non-parametric policy space (Theorem 1): the solution of
+   ``max E[A_r]  s.t.  J_c + E[A_c] / (1 - gamma) <= d,  E_s[KL(pi || pi_k)[s]] <= delta`` is
+   ``pi*(a|s) = pi_k(a|s) exp((A_r(s, a) - nu A_c(s, a)) / lambda) / Z(s)``, with a temperature
+   ``lambda > 0`` and a cost multiplier ``nu >= 0``.
+2. Projection of ``pi*`` onto the parametric policies by minimising ``E_s[KL(pi_theta || pi*)[s]]``.
+   ``log Z(s)`` does not depend on theta, so the gradient is that of (Section 5)::
+
+       L(theta) = E_s[ KL(pi_theta || pi_k)[s]
+                      - (1 / lambda) E_{a ~ pi_k}[ pi_theta(a|s) / pi_k(a|s) (A_r - nu A_c) ] ]
+
+   averaged over the batch with the indicator ``1{KL(pi_theta || pi_k)[s] <= delta}`` (Algorithm 1):
+   a state already out of the trust region stops pulling the policy further. At ``theta = theta_k``
+   the KL term has zero gradient and the gradient is ``-(1/lambda) E[grad log pi (A_r - nu A_c)]``,
+   a policy gradient (``tests/test_focops.py`` checks it by hand).
+
+``nu`` is set before the policy update by ``nu <- clip(nu + nu_lr (J_c - d), 0, nu_max)``
+(Algorithm 1; :class:`~cmdp_rl.algos.lagrange.PIDLagrangian` with only its integral term, whose
+clamp is ``nu_max``). The minibatch epochs stop early once a minibatch's mean KL from ``pi_k``
+exceeds ``delta`` (Algorithm 1 checks the batch's mean KL per epoch; the shared PPO loop checks
+before each minibatch's step). Everything else (critics, GAE, minibatches) is PPO's loop
+(``ppo.py``). One cost signal: the paper's several constraints would each have a ``nu``.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+from tensordict import TensorDictBase
+from torch.distributions import Distribution, kl_divergence
+
+from cmdp_rl import keys
+from cmdp_rl.algos.episode_cost import EpisodeCost
+from cmdp_rl.algos.lagrange import PIDLagrangian
+from cmdp_rl.algos.ppo import PPO, PPOConfig
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.registry import register
+from cmdp_rl.validation import NonNegativeFloat, PositiveFloat, options, require
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+
+@options
+class FOCOPSConfig(PPOConfig):
+    """FOCOPS (Zhang, Vuong, Ross 2020). ``clip_epsilon`` is not read: the KL term bounds the step."""
+
+    name: str = "focops"
+    temperature: PositiveFloat = 1.5  # lambda of Theorem 1
+    target_kl: PositiveFloat = 0.02  # delta: the per-state indicator's bound and the early stop
+    nu_init: NonNegativeFloat = 0.0
+    nu_lr: PositiveFloat = 0.01
+    nu_max: PositiveFloat = 2.0
+
+    def check(self, run: RunConfig) -> None:
+        super().check(run)
+        require(self.nu_init <= self.nu_max, "algo.nu_init", "a number in [0, algo.nu_max]", self.nu_init)
+
+
+def focops_loss(dist: Distribution, old_dist: Distribution, action: torch.Tensor, old_log_prob: torch.Tensor,
+                adv: torch.Tensor, temperature: float, delta: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The projection loss of Section 5 on a minibatch: per state ``KL(pi_theta || pi_k)[s] -
+    ratio * adv / temperature``, kept where ``KL <= delta`` (Algorithm 1), averaged over all states.
+    ``adv`` is ``A_r - nu A_c``, shaped ``[..., 1]``. Returns the loss and the per-state KL."""
+    kl = kl_divergence(dist, old_dist).reshape(adv.shape)
+    ratio = (dist.log_prob(action) - old_log_prob).reshape(adv.shape).exp()
+    inside = (kl.detach() <= delta).to(adv.dtype)
+    return ((kl - ratio * adv / temperature) * inside).mean(), kl
+
+
+STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "outside_fraction")
+
+
+class FOCOPS(PPO):
+    name = "focops"
+    # kl: the mean exact KL(pi_theta || pi_k); outside_fraction: states past delta (masked out).
+    stats = STATS
+
+    def __init__(self, cfg: FOCOPSConfig, agent: Agent) -> None:
+        super().__init__(cfg, agent)
+        self.kl_limit = cfg.target_kl  # Algorithm 1 stops at delta itself, not PPO's 1.5 delta
+        self.multiplier = PIDLagrangian(cfg.cost_limit, kp=0.0, ki=cfg.nu_lr, kd=0.0, init=cfg.nu_init,
+                                        lambda_max=cfg.nu_max)
+
+    @property
+    def lagrange_multiplier(self) -> float:
+        return self.multiplier.value
+
+    def update_multiplier(self, estimate: EpisodeCost) -> None:
+        self.multiplier.update(estimate.cost)
+
+    def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
+        return batch.get(keys.ADVANTAGE) - self.multiplier.value * batch.get(keys.COST_ADVANTAGE)
+
+    def policy_loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        head = self.agent.actor.head
+        dist = self.agent.dist(mb)
+        old_dist = head.dist({k: mb[k] for k in head.param_keys})  # pi_k, as it acted
+        loss, kl = focops_loss(dist, old_dist, mb[keys.ACTION], mb[keys.LOG_PROB], mb[keys.POLICY_ADVANTAGE],
+                               self.cfg.temperature, self.cfg.target_kl)
+        entropy = dist.entropy().mean()
+        loss = loss - self.cfg.entropy_coef * entropy
+        with torch.no_grad():
+            mean_kl = kl.mean()
+            outside = (kl > self.cfg.target_kl).float().mean()
+        return loss, {"entropy": entropy.detach(), "kl": mean_kl, "kl_stop": mean_kl, "outside_fraction": outside}
+
+    def _update_keys(self, batch: TensorDictBase) -> list:
+        return [*super()._update_keys(batch), *self.agent.actor.head.param_keys]
+
+    def state_dict(self) -> dict:
+        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.multiplier.load_state_dict(state["multiplier"])
+
+
+register("algo", "focops", FOCOPSConfig, FOCOPS)
