@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from cmdp_rl import keys
+
 ROOT = Path(__file__).resolve().parents[1]
 WALL_CLOCK = ("sps", "time_s")  # the only columns allowed to differ between identical runs
 
@@ -66,3 +68,19 @@ def eval_result(run_dir: Path) -> dict:
 def quiet():
     return lambda s: None
 
+
+
+class ForwardPolicy:
+    """The collector's side of an agent (``act``, ``in_keys``, ``initial_state``) around a plain
+    function of the observation: for tests that drive an env with a fixed rule, not a network."""
+
+    in_keys = [keys.OBS]
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def initial_state(self, num_envs, device="cpu"):
+        return {}
+
+    def act(self, d, deterministic=False):
+        return {keys.ACTION: self.fn(d[keys.OBS])}

@@ -4,10 +4,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from tensordict.nn import TensorDictModule
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, make_env
 from cmdp_rl.envs.gym_cost import SixValueStep, make_cost_env
+from conftest import ForwardPolicy
 
 SIX_ID = "cmdp_rl_test/SixValueCounter-v0"
 FIVE_ID = "cmdp_rl_test/FiveValueCounter-v0"
@@ -48,7 +48,7 @@ if SIX_ID not in gym.registry:
 
 
 def constant(value):
-    return TensorDictModule(lambda obs: torch.full((obs.shape[0], 1), value), [keys.OBS], [keys.ACTION])
+    return ForwardPolicy(lambda obs: torch.full((obs.shape[0], 1), value))
 
 
 def test_six_value_adapter_moves_cost_into_info():

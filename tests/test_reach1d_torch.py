@@ -12,6 +12,7 @@ from gymnasium.utils import seeding
 
 from cmdp_rl import Collector, ConfigError, keys, load_config, make_env, train
 from cmdp_rl.envs import GymVecEnv, Reach1D, TorchReach1D
+from conftest import ForwardPolicy
 
 
 class GymDraws:
@@ -137,13 +138,7 @@ def test_make_env_and_collector_on_the_batched_env():
     env = make_env(cfg.env)
     assert isinstance(env, TorchReach1D) and env.num_envs == 16
 
-    class Push(torch.nn.Module):
-        def forward(self, obs):
-            return torch.full((obs.shape[0], 1), 0.1)
-
-    from tensordict.nn import TensorDictModule
-
-    b = Collector(env, TensorDictModule(Push(), [keys.OBS], [keys.ACTION]), rollout_steps=25, seed=0).collect()
+    b = Collector(env, ForwardPolicy(lambda obs: torch.full((obs.shape[0], 1), 0.1)), rollout_steps=25, seed=0).collect()
     assert b.batch_size == torch.Size([16, 25])
     done = b[keys.NEXT][keys.DONE][:, :, 0]
     assert done[:, 9].all() and done[:, 19].all() and done.sum().item() == 32
@@ -197,13 +192,13 @@ def test_stagger_spreads_the_first_episode_ends():
 def test_state_dict_resumes_the_same_trajectories():
     """Resume: a collector on a fresh TorchReach1D restored from state_dict() collects what the
     original would have (positions, step counters, probe readings, the generator's state)."""
-    from cmdp_rl.policies.mlp import make_actor
+    from cmdp_rl.policies import make_agent
     from cmdp_rl.policies.mlp import PolicyConfig
 
     def build():
         env = TorchReach1D(6, max_steps=7, start=[0.0, 0.8], probe=True, stagger=True)
         torch.manual_seed(0)
-        return env, make_actor(PolicyConfig(), env.obs_dim, env.action_low, env.action_high)
+        return env, make_agent(PolicyConfig(), env)
 
     env, actor = build()
     col = Collector(env, actor, 10, seed=5)

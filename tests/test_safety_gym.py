@@ -6,14 +6,12 @@ sample covering every robot, every task family, every level and every velocity t
 """
 
 import importlib.util
-import json
 import os
 import pickle
 
 import numpy as np
 import pytest
 import torch
-from tensordict.nn import TensorDictModule
 
 # Not importorskip: the package imports only through our compatibility layer.
 if importlib.util.find_spec("safety_gymnasium") is None:
@@ -24,7 +22,7 @@ from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safety_gym import SafetyGymEnvConfig, make_task  # noqa: E402
 from cmdp_rl.envs.safety_gym_compat import import_safety_gymnasium  # noqa: E402
 from cmdp_rl.envs.safety_gym_tasks import TASKS, task_problem  # noqa: E402
-from conftest import eval_result, metrics_rows, run_script  # noqa: E402
+from conftest import ForwardPolicy, metrics_rows, run_script  # noqa: E402
 
 SAMPLE = ["SafetyPointGoal1-v0", "SafetyCarButton2-v0", "SafetyRacecarPush0-v0", "SafetyDoggoCircle1-v0",
           "SafetyAntGoal2-v0", "SafetyPointRun0-v0", *[t for t in TASKS if "Velocity" in t]]
@@ -102,7 +100,7 @@ def test_our_step_is_the_package_step(task, action):
 def test_cost_and_episode_ends_reach_the_batch():
     cfg = SafetyGymEnvConfig(task="SafetyPointCircle1-v0", num_envs=2, max_steps=100)
     env = make_env(cfg)
-    forward = TensorDictModule(lambda obs: torch.tensor([[1.0, 0.0]]).expand(obs.shape[0], 2), [keys.OBS], [keys.ACTION])
+    forward = ForwardPolicy(lambda obs: torch.tensor([[1.0, 0.0]]).expand(obs.shape[0], 2))
     batch = Collector(env, forward, rollout_steps=110, seed=0).collect()
     # The same two envs stepped by hand: gymnasium seeds env i with seed + i.
     expected = []

@@ -5,11 +5,11 @@ import json
 
 import pytest
 import torch
-from tensordict.nn import TensorDictModule
 
 from cmdp_rl import Collector, ConfigError, keys, load_config, train
 from cmdp_rl.envs import GymVecEnv, Reach1D
 from cmdp_rl.safety_metrics import EPSILON, Reference, normalized_scores
+from conftest import ForwardPolicy
 
 
 def test_normalized_scores_follow_safety_gym():
@@ -33,7 +33,7 @@ def test_normalized_scores_follow_safety_gym():
 def test_collector_counts_every_cost_it_collects():
     # Reach1D pushed at the bound: 4 wall bumps per 7-step episode (tests/test_collector.py)
     env = GymVecEnv(lambda: Reach1D(max_steps=7, obs_noise=0.0), 3)
-    actor = TensorDictModule(lambda obs: torch.full((obs.shape[0], 1), 0.1), [keys.OBS], [keys.ACTION])
+    actor = ForwardPolicy(lambda obs: torch.full((obs.shape[0], 1), 0.1))
     col = Collector(env, actor, rollout_steps=14, seed=0)
     sums = [col.collect()[keys.NEXT][keys.COST].sum().item() for _ in range(3)]
     assert col.total_cost == sum(sums) == 3 * 3 * 2 * 4 and col.total_steps == 126

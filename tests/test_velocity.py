@@ -11,13 +11,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from tensordict.nn import TensorDictModule
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, train
 from cmdp_rl.config import compose_config
 from cmdp_rl.envs.velocity import VelocityEnvConfig
 from cmdp_rl.envs import GymVecEnv
 from cmdp_rl.envs.velocity import VELOCITY_TASKS, VelocityCost, make_velocity_env
+from conftest import ForwardPolicy
 
 PLANAR = {"Ant", "Humanoid"}  # planar speed sqrt(vx^2 + vy^2); the others: signed x velocity
 
@@ -82,7 +82,7 @@ def test_velocity_cost_reaches_the_batch_through_the_vector_env_and_episode_ends
         return VelocityCost(gym.wrappers.TimeLimit(ScriptedVelocity(script), 3), thr, planar=False)
 
     env = GymVecEnv(make, 2)
-    actor = TensorDictModule(lambda obs: torch.zeros(obs.shape[0], 1), [keys.OBS], [keys.ACTION])
+    actor = ForwardPolicy(lambda obs: torch.zeros(obs.shape[0], 1))
     batch = Collector(env, actor, rollout_steps=6, seed=0).collect()
     assert batch[keys.NEXT][keys.COST][0, :, 0].tolist() == [0, 1, 1, 0, 1, 1]
     # the last step of each episode is a done step: its cost comes through gymnasium's final_info

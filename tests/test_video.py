@@ -13,7 +13,6 @@ import pytest
 
 from cmdp_rl import load_config, train
 from cmdp_rl.config import ConfigError, compose_config
-from cmdp_rl.envs.gym_cost import GymEnvConfig
 from cmdp_rl.envs.reach1d import FRAME_H, FRAME_W, Reach1D, render_reach1d
 from cmdp_rl.envs.reach1d_task import Reach1DConfig
 from cmdp_rl.replay import record_reach1d
