@@ -62,12 +62,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("new", nargs="?", default=None, help="a commit; default: the working tree")
     ap.add_argument("--rounds", type=int, default=4)
     ap.add_argument("--iterations", type=int, default=6)
+    ap.add_argument("--only", choices=["gym", "torch"], default=None, help="measure one setting")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         trees = {"base": export(args.base, Path(tmp) / "base"),
                  "new": ROOT if args.new is None else export(args.new, Path(tmp) / "new")}
         print(f"base {args.base}, new {args.new or 'working tree'}; load average {os.getloadavg()[0]:.1f} at start")
         for label, overrides in SETTINGS.items():
+            if args.only and args.only not in label:
+                continue
             rates: dict[str, list[float]] = {"base": [], "new": []}
             for r in range(args.rounds):
                 for which in (("base", "new") if r % 2 == 0 else ("new", "base")):
