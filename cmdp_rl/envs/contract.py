@@ -1,0 +1,275 @@
+"""The CMDP contract an env must keep, checked by stepping it briefly before training.
+
+A broken env otherwise surfaces far from its cause: a NaN cost as "loss is nan: training diverged",
+a cost of the wrong length as a numpy broadcasting traceback, a missing cost as a perfectly safe
+run. :func:`check_env` steps the env with random actions and stops at the first breach with one
+line naming the env, the env index, the step and the field.
+
+What is checked:
+
+- the action space is a ``Box``, ``Discrete`` or ``MultiDiscrete`` (what the policy heads know);
+  the observation space is a ``Box``, ``Discrete``, ``MultiDiscrete`` or ``MultiBinary`` (the
+  collector flattens observations into one float vector);
+- every observation (after reset, after each step) is finite and inside the observation space:
+  its shape, a dtype that casts safely to the space's, its bounds;
+- the reward is a finite number; ``terminated`` and ``truncated`` are bools;
+- ``info["cost"]`` is there on every step, a number (one constraint) or a 1-D array of K numbers,
+  with the same K on every step and in every env, finite, and not negative;
+- ``cost_names``, where the env declares them, are K distinct strings.
+
+Why a negative cost is an error (unless ``allow_negative_cost``): a CMDP's costs are non-negative,
+``c_i(s, a) >= 0`` (Altman 1999; the seed's definition), and the budget ``J_c <= d`` means "at
+most d units of harm" only then. A negative cost lets a policy buy credit (harm here, paid back by
+a negative cost there) that the budget cannot tell from safety, and the logged cost rate and
+violation stop meaning what they say. An env that knows why it wants signed costs can say so.
+
+The check steps and resets the env it is given: pass one built for the check, not the training
+env (whose random generators it would move on).
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium import spaces
+
+from cmdp_rl.validation import ConfigError
+
+ACTION_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete)
+OBSERVATION_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
+COST = 'info["cost"]'
+
+
+class EnvContractError(ConfigError):
+    """An env breaks the CMDP contract. A :class:`ConfigError`, so ``train.py`` reports it in one
+    line and exits with status 2."""
+
+
+@dataclass(frozen=True)
+class EnvContract:
+    """What the check found: the number of costs K and their names (the env's, else ``cost_k``)."""
+
+    num_costs: int
+    cost_names: tuple[str, ...]
+
+
+def _short(value: Any) -> str:
+    """A value's repr on one short line."""
+    if isinstance(value, (np.ndarray, torch.Tensor)):
+        text = np.array2string(np.asarray(value), threshold=6, edgeitems=2, max_line_width=10**6)
+    else:
+        text = repr(value)
+    text = " ".join(text.split())
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+class _Checker:
+    """Checks one env's (or one batch's) steps; remembers K across steps and envs."""
+
+    def __init__(self, env_id: str, cost_names: Any, allow_negative_cost: bool) -> None:
+        self.env_id = env_id
+        self.allow_negative_cost = allow_negative_cost
+        self.num_costs: int | None = None
+        self.cost_names = self._names(cost_names)
+
+    def fail(self, where: tuple[int, int] | None, field: str, problem: str) -> None:
+        at = "" if where is None else f" (env {where[0]}, {'reset' if where[1] == 0 else f'step {where[1]}'})"
+        raise EnvContractError(f"env {self.env_id}{at}: {field} {problem}")
+
+    def _names(self, names: Any) -> tuple[str, ...] | None:
+        if names is None:
+            return None
+        if isinstance(names, str) or not isinstance(names, Sequence) or not all(isinstance(n, str) for n in names):
+            self.fail(None, "cost_names", f"must be a sequence of strings, got {_short(names)}")
+        if len(set(names)) != len(names):
+            self.fail(None, "cost_names", f"must be distinct, got {_short(tuple(names))}")
+        return tuple(names)
+
+    # --- the spaces ---
+    def spaces(self, action_space: Any, observation_space: Any) -> None:
+        if not isinstance(action_space, ACTION_SPACES):
+            self.fail(None, "action_space", f"{action_space} is not supported; supported: Box, Discrete, MultiDiscrete")
+        if not isinstance(observation_space, OBSERVATION_SPACES):
+            self.fail(None, "observation_space",
+                      f"{observation_space} is not supported; supported: Box, Discrete, MultiDiscrete, MultiBinary")
+
+    # --- one env's values ---
+    def observation(self, where: tuple[int, int], obs: Any, space: gym.Space, field: str = "observation") -> None:
+        if isinstance(space, spaces.Box):
+            if not isinstance(obs, np.ndarray):
+                self.fail(where, field, f"must be a numpy array (observation_space is {space}), got {type(obs).__name__}")
+            if obs.shape != space.shape:
+                self.fail(where, field, f"has shape {obs.shape}, observation_space has {space.shape}")
+            if not np.can_cast(obs.dtype, space.dtype):
+                self.fail(where, field, f"has dtype {obs.dtype}, observation_space has {space.dtype}")
+            if obs.dtype.kind == "f" and not np.isfinite(obs).all():
+                self.fail(where, field, f"is not finite: {_short(obs)}")
+        if not space.contains(obs):
+            self.fail(where, field, f"{_short(obs)} is outside observation_space {space}")
+
+    def reward(self, where: tuple[int, int], reward: Any) -> None:
+        if isinstance(reward, (bool, np.bool_)) or not isinstance(reward, numbers.Real):
+            self.fail(where, "reward", f"must be a number, got {_short(reward)}")
+        if not np.isfinite(float(reward)):
+            self.fail(where, "reward", f"is {float(reward)}; rewards must be finite")
+
+    def flag(self, where: tuple[int, int], name: str, value: Any) -> None:
+        if not isinstance(value, (bool, np.bool_)):
+            self.fail(where, name, f"must be a bool, got {_short(value)} ({type(value).__name__})")
+
+    def cost(self, where: tuple[int, int], info: Any) -> None:
+        if not isinstance(info, dict):
+            self.fail(where, "info", f"must be a dict, got {type(info).__name__}")
+        if "cost" not in info:
+            self.fail(where, COST, f"is missing (info keys: {sorted(map(str, info))}); a CMDP env reports its cost there")
+        value = info["cost"]
+        if isinstance(value, (bool, np.bool_)):
+            self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {value!r}")
+        if isinstance(value, numbers.Real):
+            cost = np.array([float(value)])
+        elif isinstance(value, (np.ndarray, list, tuple, torch.Tensor)):
+            cost = np.asarray(value)
+            if cost.dtype.kind not in "iuf":
+                self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {_short(value)}")
+            if cost.ndim == 0:
+                cost = cost.reshape(1)
+            if cost.ndim != 1 or cost.size == 0:
+                self.fail(where, COST, f"must be a number or a 1-D array of numbers, got shape {cost.shape}")
+        else:
+            self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {_short(value)} "
+                                   f"({type(value).__name__})")
+        self.cost_vector(where, cost)
+
+    def cost_vector(self, where: tuple[int, int], cost: np.ndarray) -> None:
+        k = cost.shape[-1]
+        if self.num_costs is None:
+            self.num_costs = k
+            if self.cost_names is not None and len(self.cost_names) != k:
+                self.fail(where, "cost_names", f"has {len(self.cost_names)} names {_short(self.cost_names)}, "
+                                               f"but {COST} has {k} entries")
+        elif k != self.num_costs:
+            self.fail(where, COST, f"has {k} entries, earlier steps had {self.num_costs}")
+        shown = _short(cost) if k > 1 else repr(float(cost[0]))
+        if not np.isfinite(cost).all():
+            self.fail(where, COST, f"is {shown}; costs must be finite")
+        if not self.allow_negative_cost and (cost < 0).any():
+            self.fail(where, COST, f"is {shown}; costs must be >= 0 in a CMDP "
+                                   "(allow_negative_cost accepts signed costs)")
+
+    def result(self) -> EnvContract:
+        k = self.num_costs or 1
+        return EnvContract(k, self.cost_names or tuple(f"cost_{i}" for i in range(k)))
+
+
+def _env_id(env: gym.Env) -> str:
+    return env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+
+
+def _cost_names(env: gym.Env) -> Any:
+    try:
+        return env.get_wrapper_attr("cost_names")
+    except AttributeError:
+        return None
+
+
+def _check_gym_envs(envs: Sequence[gym.Env], steps: int, seed: int, allow_negative_cost: bool,
+                    env_id: str | None) -> EnvContract:
+    """Each gymnasium env in turn: reset, ``steps`` random actions, a reset after every episode end."""
+    first = envs[0]
+    check = _Checker(env_id or _env_id(first), _cost_names(first), allow_negative_cost)
+    for index, env in enumerate(envs):
+        check.spaces(env.action_space, env.observation_space)
+        env.action_space.seed(seed + index)
+        out = env.reset(seed=seed + index)
+        if not (isinstance(out, tuple) and len(out) == 2):
+            check.fail((index, 0), "reset()", f"must return (observation, info), got {_short(out)}")
+        check.observation((index, 0), out[0], env.observation_space)
+        for t in range(1, steps + 1):
+            out = env.step(env.action_space.sample())
+            if not (isinstance(out, tuple) and len(out) == 5):
+                n = len(out) if isinstance(out, tuple) else type(out).__name__
+                check.fail((index, t), "step()", f"must return (observation, reward, terminated, truncated, info), "
+                                                 f"got {n} values")
+            obs, reward, terminated, truncated, info = out
+            check.observation((index, t), obs, env.observation_space)
+            check.reward((index, t), reward)
+            check.flag((index, t), "terminated", terminated)
+            check.flag((index, t), "truncated", truncated)
+            check.cost((index, t), info)
+            if terminated or truncated:
+                obs, _ = env.reset()
+                check.observation((index, t), obs, env.observation_space, "observation after reset")
+    return check.result()
+
+
+def _is_float(dtype: torch.dtype) -> bool:
+    return dtype.is_floating_point
+
+
+def _check_tensor_env(env: Any, steps: int, seed: int, allow_negative_cost: bool, env_id: str | None) -> EnvContract:
+    """A batched torch env (``cmdp_rl.envs.VecEnv``): the same rules on its ``[N, ...]`` tensors,
+    vectorised over the batch; the first failing env is named."""
+    check = _Checker(env_id or type(env).__name__, getattr(env, "cost_names", None), allow_negative_cost)
+    n = env.num_envs
+    gen = torch.Generator(device=env.device).manual_seed(seed)
+
+    def first_bad(bad: torch.Tensor) -> int:
+        return int(torch.nonzero(bad.reshape(n, -1).any(-1))[0, 0])
+
+    def batch(t: int, field: str, value: torch.Tensor, shape: tuple[int, ...], finite: bool = True,
+              dtype_check: Callable[[torch.dtype], bool] | None = None) -> None:
+        if tuple(value.shape) != shape:
+            check.fail((0, t), field, f"has shape {tuple(value.shape)} over the batch, expected {shape}")
+        if dtype_check is not None and not dtype_check(value.dtype):
+            check.fail((0, t), field, f"has dtype {value.dtype}")
+        if finite and not torch.isfinite(value).all():
+            i = first_bad(~torch.isfinite(value))
+            check.fail((i, t), field, f"is not finite: {_short(value[i].cpu())}")
+
+    obs = env.reset(seed=seed)
+    batch(0, "observation", obs, (n, env.obs_dim), dtype_check=_is_float)
+    low, high = env.action_low, env.action_high
+    for t in range(1, steps + 1):
+        u = torch.rand((n, env.action_dim), generator=gen, device=env.device)
+        step = env.step(low + (high - low) * u)
+        for field, value in (("observation", step.next_obs), ("observation after reset", step.obs)):
+            batch(t, field, value, (n, env.obs_dim), dtype_check=_is_float)
+        batch(t, "reward", step.reward, (n, 1))
+        for name in ("terminated", "truncated"):
+            batch(t, name, getattr(step, name), (n, 1), finite=False, dtype_check=lambda d: d == torch.bool)
+        cost = step.cost
+        if cost.dim() != 2 or cost.shape[0] != n:
+            check.fail((0, t), COST, f"has shape {tuple(cost.shape)} over the batch, expected ({n}, K)")
+        bad = ~torch.isfinite(cost) | (torch.zeros_like(cost, dtype=torch.bool) if allow_negative_cost else cost < 0)
+        i = first_bad(bad) if bad.any() else 0
+        check.cost_vector((i, t), cost[i].detach().cpu().numpy().astype(np.float64))
+    return check.result()
+
+
+def check_env(env: Any, steps: int = 100, seed: int = 0, allow_negative_cost: bool = False,
+              env_id: str | None = None) -> EnvContract:
+    """Step ``env`` (a gymnasium env, a gymnasium ``SyncVectorEnv``, or a ``cmdp_rl.envs.VecEnv``)
+    ``steps`` times per env with random actions and raise :class:`EnvContractError` at the first
+    breach of the CMDP contract (module docstring); return K and the cost names found.
+
+    A ``GymVecEnv`` is checked through its gymnasium envs, one by one (their raw ``info``, before
+    the vector env fills in or reshapes anything); other ``VecEnv``s through their batched tensors.
+    ``env_id`` names the env in the message (default: its registered id, else its class).
+    """
+    if isinstance(env, gym.Env):
+        return _check_gym_envs([env], steps, seed, allow_negative_cost, env_id)
+    # cmdp_rl's GymVecEnv keeps its SyncVectorEnv as .envs
+    vector = env if isinstance(env, gym.vector.VectorEnv) else getattr(env, "envs", env)
+    if isinstance(vector, gym.vector.SyncVectorEnv):
+        return _check_gym_envs(list(vector.envs), steps, seed, allow_negative_cost, env_id)
+    if isinstance(vector, gym.vector.VectorEnv):
+        raise TypeError(f"check_env: pass the single env or a SyncVectorEnv, got {type(vector).__name__}")
+    return _check_tensor_env(env, steps, seed, allow_negative_cost, env_id)
+
+
+__all__ = ["ACTION_SPACES", "OBSERVATION_SPACES", "EnvContract", "EnvContractError", "check_env"]

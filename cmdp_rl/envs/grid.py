@@ -1,0 +1,163 @@
+"""A slippery gridworld with two kinds of hazard: a small CMDP with discrete actions and K = 2
+costs whose exact constrained optimum is known (``tabular.py`` writes it as arrays, ``grid_lp.py``
+solves it).
+
+The gymnasium env is ``cmdp_rl/Grid-v0`` (registered when this module is imported). One step:
+
+1. the action picks a direction (0 up, 1 right, 2 down, 3 left); with probability ``slip`` the
+   agent moves instead in one of the two perpendicular directions (``slip / 2`` each);
+2. a move off the grid or into a wall (``#``) leaves the agent where it is;
+3. arriving at the goal (``G``) pays reward 1 and ends the episode; arriving at (or staying on) a
+   hazard cell costs 1 of its kind: ``info["cost"] = [on an 'a' cell, on a 'b' cell]``;
+4. otherwise the episode ends with probability ``end_prob``.
+
+Why the random end: with it, an episode's expected undiscounted return and cost, which the toolkit
+logs and budgets, are exactly the ``gamma = 1 - end_prob`` discounted return and cost of the same
+grid without the random end, the quantities of Altman's discounted CMDP and its linear program.
+So the LP's optimum is directly the number a trained policy's ``eval.json`` should approach. Such
+an end is a true termination (nothing is bootstrapped past it), not a truncation, and there is no
+time limit: episodes last ``1 / end_prob`` steps on average, longer with probability ``< (1 -
+end_prob)^t``.
+
+The observation is a one-hot float32 vector over the grid's open cells (goal included), so a
+policy network can represent any state-dependent, randomised policy, the LP's included.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+GRID_ID = "cmdp_rl/Grid-v0"
+COST_NAMES = ("hazard_a", "hazard_b")
+HAZARD_CHARS = ("a", "b")  # the layout character of each cost, in COST_NAMES order
+# Directions as (row, col) offsets: up, right, down, left. Perpendicular to d: (d + 1) % 4, (d + 3) % 4.
+MOVES = ((-1, 0), (0, 1), (1, 0), (0, -1))
+ACTION_NAMES = ("up", "right", "down", "left")
+
+# The default grid (docs/grid.md has its optima). From S, three ways to G: straight along the
+# middle row (6 moves) through one 'a' cell, where a slip up lands on the 'b' strip; over the top
+# (10 moves), where a slip down lands on the 'b' strip; or round the bottom (12 moves), which no
+# slip can turn into a hazard. The walls beside S's row keep the start itself out of every
+# hazard's reach, so the hazard-free route is a plain detour, not a wait for a lucky slip.
+DEFAULT_LAYOUT = (
+    ".......",
+    ".#bbbb.",
+    "S..a..G",
+    ".#####.",
+    ".#####.",
+    ".......",
+)
+DEFAULT_SLIP = 0.1
+DEFAULT_END_PROB = 0.05
+# Budgets (expected hazard_a, hazard_b cost per episode) at which both constraints bind and the
+# constrained optimum lies strictly between the unconstrained and the hazard-free ones.
+DEFAULT_BUDGETS = (0.3, 0.15)
+
+
+@dataclass(frozen=True, eq=False)
+class Layout:
+    """A parsed grid: its open cells (row-major, walls left out), the start cells and the goal."""
+
+    rows: int
+    cols: int
+    cells: tuple[tuple[int, int], ...]  # (row, col) of each open cell; the index is the observation's
+    starts: tuple[int, ...]  # cell indices of 'S' (the start is uniform over them)
+    goal: int  # cell index of 'G'
+    hazards: np.ndarray  # [K, num_cells] 1.0 on the cells of hazard kind k
+
+    @property
+    def num_cells(self) -> int:
+        return len(self.cells)
+
+    def next_cell(self, cell: int, direction: int) -> int:
+        """Where a move in ``direction`` from ``cell`` lands (the same cell if blocked)."""
+        r, c = self.cells[cell]
+        dr, dc = MOVES[direction]
+        return self._index.get((r + dr, c + dc), cell)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_index", {rc: i for i, rc in enumerate(self.cells)})
+
+
+def parse_layout(layout: Sequence[str]) -> Layout:
+    """Parse rows of ``.`` (open), ``#`` (wall), ``S`` (start), ``G`` (goal), ``a``/``b`` (hazards)."""
+    rows = [str(r) for r in layout]
+    if not rows or any(len(r) != len(rows[0]) for r in rows) or not rows[0]:
+        raise ValueError(f"grid layout: rows must be non-empty and of equal length, got {rows!r}")
+    bad = sorted({ch for r in rows for ch in r} - set(".#SGab"))
+    if bad:
+        raise ValueError(f"grid layout: unknown character(s) {bad}; allowed: . # S G a b")
+    cells = tuple((i, j) for i, r in enumerate(rows) for j, ch in enumerate(r) if ch != "#")
+    kinds = [rows[i][j] for i, j in cells]
+    starts = tuple(n for n, ch in enumerate(kinds) if ch == "S")
+    goals = [n for n, ch in enumerate(kinds) if ch == "G"]
+    if not starts or len(goals) != 1:
+        raise ValueError(f"grid layout: needs at least one 'S' and exactly one 'G', got {len(starts)} and {len(goals)}")
+    hazards = np.array([[float(ch == h) for ch in kinds] for h in HAZARD_CHARS])
+    return Layout(len(rows), len(rows[0]), cells, starts, goals[0], hazards)
+
+
+class GridWorld(gym.Env):
+    """The slippery two-hazard gridworld (module docstring). ``cost_names`` names ``info["cost"]``'s
+    entries; ``default_budgets`` are budgets at which both constraints matter on the default grid."""
+
+    metadata = {"render_modes": []}
+    cost_names = COST_NAMES
+
+    def __init__(self, layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP,
+                 end_prob: float = DEFAULT_END_PROB) -> None:
+        super().__init__()
+        if not 0.0 <= slip <= 1.0:
+            raise ValueError(f"grid slip must be in [0, 1], got {slip!r}")
+        if not 0.0 < end_prob <= 1.0:
+            raise ValueError(f"grid end_prob must be in (0, 1], got {end_prob!r}")
+        self.layout = parse_layout(layout)
+        self.slip = float(slip)
+        self.end_prob = float(end_prob)
+        self.default_budgets = DEFAULT_BUDGETS
+        n = self.layout.num_cells
+        self.action_space = spaces.Discrete(len(MOVES))
+        self.observation_space = spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
+        self.cell = self.layout.starts[0]
+
+    def _obs(self) -> np.ndarray:
+        obs = np.zeros(self.layout.num_cells, dtype=np.float32)
+        obs[self.cell] = 1.0
+        return obs
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        starts = self.layout.starts
+        self.cell = starts[int(self.np_random.integers(len(starts)))] if len(starts) > 1 else starts[0]
+        return self._obs(), {"cell": self.cell}
+
+    def step(self, action):
+        direction = int(action)
+        if not 0 <= direction < len(MOVES):
+            raise ValueError(f"grid action must be in 0..{len(MOVES) - 1}, got {action!r}")
+        # Three draws every step, in this order, so a seed fixes one stream whatever happens.
+        slipped = self.np_random.random() < self.slip
+        side = self.np_random.random() < 0.5
+        ends = self.np_random.random() < self.end_prob
+        if slipped:
+            direction = (direction + (1 if side else 3)) % 4
+        self.cell = self.layout.next_cell(self.cell, direction)
+        at_goal = self.cell == self.layout.goal
+        cost = self.layout.hazards[:, self.cell].copy()
+        terminated = bool(at_goal or ends)
+        info = {"cost": cost, "cell": self.cell, "goal_reached": bool(at_goal)}
+        return self._obs(), 1.0 if at_goal else 0.0, terminated, False, info
+
+
+if GRID_ID not in gym.registry:
+    gym.register(id=GRID_ID, entry_point="cmdp_rl.envs.grid:GridWorld")
+
+__all__ = [
+    "ACTION_NAMES", "COST_NAMES", "DEFAULT_BUDGETS", "DEFAULT_END_PROB", "DEFAULT_LAYOUT", "DEFAULT_SLIP", "GRID_ID",
+    "GridWorld", "Layout", "MOVES", "parse_layout",
+]

@@ -1,0 +1,145 @@
+"""A finite discounted CMDP as explicit arrays, with exact policy evaluation and the unconstrained
+optimum; :func:`grid_cmdp` writes the gridworld of ``grid.py`` in this form.
+
+Conventions (those of Altman 1999, discounted criterion, with the goal as an absorbing end):
+
+- ``P[s, a, s']`` is the probability of moving from ``s`` to the non-terminal state ``s'``. Rows
+  may sum to less than 1: the missing mass ends the episode (the grid's goal).
+- ``r[s, a]`` and ``c[k, s, a]`` are the expected reward and costs of one step from ``s`` under ``a``.
+- ``J(pi) = E[sum_t gamma^t r(s_t, a_t)]`` with ``s_0 ~ mu0``, and ``J_c[k]`` likewise.
+
+On the grid, ``gamma = 1 - end_prob``: there these discounted values are the expected undiscounted
+episode totals the gym env produces (see ``grid.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from cmdp_rl.envs.grid import COST_NAMES, DEFAULT_END_PROB, DEFAULT_LAYOUT, DEFAULT_SLIP, MOVES, Layout, parse_layout
+
+
+@dataclass(frozen=True, eq=False)
+class TabularCMDP:
+    """``(S, A, P, r, c, mu0, gamma)`` with K cost functions (module docstring)."""
+
+    P: np.ndarray  # [S, A, S], substochastic rows allowed
+    r: np.ndarray  # [S, A]
+    c: np.ndarray  # [K, S, A]
+    mu0: np.ndarray  # [S]
+    gamma: float
+    cost_names: tuple[str, ...]
+
+    @property
+    def num_states(self) -> int:
+        return self.P.shape[0]
+
+    @property
+    def num_actions(self) -> int:
+        return self.P.shape[1]
+
+    @property
+    def num_costs(self) -> int:
+        return self.c.shape[0]
+
+
+@dataclass(frozen=True, eq=False)
+class PolicyValue:
+    """A policy's exact values. With a batch of policies ``[..., S, A]`` every field gains the
+    batch's leading dimensions."""
+
+    ret: np.ndarray | float  # J(pi)
+    costs: np.ndarray  # [..., K] J_c(pi)
+    value: np.ndarray  # [..., S] V^pi
+    cost_value: np.ndarray  # [..., K, S]
+
+
+def evaluate(cmdp: TabularCMDP, policy: np.ndarray) -> PolicyValue:
+    """Exact values of a stationary policy ``policy[s, a] = pi(a | s)`` (or a batch ``[..., S, A]``):
+    ``V = (I - gamma P_pi)^-1 r_pi``, one linear solve per policy."""
+    pi = np.asarray(policy, dtype=np.float64)
+    if pi.shape[-2:] != (cmdp.num_states, cmdp.num_actions):
+        raise ValueError(f"policy: expected shape [..., {cmdp.num_states}, {cmdp.num_actions}], got {pi.shape}")
+    p_pi = np.einsum("...sa,sat->...st", pi, cmdp.P)
+    rhs = np.concatenate([np.einsum("...sa,sa->...s", pi, cmdp.r)[..., None],
+                          np.einsum("...sa,ksa->...sk", pi, cmdp.c)], axis=-1)  # [..., S, 1 + K]
+    lhs = np.eye(cmdp.num_states) - cmdp.gamma * p_pi
+    values = np.linalg.solve(lhs, rhs)  # [..., S, 1 + K]
+    totals = np.einsum("s,...sk->...k", cmdp.mu0, values)
+    ret = totals[..., 0]
+    return PolicyValue(ret=float(ret) if ret.ndim == 0 else ret, costs=totals[..., 1:],
+                       value=values[..., 0], cost_value=np.moveaxis(values[..., 1:], -1, -2))
+
+
+@dataclass(frozen=True, eq=False)
+class Optimum:
+    """An optimal deterministic policy for one reward, and its exact values."""
+
+    policy: np.ndarray  # [S, A] one-hot
+    value: np.ndarray  # [S] optimal values of the reward optimised
+    of_policy: PolicyValue  # the policy's return and costs on the CMDP's own r and c
+
+
+def value_iteration(cmdp: TabularCMDP, reward: np.ndarray | None = None, tol: float = 1e-12,
+                    max_iterations: int = 1_000_000) -> Optimum:
+    """The optimum of the unconstrained MDP with ``reward`` (default ``cmdp.r``; pass e.g.
+    ``-cmdp.c.sum(0)`` for the least-cost policy, or ``r - lambda . c`` for a Lagrangian) by value
+    iteration to ``max |V_{n+1} - V_n| < tol``; the greedy policy is returned with its exact values."""
+    rew = cmdp.r if reward is None else np.asarray(reward, dtype=np.float64)
+    v = np.zeros(cmdp.num_states)
+    for _ in range(max_iterations):
+        q = rew + cmdp.gamma * cmdp.P @ v
+        v_new = q.max(axis=1)
+        done = np.max(np.abs(v_new - v)) < tol
+        v = v_new
+        if done:
+            break
+    else:
+        raise RuntimeError(f"value iteration did not reach tol={tol} in {max_iterations} iterations")
+    greedy = np.eye(cmdp.num_actions)[np.argmax(rew + cmdp.gamma * cmdp.P @ v, axis=1)]
+    return Optimum(policy=greedy, value=v, of_policy=evaluate(cmdp, greedy))
+
+
+@dataclass(frozen=True, eq=False)
+class GridCMDP(TabularCMDP):
+    """The gridworld as a :class:`TabularCMDP`: its states are the open cells other than the goal;
+    ``arrive[s, a, cell]`` is where one step lands (the goal included), from which the gym env's
+    reward (1 at the goal) and cost (the hazard kind of the cell) follow."""
+
+    layout: Layout = None  # type: ignore[assignment]
+    state_cells: np.ndarray = None  # type: ignore[assignment]  # [S] cell index of each state
+    arrive: np.ndarray = None  # type: ignore[assignment]  # [S, A, num_cells]
+
+    def state_of_cell(self, cell: int) -> int:
+        return int(np.flatnonzero(self.state_cells == cell)[0])
+
+
+def grid_cmdp(layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP,
+              end_prob: float = DEFAULT_END_PROB) -> GridCMDP:
+    """The gridworld of ``grid.py`` with these options, as arrays (``gamma = 1 - end_prob``)."""
+    lay = parse_layout(layout)
+    state_cells = np.array([n for n in range(lay.num_cells) if n != lay.goal])
+    num_actions = len(MOVES)
+    arrive = np.zeros((len(state_cells), num_actions, lay.num_cells))
+    for s, cell in enumerate(state_cells):
+        for a in range(num_actions):
+            # intended move with 1 - slip, each perpendicular one with slip / 2 (grid.py, step 1)
+            for direction, p in ((a, 1.0 - slip), ((a + 1) % 4, slip / 2), ((a + 3) % 4, slip / 2)):
+                arrive[s, a, lay.next_cell(int(cell), direction)] += p
+    return GridCMDP(
+        P=arrive[:, :, state_cells],
+        r=arrive[:, :, lay.goal],
+        c=np.einsum("san,kn->ksa", arrive, lay.hazards),
+        mu0=np.isin(state_cells, lay.starts) / len(lay.starts),
+        gamma=1.0 - end_prob,
+        cost_names=COST_NAMES,
+        layout=lay,
+        state_cells=state_cells,
+        arrive=arrive,
+    )
+
+
+__all__ = ["GridCMDP", "Optimum", "PolicyValue", "TabularCMDP", "evaluate", "grid_cmdp", "value_iteration"]
