@@ -7,6 +7,7 @@ import torch
 from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import VecEnv
+from cmdp_rl.metrics import constraint_name
 from cmdp_rl.policies.agent import Agent
 
 EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
@@ -27,6 +28,8 @@ def evaluate(
     termination_metric: str | None = None,
 ) -> dict[str, float]:
     """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
+    With K > 1 costs, each constraint's episode cost has its own keys, ``episode_cost/<cost>``,
+    ``episode_cost_std/<cost>``, ... (``metrics.constraint_name``).
 
     Each env of the batch contributes a fixed quota of its first episodes, so short episodes are
     not over-represented (counting whichever episodes end first would bias towards them).
@@ -50,7 +53,8 @@ def _evaluate(
     quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
     chunk = 128
     collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
-    rows: list[list[tuple[float, float, float, float]]] = [[] for _ in range(n)]
+    # (return, length, terminated, cost_0, ..., cost_{K-1}) per episode
+    rows: list[list[tuple[float, ...]]] = [[] for _ in range(n)]
     while any(len(r) < q for r, q in zip(rows, quota)):
         batch = collector.collect()
         nxt = batch.get(keys.NEXT)
@@ -59,14 +63,18 @@ def _evaluate(
             if len(rows[i]) < quota[i]:
                 rows[i].append((
                     nxt.get(keys.EPISODE_RETURN)[i, t, 0].item(),
-                    nxt.get(keys.EPISODE_COST)[i, t, 0].item(),
                     float(nxt.get(keys.EPISODE_LENGTH)[i, t, 0].item()),
                     float(nxt.get(keys.TERMINATED)[i, t, 0].item()),
+                    *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
                 ))
     flat = [row for r in rows for row in r]
     result: dict[str, float] = {"episodes": len(flat), "deterministic": deterministic}
-    for j, name in enumerate(("episode_return", "episode_cost", "episode_length")):
-        result.update(_spread(name, [row[j] for row in flat]))
+    result.update(_spread("episode_return", [row[0] for row in flat]))
+    names = env.cost_names
+    for k, cost_name in enumerate(names):
+        spread = _spread("episode_cost", [row[3 + k] for row in flat])
+        result.update({constraint_name(key, cost_name, len(names)): v for key, v in spread.items()})
+    result.update(_spread("episode_length", [row[1] for row in flat]))
     if termination_metric:
-        result[termination_metric] = sum(row[3] for row in flat) / len(flat)
+        result[termination_metric] = sum(row[2] for row in flat) / len(flat)
     return result

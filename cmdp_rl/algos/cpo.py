@@ -26,6 +26,12 @@ value targets, as in the paper's experiments.
 Signs: ``g`` and ``b`` are gradients of quantities that increase (reward, cost), so maximising the
 dual over nu gives ``nu* = max(0, (lambda c + r) / s)`` (derived in :func:`solve_dual`; the tests
 check the step against a brute-force solution of the subproblem).
+
+One constraint only: an env with K > 1 costs is refused with a config error. With K linearised
+constraints the dual is a QP in K + 1 variables (lambda and nu_1..nu_K, Achiam et al. 2017, eq. 10
+with B a matrix) with no closed form like Theorem 2's, and the recovery step must choose which
+constraints to restore; solving it (and testing it against a brute-force solution as the K = 1
+case is) is future work, not a guess to ship.
 """
 
 from __future__ import annotations
@@ -41,7 +47,7 @@ from torch.distributions import kl_divergence
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.episode_cost import EpisodeCostEstimate
@@ -167,6 +173,10 @@ class CPO:
              "surr_reward_change", "surr_cost_change")
 
     def __init__(self, cfg: CPOConfig, agent: Agent) -> None:
+        k = agent.num_costs
+        require(k == 1, "algo", f"ppo, penalty, ppo_lag or pid_lag for an env with {k} costs "
+                                f"({', '.join(agent.cost_names)}): cpo's closed-form dual handles one constraint", "cpo")
+        (self.cost_limit,) = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
         self.cfg = cfg
         self.agent = agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
@@ -233,7 +243,7 @@ class CPO:
         # undiscounted episodic form), so J_c + T * dL_c <= d reads dL_c <= -(J_c - d) / T:
         # c = (J_c - d) / T in the surrogate's per-step units. (The paper's discounted form has
         # 1 / (1 - gamma) where an episodic budget has the mean episode length T.)
-        c = (episode_cost - cfg.cost_limit) / max(episode_length, 1.0)
+        c = (episode_cost - self.cost_limit) / max(episode_length, 1.0)
         check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), q=q, r=r, s=s, c=c)
 
         sol = solve_dual(q, r, s, c, cfg.target_kl)
