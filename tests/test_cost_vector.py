@@ -6,6 +6,9 @@ number below can be worked out by hand."""
 
 import csv
 import json
+import os
+import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -25,6 +28,7 @@ from cmdp_rl.plot import group_runs, main as plot_main
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig
 from cmdp_rl.validation import ConfigError
+from conftest import ROOT
 
 ENV_ID = "cmdp_rl_test/TwoCost-v0"
 NAMES = ("hazard_a", "hazard_b")
@@ -269,3 +273,18 @@ def test_plots_draw_a_panel_per_constraint(tmp_path, quiet):
     assert curve.cost_limits == {"episode_cost/hazard_a": 0.5, "episode_cost/hazard_b": 1.0}
     out = tmp_path / "curves.png"
     assert plot_main([str(tmp_path / "run"), "-o", str(out)]) == 0 and out.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_train_cli_stops_on_a_wrong_length_budget_with_one_line(tmp_path):
+    # The toy env is imported from this file through env.id=<module>:<id>.
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests")}
+    proc = subprocess.run(
+        [sys.executable, "train.py", "env=gym", f"env.id=test_cost_vector:{ENV_ID}", "algo.cost_limit=[1,2,3]",
+         f"hydra.run.dir={tmp_path / 'run'}"],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "config error: algo.cost_limit must be a number or a list of 2 numbers, one per cost of the env "
+        "(hazard_a, hazard_b), got [1.0, 2.0, 3.0]")
+    assert not (tmp_path / "run" / "metrics.csv").exists()
