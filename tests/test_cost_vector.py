@@ -5,6 +5,7 @@ The env is a toy of this file (registered with gymnasium here, used through ``en
 number below can be worked out by hand."""
 
 import csv
+import importlib.util
 import json
 import os
 import subprocess
@@ -273,6 +274,19 @@ def test_plots_draw_a_panel_per_constraint(tmp_path, quiet):
     assert curve.cost_limits == {"episode_cost/hazard_a": 0.5, "episode_cost/hazard_b": 1.0}
     out = tmp_path / "curves.png"
     assert plot_main([str(tmp_path / "run"), "-o", str(out)]) == 0 and out.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_evaluate_script_prints_a_cost_line_per_constraint(tmp_path, quiet, capsys):
+    train(load_config(run_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
+    spec = importlib.util.spec_from_file_location("evaluate_script", ROOT / "evaluate.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main([f"run={tmp_path / 'run'}", "episodes=2", f"output={tmp_path / 'e.json'}"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.strip().startswith("cost/hazard_a") and line.endswith("(limit 0.5)") for line in lines)
+    assert any(line.split()[:4] == ["cost/hazard_b", "0.00", "±", "0.00"] and line.endswith("(limit 1.0)")
+               for line in lines)
+    assert json.loads((tmp_path / "e.json").read_text())["episode_cost/hazard_b"] == 0.0
 
 
 def test_train_cli_stops_on_a_wrong_length_budget_with_one_line(tmp_path):
