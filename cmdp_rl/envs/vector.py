@@ -89,14 +89,17 @@ class VecEnv(ABC):
 def _probe_num_costs(make_one: Callable[[], gym.Env]) -> int:
     """K of an env that does not declare ``cost_names``: the length of ``info["cost"]`` on one step
     of a throwaway instance (seeded, random action; the training envs and every global random
-    generator are left untouched). A missing cost counts as one constraint (the contract check
-    reports it)."""
+    generator are left untouched). A missing cost, or a probe step that fails, counts as one
+    constraint: the training env's own steps then report the problem where they always did (the
+    contract check, or the env's wrappers, name it)."""
     env = make_one()
     try:
         env.reset(seed=0)
         env.action_space.seed(0)
         info = env.step(env.action_space.sample())[4]
         return int(np.size(info.get("cost", 0.0))) or 1
+    except Exception:  # noqa: BLE001 - only K is wanted here; the real steps raise the real error
+        return 1
     finally:
         env.close()
 
