@@ -21,7 +21,8 @@ from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
 from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
-from cmdp_rl.metrics import MetricsLogger, columns, wandb_for
+from cmdp_rl.algos.base import per_constraint
+from cmdp_rl.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.legacy import upgrade_algo_state
@@ -66,11 +67,14 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     env = make_env(cfg.env, device=cfg.device)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, agent)
+    # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
+    names = env.cost_names
+    limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed)
     out.mkdir(parents=True, exist_ok=True)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
-            out / METRICS, columns(algo.stats), cfg.log_interval, echo,
+            out / METRICS, columns(algo.stats, names), cfg.log_interval, echo,
             resume_iteration=None if state is None else state["iteration"],
             tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
             resume_step=None if state is None else state["step"],
@@ -137,16 +141,19 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
             agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
             eps = finished_episodes(batch)
+            # Per-constraint values are lists of K here; spread() gives each its own column.
             row = {
                 "iteration": it, "step": collector.total_steps,
-                "episode_return": _mean(eps["return"]), "episode_cost": _mean(eps["cost"]),
-                "episode_length": _mean(eps["length"]), "episodes": int(eps["cost"].numel()),
+                "episode_return": _mean(eps["return"]),
+                "episode_cost": [_mean(eps["cost"][:, k]) for k in range(len(names))],
+                "episode_length": _mean(eps["length"]), "episodes": int(eps["length"].numel()),
                 "cost_limit": cfg.algo.cost_limit, "sps": per_iter / (time.perf_counter() - t0),
                 "time_s": time.perf_counter() - start, **stats,
-                "cost_rate": cost_rate(collector.total_cost, collector.total_steps),
+                "cost_rate": [cost_rate(total, collector.total_steps) for total in collector.total_costs],
             }
             row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
-                                         cfg.algo.cost_limit, reference))
+                                         limits, reference))
+            row = spread(row, names)
             logger.log(row, force_echo=it == iterations)
             progress.update(row)
             if it % cfg.checkpoint_every == 0 or it == iterations:
@@ -166,13 +173,18 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
                    "torch_threads": torch.get_num_threads()})
-    result["cost_rate"] = cost_rate(collector.total_cost, collector.total_steps)
-    result.update(normalized_scores(result["episode_return"], result["episode_cost"], result["cost_rate"],
-                                    cfg.algo.cost_limit, reference))
+    k = len(names)
+    eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
+    rates = [cost_rate(total, collector.total_steps) for total in collector.total_costs]
+    per_cost = {"cost_rate": rates, **normalized_scores(result["episode_return"], eval_costs, rates, limits, reference)}
+    if k > 1:  # one budget per constraint, as cost_limit/<cost>
+        del result["cost_limit"]
+        per_cost = {"cost_limit": limits, **per_cost}
+    result.update(spread(per_cost, names))
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
     header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s"
-    for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header):
+    for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header, cost_names=names):
         echo(line)
     return result

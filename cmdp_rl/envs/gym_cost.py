@@ -21,6 +21,7 @@ from functools import partial
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import gymnasium as gym
+import numpy as np
 from gymnasium.envs.registration import load_env_creator
 from gymnasium.wrappers import TimeLimit
 
@@ -44,7 +45,8 @@ class SixValueStep(gym.Wrapper):
             )
         obs, reward, cost, terminated, truncated, info = out
         info = dict(info)
-        info["cost"] = float(cost)
+        # One number (one constraint) stays a float; a vector of K costs stays a vector.
+        info["cost"] = float(cost) if np.ndim(cost) == 0 else np.asarray(cost, dtype=np.float64)
         return obs, reward, terminated, truncated, info
 
 

@@ -23,7 +23,7 @@ def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
 
 
 class InputEncoder(nn.Module):
-    """``cat(normalized obs, previous action in box units, previous cost)``.
+    """``cat(normalized obs, previous action in box units, previous cost vector [K])``.
 
     The previous action is mapped to the action box as ``[-1, 1]`` and clipped there, as the env
     clips it: what the policy sees is the command the env executed. ``obs_norm`` (a running
@@ -38,14 +38,16 @@ class InputEncoder(nn.Module):
         include_prev_action: bool,
         include_prev_cost: bool,
         obs_norm: nn.Module | None = None,
+        num_costs: int = 1,
     ) -> None:
         super().__init__()
         self.obs_norm = obs_norm
         self.include_prev_action = include_prev_action
         self.include_prev_cost = include_prev_cost
+        self.num_costs = num_costs  # the previous cost is the vector of the env's K costs
         self.register_buffer("center", (high + low) / 2)
         self.register_buffer("half_width", (high - low) / 2)
-        self.out_dim = obs_dim + (low.numel() if include_prev_action else 0) + (1 if include_prev_cost else 0)
+        self.out_dim = obs_dim + (low.numel() if include_prev_action else 0) + (num_costs if include_prev_cost else 0)
 
     def forward(self, obs: torch.Tensor, *prev: torch.Tensor) -> torch.Tensor:
         parts = [obs if self.obs_norm is None else self.obs_norm(obs)]
