@@ -89,7 +89,7 @@ def run_cfg(**overrides) -> dict:
             cfg[k] = {**cfg[k], **v}
         else:
             cfg[k] = v
-    if cfg["algo"]["name"] == "ppo_lag":
+    if cfg["algo"]["name"] in ("ppo_lag", "trpo_lag"):
         cfg["algo"].setdefault("lambda_lr", 0.5)
     return cfg
 
@@ -199,6 +199,12 @@ def test_one_multiplier_keeps_the_single_constraint_state_format():
     ({"name": "penalty", "penalty": [1.0, 2.0, 3.0]}, "algo.penalty must be a number or a list of 2 numbers"),
     ({"name": "cpo", "cost_limit": 1.0}, "algo must be ppo, penalty, ppo_lag, pid_lag or trpo_lag for an env with 2 costs "
                                          "(hazard_a, hazard_b): cpo's closed-form dual handles one constraint"),
+    *(({"name": name}, f"algo must be ppo, penalty, ppo_lag, pid_lag or trpo_lag for an env with 2 costs "
+                       f"(hazard_a, hazard_b): {reason}, got '{name}'")
+      for name, reason in (("pcpo", "pcpo projects onto one linearised constraint"),
+                           ("crpo", "crpo's step switches on one constraint's slack"),
+                           ("focops", "focops has one cost multiplier nu"),
+                           ("cup", "cup has one cost multiplier nu"))),
 ])
 def test_per_constraint_options_of_the_wrong_length_are_config_errors(tmp_path, quiet, algo, message):
     cfg = run_cfg()
@@ -302,3 +308,37 @@ def test_train_cli_stops_on_a_wrong_length_budget_with_one_line(tmp_path):
         "config error: algo.cost_limit must be a number or a list of 2 numbers, one per cost of the env "
         "(hazard_a, hazard_b), got [1.0, 2.0, 3.0]")
     assert not (tmp_path / "run" / "metrics.csv").exists()
+
+
+def test_trpo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_path, quiet):
+    # As ppo_lag above: hazard_a over its budget 0.5, its lambda rises by dual ascent on this
+    # batch's J_c,a alone; hazard_b never paid, its lambda stays 0.
+    out = tmp_path / "run"
+    cfg = run_cfg()
+    cfg["algo"] = {"name": "trpo_lag", "critic_minibatches": 2, "cost_limit": [0.5, 1.0], "lambda_lr": 0.5}
+    result = train(load_config(cfg), out, echo=quiet)
+    rows = read_rows(out / "metrics.csv")
+    lam_a = 0.0
+    for row in rows:
+        lam_a = max(0.0, lam_a + 0.5 * (float(row["episode_cost/hazard_a"]) - 0.5))
+        assert float(row["lagrange_multiplier/hazard_a"]) == pytest.approx(lam_a, rel=1e-6)
+        assert float(row["lagrange_multiplier/hazard_b"]) == 0.0
+    assert float(rows[0]["episode_cost/hazard_a"]) > 0.5 and float(rows[0]["lagrange_multiplier/hazard_a"]) > 0.0
+    assert result["cost_limit/hazard_a"] == 0.5
+
+
+def test_eval_intervals_and_summary_per_constraint(tmp_path):
+    lines = []
+    result = train(load_config(run_cfg(total_steps=2 * 32, eval_episodes=6)), tmp_path / "run", echo=lines.append)
+    # One return interval; each constraint its own cost interval and violation count against its budget.
+    assert len(result["episode_return_ci95"]) == 2 and "episode_cost_ci95" not in result
+    assert result["violations/hazard_b"] == 0 and result["violation_rate/hazard_b"] == 0.0
+    assert result["intervals/hazard_a"]["violation"] == "episode cost > 0.5"
+    assert result["intervals/hazard_b"]["violation"] == "episode cost > 1"
+    # hazard_a: an episode violates with any positive action (cost >= 1 > 0.5).
+    assert result["violation_rate/hazard_a"] == result["violations/hazard_a"] / 6
+    assert (result["violations/hazard_a"] > 0) == (result["episode_cost_max/hazard_a"] > 0.5)
+    summary = [line for line in lines if "against budget" in line]
+    assert [line.split()[0] for line in summary] == ["hazard_a", "hazard_b"]
+    assert summary[1].strip() == "hazard_b 0.00 ± 0.00 against budget 1: within budget"
+    assert any(line.strip().startswith("hazard_b: violations 0/6 episodes (cost > 1)") for line in lines)

@@ -29,6 +29,7 @@ from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.natural_gradient import (
     NaturalGradient, NaturalGradientConfig, Surrogates, assign, fisher_vector_product, flat, per_step_constraint,
 )
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import options
 
