@@ -19,14 +19,15 @@ from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
-from cmdp_rl.envs import make_env, make_eval_env
+from cmdp_rl.envs import check_env, make_env, make_eval_env
+from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.metrics import MetricsLogger, columns
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
-from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
+from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
 from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
 
 
@@ -44,6 +45,25 @@ def _run_dir(cfg: RunConfig, out_dir: str | Path | None) -> Path:
     return Path(cfg.resume)
 
 
+# The env contract's check before training (envs/contract.py): steps per env, on this many envs
+# built for it alone.
+CONTRACT_STEPS = 100
+CONTRACT_ENVS = 2
+
+
+def check_env_contract(cfg: RunConfig) -> None:
+    """Step a small env of the run's env config briefly and stop at the first breach of the CMDP
+    contract (:class:`~cmdp_rl.envs.EnvContractError`, one line naming the env, index, step and
+    field). A separate env, so the training env's random streams (and the run's numbers) are those
+    of a run without the check."""
+    probe = make_env(cfg.env, num_envs=min(CONTRACT_ENVS, cfg.env.num_envs), device=cfg.device)
+    try:
+        check_env(probe, steps=CONTRACT_STEPS, seed=cfg.seed, allow_negative_cost=cfg.env.allow_negative_cost,
+                  env_id=cfg.env.env_id())
+    finally:
+        probe.close()
+
+
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/rundir.py``). Returns the
@@ -57,13 +77,15 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     validate(cfg)
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
+    ensure_writable(out)  # after the resume checks: a mistyped resume path is reported, not created
     torch.set_num_threads(cfg.threads)
+    check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, agent)
     collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed)
-    out.mkdir(parents=True, exist_ok=True)
+    env_id, allow_negative_cost = cfg.env.env_id(), cfg.env.allow_negative_cost
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
             out / METRICS, columns(algo.stats), cfg.log_interval, echo,
@@ -120,6 +142,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
             batch = collector.collect()
+            # The contract on what was collected (raw values): finite, costs >= 0; vectorised.
+            check_rollout(batch, env_id, allow_negative_cost,
+                          first_step=collector.total_steps // env.num_envs - cfg.rollout_steps + 1)
             agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
             try:
                 stats = algo.update(batch)
