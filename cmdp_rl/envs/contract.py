@@ -160,7 +160,7 @@ class _Checker:
             self.fail(where, COST, f"is {shown}; costs must be finite")
         if not self.allow_negative_cost and (cost < 0).any():
             self.fail(where, COST, f"is {shown}; costs must be >= 0 in a CMDP "
-                                   "(allow_negative_cost accepts signed costs)")
+                                   "(env.allow_negative_cost=true accepts signed costs)")
 
     def result(self) -> EnvContract:
         k = self.num_costs or 1
