@@ -25,10 +25,12 @@ from __future__ import annotations
 
 from typing import Any
 
+import gymnasium as gym
 import torch
 from tensordict import TensorDict, TensorDictBase
 
 from cmdp_rl import keys
+from cmdp_rl.actions import action_dim, action_dtype, no_action
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
 
@@ -42,20 +44,25 @@ class PolicyMemory:
     previous action and cost if its ``in_keys`` ask for them. Used by the collector and by
     ``replay.py``, which steps one plain env."""
 
-    def __init__(self, agent: Agent, num_envs: int, action_dim: int, device: torch.device,
+    def __init__(self, agent: Agent, num_envs: int, action_space: gym.Space, device: torch.device,
                  num_costs: int = 1) -> None:
         self.initial = agent.initial_state(num_envs, device)
         in_keys = agent.in_keys
         self.prev_action = keys.PREV_ACTION in in_keys
         self.prev_cost = keys.PREV_COST in in_keys
-        self.num_envs, self.action_dim, self.device = num_envs, action_dim, device
+        self.num_envs, self.device = num_envs, device
         self.num_costs = num_costs  # the previous cost is the whole vector of K costs
+        # An episode's first step has no previous action: 0 for a box, -1 (no index) for discrete
+        # actions, stored in the action's own dtype (cmdp_rl/actions.py).
+        self.action_dim, self.action_dtype = action_dim(action_space), action_dtype(action_space)
+        self.no_action = no_action(action_space)
 
     def start(self) -> Entries:
         """The root entries of every env's first step (besides observation and ``is_init``)."""
         root = dict(self.initial)
         if self.prev_action:
-            root[keys.PREV_ACTION] = torch.zeros(self.num_envs, self.action_dim, device=self.device)
+            root[keys.PREV_ACTION] = torch.full((self.num_envs, self.action_dim), self.no_action,
+                                                dtype=self.action_dtype, device=self.device)
         if self.prev_cost:
             root[keys.PREV_COST] = torch.zeros(self.num_envs, self.num_costs, device=self.device)
         return root
@@ -73,7 +80,10 @@ class PolicyMemory:
             return {}, {}
         # A new episode starts from the initial state, without history.
         root = {k: _reset_where(done, v, self.initial.get(k)) for k, v in carried.items()}
-        root.update({k: v.masked_fill(done, 0) for k, v in history.items()})
+        if self.prev_action:
+            root[keys.PREV_ACTION] = history[keys.PREV_ACTION].masked_fill(done, self.no_action)
+        if self.prev_cost:
+            root[keys.PREV_COST] = history[keys.PREV_COST].masked_fill(done, 0)
         return {(keys.NEXT, k): v for k, v in history.items()}, root
 
 
@@ -98,7 +108,7 @@ class Collector:
         self.agent = agent
         self.rollout_steps = rollout_steps
         n, dev = env.num_envs, env.device
-        self._memory = PolicyMemory(agent, n, env.action_dim, dev, env.num_costs)
+        self._memory = PolicyMemory(agent, n, env.action_space, dev, env.num_costs)
         self._root: Entries = {
             **self._memory.start(), keys.OBS: env.reset(seed=seed),
             keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev),

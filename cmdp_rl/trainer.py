@@ -19,7 +19,8 @@ from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
-from cmdp_rl.envs import make_env, make_eval_env
+from cmdp_rl.envs import check_env, make_env, make_eval_env
+from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
@@ -29,7 +30,7 @@ from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl.progress import Progress
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
-from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
+from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
 from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.summary import summary_lines
 from cmdp_rl.threads import apply_threads
@@ -49,6 +50,32 @@ def _run_dir(cfg: RunConfig, out_dir: str | Path | None) -> Path:
     return Path(cfg.resume)
 
 
+# The env contract's check before training (envs/contract.py): steps per env, on this many envs
+# built for it alone.
+CONTRACT_STEPS = 100
+CONTRACT_ENVS = 2
+
+
+def contract_options(env_cfg: Any) -> tuple[str, bool]:
+    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``;
+    an env's own options class without them, as tests/test_components.py's toy: its name, False)."""
+    env_id = env_cfg.env_id() if hasattr(env_cfg, "env_id") else getattr(env_cfg, "name", "env")
+    return env_id, bool(getattr(env_cfg, "allow_negative_cost", False))
+
+
+def check_env_contract(cfg: RunConfig) -> None:
+    """Step a small env of the run's env config briefly and stop at the first breach of the CMDP
+    contract (:class:`~cmdp_rl.envs.EnvContractError`, one line naming the env, index, step and
+    field). A separate env, so the training env's random streams (and the run's numbers) are those
+    of a run without the check."""
+    probe = make_env(cfg.env, num_envs=min(CONTRACT_ENVS, cfg.env.num_envs), device=cfg.device)
+    try:
+        env_id, allow_negative_cost = contract_options(cfg.env)
+        check_env(probe, steps=CONTRACT_STEPS, seed=cfg.seed, allow_negative_cost=allow_negative_cost, env_id=env_id)
+    finally:
+        probe.close()
+
+
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/rundir.py``). Returns the
@@ -62,7 +89,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     validate(cfg)
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
+    ensure_writable(out)  # after the resume checks: a mistyped resume path is reported, not created
     apply_threads(cfg)
+    check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
@@ -71,7 +100,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     names = env.cost_names
     limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed)
-    out.mkdir(parents=True, exist_ok=True)
+    env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
             out / METRICS, columns(algo.stats, names), cfg.log_interval, echo,
@@ -133,6 +162,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
             batch = collector.collect()
+            # The contract on what was collected (raw values): finite, costs >= 0; vectorised.
+            check_rollout(batch, env_id, allow_negative_cost,
+                          first_step=collector.total_steps // env.num_envs - cfg.rollout_steps + 1)
             agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
             try:
                 stats = algo.update(batch)

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
+from cmdp_rl.actions import action_dim, categories, check_action_space, is_discrete, to_env
 from cmdp_rl.envs.env_state import env_state, load_env_state
 
 
@@ -128,23 +129,29 @@ class GymVecEnv(VecEnv):
     """
 
     def __init__(self, make_one: Callable[[], gym.Env], num_envs: int, device: str | torch.device = "cpu",
-                 asynchronous: bool = False) -> None:
+                 asynchronous: bool = False, env_id: str = "env") -> None:
         vector = AsyncVectorEnv if asynchronous else SyncVectorEnv
         self.envs = vector([make_one for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
         self.num_envs = num_envs
         obs_space = self.envs.single_observation_space
         act_space = self.envs.single_action_space
-        if not isinstance(act_space, gym.spaces.Box) or len(act_space.shape) != 1:
-            raise ValueError(f"env: only 1-D Box action spaces are supported, got {act_space}")
+        try:
+            check_action_space(act_space, env_id)
+        except ValueError:
+            self.envs.close()
+            raise
+        self._action_space = act_space
         self.obs_dim = int(np.prod(obs_space.shape))
-        self.action_dim = act_space.shape[0]
-        # The env's own dtype (float32 for Reach1D): a float64 action could land exactly on the
-        # seed's wall, where the strict crossing test lets it through at no cost.
-        self._act_dtype = act_space.dtype
+        # Actions are stored flat (cmdp_rl/actions.py): a box's numbers, or one index per component.
+        self.action_dim = action_dim(act_space)
         # Gymnasium steps on the CPU; tensors handed out live on ``device``.
         self.device = torch.device(device)
-        self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32, device=self.device)
-        self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32, device=self.device)
+        if is_discrete(act_space):  # the range of each stored index
+            self.action_low = torch.zeros(self.action_dim, device=self.device)
+            self.action_high = torch.tensor(categories(act_space), dtype=torch.float32, device=self.device) - 1
+        else:
+            self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32, device=self.device).reshape(-1)
+            self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32, device=self.device).reshape(-1)
         names = _declared_cost_names(self.envs.envs[0])
         self.num_costs = len(names) if names is not None else _probe_num_costs(make_one)
         self._cost_names = names if names is not None else default_cost_names(self.num_costs)
@@ -158,6 +165,11 @@ class GymVecEnv(VecEnv):
         """``info["cost"]`` of the N envs as ``[N, K]`` float32 (a fresh array)."""
         return np.array(info.get("cost", self._zeros), dtype=np.float32).reshape(self.num_envs, self.num_costs)
 
+    @property
+    def action_space(self) -> gym.Space:
+        """The env's own action space (a box, or discrete actions)."""
+        return self._action_space
+
     def _obs(self, obs: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.asarray(obs, dtype=np.float32).reshape(self.num_envs, self.obs_dim)).to(self.device)
 
@@ -167,8 +179,7 @@ class GymVecEnv(VecEnv):
 
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
-        act = action.detach().cpu().numpy().astype(self._act_dtype, copy=False)
-        obs, reward, terminated, truncated, info = self.envs.step(act)
+        obs, reward, terminated, truncated, info = self.envs.step(to_env(action, self._action_space))
         cost = self._cost(info)
         next_obs = obs
         if "final_obs" in info:

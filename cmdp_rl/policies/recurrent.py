@@ -150,7 +150,7 @@ def make_recurrent_agent(cfg: RecurrentPolicyConfig, env: VecEnv, normalizers: N
     states = STATE_KEYS[cfg.name]
 
     def body(net: str) -> RecurrentBody:
-        encoder = InputEncoder(env.obs_dim, env.action_low, env.action_high, cfg.include_prev_action,
+        encoder = InputEncoder(env.obs_dim, env.action_space, cfg.include_prev_action,
                                cfg.include_prev_cost, normalizers.obs, env.num_costs)
         return RecurrentBody(cfg, encoder, states[net])
 
