@@ -89,7 +89,6 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     validate(cfg)
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
-    ensure_writable(out)  # after the resume checks: a mistyped resume path is reported, not created
     apply_threads(cfg)
     check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
     seed_everything(cfg.seed)
@@ -99,6 +98,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
     names = env.cost_names
     limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
+    # After the resume and config checks (a mistyped resume path or a wrong-length budget is
+    # reported, no directory created), before any training.
+    ensure_writable(out)
     collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed)
     env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
