@@ -41,15 +41,30 @@ from omegaconf.errors import OmegaConfBaseException
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.config import ConfigError, load_eval_config
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
-from cmdp_rl.intervals import summary_lines
+from cmdp_rl.metrics import constraint_name
 from cmdp_rl.replay import plot_reach1d, record_reach1d
 from cmdp_rl.rundir import load_trained, run_config
+from cmdp_rl.summary import interval_summary
 from cmdp_rl.video import VideoError, make_render_env, record_video
 
 
 def _line(name: str, r: dict, fmt: str) -> str:
     m, s, lo, hi = (r[f"{name}{k}"] for k in ("", "_std", "_min", "_max"))
     return f"  {name:<15} {m:{fmt}} ± {s:{fmt}}   [min {lo:{fmt}}, max {hi:{fmt}}]"
+
+
+def _cost_lines(r: dict, cost_names: tuple[str, ...], cost_limit: float | list[float]) -> list[str]:
+    """The episode cost line, one per constraint for an env with K > 1 costs (keys
+    ``episode_cost/<cost>``, ``episode_cost_std/<cost>``, ...)."""
+    k = len(cost_names)
+    if k == 1:
+        return [_line("episode_cost", r, ".2f") + f"   (limit {cost_limit})"]
+    limits = cost_limit if isinstance(cost_limit, list) else [cost_limit] * k
+    lines = []
+    for c, d in zip(cost_names, limits):
+        own = {f"cost/{c}{s}": r[constraint_name(f"episode_cost{s}", c, k)] for s in ("", "_std", "_min", "_max")}
+        lines.append(_line(f"cost/{c}", own, ".2f") + f"   (limit {d})")
+    return lines
 
 
 def main(argv: list[str]) -> int:
@@ -81,17 +96,19 @@ def main(argv: list[str]) -> int:
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
     result = evaluate(agent, env, episodes, deterministic, seed=seed, termination_metric=metric,
                       cost_limit=cfg.algo.cost_limit)
+    cost_names = env.cost_names
     env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
     mode = "deterministic" if deterministic else "stochastic"
     print(f"{opts.run}: {cfg.algo.name} on {cfg.env.name}, checkpoint of iteration {iteration} (step {step:,}); "
           f"{result['episodes']} episodes, {mode} policy, seed {seed}")
     print(_line("episode_return", result, ".3f"))
-    print(_line("episode_cost", result, ".2f") + f"   (limit {cfg.algo.cost_limit})")
+    for line in _cost_lines(result, cost_names, cfg.algo.cost_limit):
+        print(line)
     print(_line("episode_length", result, ".1f"))
     if metric:
         print(f"  {metric:<15} {result[metric]:.0%}")
-    for line in summary_lines(result, cfg.algo.cost_limit):
+    for line in interval_summary(result, cfg.algo.cost_limit, cost_names):
         print(f"  {line}")
     if opts.output:
         Path(opts.output).write_text(json.dumps(result, indent=2))

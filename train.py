@@ -21,11 +21,11 @@ from omegaconf import DictConfig, OmegaConf
 from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.resume import resume_config
-from cmdp_rl.rundir import CHECKPOINT
+from cmdp_rl.rundir import CHECKPOINT, RunDirError
 from cmdp_rl.sweeps import clear_outputs, record_failure
 
 # How a single run ends on each error (inside a sweep train.py raises instead: see _fail).
-EXIT_CODES = ((ConfigError, 2, "config error"), (CheckpointError, 2, "cannot resume"),
+EXIT_CODES = ((RunDirError, 2, "cannot write outputs"), (ConfigError, 2, "config error"), (CheckpointError, 2, "cannot resume"),
               (TrainingDiverged, 3, "training stopped"))
 
 
@@ -41,7 +41,10 @@ OmegaConf.register_new_resolver("cmdp.if_resumable", _if_resumable)
 
 def _fail(exc: Exception, run_dir: str | None) -> None:
     if run_dir is not None:
-        record_failure(run_dir, exc)
+        try:
+            record_failure(run_dir, exc)
+        except OSError:  # a run directory that cannot be written: the message below says so
+            pass
     if HydraConfig.get().mode == RunMode.MULTIRUN:
         # Raise, never sys.exit, inside a sweep: Hydra then marks only this job failed, lets the
         # others finish (each writes its own directory) and raises once all are done. SystemExit

@@ -4,12 +4,18 @@ Both GAEs are torchrl's, reading values the critics wrote beforehand (``value_ne
 one critic pass serves both the estimate and the logging. A truncated step (time limit) is not
 terminal: GAE bootstraps from ``V(next observation)`` unless ``("next", "terminated")`` is set,
 for the reward critic and the cost critic alike.
+
+K costs: the cost critic's values, the costs, and so the cost advantages and targets are
+``[N, T, K]``. torchrl's GAE wants every input of one shape, so the cost GAE runs batched over K
+on a view whose done/terminated flags are expanded to ``[N, T, K]``: the recursion is elementwise
+in K, so each constraint's advantage is exactly the one GAE gives on that cost alone
+(``tests/test_cost_vector.py`` checks this bit for bit). K = 1 calls GAE on the batch as before.
 """
 
 from __future__ import annotations
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives.value import GAE
 
 from cmdp_rl import keys
@@ -40,5 +46,21 @@ class TwinGAE:
             batch.set(value_key, values)
             batch.set((keys.NEXT, value_key), next_values)
         self.reward(batch)
-        self.cost(batch)
+        self._cost_gae(batch)
         return batch
+
+    def _cost_gae(self, batch: TensorDictBase) -> None:
+        k = batch.get((keys.NEXT, keys.COST)).shape[-1]
+        if k == 1:
+            self.cost(batch)
+            return
+        nxt = batch.get(keys.NEXT)
+        flags = {(keys.NEXT, f): nxt.get(f).expand(*batch.shape, k) for f in (keys.DONE, keys.TERMINATED)}
+        view = TensorDict({
+            keys.COST_VALUE: batch.get(keys.COST_VALUE),
+            (keys.NEXT, keys.COST_VALUE): nxt.get(keys.COST_VALUE),
+            (keys.NEXT, keys.COST): nxt.get(keys.COST), **flags,
+        }, batch_size=batch.shape, device=batch.device)
+        self.cost(view)
+        batch.set(keys.COST_ADVANTAGE, view.get(keys.COST_ADVANTAGE))
+        batch.set(keys.COST_VALUE_TARGET, view.get(keys.COST_VALUE_TARGET))

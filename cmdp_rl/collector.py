@@ -25,10 +25,12 @@ from __future__ import annotations
 
 from typing import Any
 
+import gymnasium as gym
 import torch
 from tensordict import TensorDict, TensorDictBase
 
 from cmdp_rl import keys
+from cmdp_rl.actions import action_dim, action_dtype, no_action
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
 
@@ -42,25 +44,32 @@ class PolicyMemory:
     previous action and cost if its ``in_keys`` ask for them. Used by the collector and by
     ``replay.py``, which steps one plain env."""
 
-    def __init__(self, agent: Agent, num_envs: int, action_dim: int, device: torch.device) -> None:
+    def __init__(self, agent: Agent, num_envs: int, action_space: gym.Space, device: torch.device,
+                 num_costs: int = 1) -> None:
         self.initial = agent.initial_state(num_envs, device)
         in_keys = agent.in_keys
         self.prev_action = keys.PREV_ACTION in in_keys
         self.prev_cost = keys.PREV_COST in in_keys
-        self.num_envs, self.action_dim, self.device = num_envs, action_dim, device
+        self.num_envs, self.device = num_envs, device
+        self.num_costs = num_costs  # the previous cost is the whole vector of K costs
+        # An episode's first step has no previous action: 0 for a box, -1 (no index) for discrete
+        # actions, stored in the action's own dtype (cmdp_rl/actions.py).
+        self.action_dim, self.action_dtype = action_dim(action_space), action_dtype(action_space)
+        self.no_action = no_action(action_space)
 
     def start(self) -> Entries:
         """The root entries of every env's first step (besides observation and ``is_init``)."""
         root = dict(self.initial)
         if self.prev_action:
-            root[keys.PREV_ACTION] = torch.zeros(self.num_envs, self.action_dim, device=self.device)
+            root[keys.PREV_ACTION] = torch.full((self.num_envs, self.action_dim), self.no_action,
+                                                dtype=self.action_dtype, device=self.device)
         if self.prev_cost:
-            root[keys.PREV_COST] = torch.zeros(self.num_envs, 1, device=self.device)
+            root[keys.PREV_COST] = torch.zeros(self.num_envs, self.num_costs, device=self.device)
         return root
 
     def step(self, out: Entries, cost: torch.Tensor, done: torch.Tensor) -> tuple[Entries, Entries]:
         """After a step: (the previous action/cost to store under ``"next"``: this step's; the root
-        entries of the next step). ``out``: what the policy wrote; ``done``: ``[N, 1]``."""
+        entries of the next step). ``out``: what the policy wrote; ``cost``: ``[N, K]``; ``done``: ``[N, 1]``."""
         carried = {k[1]: v for k, v in out.items() if isinstance(k, tuple) and k[0] == keys.NEXT}
         history = {}
         if self.prev_action:
@@ -71,7 +80,10 @@ class PolicyMemory:
             return {}, {}
         # A new episode starts from the initial state, without history.
         root = {k: _reset_where(done, v, self.initial.get(k)) for k, v in carried.items()}
-        root.update({k: v.masked_fill(done, 0) for k, v in history.items()})
+        if self.prev_action:
+            root[keys.PREV_ACTION] = history[keys.PREV_ACTION].masked_fill(done, self.no_action)
+        if self.prev_cost:
+            root[keys.PREV_COST] = history[keys.PREV_COST].masked_fill(done, 0)
         return {(keys.NEXT, k): v for k, v in history.items()}, root
 
 
@@ -96,16 +108,17 @@ class Collector:
         self.agent = agent
         self.rollout_steps = rollout_steps
         n, dev = env.num_envs, env.device
-        self._memory = PolicyMemory(agent, n, env.action_dim, dev)
+        self._memory = PolicyMemory(agent, n, env.action_space, dev, env.num_costs)
         self._root: Entries = {
             **self._memory.start(), keys.OBS: env.reset(seed=seed),
             keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev),
         }
         self._ep_return = torch.zeros(n, 1, device=dev)
-        self._ep_cost = torch.zeros(n, 1, device=dev)
+        self._ep_cost = torch.zeros(n, env.num_costs, device=dev)  # one running sum per constraint
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
         self.total_steps = 0
-        self.total_cost = 0.0  # every cost collected so far: the numerator of the cost rate
+        # Every cost collected so far, per constraint: the numerators of the cost rates.
+        self.total_costs = [0.0] * env.num_costs
 
     @torch.no_grad()
     def collect(self) -> TensorDictBase:
@@ -144,8 +157,18 @@ class Collector:
             {k: torch.stack([s[k] for s in steps], dim=1) for k in steps[0]},
             batch_size=[n, self.rollout_steps], device=self.env.device,
         )
-        self.total_cost += batch.get((keys.NEXT, keys.COST)).sum().item()
+        cost = batch.get((keys.NEXT, keys.COST))
+        # K = 1 sums the whole batch in one reduction, exactly as before costs became vectors.
+        sums = [cost.sum().item()] if cost.shape[-1] == 1 else cost.sum((0, 1)).tolist()
+        self.total_costs = [t + s for t, s in zip(self.total_costs, sums)]
         return batch
+
+    @property
+    def total_cost(self) -> float:
+        """Every cost collected so far (one constraint); :attr:`total_costs` has one per constraint."""
+        if len(self.total_costs) != 1:
+            raise ValueError(f"total_cost: the env has {len(self.total_costs)} costs; read total_costs")
+        return self.total_costs[0]
 
     def state_dict(self) -> dict[str, Any]:
         """Where the rollout stands: the next root (observation, ``is_init``, carried recurrent
@@ -157,7 +180,8 @@ class Collector:
             "episode_cost": self._ep_cost.clone(),
             "episode_length": self._ep_length.clone(),
             "total_steps": self.total_steps,
-            "total_cost": self.total_cost,
+            # A number for one constraint (as before costs became vectors), else a list of K.
+            "total_cost": self.total_costs[0] if len(self.total_costs) == 1 else list(self.total_costs),
             "env": self.env.state_dict(),
         }
 
@@ -169,7 +193,8 @@ class Collector:
         self._ep_cost = state["episode_cost"].to(dev).clone()
         self._ep_length = state["episode_length"].to(dev).clone()
         self.total_steps = int(state["total_steps"])
-        self.total_cost = float(state["total_cost"])
+        total = state["total_cost"]
+        self.total_costs = [float(t) for t in total] if isinstance(total, (list, tuple)) else [float(total)]
 
 
 def _reset_where(done: torch.Tensor, value: torch.Tensor, initial: torch.Tensor | None) -> torch.Tensor:
@@ -179,11 +204,12 @@ def _reset_where(done: torch.Tensor, value: torch.Tensor, initial: torch.Tensor 
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:
-    """Undiscounted return, cost and length of every episode that ended inside ``batch``."""
+    """Undiscounted return ``[E]``, cost ``[E, K]`` (one column per constraint) and length ``[E]``
+    of every episode that ended inside ``batch``."""
     done = batch.get((keys.NEXT, keys.DONE)).squeeze(-1)
+    nxt = batch.get(keys.NEXT)
     return {
-        name: batch.get((keys.NEXT, key)).squeeze(-1)[done].float()
-        for name, key in (
-            ("return", keys.EPISODE_RETURN), ("cost", keys.EPISODE_COST), ("length", keys.EPISODE_LENGTH)
-        )
+        "return": nxt.get(keys.EPISODE_RETURN).squeeze(-1)[done].float(),
+        "cost": nxt.get(keys.EPISODE_COST)[done].float(),
+        "length": nxt.get(keys.EPISODE_LENGTH).squeeze(-1)[done].float(),
     }

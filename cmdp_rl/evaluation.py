@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Any, Sequence
+
 import torch
 
 from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.intervals import summarize as interval_estimates
+from cmdp_rl.metrics import constraint_name
 from cmdp_rl.policies.agent import Agent
 
 EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
@@ -25,9 +28,11 @@ def _spread(name: str, values: list[float]) -> dict[str, float]:
 
 def evaluate(
     agent: Agent, env: VecEnv, episodes: int, deterministic: bool = True, seed: int | None = None,
-    termination_metric: str | None = None, cost_limit: float | None = None,
+    termination_metric: str | None = None, cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, float]:
     """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
+    With K > 1 costs, each constraint's episode cost has its own keys, ``episode_cost/<cost>``,
+    ``episode_cost_std/<cost>``, ... (``metrics.constraint_name``).
 
     Each env of the batch contributes a fixed quota of its first episodes, so short episodes are
     not over-represented (counting whichever episodes end first would bias towards them).
@@ -38,7 +43,9 @@ def evaluate(
     ``fork_rng``: the same seed gives the same numbers, and the caller's generator is left as it was.
     With ``cost_limit`` (the budget d), the result also has 95% intervals over the episodes: of mean
     return and mean cost, cost's upper bound, and the rate of episodes with cost above d
-    (:func:`cmdp_rl.intervals.summarize`).
+    (:func:`cmdp_rl.intervals.summarize`). With K > 1 costs ``cost_limit`` is one budget for every
+    constraint or a list of K, and each constraint's cost and violation keys carry ``/<cost>``
+    (``episode_cost_ucb95/hazard_a``, ``violation_rate/hazard_a``, ``intervals/hazard_a``).
     """
     with torch.random.fork_rng(devices=[]):
         if seed is not None:
@@ -48,13 +55,14 @@ def evaluate(
 
 def _evaluate(
     agent: Agent, env: VecEnv, episodes: int, deterministic: bool, seed: int | None,
-    termination_metric: str | None, cost_limit: float | None = None,
+    termination_metric: str | None, cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, float]:
     n = env.num_envs
     quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
     chunk = 128
     collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
-    rows: list[list[tuple[float, float, float, float]]] = [[] for _ in range(n)]
+    # (return, length, terminated, cost_0, ..., cost_{K-1}) per episode
+    rows: list[list[tuple[float, ...]]] = [[] for _ in range(n)]
     while any(len(r) < q for r, q in zip(rows, quota)):
         batch = collector.collect()
         nxt = batch.get(keys.NEXT)
@@ -63,16 +71,39 @@ def _evaluate(
             if len(rows[i]) < quota[i]:
                 rows[i].append((
                     nxt.get(keys.EPISODE_RETURN)[i, t, 0].item(),
-                    nxt.get(keys.EPISODE_COST)[i, t, 0].item(),
                     float(nxt.get(keys.EPISODE_LENGTH)[i, t, 0].item()),
                     float(nxt.get(keys.TERMINATED)[i, t, 0].item()),
+                    *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
                 ))
     flat = [row for r in rows for row in r]
     result: dict[str, float] = {"episodes": len(flat), "deterministic": deterministic}
-    for j, name in enumerate(("episode_return", "episode_cost", "episode_length")):
-        result.update(_spread(name, [row[j] for row in flat]))
+    result.update(_spread("episode_return", [row[0] for row in flat]))
+    names = env.cost_names
+    for k, cost_name in enumerate(names):
+        spread = _spread("episode_cost", [row[3 + k] for row in flat])
+        result.update({constraint_name(key, cost_name, len(names)): v for key, v in spread.items()})
+    result.update(_spread("episode_length", [row[1] for row in flat]))
     if termination_metric:
-        result[termination_metric] = sum(row[3] for row in flat) / len(flat)
+        result[termination_metric] = sum(row[2] for row in flat) / len(flat)
     if cost_limit is not None:
-        result.update(interval_estimates([row[0] for row in flat], [row[1] for row in flat], cost_limit))
+        result.update(_intervals(flat, names, cost_limit))
     return result
+
+
+def _intervals(flat: list[tuple[float, ...]], names: Sequence[str], cost_limit: float | Sequence[float]) -> dict[str, Any]:
+    """The interval keys for each constraint (rows: return, length, terminated, cost_0, ...); with
+    one cost exactly :func:`cmdp_rl.intervals.summarize`'s keys, with K > 1 the return's interval
+    once and every other key per constraint as ``<key>/<cost>``."""
+    k = len(names)
+    limits = [float(cost_limit)] * k if isinstance(cost_limit, (int, float)) else [float(d) for d in cost_limit]
+    if len(limits) != k:
+        raise ValueError(f"evaluate: {len(limits)} budgets for {k} costs")
+    returns = [row[0] for row in flat]
+    out: dict[str, Any] = {}
+    for j, (name, d) in enumerate(zip(names, limits)):
+        est = interval_estimates(returns, [row[3 + j] for row in flat], d)
+        if k == 1:
+            return est
+        out["episode_return_ci95"] = est.pop("episode_return_ci95")
+        out.update({f"{key}/{name}": v for key, v in est.items()})
+    return out

@@ -3,6 +3,12 @@ or a Weights & Biases run (``logger=wandb``), and a progress line on the console
 the run's own (:data:`RUN_COLUMNS`), then the statistics the algorithm declares (its ``stats``),
 then the field's safety metrics; the TensorBoard tags and wandb keys are those names, against the
 env step. A row with a name that is not a column is an error, never dropped.
+
+Several constraints (an env with K > 1 costs): every per-constraint quantity
+(:data:`PER_CONSTRAINT`: episode cost, multiplier, budget, cost rate, normalized violation and
+cost rate) has one column per cost, named ``<name>/<cost name>`` (``episode_cost/hazard_a``;
+TensorBoard groups tags by the part before the slash). With one cost the columns keep their plain
+names (``episode_cost``, ``lagrange_multiplier``), as before costs became vectors.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from cmdp_rl.config import TENSORBOARD_MISSING, WANDB_MISSING, RunConfig
 
 WANDB_DIR = "wandb"  # wandb's files, under the run directory
 WANDB_ID = "wandb_id.txt"  # the wandb run's id, for a resume to continue the same run
+_SINGLE = ("cost_0",)  # the cost names of an env with one cost (its columns keep plain names)
 
 # What the loop measures every iteration, for every algorithm. lagrange_multiplier is the lambda in
 # force (0 for unconstrained PPO); every algorithm reports it.
@@ -30,9 +37,49 @@ RUN_COLUMNS = [
 SAFETY_COLUMNS = ["cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate"]
 
 
-def columns(stats: Sequence[str]) -> list[str]:
-    """A run's metrics.csv columns, for an algorithm that declares ``stats``."""
-    return [*RUN_COLUMNS, *(s for s in stats if s not in RUN_COLUMNS and s not in SAFETY_COLUMNS), *SAFETY_COLUMNS]
+# Quantities with one value per constraint.
+PER_CONSTRAINT = ("episode_cost", "lagrange_multiplier", "cost_limit", "cost_rate", "normalized_violation",
+                  "normalized_cost_rate")
+
+
+def constraint_name(name: str, cost_name: str, num_costs: int) -> str:
+    """The column (or eval.json key) of ``name`` for one constraint: ``name`` itself when the env
+    has one cost, else ``name/cost_name``."""
+    return name if num_costs == 1 else f"{name}/{cost_name}"
+
+
+def expand(names: Sequence[str], cost_names: Sequence[str] = _SINGLE) -> list[str]:
+    """``names`` with each per-constraint one replaced by its columns, one per cost."""
+    out: list[str] = []
+    for name in names:
+        if name in PER_CONSTRAINT:
+            out += [constraint_name(name, c, len(cost_names)) for c in cost_names]
+        else:
+            out.append(name)
+    return out
+
+
+def spread(row: dict[str, Any], cost_names: Sequence[str] = _SINGLE) -> dict[str, Any]:
+    """A row whose per-constraint values are lists of K (or one number for every constraint) as
+    columns, one per cost (:func:`expand`); other values as they are."""
+    k = len(cost_names)
+    out: dict[str, Any] = {}
+    for name, value in row.items():
+        if name not in PER_CONSTRAINT:
+            out[name] = value
+            continue
+        values = list(value) if isinstance(value, (list, tuple)) else [value] * k
+        if len(values) != k:
+            raise ValueError(f"metrics: {name} has {len(values)} values for {k} costs")
+        out.update({constraint_name(name, c, k): v for c, v in zip(cost_names, values)})
+    return out
+
+
+def columns(stats: Sequence[str], cost_names: Sequence[str] = _SINGLE) -> list[str]:
+    """A run's metrics.csv columns, for an algorithm that declares ``stats``, on an env whose costs
+    are ``cost_names`` (one column per cost for :data:`PER_CONSTRAINT`)."""
+    names = [*RUN_COLUMNS, *(s for s in stats if s not in RUN_COLUMNS and s not in SAFETY_COLUMNS), *SAFETY_COLUMNS]
+    return expand(names, cost_names)
 
 
 def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
@@ -205,9 +252,20 @@ def _fmt(x: float, spec: str) -> str:
     return "   n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
 
 
+def _per_constraint(row: dict[str, Any], name: str) -> list:
+    """``name``'s values in a row: its one column, or its ``name/<cost>`` columns in order."""
+    if name in row:
+        return [row[name]]
+    return [v for k, v in row.items() if k.startswith(name + "/")]
+
+
 def format_row(row: dict[str, Any]) -> str:
+    cost = "/".join(_fmt(c, '.2f') for c in _per_constraint(row, "episode_cost"))
+    lam = "/".join(_fmt(x, '.3f') for x in _per_constraint(row, "lagrange_multiplier"))
+    if "episode_cost" in row:  # one constraint: the fixed-width line it always had
+        cost, lam = _fmt(row["episode_cost"], '6.2f'), format(row["lagrange_multiplier"], '6.3f')
     return (
         f"iter {row['iteration']:4d} | step {row['step']:>9,d} | {row['sps']:>8,.0f} steps/s"
-        f" | return {_fmt(row['episode_return'], '7.3f')} | cost {_fmt(row['episode_cost'], '6.2f')}"
-        f" | lambda {row['lagrange_multiplier']:6.3f}"
+        f" | return {_fmt(row['episode_return'], '7.3f')} | cost {cost}"
+        f" | lambda {lam}"
     )

@@ -7,6 +7,8 @@
   scaling", Engstrom et al. 2020, "Implementation Matters in Deep Policy Gradients", sec. 3), so
   the critics regress on targets of order one. Logged returns and costs, and the constraint
   ``J_c <= d``, stay in the env's units: the collector's episode sums are taken before scaling.
+  With K costs each constraint has its own running discounted sum and std (a hazard hit once per
+  episode and a speed cost paid every step differ by orders of magnitude).
 
 The running statistics are torchrl's ``RunningMeanStd`` (Welford's parallel update, buffers in the
 ``state_dict``). Why not torchrl's ``VecNorm``/``ObservationNorm`` transforms: they act on an
@@ -61,17 +63,19 @@ class ObservationNormalizer(nn.Module):
 
 class ReturnScaler(nn.Module):
     """Scales a per-step signal by ``1 / std`` of its running discounted sum ``R_t = gamma R_{t-1} + x_t``
-    (reset where an episode ends), per env; the sums carry over from one batch to the next."""
+    (reset where an episode ends), per env; the sums carry over from one batch to the next.
+    ``channels`` > 1 (K costs): one sum and one std per channel. One channel keeps scalar
+    statistics, as before costs became vectors (same reductions, same numbers, same checkpoint)."""
 
-    def __init__(self, num_envs: int, gamma: float) -> None:
+    def __init__(self, num_envs: int, gamma: float, channels: int = 1) -> None:
         super().__init__()
         self.gamma = gamma
-        self.stats = RunningMeanStd(())
-        self.register_buffer("running_return", torch.zeros(num_envs, 1))
+        self.stats = RunningMeanStd(() if channels == 1 else (channels,))
+        self.register_buffer("running_return", torch.zeros(num_envs, channels))
 
     @torch.no_grad()
     def update(self, signal: torch.Tensor, done: torch.Tensor) -> None:
-        """``signal`` and ``done``: ``[num_envs, T, 1]``, in time order."""
+        """``signal``: ``[num_envs, T, channels]``, ``done``: ``[num_envs, T, 1]``, in time order."""
         ret = self.running_return
         sums = []
         for t in range(signal.shape[1]):
@@ -102,12 +106,12 @@ class Normalizers(nn.Module):
 
     @classmethod
     def from_config(
-        cls, cfg: NormalizeConfig, obs_dim: int, num_envs: int, gamma: float, cost_gamma: float
+        cls, cfg: NormalizeConfig, obs_dim: int, num_envs: int, gamma: float, cost_gamma: float, num_costs: int = 1
     ) -> Normalizers:
         return cls(
             ObservationNormalizer(obs_dim, cfg.obs_clip) if cfg.obs else None,
             ReturnScaler(num_envs, gamma) if cfg.reward else None,
-            ReturnScaler(num_envs, cost_gamma) if cfg.cost else None,
+            ReturnScaler(num_envs, cost_gamma, num_costs) if cfg.cost else None,
         )
 
     def scale_batch(self, batch: TensorDictBase) -> None:
@@ -127,4 +131,5 @@ class Normalizers(nn.Module):
 
 def make_normalizers(cfg: RunConfig, env: VecEnv) -> Normalizers:
     """The normalizers ``cfg.normalize`` asks for, with the algorithm's discounts."""
-    return Normalizers.from_config(cfg.normalize, env.obs_dim, env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
+    return Normalizers.from_config(cfg.normalize, env.obs_dim, env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma,
+                                   getattr(env, "num_costs", 1))

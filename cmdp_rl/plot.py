@@ -5,6 +5,10 @@ multiplier against env steps, from each run's ``metrics.csv``. Runs whose config
 ``seed`` are one curve: the mean over seeds, with a band of one standard deviation across seeds
 (none for a single seed). Each run's curve is first smoothed with a trailing mean over ``K``
 iterations that skips iterations in which no episode ended (NaN in the CSV).
+
+Runs on an env with K > 1 costs (columns ``episode_cost/<cost>``, ``lagrange_multiplier/<cost>``,
+``cost_limit/<cost>``, see ``metrics.py``) get one cost panel (with that constraint's budget) and
+one multiplier panel per constraint.
 """
 
 from __future__ import annotations
@@ -25,7 +29,24 @@ from cmdp_rl.config import flatten_dict
 from cmdp_rl.rundir import CONFIG, METRICS
 
 PANELS = (("episode_return", "episode return"), ("episode_cost", "episode cost"),
-          ("lagrange_multiplier", "Lagrange multiplier λ"))
+          ("lagrange_multiplier", "Lagrange multiplier λ"))  # with one cost
+
+
+def panels(columns: Sequence[str]) -> list[tuple[str, str]]:
+    """(column, title) of each panel for a run with these metrics.csv columns: return, then each
+    constraint's episode cost, then each constraint's multiplier."""
+    out = [PANELS[0]]
+    for name, title in PANELS[1:]:
+        if name in columns:
+            out.append((name, title))
+        else:
+            out += [(c, f"{title}: {c.partition('/')[2]}") for c in columns if c.startswith(name + "/")]
+    return out
+
+
+def _limit_column(panel: str) -> str:
+    """The budget column of an episode-cost panel: ``cost_limit`` or ``cost_limit/<cost>``."""
+    return "cost_limit" + panel[len("episode_cost"):]
 IGNORED = ("seed", "resume", "total_steps", "log_interval", "checkpoint_every", "threads", "logger")
 
 
@@ -38,7 +59,9 @@ class Curve:
     mean: dict[str, np.ndarray]
     std: dict[str, np.ndarray]
     seeds: int
-    cost_limit: float
+    cost_limit: float  # the first constraint's budget
+    cost_limits: dict[str, float]  # episode-cost panel -> its budget d
+    panels: list[tuple[str, str]]
 
 
 def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -73,8 +96,8 @@ def aggregate(runs: Sequence[dict[str, np.ndarray]], k: int = 1) -> tuple[np.nda
     n = min(len(r["step"]) for r in runs)
     step = runs[0]["step"][:n]
     mean, std = {}, {}
-    for name, _ in PANELS:
-        stack = np.stack([smooth(r[name][:n], k) for r in runs])
+    for name, _ in panels(list(runs[0])):
+        stack = np.stack([smooth(r.get(name, np.full(n, np.nan))[:n], k) for r in runs])
         with warnings.catch_warnings():  # an iteration where no run has a value stays NaN, quietly
             warnings.simplefilter("ignore", RuntimeWarning)
             mean[name], std[name] = np.nanmean(stack, axis=0), np.nanstd(stack, axis=0)
@@ -99,9 +122,17 @@ def group_runs(run_dirs: Sequence[str | Path], k: int = 1) -> list[Curve]:
         extra = ", ".join(f"{k_}={cfg.get(k_)}" for k_ in varying)
         label = cfg.get("algo.name", "run") + (f" ({extra})" if extra else "")
         step, mean, std = aggregate([cols for _, cols in members], k)
-        limit = members[0][1].get("cost_limit", np.array([cfg.get("algo.cost_limit", np.nan)]))[0]
+        cols = members[0][1]
+        shown = panels(list(cols))
+        limits = {}
+        for name, _ in shown:
+            if name.startswith("episode_cost"):
+                given = cfg.get("algo.cost_limit", np.nan)
+                limits[name] = float(cols.get(_limit_column(name), np.array([
+                    given if not isinstance(given, list) else np.nan]))[0])
+        first = next(iter(limits.values()), float("nan"))
         curves.append(Curve(f"{label}, {len(members)} seed{'s' if len(members) > 1 else ''}",
-                            step, mean, std, len(members), float(limit)))
+                            step, mean, std, len(members), first, limits, shown))
     return curves
 
 
@@ -109,24 +140,30 @@ def plot_runs(run_dirs: Sequence[str | Path], out: str | Path, k: int = 5) -> Pa
     """Draw :data:`PANELS` for the runs in ``run_dirs`` into the PNG ``out``."""
     plt = pyplot()
     curves = group_runs(run_dirs, k)
-    fig, axes = plt.subplots(1, len(PANELS), figsize=(5 * len(PANELS), 3.8))
+    # The panels of every run, in order of first appearance (runs with different K side by side).
+    shown = list(dict.fromkeys(p for c in curves for p in c.panels))
+    fig, axes = plt.subplots(1, len(shown), figsize=(5 * len(shown), 3.8), squeeze=False)
+    axes = axes[0]
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    limits_drawn: set[float] = set()
+    limits_drawn: set[tuple[str, float]] = set()
     for i, c in enumerate(curves):
         color = colors[i % len(colors)]
-        for ax, (name, _) in zip(axes, PANELS):
+        for ax, (name, _) in zip(axes, shown):
+            if name not in c.mean:
+                continue
             ax.plot(c.step, c.mean[name], color=color, lw=1.6, label=c.label)
             if c.seeds > 1:
                 ax.fill_between(c.step, c.mean[name] - c.std[name], c.mean[name] + c.std[name],
                                 color=color, alpha=0.2, lw=0)
-        if np.isfinite(c.cost_limit) and c.cost_limit not in limits_drawn:
-            limits_drawn.add(c.cost_limit)
-            axes[1].axhline(c.cost_limit, color="black", ls="--", lw=1, label=f"budget d = {c.cost_limit:g}")
-    for ax, (_, title) in zip(axes, PANELS):
+            limit = c.cost_limits.get(name, np.nan)
+            if np.isfinite(limit) and (name, limit) not in limits_drawn:
+                limits_drawn.add((name, limit))
+                ax.axhline(limit, color="black", ls="--", lw=1, label=f"budget d = {limit:g}")
+    for ax, (_, title) in zip(axes, shown):
         ax.set_title(title)
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=7, loc="best")
+    axes[min(1, len(shown) - 1)].legend(fontsize=7, loc="best")
     band = "mean ± 1 std over seeds" if any(c.seeds > 1 for c in curves) else "one seed per curve"
     fig.suptitle(f"{band}; trailing mean over {k} iterations", fontsize=9)
     return save_figure(fig, out)

@@ -35,9 +35,12 @@ class Progress:
         """One iteration's row (``metrics.csv``'s): advance the bar, show its latest numbers."""
         if self._bar is None:
             return
+        def each(name: str, fmt: str) -> str:  # one value, or K joined by '/' (episode_cost/<cost> columns)
+            return "/".join(format(v, fmt) for k, v in row.items() if k == name or k.startswith(name + "/"))
+
         self._bar.set_postfix_str(
-            f"return {row['episode_return']:.3f}, cost {row['episode_cost']:.2f}, "
-            f"lambda {row['lagrange_multiplier']:.3f}", refresh=False)
+            f"return {row['episode_return']:.3f}, cost {each('episode_cost', '.2f')}, "
+            f"lambda {each('lagrange_multiplier', '.3f')}", refresh=False)
         self._bar.update(row["step"] - self._bar.n)
 
     def write(self, line: str) -> None:

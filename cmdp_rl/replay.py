@@ -51,7 +51,7 @@ def record_reach1d(
     """Run ``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once, as env 0 of
     a vector env is), recording the true position beside the reading the agent saw."""
     env = Reach1D(**reach1d_kwargs(env_cfg))
-    memory = PolicyMemory(agent, 1, env.action_space.shape[0], torch.device("cpu"))
+    memory = PolicyMemory(agent, 1, env.action_space, torch.device("cpu"))
     out: list[Reach1DEpisode] = []
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)

@@ -44,6 +44,25 @@ RUN_INFO = "run_info.json"
 TENSORBOARD = "tb"
 
 
+class RunDirError(ConfigError):
+    """The run directory cannot be created or written (one line, exit status 2 in ``train.py``)."""
+
+
+def ensure_writable(run_dir: str | Path) -> Path:
+    """Create ``run_dir`` (and its parents) if needed and check that a file can be written in it,
+    so that a run whose outputs cannot be kept stops before training, not at its first write."""
+    path = Path(run_dir)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".write_check_{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise RunDirError(f"run directory {path} cannot be created or written: "
+                          f"{exc.strerror or type(exc).__name__}") from None
+    return path
+
+
 LIBRARIES = ("torch", "torchrl", "tensordict", "gymnasium", "numpy", "hydra-core")
 
 

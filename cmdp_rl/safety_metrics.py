@@ -9,6 +9,10 @@ Reinforcement Learning", sec. 5; Safety Gym's ``bench/bench_utils.py`` has the s
     normalized cost rate       rho_c / rho_c^PPO
   with ``J_r``, ``J_c`` the final policy's mean episode return and cost and ``d`` this run's budget.
   0 violation is within budget; 1 is as far over budget as PPO. Without a reference, blank (None).
+- K costs: the cost rate, the violation and the normalized cost rate are per constraint, against
+  the reference's number for that constraint (a reference run on the same env has them in its
+  eval.json as ``episode_cost/<cost>``, ``cost_rate/<cost>``); a single reference number given in
+  the config cannot say which constraint it is for, so with K > 1 those metrics stay blank.
 """
 
 from __future__ import annotations
@@ -35,8 +39,8 @@ class Reference:
     """J_r^PPO, J_c^PPO, rho_c^PPO; any of them may be unknown (None), leaving its metric blank."""
 
     episode_return: Optional[float] = None
-    episode_cost: Optional[float] = None
-    cost_rate: Optional[float] = None
+    episode_cost: Optional[float | list[float]] = None  # a list: one per constraint
+    cost_rate: Optional[float | list[float]] = None
     source: str = "config"
 
 
@@ -73,19 +77,47 @@ def cost_rate(total_cost: float, total_steps: int) -> float:
     return total_cost / total_steps if total_steps else math.nan
 
 
+def _listed(x: Any, k: int) -> list:
+    return list(x) if isinstance(x, (list, tuple)) else [x] * k
+
+
+def _reference_values(x: Any, k: int) -> list:
+    """A reference's per-constraint numbers: a list of K as it is; a single number only for K = 1."""
+    if isinstance(x, (list, tuple)):
+        return list(x) if len(x) == k else [None] * k
+    return [x] if k == 1 else [None] * k
+
+
 def normalized_scores(
-    episode_return: float, episode_cost: float, rate: float, cost_limit: float, ref: Reference | None
-) -> dict[str, Optional[float]]:
+    episode_return: float, episode_cost: float | list[float], rate: float | list[float],
+    cost_limit: float | list[float], ref: Reference | None,
+) -> dict[str, Any]:
     """The three normalized metrics; None where the reference lacks the number (or it is 0 where it
-    divides: a reference return of 0, a reference that never incurred a cost)."""
+    divides: a reference return of 0, a reference that never incurred a cost). With lists of K
+    costs and rates (K constraints) the violation and cost rate are lists of K."""
+    single = not isinstance(episode_cost, (list, tuple))
     if ref is None:
         return dict.fromkeys(NORMALIZED)
+    costs = _listed(episode_cost, 1)
+    k = len(costs)
+    rates, limits = _listed(rate, k), _listed(cost_limit, k)
+    ref_costs, ref_rates = _reference_values(ref.episode_cost, k), _reference_values(ref.cost_rate, k)
+    violation = [None if rc is None else max(0.0, c - d) / max(EPSILON, rc - d)
+                 for c, d, rc in zip(costs, limits, ref_costs)]
+    cost_rates = [r / rr if rr else None for r, rr in zip(rates, ref_rates)]
     return {
         "normalized_return": episode_return / ref.episode_return if ref.episode_return else None,
-        "normalized_violation": None if ref.episode_cost is None
-        else max(0.0, episode_cost - cost_limit) / max(EPSILON, ref.episode_cost - cost_limit),
-        "normalized_cost_rate": rate / ref.cost_rate if ref.cost_rate else None,
+        "normalized_violation": violation[0] if single else violation,
+        "normalized_cost_rate": cost_rates[0] if single else cost_rates,
     }
+
+
+def _per_constraint_result(result: dict[str, Any], name: str) -> Any:
+    """``name`` from an eval.json: its one value, or the list of its ``name/<cost>`` values."""
+    if name in result:
+        return result[name]
+    values = [v for key, v in result.items() if key.startswith(name + "/")]
+    return values or None
 
 
 def _reference_run(run: str) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -101,7 +133,7 @@ def reference_run_problem(run: str, cfg: RunConfig) -> str | None:
         result, ref_cfg = _reference_run(run)
     except (OSError, ValueError, yaml.YAMLError) as exc:
         return f"cannot read its eval.json and config.yaml ({exc})"
-    missing = [k for k in ("episode_return", "episode_cost", "cost_rate") if k not in result]
+    missing = [k for k in ("episode_return", "episode_cost", "cost_rate") if _per_constraint_result(result, k) is None]
     if missing:
         return f"its eval.json has no {missing} (a run from an older version? give the numbers instead)"
     ours = {k: v for k, v in dataclasses.asdict(cfg.env).items() if k != "num_envs"}
@@ -126,5 +158,6 @@ def load_reference(cfg: RunConfig) -> tuple[Reference | None, list[str]]:
     if ref_cfg.get("total_steps") != cfg.total_steps:
         warnings.append(f"reference run {r.run} trained for {ref_cfg.get('total_steps')} steps, this run for "
                         f"{cfg.total_steps}: Safety Gym compares at the same step budget")
-    ref = Reference(result["episode_return"], result["episode_cost"], result["cost_rate"], str(r.run))
+    ref = Reference(result["episode_return"], _per_constraint_result(result, "episode_cost"),
+                    _per_constraint_result(result, "cost_rate"), str(r.run))
     return ref, warnings

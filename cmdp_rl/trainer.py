@@ -19,16 +19,18 @@ from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
-from cmdp_rl.envs import make_env, make_eval_env
+from cmdp_rl.envs import check_env, make_env, make_eval_env
+from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
-from cmdp_rl.metrics import MetricsLogger, columns, wandb_for
+from cmdp_rl.algos.base import per_constraint
+from cmdp_rl.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl.progress import Progress
 from cmdp_rl.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
-from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, write_run_info
+from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
 from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.summary import summary_lines
 from cmdp_rl.threads import apply_threads
@@ -48,6 +50,32 @@ def _run_dir(cfg: RunConfig, out_dir: str | Path | None) -> Path:
     return Path(cfg.resume)
 
 
+# The env contract's check before training (envs/contract.py): steps per env, on this many envs
+# built for it alone.
+CONTRACT_STEPS = 100
+CONTRACT_ENVS = 2
+
+
+def contract_options(env_cfg: Any) -> tuple[str, bool]:
+    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``;
+    an env's own options class without them, as tests/test_components.py's toy: its name, False)."""
+    env_id = env_cfg.env_id() if hasattr(env_cfg, "env_id") else getattr(env_cfg, "name", "env")
+    return env_id, bool(getattr(env_cfg, "allow_negative_cost", False))
+
+
+def check_env_contract(cfg: RunConfig) -> None:
+    """Step a small env of the run's env config briefly and stop at the first breach of the CMDP
+    contract (:class:`~cmdp_rl.envs.EnvContractError`, one line naming the env, index, step and
+    field). A separate env, so the training env's random streams (and the run's numbers) are those
+    of a run without the check."""
+    probe = make_env(cfg.env, num_envs=min(CONTRACT_ENVS, cfg.env.num_envs), device=cfg.device)
+    try:
+        env_id, allow_negative_cost = contract_options(cfg.env)
+        check_env(probe, steps=CONTRACT_STEPS, seed=cfg.seed, allow_negative_cost=allow_negative_cost, env_id=env_id)
+    finally:
+        probe.close()
+
+
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/rundir.py``). Returns the
@@ -62,15 +90,22 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
     apply_threads(cfg)
+    check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, agent)
+    # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
+    names = env.cost_names
+    limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
+    # After the resume and config checks (a mistyped resume path or a wrong-length budget is
+    # reported, no directory created), before any training.
+    ensure_writable(out)
     collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed)
-    out.mkdir(parents=True, exist_ok=True)
+    env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
-            out / METRICS, columns(algo.stats), cfg.log_interval, echo,
+            out / METRICS, columns(algo.stats, names), cfg.log_interval, echo,
             resume_iteration=None if state is None else state["iteration"],
             tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
             resume_step=None if state is None else state["step"],
@@ -129,6 +164,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         for it in range(first, iterations + 1):
             t0 = time.perf_counter()
             batch = collector.collect()
+            # The contract on what was collected (raw values): finite, costs >= 0; vectorised.
+            check_rollout(batch, env_id, allow_negative_cost,
+                          first_step=collector.total_steps // env.num_envs - cfg.rollout_steps + 1)
             agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
             try:
                 stats = algo.update(batch)
@@ -137,16 +175,19 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
             agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
             eps = finished_episodes(batch)
+            # Per-constraint values are lists of K here; spread() gives each its own column.
             row = {
                 "iteration": it, "step": collector.total_steps,
-                "episode_return": _mean(eps["return"]), "episode_cost": _mean(eps["cost"]),
-                "episode_length": _mean(eps["length"]), "episodes": int(eps["cost"].numel()),
+                "episode_return": _mean(eps["return"]),
+                "episode_cost": [_mean(eps["cost"][:, k]) for k in range(len(names))],
+                "episode_length": _mean(eps["length"]), "episodes": int(eps["length"].numel()),
                 "cost_limit": cfg.algo.cost_limit, "sps": per_iter / (time.perf_counter() - t0),
                 "time_s": time.perf_counter() - start, **stats,
-                "cost_rate": cost_rate(collector.total_cost, collector.total_steps),
+                "cost_rate": [cost_rate(total, collector.total_steps) for total in collector.total_costs],
             }
             row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
-                                         cfg.algo.cost_limit, reference))
+                                         limits, reference))
+            row = spread(row, names)
             logger.log(row, force_echo=it == iterations)
             progress.update(row)
             if it % cfg.checkpoint_every == 0 or it == iterations:
@@ -166,13 +207,18 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     eval_env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
                    "torch_threads": torch.get_num_threads()})
-    result["cost_rate"] = cost_rate(collector.total_cost, collector.total_steps)
-    result.update(normalized_scores(result["episode_return"], result["episode_cost"], result["cost_rate"],
-                                    cfg.algo.cost_limit, reference))
+    k = len(names)
+    eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
+    rates = [cost_rate(total, collector.total_steps) for total in collector.total_costs]
+    per_cost = {"cost_rate": rates, **normalized_scores(result["episode_return"], eval_costs, rates, limits, reference)}
+    if k > 1:  # one budget per constraint, as cost_limit/<cost>
+        del result["cost_limit"]
+        per_cost = {"cost_limit": limits, **per_cost}
+    result.update(spread(per_cost, names))
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
     header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s"
-    for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header):
+    for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header, cost_names=names):
         echo(line)
     return result

@@ -123,9 +123,9 @@ class _PolicyOnOneEnv:
     """The trained actor driving one plain env, carrying its memory from step to step as the
     collector does. ``act`` is the one place the policy is called (as ``replay.record_reach1d`` does)."""
 
-    def __init__(self, agent: Agent, action_dim: int, deterministic: bool) -> None:
+    def __init__(self, agent: Agent, action_space: gym.Space, deterministic: bool) -> None:
         self.agent, self.deterministic = agent, deterministic
-        self.memory = PolicyMemory(agent, 1, action_dim, torch.device("cpu"))
+        self.memory = PolicyMemory(agent, 1, action_space, torch.device("cpu"))
 
     def start(self) -> None:
         self.carried, self.is_init = self.memory.start(), True
@@ -157,7 +157,7 @@ def record_video(
     env = make_render_env(env_cfg)
     env = RecordVideo(env, str(video_dir), episode_trigger=lambda i: i < episodes, name_prefix=name_prefix,
                       fps=exact_fps(env.metadata.get("render_fps", 30)))
-    policy = _PolicyOnOneEnv(agent, int(np.prod(env.action_space.shape)), deterministic)
+    policy = _PolicyOnOneEnv(agent, env.action_space, deterministic)
     out: list[VideoEpisode] = []
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)

@@ -49,7 +49,7 @@ def test_batch_layout_costs_and_episode_ends():
     assert abs(nxt[keys.OBS][0, 6, 0].item() - 0.4) < 1e-6 and abs(b[keys.OBS][0, 7, 0].item() - 0.1) < 1e-6
     assert b[keys.IS_INIT][0, :, 0].nonzero().view(-1).tolist() == [0, 7, 14]
     eps = finished_episodes(b)
-    assert eps["cost"].tolist() == [4.0] * 6 and eps["length"].tolist() == [7.0] * 6
+    assert eps["cost"].tolist() == [[4.0]] * 6 and eps["length"].tolist() == [7.0] * 6
     assert torch.allclose(eps["return"], torch.full((6,), 0.3), atol=1e-6)
     assert col.total_steps == 60
     # the episode in progress continues into the next call
@@ -63,7 +63,7 @@ def test_cost_on_the_done_step_is_kept():
     env = GymVecEnv(lambda: Reach1D(wall="pass", start=0.45, max_steps=1), 2)
     b = Collector(env, policy(0.1), rollout_steps=4, seed=0).collect()
     assert b[keys.NEXT][keys.COST].sum().item() == 8.0
-    assert finished_episodes(b)["cost"].tolist() == [1.0] * 8
+    assert finished_episodes(b)["cost"].tolist() == [[1.0]] * 8  # [E, K]: one cost
 
 
 def _mlp_agent_and_env(backend="gym", n=4):

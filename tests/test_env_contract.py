@@ -78,7 +78,7 @@ STEP = f"(env 0, step {BREAK_AT})"
     (with_cost(np.zeros((1, 1))), 'info["cost"] must be a number or a 1-D array of numbers, got shape (1, 1)'),
     (with_cost(np.array([], dtype=np.float32)), 'info["cost"] must be a number or a 1-D array of numbers, got shape (0,)'),
     (growing_cost, 'info["cost"] has 2 entries, earlier steps had 1'),
-    (with_cost(-0.5), 'info["cost"] is -0.5; costs must be >= 0 in a CMDP (allow_negative_cost accepts signed costs)'),
+    (with_cost(-0.5), 'info["cost"] is -0.5; costs must be >= 0 in a CMDP (env.allow_negative_cost=true accepts signed costs)'),
     (at("obs", np.array([0.0, 2.0], dtype=np.float32)), "observation [0. 2.] is outside observation_space Box(-1.0, 1.0, (2,), float32)"),
     (at("obs", np.zeros(2, dtype=np.float64)), "observation has dtype float64, observation_space has float32"),
     (at("obs", np.zeros(3, dtype=np.float32)), "observation has shape (3,), observation_space has (2,)"),

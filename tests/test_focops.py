@@ -72,15 +72,15 @@ def test_nu_is_projected_dual_ascent_clipped_to_0_and_nu_max():
     algo, batch = setup({"cost_limit": 0.0, "nu_lr": 5.0, "nu_max": 1.5, "nu_init": 0.2})
     stats = algo.update(batch)  # J_c of this batch is above 0.3 (most episodes cross): 0.2 + 5 * J_c > 1.5
     assert stats["lagrange_multiplier"] == 1.5
-    algo.update_multiplier(EpisodeCost(0.1, 3.0, FINISHED))  # still above d = 0: stays at the clamp
+    algo.update_multiplier(EpisodeCost((0.1,), 3.0, FINISHED))  # still above d = 0: stays at the clamp
     assert algo.lagrange_multiplier == 1.5
     copy, _ = setup({"cost_limit": 0.0, "nu_lr": 5.0, "nu_max": 1.5, "nu_init": 0.2})
     copy.load_state_dict(algo.state_dict())  # nu travels with the checkpoint
     assert copy.lagrange_multiplier == 1.5
-    algo.update_multiplier(EpisodeCost(-1.0, 3.0, FINISHED))  # a step of -5: clipped at 0
+    algo.update_multiplier(EpisodeCost((-1.0,), 3.0, FINISHED))  # a step of -5: clipped at 0
     assert algo.lagrange_multiplier == 0.0
     algo, _ = setup({"cost_limit": 1.0, "nu_lr": 0.1, "nu_init": 0.5})
-    algo.update_multiplier(EpisodeCost(2.0, 3.0, FINISHED))  # unclipped: 0.5 + 0.1 * (2 - 1)
+    algo.update_multiplier(EpisodeCost((2.0,), 3.0, FINISHED))  # unclipped: 0.5 + 0.1 * (2 - 1)
     assert algo.lagrange_multiplier == pytest.approx(0.6)
     with pytest.raises(ConfigError, match=r"^algo.nu_init must be a number in \[0, algo.nu_max\], got 3.0$"):
         from cmdp_rl.config import validate

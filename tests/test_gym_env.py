@@ -81,7 +81,7 @@ def test_both_protocols_train_the_same_batch(env_id, step_api):
     assert not nxt[keys.TERMINATED].any()
     assert nxt[keys.OBS][0, 6, 0].item() == 7.0  # the done step keeps its final observation
     eps = finished_episodes(batch)
-    assert eps["cost"].tolist() == [2.0] * 4 and eps["return"].tolist() == [1.75] * 4
+    assert eps["cost"].tolist() == [[2.0]] * 4 and eps["return"].tolist() == [1.75] * 4
 
 
 def test_max_steps_overrides_the_registered_limit_and_kwargs_reach_the_constructor():

@@ -2,6 +2,8 @@
 starts, the value pass is the step-by-step one, the transformer's carried window equals the
 explicit window, the collector's previous action/cost, and acting equals the training pass."""
 
+import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 
@@ -169,7 +171,7 @@ def test_transformer_last_query_equals_the_full_layer():
 
     torch.manual_seed(0)
     cfg = TransformerPolicyConfig(window=6, layers=2, heads=2, width=8, feedforward=16)
-    net = WindowTransformer(cfg, InputEncoder(2, torch.tensor([-0.1]), torch.tensor([0.1]), True, True), 2)
+    net = WindowTransformer(cfg, InputEncoder(2, gym.spaces.Box(-0.1, 0.1, (1,), np.float32), True, True), 2)
     w, m = torch.randn(5, 6, 4), torch.rand(5, 6) > 0.4
     m[:, -1] = True
     x = net.embed(net._split(w)) + net.positions

@@ -113,7 +113,7 @@ def test_cost_and_episode_ends_reach_the_batch():
     truncated = batch[keys.NEXT][keys.TRUNCATED][..., 0]
     assert truncated[:, 99].all() and truncated.sum() == 2  # the time limit, as truncation
     eps = finished_episodes(batch)
-    assert eps["cost"].tolist() == [sum(c) for c in expected] and eps["length"].tolist() == [100.0, 100.0]
+    assert eps["cost"].tolist() == [[sum(c)] for c in expected] and eps["length"].tolist() == [100.0, 100.0]
     env.close()
 
 

@@ -23,16 +23,16 @@ def test_j_c_from_this_batch_then_the_window_then_running_cost():
     est = EpisodeCostEstimate(window=2)
     # Nothing has ended yet: the running episodes' cost so far (a lower bound), at the last step.
     first = est.update(batch([[0, 0], [0, 0]], [[0, 1], [2, 2]], [[1, 2], [1, 2]]))
-    assert first == (pytest.approx(1.5), pytest.approx(2.0), RUNNING)
+    assert first == (pytest.approx((1.5,)), pytest.approx(2.0), RUNNING)
     # Three episodes end here (costs 4, 1, 3; lengths 10, 20, 30): their mean.
     got = est.update(batch([[1, 0, 1], [0, 1, 0]], [[4, 0, 1], [0, 3, 0]], [[10, 1, 20], [1, 30, 1]]))
-    assert got == (pytest.approx(8 / 3), pytest.approx(20.0), FINISHED)
+    assert got == (pytest.approx((8 / 3,)), pytest.approx(20.0), FINISHED)
     # None ends: the last window=2 episodes to end, in order of the batch's rows (1 and 3).
-    assert est.update(batch([[0], [0]], [[7], [7]], [[5], [5]])) == (pytest.approx(2.0), pytest.approx(25.0), WINDOW)
+    assert est.update(batch([[0], [0]], [[7], [7]], [[5], [5]])) == (pytest.approx((2.0,)), pytest.approx(25.0), WINDOW)
     # The window survives a checkpoint.
     again = EpisodeCostEstimate(window=2)
     again.load_state_dict(est.state_dict())
-    assert again.update(batch([[0], [0]], [[0], [0]], [[1], [1]])) == (pytest.approx(2.0), pytest.approx(25.0), WINDOW)
+    assert again.update(batch([[0], [0]], [[0], [0]], [[1], [1]])) == (pytest.approx((2.0,)), pytest.approx(25.0), WINDOW)
 
 
 def test_minibatches_cover_every_unit_once_per_epoch_and_repeat_with_the_seed():

@@ -86,7 +86,7 @@ def test_velocity_cost_reaches_the_batch_through_the_vector_env_and_episode_ends
     batch = Collector(env, actor, rollout_steps=6, seed=0).collect()
     assert batch[keys.NEXT][keys.COST][0, :, 0].tolist() == [0, 1, 1, 0, 1, 1]
     # the last step of each episode is a done step: its cost comes through gymnasium's final_info
-    assert finished_episodes(batch)["cost"].tolist() == [2.0] * 4
+    assert finished_episodes(batch)["cost"].tolist() == [[2.0]] * 4  # [E, K]
 
 
 def test_missing_velocity_info_is_a_clear_error():

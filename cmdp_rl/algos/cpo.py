@@ -26,6 +26,12 @@ value targets, as in the paper's experiments.
 Signs: ``g`` and ``b`` are gradients of quantities that increase (reward, cost), so maximising the
 dual over nu gives ``nu* = max(0, (lambda c + r) / s)`` (derived in :func:`solve_dual`; the tests
 check the step against a brute-force solution of the subproblem).
+
+One constraint only: an env with K > 1 costs is refused with a config error. With K linearised
+constraints the dual is a QP in K + 1 variables (lambda and nu_1..nu_K, Achiam et al. 2017, eq. 10
+with B a matrix) with no closed form like Theorem 2's, and the recovery step must choose which
+constraints to restore; solving it (and testing it against a brute-force solution as the K = 1
+case is) is future work, not a guess to ship.
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ from typing import ClassVar
 
 import torch
 
-from cmdp_rl.algos.base import check_finite
+from cmdp_rl.algos.base import check_finite, single_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.natural_gradient import (
     NaturalGradient, NaturalGradientConfig, Surrogates, fisher_vector_product, flat, line_search,
@@ -134,6 +140,7 @@ class CPO(NaturalGradient):
              "surr_reward_change", "surr_cost_change")
 
     def __init__(self, cfg: CPOConfig, agent: Agent) -> None:
+        self.cost_limit = single_constraint(cfg.cost_limit, agent, "cpo", "cpo's closed-form dual handles one constraint")
         super().__init__(cfg, agent)
         self.nu = 0.0
 
@@ -154,7 +161,7 @@ class CPO(NaturalGradient):
         h_inv_g = conjugate_gradient(fvp, g, cfg.cg_iters)
         h_inv_b = conjugate_gradient(fvp, b, cfg.cg_iters)
         q, r, s = g.dot(h_inv_g).item(), g.dot(h_inv_b).item(), b.dot(h_inv_b).item()
-        c = per_step_constraint(episode_cost, cfg.cost_limit, episode_length)
+        c = per_step_constraint(episode_cost, self.cost_limit, episode_length)
         check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), q=q, r=r, s=s, c=c)
 
         sol = solve_dual(q, r, s, c, cfg.target_kl)

@@ -18,6 +18,7 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl import keys
+from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
 from cmdp_rl.policies.agent import Agent
@@ -40,12 +41,14 @@ class CRPO(PPO):
     stats = (*STATS, "cost_step")
 
     def __init__(self, cfg: CRPOConfig, agent: Agent) -> None:
+        self.cost_limit = single_constraint(cfg.cost_limit, agent, "crpo",
+                                            "crpo's step switches on one constraint's slack")
         super().__init__(cfg, agent)
         self.cost_step = False
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         """Algorithm 1, line 5: the constraint is violated beyond the tolerance -> a cost step."""
-        self.cost_step = estimate.cost > self.cfg.cost_limit + self.cfg.tolerance
+        self.cost_step = estimate.cost > self.cost_limit + self.cfg.tolerance
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return -batch.get(keys.COST_ADVANTAGE) if self.cost_step else batch.get(keys.ADVANTAGE)

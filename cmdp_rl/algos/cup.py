@@ -32,7 +32,7 @@ from torch import nn
 from torch.distributions import kl_divergence
 
 from cmdp_rl import keys
-from cmdp_rl.algos.base import check_finite, check_parameters_finite
+from cmdp_rl.algos.base import check_finite, check_parameters_finite, single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import DualAscent
 from cmdp_rl.algos.minibatch import minibatches
@@ -68,8 +68,9 @@ class CUP(PPO):
     stats = (*STATS, "loss_projection", "kl_projection")
 
     def __init__(self, cfg: CUPConfig, agent: Agent) -> None:
+        cost_limit = single_constraint(cfg.cost_limit, agent, "cup", "cup has one cost multiplier nu")
         super().__init__(cfg, agent)
-        self.multiplier = DualAscent(cfg.cost_limit, cfg.nu_lr, cfg.nu_init)
+        self.multiplier = DualAscent(cost_limit, cfg.nu_lr, cfg.nu_init)
         self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
 
     @property

@@ -13,6 +13,8 @@ So the estimate exists at every iteration and a multiplier moves every iteration
 lambda stood still in a batch without a finished episode, about three iterations in four on MuJoCo,
 while CPO reused its last estimate). Where episodes end in every batch, case 1 is what PPO and
 CPO always used: their numbers are unchanged (tests/test_golden.py).
+
+With K costs the estimate is per constraint, from the same episodes: ``costs`` has K entries.
 """
 
 from __future__ import annotations
@@ -30,9 +32,16 @@ FINISHED, WINDOW, RUNNING = "finished", "window", "running"
 
 
 class EpisodeCost(NamedTuple):
-    cost: float  # J_c estimate
+    costs: tuple[float, ...]  # J_c estimate, one per constraint
     length: float  # mean episode length of the same episodes
     source: str  # FINISHED, WINDOW or RUNNING (see the module's docstring)
+
+    @property
+    def cost(self) -> float:
+        """The J_c estimate of an env with one constraint."""
+        if len(self.costs) != 1:
+            raise ValueError(f"EpisodeCost.cost: there are {len(self.costs)} constraints; read costs")
+        return self.costs[0]
 
 
 class EpisodeCostEstimate:
@@ -43,21 +52,23 @@ class EpisodeCostEstimate:
         if window is not None and window < 1:
             raise ValueError(f"window must be a positive integer, got {window}")
         self.window = window
-        self._recent: deque[tuple[float, float]] = deque(maxlen=window)  # (cost, length) per episode
+        # (cost_0, ..., cost_{K-1}, length) per episode: with K = 1, (cost, length) as it always was.
+        self._recent: deque[tuple[float, ...]] = deque(maxlen=window)
 
     def update(self, batch: TensorDictBase) -> EpisodeCost:
         if self.window is None:
             self.window = batch.shape[0]
             self._recent = deque(self._recent, maxlen=self.window)
         eps = finished_episodes(batch)
-        if eps["cost"].numel():
-            self._recent.extend(zip(eps["cost"].tolist(), eps["length"].tolist()))
-            return EpisodeCost(eps["cost"].mean().item(), eps["length"].mean().item(), FINISHED)
+        cost, length = eps["cost"], eps["length"]  # [E, K], [E]
+        if length.numel():
+            self._recent.extend((*c, n) for c, n in zip(cost.tolist(), length.tolist()))
+            return EpisodeCost(_column_means(cost), length.mean().item(), FINISHED)
         if self._recent:
             recent = torch.tensor(list(self._recent), dtype=torch.float64)
-            return EpisodeCost(recent[:, 0].mean().item(), recent[:, 1].mean().item(), WINDOW)
+            return EpisodeCost(_column_means(recent[:, :-1]), recent[:, -1].mean().item(), WINDOW)
         last = batch.get(keys.NEXT)[:, -1]
-        return EpisodeCost(last.get(keys.EPISODE_COST).float().mean().item(),
+        return EpisodeCost(_column_means(last.get(keys.EPISODE_COST).float()),
                            last.get(keys.EPISODE_LENGTH).float().mean().item(), RUNNING)
 
     def state_dict(self) -> dict:
@@ -66,6 +77,11 @@ class EpisodeCostEstimate:
     def load_state_dict(self, state: dict) -> None:
         self.window = state.get("window", self.window)
         self._recent = deque((tuple(r) for r in state.get("recent", [])), maxlen=self.window)
+
+
+def _column_means(x: torch.Tensor) -> tuple[float, ...]:
+    """The mean of each column of ``[rows, K]``, each reduced as one column on its own."""
+    return tuple(x[:, k].mean().item() for k in range(x.shape[1]))
 
 
 __all__ = ["FINISHED", "RUNNING", "WINDOW", "EpisodeCost", "EpisodeCostEstimate"]

@@ -35,6 +35,7 @@ from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl import keys
+from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import PIDLagrangian
 from cmdp_rl.algos.ppo import PPO, PPOConfig
@@ -82,9 +83,10 @@ class FOCOPS(PPO):
     stats = STATS
 
     def __init__(self, cfg: FOCOPSConfig, agent: Agent) -> None:
+        cost_limit = single_constraint(cfg.cost_limit, agent, "focops", "focops has one cost multiplier nu")
         super().__init__(cfg, agent)
         self.kl_limit = cfg.target_kl  # Algorithm 1 stops at delta itself, not PPO's 1.5 delta
-        self.multiplier = PIDLagrangian(cfg.cost_limit, kp=0.0, ki=cfg.nu_lr, kd=0.0, init=cfg.nu_init,
+        self.multiplier = PIDLagrangian(cost_limit, kp=0.0, ki=cfg.nu_lr, kd=0.0, init=cfg.nu_init,
                                         lambda_max=cfg.nu_max)
 
     @property

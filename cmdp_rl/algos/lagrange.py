@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections import deque
+from typing import Callable, Sequence
 
 
 class MultiplierController(ABC):
@@ -136,6 +137,42 @@ class PIDLagrangian(MultiplierController):
         self.integral = float(state["integral"])
         self.delta_p, self.cost_d = state["delta_p"], state["cost_d"]
         self.history = deque(state["history"], maxlen=self.d_delay)
+
+
+class Multipliers:
+    """One multiplier per constraint: K independent controllers, controller k driven by J_c,k - d_k
+    alone. The Lagrangian of ``max J_r s.t. J_c,k <= d_k (k < K)`` is ``J_r - sum_k lambda_k
+    (J_c,k - d_k)``; its dual gradient in lambda_k is ``J_c,k - d_k``, so each multiplier ascends
+    (or is PID-controlled) on its own constraint's violation, as one would for K = 1.
+
+    ``make(d_k)`` builds constraint k's controller. With K = 1 the state is that one controller's
+    (a checkpoint from before costs became vectors loads unchanged)."""
+
+    def __init__(self, make: Callable[[float], MultiplierController], cost_limits: Sequence[float]) -> None:
+        self.controllers = [make(d) for d in cost_limits]
+
+    @property
+    def values(self) -> list[float]:
+        return [c.value for c in self.controllers]
+
+    def update(self, episode_costs: Sequence[float]) -> list[float]:
+        """Take in ``J_c,k`` per constraint; returns the new lambdas."""
+        if len(episode_costs) != len(self.controllers):
+            raise ValueError(f"expected {len(self.controllers)} episode costs, got {len(episode_costs)}")
+        return [c.update(j) for c, j in zip(self.controllers, episode_costs)]
+
+    def state_dict(self) -> dict:
+        if len(self.controllers) == 1:
+            return self.controllers[0].state_dict()
+        return {"constraints": [c.state_dict() for c in self.controllers]}
+
+    def load_state_dict(self, state: dict) -> None:
+        states = state["constraints"] if "constraints" in state else [state]
+        if len(states) != len(self.controllers):
+            raise ValueError(f"the saved multipliers are for {len(states)} constraints, this run has "
+                             f"{len(self.controllers)}")
+        for c, s in zip(self.controllers, states):
+            c.load_state_dict(s)
 
 
 def _ema(old: float, new: float, alpha: float) -> float:

@@ -176,7 +176,9 @@ class NaturalGradient:
                   keys.ADVANTAGE, keys.COST_ADVANTAGE, *self.critics.target_keys()]
         present = batch.keys(True)
         units = self.agent.training_units({k: batch.get(k) for k in dict.fromkeys(needed) if k in present})
-        stats = self.policy_step(units, estimate.cost, estimate.length)
+        # J_c, or K numbers with K constraints (only trpo_lag takes K > 1; the others refuse it when built).
+        episode_cost = estimate.costs[0] if len(estimate.costs) == 1 else estimate.costs
+        stats = self.policy_step(units, episode_cost, estimate.length)
         stats.update(self.fit_critics(units))
         check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.lagrange_multiplier

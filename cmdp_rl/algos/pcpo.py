@@ -24,11 +24,12 @@ from typing import Callable, ClassVar, Literal
 
 import torch
 
-from cmdp_rl.algos.base import check_finite
+from cmdp_rl.algos.base import check_finite, single_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.natural_gradient import (
     NaturalGradient, NaturalGradientConfig, Surrogates, assign, fisher_vector_product, flat, per_step_constraint,
 )
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import options
 
@@ -68,6 +69,11 @@ class PCPO(NaturalGradient):
     # projection's coefficient (0: the reward step was feasible), and the changes of the surrogates.
     stats = ("loss_v", "loss_vc", "entropy", "kl", "projection_coef", "surr_reward_change", "surr_cost_change")
 
+    def __init__(self, cfg: PCPOConfig, agent: Agent) -> None:
+        self.cost_limit = single_constraint(cfg.cost_limit, agent, "pcpo",
+                                            "pcpo projects onto one linearised constraint")
+        super().__init__(cfg, agent)
+
     def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float) -> dict[str, float]:
         cfg, params = self.cfg, self.policy_params
         surrogates = Surrogates(self.agent, units, *self.advantages(units))
@@ -75,7 +81,7 @@ class PCPO(NaturalGradient):
         g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
         b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
         fvp = fisher_vector_product(kl, params, cfg.cg_damping)
-        c = per_step_constraint(episode_cost, cfg.cost_limit, episode_length)
+        c = per_step_constraint(episode_cost, self.cost_limit, episode_length)
         check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), c=c)
         step, coef = projected_step(g, b, c, cfg.target_kl, lambda v: conjugate_gradient(fvp, v, cfg.cg_iters),
                                     cfg.projection)

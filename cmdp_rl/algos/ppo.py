@@ -9,6 +9,12 @@ policy advantages.
   ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by projected dual ascent on ``J_c - d``, or by
   a PID controller on it (Stooke, Achiam, Abbeel, 2020): see ``lagrange.py``.
 
+K constraints (an env reporting K costs): one multiplier per constraint, each moved by its own
+``J_c,k - d_k`` (``lagrange.Multipliers``), and the advantage is
+``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``: the same normalisation as K = 1, which it
+is exactly (the penalised advantage's scale stays that of ``A_r`` however many multipliers grow).
+Penalty takes one lambda for every cost or a list of K: ``A_r - sum_k lambda_k A_c,k``.
+
 The clipped surrogate (eq. 7 of Schulman et al.) reads the combined advantage; both critics regress
 on their GAE value targets. The surrogate is written out here rather than torchrl's
 ``ClipPPOLoss``: with the same formulas (clip in log-ratio space, entropy bonus, ``kl_approx``,
@@ -29,10 +35,10 @@ from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
+from cmdp_rl.algos.base import AlgoConfig, PerConstraint, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.episode_cost import EpisodeCost, EpisodeCostEstimate
-from cmdp_rl.algos.lagrange import DualAscent, MultiplierController, PIDLagrangian
+from cmdp_rl.algos.lagrange import DualAscent, MultiplierController, Multipliers, PIDLagrangian
 from cmdp_rl.algos.minibatch import minibatches
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -91,7 +97,7 @@ class PenaltyConfig(PPOConfig):
     """PPO on r - penalty * c with a fixed exchange rate."""
 
     name: str = "penalty"
-    penalty: NonNegativeFloat = 1.0
+    penalty: PerConstraint = 1.0  # one lambda for every cost, or a list of K
     # Its fixed lambda prices raw cost: cost scaling would change what the number means.
     reads_raw_cost: ClassVar[bool] = True
 
@@ -252,19 +258,32 @@ class PPO:
         self.episode_cost.load_state_dict(state.get("episode_cost", {}))  # absent before it existed
 
 
+def penalised(batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float]) -> torch.Tensor:
+    """``A_r - sum_k lambda_k A_c,k`` (with K = 1 exactly ``A_r - lambda A_c``)."""
+    adv, cost_adv = batch.get(keys.ADVANTAGE), batch.get(keys.COST_ADVANTAGE)
+    for k, lam in enumerate(lams):
+        adv = adv - lam * cost_adv[..., k:k + 1]
+    return adv
+
+
+def _logged(values: list[float]) -> float | list[float]:
+    """A multiplier as metrics.csv takes it: a number for one constraint, else a list of K."""
+    return values[0] if len(values) == 1 else list(values)
+
+
 class PenaltyPPO(PPO):
     name = "penalty"
 
     def __init__(self, cfg: PenaltyConfig, agent: Agent) -> None:
         super().__init__(cfg, agent)
-        self.penalty = cfg.penalty
+        self.penalties = per_constraint(cfg.penalty, "algo.penalty", agent.cost_names)
 
     @property
-    def lagrange_multiplier(self) -> float:
-        return self.penalty
+    def lagrange_multiplier(self) -> float | list[float]:
+        return _logged(self.penalties)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
-        return batch.get(keys.ADVANTAGE) - self.penalty * batch.get(keys.COST_ADVANTAGE)
+        return penalised(batch, self.penalties)
 
 
 class PPOLagrangian(PPO):
@@ -275,22 +294,24 @@ class PPOLagrangian(PPO):
 
     def __init__(self, cfg: PPOLagConfig, agent: Agent) -> None:
         super().__init__(cfg, agent)
-        self.multiplier = self.make_multiplier(cfg)
+        limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
+        # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
+        self.multiplier = Multipliers(lambda d: self.make_multiplier(cfg, d), limits)
 
     @staticmethod
-    def make_multiplier(cfg: PPOLagConfig) -> MultiplierController:
-        return DualAscent(cfg.cost_limit, cfg.lambda_lr, cfg.lambda_init)
+    def make_multiplier(cfg: PPOLagConfig, cost_limit: float) -> MultiplierController:
+        return DualAscent(cost_limit, cfg.lambda_lr, cfg.lambda_init)
 
     @property
-    def lagrange_multiplier(self) -> float:
-        return self.multiplier.value
+    def lagrange_multiplier(self) -> float | list[float]:
+        return _logged(self.multiplier.values)
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
-        self.multiplier.update(estimate.cost)  # every iteration (algos/episode_cost.py)
+        self.multiplier.update(estimate.costs)  # every iteration (algos/episode_cost.py)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
-        lam = self.multiplier.value
-        return (batch.get(keys.ADVANTAGE) - lam * batch.get(keys.COST_ADVANTAGE)) / (1.0 + lam)
+        lams = self.multiplier.values
+        return penalised(batch, lams) / (1.0 + sum(lams))
 
     def state_dict(self) -> dict:
         return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
@@ -308,9 +329,9 @@ class PIDLagrangianPPO(PPOLagrangian):
     name = "pid_lag"
 
     @staticmethod
-    def make_multiplier(cfg: PIDLagConfig) -> MultiplierController:
+    def make_multiplier(cfg: PIDLagConfig, cost_limit: float) -> MultiplierController:
         return PIDLagrangian(
-            cfg.cost_limit, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init,
+            cost_limit, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init,
             p_ema_alpha=cfg.p_ema_alpha, d_ema_alpha=cfg.d_ema_alpha, d_delay=cfg.d_delay,
             lambda_max=cfg.lambda_max,
         )

@@ -12,21 +12,25 @@ gradient on Fisher-vector products), then a backtracking line search that keeps 
 fraction whose sampled KL is within delta and whose Lagrangian surrogate improves. lambda >= 0 by
 projected dual ascent on ``J_c - d`` (lagrange.DualAscent, as ppo_lag), once per iteration, before
 the step.
+
+K constraints: as ppo_lag, one multiplier per constraint, each moved by its own ``J_c,k - d_k``,
+and the advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)`` (K = 1: the above).
 """
 
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Sequence
 
 import torch
 
 from cmdp_rl import keys
-from cmdp_rl.algos.base import check_finite
+from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.cpo import CPOConfig
-from cmdp_rl.algos.lagrange import DualAscent
+from cmdp_rl.algos.lagrange import DualAscent, Multipliers
 from cmdp_rl.algos.natural_gradient import NO_STEP, NaturalGradient, Surrogates, fisher_vector_product, flat, line_search
+from cmdp_rl.algos.ppo import penalised
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import NonNegativeFloat, PositiveFloat, options
@@ -51,19 +55,25 @@ class TRPOLagrangian(NaturalGradient):
 
     def __init__(self, cfg: TRPOLagConfig, agent: Agent) -> None:
         super().__init__(cfg, agent)
-        self.multiplier = DualAscent(cfg.cost_limit, cfg.lambda_lr, cfg.lambda_init)
+        limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
+        # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
+        self.multiplier = Multipliers(lambda d: DualAscent(d, cfg.lambda_lr, cfg.lambda_init), limits)
 
     @property
-    def lagrange_multiplier(self) -> float:
-        return self.multiplier.value
+    def lagrange_multiplier(self) -> float | list[float]:
+        values = self.multiplier.values
+        return values[0] if len(values) == 1 else values
 
-    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float) -> dict[str, float]:
+    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float | Sequence[float],
+                    episode_length: float) -> dict[str, float]:
+        """``episode_cost``: J_c, or K numbers with K constraints."""
         cfg, params = self.cfg, self.policy_params
-        lam = self.multiplier.update(episode_cost)
-        adv = (units[keys.ADVANTAGE] - lam * units[keys.COST_ADVANTAGE]) / (1.0 + lam)
+        lams = self.multiplier.update([episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost)
+        adv = penalised(units, lams) / (1.0 + sum(lams))
         if cfg.normalize_advantage:
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        cost_adv = units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()  # logged only
+        # Logged only (with K > 1: the mean over the constraints' cost surrogates).
+        cost_adv = units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
         surrogates = Surrogates(self.agent, units, adv, cost_adv)
         surr, cost_surr, kl = surrogates()
         g = flat(torch.autograd.grad(surr, params, retain_graph=True))

@@ -8,6 +8,7 @@ from typing import Any
 
 from cmdp_rl.envs.contract import EnvContractError, check_env
 from cmdp_rl.envs.grid import GRID_ID, GridWorld
+from cmdp_rl.envs.grid_task import GridEnvConfig
 from cmdp_rl.envs.gym_cost import make_cost_env
 from cmdp_rl.envs.reach1d import Reach1D
 from cmdp_rl.envs.reach1d_task import Reach1DConfig
@@ -42,7 +43,7 @@ def make_eval_env(cfg: Any, num_envs: int | None = None, device: str = "cpu") ->
 
 
 __all__ = [
-    "GRID_ID", "REACH1D_ID", "EnvContractError", "GridWorld", "GymVecEnv", "NoiseSource", "Reach1D", "Reach1DConfig",
+    "GRID_ID", "REACH1D_ID", "EnvContractError", "GridEnvConfig", "GridWorld", "GymVecEnv", "NoiseSource", "Reach1D", "Reach1DConfig",
     "Step", "TorchNoise", "TorchReach1D",
     "VecEnv", "check_env", "make_cost_env", "make_env", "make_eval_env", "make_velocity_env", "reach1d_kwargs",
 ]

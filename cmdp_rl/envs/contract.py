@@ -38,6 +38,7 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
+from cmdp_rl import keys
 from cmdp_rl.validation import ConfigError
 
 ACTION_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete)
@@ -159,7 +160,7 @@ class _Checker:
             self.fail(where, COST, f"is {shown}; costs must be finite")
         if not self.allow_negative_cost and (cost < 0).any():
             self.fail(where, COST, f"is {shown}; costs must be >= 0 in a CMDP "
-                                   "(allow_negative_cost accepts signed costs)")
+                                   "(env.allow_negative_cost=true accepts signed costs)")
 
     def result(self) -> EnvContract:
         k = self.num_costs or 1
@@ -251,6 +252,55 @@ def _check_tensor_env(env: Any, steps: int, seed: int, allow_negative_cost: bool
     return check.result()
 
 
+def check_rollout(batch: Any, env_id: str, allow_negative_cost: bool = False, first_step: int = 1) -> None:
+    """The per-rollout part of the contract on a collector batch ``[N, T]`` (before any scaling):
+    observations, rewards and costs finite, costs not negative unless ``allow_negative_cost``.
+    ``first_step``: each env's step number of the batch's first step (the count since the run
+    started, 1-based), for the message.
+
+    Cheap where all is well: four reductions over the batch and one host sync. Only a batch that
+    fails them is searched for its first breach (earliest step, then lowest env index), raised as
+    :class:`EnvContractError` in the same words as :func:`check_env`. (A sum of finite values that
+    overflows also fails the cheap test; the search then finds nothing and the batch passes.)
+    """
+    nxt = batch.get(keys.NEXT)
+    obs, next_obs = batch.get(keys.OBS), nxt.get(keys.OBS)
+    reward, cost = nxt.get(keys.REWARD), nxt.get(keys.COST)
+    ok = torch.isfinite(obs.sum() + next_obs.sum() + reward.sum() + cost.sum())
+    if not allow_negative_cost:
+        ok = ok & (cost.min() >= 0)
+    if bool(ok):
+        return
+    n, t_len = batch.shape[:2]
+    check = _Checker(env_id, None, allow_negative_cost)
+
+    def first(bad: torch.Tensor) -> tuple[int, int] | None:
+        """(t, i) of the earliest breach in ``bad`` ``[N, T, ...]``, or None."""
+        hits = torch.nonzero(bad.reshape(n, t_len, -1).any(-1).T)  # rows (t, i), in order of t then i
+        return None if hits.numel() == 0 else (int(hits[0, 0]), int(hits[0, 1]))
+
+    bad_cost = ~torch.isfinite(cost) | (torch.zeros_like(cost, dtype=torch.bool) if allow_negative_cost else cost < 0)
+    # (t offset of the env step the entry came from, entry, breach mask); root observations at t
+    # were returned by step t - 1 (by the reset at step 0).
+    found = []
+    for offset, name, value, bad in ((-1, "observation", obs, ~torch.isfinite(obs)),
+                                     (0, "observation", next_obs, ~torch.isfinite(next_obs)),
+                                     (0, "reward", reward, ~torch.isfinite(reward)),
+                                     (0, COST, cost, bad_cost)):
+        hit = first(bad)
+        if hit is not None:
+            found.append((first_step + hit[0] + offset, hit[1], name, value[hit[1], hit[0]]))
+    if not found:
+        return
+    step, i, name, value = min(found, key=lambda f: (f[0], f[1]))
+    where = (i, step)
+    if name == COST:
+        check.cost_vector(where, value.detach().cpu().reshape(-1).numpy().astype(np.float64))
+    if name == "reward":
+        check.reward(where, float(value.reshape(-1)[0]))
+    check.fail(where, name, f"is not finite: {_short(value.detach().cpu())}")
+
+
 def check_env(env: Any, steps: int = 100, seed: int = 0, allow_negative_cost: bool = False,
               env_id: str | None = None) -> EnvContract:
     """Step ``env`` (a gymnasium env, a gymnasium ``SyncVectorEnv``, or a ``cmdp_rl.envs.VecEnv``)
@@ -272,4 +322,4 @@ def check_env(env: Any, steps: int = 100, seed: int = 0, allow_negative_cost: bo
     return _check_tensor_env(env, steps, seed, allow_negative_cost, env_id)
 
 
-__all__ = ["ACTION_SPACES", "OBSERVATION_SPACES", "EnvContract", "EnvContractError", "check_env"]
+__all__ = ["ACTION_SPACES", "OBSERVATION_SPACES", "EnvContract", "EnvContractError", "check_env", "check_rollout"]

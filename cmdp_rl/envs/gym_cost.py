@@ -21,9 +21,12 @@ from functools import partial
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import gymnasium as gym
+import numpy as np
 from gymnasium.envs.registration import load_env_creator
 from gymnasium.wrappers import TimeLimit
 
+from cmdp_rl.envs.contract import EnvContractError
+from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options
 
@@ -38,13 +41,14 @@ class SixValueStep(gym.Wrapper):
     def step(self, action):
         out = self.env.step(action)
         if len(out) != 6:
-            raise ValueError(
+            raise EnvContractError(
                 f"env.step_api=six: the env's step returned {len(out)} values, expected 6 "
                 "(obs, reward, cost, terminated, truncated, info); use env.step_api=five for gymnasium's protocol"
             )
         obs, reward, cost, terminated, truncated, info = out
         info = dict(info)
-        info["cost"] = float(cost)
+        # One number (one constraint) stays a float; a vector of K costs stays a vector.
+        info["cost"] = float(cost) if np.ndim(cost) == 0 else np.asarray(cost, dtype=np.float64)
         return obs, reward, terminated, truncated, info
 
 
@@ -59,7 +63,7 @@ class RequireCost(gym.Wrapper):
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
         if "cost" not in info:
-            raise ValueError(
+            raise EnvContractError(
                 f"env.id={self.env_id}: the env's step reports no info['cost'] (keys: {sorted(info)}); "
                 "env=gym needs an env that reports its cost there, or a six-value step with env.step_api=six"
             )
@@ -93,7 +97,7 @@ def make_cost_env(env_id: str, step_api: str = "five", max_steps: int = 0, **kwa
 
 
 @options
-class GymEnvConfig:
+class GymEnvConfig(EnvOptions):
     """``env=gym``: any registered gymnasium env that reports cost, in ``info["cost"]`` (five-value
     step) or as the third value of a Safety-Gymnasium six-value step."""
 
@@ -118,7 +122,8 @@ class GymEnvConfig:
 def make_gym_vec_env(cfg: GymEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
     from cmdp_rl.envs.vector import GymVecEnv
 
-    return GymVecEnv(partial(make_cost_env, cfg.id, cfg.step_api, cfg.max_steps, **cfg.kwargs), num_envs, device=device)
+    return GymVecEnv(partial(make_cost_env, cfg.id, cfg.step_api, cfg.max_steps, **cfg.kwargs), num_envs, device=device,
+                     env_id=cfg.id)
 
 
 register("env", "gym", GymEnvConfig, make_gym_vec_env)

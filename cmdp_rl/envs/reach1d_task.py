@@ -7,6 +7,7 @@ from __future__ import annotations
 from functools import partial
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
 
+from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.reach1d import GOAL_TOLERANCE, Reach1D
 from cmdp_rl.envs.reach1d_dp import constrained_optimum
 from cmdp_rl.envs.reach1d_torch import TorchReach1D
@@ -21,7 +22,7 @@ ALLOWED_START = "a number in [0, 1] or a pair [low, high] with 0 <= low <= high 
 
 
 @options
-class Reach1DConfig:
+class Reach1DConfig(EnvOptions):
     """``env=reach1d``: Reach1D's options, on the gymnasium backend or the batched torch twin."""
 
     name: str = "reach1d"

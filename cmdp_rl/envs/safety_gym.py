@@ -27,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 from cmdp_rl.envs.env_state import env_state, load_env_state
+from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.safety_gym_compat import import_safety_gymnasium
 from cmdp_rl.envs.safety_gym_tasks import TASKS, task_problem
 from cmdp_rl.envs.vector import GymVecEnv
@@ -207,7 +208,7 @@ def make_task(task: str, max_steps: int = 0, render_mode: str | None = None) -> 
 
 
 @options
-class SafetyGymEnvConfig:
+class SafetyGymEnvConfig(EnvOptions):
     """``env=safety_gym``: a Safety-Gymnasium 1.0.0 task (navigation or velocity), as the package
     defines it; cost 1 on each step that violates the task's constraint."""
 
@@ -217,6 +218,9 @@ class SafetyGymEnvConfig:
     task: Annotated[str, Field(pattern=r"\S", description="a Safety-Gymnasium task id")] = "SafetyPointGoal1-v0"
     max_steps: Annotated[NonNegativeInt, Field(description="an integer >= 0 (0: the task's limit)")] = 0
     vector: Literal["sync", "async"] = "sync"
+
+    def env_id(self) -> str:
+        return self.task
 
     def check(self, run: Any) -> None:
         problem = task_problem(self.task)

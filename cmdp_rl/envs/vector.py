@@ -15,13 +15,15 @@ import numpy as np
 import torch
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
+from cmdp_rl.actions import action_dim, categories, check_action_space, is_discrete, to_env
 from cmdp_rl.envs.env_state import env_state, load_env_state
 
 
 class Step(NamedTuple):
     """One step of N envs. ``next_obs`` is what the step led to (the final observation where an
     episode ended, needed to bootstrap a truncated one); ``obs`` is what the agent acts on next
-    (the reset observation where an episode ended). Reward, cost and flags are ``[N, 1]``."""
+    (the reset observation where an episode ended). Reward and flags are ``[N, 1]``; cost is
+    ``[N, K]``, one column per constraint (K = 1: an env reporting one number)."""
 
     next_obs: torch.Tensor
     reward: torch.Tensor
@@ -31,10 +33,17 @@ class Step(NamedTuple):
     obs: torch.Tensor
 
 
+def default_cost_names(num_costs: int) -> tuple[str, ...]:
+    """The names of K costs an env does not name: ``cost_0 ... cost_{K-1}``."""
+    return tuple(f"cost_{k}" for k in range(num_costs))
+
+
 class VecEnv(ABC):
-    """N environments stepped together, with per-env auto-reset."""
+    """N environments stepped together, with per-env auto-reset. ``num_costs`` (K) costs per step,
+    named ``cost_names`` (the env's names, else :func:`default_cost_names`)."""
 
     num_envs: int
+    num_costs: int = 1
     obs_dim: int
     action_dim: int
     action_low: torch.Tensor
@@ -48,6 +57,10 @@ class VecEnv(ABC):
     @abstractmethod
     def step(self, action: torch.Tensor) -> Step:
         """Apply ``action`` ``[N, action_dim]``; envs whose episode ended are reset."""
+
+    @property
+    def cost_names(self) -> tuple[str, ...]:
+        return default_cost_names(self.num_costs)
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass
@@ -74,8 +87,36 @@ class VecEnv(ABC):
             raise ValueError(f"action: expected shape {expected} (num_envs, action_dim), got {tuple(action.shape)}")
 
 
+def _probe_num_costs(make_one: Callable[[], gym.Env]) -> int:
+    """K of an env that does not declare ``cost_names``: the length of ``info["cost"]`` on one step
+    of a throwaway instance (seeded, random action; the training envs and every global random
+    generator are left untouched). A missing cost, or a probe step that fails, counts as one
+    constraint: the training env's own steps then report the problem where they always did (the
+    contract check, or the env's wrappers, name it)."""
+    env = make_one()
+    try:
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        info = env.step(env.action_space.sample())[4]
+        return int(np.size(info.get("cost", 0.0))) or 1
+    except Exception:  # noqa: BLE001 - only K is wanted here; the real steps raise the real error
+        return 1
+    finally:
+        env.close()
+
+
+def _declared_cost_names(env: gym.Env) -> tuple[str, ...] | None:
+    try:
+        names = env.get_wrapper_attr("cost_names")
+    except AttributeError:
+        return None
+    return None if names is None else tuple(names)
+
+
 class GymVecEnv(VecEnv):
     """Gymnasium envs that report cost in ``info["cost"]``, in gymnasium's synchronous vector env.
+    ``info["cost"]`` is a number (K = 1) or a 1-D array of K numbers; K comes from the env's
+    ``cost_names`` if it declares them, else from one probe step (:func:`_probe_num_costs`).
 
     SAME_STEP autoreset: the done step's final observation and info (its cost) come in
     ``final_obs``/``final_info``. Never NEXT_STEP, the default, which would give a phantom step at
@@ -88,24 +129,46 @@ class GymVecEnv(VecEnv):
     """
 
     def __init__(self, make_one: Callable[[], gym.Env], num_envs: int, device: str | torch.device = "cpu",
-                 asynchronous: bool = False) -> None:
+                 asynchronous: bool = False, env_id: str = "env") -> None:
         vector = AsyncVectorEnv if asynchronous else SyncVectorEnv
         self.envs = vector([make_one for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
         self.num_envs = num_envs
         obs_space = self.envs.single_observation_space
         act_space = self.envs.single_action_space
-        if not isinstance(act_space, gym.spaces.Box) or len(act_space.shape) != 1:
-            raise ValueError(f"env: only 1-D Box action spaces are supported, got {act_space}")
+        try:
+            check_action_space(act_space, env_id)
+        except ValueError:
+            self.envs.close()
+            raise
+        self._action_space = act_space
         self.obs_dim = int(np.prod(obs_space.shape))
-        self.action_dim = act_space.shape[0]
-        # The env's own dtype (float32 for Reach1D): a float64 action could land exactly on the
-        # seed's wall, where the strict crossing test lets it through at no cost.
-        self._act_dtype = act_space.dtype
+        # Actions are stored flat (cmdp_rl/actions.py): a box's numbers, or one index per component.
+        self.action_dim = action_dim(act_space)
         # Gymnasium steps on the CPU; tensors handed out live on ``device``.
         self.device = torch.device(device)
-        self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32, device=self.device)
-        self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32, device=self.device)
-        self._zeros = np.zeros(num_envs, dtype=np.float32)
+        if is_discrete(act_space):  # the range of each stored index
+            self.action_low = torch.zeros(self.action_dim, device=self.device)
+            self.action_high = torch.tensor(categories(act_space), dtype=torch.float32, device=self.device) - 1
+        else:
+            self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32, device=self.device).reshape(-1)
+            self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32, device=self.device).reshape(-1)
+        names = _declared_cost_names(self.envs.envs[0])
+        self.num_costs = len(names) if names is not None else _probe_num_costs(make_one)
+        self._cost_names = names if names is not None else default_cost_names(self.num_costs)
+        self._zeros = np.zeros((num_envs, self.num_costs), dtype=np.float32)
+
+    @property
+    def cost_names(self) -> tuple[str, ...]:
+        return self._cost_names
+
+    def _cost(self, info: dict) -> np.ndarray:
+        """``info["cost"]`` of the N envs as ``[N, K]`` float32 (a fresh array)."""
+        return np.array(info.get("cost", self._zeros), dtype=np.float32).reshape(self.num_envs, self.num_costs)
+
+    @property
+    def action_space(self) -> gym.Space:
+        """The env's own action space (a box, or discrete actions)."""
+        return self._action_space
 
     def _obs(self, obs: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.asarray(obs, dtype=np.float32).reshape(self.num_envs, self.obs_dim)).to(self.device)
@@ -116,21 +179,19 @@ class GymVecEnv(VecEnv):
 
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
-        act = action.detach().cpu().numpy().astype(self._act_dtype, copy=False)
-        obs, reward, terminated, truncated, info = self.envs.step(act)
-        cost = np.asarray(info.get("cost", self._zeros), dtype=np.float32)
+        obs, reward, terminated, truncated, info = self.envs.step(to_env(action, self._action_space))
+        cost = self._cost(info)
         next_obs = obs
         if "final_obs" in info:
             done_mask = info["_final_obs"]
             next_obs = np.array(obs, dtype=np.float32, copy=True)
             next_obs[done_mask] = np.stack(info["final_obs"][done_mask])
-            cost = cost.copy()
-            cost[done_mask] = np.asarray(info["final_info"].get("cost", self._zeros), dtype=np.float32)[done_mask]
+            cost[done_mask] = self._cost(info["final_info"])[done_mask]
         n = self.num_envs
         return Step(
             next_obs=self._obs(next_obs),
             reward=torch.from_numpy(np.asarray(reward, dtype=np.float32)).view(n, 1).to(self.device),
-            cost=torch.from_numpy(cost).view(n, 1).to(self.device),
+            cost=torch.from_numpy(cost).to(self.device),
             terminated=torch.from_numpy(np.asarray(terminated, dtype=bool)).view(n, 1).to(self.device),
             truncated=torch.from_numpy(np.asarray(truncated, dtype=bool)).view(n, 1).to(self.device),
             obs=self._obs(obs),

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any, Literal, Optional
 import gymnasium as gym
 import numpy as np
 
+from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.registry import register
 from cmdp_rl.validation import NonNegativeFloat, PositiveInt, options
 
@@ -117,7 +118,7 @@ def make_velocity_env(task: str, velocity_threshold: float | None = None, max_st
 
 
 @options
-class VelocityEnvConfig:
+class VelocityEnvConfig(EnvOptions):
     """``env=velocity``: a MuJoCo locomotion task with cost 1 on every step faster than a threshold."""
 
     name: str = "velocity"
@@ -127,6 +128,9 @@ class VelocityEnvConfig:
     # None: the task's Safety-Gymnasium v1 threshold (VELOCITY_TASKS); a number overrides it.
     velocity_threshold: Optional[NonNegativeFloat] = None
     max_steps: PositiveInt = 1000
+
+    def env_id(self) -> str:
+        return f"{self.task}-v5"
 
     def render_env(self) -> gym.Env:
         """One env of this task rendering ``rgb_array`` frames of RENDER_SIZE (for video)."""

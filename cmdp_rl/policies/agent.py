@@ -4,8 +4,15 @@
   (``policies/distributions.py``, chosen from the env's action space) turns into the action
   distribution's parameters.
 - ``critics``: an ``nn.ModuleDict`` of :class:`Critic` keyed by signal, ``"reward"`` and
-  ``"cost"`` (``keys.SIGNALS`` names their entries in a batch); one more cost or a Q-critic is one
-  more entry.
+  ``"cost"`` (``keys.SIGNALS`` names their entries in a batch); a Q-critic is one more entry.
+
+Several constraints (an env reporting K costs): the ``"cost"`` critic is one network with K outputs,
+``[..., K]``, one value per constraint, not K critics in the bank. Why: every layer downstream keeps
+the cost as one tensor with a trailing K (the collector's sums, GAE batched over K, the scalers,
+the multipliers' advantage ``sum_k lambda_k A_c,k``), one forward pass values all constraints, a
+recurrent cost critic keeps one state, and K = 1 is exactly the network it was before (same
+parameters, same initialisation, same checkpoint keys). What it gives up: the K values share their
+hidden layers; costs that need unrelated features could learn more slowly than with K networks.
 
 All of it is plain ``nn.Module``s on dicts of tensors (root keys of a batch, as in ``keys.py``).
 The policy heads (``policy=mlp|lstm|gru|transformer``) differ only in their networks: the
@@ -94,7 +101,7 @@ class Actor(nn.Module):
 
 
 class Critic(nn.Module):
-    """body -> output network -> value ``[..., 1]``."""
+    """body -> output network -> value ``[..., 1]`` (the cost critic: ``[..., K]``)."""
 
     def __init__(self, body: Body, net: nn.Module) -> None:
         super().__init__()
@@ -111,15 +118,21 @@ class Critic(nn.Module):
 class Agent(nn.Module):
     """Actor, critics keyed by signal, and the normalization statistics they use (no parameters;
     saved with them, see ``normalization.py``). ``segment_length``: steps per training segment of
-    a recurrent agent (0, or not shorter than the rollout: the whole rollout row)."""
+    a recurrent agent (0, or not shorter than the rollout: the whole rollout row). ``cost_names``:
+    the env's K costs, which the cost critic's K outputs value in that order."""
 
     def __init__(self, actor: Actor, critics: Mapping[str, Critic], normalizers: Normalizers | None = None,
-                 segment_length: int = 0) -> None:
+                 segment_length: int = 0, cost_names: tuple[str, ...] = ("cost_0",)) -> None:
         super().__init__()
+        self.cost_names = tuple(cost_names)
         self.actor = actor
         self.critics = nn.ModuleDict(dict(critics))
         self.normalizers = normalizers if normalizers is not None else Normalizers()
         self.segment_length = segment_length
+
+    @property
+    def num_costs(self) -> int:
+        return len(self.cost_names)
 
     # --- what the agent reads and carries ------------------------------------------------------
     @property
@@ -235,6 +248,11 @@ class Agent(nn.Module):
         return values, next_values
 
 
+def critic_outputs(signal: str, env: Any) -> int:
+    """Outputs of the ``signal`` critic: one value for the reward, one per constraint for the cost."""
+    return getattr(env, "num_costs", 1) if signal == "cost" else 1
+
+
 def _chunked(critic: Critic, flat: dict) -> torch.Tensor:
     rows = next(iter(flat.values())).shape[0]
     if rows <= CHUNK_ROWS:
@@ -252,4 +270,4 @@ def make_agent(cfg: Any, env: Any, normalizers: Normalizers | None = None) -> Ag
     return agent.to(env.device)
 
 
-__all__ = ["Actor", "Agent", "Body", "CHUNK_ROWS", "Critic", "make_agent"]
+__all__ = ["Actor", "Agent", "Body", "CHUNK_ROWS", "Critic", "critic_outputs", "make_agent"]

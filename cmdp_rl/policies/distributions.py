@@ -12,6 +12,10 @@ distribution from them:
 - ``gymnasium.spaces.Discrete``: :class:`CategoricalHead`, a categorical over the ``n`` actions on
   the network's logits. Its actions are stored as ``[..., 1]`` integer indices, like a box action
   of one dimension.
+- ``gymnasium.spaces.MultiDiscrete``: :class:`CategoricalHead` too, on ``sum(nvec)`` logits split
+  into one independent categorical per component (:class:`MultiCategorical`): the log-probability
+  and the entropy are the components' sums, the KL between two of them the sum of the components'
+  KLs (so CPO's Fisher-vector product needs nothing else). Actions are ``[..., m]`` indices.
 
 Every head samples by ``rsample`` where the distribution has one, else ``sample``, and its
 deterministic action is the mode (the Gaussian's mean, the categorical's most likely action).
@@ -23,9 +27,11 @@ import gymnasium as gym
 import torch
 from torch import distributions as D
 from torch import nn
+from torch.distributions import constraints, kl_divergence, register_kl
 from torchrl.modules import IndependentNormal
 
 from cmdp_rl import keys
+from cmdp_rl.actions import categories, check_action_space
 
 
 class GaussianHead(nn.Module):
@@ -64,43 +70,84 @@ class Categorical(D.Categorical):
         return self.probs.argmax(-1, keepdim=True)
 
 
+class MultiCategorical(D.Distribution):
+    """Independent categoricals, one per component of a ``MultiDiscrete`` action, on logits
+    ``[..., sum(sizes)]`` split into ``sizes``; values are ``[..., m]`` indices (``m = len(sizes)``)."""
+
+    arg_constraints = {"logits": constraints.real_vector}
+    has_rsample = False
+
+    def __init__(self, logits: torch.Tensor, sizes: tuple[int, ...], validate_args: bool | None = None) -> None:
+        self.logits = logits
+        self.sizes = tuple(sizes)
+        self.parts = [D.Categorical(logits=part) for part in logits.split(self.sizes, dim=-1)]
+        super().__init__(logits.shape[:-1], torch.Size([len(self.sizes)]), validate_args=False)
+
+    def sample(self, sample_shape: torch.Size = torch.Size()) -> torch.Tensor:
+        return torch.stack([p.sample(sample_shape) for p in self.parts], dim=-1)
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        return sum(p.log_prob(v) for p, v in zip(self.parts, value.unbind(-1)))
+
+    def entropy(self) -> torch.Tensor:
+        return sum(p.entropy() for p in self.parts)
+
+    @property
+    def deterministic_sample(self) -> torch.Tensor:
+        """Each component's most likely index: the joint mode, the components being independent."""
+        return torch.stack([p.probs.argmax(-1) for p in self.parts], dim=-1)
+
+    @property
+    def mode(self) -> torch.Tensor:
+        return self.deterministic_sample
+
+
+@register_kl(MultiCategorical, MultiCategorical)
+def _kl_multi_categorical(p: MultiCategorical, q: MultiCategorical) -> torch.Tensor:
+    """KL of independent products: the sum of the components' KLs."""
+    return sum(kl_divergence(a, b) for a, b in zip(p.parts, q.parts))
+
+
 class CategoricalHead(nn.Module):
-    """``net(features)`` -> logits of a categorical over the actions."""
+    """``net(features)`` -> logits of a categorical over the actions, or of ``len(sizes)``
+    independent categoricals (a ``MultiDiscrete`` space)."""
 
     param_keys = (keys.LOGITS,)
 
-    def __init__(self, net: nn.Module) -> None:
+    def __init__(self, net: nn.Module, sizes: tuple[int, ...] | None = None) -> None:
         super().__init__()
         self.net = net
+        self.sizes = None if sizes is None else tuple(sizes)
 
     def forward(self, *features: torch.Tensor) -> dict[str, torch.Tensor]:
         return {keys.LOGITS: self.net(*features)}
 
-    @staticmethod
-    def dist(params: dict[str, torch.Tensor]) -> D.Distribution:
-        return Categorical(logits=params[keys.LOGITS])
+    def dist(self, params: dict[str, torch.Tensor]) -> D.Distribution:
+        if self.sizes is None:
+            return Categorical(logits=params[keys.LOGITS])
+        return MultiCategorical(params[keys.LOGITS], self.sizes)
 
 
 def action_outputs(space: gym.Space) -> int:
     """How many outputs the actor's network needs for ``space``: the box's dimension (the mean), or
-    one logit per action."""
+    one logit per action (per choice of each component of a ``MultiDiscrete``)."""
+    check_action_space(space)
     if isinstance(space, gym.spaces.Box):
         return int(space.low.size)
-    if isinstance(space, gym.spaces.Discrete):
-        return int(space.n)
-    raise ValueError(f"policy: no action distribution for {type(space).__name__} action spaces (Box, Discrete)")
+    return sum(categories(space))
 
 
 def make_action_head(space: gym.Space, net: nn.Module, init_log_std: float = -0.5) -> GaussianHead | CategoricalHead:
     """The distribution head for ``space`` around the output network ``net`` (``init_log_std``: the
     Gaussian's initial log-std, in units of the box's half-width)."""
+    check_action_space(space)
     if isinstance(space, gym.spaces.Box):
         low = torch.as_tensor(space.low, dtype=torch.float32).reshape(-1)
         high = torch.as_tensor(space.high, dtype=torch.float32).reshape(-1)
         return GaussianHead(net, low, high, init_log_std)
     if isinstance(space, gym.spaces.Discrete):
         return CategoricalHead(net)
-    raise ValueError(f"policy: no action distribution for {type(space).__name__} action spaces (Box, Discrete)")
+    return CategoricalHead(net, categories(space))
 
 
 def sample(dist: D.Distribution, deterministic: bool) -> torch.Tensor:
@@ -110,4 +157,5 @@ def sample(dist: D.Distribution, deterministic: bool) -> torch.Tensor:
     return dist.rsample() if dist.has_rsample else dist.sample()
 
 
-__all__ = ["Categorical", "CategoricalHead", "GaussianHead", "action_outputs", "make_action_head", "sample"]
+__all__ = ["Categorical", "CategoricalHead", "GaussianHead", "MultiCategorical", "action_outputs", "make_action_head",
+           "sample"]

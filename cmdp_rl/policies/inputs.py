@@ -11,10 +11,13 @@ Learning by PID Lagrangian Methods", sec. 6).
 
 from __future__ import annotations
 
+import gymnasium as gym
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from cmdp_rl import keys
+from cmdp_rl.actions import action_dim, categories, is_discrete
 
 
 def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
@@ -23,35 +26,54 @@ def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
 
 
 class InputEncoder(nn.Module):
-    """``cat(normalized obs, previous action in box units, previous cost)``.
+    """``cat(normalized obs, previous action, previous cost vector [K])``.
 
-    The previous action is mapped to the action box as ``[-1, 1]`` and clipped there, as the env
-    clips it: what the policy sees is the command the env executed. ``obs_norm`` (a running
-    normalizer, normalization.py) is applied to the observation only.
+    A box's previous action is mapped to the action box as ``[-1, 1]`` and clipped there, as the
+    env clips it: what the policy sees is the command the env executed. A discrete previous action
+    is one-hot per component (all zeros for "none yet", the index -1 of an episode's first step,
+    ``cmdp_rl/actions.py``). ``obs_norm`` (a running normalizer, normalization.py) is applied to the
+    observation only. ``in_dim``: the width of the raw inputs concatenated (what a transformer
+    stores per step); ``out_dim``: the width of the encoding.
     """
 
     def __init__(
         self,
         obs_dim: int,
-        low: torch.Tensor,
-        high: torch.Tensor,
+        action_space: gym.Space,
         include_prev_action: bool,
         include_prev_cost: bool,
         obs_norm: nn.Module | None = None,
+        num_costs: int = 1,
     ) -> None:
         super().__init__()
         self.obs_norm = obs_norm
         self.include_prev_action = include_prev_action
         self.include_prev_cost = include_prev_cost
-        self.register_buffer("center", (high + low) / 2)
-        self.register_buffer("half_width", (high - low) / 2)
-        self.out_dim = obs_dim + (low.numel() if include_prev_action else 0) + (1 if include_prev_cost else 0)
+        self.num_costs = num_costs  # the previous cost is the vector of the env's K costs
+        self.categories = categories(action_space) if is_discrete(action_space) else None
+        if self.categories is None:
+            low = torch.as_tensor(action_space.low, dtype=torch.float32).reshape(-1)
+            high = torch.as_tensor(action_space.high, dtype=torch.float32).reshape(-1)
+            self.register_buffer("center", (high + low) / 2)
+            self.register_buffer("half_width", (high - low) / 2)
+        encoded = action_dim(action_space) if self.categories is None else sum(self.categories)
+        cost = num_costs if include_prev_cost else 0
+        self.in_dim = obs_dim + (action_dim(action_space) if include_prev_action else 0) + cost
+        self.out_dim = obs_dim + (encoded if include_prev_action else 0) + cost
+
+    def encode_action(self, action: torch.Tensor) -> torch.Tensor:
+        if self.categories is None:
+            return ((action - self.center) / self.half_width).clamp(-1.0, 1.0)
+        # index + 1 over n + 1 classes, the first ("none") dropped: -1 encodes as all zeros.
+        idx = action.long() + 1
+        return torch.cat([F.one_hot(i, n + 1)[..., 1:] for i, n in zip(idx.unbind(-1), self.categories)],
+                         dim=-1).float()
 
     def forward(self, obs: torch.Tensor, *prev: torch.Tensor) -> torch.Tensor:
         parts = [obs if self.obs_norm is None else self.obs_norm(obs)]
         rest = list(prev)
         if self.include_prev_action:
-            parts.append(((rest.pop(0) - self.center) / self.half_width).clamp(-1.0, 1.0))
+            parts.append(self.encode_action(rest.pop(0)))
         if self.include_prev_cost:
             parts.append(rest.pop(0))
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=-1)

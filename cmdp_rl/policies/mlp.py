@@ -5,12 +5,13 @@ from __future__ import annotations
 from dataclasses import field
 from typing import TYPE_CHECKING, Annotated, Literal, Mapping
 
+import gymnasium as gym
 import torch
 from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.normalization import Normalizers
-from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
+from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
 from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.registry import register
@@ -106,18 +107,18 @@ class MLPBody(Body):
         return (inputs[0] if self.prep is None else self.prep(*inputs),)
 
 
-def make_encoder(cfg: PolicyConfig, obs_dim: int, low: torch.Tensor, high: torch.Tensor,
-                 obs_norm: nn.Module | None) -> InputEncoder | None:
+def make_encoder(cfg: PolicyConfig, obs_dim: int, action_space: gym.Space,
+                 obs_norm: nn.Module | None, num_costs: int = 1) -> InputEncoder | None:
     """The input encoder if the policy reads more than the observation, else None."""
     if not (cfg.include_prev_action or cfg.include_prev_cost):
         return None
-    return InputEncoder(obs_dim, low, high, cfg.include_prev_action, cfg.include_prev_cost, obs_norm)
+    return InputEncoder(obs_dim, action_space, cfg.include_prev_action, cfg.include_prev_cost, obs_norm, num_costs)
 
 
 def make_mlp_agent(cfg: PolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
     """Actor and critics, each an MLP of its own on the same inputs."""
     obs_norm = normalizers.obs
-    encoder = make_encoder(cfg, env.obs_dim, env.action_low, env.action_high, obs_norm)
+    encoder = make_encoder(cfg, env.obs_dim, env.action_space, obs_norm, env.num_costs)
     in_dim = env.obs_dim if encoder is None else encoder.out_dim
 
     def net(out_dim: int, out_gain: float) -> nn.Sequential:
@@ -125,8 +126,9 @@ def make_mlp_agent(cfg: PolicyConfig, env: VecEnv, normalizers: Normalizers) -> 
 
     head = make_action_head(env.action_space, net(action_outputs(env.action_space), 0.01), cfg.init_log_std)
     actor = Actor(MLPBody(obs_norm, encoder), head)
-    critics = {signal: Critic(MLPBody(obs_norm, encoder), net(1, 1.0)) for signal in ("reward", "cost")}
-    return Agent(actor, critics, normalizers)
+    critics = {signal: Critic(MLPBody(obs_norm, encoder), net(critic_outputs(signal, env), 1.0))
+               for signal in ("reward", "cost")}
+    return Agent(actor, critics, normalizers, cost_names=env.cost_names)
 
 
 register("policy", "mlp", PolicyConfig, make_mlp_agent)

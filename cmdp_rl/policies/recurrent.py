@@ -33,7 +33,7 @@ from torchrl.modules import GRUModule, LSTMModule, set_recurrent_mode
 
 from cmdp_rl import keys
 from cmdp_rl.normalization import Normalizers
-from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
+from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
 from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.policies.mlp import Activation, LogStd, mlp
@@ -150,8 +150,8 @@ def make_recurrent_agent(cfg: RecurrentPolicyConfig, env: VecEnv, normalizers: N
     states = STATE_KEYS[cfg.name]
 
     def body(net: str) -> RecurrentBody:
-        encoder = InputEncoder(env.obs_dim, env.action_low, env.action_high, cfg.include_prev_action,
-                               cfg.include_prev_cost, normalizers.obs)
+        encoder = InputEncoder(env.obs_dim, env.action_space, cfg.include_prev_action,
+                               cfg.include_prev_cost, normalizers.obs, env.num_costs)
         return RecurrentBody(cfg, encoder, states[net])
 
     def head_mlp(out_dim: int, out_gain: float = 1.0) -> nn.Sequential:
@@ -162,9 +162,9 @@ def make_recurrent_agent(cfg: RecurrentPolicyConfig, env: VecEnv, normalizers: N
     actor = Actor(body("actor"), make_action_head(env.action_space, net, cfg.init_log_std))
     critics = {}
     for signal, name in (("reward", "critic"), ("cost", "cost_critic")):
-        net = head_mlp(1)
+        net = head_mlp(critic_outputs(signal, env))
         critics[signal] = Critic(body(name), net)
-    return Agent(actor, critics, normalizers, segment_length=cfg.segment_length)
+    return Agent(actor, critics, normalizers, segment_length=cfg.segment_length, cost_names=env.cost_names)
 
 
 register("policy", "lstm", RecurrentPolicyConfig, make_recurrent_agent)

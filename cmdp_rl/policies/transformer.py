@@ -33,7 +33,7 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from cmdp_rl import keys
 from cmdp_rl.normalization import Normalizers
-from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
+from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
 from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.policies.mlp import Activation, LogStd, mlp
@@ -141,9 +141,9 @@ class WindowTransformer(nn.Module):
         obs, prev = tokens[..., : self.obs_dim], tokens[..., self.obs_dim:]
         sizes = []
         if self.encoder.include_prev_action:
-            sizes.append(prev.shape[-1] - (1 if self.encoder.include_prev_cost else 0))
+            sizes.append(prev.shape[-1] - (self.encoder.num_costs if self.encoder.include_prev_cost else 0))
         if self.encoder.include_prev_cost:
-            sizes.append(1)
+            sizes.append(self.encoder.num_costs)
         return self.encoder(obs, *prev.split(sizes, dim=-1)) if sizes else self.encoder(obs)
 
     def _last_query(self, x: torch.Tensor, key_blocked: torch.Tensor) -> torch.Tensor:
@@ -219,18 +219,19 @@ def make_transformer_agent(cfg: TransformerPolicyConfig, env: VecEnv, normalizer
     carries it)."""
 
     def encoder() -> InputEncoder:
-        return InputEncoder(env.obs_dim, env.action_low, env.action_high, cfg.include_prev_action,
-                            cfg.include_prev_cost, normalizers.obs)
+        return InputEncoder(env.obs_dim, env.action_space, cfg.include_prev_action,
+                            cfg.include_prev_cost, normalizers.obs, env.num_costs)
 
     def network(out_dim: int, out_gain: float) -> _Trunk:
         return _Trunk(WindowTransformer(cfg, encoder(), env.obs_dim),
                       mlp(cfg.width, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain))
 
-    token_dim = encoder().out_dim
+    token_dim = encoder().in_dim  # raw tokens: a discrete action is stored as its index
     head = make_action_head(env.action_space, network(action_outputs(env.action_space), 0.01), cfg.init_log_std)
     actor = Actor(TransformerBody(cfg, token_dim), head)
-    critics = {signal: Critic(TransformerBody(cfg, token_dim), network(1, 1.0)) for signal in ("reward", "cost")}
-    return Agent(actor, critics, normalizers)
+    critics = {signal: Critic(TransformerBody(cfg, token_dim), network(critic_outputs(signal, env), 1.0))
+               for signal in ("reward", "cost")}
+    return Agent(actor, critics, normalizers, cost_names=env.cost_names)
 
 
 register("policy", "transformer", TransformerPolicyConfig, make_transformer_agent)

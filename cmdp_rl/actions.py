@@ -1,0 +1,85 @@
+"""The action spaces the toolkit supports, and how their actions are stored.
+
+An action of one env is stored as a flat vector ``[d]`` in every batch:
+
+- ``Box`` (any shape): its ``d = prod(shape)`` numbers, float32, reshaped to the box's shape
+  before the env steps (a ``(2, 3)`` box is flattened to 6 numbers, not refused);
+- ``Discrete(n, start)``: one int64 index in ``[0, n)``, ``d = 1`` (``start`` is added for the env);
+- ``MultiDiscrete(nvec, start)``: one int64 index per component, ``d = nvec.size``.
+
+The previous action a policy may read (``keys.PREV_ACTION``) is :func:`no_action` on an episode's
+first step: 0 for a box (as before), -1 for discrete actions, an index no action has, so a one-hot
+encoding of it is all zeros rather than the one-hot of action 0.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium import spaces
+
+from cmdp_rl.validation import ConfigError
+
+SUPPORTED = "Box, Discrete, MultiDiscrete"
+
+
+class UnsupportedActionSpace(ConfigError):
+    """An env's action space no policy head handles (one line, exit status 2 in ``train.py``)."""
+
+
+def check_action_space(space: gym.Space, env_id: str = "env") -> None:
+    """Raise :class:`UnsupportedActionSpace` unless the toolkit can act in ``space``."""
+    if not isinstance(space, (spaces.Box, spaces.Discrete, spaces.MultiDiscrete)):
+        raise UnsupportedActionSpace(f"env {env_id}: action space {space} is not supported; supported: {SUPPORTED}")
+    if isinstance(space, spaces.Box) and not np.issubdtype(space.dtype, np.floating):
+        raise UnsupportedActionSpace(f"env {env_id}: action space {space} is not supported: a Box of integers "
+                                     f"(dtype {space.dtype}); use Discrete or MultiDiscrete")
+
+
+def is_discrete(space: gym.Space) -> bool:
+    return isinstance(space, (spaces.Discrete, spaces.MultiDiscrete))
+
+
+def action_dim(space: gym.Space) -> int:
+    """Entries of one stored action."""
+    if isinstance(space, spaces.Discrete):
+        return 1
+    if isinstance(space, spaces.MultiDiscrete):
+        return int(space.nvec.size)
+    return int(np.prod(space.shape))
+
+
+def action_dtype(space: gym.Space) -> torch.dtype:
+    return torch.int64 if is_discrete(space) else torch.float32
+
+
+def categories(space: gym.Space) -> tuple[int, ...]:
+    """The number of choices of each component of a discrete action (``()`` for a box)."""
+    if isinstance(space, spaces.Discrete):
+        return (int(space.n),)
+    if isinstance(space, spaces.MultiDiscrete):
+        return tuple(int(n) for n in space.nvec.reshape(-1))
+    return ()
+
+
+def no_action(space: gym.Space) -> int | float:
+    """The stored previous action on an episode's first step (module docstring)."""
+    return -1 if is_discrete(space) else 0.0
+
+
+def to_env(action: torch.Tensor, space: gym.Space) -> np.ndarray:
+    """``[N, d]`` stored actions -> what a gymnasium vector env of ``space`` steps on."""
+    act = action.detach().cpu().numpy()
+    n = act.shape[0]
+    if isinstance(space, spaces.Discrete):
+        return act[:, 0].astype(space.dtype, copy=False) + space.start
+    if isinstance(space, spaces.MultiDiscrete):
+        return act.reshape(n, *space.shape).astype(space.dtype, copy=False) + space.start
+    # The env's own dtype (float32 for Reach1D): a float64 action could land exactly on the
+    # seed's wall, where the strict crossing test lets it through at no cost.
+    return act.reshape(n, *space.shape).astype(space.dtype, copy=False)
+
+
+__all__ = ["SUPPORTED", "UnsupportedActionSpace", "action_dim", "action_dtype", "categories",
+           "check_action_space", "is_discrete", "no_action", "to_env"]

@@ -1,0 +1,51 @@
+"""The slippery two-hazard gridworld as a component (``env=grid``): its options, checked before
+anything is built, and its vector env (gymnasium's, one :class:`~cmdp_rl.envs.grid.GridWorld` per
+env). Discrete actions (4 directions) and K = 2 costs (``hazard_a``, ``hazard_b``): train it with an
+algorithm that takes several constraints and one budget per cost, e.g.
+``python train.py env=grid algo=ppo_lag 'algo.cost_limit=[0.3,0.15]'`` (``grid.DEFAULT_BUDGETS``)."""
+
+from __future__ import annotations
+
+from dataclasses import field
+from functools import partial
+from typing import TYPE_CHECKING, Annotated, Literal
+
+from cmdp_rl.envs.grid import DEFAULT_END_PROB, DEFAULT_LAYOUT, DEFAULT_SLIP, GRID_ID, GridWorld, parse_layout
+from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.vector import GymVecEnv, VecEnv
+from cmdp_rl.registry import register
+from cmdp_rl.validation import ConfigError, Field, PositiveInt, finite, options
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+
+@options
+class GridEnvConfig(EnvOptions):
+    """``env=grid``: layout rows ('S' start, 'G' goal, '#' wall, 'a'/'b' hazards, '.' open), the
+    slip probability and the per-step end probability (grid.py says why the episodes end at random)."""
+
+    name: str = "grid"
+    backend: Literal["gym"] = "gym"
+    num_envs: PositiveInt = 8
+    slip: Annotated[float, finite(ge=0, le=1)] = DEFAULT_SLIP
+    end_prob: Annotated[float, finite(gt=0, le=1)] = DEFAULT_END_PROB
+    layout: Annotated[list[str], Field(description="a list of equal-length rows of S G # a b .")] = field(
+        default_factory=lambda: list(DEFAULT_LAYOUT))
+
+    def check(self, run: RunConfig) -> None:
+        try:
+            parse_layout(self.layout)
+        except ValueError as exc:  # the layout's own words: which row or character is wrong
+            raise ConfigError(f"env.layout: {exc}") from None
+
+    def env_id(self) -> str:
+        return GRID_ID
+
+
+def make_grid_vec_env(cfg: GridEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
+    make_one = partial(GridWorld, tuple(cfg.layout), cfg.slip, cfg.end_prob)
+    return GymVecEnv(make_one, num_envs, device=device, env_id=GRID_ID)
+
+
+register("env", "grid", GridEnvConfig, make_grid_vec_env)

@@ -1,0 +1,344 @@
+"""Several constraints end to end: an env reporting K = 2 costs through the collector, the cost
+critic and GAE, the scalers, the multipliers, metrics.csv, eval.json and the plots.
+
+The env is a toy of this file (registered with gymnasium here, used through ``env=gym``), so every
+number below can be worked out by hand."""
+
+import csv
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+
+from cmdp_rl import keys, load_config, train
+from cmdp_rl.advantages import TwinGAE
+from cmdp_rl.algos import make_algo
+from cmdp_rl.algos.lagrange import DualAscent, Multipliers
+from cmdp_rl.collector import Collector, finished_episodes
+from cmdp_rl.envs import GymVecEnv
+from cmdp_rl.metrics import columns
+from cmdp_rl.normalization import ReturnScaler
+from cmdp_rl.plot import group_runs, main as plot_main
+from cmdp_rl.policies import make_agent
+from cmdp_rl.policies.mlp import PolicyConfig
+from cmdp_rl.validation import ConfigError
+from conftest import ROOT
+
+ENV_ID = "cmdp_rl_test/TwoCost-v0"
+NAMES = ("hazard_a", "hazard_b")
+
+
+class TwoCost(gym.Env):
+    """A 1-D Box action in [-1, 1]; episodes of ``length`` steps; observation t / length.
+
+    - ``mode="fixed"``: reward = a, ``info["cost"] = [1, t]`` at step t = 1..length (independent of
+      the action: an episode's costs are (length, length (length + 1) / 2)).
+    - ``mode="learn"``: reward = a, ``info["cost"] = [a > 0, 0]``: the first constraint is paid for
+      the rewarding actions, the second never.
+    ``named``: declare ``cost_names`` (else the toolkit calls them cost_0, cost_1).
+    """
+
+    def __init__(self, length: int = 3, mode: str = "fixed", named: bool = True) -> None:
+        self.observation_space = gym.spaces.Box(0.0, 1.0, (1,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.length, self.mode = length, mode
+        if named:
+            self.cost_names = NAMES
+        self.t = 0
+
+    def _obs(self) -> np.ndarray:
+        return np.array([self.t / self.length], dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return self._obs(), {}
+
+    def step(self, action):
+        a = float(np.clip(action[0], -1.0, 1.0))
+        self.t += 1
+        if self.mode == "fixed":
+            cost = np.array([1.0, float(self.t)])
+        else:
+            cost = np.array([float(a > 0), 0.0])
+        return self._obs(), a, self.t >= self.length, False, {"cost": cost}
+
+
+gym.register(ENV_ID, entry_point=TwoCost)
+
+
+def two_cost_env(num_envs: int = 2, **kwargs) -> GymVecEnv:
+    return GymVecEnv(lambda: TwoCost(**kwargs), num_envs)
+
+
+def run_cfg(**overrides) -> dict:
+    cfg = {
+        "env": {"name": "gym", "id": ENV_ID, "num_envs": 2, "kwargs": {"length": 4, "mode": "learn"}},
+        "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": [0.5, 1.0]},
+        "rollout_steps": 16, "total_steps": 6 * 32, "checkpoint_every": 100, "eval_episodes": 4, "log_interval": 1,
+    }
+    for k, v in overrides.items():
+        if isinstance(v, dict) and k in cfg:
+            cfg[k] = {**cfg[k], **v}
+        else:
+            cfg[k] = v
+    if cfg["algo"]["name"] in ("ppo_lag", "trpo_lag"):
+        cfg["algo"].setdefault("lambda_lr", 0.5)
+    return cfg
+
+
+def test_the_env_names_its_costs_or_they_are_numbered():
+    assert two_cost_env().cost_names == NAMES and two_cost_env().num_costs == 2
+    unnamed = two_cost_env(named=False)  # K from one probe step of a throwaway env
+    assert unnamed.num_costs == 2 and unnamed.cost_names == ("cost_0", "cost_1")
+
+
+def test_collector_keeps_one_episode_sum_and_one_previous_cost_per_constraint():
+    env = two_cost_env(length=3)
+    agent = make_agent(PolicyConfig(include_prev_cost=True), env)
+    collector = Collector(env, agent, rollout_steps=7, seed=0)
+    batch = collector.collect()
+    nxt = batch.get(keys.NEXT)
+    t = torch.tensor([1.0, 2, 3, 1, 2, 3, 1])  # the step within its episode, for both envs
+    assert torch.equal(nxt.get(keys.COST), torch.stack([torch.ones(7), t], -1).expand(2, 7, 2))
+    # Running sums: hazard_a counts steps, hazard_b adds t; both restart after step 3.
+    running = torch.tensor([[1.0, 1], [2, 3], [3, 6], [1, 1], [2, 3], [3, 6], [1, 1]])
+    assert torch.equal(nxt.get(keys.EPISODE_COST), running.expand(2, 7, 2))
+    eps = finished_episodes(batch)
+    assert eps["cost"].tolist() == [[3.0, 6.0]] * 4 and eps["length"].tolist() == [3.0] * 4
+    # Totals per constraint: 7 steps x 2 envs of cost 1; t summed, 13 per env.
+    assert collector.total_costs == [14.0, 26.0]
+    # The previous step's cost vector, zero on each episode's first step.
+    prev = torch.tensor([[0.0, 0], [1, 1], [1, 2], [0, 0], [1, 1], [1, 2], [0, 0]])
+    assert torch.equal(batch.get(keys.PREV_COST), prev.expand(2, 7, 2))
+    # The cost critic values both constraints.
+    assert agent.value("cost", {keys.OBS: batch.get(keys.OBS)[:, 0], keys.PREV_COST: prev[:1].expand(2, 2)}).shape == (2, 2)
+    # A checkpoint keeps the per-constraint totals and running sums.
+    again = Collector(two_cost_env(length=3), agent, rollout_steps=7, seed=0)
+    again.load_state_dict(collector.state_dict())
+    assert again.total_costs == [14.0, 26.0] and torch.equal(again._ep_cost, collector._ep_cost)
+
+
+def test_each_constraints_gae_is_the_gae_of_that_cost_alone():
+    torch.manual_seed(0)
+    env = two_cost_env(num_envs=3, length=5, mode="learn")
+    agent = make_agent(PolicyConfig(), env)
+    batch = Collector(env, agent, rollout_steps=64, seed=1).collect()
+    # Make the two costs differ everywhere: the second is a scrambled, scaled copy of the first.
+    cost = batch.get((keys.NEXT, keys.COST))
+    cost[..., 1] = torch.rand(cost.shape[:2]) * 3
+    gae = TwinGAE(gamma=0.99, cost_gamma=0.97, lmbda=0.95)
+    gae(batch, agent)
+    adv, target = batch.get(keys.COST_ADVANTAGE), batch.get(keys.COST_VALUE_TARGET)
+    assert adv.shape == (3, 64, 2)
+    nxt = batch.get(keys.NEXT)
+    for k in range(2):
+        alone = TensorDict({
+            keys.COST_VALUE: batch.get(keys.COST_VALUE)[..., k:k + 1],
+            (keys.NEXT, keys.COST_VALUE): nxt.get(keys.COST_VALUE)[..., k:k + 1],
+            (keys.NEXT, keys.COST): nxt.get(keys.COST)[..., k:k + 1],
+            (keys.NEXT, keys.DONE): nxt.get(keys.DONE), (keys.NEXT, keys.TERMINATED): nxt.get(keys.TERMINATED),
+        }, batch_size=batch.shape)
+        gae.cost(alone)  # the K = 1 path
+        assert torch.equal(alone.get(keys.COST_ADVANTAGE), adv[..., k:k + 1])
+        assert torch.equal(alone.get(keys.COST_VALUE_TARGET), target[..., k:k + 1])
+    assert not torch.equal(adv[..., 0], adv[..., 1])
+
+
+def test_cost_scaling_is_per_constraint():
+    scaler = ReturnScaler(num_envs=2, gamma=0.9, channels=2)
+    x = torch.rand(2, 50, 1)
+    signal = torch.cat([x, 100 * x], -1)  # the second cost is the first in other units
+    scaler.update(signal, torch.zeros(2, 50, 1, dtype=torch.bool))
+    scaled = scaler.scale(signal)
+    assert torch.allclose(scaled[..., 0], scaled[..., 1], rtol=1e-4)
+
+
+def test_policy_advantage_sums_over_constraints_with_todays_normalisation():
+    env = two_cost_env()
+    batch = TensorDict({keys.ADVANTAGE: torch.tensor([[[1.0], [2.0]]]),
+                        keys.COST_ADVANTAGE: torch.tensor([[[1.0, 10.0], [-1.0, 0.5]]])}, batch_size=[1, 2])
+    cfg = load_config(run_cfg()).algo
+    lag = make_algo(cfg, make_agent(PolicyConfig(), env))
+    for controller, value in zip(lag.multiplier.controllers, (0.5, 2.0)):
+        controller.value = value
+    # (A_r - 0.5 A_c,a - 2 A_c,b) / (1 + 2.5)
+    expected = torch.tensor([[[(1 - 0.5 - 20) / 3.5], [(2 + 0.5 - 1) / 3.5]]])
+    assert torch.allclose(lag.policy_advantage(batch), expected)
+    assert lag.lagrange_multiplier == [0.5, 2.0]
+    penalty = make_algo(load_config(run_cfg(algo={"name": "penalty", "penalty": [1.0, 0.1]})).algo,
+                        make_agent(PolicyConfig(), env))
+    assert torch.allclose(penalty.policy_advantage(batch), torch.tensor([[[1 - 1 - 1.0], [2 + 1 - 0.05]]]))
+    one = make_algo(load_config(run_cfg(algo={"name": "penalty", "penalty": 3.0})).algo, make_agent(PolicyConfig(), env))
+    assert one.lagrange_multiplier == [3.0, 3.0]
+
+
+def test_one_multiplier_keeps_the_single_constraint_state_format():
+    single = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0])
+    single.update([3.0])
+    assert single.state_dict() == {"value": pytest.approx(0.2)}
+    double = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0, 5.0])
+    assert double.update([3.0, 3.0]) == [pytest.approx(0.2), 0.0]
+    other = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0, 5.0])
+    other.load_state_dict(double.state_dict())
+    assert other.values == double.values
+
+
+@pytest.mark.parametrize(("algo", "message"), [
+    ({"name": "ppo_lag", "cost_limit": [1.0, 2.0, 3.0]},
+     "algo.cost_limit must be a number or a list of 2 numbers, one per cost of the env (hazard_a, hazard_b), "
+     "got [1.0, 2.0, 3.0]"),
+    ({"name": "ppo", "cost_limit": [1.0]}, "algo.cost_limit must be a number or a list of 2 numbers"),
+    ({"name": "penalty", "penalty": [1.0, 2.0, 3.0]}, "algo.penalty must be a number or a list of 2 numbers"),
+    ({"name": "cpo", "cost_limit": 1.0}, "algo must be ppo, penalty, ppo_lag, pid_lag or trpo_lag for an env with 2 costs "
+                                         "(hazard_a, hazard_b): cpo's closed-form dual handles one constraint"),
+    *(({"name": name}, f"algo must be ppo, penalty, ppo_lag, pid_lag or trpo_lag for an env with 2 costs "
+                       f"(hazard_a, hazard_b): {reason}, got '{name}'")
+      for name, reason in (("pcpo", "pcpo projects onto one linearised constraint"),
+                           ("crpo", "crpo's step switches on one constraint's slack"),
+                           ("focops", "focops has one cost multiplier nu"),
+                           ("cup", "cup has one cost multiplier nu"))),
+])
+def test_per_constraint_options_of_the_wrong_length_are_config_errors(tmp_path, quiet, algo, message):
+    cfg = run_cfg()
+    cfg["algo"] = algo
+    with pytest.raises(ConfigError, match="^" + message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")
+                       .replace("]", r"\]").replace(".", r"\.")):
+        train(load_config(cfg), tmp_path / "run", echo=quiet)
+    assert not (tmp_path / "run").exists()  # stopped before anything was written
+
+
+def test_metrics_columns_for_two_constraints():
+    cols = columns(("loss_pi",), NAMES)
+    assert cols[:12] == [
+        "iteration", "step", "episode_return", "episode_cost/hazard_a", "episode_cost/hazard_b", "episode_length",
+        "episodes", "lagrange_multiplier/hazard_a", "lagrange_multiplier/hazard_b", "cost_limit/hazard_a",
+        "cost_limit/hazard_b", "sps"]
+    assert cols[-7:] == ["cost_rate/hazard_a", "cost_rate/hazard_b", "normalized_return",
+                         "normalized_violation/hazard_a", "normalized_violation/hazard_b",
+                         "normalized_cost_rate/hazard_a", "normalized_cost_rate/hazard_b"]
+    assert columns(("loss_pi",))[3:8] == ["episode_cost", "episode_length", "episodes", "lagrange_multiplier",
+                                          "cost_limit"]
+
+
+def read_rows(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_ppo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_path, quiet):
+    # hazard_a: paid for every positive action (about half of a random policy's), budget 0.5 per
+    # 4-step episode: over budget, its lambda rises. hazard_b: never paid, budget 1: it stays at 0.
+    out = tmp_path / "run"
+    result = train(load_config(run_cfg()), out, echo=quiet)
+    rows = read_rows(out / "metrics.csv")
+    assert len(rows) == 6 and list(rows[0])[:5] == ["iteration", "step", "episode_return", "episode_cost/hazard_a",
+                                                    "episode_cost/hazard_b"]
+    lam_a = prev_a = 0.0
+    for row in rows:
+        j_a, j_b = float(row["episode_cost/hazard_a"]), float(row["episode_cost/hazard_b"])
+        assert j_b == 0.0 and float(row["lagrange_multiplier/hazard_b"]) == 0.0
+        # Episodes of 4 steps end in every 16-step batch: lambda_a moves on this batch's J_c,a alone.
+        lam_a = max(0.0, lam_a + 0.5 * (j_a - 0.5))
+        assert float(row["lagrange_multiplier/hazard_a"]) == pytest.approx(lam_a, rel=1e-6)
+        assert float(row["cost_limit/hazard_a"]) == 0.5 and float(row["cost_limit/hazard_b"]) == 1.0
+        assert float(row["cost_rate/hazard_a"]) >= 0.0 and float(row["cost_rate/hazard_b"]) == 0.0
+        prev_a = max(prev_a, lam_a)
+    assert float(rows[0]["episode_cost/hazard_a"]) > 0.5 and prev_a > 0.0  # it was over budget and lambda rose
+    written = json.loads((out / "eval.json").read_text())
+    assert written == result
+    for key in ("episode_cost/hazard_a", "episode_cost_std/hazard_a", "episode_cost_max/hazard_b",
+                "cost_limit/hazard_a", "cost_rate/hazard_b", "normalized_violation/hazard_a"):
+        assert key in written
+    assert "episode_cost" not in written and written["cost_limit/hazard_b"] == 1.0
+    assert written["episode_cost/hazard_b"] == 0.0
+
+
+@pytest.mark.parametrize("policy", [
+    {"name": "lstm", "hidden_size": 8, "head_sizes": [8]},
+    {"name": "transformer", "window": 3, "width": 8, "heads": 2, "layers": 1, "feedforward": 8, "head_sizes": [8]},
+])
+def test_memory_policies_read_the_cost_vector(tmp_path, quiet, policy):
+    cfg = run_cfg(policy=policy, total_steps=2 * 32, algo={"name": "pid_lag"})
+    train(load_config(cfg), tmp_path / "run", echo=quiet)
+    rows = read_rows(tmp_path / "run" / "metrics.csv")
+    assert len(rows) == 2 and float(rows[-1]["lagrange_multiplier/hazard_b"]) == 0.0
+
+
+def test_plots_draw_a_panel_per_constraint(tmp_path, quiet):
+    train(load_config(run_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
+    (curve,) = group_runs([tmp_path / "run"])
+    assert [p for p, _ in curve.panels] == ["episode_return", "episode_cost/hazard_a", "episode_cost/hazard_b",
+                                            "lagrange_multiplier/hazard_a", "lagrange_multiplier/hazard_b"]
+    assert curve.cost_limits == {"episode_cost/hazard_a": 0.5, "episode_cost/hazard_b": 1.0}
+    out = tmp_path / "curves.png"
+    assert plot_main([str(tmp_path / "run"), "-o", str(out)]) == 0 and out.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_evaluate_script_prints_a_cost_line_per_constraint(tmp_path, quiet, capsys):
+    train(load_config(run_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
+    spec = importlib.util.spec_from_file_location("evaluate_script", ROOT / "evaluate.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main([f"run={tmp_path / 'run'}", "episodes=2", f"output={tmp_path / 'e.json'}"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.strip().startswith("cost/hazard_a") and line.endswith("(limit 0.5)") for line in lines)
+    assert any(line.split()[:4] == ["cost/hazard_b", "0.00", "±", "0.00"] and line.endswith("(limit 1.0)")
+               for line in lines)
+    assert json.loads((tmp_path / "e.json").read_text())["episode_cost/hazard_b"] == 0.0
+
+
+def test_train_cli_stops_on_a_wrong_length_budget_with_one_line(tmp_path):
+    # The toy env is imported from this file through env.id=<module>:<id>.
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests")}
+    proc = subprocess.run(
+        [sys.executable, "train.py", "env=gym", f"env.id=test_cost_vector:{ENV_ID}", "algo.cost_limit=[1,2,3]",
+         f"hydra.run.dir={tmp_path / 'run'}"],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "config error: algo.cost_limit must be a number or a list of 2 numbers, one per cost of the env "
+        "(hazard_a, hazard_b), got [1.0, 2.0, 3.0]")
+    assert not (tmp_path / "run" / "metrics.csv").exists()
+
+
+def test_trpo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_path, quiet):
+    # As ppo_lag above: hazard_a over its budget 0.5, its lambda rises by dual ascent on this
+    # batch's J_c,a alone; hazard_b never paid, its lambda stays 0.
+    out = tmp_path / "run"
+    cfg = run_cfg()
+    cfg["algo"] = {"name": "trpo_lag", "critic_minibatches": 2, "cost_limit": [0.5, 1.0], "lambda_lr": 0.5}
+    result = train(load_config(cfg), out, echo=quiet)
+    rows = read_rows(out / "metrics.csv")
+    lam_a = 0.0
+    for row in rows:
+        lam_a = max(0.0, lam_a + 0.5 * (float(row["episode_cost/hazard_a"]) - 0.5))
+        assert float(row["lagrange_multiplier/hazard_a"]) == pytest.approx(lam_a, rel=1e-6)
+        assert float(row["lagrange_multiplier/hazard_b"]) == 0.0
+    assert float(rows[0]["episode_cost/hazard_a"]) > 0.5 and float(rows[0]["lagrange_multiplier/hazard_a"]) > 0.0
+    assert result["cost_limit/hazard_a"] == 0.5
+
+
+def test_eval_intervals_and_summary_per_constraint(tmp_path):
+    lines = []
+    result = train(load_config(run_cfg(total_steps=2 * 32, eval_episodes=6)), tmp_path / "run", echo=lines.append)
+    # One return interval; each constraint its own cost interval and violation count against its budget.
+    assert len(result["episode_return_ci95"]) == 2 and "episode_cost_ci95" not in result
+    assert result["violations/hazard_b"] == 0 and result["violation_rate/hazard_b"] == 0.0
+    assert result["intervals/hazard_a"]["violation"] == "episode cost > 0.5"
+    assert result["intervals/hazard_b"]["violation"] == "episode cost > 1"
+    # hazard_a: an episode violates with any positive action (cost >= 1 > 0.5).
+    assert result["violation_rate/hazard_a"] == result["violations/hazard_a"] / 6
+    assert (result["violations/hazard_a"] > 0) == (result["episode_cost_max/hazard_a"] > 0.5)
+    summary = [line for line in lines if "against budget" in line]
+    assert [line.split()[0] for line in summary] == ["hazard_a", "hazard_b"]
+    assert summary[1].strip() == "hazard_b 0.00 ± 0.00 against budget 1: within budget"
+    assert any(line.strip().startswith("hazard_b: violations 0/6 episodes (cost > 1)") for line in lines)
