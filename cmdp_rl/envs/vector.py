@@ -152,7 +152,9 @@ class GymVecEnv(VecEnv):
         else:
             self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32, device=self.device).reshape(-1)
             self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32, device=self.device).reshape(-1)
-        names = _declared_cost_names(self.envs.envs[0])
+        # an async vector env keeps its envs in worker processes: ask a local probe copy instead
+        local = getattr(self.envs, "envs", None)
+        names = _declared_cost_names(local[0]) if local else None
         self.num_costs = len(names) if names is not None else _probe_num_costs(make_one)
         self._cost_names = names if names is not None else default_cost_names(self.num_costs)
         self._zeros = np.zeros((num_envs, self.num_costs), dtype=np.float32)
