@@ -45,7 +45,7 @@ import torch
 from cmdp_rl.algos.base import check_finite, single_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.natural_gradient import (
-    NaturalGradient, NaturalGradientConfig, Surrogates, fisher_vector_product, flat, line_search,
+    NaturalGradient, NaturalGradientConfig, fisher_vector_product, line_search,
     per_step_constraint,
 )
 from cmdp_rl.policies.agent import Agent
@@ -153,11 +153,7 @@ class CPO(NaturalGradient):
         """Solve the CPO subproblem on training units (steps, or segments for a recurrent policy)
         carrying GAE advantages and take the step the line search accepts (or none)."""
         cfg, params = self.cfg, self.policy_params
-        surrogates = Surrogates(self.agent, units, *self.advantages(units))
-        reward_surr, cost_surr, kl = surrogates()
-        g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
-        b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
-        fvp = fisher_vector_product(kl, params, cfg.cg_damping)
+        surrogates, surr_values, g, b, fvp = self.linearise(units)
         h_inv_g = conjugate_gradient(fvp, g, cfg.cg_iters)
         h_inv_b = conjugate_gradient(fvp, b, cfg.cg_iters)
         q, r, s = g.dot(h_inv_g).item(), g.dot(h_inv_b).item(), b.dot(h_inv_b).item()
@@ -181,7 +177,7 @@ class CPO(NaturalGradient):
                 return d_cost < 0
             return d_cost <= max(-c, 0.0) and (c >= 0 or d_reward > 0)
 
-        accepted = line_search(params, step, surrogates, (reward_surr.item(), cost_surr.item()), cfg.target_kl,
+        accepted = line_search(params, step, surrogates, surr_values, cfg.target_kl,
                                cfg.line_search_steps, cfg.backtrack_coef, accept)
         return {"cpo_case": sol.case, "dual_lambda": sol.lam, "dual_nu": sol.nu, "entropy": self.entropy(units),
                 **accepted}

@@ -192,6 +192,19 @@ class NaturalGradient:
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         return adv, units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
 
+    def linearise(self, units: dict[str, torch.Tensor]) -> tuple[Surrogates, tuple[float, float], torch.Tensor,
+                                                                torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
+        """What CPO and PCPO build their subproblem from, at the current policy: the surrogates
+        (for the line search), their values, the gradients ``g`` (reward) and ``b`` (cost) and the
+        Fisher-vector product ``v -> H v``."""
+        params = self.policy_params
+        surrogates = Surrogates(self.agent, units, *self.advantages(units))
+        reward_surr, cost_surr, kl = surrogates()
+        g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
+        b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
+        fvp = fisher_vector_product(kl, params, self.cfg.cg_damping)
+        return surrogates, (reward_surr.item(), cost_surr.item()), g, b, fvp
+
     @torch.no_grad()
     def entropy(self, units: dict[str, torch.Tensor]) -> float:
         return self.agent.dist(units).entropy().mean().item()

@@ -27,7 +27,7 @@ import torch
 from cmdp_rl.algos.base import check_finite, single_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.natural_gradient import (
-    NaturalGradient, NaturalGradientConfig, Surrogates, assign, fisher_vector_product, flat, per_step_constraint,
+    NaturalGradient, NaturalGradientConfig, assign, per_step_constraint,
 )
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -76,11 +76,7 @@ class PCPO(NaturalGradient):
 
     def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float) -> dict[str, float]:
         cfg, params = self.cfg, self.policy_params
-        surrogates = Surrogates(self.agent, units, *self.advantages(units))
-        reward_surr, cost_surr, kl = surrogates()
-        g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
-        b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
-        fvp = fisher_vector_product(kl, params, cfg.cg_damping)
+        surrogates, surr_values, g, b, fvp = self.linearise(units)
         c = per_step_constraint(episode_cost, self.cost_limit, episode_length)
         check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), c=c)
         step, coef = projected_step(g, b, c, cfg.target_kl, lambda v: conjugate_gradient(fvp, v, cfg.cg_iters),
@@ -89,8 +85,8 @@ class PCPO(NaturalGradient):
             assign(params, torch.nn.utils.parameters_to_vector(params) + step)
             new_reward, new_cost, new_kl = (t.item() for t in surrogates())
         check_finite(kl=new_kl)
-        return {"kl": new_kl, "projection_coef": coef, "surr_reward_change": new_reward - reward_surr.item(),
-                "surr_cost_change": new_cost - cost_surr.item(), "entropy": self.entropy(units)}
+        return {"kl": new_kl, "projection_coef": coef, "surr_reward_change": new_reward - surr_values[0],
+                "surr_cost_change": new_cost - surr_values[1], "entropy": self.entropy(units)}
 
 
 register("algo", "pcpo", PCPOConfig, PCPO)
