@@ -266,7 +266,7 @@ def penalised(batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float]
     return adv
 
 
-def _logged(values: list[float]) -> float | list[float]:
+def logged_multiplier(values: list[float]) -> float | list[float]:
     """A multiplier as metrics.csv takes it: a number for one constraint, else a list of K."""
     return values[0] if len(values) == 1 else list(values)
 
@@ -280,7 +280,7 @@ class PenaltyPPO(PPO):
 
     @property
     def lagrange_multiplier(self) -> float | list[float]:
-        return _logged(self.penalties)
+        return logged_multiplier(self.penalties)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return penalised(batch, self.penalties)
@@ -304,7 +304,7 @@ class PPOLagrangian(PPO):
 
     @property
     def lagrange_multiplier(self) -> float | list[float]:
-        return _logged(self.multiplier.values)
+        return logged_multiplier(self.multiplier.values)
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.costs)  # every iteration (algos/episode_cost.py)

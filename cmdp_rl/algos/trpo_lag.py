@@ -30,7 +30,7 @@ from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.cpo import CPOConfig
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers
 from cmdp_rl.algos.natural_gradient import NO_STEP, NaturalGradient, Surrogates, fisher_vector_product, flat, line_search
-from cmdp_rl.algos.ppo import penalised
+from cmdp_rl.algos.ppo import logged_multiplier, penalised
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import NonNegativeFloat, PositiveFloat, options
@@ -61,8 +61,7 @@ class TRPOLagrangian(NaturalGradient):
 
     @property
     def lagrange_multiplier(self) -> float | list[float]:
-        values = self.multiplier.values
-        return values[0] if len(values) == 1 else values
+        return logged_multiplier(self.multiplier.values)
 
     def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float | Sequence[float],
                     episode_length: float) -> dict[str, float]:
