@@ -81,5 +81,19 @@ def to_env(action: torch.Tensor, space: gym.Space) -> np.ndarray:
     return act.reshape(n, *space.shape).astype(space.dtype, copy=False)
 
 
+def uniform_actions(space: gym.Space, n: int, device: torch.device | str) -> tuple[torch.Tensor, torch.Tensor]:
+    """``n`` stored actions drawn uniformly from ``space`` (torch's generator) and their log-density
+    ``[n]``: a box's uniform over its bounds (which must be finite), a discrete space's uniform over
+    its choices. An off-policy algorithm's warm-up acts so (``Collector(uniform_steps=...)``)."""
+    if isinstance(space, spaces.Box):
+        low = torch.as_tensor(space.low, dtype=torch.float32, device=device).reshape(-1)
+        high = torch.as_tensor(space.high, dtype=torch.float32, device=device).reshape(-1)
+        action = low + (high - low) * torch.rand(n, low.numel(), device=device)
+        return action, (-(high - low).log().sum()).expand(n)
+    sizes = torch.tensor(categories(space), device=device)
+    action = (torch.rand(n, sizes.numel(), device=device) * sizes).long()
+    return action, (-sizes.float().log().sum()).expand(n)
+
+
 __all__ = ["SUPPORTED", "UnsupportedActionSpace", "action_dim", "action_dtype", "categories",
-           "check_action_space", "is_discrete", "no_action", "to_env"]
+           "check_action_space", "is_discrete", "no_action", "to_env", "uniform_actions"]

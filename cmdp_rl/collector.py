@@ -30,7 +30,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from cmdp_rl import keys
-from cmdp_rl.actions import action_dim, action_dtype, no_action
+from cmdp_rl.actions import action_dim, action_dtype, no_action, uniform_actions
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
 
@@ -91,7 +91,8 @@ class Collector:
     """Collects ``rollout_steps`` steps from every env of ``env`` per call to :meth:`collect`.
 
     Episodes run on across calls; the env is reset once, at construction, with ``seed``. Actions
-    are sampled, or the distribution's mode if ``deterministic``. The state the agent returns under
+    are sampled, or the distribution's mode if ``deterministic``; the run's first ``uniform_steps``
+    env steps (over all envs) act uniformly at random instead (an off-policy algorithm's warm-up). The state the agent returns under
     ``"next"`` (a recurrent state, a transformer's history) is carried to the next step's root.
     """
 
@@ -102,8 +103,10 @@ class Collector:
         rollout_steps: int,
         seed: int | None = None,
         deterministic: bool = False,
+        uniform_steps: int = 0,
     ) -> None:
         self.env = env
+        self.uniform_steps = uniform_steps
         self.deterministic = deterministic
         self.agent = agent
         self.rollout_steps = rollout_steps
@@ -125,8 +128,11 @@ class Collector:
         steps: list[Entries] = []
         root = self._root
         ep_return, ep_cost, ep_length = self._ep_return, self._ep_cost, self._ep_length
-        for _ in range(self.rollout_steps):
+        for t in range(self.rollout_steps):
             out = self.agent.act(root, self.deterministic)
+            if self.total_steps + t * self.env.num_envs < self.uniform_steps:
+                out[keys.ACTION], out[keys.LOG_PROB] = uniform_actions(
+                    self.env.action_space, self.env.num_envs, self.env.device)
             step = self.env.step(out[keys.ACTION])
             done = step.terminated | step.truncated
             ep_return = ep_return + step.reward

@@ -164,7 +164,8 @@ def resolve_auto(cfg: RunConfig) -> None:
     Numbers given in the config are kept. Works in place; called by :func:`validate`.
     """
     if cfg.rollout_steps == AUTO:
-        cfg.rollout_steps = min(256, max(32, 2048 // cfg.env.num_envs))
+        auto = getattr(cfg.algo, "auto_rollout_steps", None)  # an off-policy algorithm's few steps
+        cfg.rollout_steps = auto(cfg) if auto else min(256, max(32, 2048 // cfg.env.num_envs))
     if hasattr(cfg.algo, "resolve_auto"):
         cfg.algo.resolve_auto(cfg)
 

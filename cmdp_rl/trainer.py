@@ -101,7 +101,9 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     # After the resume and config checks (a mistyped resume path or a wrong-length budget is
     # reported, no directory created), before any training.
     ensure_writable(out)
-    collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed)
+    # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
+    collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed,
+                          uniform_steps=getattr(cfg.algo, "uniform_action_steps", 0))
     env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(

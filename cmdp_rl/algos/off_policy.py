@@ -1,0 +1,356 @@
+"""What SAC(-Lagrangian) and TD3(-Lagrangian) share: the replay buffer, target networks, the TD
+targets of the twin reward critics and the cost critic, the multiplier on the cost critic, and the
+update loop around each algorithm's gradient step.
+
+The one execution path stays: the trainer collects a short rollout (``rollout_steps`` "auto": 8
+steps of 8 envs, :meth:`OffPolicyConfig.auto_rollout_steps`) and :meth:`OffPolicy.update` adds its
+transitions to the buffer, then runs ``utd_ratio`` gradient steps per new transition once the buffer
+holds ``warmup_steps`` (the trainer's collector acts uniformly at random until then:
+``uniform_action_steps``).
+
+The cost budget. The multiplier compares the cost critic's estimate ``E_s[Q_c(s, pi(s))]`` over
+replayed states with a budget on the discounted scale: an episode budget ``d`` spent uniformly over
+an episode of ``T`` steps is ``d / T`` per step, whose discounted sum from the episode's start is
+:func:`discounted_budget` ``= d (1 - gamma^T) / (T (1 - gamma))``; the conversion of the
+Safety-Starter-Agents SAC-Lagrangian and of WCSAC (Yang et al. 2021). For ``T >> 1/(1 - gamma)``
+it is the per-step-rate form ``d / (T (1 - gamma))`` (Q_c of a stationary cost rate ``d / T``).
+What it assumes: cost spread evenly over the episode (docs/off_policy.md).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Literal, Union
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import nn
+from torchrl.data import LazyMemmapStorage, LazyTensorStorage, TensorDictReplayBuffer
+
+from cmdp_rl import keys
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
+from cmdp_rl.algos.lagrange import DualAscent, Multipliers, PIDLagrangian
+from cmdp_rl.policies.agent import Agent, Critic
+from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, to_off_policy
+from cmdp_rl.validation import (
+    AUTO, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt, finite, options, require,
+)
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+# What a transition keeps in the buffer: reward and cost are twins, as in the batch. A truncated
+# step keeps its final observation under "next" and bootstraps from it (only termination masks).
+STORED = (keys.OBS, keys.ACTION, (keys.NEXT, keys.OBS), (keys.NEXT, keys.REWARD), (keys.NEXT, keys.COST),
+          (keys.NEXT, keys.TERMINATED))
+
+
+def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
+    """The episode budget ``d`` on the discounted scale of a cost Q-critic:
+    ``d (1 - gamma^T) / (T (1 - gamma))`` (module docstring); ``d`` when ``gamma = 0`` and T = 1."""
+    T = episode_length
+    return d * (1.0 - gamma**T) / (T * (1.0 - gamma))
+
+
+@dataclass
+class LagrangeFields:
+    """The multiplier of the ``_lag`` variants (mixed into their options)."""
+
+    multiplier: Literal["dual", "pid"] = "dual"
+    lambda_init: NonNegativeFloat = 0.0
+    lambda_lr: PositiveFloat = 0.01  # dual: lambda <- max(0, lambda + lambda_lr (Q_c - d_Q)) per iteration
+    kp: NonNegativeFloat = 0.0  # pid gains (lagrange.PIDLagrangian); ki is the integral's step
+    ki: NonNegativeFloat = 0.01
+    kd: NonNegativeFloat = 0.0
+    lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
+    # T of the budget conversion: "auto" reads the env's time limit (env.max_steps).
+    episode_length: Annotated[Union[PositiveInt, Literal["auto"]], Field(
+        description="a positive integer or 'auto'")] = AUTO
+
+
+@options
+class OffPolicyConfig(AlgoConfig):
+    """Options of every off-policy algorithm (gae_lambda, normalize_advantage and max_grad_norm
+    are not read)."""
+
+    name: str = "sac"
+    lr: PositiveFloat = 3e-4  # actor
+    critic_lr: PositiveFloat = 3e-4
+    utd_ratio: Annotated[float, finite(gt=0, le=64)] = 1.0  # gradient steps per collected transition
+    warmup_steps: NonNegativeInt = 5000  # transitions (uniformly random actions) before the first update
+    batch_size: PositiveInt = 256
+    buffer_size: PositiveInt = 1_000_000
+    storage: Literal["memory", "memmap"] = "memory"  # memmap: torchrl's LazyMemmapStorage on disk
+    tau: Annotated[float, finite(gt=0, le=1)] = 0.005  # Polyak step of the target critics
+
+    @property
+    def uniform_action_steps(self) -> int:
+        """Read by the trainer: the collector's first steps act uniformly at random."""
+        return self.warmup_steps
+
+    def auto_rollout_steps(self, run: RunConfig) -> int:
+        """``rollout_steps: auto``: about 64 transitions per iteration (8 steps of 8 envs)."""
+        return max(1, 64 // run.env.num_envs)
+
+    def resolve_auto(self, run: RunConfig) -> None:
+        if getattr(self, "episode_length", None) == AUTO:
+            T = getattr(run.env, "max_steps", None)
+            require(T is not None, "algo.episode_length", f"a positive integer for env={run.env.name} "
+                                                           "(it has no max_steps to read)", AUTO)
+            self.episode_length = int(T)
+
+    def describe_update(self) -> str:
+        return (f"{self.utd_ratio:g} gradient steps per transition on batches of {self.batch_size} "
+                f"after {self.warmup_steps} warm-up steps")
+
+    def check(self, run: RunConfig) -> None:
+        require(run.policy.name == "mlp", "policy", f"mlp for algo={self.name} (recurrent and transformer "
+                                                    "policies are not supported off-policy)", run.policy.name)
+        require(self.buffer_size >= self.batch_size, "algo.buffer_size", f">= algo.batch_size ({self.batch_size})",
+                self.buffer_size)
+
+
+class TargetCritics:
+    """Slow copies of critics' output networks (the body is shared: it has no parameters, and the
+    copy reads the live observation statistics), moved by Polyak averaging."""
+
+    def __init__(self, modules: dict[str, nn.Module]) -> None:
+        self.live = modules
+        self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}
+
+    @torch.no_grad()
+    def soft_update(self, tau: float) -> None:
+        """``theta' <- tau theta + (1 - tau) theta'`` (Haarnoja et al. 2018b; Fujimoto et al. 2018)."""
+        for k, m in self.live.items():
+            tp, lp = list(self.target[k].parameters()), list(m.parameters())
+            torch._foreach_lerp_(tp, lp, tau)
+
+    def state_dict(self) -> dict:
+        return {k: m.state_dict() for k, m in self.target.items()}
+
+    def load_state_dict(self, state: dict) -> None:
+        for k, m in self.target.items():
+            m.load_state_dict(state[k])
+
+
+def target_critic(critic: Critic, net: nn.Module) -> Critic:
+    return Critic(critic.body, net)
+
+
+def td_target(signal: torch.Tensor, terminated: torch.Tensor, gamma: float, next_value: torch.Tensor) -> torch.Tensor:
+    """One-step TD target ``x + gamma (1 - terminated) V'``: a truncated step bootstraps from its
+    final observation; only termination stops the sum."""
+    return signal + gamma * (~terminated).float() * next_value
+
+
+class Replay:
+    """torchrl's ``TensorDictReplayBuffer`` of single transitions (:data:`STORED`), uniform sampling
+    from torch's generator (seeded by the run; restored on resume)."""
+
+    def __init__(self, size: int, batch_size: int, storage: str, device: torch.device | str = "cpu") -> None:
+        store = LazyMemmapStorage(size, device=device) if storage == "memmap" else LazyTensorStorage(size, device=device)
+        self.buffer = TensorDictReplayBuffer(storage=store, batch_size=batch_size)
+
+    def __len__(self) -> int:
+        return len(self.buffer)
+
+    def add(self, batch: TensorDictBase) -> int:
+        """Add the ``[N, T]`` batch's transitions; returns how many."""
+        flat = batch.select(*STORED).reshape(-1)
+        self.buffer.extend(flat)
+        return flat.shape[0]
+
+    def sample(self) -> TensorDictBase:
+        return self.buffer.sample()
+
+    def state_dict(self) -> dict:
+        """The stored transitions in storage order (only the filled rows, not the whole capacity)
+        and the writer's cursor: a buffer loading it samples the same indices to the same data."""
+        n = len(self.buffer)
+        data = self.buffer.storage.get(torch.arange(n)).to_dict() if n else {}
+        return {"data": data, "len": n, "writer": self.buffer.writer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["len"]:
+            self.buffer.extend(TensorDict(state["data"], batch_size=[state["len"]]))
+        self.buffer.writer.load_state_dict(state["writer"])
+
+
+class LagrangeTerm:
+    """Lambda per constraint on the cost critic's estimate against the discounted budget (a
+    controller of lagrange.py per constraint), or none for the unconstrained variants (lambda 0)."""
+
+    def __init__(self, cfg: OffPolicyConfig, agent: Agent) -> None:
+        limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
+        self.num_costs = len(limits)
+        self.multipliers = None
+        if isinstance(cfg, LagrangeFields):
+            self.budgets = [discounted_budget(d, cfg.cost_gamma, cfg.episode_length) for d in limits]
+
+            def make(d: float):
+                if cfg.multiplier == "pid":
+                    return PIDLagrangian(d, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init,
+                                         lambda_max=cfg.lambda_max)
+                return DualAscent(d, cfg.lambda_lr, cfg.lambda_init)
+
+            self.multipliers = Multipliers(make, self.budgets)
+
+    @property
+    def values(self) -> list[float]:
+        return self.multipliers.values if self.multipliers is not None else [0.0] * self.num_costs
+
+    def weights(self, device: torch.device) -> torch.Tensor | None:
+        """``[K]`` lambdas for the actor loss, None when unconstrained."""
+        if self.multipliers is None:
+            return None
+        return torch.tensor(self.multipliers.values, device=device)
+
+    def update(self, q_cost: list[float]) -> None:
+        if self.multipliers is not None:
+            self.multipliers.update(q_cost)
+
+    def state_dict(self) -> dict:
+        return {} if self.multipliers is None else self.multipliers.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        if self.multipliers is not None:
+            self.multipliers.load_state_dict(state)
+
+
+STATS = ("loss_q", "loss_qc", "loss_pi", "q_reward", "q_cost", "gradient_steps", "buffer_size")
+
+
+class OffPolicy:
+    """The update loop, replay, critics' targets and checkpointing; an algorithm adds its actor
+    head, its TD target's next action (:meth:`next_action`) and its actor step (:meth:`actor_step`)."""
+
+    name = "off_policy"
+    actor_head = "tanh_gaussian"
+    stats = STATS
+
+    def __init__(self, cfg: OffPolicyConfig, agent: Agent) -> None:
+        check_off_policy_agent(agent, cfg.name)
+        self.cfg, self.agent = cfg, agent
+        to_off_policy(agent, self.actor_head, getattr(cfg, "exploration_noise", 0.1))
+        device = agent.actor.head.low.device
+        self.replay = Replay(cfg.buffer_size, cfg.batch_size, cfg.storage, device)
+        self.lagrange = LagrangeTerm(cfg, agent)
+        self.targets = TargetCritics({name: agent.critics[name].net for name in (*Q_REWARD, Q_COST)})
+        self.actor_params = list(agent.actor.parameters())
+        self.critic_params = list(agent.critics.parameters())
+        # fused: one kernel per step for all parameters (as ppo.py).
+        self.actor_opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)
+        self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, fused=True)
+        self.steps_due = 0.0  # fractional gradient steps carried over (utd_ratio < 1)
+        self.gradient_steps = 0
+
+    def target(self, name: str) -> Critic:
+        return target_critic(self.agent.critics[name], self.targets.target[name])
+
+    def q(self, name: str, obs: dict, action: torch.Tensor) -> torch.Tensor:
+        return self.agent.critics[name]({**obs, keys.ACTION: action})
+
+    def critic_loss(self, mb: TensorDictBase) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Both reward twins and the cost critic regress on one-step TD targets with the same next
+        action a' (the algorithm's): ``r + gamma (1 - term) (min_j Q'_j(s', a') + bonus)`` and
+        ``c + gamma_c (1 - term) Q'_c(s', a')`` (Haarnoja et al. 2018b eq. 5; Fujimoto et al. 2018 eq. 10)."""
+        cfg = self.cfg
+        nxt = {k: mb.get((keys.NEXT, k)) for k in self.agent.actor.body.in_keys}
+        term = mb.get((keys.NEXT, keys.TERMINATED))
+        with torch.no_grad():
+            a_next, bonus = self.next_action(nxt)
+            q_next = torch.min(*[self.target(n)({**nxt, keys.ACTION: a_next}) for n in Q_REWARD]) + bonus
+            y = td_target(mb.get((keys.NEXT, keys.REWARD)), term, cfg.gamma, q_next)
+            y_c = td_target(mb.get((keys.NEXT, keys.COST)), term, cfg.cost_gamma,
+                            self.target(Q_COST)({**nxt, keys.ACTION: a_next}))
+        obs = {k: mb.get(k) for k in self.agent.actor.body.in_keys}
+        q = [self.q(n, obs, mb.get(keys.ACTION)) for n in Q_REWARD]
+        loss_q = sum((qi - y).pow(2).mean() for qi in q)
+        loss_qc = (self.q(Q_COST, obs, mb.get(keys.ACTION)) - y_c).pow(2).mean()
+        return loss_q + loss_qc, {"loss_q": loss_q.detach(), "loss_qc": loss_qc.detach(), "q_reward": q[0].mean().detach()}
+
+    def penalised_q(self, obs: dict, action: torch.Tensor,
+                    reward_critics: tuple[str, ...] = Q_REWARD) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(min_j Q_j(s, a) - sum_k lambda_k Q_c,k(s, a), Q_c(s, a))``: what the actor ascends
+        (the Lagrangian of Ha et al. 2020), and the cost estimate the multiplier reads."""
+        q_r = [self.q(n, obs, action) for n in reward_critics]
+        q_r = q_r[0] if len(q_r) == 1 else torch.min(*q_r)
+        q_c = self.q(Q_COST, obs, action)
+        lams = self.lagrange.weights(q_c.device)
+        return (q_r if lams is None else q_r - (q_c * lams).sum(-1, keepdim=True)), q_c
+
+    # --- what an algorithm provides -------------------------------------------------------------
+    def next_action(self, nxt: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """The TD target's next action and the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
+        raise NotImplementedError
+
+    def actor_step(self, obs: dict) -> dict[str, torch.Tensor] | None:
+        """One actor (and temperature) step; returns its statistics with ``q_cost`` ``[K]``, or None
+        (a delayed step)."""
+        raise NotImplementedError
+
+    # --- the shared update ----------------------------------------------------------------------
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        cfg = self.cfg
+        added = self.replay.add(batch)
+        if len(self.replay) < max(cfg.warmup_steps, cfg.batch_size):
+            return self._stats({}, 0)
+        self.steps_due += cfg.utd_ratio * added
+        n = int(self.steps_due)
+        self.steps_due -= n
+        sums: dict[str, torch.Tensor] = {}
+        counts: dict[str, int] = {}
+        for _ in range(n):
+            mb = self.replay.sample()
+            loss, stats = self.critic_loss(mb)
+            self.critic_opt.zero_grad(set_to_none=True)
+            loss.backward()
+            self.critic_opt.step()
+            self.gradient_steps += 1
+            actor = self.actor_step({k: mb.get(k) for k in self.agent.actor.body.in_keys})
+            if actor is not None:
+                stats.update(actor)
+                self.targets.soft_update(cfg.tau)  # every step for SAC; delayed with the actor for TD3
+            for k, v in stats.items():
+                sums[k] = sums[k] + v if k in sums else v
+                counts[k] = counts.get(k, 0) + 1
+        means = {k: v / counts[k] for k, v in sums.items()}
+        q_cost = means.pop("q_cost_k", None)
+        if q_cost is not None:
+            self.lagrange.update(q_cost.tolist())  # once per iteration, as ppo_lag's lambda
+        out = {k: v.item() for k, v in means.items()}
+        out["q_cost"] = q_cost.mean().item() if q_cost is not None else float("nan")
+        check_finite(**{k: v for k, v in out.items() if not math.isnan(v)})
+        check_parameters_finite(self.agent)
+        return self._stats(out, n)
+
+    def _stats(self, out: dict[str, float], steps: int) -> dict[str, float]:
+        from cmdp_rl.algos.ppo import logged_multiplier
+
+        row = {k: out.get(k, float("nan")) for k in self.stats}
+        row.update(gradient_steps=steps, buffer_size=len(self.replay))
+        row["lagrange_multiplier"] = logged_multiplier(self.lagrange.values)
+        return row
+
+    # --- checkpointing: networks, targets, optimizers, multiplier and the buffer -----------------
+    def state_dict(self) -> dict:
+        return {"networks": self.agent.state_dict(), "targets": self.targets.state_dict(),
+                "actor_opt": self.actor_opt.state_dict(), "critic_opt": self.critic_opt.state_dict(),
+                "multiplier": self.lagrange.state_dict(), "replay": self.replay.state_dict(),
+                "steps_due": self.steps_due, "gradient_steps": self.gradient_steps}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.agent.load_state_dict(state["networks"])
+        self.targets.load_state_dict(state["targets"])
+        self.actor_opt.load_state_dict(state["actor_opt"])
+        self.critic_opt.load_state_dict(state["critic_opt"])
+        self.lagrange.load_state_dict(state["multiplier"])
+        if "replay" in state:
+            self.replay.load_state_dict(state["replay"])
+        self.steps_due, self.gradient_steps = float(state["steps_due"]), int(state["gradient_steps"])
+
+
+__all__ = ["LagrangeFields", "OffPolicy", "OffPolicyConfig", "Replay", "STORED", "TargetCritics",
+           "discounted_budget", "td_target"]

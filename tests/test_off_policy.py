@@ -1,0 +1,165 @@
+"""Off-policy constrained RL (algos/off_policy.py, sac.py, td3.py): the TD targets on hand-computed
+transitions, the multiplier on the cost critic, the budget conversion, the replay buffer's resume,
+the refusals."""
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from cmdp_rl import keys, load_config, train
+from cmdp_rl.algos import make_algo
+from cmdp_rl.algos.off_policy import Replay, discounted_budget
+from cmdp_rl.config import ConfigError
+from cmdp_rl.envs import make_env
+from cmdp_rl.policies import make_agent
+from cmdp_rl.policies.squashed import Q_COST, Q_REWARD
+from conftest import tiny
+from test_resume import assert_same_run, crash_then_resume, final_state
+
+
+def build(algo: dict, **run):
+    cfg = load_config({"algo": {"buffer_size": 1000, **algo}, "env": {"num_envs": 2}, "policy": {"hidden_sizes": [8]}, **run})
+    env = make_env(cfg.env)
+    agent = make_agent(cfg.policy, env)
+    return make_algo(cfg.algo, agent), env
+
+
+def constant(net: torch.nn.Sequential, value: float) -> None:
+    """Make the MLP ``net`` output ``value`` whatever its input."""
+    last = net[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.fill_(value)
+
+
+def transitions(reward, cost, terminated) -> TensorDict:
+    n = len(reward)
+    col = lambda x: torch.tensor(x, dtype=torch.float32).reshape(n, 1)  # noqa: E731
+    return TensorDict({
+        keys.OBS: torch.rand(n, 2), keys.ACTION: torch.rand(n, 1) * 0.2 - 0.1,
+        (keys.NEXT, keys.OBS): torch.rand(n, 2), (keys.NEXT, keys.REWARD): col(reward),
+        (keys.NEXT, keys.COST): col(cost),
+        (keys.NEXT, keys.TERMINATED): torch.tensor(terminated).reshape(n, 1),
+    }, batch_size=[n])
+
+
+def test_the_budget_conversion_by_hand():
+    # d = 2 over T = 2 steps is 1 per step; discounted from the start: 1 + 0.5 * 1 = 1.5.
+    assert discounted_budget(2.0, 0.5, 2) == pytest.approx(1.5)
+    # One step: the budget itself. T = 3, gamma = 0.9: (1 + 0.9 + 0.81) d / 3.
+    assert discounted_budget(4.0, 0.9, 1) == pytest.approx(4.0)
+    assert discounted_budget(3.0, 0.9, 3) == pytest.approx(2.71)
+    # The velocity benchmark's d = 25 over 1000 steps, gamma 0.99: 2.5 (1 - 0.99^1000) = 2.49989...
+    assert discounted_budget(25.0, 0.99, 1000) == pytest.approx(2.5 * (1 - math.exp(1000 * math.log(0.99))))
+    algo, env = build({"name": "sac_lag", "cost_limit": [3.0], "cost_gamma": 0.9, "episode_length": 3})
+    assert algo.lagrange.budgets == [pytest.approx(2.71)]
+    algo, env = build({"name": "sac_lag", "cost_limit": 1.0, "cost_gamma": 0.9})  # T: Reach1D's max_steps
+    assert algo.lagrange.budgets == [pytest.approx((1 - 0.9**100) / (100 * 0.1))]
+
+
+def test_cost_critic_target_masks_termination_and_bootstraps_truncation():
+    """Target Q'_c = 2 everywhere, live Q_c = 1: y_c = c + 0.9 (1 - terminated) 2. A truncated
+    step (not terminated) bootstraps from its final observation."""
+    algo, _ = build({"name": "sac_lag", "cost_gamma": 0.9})
+    constant(algo.targets.target[Q_COST], 2.0)
+    constant(algo.agent.critics[Q_COST].net, 1.0)
+    mb = transitions(reward=[0.0, 0.0], cost=[1.0, 0.5], terminated=[False, True])
+    _, stats = algo.critic_loss(mb)
+    y = torch.tensor([1.0 + 0.9 * 2.0, 0.5])
+    assert stats["loss_qc"].item() == pytest.approx(((1.0 - y) ** 2).mean().item())  # (3.24 + 0.25) / 2
+
+
+def test_reward_target_takes_the_smaller_target_twin():
+    """TD3 (no entropy bonus): y = r + 0.5 (1 - terminated) min(3, 5); both live twins output 0."""
+    algo, _ = build({"name": "td3", "gamma": 0.5})
+    for name, value in zip(Q_REWARD, (3.0, 5.0)):
+        constant(algo.targets.target[name], value)
+        constant(algo.agent.critics[name].net, 0.0)
+    mb = transitions(reward=[1.0, 2.0], cost=[0.0, 0.0], terminated=[False, True])
+    _, stats = algo.critic_loss(mb)
+    y = torch.tensor([1.0 + 0.5 * 3.0, 2.0])
+    assert stats["loss_q"].item() == pytest.approx(2 * (y**2).mean().item())  # the sum of both twins' MSE
+
+
+@pytest.mark.parametrize("name", ["sac_lag", "td3_lag"])
+def test_the_multiplier_rises_above_the_budget_and_falls_below(name):
+    """The cost critic held at a constant Q_c (learning rate ~0): one update moves lambda by
+    lambda_lr * (Q_c - d_Q), d_Q the discounted budget: up at Q_c = 5, down at Q_c = 0."""
+    algo, env = build({"name": name, "warmup_steps": 0, "batch_size": 4, "critic_lr": 1e-12, "lambda_lr": 0.1,
+                       "lambda_init": 0.3, "policy_delay": 1} if name == "td3_lag" else
+                      {"name": name, "warmup_steps": 0, "batch_size": 4, "critic_lr": 1e-12, "lambda_lr": 0.1,
+                       "lambda_init": 0.3}, rollout_steps=2)
+    d_q = algo.lagrange.budgets[0]
+    from cmdp_rl.collector import Collector
+    collector = Collector(env, algo.agent, 2, seed=0)
+    constant(algo.agent.critics[Q_COST].net, 5.0)
+    stats = algo.update(collector.collect())
+    assert stats["gradient_steps"] == 4 and stats["q_cost"] == pytest.approx(5.0, abs=1e-4)
+    assert stats["lagrange_multiplier"] == pytest.approx(0.3 + 0.1 * (5.0 - d_q), abs=1e-4)
+    constant(algo.agent.critics[Q_COST].net, 0.0)
+    before = stats["lagrange_multiplier"]
+    stats = algo.update(collector.collect())
+    assert stats["lagrange_multiplier"] == pytest.approx(before - 0.1 * d_q, abs=1e-4)
+    env.close()
+
+
+def test_warm_up_acts_uniformly_and_does_not_update():
+    algo, env = build({"name": "sac", "warmup_steps": 8, "batch_size": 4})
+    from cmdp_rl.collector import Collector
+    collector = Collector(env, algo.agent, 2, seed=0, uniform_steps=8)
+    first = collector.collect()  # 4 steps of 2 envs: all uniform (log-density of U(-0.1, 0.1) = log 5)
+    assert torch.allclose(first.get(keys.LOG_PROB), torch.full((2, 2), math.log(5.0)))
+    assert algo.update(first)["gradient_steps"] == 0  # 4 stored of the 8 warm-up transitions
+    assert algo.update(collector.collect())["gradient_steps"] == 4  # 8 stored: utd_ratio 1 x 4 new
+    third = collector.collect()  # the policy acts: a tanh-Gaussian's log-density, not the uniform's
+    assert not torch.allclose(third.get(keys.LOG_PROB), torch.full((2, 2), math.log(5.0)))
+    env.close()
+
+
+def test_replay_state_restores_the_buffer_exactly():
+    """Past its capacity (the writer wrapped round): same rows, same cursor, same samples."""
+    a = Replay(6, 3, "memory")
+    for i in range(3):  # 9 transitions in a buffer of 6
+        a.add(transitions([float(3 * i + j) for j in range(3)], [0.0] * 3, [False] * 3).unsqueeze(0))
+    b = Replay(6, 3, "memory")
+    b.load_state_dict(a.state_dict())
+    assert len(b) == 6
+    assert torch.equal(a.buffer.storage.get(torch.arange(6)).get((keys.NEXT, keys.REWARD)).flatten(),
+                       torch.tensor([6.0, 7.0, 8.0, 3.0, 4.0, 5.0]))
+    for rb in (a, b):
+        rb.add(transitions([9.0], [0.0], [False]).unsqueeze(0))  # overwrites row 3
+    torch.manual_seed(1)
+    sa = a.sample()
+    torch.manual_seed(1)
+    sb = b.sample()
+    assert (sa == sb).all()
+
+
+def test_sac_lag_resumes_exactly_with_its_buffer(tmp_path, monkeypatch, quiet):
+    cfg = tiny(algo={"name": "sac_lag", "warmup_steps": 32, "batch_size": 16, "buffer_size": 64})
+    for k in ("update_epochs", "num_minibatches"):
+        cfg["algo"].pop(k)
+    cfg["policy"] = {"hidden_sizes": [16]}
+    whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
+    assert_same_run(whole, broken)
+    replay = final_state(broken)["replay"]
+    assert replay["len"] == 64 and torch.equal(replay["data"]["observation"],
+                                               final_state(whole)["replay"]["data"]["observation"])
+
+
+@pytest.mark.parametrize("override, message", [
+    ({"policy": {"name": "lstm"}}, "policy must be mlp for algo=sac_lag"),
+    ({"algo": {"name": "sac"}, "env": {"name": "grid"}}, "sac needs a Box action space"),
+    ({"algo": {"name": "sac_lag", "episode_length": 10}, "env": {"name": "grid"}}, "sac_lag needs a Box action space"),
+    ({"algo": {"name": "sac_lag", "buffer_size": 8, "batch_size": 16}}, "algo.buffer_size must be >= algo.batch_size"),
+    ({"algo": {"name": "sac_lag", "utd_ratio": 0}}, "algo.utd_ratio must be in (0, 64]"),
+    ({"algo": {"name": "td3_lag", "multiplier": "adam"}}, "algo.multiplier must be one of ('dual', 'pid')"),
+])
+def test_refusals_are_one_line(tmp_path, quiet, override, message):
+    cfg = {"algo": {"name": "sac_lag"}, **override}
+    with pytest.raises(ConfigError) as exc:
+        train(load_config(cfg), tmp_path / "run", echo=quiet)
+    assert message in str(exc.value) and "\n" not in str(exc.value)
+    assert not (tmp_path / "run").exists()
