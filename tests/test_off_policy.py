@@ -163,3 +163,28 @@ def test_refusals_are_one_line(tmp_path, quiet, override, message):
         train(load_config(cfg), tmp_path / "run", echo=quiet)
     assert message in str(exc.value) and "\n" not in str(exc.value)
     assert not (tmp_path / "run").exists()
+
+
+# Reach1D with the blocking wall, 30-step episodes: every push into the wall costs 1 and gains
+# nothing, so only the multiplier keeps the policy off it. Short horizon (gamma 0.9) so that the
+# Q-critics' TD targets settle in a few thousand steps.
+REACH = {
+    "env": {"max_steps": 30},
+    "algo": {"name": "sac_lag", "cost_limit": 1.0, "gamma": 0.9, "cost_gamma": 0.9, "warmup_steps": 300,
+             "utd_ratio": 0.5, "batch_size": 64, "lr": 1e-3, "critic_lr": 1e-3, "alpha_init": 0.1,
+             "alpha_lr": 1e-3, "lambda_lr": 0.05},
+    "policy": {"hidden_sizes": [32, 32], "activation": "relu"},
+    "seed": 0, "total_steps": 3000, "eval_episodes": 8, "checkpoint_every": 1000,
+}
+
+
+def test_sac_lag_learns_reach1d_within_budget(tmp_path, quiet):
+    """3,000 steps (about 30 s): the eval policy (tanh of the mean, through the usual evaluation)
+    stays within budget d = 1 and gets most of the DP optimum's return (0.399: the wall caps it);
+    lambda had to act."""
+    cfg = load_config(REACH)
+    result = train(cfg, tmp_path, echo=quiet)
+    assert result["episode_cost"] <= 1.0, result
+    assert result["episode_return"] >= 0.6 * cfg.env.optimum(1.0), result
+    from conftest import metrics_rows
+    assert max(float(r["lagrange_multiplier"]) for r in metrics_rows(tmp_path)) > 0.05
