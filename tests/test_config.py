@@ -7,7 +7,7 @@ from cmdp_rl import ConfigError, load_config
 from cmdp_rl.envs import GymVecEnv, Reach1D
 
 BAD = [
-    ({"algo": {"name": "sac"}}, "algo.name"),
+    ({"algo": {"name": "no_such_algo"}}, "algo.name"),
     ({"env": {"name": "cartpole"}}, "env.name"),
     ({"env": {"backend": "jax"}}, "env.backend"),
     ({"env": {"num_envs": 0}}, "env.num_envs"),
