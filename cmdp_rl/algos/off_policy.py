@@ -32,6 +32,7 @@ from torchrl.data import LazyMemmapStorage, LazyTensorStorage, TensorDictReplayB
 from cmdp_rl import keys
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers, PIDLagrangian
+from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.policies.agent import Agent, Critic
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, to_off_policy
 from cmdp_rl.validation import (
@@ -327,8 +328,6 @@ class OffPolicy:
         return self._stats(out, n)
 
     def _stats(self, out: dict[str, float], steps: int) -> dict[str, float]:
-        from cmdp_rl.algos.ppo import logged_multiplier
-
         row = {k: out.get(k, float("nan")) for k in self.stats}
         row.update(gradient_steps=steps, buffer_size=len(self.replay))
         row["lagrange_multiplier"] = logged_multiplier(self.lagrange.values)
