@@ -4,6 +4,7 @@ equal env steps; a table and a figure of return, cost and cost rate against env 
     python experiments/off_policy_benchmark.py --run [overrides]  # the sweep (train.py -m +experiment=off_policy_benchmark), then the report
     python experiments/off_policy_benchmark.py SWEEP_DIR          # the report again, from finished runs
     python experiments/off_policy_benchmark.py --smoke            # a few thousand steps per run, to check the pipeline
+    python experiments/off_policy_benchmark.py --throughput [N]   # sac_lag's training steps/s on the task, N iterations
 
 The sweep is ``configs/experiment/off_policy_benchmark.yaml``; sac_lag's network and checkpoint
 interval on this task are ``configs/tuning/algo/velocity_sac_lag.yaml``. The report, beside the runs:
@@ -31,7 +32,7 @@ from cmdp_rl.plot import pyplot, save_figure
 from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-SMOKE = ["total_steps=8192", "env.max_steps=200"]  # sac_lag: 5,000 warm-up steps, then ~3,000 trained
+SMOKE = ["total_steps=6144", "env.max_steps=200"]  # sac_lag: 5,000 warm-up steps, then 1,144 trained
 
 
 def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
@@ -124,13 +125,57 @@ def gather(sweep_dir: Path) -> str:
     return text
 
 
+def throughput(iterations: int) -> None:
+    """sac_lag's training env steps/s on HalfCheetah velocity at the default update-to-data ratio,
+    after its warm-up: collect and update ``iterations`` iterations through the trainer's pieces,
+    timing wall clock and this process's CPU time (the CPU figure is what a free core would give
+    when the machine is shared)."""
+    import time
+
+    from cmdp_rl.algos import make_algo
+    from cmdp_rl.collector import Collector
+    from cmdp_rl.config import compose_config
+    from cmdp_rl.envs import make_env
+    from cmdp_rl.normalization import make_normalizers
+    from cmdp_rl.policies import make_agent
+
+    cfg = compose_config(["+experiment=off_policy_benchmark", "algo=sac_lag"])
+    env = make_env(cfg.env)
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    algo = make_algo(cfg.algo, agent)
+    collector = Collector(env, agent, cfg.rollout_steps, seed=0, uniform_steps=cfg.algo.warmup_steps)
+    while collector.total_steps < cfg.algo.warmup_steps:  # warm-up: random actions, no updates
+        batch = collector.collect()
+        agent.normalizers.scale_batch(batch)
+        algo.update(batch)
+        agent.normalizers.update_observation_stats(batch)
+    wall, cpu, steps = time.perf_counter(), time.process_time(), collector.total_steps
+    for _ in range(iterations):
+        batch = collector.collect()
+        agent.normalizers.scale_batch(batch)
+        algo.update(batch)
+        agent.normalizers.update_observation_stats(batch)
+    wall, cpu, steps = time.perf_counter() - wall, time.process_time() - cpu, collector.total_steps - steps
+    load = os.getloadavg()
+    print(f"sac_lag, HalfCheetah velocity, utd_ratio {cfg.algo.utd_ratio:g}, batch {cfg.algo.batch_size}, "
+          f"networks {cfg.policy.hidden_sizes} {cfg.policy.activation}, {cfg.env.num_envs} envs x "
+          f"{cfg.rollout_steps} steps per iteration: {steps} steps in {wall:.1f} s wall "
+          f"({steps / wall:.1f} steps/s), {cpu:.1f} s CPU ({steps / cpu:.1f} steps per CPU second); "
+          f"load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}")
+    env.close()
+
+
 def main() -> None:
     parser = experiment_arg_parser(__doc__)
     parser.add_argument("--smoke", action="store_true", help="--run with a few thousand steps per run")
+    parser.add_argument("--throughput", type=int, nargs="?", const=20, default=None, metavar="N",
+                        help="measure sac_lag's training steps/s over N iterations (default 20) and exit")
     args = parser.parse_args()
+    if args.throughput is not None:
+        return throughput(args.throughput)
     if args.smoke:
         args.run = True
-        args.sweep_dir_or_overrides = [*SMOKE, "hydra.sweeper.params.seed=0,1", *args.sweep_dir_or_overrides]
+        args.sweep_dir_or_overrides = [*SMOKE, "seed=0,1", *args.sweep_dir_or_overrides]
     gather(experiment_sweep_dir(parser, args, "off_policy_benchmark", ROOT))
 
 
