@@ -138,7 +138,7 @@ def test_replay_state_restores_the_buffer_exactly():
 
 
 def test_sac_lag_resumes_exactly_with_its_buffer(tmp_path, monkeypatch, quiet):
-    cfg = tiny(algo={"name": "sac_lag", "warmup_steps": 32, "batch_size": 16, "buffer_size": 64})
+    cfg = tiny(algo={"name": "sac_lag", "warmup_steps": 32, "batch_size": 16, "buffer_size": 64, "utd_ratio": 0.5})
     for k in ("update_epochs", "num_minibatches"):
         cfg["algo"].pop(k)
     cfg["policy"] = {"hidden_sizes": [16]}
@@ -188,3 +188,21 @@ def test_sac_lag_learns_reach1d_within_budget(tmp_path, quiet):
     assert result["episode_return"] >= 0.6 * cfg.env.optimum(1.0), result
     from conftest import metrics_rows
     assert max(float(r["lagrange_multiplier"]) for r in metrics_rows(tmp_path)) > 0.05
+
+
+def test_one_multiplier_per_constraint_on_the_cost_critics_k_outputs(tmp_path, quiet):
+    """K = 2 (tests/test_cost_vector.py's env: the first cost is paid for every rewarding action, the
+    second never): one λ column per cost; the first rises, the second (estimate 0 < budget) stays 0."""
+    from test_cost_vector import run_cfg
+    from conftest import metrics_rows
+
+    # A short discount (d_Q = 0.5 (1 - 0.5^4) / (4 x 0.5) = 0.23 for the first cost) and a fast critic:
+    # Q_c of the first cost passes its budget within the run's 80 gradient steps.
+    cfg = run_cfg(algo={"name": "sac_lag", "episode_length": 4, "warmup_steps": 32, "batch_size": 16,
+                        "lambda_lr": 0.5, "utd_ratio": 0.5, "gamma": 0.5, "cost_gamma": 0.5, "critic_lr": 1e-2})
+    cfg["algo"].pop("update_epochs"), cfg["algo"].pop("num_minibatches")
+    cfg["policy"] = {"hidden_sizes": [16]}
+    train(load_config(cfg), tmp_path, echo=quiet)
+    last = metrics_rows(tmp_path)[-1]
+    assert float(last["lagrange_multiplier/hazard_a"]) > 0.0
+    assert float(last["lagrange_multiplier/hazard_b"]) == 0.0
