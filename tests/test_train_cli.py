@@ -52,7 +52,7 @@ def test_cpo_trains_and_logs_its_dual(tmp_path):
 
 
 @pytest.mark.parametrize("args,message", [
-    (["algo=sac"], "algo"),
+    (["algo=no_such_algo"], "algo"),
     (["algo.cost_limit=-1"], "algo.cost_limit must be a number >= 0"),
     (["algo.gamma=1.0"], "algo.gamma must be in [0, 1)"),
     (["total_steps=0"], "total_steps must be a positive integer"),
