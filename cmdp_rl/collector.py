@@ -92,8 +92,9 @@ class Collector:
 
     Episodes run on across calls; the env is reset once, at construction, with ``seed``. Actions
     are sampled, or the distribution's mode if ``deterministic``; the run's first ``uniform_steps``
-    env steps (over all envs) act uniformly at random instead (an off-policy algorithm's warm-up). The state the agent returns under
-    ``"next"`` (a recurrent state, a transformer's history) is carried to the next step's root.
+    env steps (over all envs) act uniformly at random instead (an off-policy algorithm's warm-up).
+    The state the agent returns under ``"next"`` (a recurrent state, a transformer's history) is
+    carried to the next step's root.
     """
 
     def __init__(
