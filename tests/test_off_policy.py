@@ -118,9 +118,11 @@ def test_warm_up_acts_uniformly_and_does_not_update():
     env.close()
 
 
-def test_replay_state_restores_the_buffer_exactly():
-    """Past its capacity (the writer wrapped round): same rows, same cursor, same samples."""
-    a = Replay(6, 3, "memory")
+@pytest.mark.parametrize("storage", ["memory", "memmap"])
+def test_replay_state_restores_the_buffer_exactly(storage):
+    """Past its capacity (the writer wrapped round): same rows, same cursor, same samples; the state
+    of a memory-mapped buffer loads into either kind."""
+    a = Replay(6, 3, storage)
     for i in range(3):  # 9 transitions in a buffer of 6
         a.add(transitions([float(3 * i + j) for j in range(3)], [0.0] * 3, [False] * 3).unsqueeze(0))
     b = Replay(6, 3, "memory")
