@@ -208,3 +208,19 @@ def test_one_multiplier_per_constraint_on_the_cost_critics_k_outputs(tmp_path, q
     last = metrics_rows(tmp_path)[-1]
     assert float(last["lagrange_multiplier/hazard_a"]) > 0.0
     assert float(last["lagrange_multiplier/hazard_b"]) == 0.0
+
+
+def test_the_pid_multiplier_acts_on_the_cost_critic():
+    """algo.multiplier=pid: lambda = kp (Q_c - d_Q) + I, I += ki (Q_c - d_Q) (lagrange.PIDLagrangian)."""
+    algo, env = build({"name": "sac_lag", "warmup_steps": 0, "batch_size": 4, "critic_lr": 1e-12,
+                       "multiplier": "pid", "kp": 1.0, "ki": 0.1, "lambda_init": 0.3}, rollout_steps=2)
+    from cmdp_rl.collector import Collector
+    collector = Collector(env, algo.agent, 2, seed=0)
+    d_q = algo.lagrange.budgets[0]
+    constant(algo.agent.critics[Q_COST].net, 5.0)
+    integral = 0.3 + 0.1 * (5.0 - d_q)
+    assert algo.update(collector.collect())["lagrange_multiplier"] == pytest.approx(1.0 * (5.0 - d_q) + integral, abs=1e-4)
+    constant(algo.agent.critics[Q_COST].net, 0.0)
+    integral -= 0.1 * d_q
+    assert algo.update(collector.collect())["lagrange_multiplier"] == pytest.approx(max(0.0, integral - d_q), abs=1e-4)
+    env.close()
