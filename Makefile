@@ -4,7 +4,8 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup setup-safety-gym train test bench bench-velocity bench-velocity-smoke sweep probe-belief clean
+.PHONY: setup setup-safety-gym train test bench bench-velocity bench-velocity-smoke bench-safety-gym \
+	bench-safety-gym-smoke sweep probe-belief clean
 
 .venv/.installed: pyproject.toml
 	test -x $(PY) || python3 -m venv .venv
@@ -41,6 +42,16 @@ SAFETY_GYM_VERSION := 1.0.0
 	touch $@
 
 setup-safety-gym: .venv/.safety_gym
+
+# The Safety-Gymnasium benchmark (experiments/safety_gym_benchmark.py): ppo, ppo_lag, pid_lag and cpo on
+# SafetyPointGoal1-v0 and SafetyCarGoal1-v0, 3 seeds, 500k steps each (hours on 2 cores), then the report.
+# The smoke version runs the same pipeline on tiny budgets, seed 0 only.
+bench-safety-gym: .venv/.safety_gym
+	$(PY) experiments/safety_gym_benchmark.py --run $(SAFETY_GYM_ARGS)
+
+bench-safety-gym-smoke: .venv/.safety_gym
+	$(PY) experiments/safety_gym_benchmark.py --run total_steps=1024 env.num_envs=2 rollout_steps=256 \
+		env.max_steps=256 eval_episodes=1 seed=0 hydra.sweep.dir=multirun/safety_gym_benchmark_smoke
 
 # The first run: the batched Reach1D preset (configs/env/reach1d_torch.yaml, tuned in configs/tuning/)
 # for 3M steps, 96 iterations; experiments/first_run.py runs this recipe over seeds (README figures).

@@ -4,7 +4,8 @@
 An env component that can render declares ``render_env()`` on its options: one gymnasium env of its
 config with ``render_mode="rgb_array"``. Reach1D draws its frame with numpy (``envs/reach1d.py``;
 the batched torch backend renders through this gym twin of the same config), the velocity tasks use
-MuJoCo's camera, and ``env=gym`` offers its env's own frames when it has an ``rgb_array`` mode.
+MuJoCo's camera (``env=safety_gym``'s navigation tasks: its "track" camera, following the robot),
+and ``env=gym`` offers its env's own frames when it has an ``rgb_array`` mode.
 
 Headless MuJoCo: with no ``DISPLAY`` and no ``MUJOCO_GL`` set, this module sets ``MUJOCO_GL=egl``
 (gymnasium would otherwise try GLFW first, which needs a display). Without a GPU, EGL renders in
@@ -69,7 +70,7 @@ def make_render_env(env_cfg: Any) -> gym.Env:
     make = getattr(env_cfg, "render_env", None)
     if make is None:
         raise ConfigError(f"video: env={env_cfg.name} cannot render (its options declare no render_env); "
-                          "videos are made for env=reach1d, env=velocity and env=gym envs with an rgb_array mode")
+                          "videos are made for env=reach1d, env=velocity, env=safety_gym and env=gym envs with an rgb_array mode")
     _headless_gl()
     try:
         env = make()
@@ -87,7 +88,7 @@ def make_render_env(env_cfg: Any) -> gym.Env:
         except Exception as exc:  # noqa: BLE001 - OpenGL's failures come as many types; all mean the same here
             first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
             failure = f"video: env={env_cfg.name} cannot render here ({first})"
-            if "mujoco" in type(env.unwrapped).__module__:
+            if any(m in type(env.unwrapped).__module__ for m in ("mujoco", "safety_gymnasium")):
                 failure = f"video: env={env_cfg.name} cannot render here (MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {first}); {HEADLESS_GL}"
         if failure is not None:
             env.close()

@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tensordict.nn import TensorDictModule
 
 from cmdp_rl import Collector, keys, make_env
 from cmdp_rl.envs.safety_gym import SafetyGymEnvConfig, make_task
@@ -60,16 +59,28 @@ def single_loop(env, steps: int, six: bool) -> float:
     return steps / (time.perf_counter() - t0)
 
 
+class RandomActions:
+    """The collector's side of an agent (``initial_state``, ``act``) drawing uniform random actions
+    in the env's box: the env path alone, no network."""
+
+    in_keys = [keys.OBS]
+
+    def __init__(self, low: torch.Tensor, high: torch.Tensor, seed: int = 0) -> None:
+        self.low, self.high = low, high
+        self.gen = torch.Generator().manual_seed(seed)
+
+    def initial_state(self, num_envs: int, device: torch.device | str = "cpu") -> dict:
+        return {}
+
+    def act(self, d, deterministic: bool = False) -> dict:
+        n = d[keys.OBS].shape[0]
+        return {keys.ACTION: self.low + (self.high - self.low) * torch.rand(n, self.low.shape[0], generator=self.gen)}
+
+
 def collector_rate(task: str, n: int, steps_per_env: int, vector: str) -> float:
     env = make_env(SafetyGymEnvConfig(task=task, num_envs=n, vector=vector))
-    low, high = env.action_low, env.action_high
-    gen = torch.Generator().manual_seed(0)
-
-    def act(obs: torch.Tensor) -> torch.Tensor:
-        return low + (high - low) * torch.rand(obs.shape[0], low.shape[0], generator=gen)
-
-    actor = TensorDictModule(act, [keys.OBS], [keys.ACTION])
-    collector = Collector(env, actor, rollout_steps=steps_per_env, seed=0)  # reset (and worker start) not timed
+    collector = Collector(env, RandomActions(env.action_low, env.action_high), rollout_steps=steps_per_env,
+                          seed=0)  # reset (and worker start) not timed
     t0 = time.perf_counter()
     collector.collect()
     rate = collector.total_steps / (time.perf_counter() - t0)

@@ -1,8 +1,11 @@
 """env=safety_gym: Safety-Gymnasium 1.0.0's own tasks on our stack.
 
-The package is installed by ``make setup-safety-gym`` (a prerequisite of ``make test``). Every
-offered task is checked with ``SAFETY_GYM_ALL_TASKS=1`` (77 tasks, a few minutes); by default a
-sample covering every robot, every task family, every level and every velocity task.
+The package is installed by ``make setup-safety-gym`` (a prerequisite of ``make test``). Building a
+navigation task's world (an MJCF compile, at every reset) takes about 0.5 s, so these tests build as
+few as they can: a sample of the offered tasks covering every robot, task family, level and velocity
+task, and one ppo_lag run on SafetyPointGoal1-v0 shared by the training, resume, evaluation and
+video tests. ``SAFETY_GYM_ALL_TASKS=1`` checks every offered task (77, a few minutes) and the saved
+state of envs in worker processes (``env.vector=async``).
 """
 
 import importlib.util
@@ -18,15 +21,19 @@ if importlib.util.find_spec("safety_gymnasium") is None:
     pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
 
 from cmdp_rl import Collector, finished_episodes, keys, make_env, train  # noqa: E402
+from cmdp_rl.checkpoint import load_checkpoint  # noqa: E402
 from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safety_gym import SafetyGymEnvConfig, make_task  # noqa: E402
 from cmdp_rl.envs.safety_gym_compat import import_safety_gymnasium  # noqa: E402
 from cmdp_rl.envs.safety_gym_tasks import TASKS, task_problem  # noqa: E402
-from conftest import ForwardPolicy, metrics_rows, run_script  # noqa: E402
+from cmdp_rl.resume import resume_config  # noqa: E402
+from conftest import ROOT, ForwardPolicy, eval_result, metrics_rows  # noqa: E402
 
-SAMPLE = ["SafetyPointGoal1-v0", "SafetyCarButton2-v0", "SafetyRacecarPush0-v0", "SafetyDoggoCircle1-v0",
-          "SafetyAntGoal2-v0", "SafetyPointRun0-v0", *[t for t in TASKS if "Velocity" in t]]
-CHECKED = sorted(TASKS) if os.environ.get("SAFETY_GYM_ALL_TASKS") else SAMPLE
+FULL = bool(os.environ.get("SAFETY_GYM_ALL_TASKS"))
+# Every robot (Point: the training run below), family, level; every velocity task.
+SAMPLE = ["SafetyCarButton1-v0", "SafetyRacecarPush0-v0", "SafetyDoggoCircle1-v0", "SafetyAntGoal2-v0",
+          "SafetyPointRun0-v0", *[t for t in TASKS if "Velocity" in t]]
+CHECKED = sorted(TASKS) if FULL else SAMPLE
 
 
 def package_env(task):
@@ -72,66 +79,58 @@ def test_offered_task_builds_and_steps_with_a_cost(task):
     env.close()
 
 
-@pytest.mark.parametrize("task,action", [
-    ("SafetyPointCircle1-v0", [1.0, 0.0]),   # drives out of the circle's boundaries: cost from step 59
-    ("SafetyCarGoal1-v0", [1.0, 1.0]),       # into hazards
-    ("SafetyHalfCheetahVelocity-v1", None),  # random actions
-])
-def test_our_step_is_the_package_step(task, action):
-    """Observations, rewards, costs and episode ends equal Safety-Gymnasium's six-value step's."""
-    ours, theirs = make_task(task), package_env(task)
-    o1, _ = ours.reset(seed=3)
-    o2, _ = theirs.reset(seed=3)
-    assert np.array_equal(o1, o2)
+def test_the_six_value_step_reaches_the_batch():
+    """Observations, rewards and costs of Safety-Gymnasium's own six-value step (the package's env,
+    no adapter) arrive in the collector's batch unchanged; the time limit as truncation."""
+    task, action = "SafetyPointCircle1-v0", np.array([1.0, 0.0])  # out of the circle's boundaries: cost from step 59
+    env = make_env(SafetyGymEnvConfig(task=task, num_envs=2, max_steps=100))
+    forward = ForwardPolicy(lambda obs: torch.tensor([[1.0, 0.0]]).expand(obs.shape[0], 2))
+    batch = Collector(env, forward, rollout_steps=100, seed=0).collect()
+    env.close()
+    obs, reward, cost = [], [], []
+    for i in range(2):  # gymnasium seeds env i with seed + i
+        theirs = package_env(task)
+        steps = [theirs.reset(seed=i)[0]] + [theirs.step(action.copy()) for _ in range(100)]
+        obs.append(np.stack([steps[0], *(s[0] for s in steps[1:-1])]))
+        reward.append([s[1] for s in steps[1:]])
+        cost.append([s[2] for s in steps[1:]])
+        assert not any(s[3] or s[4] for s in steps[1:])  # the package's own limit is 500 steps
+        theirs.close()
+    assert np.array_equal(batch[keys.OBS].numpy(), np.asarray(obs, np.float32))
+    assert batch[keys.NEXT][keys.REWARD][..., 0].tolist() == np.float32(reward).tolist()
+    assert batch[keys.NEXT][keys.COST][..., 0].tolist() == cost and np.sum(cost) > 0
+    truncated = batch[keys.NEXT][keys.TRUNCATED][..., 0]
+    assert truncated[:, 99].all() and truncated.sum() == 2 and not batch[keys.NEXT][keys.TERMINATED].any()
+    eps = finished_episodes(batch)
+    assert eps["cost"].tolist() == [[sum(c)] for c in cost] and eps["length"].tolist() == [100.0, 100.0]
+
+
+def test_a_velocity_task_steps_as_the_package_does():
+    ours, theirs = make_task("SafetyHalfCheetahVelocity-v1"), package_env("SafetyHalfCheetahVelocity-v1")
+    assert np.array_equal(ours.reset(seed=3)[0], theirs.reset(seed=3)[0])
     rng = np.random.default_rng(1)
-    costs = []
     for _ in range(120):
-        a = np.asarray(action) if action else rng.uniform(-1, 1, ours.action_space.shape)
-        a = a.astype(ours.action_space.dtype)
+        a = rng.uniform(-1, 1, ours.action_space.shape).astype(ours.action_space.dtype)
         o1, r1, term1, trunc1, info = ours.step(a)
         o2, r2, c2, term2, trunc2, _ = theirs.step(a.copy())
-        assert np.array_equal(o1, o2) and r1 == r2 and info["cost"] == c2
-        assert (term1, trunc1) == (term2, trunc2)
-        costs.append(c2)
-    if action:
-        assert sum(costs) > 0  # the comparison covered steps with cost
+        assert np.array_equal(o1, o2) and r1 == r2 and info["cost"] == c2 and (term1, trunc1) == (term2, trunc2)
 
 
-def test_cost_and_episode_ends_reach_the_batch():
-    cfg = SafetyGymEnvConfig(task="SafetyPointCircle1-v0", num_envs=2, max_steps=100)
-    env = make_env(cfg)
-    forward = ForwardPolicy(lambda obs: torch.tensor([[1.0, 0.0]]).expand(obs.shape[0], 2))
-    batch = Collector(env, forward, rollout_steps=110, seed=0).collect()
-    # The same two envs stepped by hand: gymnasium seeds env i with seed + i.
-    expected = []
-    for i in range(2):
-        e = make_task("SafetyPointCircle1-v0", max_steps=100)
-        e.reset(seed=i)
-        expected.append([e.step(np.array([1.0, 0.0]))[4]["cost"] for _ in range(100)])
-    cost = batch[keys.NEXT][keys.COST][..., 0]
-    assert cost[:, :100].tolist() == expected and sum(map(sum, expected)) > 0
-    truncated = batch[keys.NEXT][keys.TRUNCATED][..., 0]
-    assert truncated[:, 99].all() and truncated.sum() == 2  # the time limit, as truncation
-    eps = finished_episodes(batch)
-    assert eps["cost"].tolist() == [[sum(c)] for c in expected] and eps["length"].tolist() == [100.0, 100.0]
-    env.close()
-
-
-@pytest.mark.parametrize("task", ["SafetyCarButton1-v0", "SafetyAntVelocity-v1"])
-def test_saved_state_continues_bit_for_bit(task):
-    a = make_task(task)
+def test_a_velocity_task_saved_state_continues_bit_for_bit():
+    """(A navigation task's saved state: the resumed training run below, which restores its world.)"""
+    a = make_task("SafetyAntVelocity-v1")
     a.reset(seed=2)
-    rng = np.random.default_rng(0)
-    actions = rng.uniform(-1, 1, (60, *a.action_space.shape)).astype(a.action_space.dtype)
+    actions = np.random.default_rng(0).uniform(-1, 1, (60, *a.action_space.shape)).astype(a.action_space.dtype)
     for act in actions[:30]:
         a.step(act)
-    b = make_task(task)
+    b = make_task("SafetyAntVelocity-v1")
     b.load_state_dict(pickle.loads(pickle.dumps(a.state_dict())))
     for act in actions[30:]:
         s1, s2 = a.step(act), b.step(act)
         assert np.array_equal(s1[0], s2[0]) and s1[1:4] == s2[1:4] and s1[4]["cost"] == s2[4]["cost"]
 
 
+@pytest.mark.skipif(not FULL, reason="worker processes rebuild every world (~15 s): SAFETY_GYM_ALL_TASKS=1")
 def test_async_vector_env_steps_as_sync_and_saves_its_state():
     cfgs = [SafetyGymEnvConfig(task="SafetyPointGoal1-v0", num_envs=2, vector=v) for v in ("sync", "async")]
     sync, asyn = make_env(cfgs[0]), make_env(cfgs[1])
@@ -171,38 +170,96 @@ def test_missing_package_is_a_one_line_config_error(monkeypatch):
         compose_config(["env=safety_gym"])
 
 
-def test_unsupported_task_is_refused_in_one_line(tmp_path):
-    proc = run_script("train.py", "env=safety_gym", "env.task=SafetyPointGoal1Vision-v0", f"hydra.run.dir={tmp_path}")
-    assert proc.returncode == 2 and "Traceback" not in proc.stderr
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    assert lines == ["config error: env.task must be an offered Safety-Gymnasium task, got "
-                     "'SafetyPointGoal1Vision-v0': it observes camera images (our policies take flat vectors); "
-                     "use SafetyPointGoal1-v0"]
+def test_unsupported_task_is_refused_in_one_line():
+    with pytest.raises(ConfigError) as refused:
+        compose_config(["env=safety_gym", "env.task=SafetyPointGoal1Vision-v0"])
+    assert str(refused.value) == ("env.task must be an offered Safety-Gymnasium task, got 'SafetyPointGoal1Vision-v0': "
+                                  "it observes camera images (our policies take flat vectors); use SafetyPointGoal1-v0")
 
 
-def test_a_short_training_run_in_process(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    cfg = compose_config(["env=safety_gym", "env.task=SafetyCarGoal1-v0", "env.num_envs=2", "env.max_steps=100",
-                          "rollout_steps=64", "total_steps=256", "eval_episodes=1", "algo=cpo"])
-    result = train(cfg, tmp_path / "run", echo=lambda _: None)
-    assert result["episodes"] == 1 and result["episode_length"] == 100.0 and result["cost_limit"] == 25.0
-    assert 0.0 <= result["episode_cost"] <= 100.0
-    assert len(metrics_rows(tmp_path / "run")) == 2  # two iterations
+# One short ppo_lag run on SafetyPointGoal1-v0: 2 iterations of 64 steps on one env, whose first
+# episode spans the checkpoint after iteration 1 (so a resume restores a world mid-episode). Episodes
+# of 150 steps: none ends in the contract check's 100 steps or in training, each end costing a reset
+# (a world rebuild).
+RUN = ["env=safety_gym", "env.task=SafetyPointGoal1-v0", "algo=ppo_lag", "env.num_envs=1", "env.max_steps=150",
+       "rollout_steps=64", "total_steps=128", "checkpoint_every=1", "eval_episodes=1"]
 
 
-def test_train_resume_and_evaluate_from_the_command_line(tmp_path):
-    """ppo_lag on SafetyPointGoal1-v0 through train.py, resumed, evaluated (that a resumed run
-    continues exactly rests on the env's saved state: test_saved_state_continues_bit_for_bit)."""
-    run_dir = tmp_path / "run"
-    first = run_script("train.py", "env=safety_gym", "env.task=SafetyPointGoal1-v0", "env.num_envs=2",
-                       "env.max_steps=100", "rollout_steps=64", "eval_episodes=1", "checkpoint_every=1",
-                       "algo=ppo_lag", "total_steps=128", f"hydra.run.dir={run_dir}")
-    assert first.returncode == 0, first.stderr
-    assert "training ppo_lag on safety_gym" in first.stdout and "cost limit 25.0" in first.stdout
-    resumed = run_script("train.py", f"resume={run_dir}", "total_steps=256")
-    assert resumed.returncode == 0, resumed.stderr
-    assert "resuming" in resumed.stdout and "warning" not in resumed.stdout
-    assert [row["iteration"] for row in metrics_rows(run_dir)] == ["1", "2"]
-    ev = run_script("evaluate.py", f"run={run_dir}", "episodes=1")
-    assert ev.returncode == 0, ev.stderr
-    assert "episode_cost" in ev.stdout and "episode_length  100.0" in ev.stdout
+def _evaluate_cli():
+    spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("safety_gym") / "run"
+    result = train(compose_config(RUN), out, echo=lambda _: None)
+    return out, result
+
+
+def test_a_short_ppo_lag_run_writes_its_outputs(run):
+    out, result = run
+    assert {"config.yaml", "metrics.csv", "eval.json", "checkpoint.pt", "run_info.json"} <= {p.name for p in out.iterdir()}
+    assert [row["iteration"] for row in metrics_rows(out)] == ["1", "2"]
+    assert result["cost_limit"] == 25.0 and result["episodes"] == 1 and result["episode_length"] == 150.0
+    assert 0.0 <= result["episode_cost"] <= 150.0 and eval_result(out)["episode_length"] == 150.0
+    assert load_checkpoint(out / "checkpoint.pt")["iteration"] == 2
+
+
+def test_a_resumed_run_ends_as_the_uninterrupted_one(run, tmp_path):
+    whole, _ = run
+    short = tmp_path / "short"
+    cfg = compose_config([*RUN, "total_steps=64"])
+    train(cfg, short, echo=lambda _: None)
+    # as `train.py resume=<short> total_steps=128` does
+    train(resume_config(short, {"total_steps": 128}, ["total_steps"]), echo=lambda _: None)
+    assert metrics_rows(short) == metrics_rows(whole)  # every column but wall-clock, bit for bit
+    assert eval_result(short) == eval_result(whole)
+    a, b = (load_checkpoint(d / "checkpoint.pt")["algo_state"] for d in (whole, short))
+    assert all(torch.equal(t, b["networks"][k]) for k, t in a["networks"].items())
+
+
+def test_evaluate_a_navigation_run(run, capsys):
+    out, _ = run
+    assert _evaluate_cli().main([f"run={out}", "episodes=1"]) == 0
+    printed = capsys.readouterr().out
+    assert "episode_cost" in printed and "episode_length  150.0" in printed
+
+
+def _headless_gl_problem() -> str | None:
+    """Why MuJoCo cannot render offscreen here (None if it can): gymnasium's offscreen viewer (the
+    one the tasks use, reading MUJOCO_GL as video.py sets it) on an empty model, no world to build."""
+    import mujoco
+    from gymnasium.envs.mujoco.mujoco_rendering import OffScreenViewer
+
+    from cmdp_rl.video import HEADLESS_GL, _headless_gl
+
+    _headless_gl()
+    model = mujoco.MjModel.from_xml_string("<mujoco/>")
+    try:
+        OffScreenViewer(model, mujoco.MjData(model), 16, 16).close()
+    except Exception as exc:  # noqa: BLE001 - OpenGL's failures come as many types
+        return f"{(str(exc).strip().splitlines() or [type(exc).__name__])[0]}; {HEADLESS_GL}"
+    return None
+
+
+def test_video_of_a_navigation_run_renders_headless(run, tmp_path):
+    pytest.importorskip("moviepy")
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    problem = _headless_gl_problem()
+    if problem:
+        pytest.skip(f"no headless OpenGL (MUJOCO_GL={os.environ.get('MUJOCO_GL')}): {problem}")
+    out, _ = run
+    assert _evaluate_cli().main([f"run={out}", "video=true", "video_steps=8", "episodes=1",
+                                 f"video_dir={tmp_path / 'v'}"]) == 0
+    from moviepy import VideoFileClip
+
+    video = tmp_path / "v" / "policy-episode-0.mp4"
+    assert imageio_ffmpeg.count_frames_and_secs(str(video))[0] == 9  # the reset frame and one per step
+    clip = VideoFileClip(str(video))
+    assert clip.size == [320, 240] and clip.fps == 32  # render_fps 30, as a power of two (video.exact_fps)
+    first, last = np.asarray(clip.get_frame(0)), np.asarray(clip.get_frame(8 / 32))
+    assert first.std() > 10 and not np.array_equal(first, last)  # a scene, and the robot moves in it
+    clip.close()

@@ -30,7 +30,7 @@ from cmdp_rl.envs.env_state import env_state, load_env_state
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.safety_gym_compat import import_safety_gymnasium
 from cmdp_rl.envs.safety_gym_tasks import TASKS, task_problem
-from cmdp_rl.envs.vector import GymVecEnv
+from cmdp_rl.envs.vector import GymVecEnv, default_cost_names
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options, require
 
@@ -45,14 +45,19 @@ class SafetyGymTask(gym.Env):
     truncates itself at its own limit, so a larger value has no effect (the config refuses it).
     """
 
-    def __init__(self, task: str, max_steps: int = 0, render_mode: str | None = None) -> None:
+    # One cost per task. Declared, so that the vector env need not build a throwaway world to
+    # count them (a world build is about 0.5 s: a probe env cost each make_env that much).
+    cost_names = default_cost_names(1)
+
+    def __init__(self, task: str, max_steps: int = 0, render_mode: str | None = None,
+                 **render_kwargs: Any) -> None:
         import_safety_gymnasium()
         from gymnasium.envs.registration import load_env_creator
 
         spec = gym.spec(task)
         kwargs = dict(spec.kwargs)
         if render_mode is not None:
-            kwargs["render_mode"] = render_mode
+            kwargs.update(render_mode=render_mode, **render_kwargs)
         with warnings.catch_warnings():
             # Its Box spaces declare float32 observations with float64 infinite bounds: numpy warns
             # about the cast, which is exact (inf stays inf).
@@ -199,12 +204,20 @@ class _ModelUnpickler(pickle.Unpickler):
         return self.data
 
 
-def make_task(task: str, max_steps: int = 0, render_mode: str | None = None) -> SafetyGymTask:
-    """One env of ``task`` (a Safety-Gymnasium id this module offers)."""
+def make_task(task: str, max_steps: int = 0, render_mode: str | None = None, **render_kwargs: Any) -> SafetyGymTask:
+    """One env of ``task`` (a Safety-Gymnasium id this module offers); ``render_kwargs`` (frame
+    ``width``, ``height``, ``camera_name``) go to the task with a ``render_mode``."""
     problem = task_problem(task)
     if problem:
         raise ConfigError(problem)
-    return SafetyGymTask(task, max_steps, render_mode)
+    return SafetyGymTask(task, max_steps, render_mode, **render_kwargs)
+
+
+# Video frames (width, height): multiples of 16, as video encoders like. Navigation tasks film from
+# the package's "track" camera (behind and above the robot, following it); its default, "vision",
+# is the robot's own front camera, which shows little of the hazards around it.
+RENDER_SIZE = (320, 240)
+NAVIGATION_CAMERA = "track"
 
 
 @options
@@ -221,6 +234,12 @@ class SafetyGymEnvConfig(EnvOptions):
 
     def env_id(self) -> str:
         return self.task
+
+    def render_env(self) -> SafetyGymTask:
+        """One env of this task rendering ``rgb_array`` frames of RENDER_SIZE (for video)."""
+        w, h = RENDER_SIZE
+        camera = {} if "Velocity" in self.task else {"camera_name": NAVIGATION_CAMERA}
+        return make_task(self.task, self.max_steps, render_mode="rgb_array", width=w, height=h, **camera)
 
     def check(self, run: Any) -> None:
         problem = task_problem(self.task)

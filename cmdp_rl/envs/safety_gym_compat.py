@@ -20,6 +20,10 @@ the import work with the fixes below, each applied only as far as needed:
    1.25); its Doggo and Ant robots read their hinge angles that way. ``BaseAgent.get_sensor`` (in
    Safety-Gymnasium's own class, not numpy's) returns its one-element readings as an array type whose
    ``float()`` takes the one element; values, shapes and dtypes are unchanged.
+7. gymnasium 1.0's ``OffScreenViewer`` requires ``width`` and ``height``; 0.28's took them from the
+   model's offscreen buffer size, which the package sets to the frame size just before it creates
+   its viewer (``rgb_array`` rendering, for videos). The name its ``underlying`` module uses is
+   rebound to a function passing that size on; rendering is otherwise the package's.
 
 ``safety_gymnasium.make`` itself cannot run on gymnasium 1.x (it reads and writes ``EnvSpec``
 fields 1.0 removed, such as ``apply_api_compatibility``), so :func:`make_task` builds a task from its
@@ -173,6 +177,21 @@ def _patch_get_sensor(base_agent: type) -> None:
     base_agent.get_sensor = get_sensor
 
 
+def _patch_offscreen_viewer(underlying: types.ModuleType) -> None:
+    """Fix 7, on the name Safety-Gymnasium's ``underlying`` module calls (gymnasium's class is untouched)."""
+    viewer = underlying.OffScreenViewer
+    if getattr(viewer, "_cmdp_rl_compat", False):
+        return
+
+    def offscreen_viewer(model, data, width=None, height=None, **kwargs):
+        width = model.vis.global_.offwidth if width is None else width
+        height = model.vis.global_.offheight if height is None else height
+        return viewer(model, data, width, height, **kwargs)
+
+    offscreen_viewer._cmdp_rl_compat = True
+    underlying.OffScreenViewer = offscreen_viewer
+
+
 def import_safety_gymnasium() -> types.ModuleType:
     """``import safety_gymnasium`` with the fixes above; an ImportError saying how to install it."""
     if "safety_gymnasium" in sys.modules:
@@ -203,6 +222,7 @@ def import_safety_gymnasium() -> types.ModuleType:
                 sys.modules.pop(k, None)
         _patch_mjmodel_jnt()
         _patch_get_sensor(importlib.import_module("safety_gymnasium.bases.base_agent").BaseAgent)
+        _patch_offscreen_viewer(importlib.import_module("safety_gymnasium.bases.underlying"))
         return module
 
 
