@@ -120,7 +120,9 @@ def main(argv: list[str]) -> int:
     if opts.video:
         video_dir = Path(opts.video_dir) if opts.video_dir else Path(opts.run) / "videos"
         for v in record_video(agent, cfg.env, video_dir, opts.video_episodes, deterministic, seed, opts.video_steps):
-            print(f"wrote {v.path} ({v.frames} frames: return {v.episode_return:.3f}, cost {v.episode_cost:.0f})")
+            costs = v.episode_cost if isinstance(v.episode_cost, tuple) else (v.episode_cost,)
+            print(f"wrote {v.path} ({v.frames} frames: return {v.episode_return:.3f}, "
+                  f"cost {'/'.join(f'{c:.0f}' for c in costs)})")
     return 0
 
 

@@ -260,12 +260,16 @@ def _per_constraint(row: dict[str, Any], name: str) -> list:
 
 
 def format_row(row: dict[str, Any]) -> str:
+    """The progress line. A row without a multiplier (an algorithm that reports none) has no
+    ``lambda`` part, rather than a KeyError halfway through a run."""
     cost = "/".join(_fmt(c, '.2f') for c in _per_constraint(row, "episode_cost"))
-    lam = "/".join(_fmt(x, '.3f') for x in _per_constraint(row, "lagrange_multiplier"))
+    lams = _per_constraint(row, "lagrange_multiplier")
+    lam = "/".join(_fmt(x, '.3f') for x in lams)
     if "episode_cost" in row:  # one constraint: the fixed-width line it always had
-        cost, lam = _fmt(row["episode_cost"], '6.2f'), format(row["lagrange_multiplier"], '6.3f')
+        cost = _fmt(row["episode_cost"], '6.2f')
+        lam = _fmt(row["lagrange_multiplier"], '6.3f') if "lagrange_multiplier" in row else ""
     return (
         f"iter {row['iteration']:4d} | step {row['step']:>9,d} | {row['sps']:>8,.0f} steps/s"
         f" | return {_fmt(row['episode_return'], '7.3f')} | cost {cost}"
-        f" | lambda {lam}"
+        + (f" | lambda {lam}" if lams else "")
     )

@@ -38,9 +38,10 @@ class Progress:
         def each(name: str, fmt: str) -> str:  # one value, or K joined by '/' (episode_cost/<cost> columns)
             return "/".join(format(v, fmt) for k, v in row.items() if k == name or k.startswith(name + "/"))
 
+        lam = each('lagrange_multiplier', '.3f')  # absent for an algorithm that reports no multiplier
         self._bar.set_postfix_str(
-            f"return {row['episode_return']:.3f}, cost {each('episode_cost', '.2f')}, "
-            f"lambda {each('lagrange_multiplier', '.3f')}", refresh=False)
+            f"return {row['episode_return']:.3f}, cost {each('episode_cost', '.2f')}"
+            + (f", lambda {lam}" if lam else ""), refresh=False)
         self._bar.update(row["step"] - self._bar.n)
 
     def write(self, line: str) -> None:

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from cmdp_rl import keys
+from cmdp_rl.actions import to_env
 from cmdp_rl.collector import PolicyMemory
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.validation import ConfigError
@@ -53,7 +54,7 @@ class VideoEpisode:
     path: Path
     frames: int
     episode_return: float
-    episode_cost: float
+    episode_cost: float | tuple[float, ...]  # one number, or one per constraint when the env has K > 1
 
 
 def _headless_gl() -> None:
@@ -138,9 +139,10 @@ class _PolicyOnOneEnv:
                                     self.deterministic)
         return self.wrote[keys.ACTION][0]
 
-    def observe(self, cost: float) -> None:
-        """After the env's step: the policy's next state, previous action and cost."""
-        _, self.carried = self.memory.step(self.wrote, torch.tensor([[cost]]), torch.tensor([[False]]))
+    def observe(self, cost: np.ndarray) -> None:
+        """After the env's step: the policy's next state, previous action and cost (all K of them)."""
+        cost_t = torch.as_tensor(cost, dtype=torch.float32).view(1, -1)
+        _, self.carried = self.memory.step(self.wrote, cost_t, torch.tensor([[False]]))
         self.is_init = False
 
 
@@ -168,13 +170,15 @@ def record_video(
             ret = cost = 0.0
             steps = 0
             while True:
-                action = policy.act(obs).numpy().astype(env.action_space.dtype)
+                action = to_env(policy.act(obs).view(1, -1), env.action_space)[0]  # as the vector env steps it
                 obs, reward, terminated, truncated, info = env.step(action)
-                policy.observe(float(info.get("cost", 0.0)))
-                ret, cost, steps = ret + float(reward), cost + float(info.get("cost", 0.0)), steps + 1
+                step_cost = np.asarray(info.get("cost", 0.0), dtype=np.float64).reshape(-1)  # [K]
+                policy.observe(step_cost)
+                ret, cost, steps = ret + float(reward), cost + step_cost, steps + 1
                 if terminated or truncated or (max_steps is not None and steps >= max_steps):
                     break
-            out.append(VideoEpisode(Path(video_dir) / f"{name_prefix}-episode-{i}.mp4", steps + 1, ret, cost))
+            episode_cost = float(cost[0]) if np.size(cost) == 1 else tuple(float(c) for c in cost)
+            out.append(VideoEpisode(Path(video_dir) / f"{name_prefix}-episode-{i}.mp4", steps + 1, ret, episode_cost))
             if i + 1 < episodes:
                 obs, _ = env.reset()  # writes episode i's video
     env.close()  # writes the last one

@@ -58,6 +58,14 @@ def metrics_rows(run_dir: Path, drop=WALL_CLOCK) -> list[dict]:
         return [{k: v for k, v in row.items() if k not in drop} for row in csv.DictReader(f)]
 
 
+def tail_means(run_dir: Path, *columns: str, last: int = 10) -> tuple[float, ...]:
+    """Each column's mean over the run's last ``last`` iterations (metrics.csv): a learning test's
+    reading of where training ended, less noisy than the final row alone."""
+    with open(Path(run_dir) / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))[-last:]
+    return tuple(sum(float(r[c]) for r in rows) / len(rows) for c in columns)
+
+
 def eval_result(run_dir: Path) -> dict:
     out = json.loads((Path(run_dir) / "eval.json").read_text())
     out.pop("train_time_s")

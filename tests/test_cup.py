@@ -8,6 +8,7 @@ from torch.distributions import kl_divergence
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config import compose_config
+from conftest import tail_means
 
 
 def setup(algo: dict):
@@ -89,8 +90,6 @@ def test_cup_learns_reach1d_within_budget(tmp_path):
                           "algo.update_epochs=5", "total_steps=327680", "log_interval=1", "seed=0"])
     train(cfg, tmp_path, echo=lambda s: None)
     rows = list(csv.DictReader((tmp_path / "metrics.csv").open()))
-    last = rows[-10:]
-    ret = sum(float(r["episode_return"]) for r in last) / len(last)
-    cost = sum(float(r["episode_cost"]) for r in last) / len(last)
+    ret, cost = tail_means(tmp_path, "episode_return", "episode_cost")
     assert cost <= 0.5 + 0.2, cost
     assert ret >= 0.2 > float(rows[0]["episode_return"]) + 0.1, (ret, rows[0]["episode_return"])

@@ -1,8 +1,10 @@
 """Discrete and MultiDiscrete actions end to end: the distributions (hand-computed), the previous
 action's encoding, the gymnasium vector env, the collector, CPO's Fisher-vector product on a
-categorical KL, every algorithm and policy head on small discrete envs (tests/cost_envs.py), a
+categorical KL, every algorithm x every policy head on Discrete (env=grid with K = 2, or a one-cost
+env for the single-constraint algorithms) and MultiDiscrete actions (tests/cost_envs.py), a
 learning check, checkpoints and evaluation, and ``train.py env=gym`` on a discrete env."""
 
+import csv
 import json
 import math
 import os
@@ -171,23 +173,74 @@ HEADS = {
     "gru": {"name": "gru", "hidden_size": 8, "head_sizes": [], "segment_length": 0},
     "transformer": {"name": "transformer", "window": 4, "width": 8, "heads": 2, "feedforward": 8, "head_sizes": [8]},
 }
-ALGOS = ("ppo", "penalty", "ppo_lag", "pid_lag", "cpo")
+NATURAL_GRADIENT = ("cpo", "trpo_lag", "pcpo")  # critic_epochs/critic_minibatches; the rest: PPO's options
+MULTI = ("ppo", "penalty", "ppo_lag", "pid_lag", "trpo_lag")  # take K > 1 costs (algos/base.MULTI_CONSTRAINT)
+SINGLE = ("cpo", "pcpo", "crpo", "focops", "cup")  # one constraint: refuse K > 1 with one line
+ALGOS = MULTI + SINGLE
+# A 3 x 3 grid with both hazards (tests/test_grid.py's) and short episodes: 2 iterations of 2 x 8 steps.
+SMALL_GRID = {"name": "grid", "num_envs": 2, "layout": ["SaG", ".b.", "..."], "end_prob": 0.3}
 
 
-def _cfg(env_id: str, algo: str, policy: dict, steps: int, **top) -> dict:
+def _cfg(env: str | dict, algo: str, policy: dict, steps: int, rollout: int = 16, **top) -> dict:
     a = {"name": algo}
-    a.update({"critic_epochs": 1, "critic_minibatches": 2} if algo == "cpo" else {"update_epochs": 2, "num_minibatches": 2})
-    return {"env": {"name": "gym", "id": env_id, "num_envs": 2}, "algo": a, "policy": policy, "rollout_steps": 16,
-            "total_steps": steps, "eval_episodes": 2, "checkpoint_every": 100, **top}
+    a.update({"critic_epochs": 1, "critic_minibatches": 2} if algo in NATURAL_GRADIENT
+             else {"update_epochs": 2 if steps > 2 * rollout else 1, "num_minibatches": 2})
+    env_cfg = env if isinstance(env, dict) else {"name": "gym", "id": env, "num_envs": 2}
+    return {"env": env_cfg, "algo": a, "policy": policy, "rollout_steps": rollout, "total_steps": steps,
+            "eval_episodes": 2, "checkpoint_every": 100, **top}
 
 
-@pytest.mark.parametrize("env_id", [cost_envs.MATCH_ID, cost_envs.MULTI_MATCH_ID])
-@pytest.mark.parametrize("algo,head", [(a, "mlp") for a in ALGOS] + [(a, h) for h in ("lstm", "gru", "transformer")
-                                                                      for a in ("ppo_lag", "cpo")])
-def test_every_algorithm_and_head_trains_on_discrete_actions(tmp_path, quiet, env_id, algo, head):
-    res = train(load_config(_cfg(env_id, algo, HEADS[head], 64)), tmp_path, echo=quiet)
-    assert res["episodes"] == 2 and 0 <= res["episode_return"] <= 8 and res["episode_length"] == 8
-    assert (tmp_path / "checkpoint.pt").is_file()
+def _check_outputs(run, result: dict, iterations: int) -> None:
+    """What a finished run writes: one metrics.csv row per iteration, every value finite (the
+    reference-normalized columns stay blank: no reference), a checkpoint, eval.json with finite numbers."""
+    with open(run / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["iteration"]) for r in rows] == list(range(1, iterations + 1))
+    for r in rows:
+        values = {k: v for k, v in r.items() if not k.startswith("normalized_")}
+        assert all(v != "" and math.isfinite(float(v)) for v in values.values()), values
+    assert (run / "checkpoint.pt").is_file()
+    saved = json.loads((run / "eval.json").read_text())
+    assert saved["episodes"] == 2 and saved["episode_return"] == result["episode_return"]
+    numbers = [v for v in saved.values() if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    assert numbers and all(math.isfinite(v) for v in numbers)
+
+
+@pytest.mark.parametrize("head", HEADS)
+@pytest.mark.parametrize("algo", ALGOS)
+def test_every_algorithm_and_head_on_multi_discrete_actions(tmp_path, quiet, algo, head):
+    """MultiDiscrete([3, 2]), one cost: 2 iterations of 2 x 8 steps, 8-step episodes."""
+    result = train(load_config(_cfg(cost_envs.MULTI_MATCH_ID, algo, HEADS[head], 32, rollout=8)), tmp_path, echo=quiet)
+    _check_outputs(tmp_path, result, 2)
+    assert 0 <= result["episode_return"] <= 8 and result["episode_length"] == 8
+
+
+@pytest.mark.parametrize("algo,head", [(a, h) for a in MULTI for h in HEADS] + [(a, "mlp") for a in SINGLE])
+def test_every_algorithm_and_head_on_discrete_actions(tmp_path, quiet, algo, head):
+    """Discrete(4): the algorithms that take several constraints on env=grid (K = 2, a budget per
+    hazard) with every head; those that take one, which env=grid refuses (the next test), on the
+    one-cost Match env with the MLP (every head runs them on MultiDiscrete actions above)."""
+    if algo in MULTI:
+        cfg = _cfg(SMALL_GRID, algo, HEADS[head], 32, rollout=8)
+        cfg["algo"]["cost_limit"] = [0.3, 0.15]
+    else:
+        cfg = _cfg(cost_envs.MATCH_ID, algo, HEADS[head], 32, rollout=8)
+    result = train(load_config(cfg), tmp_path, echo=quiet)
+    _check_outputs(tmp_path, result, 2)
+    if algo in MULTI:
+        assert {"episode_cost/hazard_a", "episode_cost/hazard_b"} <= set(result)
+        assert 0 <= result["episode_return"] <= 1
+
+
+@pytest.mark.parametrize("algo", SINGLE)
+def test_single_constraint_algorithms_refuse_the_grid_in_one_line(tmp_path, quiet, algo):
+    cfg = _cfg(SMALL_GRID, algo, HEADS["mlp"], 32, rollout=8)
+    with pytest.raises(ConfigError) as err:
+        train(load_config(cfg), tmp_path / "run", echo=quiet)
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith(
+        "algo must be ppo, penalty, ppo_lag, pid_lag or trpo_lag for an env with 2 costs (hazard_a, hazard_b): ")
+    assert not (tmp_path / "run").exists()
 
 
 def test_checkpoint_reloads_and_evaluates_greedily_and_sampled(tmp_path, quiet):

@@ -12,6 +12,7 @@ from cmdp_rl.algos.episode_cost import FINISHED, EpisodeCost
 from cmdp_rl.algos.focops import focops_loss
 from cmdp_rl.config import compose_config
 from cmdp_rl.validation import ConfigError
+from conftest import tail_means
 
 A = torch.tensor([[0.4], [0.0], [-0.2]], dtype=torch.float64)  # actions, 3 states, 1-d
 ADV = torch.tensor([[1.0], [-2.0], [0.5]], dtype=torch.float64)  # A_r - nu A_c
@@ -106,9 +107,7 @@ def test_focops_learns_reach1d_within_budget(tmp_path):
                           "algo.update_epochs=5", "total_steps=327680", "log_interval=1", "seed=0"])
     train(cfg, tmp_path, echo=lambda s: None)
     rows = list(csv.DictReader((tmp_path / "metrics.csv").open()))
-    last = rows[-10:]
-    ret = sum(float(r["episode_return"]) for r in last) / len(last)
-    cost = sum(float(r["episode_cost"]) for r in last) / len(last)
+    ret, cost = tail_means(tmp_path, "episode_return", "episode_cost")
     assert cost <= 0.5 + 0.2, cost
     assert ret >= 0.25 > float(rows[0]["episode_return"]) + 0.2, (ret, rows[0]["episode_return"])
     assert "outside_fraction" in rows[0]

@@ -33,3 +33,42 @@ def test_ppo_lag_trains_on_grid_with_a_budget_per_hazard(tmp_path, quiet):
         rows = list(csv.DictReader(f))
     assert len(rows) == 2 and rows[0]["cost_limit/hazard_b"] == "0.15"
     assert result["cost_limit/hazard_a"] == 0.3 and "violation_rate/hazard_b" in result
+
+
+def test_a_trained_policy_is_valued_exactly_against_the_lp():
+    """analysis/grid_policy.py: the network's action probabilities in every state, valued by one
+    linear solve. A network whose logits are zero is the uniform policy; one whose logits pick a
+    move per cell is that deterministic policy."""
+    import numpy as np
+    import torch
+
+    from cmdp_rl.analysis.grid_policy import exact_gap, policy_table
+    from cmdp_rl.envs.grid_lp import solve_constrained
+    from cmdp_rl.envs.tabular import evaluate, grid_cmdp
+    from cmdp_rl.policies import make_agent
+
+    cfg = load_config({"env": {"name": "grid", "num_envs": 2}, "policy": {"name": "mlp", "hidden_sizes": [8]}})
+    env = make_env(cfg.env)
+    agent = make_agent(cfg.policy, env)
+    env.close()
+    cmdp = grid_cmdp()
+    out = agent.actor.head.net[-1]  # the last linear layer: its bias alone sets the logits once the weight is 0
+    with torch.no_grad():
+        out.weight.zero_()
+        out.bias.zero_()
+    assert np.allclose(policy_table(agent, cmdp), 0.25)
+    best = solve_constrained(cmdp, (0.3, 0.15))
+    uniform = evaluate(cmdp, np.full((cmdp.num_states, 4), 0.25))
+    gap = exact_gap(agent, cmdp, best)
+    assert gap.ret == pytest.approx(uniform.ret) and gap.costs == pytest.approx(tuple(uniform.costs))
+    assert gap.gap == pytest.approx((best.ret - uniform.ret) / best.ret)
+    with torch.no_grad():
+        out.bias.copy_(torch.tensor([0.0, 30.0, 0.0, 0.0]))  # always right: along the middle row
+    right = evaluate(cmdp, np.tile([0.0, 1.0, 0.0, 0.0], (cmdp.num_states, 1)))
+    gap = exact_gap(agent, cmdp, best)
+    assert gap.ret == pytest.approx(right.ret, abs=1e-9) and not gap.within_budgets  # hazard_a 0.8 > 0.3
+    env = make_env(cfg.env)
+    lstm = make_agent(load_config({"env": {"name": "grid", "num_envs": 2}, "policy": {"name": "lstm"}}).policy, env)
+    env.close()
+    with pytest.raises(ValueError, match="only a memoryless policy is a table"):
+        policy_table(lstm, cmdp)

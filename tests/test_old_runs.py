@@ -11,6 +11,7 @@ resuming the run to 192 steps).
 """
 
 import csv
+import importlib.util
 import json
 import shutil
 import subprocess
@@ -20,9 +21,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from cmdp_rl import Collector, keys
+from cmdp_rl import Collector, keys, train
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.policies.legacy import is_legacy
+from cmdp_rl.resume import resume_config
 from cmdp_rl.rundir import load_trained
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,6 +33,12 @@ RUNS = ["mlp", "lstm", "transformer", "cpo"]
 STEPS, SEED = 24, 11  # as record_reference.py
 # Columns that measure the machine, not the run.
 TIMING = {"sps", "time_s"}
+
+# evaluate.py's main, called in this process: the same argument parsing and code as the command,
+# without a new interpreter per fixture (each one imports torch again: most of this file's time).
+_spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
+evaluate_cli = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(evaluate_cli)
 
 
 def _copy(name: str, tmp_path: Path) -> Path:
@@ -81,8 +89,7 @@ def test_converted_networks_give_the_old_outputs(name, tmp_path):
 def test_evaluate_reproduces_the_old_eval_json(name, tmp_path):
     run = _copy(name, tmp_path)
     out = tmp_path / "again.json"
-    proc = _run("evaluate.py", f"run={run}", f"output={out}")
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert evaluate_cli.main([f"run={run}", f"output={out}"]) == 0
     old, new = json.loads((run / "eval.json").read_text()), json.loads(out.read_text())
     assert new["episodes"] == old["episodes"] == 4
     for k in ("episode_return", "episode_return_std", "episode_return_min", "episode_return_max"):
@@ -95,11 +102,15 @@ def test_evaluate_reproduces_the_old_eval_json(name, tmp_path):
 def test_resume_continues_the_old_run(name, tmp_path):
     """Resuming to 192 steps writes one more metrics row, the one the old code wrote when resumed
     the same way, bit for bit (the J_c estimate is the same here: episodes end in every batch):
-    networks, optimizer states, multiplier, collector and generators all came back."""
+    networks, optimizer states, multiplier, collector and generators all came back. One fixture
+    resumes through ``train.py``, the others through the same calls in this process."""
     run = _copy(name, tmp_path)
     before = _rows(run / "metrics.csv")
-    proc = _run("train.py", f"resume={run}", "total_steps=192")
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    if name == "mlp":  # the command itself, once
+        proc = _run("train.py", f"resume={run}", "total_steps=192")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+    else:  # what `train.py resume=<run> total_steps=192` runs, in this process
+        train(resume_config(run, {"total_steps": 192}, ["total_steps"]), echo=lambda _: None)
     rows = _rows(run / "metrics.csv")
     assert len(before) == 2 and len(rows) == 3
     assert [r["step"] for r in rows] == ["64", "128", "192"]

@@ -39,3 +39,23 @@ def test_own_echo_is_never_live():
     assert not p.live and p.row_echo == lines.append
     p.write("warning: x")
     assert lines == ["warning: x"]
+
+
+def test_a_row_without_a_multiplier_prints_what_it_has():
+    """An algorithm whose stats carry no lagrange_multiplier: the line and the bar leave lambda out
+    (it was a KeyError halfway through the first iteration)."""
+    from cmdp_rl.metrics import format_row
+
+    base = {"iteration": 1, "step": 32, "sps": 100.0, "episode_return": 0.5}
+    one = {**base, "episode_cost": 1.0}
+    assert format_row(one) == "iter    1 | step        32 |      100 steps/s | return   0.500 | cost   1.00"
+    assert format_row({**one, "lagrange_multiplier": 0.25}).endswith("| cost   1.00 | lambda  0.250")
+    two = {**base, "episode_cost/a": 1.0, "episode_cost/b": 2.0}
+    assert format_row(two).endswith("| cost 1.00/2.00")
+    assert format_row({**two, "lagrange_multiplier/a": 0.1, "lagrange_multiplier/b": 0.2}).endswith(
+        "| cost 1.00/2.00 | lambda 0.100/0.200")
+    stream = FakeTTY()
+    bar = Progress(64, 0, print, stream=stream)
+    bar.update(one)
+    bar.close()
+    assert "cost 1.00" in stream.getvalue() and "lambda" not in stream.getvalue()

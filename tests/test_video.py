@@ -177,3 +177,40 @@ def test_missing_moviepy_is_one_line(monkeypatch):
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "moviepy" else real(name, *a))
     with pytest.raises(ConfigError, match=r"^video: video=true needs moviepy .*pip install 'cmdp_rl\[video\]'$"):
         make_render_env(Reach1DConfig())
+
+
+# --- the gridworld (discrete actions, K = 2 costs) -----------------------------------------------
+def test_grid_frame_is_drawn_where_the_agent_is():
+    from cmdp_rl.envs.grid import AGENT_COLOUR, CELL_PX, GRID_COLOURS, GridWorld
+
+    env = GridWorld(render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (6 * CELL_PX, 7 * CELL_PX, 3) and frame.dtype == np.uint8
+    centre = lambda r, c: (r * CELL_PX + CELL_PX // 2, c * CELL_PX + CELL_PX // 2)  # noqa: E731
+    assert tuple(frame[centre(2, 0)]) == AGENT_COLOUR  # on S, the middle row's first cell
+    assert tuple(frame[centre(2, 6)]) == GRID_COLOURS["G"] and tuple(frame[centre(2, 3)]) == GRID_COLOURS["a"]
+    assert tuple(frame[centre(1, 2)]) == GRID_COLOURS["b"] and tuple(frame[centre(3, 3)]) == GRID_COLOURS["#"]
+    assert tuple(frame[1, 1]) == GRID_COLOURS["."]  # no cost paid: no border
+    env.cell = env.layout._index[(2, 2)]
+    env.step(1)  # right, onto the 'a' cell unless it slips
+    frame = env.render()
+    r, c = env.layout.cells[env.cell]
+    assert tuple(frame[centre(r, c)]) == AGENT_COLOUR
+    if (r, c) == (2, 3):
+        assert tuple(frame[1, 1]) == GRID_COLOURS["a"]  # hazard a's cost: an orange border
+    assert GridWorld().render() is None
+    with pytest.raises(ValueError, match="render_mode"):
+        GridWorld(render_mode="human")
+
+
+def test_grid_video_is_written_by_evaluate(tmp_path, capsys):
+    raw = {"env": {"name": "grid", "num_envs": 2}, "algo": {"name": "ppo_lag", "cost_limit": [0.3, 0.15],
+           "update_epochs": 1, "num_minibatches": 2}, "rollout_steps": 16, "total_steps": 32, "eval_episodes": 2}
+    train(load_config(raw), tmp_path / "run", echo=lambda _: None)
+    assert evaluate_cli.main([f"run={tmp_path / 'run'}", "video=true", "video_steps=6", "episodes=2"]) == 0
+    video = tmp_path / "run" / "videos" / "policy-episode-0.mp4"
+    out = capsys.readouterr().out
+    frames = int(out.split(f"wrote {video} (")[1].split(" frames")[0])
+    assert 2 <= frames <= 7 and frames_in(video) == frames  # the reset frame and one per step, at most 6 steps
+    assert "cost " in out and "/" in out.split(f"wrote {video}")[1]  # both costs, hazard_a/hazard_b

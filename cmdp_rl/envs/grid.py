@@ -106,12 +106,16 @@ class GridWorld(gym.Env):
     """The slippery two-hazard gridworld (module docstring). ``cost_names`` names ``info["cost"]``'s
     entries; ``default_budgets`` are budgets at which both constraints matter on the default grid."""
 
-    metadata = {"render_modes": []}
+    # rgb_array: a drawn frame (render_grid below), for gymnasium's RecordVideo; 4 steps a second
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
     cost_names = COST_NAMES
 
     def __init__(self, layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP,
-                 end_prob: float = DEFAULT_END_PROB) -> None:
+                 end_prob: float = DEFAULT_END_PROB, render_mode: str | None = None) -> None:
         super().__init__()
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"grid render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
         if not 0.0 <= slip <= 1.0:
             raise ValueError(f"grid slip must be in [0, 1], got {slip!r}")
         if not 0.0 < end_prob <= 1.0:
@@ -124,6 +128,7 @@ class GridWorld(gym.Env):
         self.action_space = spaces.Discrete(len(MOVES))
         self.observation_space = spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
         self.cell = self.layout.starts[0]
+        self._last_cost = np.zeros(len(COST_NAMES))
 
     def _obs(self) -> np.ndarray:
         obs = np.zeros(self.layout.num_cells, dtype=np.float32)
@@ -134,6 +139,7 @@ class GridWorld(gym.Env):
         super().reset(seed=seed)
         starts = self.layout.starts
         self.cell = starts[int(self.np_random.integers(len(starts)))] if len(starts) > 1 else starts[0]
+        self._last_cost = np.zeros(len(COST_NAMES))
         return self._obs(), {"cell": self.cell}
 
     def step(self, action):
@@ -150,8 +156,48 @@ class GridWorld(gym.Env):
         at_goal = self.cell == self.layout.goal
         cost = self.layout.hazards[:, self.cell].copy()
         terminated = bool(at_goal or ends)
-        info = {"cost": cost, "cell": self.cell, "goal_reached": bool(at_goal)}
+        self._last_cost = cost
+        info = {"cost": cost.copy(), "cell": self.cell, "goal_reached": bool(at_goal)}
         return self._obs(), 1.0 if at_goal else 0.0, terminated, False, info
+
+    def render(self) -> np.ndarray | None:
+        """With ``render_mode="rgb_array"``: the grid and the agent as an RGB frame (draws no random
+        numbers, so rendering leaves the episode as it would have been)."""
+        if self.render_mode != "rgb_array":
+            return None
+        return render_grid(self.layout, self.cell, self._last_cost)
+
+
+CELL_PX = 32  # a multiple of 16: video encoders want even sizes, macroblocks of 16
+GRID_COLOURS = {".": (245, 245, 245), "#": (60, 60, 60), "S": (200, 220, 250), "G": (60, 170, 60),
+                "a": (240, 150, 40), "b": (150, 90, 200)}
+AGENT_COLOUR = (30, 90, 200)
+
+
+def render_grid(layout: Layout, cell: int, cost: np.ndarray) -> np.ndarray:
+    """A ``rows * CELL_PX x cols * CELL_PX`` RGB frame drawn with numpy: each cell in its kind's
+    colour (``GRID_COLOURS``: walls dark, hazard a orange, hazard b purple, the goal green, the
+    start pale blue) with a 1-pixel grey grid line, the agent as a blue disc, and a 3-pixel border
+    in the colour of the hazard whose cost the last step paid (hazard a's if both)."""
+    img = np.empty((layout.rows * CELL_PX, layout.cols * CELL_PX, 3), dtype=np.uint8)
+    img[:] = GRID_COLOURS["#"]
+    kinds = {n: "." for n in range(layout.num_cells)}
+    kinds.update({n: "S" for n in layout.starts})
+    kinds[layout.goal] = "G"
+    for k, ch in enumerate(HAZARD_CHARS):
+        kinds.update({int(n): ch for n in np.flatnonzero(layout.hazards[k])})
+    for n, (r, c) in enumerate(layout.cells):
+        img[r * CELL_PX:(r + 1) * CELL_PX, c * CELL_PX:(c + 1) * CELL_PX] = GRID_COLOURS[kinds[n]]
+    img[::CELL_PX], img[:, ::CELL_PX] = 180, 180  # grid lines
+    r, c = layout.cells[cell]
+    yy, xx = np.ogrid[:img.shape[0], :img.shape[1]]
+    centre = (r * CELL_PX + CELL_PX // 2, c * CELL_PX + CELL_PX // 2)
+    img[(yy - centre[0]) ** 2 + (xx - centre[1]) ** 2 <= (CELL_PX // 3) ** 2] = AGENT_COLOUR
+    paid = [ch for k, ch in enumerate(HAZARD_CHARS) if cost[k] > 0]
+    if paid:
+        edge = GRID_COLOURS[paid[0]]
+        img[:3], img[-3:], img[:, :3], img[:, -3:] = edge, edge, edge, edge
+    return img
 
 
 if GRID_ID not in gym.registry:
@@ -159,5 +205,5 @@ if GRID_ID not in gym.registry:
 
 __all__ = [
     "ACTION_NAMES", "COST_NAMES", "DEFAULT_BUDGETS", "DEFAULT_END_PROB", "DEFAULT_LAYOUT", "DEFAULT_SLIP", "GRID_ID",
-    "GridWorld", "Layout", "MOVES", "parse_layout",
+    "GridWorld", "Layout", "MOVES", "parse_layout", "render_grid",
 ]

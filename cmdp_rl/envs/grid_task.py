@@ -42,6 +42,10 @@ class GridEnvConfig(EnvOptions):
     def env_id(self) -> str:
         return GRID_ID
 
+    def render_env(self) -> GridWorld:
+        """One grid of these options drawing ``rgb_array`` frames (for ``evaluate.py video=true``)."""
+        return GridWorld(tuple(self.layout), self.slip, self.end_prob, render_mode="rgb_array")
+
 
 def make_grid_vec_env(cfg: GridEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
     make_one = partial(GridWorld, tuple(cfg.layout), cfg.slip, cfg.end_prob)
