@@ -110,10 +110,15 @@ class GridWorld(gym.Env):
     cost_names = COST_NAMES
 
     def __init__(self, layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP,
-                 end_prob: float = DEFAULT_END_PROB) -> None:
+                 end_prob: float = DEFAULT_END_PROB, costs: Sequence[str] = COST_NAMES) -> None:
         super().__init__()
         if not 0.0 <= slip <= 1.0:
             raise ValueError(f"grid slip must be in [0, 1], got {slip!r}")
+        if not costs or len(set(costs)) != len(costs) or not set(costs) <= set(COST_NAMES):
+            raise ValueError(f"grid costs must be distinct names of {COST_NAMES}, got {costs!r}")
+        # The costs reported, in this order: a subset makes a K = 1 variant (the hazards stay put).
+        self.cost_names = tuple(costs)
+        self._cost_rows = [COST_NAMES.index(c) for c in costs]
         if not 0.0 < end_prob <= 1.0:
             raise ValueError(f"grid end_prob must be in (0, 1], got {end_prob!r}")
         self.layout = parse_layout(layout)
@@ -148,7 +153,7 @@ class GridWorld(gym.Env):
             direction = (direction + (1 if side else 3)) % 4
         self.cell = self.layout.next_cell(self.cell, direction)
         at_goal = self.cell == self.layout.goal
-        cost = self.layout.hazards[:, self.cell].copy()
+        cost = self.layout.hazards[self._cost_rows, self.cell]  # a copy (integer indexing)
         terminated = bool(at_goal or ends)
         info = {"cost": cost, "cell": self.cell, "goal_reached": bool(at_goal)}
         return self._obs(), 1.0 if at_goal else 0.0, terminated, False, info
