@@ -1,4 +1,4 @@
-"""Sauté RL (algo=saute): the budget state counts down as Sootla et al. (2022, Section 3) state, the
+"""Sauté RL (algo=saute): the budget state counts down as Sootla et al. (2022) state, the
 reward is replaced exactly once a budget is spent, a new episode restores it; and a learning run."""
 
 import pytest

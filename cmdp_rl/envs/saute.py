@@ -1,7 +1,7 @@
 """Sauté's env transform: the remaining safety budget joins the state and the reward is replaced once
 the budget is spent (Sootla, Cowen-Rivers, Jafferjee, Wang, Mguni, Wang, Bou-Ammar, 2022, "Sauté RL:
-Almost Surely Safe Reinforcement Learning Using State Augmentation", ICML; Section 3, the safety
-augmented MDP).
+Almost Surely Safe Reinforcement Learning Using State Augmentation", ICML: its safety augmented
+MDP, cited by name; its equation numbers could not be checked against the text in this environment).
 
 The paper's safety state starts at the budget, ``z_0 = d``, and moves by ``z_{t+1} = (z_t - c_t) /
 gamma_c`` (dividing by the safety discount keeps ``z_t >= 0`` equivalent to
@@ -72,7 +72,7 @@ class BudgetStateEnv(VecEnv):
 
     def step(self, action: torch.Tensor) -> Step:
         s = self.env.step(action)
-        # Section 3: z_{t+1} = (z_t - c_t / d) / gamma_c, per constraint (z normalised by d).
+        # The safety state's update z_{t+1} = (z_t - c_t / d) / gamma_c, per constraint (z normalised by d).
         z_next = (self.z - s.cost.to(self.z.dtype) / self.budgets) / self.discount
         reward = s.reward
         if self.reshape_reward:  # the reshaped objective: a spent budget earns the penalty
