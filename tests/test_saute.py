@@ -1,6 +1,8 @@
 """Sauté RL (algo=saute): the budget state counts down as Sootla et al. (2022) state, the
 reward is replaced exactly once a budget is spent, a new episode restores it; and a learning run."""
 
+import json
+
 import pytest
 import torch
 
@@ -107,3 +109,23 @@ def test_saute_learns_reach1d_within_budget(tmp_path):
     result = train(cfg, tmp_path, echo=lambda s: None)
     assert result["episode_cost"] <= 0.5, result["episode_cost"]
     assert result["episode_return"] >= 0.2, result["episode_return"]  # the initial policy's: 0.02
+
+
+def test_evaluate_py_rebuilds_the_augmented_env_and_repeats_eval_json(tmp_path):
+    """evaluate.py builds its env through make_eval_env with the run's algo options, so a Sauté
+    policy (observation + budget) evaluates as it did in training."""
+    import importlib.util
+
+    from conftest import ROOT, eval_result, tiny
+
+    spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
+    evaluate_cli = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(evaluate_cli)
+    cfg = tiny(total_steps=64, algo={"name": "saute", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.5})
+    del cfg["algo"]["lambda_lr"]
+    train(load_config(cfg), tmp_path, echo=lambda s: None)
+    out = tmp_path / "e.json"
+    assert evaluate_cli.main([f"run={tmp_path}", f"output={out}"]) == 0
+    got, want = json.loads(out.read_text()), eval_result(tmp_path)
+    same = [f"episode_{m}{s}" for m in ("return", "cost", "length") for s in ("", "_std", "_min", "_max")]
+    assert {k: got[k] for k in same} == {k: want[k] for k in same}
