@@ -9,8 +9,7 @@ report is made again from ROOT's finished runs. ``--task`` picks tasks (default 
 grid's part alone (``--task grid``) is issue 15's LP-gap table. Overrides go to every sweep.
 
 - ``grid``: the two-hazard gridworld (K = 2, budgets 0.3 / 0.15) for the algorithms that take K > 1,
-  and its K = 1 variant (``env.costs=[hazard_b]``, budget 0.15) for those that take one constraint
-  (ppo_lag runs on both). Per algorithm: the final policy's return, its gap to the exact LP optimum
+  and its K = 1 variant (``env.costs=[hazard_b]``, budget 0.15) for those that take one constraint. Per algorithm: the final policy's return, its gap to the exact LP optimum
   of its variant (``envs/grid_lp.py``), and each constraint's cost and violation ``max(0, J_c - d)``.
 - ``reach1d``: Reach1D, passable wall, budget 0.5 (batched preset): return, cost, training cost rate,
   and the gap to Reach1D's exact constrained optimum.
@@ -47,6 +46,7 @@ ALGOS = ("ppo", "penalty", "ppo_lag", "pid_lag", "cpo", "trpo_lag", "pcpo", "crp
 # task -> its sweeps (configs/experiment/algorithm_table_<sweep>.yaml), run in this order
 TASKS = {"grid": ("grid", "grid_k1"), "reach1d": ("reach1d",), "velocity": ("velocity",)}
 FULL_VELOCITY_STEPS = 1_000_000
+VELOCITY_SPS = 5400  # one HalfCheetah velocity job with a core to itself (docs/benchmarks.md)
 
 # OmniSafe's published on-policy benchmark, SafetyHalfCheetahVelocity-v1 at 1M steps (return, cost),
 # mean ± std over their seeds 0, 5, 10, 15, 20 with their hyperparameters: PKU-Alignment/omnisafe,
@@ -123,14 +123,14 @@ def grid_rows(runs: Sequence[RunRecord], variant: str) -> list[dict[str, Any]]:
 def grid_table(rows: Sequence[dict[str, Any]]) -> str:
     from cmdp_rl.envs.grid import COST_NAMES
 
-    header = ["algo", "grid", "return", "LP optimum", "gap", *[f"{c} (d)" for c in COST_NAMES],
+    header = ["algo", "grid", "steps", "return", "LP optimum", "gap", *[f"{c} (d)" for c in COST_NAMES],
               *[f"violation {c}" for c in COST_NAMES], "minutes / run"]
     cells = []
     seen = set()
     for r in rows:
         per = [f"{cell(r[c]['costs'], '.3f')} ({r[c]['d']:g})" if c in r else "not reported" for c in COST_NAMES]
         vio = [cell(r[c]["violations"], ".3f") if c in r else "" for c in COST_NAMES]
-        cells.append([r["algo"], r["variant"], cell(r["returns"], ".3f"), f"{r['lp_optimum']:.3f}",
+        cells.append([r["algo"], r["variant"], f"{r['steps']:,}", cell(r["returns"], ".3f"), f"{r['lp_optimum']:.3f}",
                       cell(r["gaps"], ".3f"), *per, *vio, r["minutes"]])
         seen.add(r["algo"])
     for algo in ALGOS:
@@ -180,8 +180,7 @@ def velocity_rows(runs: Sequence[RunRecord]) -> list[dict[str, Any]]:
                 for k in ("normalized_return", "normalized_violation", "normalized_cost_rate")}
         rows.append({"task": "velocity", "algo": algo, "seeds": len(group), "steps": group[0].eval["steps"],
                      "returns": [r.eval["episode_return"] for r in group], "costs": [r.eval["episode_cost"] for r in group],
-                     "cost_rates": [r.eval["cost_rate"] for r in group], **norm, "minutes": minutes(group),
-                     "sps": [r.eval["steps"] / r.eval["train_time_s"] for r in group]})
+                     "cost_rates": [r.eval["cost_rate"] for r in group], **norm, "minutes": minutes(group)})
     return rows
 
 
@@ -199,7 +198,8 @@ def velocity_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 # --- figures -----------------------------------------------------------------------------------
-def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path) -> Path:
+def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path,
+              optima: dict[str, float] | None = None) -> Path:
     """Training curves per algorithm: return and each cost against env steps, mean over seeds with
     its 95% bootstrap band (compare.curve_band); the budget dashed. Sauté's training return is its
     reshaped return (the eval tables report the task's)."""
@@ -234,6 +234,8 @@ def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path) -> P
                 step, mean, low, high = curve_band(group, key, k=3)
                 axes[i].plot(step, mean, style, color=color, lw=1.3, label=label if i == 0 else None)
                 axes[i].fill_between(step, low, high, color=color, alpha=0.12, lw=0)
+    for j, (label, value) in enumerate(sorted((optima or {}).items())):  # the exact optima, dashed
+        axes[0].axhline(value, color="black", ls=["--", "-."][j % 2], lw=1, label=label)
     for i, c in enumerate(names, start=1):
         for d in sorted(limits[c]):
             axes[i].axhline(d, color="black", ls=":", lw=1)
@@ -276,17 +278,20 @@ def report(root: Path, tasks: Sequence[str], out: Path, figures: Path, measured:
         if not sweeps:
             parts.append(f"## {TITLES[task]}\n\nNo finished runs under {root}/{'/'.join(TASKS[task])}.\n")
             continue
-        png = plot_task(task, sweeps, figures)
-        rel = png.relative_to(out) if out in png.parents else png
         if task == "grid":
             rows = grid_rows(sweeps.get("grid", []), "K = 2") + grid_rows(sweeps.get("grid_k1", []), "K = 1")
             table = grid_table(rows)
+            optima = {f"LP optimum, {r['variant']}": r["lp_optimum"] for r in rows}
         elif task == "reach1d":
             rows = reach1d_rows(sweeps["reach1d"])
             table = reach1d_table(rows)
+            optima = {"exact optimum at d": rows[0]["optimum"]} if rows else {}
         else:
             rows = velocity_rows(sweeps["velocity"])
             table = velocity_table(rows)
+            optima = {}
+        png = plot_task(task, sweeps, figures, optima)
+        rel = png.relative_to(out) if out in png.parents else png
         first = next(iter(sweeps.values()))[0]
         text = TEXT[task](rows, first)
         parts.append(f"## {TITLES[task]}\n\n{text['before']}\n\n{table}{unfinished_note(unfinished)}\n\n"
@@ -316,15 +321,16 @@ reshaped return it maximises (the tables: the task's return).
 
 
 def _grid_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str, str]:
-    steps, episodes = first.eval["steps"], first.get("eval_episodes")
+    episodes = first.get("eval_episodes")
     return {"before": (
-        f"The slippery two-hazard gridworld (docs/grid.md), {steps:,} steps per run (32 envs × 64 steps an "
-        f"iteration), {episodes} evaluation episodes. Algorithms that take several constraints run on the K = 2 grid "
+        f"The slippery two-hazard gridworld (docs/grid.md), 32 envs × 64 steps an iteration, the steps per run "
+        f"in the table, {episodes} evaluation episodes. Algorithms that take several constraints run on the K = 2 grid "
         "(budgets hazard_a 0.3, hazard_b 0.15); those that take one (cpo, pcpo, crpo, focops, cup) refuse K > 1 "
         "and run on its K = 1 variant, `env.costs=[hazard_b]` with budget 0.15, a different CMDP with its own "
-        "LP optimum; ppo_lag runs on both as the link. Gap = LP optimum − return (the LP's return is the "
+        "LP optimum. Gap = LP optimum − return (the LP's return is the "
         "expected undiscounted episode return, what `eval.json` reports; docs/grid.md). Violation = "
-        "max(0, cost − d) per seed. The hazard-free route's return is 0.528; the unconstrained optimum 0.736."),
+        "max(0, cost − d) per seed. A negative gap is a return above the constrained optimum, which only a policy "
+        "over some budget can have. The hazard-free route's return is 0.528; the unconstrained optimum 0.736."),
         "after": (
         "Reproduce: `python experiments/algorithm_table.py --run --task grid` (the two grid sweeps, then this "
         "table); `python experiments/algorithm_table.py <root> --task grid` prints it again from the runs.")}
@@ -338,23 +344,26 @@ def _reach1d_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str,
         f"preset (1024 envs, 32-step rollouts), {steps:,} steps per run, {episodes} evaluation episodes. The exact "
         f"constrained optimum of the return at d = 0.5 is {opt:.3f} (Reach1D's solver, "
         "`Reach1DConfig.optimum`); it mixes crossing and not crossing, which a policy reaches only in "
-        "expectation. An almost surely safe policy (Sauté) cannot cross at all at d < 1."),
+        "expectation (a negative gap: over the budget). An almost surely safe policy (Sauté) cannot cross at all "
+        "at d < 1: its optimum is walking up to the wall."),
         "after": "Reproduce: `python experiments/algorithm_table.py --run --task reach1d`."}
 
 
 def _velocity_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str, str]:
     steps = first.eval["steps"]
-    sps = [x for r in rows for x in r["sps"]]
-    rate = float(np.mean(sps)) if sps else float("nan")
-    full_h = 33 * FULL_VELOCITY_STEPS / rate / 2 / 3600 if sps else float("nan")
     if steps < FULL_VELOCITY_STEPS:
+        # The estimate rests on docs/benchmarks.md's measurements on this machine (a smoke run's few
+        # tiny iterations say nothing about speed): one velocity job trains at about 5,400 steps/s with
+        # a core to itself; its 3M-step sweep took 12.1 min a run for ppo and 17.3 for ppo_lag and cpo.
+        quiet_h = 33 * FULL_VELOCITY_STEPS / VELOCITY_SPS / 2 / 3600
         status = (
             f"**Not yet measured.** The table below is a smoke run ({steps:,} steps per run, seed and sizes as "
             "its command says) that shows the pipeline end to end; its numbers mean nothing. The full sweep is "
-            f"33 runs of 1M steps: at the {rate:,.0f} steps/s per job these smoke runs trained at (start-up "
-            f"included, on the shared machine), 2 jobs side by side take about {full_h:.1f} hours; at the "
-            "5,400 steps/s a velocity job reaches with a core to itself (docs/benchmarks.md), about "
-            f"{33 * FULL_VELOCITY_STEPS / 5400 / 2 / 3600:.1f} hours plus evaluation.")
+            f"33 runs of 1M steps. At the {VELOCITY_SPS:,} steps/s a velocity job trains at with a core to itself "
+            f"(measured on this machine, docs/benchmarks.md), 2 jobs side by side take about {quiet_h:.1f} hours "
+            "of training plus evaluation; the second-order and FOCOPS/CUP updates cost more per step (the 3M-step "
+            "benchmark took 17.3 min a run for ppo_lag and cpo against 12.1 for ppo), so plan on 2 to 3 hours "
+            "on a quiet 2-core machine, several times that while it is shared.")
     else:
         status = f"{steps:,} steps per run."
     return {"before": (

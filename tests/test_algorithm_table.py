@@ -47,8 +47,8 @@ def test_grid_report_gives_the_lp_gap_and_each_violation(tmp_path):
     rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| ")}
     # LP optima: 0.626 with both budgets (K = 2), 0.692 with hazard_b <= 0.15 alone (K = 1).
     # ppo_lag: gaps 0.126 and 0.026 (mean 0.076, sample std 0.071); violations a: 0, 0.1; b: 0.1, 0.
-    assert "| ppo_lag | K = 2 | 0.550 ± 0.071 | 0.626 | 0.076 ± 0.071 | 0.300 ± 0.141 (0.3) | 0.150 ± 0.141 (0.15) | " \
+    assert "| ppo_lag | K = 2 | 4,096 | 0.550 ± 0.071 | 0.626 | 0.076 ± 0.071 | 0.300 ± 0.141 (0.3) | 0.150 ± 0.141 (0.15) | " \
            "0.050 ± 0.071 | 0.050 ± 0.071 |" in rows["ppo_lag"]
-    assert "| cpo | K = 1 | 0.700 | 0.692 | -0.008 | not reported | 0.100 (0.15) |  | 0.000 |" in rows["cpo"]
+    assert "| cpo | K = 1 | 4,096 | 0.700 | 0.692 | -0.008 | not reported | 0.100 (0.15) |  | 0.000 |" in rows["cpo"]
     assert "not run" in rows["saute"]  # every algorithm has a row
     assert (tmp_path / "out" / "figures" / "algorithms_grid.png").stat().st_size > 0
