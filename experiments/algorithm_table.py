@@ -213,7 +213,7 @@ def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path,
     for c in names:
         panels.append((c, f"episode cost{'' if c == 'cost' else ': ' + c}", None))
     fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 3.9))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = [*plt.get_cmap("tab10").colors, "black"]  # one color per algorithm of ALGOS (11)
     limits: dict[str, set] = {c: set() for c in names}
     for s, (sweep, runs) in enumerate(sweeps.items()):
         for algo, group in by_algo(runs).items():
@@ -235,7 +235,7 @@ def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path,
                 axes[i].plot(step, mean, style, color=color, lw=1.3, label=label if i == 0 else None)
                 axes[i].fill_between(step, low, high, color=color, alpha=0.12, lw=0)
     for j, (label, value) in enumerate(sorted((optima or {}).items())):  # the exact optima, dashed
-        axes[0].axhline(value, color="black", ls=["--", "-."][j % 2], lw=1, label=label)
+        axes[0].axhline(value, color="grey", ls=["--", "-."][j % 2], lw=1.2, label=label)
     for i, c in enumerate(names, start=1):
         for d in sorted(limits[c]):
             axes[i].axhline(d, color="black", ls=":", lw=1)
@@ -245,6 +245,9 @@ def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path,
         ax.grid(alpha=0.3)
     if task == "velocity":
         axes[1].set_yscale("symlog", linthresh=25)
+    if task == "grid":  # the task's returns lie in [0, 1]; Sauté's reshaped one (-1 a step once spent) far below
+        axes[0].set_ylim(-0.1, 1.0)
+        axes[0].set_title("episode return (training; Sauté's reshaped, cut at -0.1)", fontsize=10)
     axes[0].legend(fontsize=7, ncol=2)
     fig.suptitle(f"{task}: mean over seeds, 95% bootstrap band; budgets dotted", fontsize=9)
     out.mkdir(parents=True, exist_ok=True)
