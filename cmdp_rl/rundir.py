@@ -165,7 +165,7 @@ def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_
     cfg = run_config(run_dir, "evaluate")
     ckpt = Path(checkpoint) if checkpoint is not None else checkpoint_path(run_dir, "evaluate")
     state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
-    env = make_eval_env(cfg.env, num_envs=num_envs)
+    env = make_eval_env(cfg.env, num_envs=num_envs, algo=cfg.algo)
     # Normalizer buffers are shaped by the training envs (running discounted sums per env).
     norm = Normalizers.from_config(cfg.normalize, env.obs_dim, cfg.env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
     agent = make_agent(cfg.policy, env, norm)

@@ -92,7 +92,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     apply_threads(cfg)
     check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
     seed_everything(cfg.seed)
-    env = make_env(cfg.env, device=cfg.device)
+    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
     algo = make_algo(cfg.algo, agent)
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
@@ -203,7 +203,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
-    eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device)
+    eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device,
+                             algo=cfg.algo)
     result = evaluate(agent, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
                       termination_metric=metric, cost_limit=cfg.algo.cost_limit)
     eval_env.close()

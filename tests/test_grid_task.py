@@ -19,6 +19,27 @@ def test_grid_env_builds_with_discrete_actions_and_two_named_costs():
         env.close()
 
 
+def test_grid_costs_option_reports_a_subset_of_the_hazards_in_order():
+    import torch
+
+    envs = [make_env(load_config({"env": {"name": "grid", "num_envs": 4, "costs": c}}).env)
+            for c in (["hazard_a", "hazard_b"], ["hazard_b"])]
+    try:
+        assert envs[1].cost_names == ("hazard_b",) and envs[1].num_costs == 1
+        for env in envs:
+            env.reset(seed=3)
+        torch.manual_seed(0)
+        for _ in range(40):  # the same seeds and actions: the K = 1 variant's cost is the K = 2 env's column
+            action = torch.randint(0, 4, (4, 1))
+            both, one = (env.step(action).cost for env in envs)
+            assert torch.equal(one, both[:, 1:])
+    finally:
+        for env in envs:
+            env.close()
+    with pytest.raises(ConfigError, match=r"^env.costs must be a non-empty list of distinct names"):
+        load_config({"env": {"name": "grid", "costs": ["hazard_a", "hazard_a"]}})
+
+
 def test_grid_bad_layout_is_a_one_line_config_error():
     with pytest.raises(ConfigError, match="^env.layout: "):
         load_config({"env": {"name": "grid", "layout": ["S..", ".x.", "..G"]}})

@@ -1,5 +1,6 @@
 """First Order Constrained Optimization in Policy Space (Zhang, Vuong, Ross, 2020, NeurIPS;
-Sections 4-5 and Algorithm 1).
+Theorem 1 and Algorithm 1; the paper's steps are cited by name: the section numbers written here
+before were from memory and could not be checked against its text in this environment).
 
 Two steps per iteration, both first order:
 
@@ -8,7 +9,7 @@ Two steps per iteration, both first order:
    ``pi*(a|s) = pi_k(a|s) exp((A_r(s, a) - nu A_c(s, a)) / lambda) / Z(s)``, with a temperature
    ``lambda > 0`` and a cost multiplier ``nu >= 0``.
 2. Projection of ``pi*`` onto the parametric policies by minimising ``E_s[KL(pi_theta || pi*)[s]]``.
-   ``log Z(s)`` does not depend on theta, so the gradient is that of (Section 5)::
+   ``log Z(s)`` does not depend on theta, so the gradient is that of (the paper's projection step)::
 
        L(theta) = E_s[ KL(pi_theta || pi_k)[s]
                       - (1 / lambda) E_{a ~ pi_k}[ pi_theta(a|s) / pi_k(a|s) (A_r - nu A_c) ] ]
@@ -65,7 +66,7 @@ class FOCOPSConfig(PPOConfig):
 
 def focops_loss(dist: Distribution, old_dist: Distribution, action: torch.Tensor, old_log_prob: torch.Tensor,
                 adv: torch.Tensor, temperature: float, delta: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """The projection loss of Section 5 on a minibatch: per state ``KL(pi_theta || pi_k)[s] -
+    """The projection step's loss on a minibatch: per state ``KL(pi_theta || pi_k)[s] -
     ratio * adv / temperature``, kept where ``KL <= delta`` (Algorithm 1), averaged over all states.
     ``adv`` is ``A_r - nu A_c``, shaped ``[..., 1]``. Returns the loss and the per-state KL."""
     kl = kl_divergence(dist, old_dist).reshape(adv.shape)

@@ -5,12 +5,15 @@ Two steps per iteration, with ``x = theta - theta_k``, ``g`` and ``b`` the gradi
 and cost surrogates, ``H`` the Fisher matrix, ``c`` the constraint value (J_c - d, in the
 surrogate's per-step units: natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``:
 
-1. reward improvement (eq. 3, linearised as in Section 4): the TRPO step
+1. the reward improvement step (Section 4, linearised): the TRPO step
    ``x_r = sqrt(2 delta / g^T H^-1 g) H^-1 g``, the best point of the KL trust region;
-2. projection (eq. 4, linearised): the point of ``{x : c + b^T x <= 0}`` closest to ``x_r`` in the
-   metric ``L``: ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``, with ``L = H`` for
-   the KL projection and ``L = I`` for the L2 projection (``algo.projection``; Section 4's closed
-   form of the two steps).
+2. the projection step (Section 4, linearised): the point of ``{x : c + b^T x <= 0}`` closest to
+   ``x_r`` in the metric ``L``: ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``, with
+   ``L = H`` for the KL projection and ``L = I`` for the L2 projection (``algo.projection``; the
+   paper's closed form of the two steps, in its notation ``a`` for ``b`` and ``b`` for ``c``).
+
+The steps are cited by name, not by equation number: the numbers written here before (eq. 3 and
+eq. 4) were from memory and could not be checked against the paper's text in this environment.
 
 A step already inside the linearised constraint set is not moved by the projection; an infeasible
 iterate is projected back onto its boundary (no separate recovery rule, unlike CPO). The paper
@@ -53,14 +56,14 @@ def projected_step(g: torch.Tensor, b: torch.Tensor, c: float, delta: float,
     ``h_solve(v)`` approximates ``H^-1 v`` (conjugate gradient on Fisher-vector products)."""
     h_inv_g = h_solve(g)
     q = g.dot(h_inv_g).item()
-    x_r = math.sqrt(2 * delta / q) * h_inv_g if q > _EPS else torch.zeros_like(g)  # eq. 3
+    x_r = math.sqrt(2 * delta / q) * h_inv_g if q > _EPS else torch.zeros_like(g)  # reward step
     l_inv_b = h_solve(b) if projection == "kl" else b
     s = b.dot(l_inv_b).item()
     violation = c + b.dot(x_r).item()
     if s <= _EPS or violation <= 0.0:  # feasible already (or no cost gradient to project along)
         return x_r, 0.0
     coef = violation / s
-    return x_r - coef * l_inv_b, coef  # eq. 4
+    return x_r - coef * l_inv_b, coef  # projection step
 
 
 class PCPO(NaturalGradient):

@@ -25,21 +25,25 @@ def reach1d_kwargs(cfg: Reach1DConfig) -> dict:
     return cfg.env_kwargs()
 
 
-def make_env(cfg: Any, num_envs: int | None = None, device: str = "cpu") -> VecEnv:
+def make_env(cfg: Any, num_envs: int | None = None, device: str = "cpu", algo: Any = None,
+             evaluation: bool = False) -> VecEnv:
     """Build the batched env a config names (``num_envs`` overrides ``cfg.num_envs``).
 
     ``device`` is where the env's tensors live: a torch backend steps there; a gymnasium backend
-    steps on the CPU and moves its tensors there.
+    steps on the CPU and moves its tensors there. ``algo``: the algorithm's options; if they
+    declare ``wrap_env(env, evaluation)``, the env it returns (Sauté's budget state, algos/saute.py).
     """
     n = cfg.num_envs if num_envs is None else num_envs
-    return component("env", cfg.name).build(cfg, n, device)
+    env = component("env", cfg.name).build(cfg, n, device)
+    wrap = getattr(algo, "wrap_env", None)
+    return env if wrap is None else wrap(env, evaluation=evaluation)
 
 
-def make_eval_env(cfg: Any, num_envs: int | None = None, device: str = "cpu") -> VecEnv:
+def make_eval_env(cfg: Any, num_envs: int | None = None, device: str = "cpu", algo: Any = None) -> VecEnv:
     """The env evaluation runs on: ``cfg``'s, with whole episodes only (no staggered start)."""
     if getattr(cfg, "stagger", False):
         cfg = dataclasses.replace(cfg, stagger=False)
-    return make_env(cfg, num_envs, device)
+    return make_env(cfg, num_envs, device, algo=algo, evaluation=True)
 
 
 __all__ = [

@@ -111,13 +111,19 @@ class GridWorld(gym.Env):
     cost_names = COST_NAMES
 
     def __init__(self, layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP,
-                 end_prob: float = DEFAULT_END_PROB, render_mode: str | None = None) -> None:
+                 end_prob: float = DEFAULT_END_PROB, costs: Sequence[str] = COST_NAMES,
+                 render_mode: str | None = None) -> None:
         super().__init__()
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"grid render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         if not 0.0 <= slip <= 1.0:
             raise ValueError(f"grid slip must be in [0, 1], got {slip!r}")
+        if not costs or len(set(costs)) != len(costs) or not set(costs) <= set(COST_NAMES):
+            raise ValueError(f"grid costs must be distinct names of {COST_NAMES}, got {costs!r}")
+        # The costs reported, in this order: a subset makes a K = 1 variant (the hazards stay put).
+        self.cost_names = tuple(costs)
+        self._cost_rows = [COST_NAMES.index(c) for c in costs]
         if not 0.0 < end_prob <= 1.0:
             raise ValueError(f"grid end_prob must be in (0, 1], got {end_prob!r}")
         self.layout = parse_layout(layout)
@@ -154,10 +160,10 @@ class GridWorld(gym.Env):
             direction = (direction + (1 if side else 3)) % 4
         self.cell = self.layout.next_cell(self.cell, direction)
         at_goal = self.cell == self.layout.goal
-        cost = self.layout.hazards[:, self.cell].copy()
+        cost = self.layout.hazards[self._cost_rows, self.cell]  # a copy (integer indexing)
         terminated = bool(at_goal or ends)
-        self._last_cost = cost
-        info = {"cost": cost.copy(), "cell": self.cell, "goal_reached": bool(at_goal)}
+        self._last_cost = self.layout.hazards[:, self.cell]  # every hazard's, for the frame's border
+        info = {"cost": cost, "cell": self.cell, "goal_reached": bool(at_goal)}
         return self._obs(), 1.0 if at_goal else 0.0, terminated, False, info
 
     def render(self) -> np.ndarray | None:

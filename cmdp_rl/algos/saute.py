@@ -1,0 +1,65 @@
+"""Sauté RL (Sootla et al., 2022, "Sauté RL: Almost Surely Safe Reinforcement Learning Using State
+Augmentation", ICML): an unconstrained algorithm trained on the safety augmented MDP.
+
+The constraint leaves the algorithm and goes into the env (``envs/saute.py``): the remaining budget
+joins the state and the reward is replaced by ``unsafe_reward`` once it is spent, so any algorithm
+that maximises reward can be "sautéed" (the paper's plug-and-play point). This module is the
+composition: its options declare the env transform (``wrap_env``, which ``envs.make_env`` applies
+to every env an algorithm's options ask it to) and its factory builds the base algorithm, with the
+options it shares with Sauté's, on the agent that sees the augmented state.
+
+Evaluation envs augment the state but keep the task's reward, so ``eval.json`` reports the same
+return as every other algorithm's; ``metrics.csv``'s training ``episode_return`` is the reshaped
+return the base algorithm optimises. The paper's constraint is almost sure (every episode within
+budget), stricter than the expected-cost constraint the budget means for the other algorithms.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Annotated, Literal
+
+from cmdp_rl.algos.base import Algorithm, per_constraint
+from cmdp_rl.algos.ppo import PPOConfig
+from cmdp_rl.envs.saute import BudgetStateEnv
+from cmdp_rl.envs.vector import VecEnv
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.registry import component, register
+from cmdp_rl.validation import build, finite, options, require
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+
+@options
+class SauteConfig(PPOConfig):
+    """Sauté RL on a base algorithm (``base``), whose options are these (PPO's)."""
+
+    name: str = "saute"
+    # The algorithm trained on the augmented MDP; it must optimise reward alone. Its options are
+    # the ones it shares with these (PPO's); a base with options of its own needs them added here.
+    base: Literal["ppo"] = "ppo"
+    unsafe_reward: Annotated[float, finite()] = -1.0  # the reward of a step taken with a budget spent
+    # gamma_c of z's update (envs/saute.py); 1 counts the undiscounted episode cost that cost_limit budgets
+    budget_discount: Annotated[float, finite(gt=0, le=1)] = 1.0
+
+    def check(self, run: RunConfig) -> None:
+        super().check(run)
+        limits = self.cost_limit if isinstance(self.cost_limit, list) else [self.cost_limit]
+        require(all(d > 0 for d in limits), "algo.cost_limit",
+                "> 0 with algo=saute (the budget state is the remaining fraction of it)", self.cost_limit)
+
+    def wrap_env(self, env: VecEnv, evaluation: bool = False) -> VecEnv:
+        """The safety augmented env: one budget state per cost; the reward reshaped for training."""
+        budgets = per_constraint(self.cost_limit, "algo.cost_limit", env.cost_names)
+        return BudgetStateEnv(env, budgets, self.budget_discount, self.unsafe_reward, reshape_reward=not evaluation)
+
+
+def make_saute(cfg: SauteConfig, agent: Agent) -> Algorithm:
+    """The base algorithm, built from the options it shares with ``cfg``."""
+    base = component("algo", cfg.base)
+    shared = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(base.options) if f.name != "name"}
+    return base.build(build(base.options, {**shared, "name": cfg.base}, "algo"), agent)
+
+
+register("algo", "saute", SauteConfig, make_saute)

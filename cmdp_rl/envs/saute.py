@@ -1,0 +1,97 @@
+"""Sauté's env transform: the remaining safety budget joins the state and the reward is replaced once
+the budget is spent (Sootla, Cowen-Rivers, Jafferjee, Wang, Mguni, Wang, Bou-Ammar, 2022, "Sauté RL:
+Almost Surely Safe Reinforcement Learning Using State Augmentation", ICML: its safety augmented
+MDP, cited by name; its equation numbers could not be checked against the text in this environment).
+
+The paper's safety state starts at the budget, ``z_0 = d``, and moves by ``z_{t+1} = (z_t - c_t) /
+gamma_c`` (dividing by the safety discount keeps ``z_t >= 0`` equivalent to
+``sum_{k<t} gamma_c^k c_k <= d``); the policy sees ``(s_t, z_t)``, and the objective is reshaped so
+that any step taken with the budget spent is worth a fixed penalty instead of the task's reward.
+Here ``z`` is normalised by ``d`` (``z_0 = 1``, as the paper's experiments feed it to the networks),
+one ``z`` per constraint (the construction is per constraint; the reward is replaced when any of
+them is spent), and the check reads the state *after* the step: a step's reward is replaced exactly
+when the costs up to and including it exceed the budget, so the step that overspends is penalised
+itself (with a finite penalty the pre-step reading would let the overspending step keep its reward).
+``gamma_c = 1`` (the default of ``algo.budget_discount``) counts this toolkit's budget, the
+undiscounted episode cost.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import gymnasium as gym
+import torch
+
+from cmdp_rl.envs.vector import Step, VecEnv
+
+
+class BudgetStateEnv(VecEnv):
+    """``env`` with each observation followed by the K normalised remaining budgets ``z`` (module
+    docstring) and, if ``reshape_reward``, every reward replaced by ``unsafe_reward`` on steps after
+    which some ``z_k < 0``. Costs, flags and everything else pass through unchanged; an episode's
+    end (terminated or truncated) restores the full budget, ``z = 1``, in the observation the agent
+    acts on next."""
+
+    def __init__(self, env: VecEnv, budgets: Sequence[float], discount: float = 1.0, unsafe_reward: float = 0.0,
+                 reshape_reward: bool = True) -> None:
+        if len(budgets) != env.num_costs or min(budgets) <= 0:
+            raise ValueError(f"budget state: one budget > 0 per cost ({env.num_costs}) needed, got {list(budgets)}")
+        if not 0 < discount <= 1:
+            raise ValueError(f"budget state: discount must be in (0, 1], got {discount}")
+        self.env = env
+        self.num_envs, self.num_costs = env.num_envs, env.num_costs
+        self.obs_dim = env.obs_dim + env.num_costs
+        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
+        self.device = env.device
+        self.budgets = torch.tensor(list(budgets), dtype=torch.float32, device=self.device).view(1, -1)
+        self.discount, self.unsafe_reward, self.reshape_reward = float(discount), float(unsafe_reward), reshape_reward
+        self.z = self._full()
+
+    def _full(self) -> torch.Tensor:
+        return torch.ones(self.num_envs, self.num_costs, dtype=torch.float32, device=self.device)
+
+    def _augment(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        return torch.cat([obs, z.to(obs.dtype)], dim=-1)
+
+    @property
+    def cost_names(self) -> tuple[str, ...]:
+        return self.env.cost_names
+
+    @property
+    def action_space(self) -> gym.Space:
+        return self.env.action_space
+
+    def check_action(self, action: torch.Tensor) -> None:
+        self.env.check_action(action)
+
+    def reset(self, seed: int | None = None) -> torch.Tensor:
+        obs = self.env.reset(seed=seed)
+        self.z = self._full()
+        return self._augment(obs, self.z)
+
+    def step(self, action: torch.Tensor) -> Step:
+        s = self.env.step(action)
+        # The safety state's update z_{t+1} = (z_t - c_t / d) / gamma_c, per constraint (z normalised by d).
+        z_next = (self.z - s.cost.to(self.z.dtype) / self.budgets) / self.discount
+        reward = s.reward
+        if self.reshape_reward:  # the reshaped objective: a spent budget earns the penalty
+            spent = (z_next < 0).any(dim=-1, keepdim=True)
+            reward = torch.where(spent, torch.full_like(reward, self.unsafe_reward), reward)
+        done = s.terminated | s.truncated
+        self.z = torch.where(done, self._full(), z_next)  # a new episode starts with the whole budget
+        return Step(next_obs=self._augment(s.next_obs, z_next), reward=reward, cost=s.cost,
+                    terminated=s.terminated, truncated=s.truncated, obs=self._augment(s.obs, self.z))
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"env": self.env.state_dict(), "z": self.z.clone()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.env.load_state_dict(state["env"])
+        self.z = state["z"].to(self.device).clone()
+
+    def close(self) -> None:
+        self.env.close()
+
+
+__all__ = ["BudgetStateEnv"]
