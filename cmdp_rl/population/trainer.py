@@ -44,14 +44,14 @@ from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.rng import seed_everything
-from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, ensure_writable, write_run_info
+from cmdp_rl.rundir import (
+    CHECKPOINT, CONFIG, EVAL, METRICS, POPULATION_CHECKPOINT, POPULATION_CONFIG, POPULATION_SUMMARY, ensure_writable,
+    write_run_info,
+)
 from cmdp_rl.safety_metrics import cost_rate, normalized_scores
 from cmdp_rl.threads import apply_threads
 from cmdp_rl.trainer import check_env_contract, contract_options
 
-POPULATION_CONFIG = "population.yaml"
-POPULATION_CHECKPOINT = "population.pt"
-POPULATION_SUMMARY = "population.json"
 AGENTS_DIR = "agents"
 
 
