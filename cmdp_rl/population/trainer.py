@@ -23,6 +23,7 @@ import copy
 import dataclasses
 import json
 import math
+import shutil
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -45,7 +46,8 @@ from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.rng import seed_everything
 from cmdp_rl.rundir import (
-    CHECKPOINT, CONFIG, EVAL, METRICS, POPULATION_CHECKPOINT, POPULATION_CONFIG, POPULATION_SUMMARY, ensure_writable,
+    CHECKPOINT, CONFIG, EVAL, METRICS, POPULATION_CHECKPOINT, POPULATION_CONFIG, POPULATION_SUMMARY, RUN_INFO,
+    ensure_writable,
     write_run_info,
 )
 from cmdp_rl.safety_metrics import cost_rate, normalized_scores
@@ -126,7 +128,10 @@ def train_population(raw: Mapping[str, Any] | None, out_dir: str | Path, echo: C
                                      lambda s: None, resume_iteration=None if state is None else state["iteration"]))
         run_cfg = dataclasses.asdict(dataclasses.replace(c, resume=None))
         (d / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
-        write_run_info(d, resumed_from=None if state is None else state["iteration"])
+        if state is None and d != dirs[0]:  # the same provenance (git calls) for every agent: copy it
+            shutil.copyfile(dirs[0] / RUN_INFO, d / RUN_INFO)
+        else:
+            write_run_info(d, resumed_from=None if state is None else state["iteration"])
 
     per_iter = T * N  # steps per agent per iteration
     iterations = math.ceil(cfg.total_steps / per_iter)
