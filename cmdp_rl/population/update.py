@@ -117,7 +117,7 @@ class PopulationPPO:
         """One minibatch step of every agent: ``PPO.policy_loss`` and the critics' regression per
         agent, one backward, per-agent clipping, Adam. Returns each statistic as ``[P]``, detached."""
         agent = self.agent
-        dist = agent.dist(mb[keys.OBS])
+        dist, value, cost_value = agent.training_pass(mb[keys.OBS])
         log_prob = dist.log_prob(mb[keys.ACTION])
         old_log_prob = mb[keys.LOG_PROB]
         adv = mb[keys.POLICY_ADVANTAGE]
@@ -126,8 +126,8 @@ class PopulationPPO:
         gain = torch.minimum(log_ratio.exp() * adv, log_ratio_clip.exp() * adv)
         entropy = dist.entropy().mean(1)
         loss_pi = -gain.mean((1, 2)) - self.entropy_coef * entropy
-        loss_v = (agent.value("reward", mb[keys.OBS]) - mb[keys.VALUE_TARGET]).pow(2).mean((1, 2))
-        loss_vc = (agent.value("cost", mb[keys.OBS]) - mb[keys.COST_VALUE_TARGET]).pow(2).mean((1, 2))
+        loss_v = (value - mb[keys.VALUE_TARGET]).pow(2).mean((1, 2))
+        loss_vc = (cost_value - mb[keys.COST_VALUE_TARGET]).pow(2).mean((1, 2))
         with torch.no_grad():
             kl = (old_log_prob - log_prob).mean(1)
             clip_fraction = (log_ratio_clip != log_ratio).float().mean((1, 2))
