@@ -63,7 +63,7 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
     ({"name": "pid_lag", "kp": 1.0, "ki": 0.2}, {"algo": {"kp": [0.5, 2.0]}, "env": {"obs_noise": [0.05]}}, [1]),
 ])
 def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
-    raw = torch_tiny(algo=algo)
+    raw = torch_tiny(algo=algo, eval_deterministic=algo["name"] != "penalty")  # penalty: sampled evaluation
     raw["algo"] = {k: v for k, v in raw["algo"].items() if not (algo["name"] != "ppo_lag" and k == "lambda_lr")}
     raw["population"] = {"seeds": 1, "grid": grid}
     pop = _population(tmp_path, raw)
