@@ -56,8 +56,7 @@ class PopulationAgent:
         """The action distribution and both critics' values on a minibatch ``[P, B, obs]``.
         Where the three networks have the same shapes (one action dimension, one cost: Reach1D), they
         run as one batched program over 3P networks: the same arithmetic per network, a third of the
-        operations (on the 2-core CPU, this took the P = 64 update from about 7.7x to about NNx the
-        agents one after another; see docs/population.md)."""
+        operations (the measured effect is in docs/population.md)."""
         if not self.fused:
             return self.dist(obs), self.value("reward", obs), self.value("cost", obs)
         p = self.num_agents
