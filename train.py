@@ -34,7 +34,7 @@ def _if_resumable(resume: str | None, then: str, otherwise: str) -> str:
     """For `hydra.run.dir` and `hydra.output_subdir` in configs/config.yaml: a resumed run writes
     into its own directory, and Hydra's record of the resume command goes beside the original one.
     Only a directory with a checkpoint counts, so a mistyped path is reported, not created."""
-    saved = resume and ((Path(resume) / CHECKPOINT).is_file() or (Path(resume) / POPULATION_CHECKPOINT).is_file())
+    saved = resume and any((Path(resume) / name).is_file() for name in (CHECKPOINT, POPULATION_CHECKPOINT))
     return then if saved else otherwise
 
 

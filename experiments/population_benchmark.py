@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cmdp_rl import train  # noqa: E402
-from cmdp_rl.config import CONFIG_DIR, load_config  # noqa: E402
+from cmdp_rl.config import CONFIG_DIR  # noqa: E402
 from cmdp_rl.population import train_population  # noqa: E402
 from cmdp_rl.population.spec import agent_configs  # noqa: E402
 

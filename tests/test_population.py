@@ -2,7 +2,6 @@
 does, the population resumes after a kill, bad or unsupported configs stop in one line."""
 
 import math
-import shutil
 from pathlib import Path
 
 import pytest
@@ -12,7 +11,7 @@ from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.population import train_population
 from cmdp_rl.population.spec import agent_configs
 from cmdp_rl.sweeps import find_runs
-from conftest import ROOT, eval_result, metrics_rows, run_script, tiny
+from conftest import eval_result, metrics_rows, run_script, tiny
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
 # kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)

@@ -23,7 +23,8 @@ from cmdp_rl.population.env import PopulationReach1D
 CHUNK = 128  # steps per collect, as evaluation.py
 
 
-def evaluate_population(agent: PopulationAgent, cfgs: Sequence[RunConfig], device: torch.device) -> list[dict[str, Any]]:
+def evaluate_population(agent: PopulationAgent, cfgs: Sequence[RunConfig],
+                        device: torch.device) -> list[dict[str, Any]]:
     cfg = cfgs[0]
     n = min(cfg.eval_episodes, cfg.env.num_envs)
     env = PopulationReach1D([c.env for c in cfgs], n, stagger=False, device=device)

@@ -49,7 +49,9 @@ class SweepPart:
 
 
 def _hydra_value(v: Any) -> str:
-    return "[" + ",".join(_hydra_value(x) for x in v) + "]" if isinstance(v, list) else repr(v) if isinstance(v, str) else str(v)
+    if isinstance(v, list):
+        return "[" + ",".join(_hydra_value(x) for x in v) + "]"
+    return repr(v) if isinstance(v, str) else str(v)
 
 
 def _hydra_list(values: list) -> str:

@@ -34,7 +34,8 @@ class PopulationPPO:
     """``algos`` are the agents' single-run algorithm objects: they keep each agent's J_c window
     and multiplier (and give the single-run checkpoint its layout); the networks' arithmetic is here."""
 
-    def __init__(self, cfgs: Sequence[RunConfig], algos: Sequence[Any], agent: PopulationAgent, envs_per_agent: int) -> None:
+    def __init__(self, cfgs: Sequence[RunConfig], algos: Sequence[Any], agent: PopulationAgent,
+                 envs_per_agent: int) -> None:
         first = cfgs[0].algo
         self.name = first.name
         self.cfg = first  # shared options: discounts, epochs, minibatches, clip, max_grad_norm
