@@ -144,3 +144,25 @@ def test_train_cli_refuses_in_one_line(tmp_path):
     proc = run_script("train.py", "algo=cpo", "env=reach1d_torch", "population.seeds=2", f"hydra.run.dir={tmp_path}/r")
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines()[-1].startswith("config error: population: algo=cpo is not batched")
+
+
+def test_the_exercise_grid_as_populations():
+    """experiments/penalty_vs_constraint.py --population: each algorithm of a sweep is one
+    population whose agents are the sweep's jobs; cpo is left to run job by job."""
+    from cmdp_rl.config import CONFIG_DIR
+    from cmdp_rl.population.sweep import sweep_parts
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    parts = sweep_parts("constraint_sweep")
+    assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", False)]
+    assert len(parts[2].jobs("constraint_sweep")) == 30
+    (penalty,) = sweep_parts("penalty_sweep")
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        raw = OmegaConf.to_container(compose("config", overrides=penalty.overrides(
+            "penalty_sweep", ["env.backend=torch"])), resolve=True)
+    overrides, cfgs = agent_configs(raw)
+    assert len(cfgs) == 42 and {c.algo.name for c in cfgs} == {"penalty"}
+    assert sorted({(c.algo.penalty, str(c.env.start)) for c in cfgs}) == sorted(
+        (p, s) for p in (0.0, 0.5, 1.0, 1.25, 1.5, 2.0, 3.0) for s in ("0.1", "[0.0, 1.0]"))
+    assert [c.seed for c in cfgs[:3]] == [0, 1, 2] and cfgs[0].algo.update_epochs == 10

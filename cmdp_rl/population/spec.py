@@ -39,7 +39,7 @@ class PopulationConfig:
     grid: dict = field(default_factory=dict)
 
     def fields(self) -> dict[str, list]:
-        """The varied fields and their values, in the order given."""
+        """The varied fields and their values, in the config's order (configs/population/none.yaml)."""
         grid = flatten_dict(self.grid or {})
         return {k: v for k, v in grid.items() if v is not None}
 
@@ -77,6 +77,8 @@ def _set(raw: dict, dotted: str, value: Any) -> None:
 def agent_overrides(spec: PopulationConfig, base_seed: int) -> list[dict[str, Any]]:
     """Each agent's values of the varied fields and its seed, in population order."""
     grid = spec.fields()
+    if "seed" in grid:  # seeds innermost, as population.seeds (the yaml declares grid.seed first)
+        grid = {**{k: v for k, v in grid.items() if k != "seed"}, "seed": grid["seed"]}
     out = []
     for combo in itertools.product(*grid.values()):
         point = dict(zip(grid, combo))
