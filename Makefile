@@ -66,6 +66,7 @@ test: setup setup-safety-gym
 # Takes a few minutes; pass options with BENCH_ARGS, e.g. `make bench BENCH_ARGS="--device cuda"`.
 bench: setup
 	$(PY) experiments/benchmark_throughput.py $(BENCH_ARGS)
+	$(PY) experiments/population_benchmark.py $(POPULATION_BENCH_ARGS)  # docs/population.md
 
 # The penalty-versus-constraint study (docs/penalty_vs_constraint.md): both Hydra sweeps into one
 # directory, then the report from their outputs. `make sweep SWEEP_ARGS="hydra/launcher=..."` scales

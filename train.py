@@ -20,8 +20,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
 from cmdp_rl.checkpoint import CheckpointError
+from cmdp_rl.population.spec import population_active
 from cmdp_rl.resume import resume_config
-from cmdp_rl.rundir import CHECKPOINT, RunDirError
+from cmdp_rl.rundir import CHECKPOINT, POPULATION_CHECKPOINT, RunDirError
 from cmdp_rl.sweeps import clear_outputs, record_failure
 
 # How a single run ends on each error (inside a sweep train.py raises instead: see _fail).
@@ -33,7 +34,8 @@ def _if_resumable(resume: str | None, then: str, otherwise: str) -> str:
     """For `hydra.run.dir` and `hydra.output_subdir` in configs/config.yaml: a resumed run writes
     into its own directory, and Hydra's record of the resume command goes beside the original one.
     Only a directory with a checkpoint counts, so a mistyped path is reported, not created."""
-    return then if resume and (Path(resume) / CHECKPOINT).is_file() else otherwise
+    saved = resume and any((Path(resume) / name).is_file() for name in (CHECKPOINT, POPULATION_CHECKPOINT))
+    return then if saved else otherwise
 
 
 OmegaConf.register_new_resolver("cmdp.if_resumable", _if_resumable)
@@ -64,6 +66,10 @@ def main(cfg: DictConfig) -> None:
     # the resume machinery does (a refused resume must not touch a finished run).
     new_dir = None if raw.get("resume") else HydraConfig.get().runtime.output_dir
     try:
+        if raw.get("resume") and (Path(raw["resume"]) / POPULATION_CHECKPOINT).is_file():
+            return _population(raw, resume=True)
+        if not raw.get("resume") and population_active(raw.get("population")):
+            return _population(raw, new_dir)
         if raw.get("resume"):
             overrides = OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
             run_cfg = resume_config(raw["resume"], raw, [o.key_or_group for o in overrides])
@@ -77,6 +83,24 @@ def main(cfg: DictConfig) -> None:
         # A resumed run writes into its own directory, whatever hydra.run.dir says.
         train(run_cfg, new_dir)
     except Exception as exc:  # noqa: BLE001 - every failure is recorded, then handled by _fail
+        _fail(exc, new_dir)
+
+
+def _population(raw: dict, new_dir: str | None = None, resume: bool = False) -> None:
+    """Several agents in one process (cmdp_rl/population/); a resume continues the population in
+    its directory, where only total_steps may be changed."""
+    from cmdp_rl.population import train_population
+
+    try:
+        if resume:
+            explicit = [o.key_or_group for o in OverridesParser.create().parse_overrides(
+                list(HydraConfig.get().overrides.task))]
+            train_population(None, raw["resume"], resume=True,
+                             total_steps=raw["total_steps"] if "total_steps" in explicit else None)
+        else:
+            clear_outputs(new_dir)
+            train_population(raw, new_dir)
+    except Exception as exc:  # noqa: BLE001 - recorded and reported as a single run's failure is
         _fail(exc, new_dir)
 
 

@@ -115,6 +115,7 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
     that a script building the pieces itself from this config gets the same speed."""
     raw = dict(raw)
     raw.pop("hydra", None)
+    raw.pop("population", None)  # several agents: cmdp_rl/population/ reads it (spec.agent_configs)
     parts: dict[str, Any] = {}
     for kind in KINDS:
         data = dict(raw.pop(kind, {}) or {})

@@ -42,6 +42,10 @@ EVAL = "eval.json"
 ERROR = "error.txt"
 RUN_INFO = "run_info.json"
 TENSORBOARD = "tb"
+# A population's directory (cmdp_rl/population/): its composed config, checkpoint and summary.
+POPULATION_CONFIG = "population.yaml"
+POPULATION_CHECKPOINT = "population.pt"
+POPULATION_SUMMARY = "population.json"
 
 
 class RunDirError(ConfigError):

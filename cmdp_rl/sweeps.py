@@ -32,6 +32,7 @@ from cmdp_rl.rundir import CONFIG as CONFIG_FILE
 from cmdp_rl.rundir import ERROR as ERROR_FILE
 from cmdp_rl.rundir import EVAL as EVAL_FILE
 from cmdp_rl.rundir import METRICS as METRICS_FILE
+from cmdp_rl.rundir import POPULATION_CONFIG
 
 HYDRA_DIR = ".hydra"
 MULTIRUN_FILE = "multirun.yaml"
@@ -130,7 +131,8 @@ def find_runs(root: str | Path) -> list[RunRecord]:
 
     dirs = {p.parent for p in root.rglob(HYDRA_DIR) if p.is_dir() and not inside_hydra(p)}
     dirs |= {p.parent for p in root.rglob(CONFIG_FILE) if not inside_hydra(p)}
-    return [load_run(d) for d in sorted(dirs)]
+    # A population's own directory (cmdp_rl/population/) is not a run: its agents' directories are.
+    return [load_run(d) for d in sorted(dirs) if not (d / POPULATION_CONFIG).is_file()]
 
 
 def _expand(overrides: list[str]) -> list[list[str]]:

@@ -1,0 +1,136 @@
+"""Acting and valuing for all agents at once: the collector's and GAE's side of a population.
+
+:class:`PopulationAgent` offers what :class:`~cmdp_rl.collector.Collector` and
+:class:`~cmdp_rl.advantages.TwinGAE` ask of an :class:`~cmdp_rl.policies.agent.Agent` (``in_keys``,
+``initial_state``, ``act``, ``rollout_values``) on the population's flat env batch ``[P N, ...]``,
+so the single-run collector and torchrl's GAE run unchanged. Inside, entries are viewed as
+``[P, rows, ...]`` and every network is the single-run MLP applied per agent with stacked
+parameters (``params.sequential``). Each agent samples its actions from its own generator, in the
+single run's order (``Normal.rsample``: ``loc + eps * scale``, ``eps`` drawn by ``normal_`` on the
+action's shape), so agent i's actions are those of its single run.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+from tensordict import TensorDictBase
+from torch import distributions as D
+from torch import nn
+from torchrl.modules import IndependentNormal
+
+from cmdp_rl import keys
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.population.params import StackedParams, linear, sequential, template
+
+
+class PopulationAgent:
+    """P MLP agents: ``template`` (agent 0's single-run module) gives the architecture, ``actor``
+    and ``critics`` the stacked parameters, ``generators`` each agent's random stream."""
+
+    in_keys = [keys.OBS]
+    recurrent = False
+
+    def __init__(self, agents: Sequence[Agent], generators: Sequence[torch.Generator], device: torch.device) -> None:
+        self.template = agents[0]
+        self.actor_net, self.critic_nets = template(agents[0])
+        self.actor = StackedParams([a.actor for a in agents], device)
+        self.critics = StackedParams([a.critics for a in agents], device)
+        head = agents[0].actor.head
+        self.center, self.half_width = head.center.to(device), head.half_width.to(device)
+        self.generators = list(generators)
+        self.num_agents = len(agents)
+        shapes = [[tuple(p.shape) for p in net.parameters()] for net in (self.actor_net, *self.critic_nets.values())]
+        self.fused = len(self.critic_nets) == 2 and all(s == shapes[0] for s in shapes)
+
+    # --- the networks on [P, rows, ...] ------------------------------------------------------------
+    def params(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The Gaussian head's ``(loc, scale)`` as ``GaussianHead`` computes them, per agent."""
+        loc = self.center + self.half_width * sequential(self.actor_net, "head.net", self.actor, obs)
+        log_std = self.actor.view("head.log_std").unsqueeze(1)
+        scale = (self.half_width * log_std.exp()).expand_as(loc)
+        return loc, scale
+
+    def training_pass(self, obs: torch.Tensor) -> tuple[D.Distribution, torch.Tensor, torch.Tensor]:
+        """The action distribution and both critics' values on a minibatch ``[P, B, obs]``.
+        Where the three networks have the same shapes (one action dimension, one cost: Reach1D), they
+        run as one batched program over 3P networks: the same arithmetic per network, a third of the
+        operations (the measured effect is in docs/population.md)."""
+        if not self.fused:
+            return self.dist(obs), self.value("reward", obs), self.value("cost", obs)
+        p = self.num_agents
+        x = obs.repeat(3, 1, 1)
+        for i, module in enumerate(self.actor_net):
+            if isinstance(module, nn.Linear):
+                w = torch.cat([self.actor.view(f"head.net.{i}.weight"), self.critics.view(f"reward.net.{i}.weight"),
+                               self.critics.view(f"cost.net.{i}.weight")])
+                b = torch.cat([self.actor.view(f"head.net.{i}.bias"), self.critics.view(f"reward.net.{i}.bias"),
+                               self.critics.view(f"cost.net.{i}.bias")])
+                x = linear(x, w, b)
+            else:
+                x = module(x)
+        net, reward, cost = x.split(p)
+        loc = self.center + self.half_width * net
+        scale = (self.half_width * self.actor.view("head.log_std").unsqueeze(1).exp()).expand_as(loc)
+        return IndependentNormal(loc, scale), reward, cost
+
+    def dist(self, obs: torch.Tensor) -> D.Distribution:
+        return IndependentNormal(*self.params(obs))
+
+    def value(self, signal: str, obs: torch.Tensor) -> torch.Tensor:
+        return sequential(self.critic_nets[signal], f"{signal}.net", self.critics, obs)
+
+    def _agents(self, x: torch.Tensor) -> torch.Tensor:
+        """A flat ``[P N, ...]`` (or ``[P N, T, ...]``) entry as ``[P, rows, features]``."""
+        return x.reshape(self.num_agents, -1, x.shape[-1])
+
+    # --- what the collector asks ----------------------------------------------------------------
+    def initial_state(self, num_envs: int, device: torch.device | str = "cpu") -> dict:
+        return {}
+
+    @torch.no_grad()
+    def act(self, d: dict, deterministic: bool = False) -> dict:
+        obs = self._agents(d[keys.OBS])
+        loc, scale = self.params(obs)
+        if deterministic:
+            action = loc
+        else:
+            n, a = loc.shape[1:]
+            eps = torch.stack([torch.empty(n, a, device=loc.device).normal_(generator=g) for g in self.generators])
+            action = loc + eps * scale
+        log_prob = IndependentNormal(loc, scale).log_prob(action)
+        flat = self.num_agents * loc.shape[1]
+        return {keys.LOC: loc.reshape(flat, -1), keys.SCALE: scale.reshape(flat, -1),
+                keys.ACTION: action.reshape(flat, -1), keys.LOG_PROB: log_prob.reshape(flat)}
+
+    # --- what GAE asks ---------------------------------------------------------------------------
+    @torch.no_grad()
+    def rollout_values(self, batch: TensorDictBase, signal: str) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(V(obs), V(next obs))`` of a ``[P N, T]`` batch, as ``Agent.rollout_values`` gives
+        them for each agent's rows: a step's next value is the following step's value unless its
+        episode ended there or it is the last step. Here the critic values every next observation
+        (the fresh steps' count differs per agent, and one batched call is cheaper than P)."""
+        rows, T = batch.shape
+        obs = batch.get(keys.OBS)
+        values = self.value(signal, self._agents(obs)).reshape(rows, T, -1)
+        fresh = batch.get((keys.NEXT, keys.DONE)).clone()
+        fresh[:, -1] = True
+        next_all = self.value(signal, self._agents(batch.get((keys.NEXT, keys.OBS)))).reshape(rows, T, -1)
+        next_values = torch.empty_like(values)
+        next_values[:, :-1] = values[:, 1:]
+        next_values[:, -1] = next_all[:, -1]
+        next_values = torch.where(fresh, next_all, next_values)
+        return values, next_values
+
+    # --- moving an agent out -----------------------------------------------------------------------
+    def load_into(self, i: int, agent: Agent) -> None:
+        """Copy agent ``i``'s parameters into a single-run ``Agent`` of the same architecture."""
+        with torch.no_grad():
+            for module, stacked in ((agent.actor, self.actor), (agent.critics, self.critics)):
+                state = stacked.agent_state(i)
+                for name, p in module.named_parameters():
+                    p.copy_(state[name])
+
+
+__all__ = ["PopulationAgent"]

@@ -1,0 +1,70 @@
+"""The final evaluation of every agent at once, each agent's result as ``evaluate`` gives it.
+
+Each agent runs its single run's evaluation: ``min(eval_episodes, num_envs)`` envs of its own
+options without staggered starts, seeded with its evaluation seed (``seed + EVAL_SEED_OFFSET``, for
+the envs and for its action samples), each env contributing its quota of first episodes. The
+summary of an agent's episodes is ``evaluation.py``'s (``_spread``, ``_intervals``).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import torch
+
+from cmdp_rl import keys
+from cmdp_rl.collector import Collector
+from cmdp_rl.config import RunConfig
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET, _intervals, _spread
+from cmdp_rl.metrics import constraint_name
+from cmdp_rl.population.agent import PopulationAgent
+from cmdp_rl.population.env import PopulationReach1D
+
+CHUNK = 128  # steps per collect, as evaluation.py
+
+
+def evaluate_population(agent: PopulationAgent, cfgs: Sequence[RunConfig],
+                        device: torch.device) -> list[dict[str, Any]]:
+    cfg = cfgs[0]
+    n = min(cfg.eval_episodes, cfg.env.num_envs)
+    env = PopulationReach1D([c.env for c in cfgs], n, stagger=False, device=device)
+    seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
+    env.seed_agents(seeds)
+    training = agent.generators
+    agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
+    try:
+        collector = Collector(env, agent, CHUNK, seed=None, deterministic=cfg.eval_deterministic)
+        quota = [cfg.eval_episodes // n + (1 if j < cfg.eval_episodes % n else 0) for j in range(n)]
+        rows: list[list[tuple[float, ...]]] = [[] for _ in range(env.num_envs)]
+        while any(len(r) < quota[e % n] for e, r in enumerate(rows)):
+            batch = collector.collect()
+            nxt = batch.get(keys.NEXT)
+            done = nxt.get(keys.DONE).squeeze(-1)
+            ret, length = nxt.get(keys.EPISODE_RETURN), nxt.get(keys.EPISODE_LENGTH)
+            term, cost = nxt.get(keys.TERMINATED), nxt.get(keys.EPISODE_COST)
+            for e, t in done.nonzero().tolist():
+                if len(rows[e]) < quota[e % n]:
+                    rows[e].append((ret[e, t, 0].item(), float(length[e, t, 0].item()),
+                                    float(term[e, t, 0].item()), *cost[e, t].tolist()))
+    finally:
+        agent.generators = training
+    metric = getattr(cfg.env, "termination_metric", None)
+    return [_summary([row for r in rows[i * n:(i + 1) * n] for row in r], c, metric, env.cost_names)
+            for i, c in enumerate(cfgs)]
+
+
+def _summary(flat: list[tuple[float, ...]], cfg: RunConfig, metric: str | None, names: Sequence[str]) -> dict[str, Any]:
+    """``evaluation._evaluate``'s result from one agent's episodes."""
+    result: dict[str, Any] = {"episodes": len(flat), "deterministic": cfg.eval_deterministic}
+    result.update(_spread("episode_return", [row[0] for row in flat]))
+    for k, cost_name in enumerate(names):
+        spread = _spread("episode_cost", [row[3 + k] for row in flat])
+        result.update({constraint_name(key, cost_name, len(names)): v for key, v in spread.items()})
+    result.update(_spread("episode_length", [row[1] for row in flat]))
+    if metric:
+        result[metric] = sum(row[2] for row in flat) / len(flat)
+    result.update(_intervals(flat, names, cfg.algo.cost_limit))
+    return result
+
+
+__all__ = ["evaluate_population"]

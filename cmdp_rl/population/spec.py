@@ -1,0 +1,153 @@
+"""What a population is: the ``population`` options, each agent's own validated ``RunConfig``, and
+what the batched program refuses.
+
+An agent is the base config with its values of the grid's fields and its seed; agents are the
+grid's cartesian product (fields in the order given), ``population.seeds`` seeds per grid point
+(``seed``, ``seed + 1``, ... innermost). Only :data:`PER_AGENT_FIELDS` may differ between agents:
+each is a number that the batched program reads per agent (a multiplier, a learning rate, an
+option of an agent's own envs); everything else (shapes, schedules, the algorithm) is shared.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+from dataclasses import field
+from typing import Any, Mapping
+
+from cmdp_rl.config import RunConfig, flatten_dict, load_config
+from cmdp_rl.validation import ConfigError, PositiveInt, options, require
+
+# The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed.
+PER_AGENT_FIELDS = (
+    "seed",
+    "algo.penalty", "algo.cost_limit", "algo.lambda_init", "algo.lr", "algo.critic_lr", "algo.entropy_coef",
+    "algo.lambda_lr", "algo.kp", "algo.ki", "algo.kd", "algo.p_ema_alpha", "algo.d_ema_alpha", "algo.d_delay",
+    "algo.lambda_max",
+    "env.obs_noise", "env.wall_x", "env.goal", "env.start",
+)
+SUPPORTED_ALGOS = ("ppo", "penalty", "ppo_lag", "pid_lag")
+RUN_AS_SWEEP = "run it as separate runs (python train.py -m ...)"
+
+
+@options
+class PopulationConfig:
+    """``population.seeds``: seeds per grid point; ``population.grid``: field -> list of values
+    (null: not varied). One agent with no grid is an ordinary run."""
+
+    seeds: PositiveInt = 1
+    grid: dict = field(default_factory=dict)
+
+    def fields(self) -> dict[str, list]:
+        """The varied fields and their values, in the config's order (configs/population/none.yaml)."""
+        grid = flatten_dict(self.grid or {})
+        return {k: v for k, v in grid.items() if v is not None}
+
+
+def population_spec(raw: Mapping[str, Any] | None) -> PopulationConfig:
+    data = dict(raw or {})
+    try:
+        spec = PopulationConfig(**data)
+    except TypeError as exc:
+        raise ConfigError(f"population: unknown option(s) {sorted(set(data) - {'seeds', 'grid'})}; "
+                          f"allowed: ['grid', 'seeds']") from exc
+    except ValueError as exc:
+        raise ConfigError(f"population.seeds must be a positive integer, got {data.get('seeds')!r}") from exc
+    for name, values in spec.fields().items():
+        require(name in PER_AGENT_FIELDS, f"population.grid.{name}",
+                f"one of the per-agent fields {list(PER_AGENT_FIELDS)}", values)
+        require(isinstance(values, list) and len(values) > 0, f"population.grid.{name}", "a non-empty list", values)
+    return spec
+
+
+def population_active(raw: Mapping[str, Any] | None) -> bool:
+    """Whether ``raw`` (the ``population`` node of a composed config) asks for more than one agent."""
+    spec = population_spec(raw)
+    return spec.seeds > 1 or bool(spec.fields())
+
+
+def _set(raw: dict, dotted: str, value: Any) -> None:
+    *parents, last = dotted.split(".")
+    node = raw
+    for p in parents:
+        node = node.setdefault(p, {})
+    node[last] = copy.deepcopy(value)
+
+
+def agent_overrides(spec: PopulationConfig, base_seed: int) -> list[dict[str, Any]]:
+    """Each agent's values of the varied fields and its seed, in population order."""
+    grid = spec.fields()
+    if "seed" in grid:  # seeds innermost, as population.seeds (the yaml declares grid.seed first)
+        grid = {**{k: v for k, v in grid.items() if k != "seed"}, "seed": grid["seed"]}
+    out = []
+    for combo in itertools.product(*grid.values()):
+        point = dict(zip(grid, combo))
+        seeds = [point.pop("seed")] if "seed" in point else [base_seed + j for j in range(spec.seeds)]
+        if "seed" in grid and spec.seeds > 1:
+            raise ConfigError("population.seeds must be 1 when population.grid.seed lists the seeds, "
+                              f"got {spec.seeds}")
+        out += [{**point, "seed": s} for s in seeds]
+    return out
+
+
+def label(overrides: Mapping[str, Any]) -> str:
+    """An agent's directory label: its values, e.g. ``algo.penalty=0.5,seed=1``."""
+    def fmt(v: Any) -> str:
+        return "[" + ",".join(fmt(x) for x in v) + "]" if isinstance(v, list) else str(v)
+
+    return ",".join(f"{k}={fmt(v)}" for k, v in overrides.items())
+
+
+def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[RunConfig]]:
+    """Each agent's overrides and validated config from a composed config holding ``population``.
+    A value that the field's own rules refuse stops here, in one line naming the grid field."""
+    raw = dict(raw)
+    raw.pop("hydra", None)
+    spec = population_spec(raw.pop("population", None))
+    base_seed = int(raw.get("seed", 0))
+    overrides = agent_overrides(spec, base_seed)
+    cfgs = []
+    for i, ov in enumerate(overrides):
+        data = copy.deepcopy(raw)
+        for name, value in ov.items():
+            _set(data, name, value)
+        try:
+            cfgs.append(load_config(data))
+        except ConfigError as exc:
+            varied = [k for k in ov if k != "seed" or "seed" in spec.fields()]
+            where = f"population.grid.{varied[0]}" if len(varied) == 1 else "population"
+            raise ConfigError(f"{where}: agent {i} ({label(ov)}): {exc}") from exc
+    check_supported(cfgs[0])
+    return overrides, cfgs
+
+
+def check_supported(cfg: RunConfig) -> None:
+    """The batched program covers the PPO family with the MLP on the batched Reach1D; anything
+    else is refused in one line before anything is built."""
+    def refuse(what: str, allowed: str) -> None:
+        raise ConfigError(f"population: {what} is not batched ({allowed}); {RUN_AS_SWEEP}")
+
+    if cfg.algo.name not in SUPPORTED_ALGOS:
+        refuse(f"algo={cfg.algo.name}", f"algo must be one of {', '.join(SUPPORTED_ALGOS)}")
+    if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
+        refuse(f"policy={cfg.policy.name}" + (" with include_prev_*" if cfg.policy.name == "mlp" else ""),
+               "policy must be mlp on the observation alone")
+    if cfg.env.name != "reach1d" or getattr(cfg.env, "backend", None) != "torch":
+        refuse(f"env={cfg.env.name} (backend {getattr(cfg.env, 'backend', None)})",
+               "env must be reach1d with env.backend=torch, e.g. env=reach1d_torch")
+    if cfg.env.probe:
+        refuse("env.probe=true", "the probe action is not batched")
+    if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:
+        refuse("normalize", "normalize.obs, .reward and .cost must be false")
+    if cfg.algo.target_kl is not None:
+        refuse(f"algo.target_kl={cfg.algo.target_kl}", "algo.target_kl must be null")
+    if cfg.logger.name != "csv":
+        refuse(f"logger={cfg.logger.name}", "logger must be csv")
+    if cfg.reference.run is not None or cfg.reference.episode_return is not None:
+        refuse("reference", "reference.* must be null")
+    if isinstance(getattr(cfg.algo, "penalty", 0.0), list):
+        refuse("a list algo.penalty", "one number")
+
+
+__all__ = ["PER_AGENT_FIELDS", "PopulationConfig", "SUPPORTED_ALGOS", "agent_configs", "agent_overrides",
+           "check_supported", "label", "population_active", "population_spec"]

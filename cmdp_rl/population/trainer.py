@@ -1,0 +1,253 @@
+"""The population's training loop: one process, P agents, one batched tensor program.
+
+Per iteration, as ``trainer.train`` for one agent: collect (the single-run ``Collector`` on the
+population's env and agent), check the rollout, update (``update.PopulationPPO``), log one
+``metrics.csv`` row per agent. Outputs, under the population's directory:
+
+- ``agents/<k>_<values>/``: one run directory per agent, as a single run writes it
+  (``config.yaml`` with the agent's own config, ``run_info.json``, ``metrics.csv``, ``eval.json``,
+  ``checkpoint.pt`` loadable by ``evaluate.py``), so ``cmdp_rl.plot``, ``cmdp_rl.sweeps`` and the
+  penalty-versus-constraint report read them unchanged;
+- ``population.yaml``: the composed config the population was started with (its ``population``
+  node included), which a resume rebuilds it from;
+- ``population.pt``: the population's checkpoint (every agent's parameters, Adam moments, J_c
+  window, multiplier, env state and random streams), written every ``checkpoint_every``
+  iterations; ``python train.py resume=<dir>`` continues from it;
+- ``population.json``: the summary: agents, their values and final evaluation, wall time, summed
+  training steps per second.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+import math
+import shutil
+import time
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import torch
+import yaml
+
+from cmdp_rl.algos import make_algo
+from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from cmdp_rl.collector import Collector, finished_episodes
+from cmdp_rl.envs import make_env
+from cmdp_rl.envs.contract import check_rollout
+from cmdp_rl.metrics import MetricsLogger, columns, spread
+from cmdp_rl.normalization import make_normalizers
+from cmdp_rl.policies import make_agent
+from cmdp_rl.population.agent import PopulationAgent
+from cmdp_rl.population.env import PopulationReach1D
+from cmdp_rl.population.evaluation import evaluate_population
+from cmdp_rl.population.spec import agent_configs, label
+from cmdp_rl.population.update import PopulationPPO
+from cmdp_rl.rng import seed_everything
+from cmdp_rl.rundir import (
+    CHECKPOINT, CONFIG, EVAL, METRICS, POPULATION_CHECKPOINT, POPULATION_CONFIG, POPULATION_SUMMARY, RUN_INFO,
+    ensure_writable,
+    write_run_info,
+)
+from cmdp_rl.safety_metrics import cost_rate, normalized_scores
+from cmdp_rl.threads import apply_threads
+from cmdp_rl.trainer import check_env_contract, contract_options
+
+AGENTS_DIR = "agents"
+
+
+def _mean(t: torch.Tensor) -> float:
+    return t.mean().item() if t.numel() else float("nan")
+
+
+def agent_dir_name(k: int, overrides: Mapping[str, Any]) -> str:
+    return f"{k:03d}_{label(overrides)}".replace("/", "_").replace(" ", "")
+
+
+def is_population_dir(path: str | Path) -> bool:
+    return (Path(path) / POPULATION_CONFIG).is_file()
+
+
+def train_population(raw: Mapping[str, Any] | None, out_dir: str | Path, echo: Callable[[str], None] = print,
+                     resume: bool = False, total_steps: int | None = None) -> dict[str, Any]:
+    """Train the population that ``raw`` (a composed config with a ``population`` node) describes
+    into ``out_dir``; with ``resume``, continue the population in ``out_dir`` from its checkpoint
+    (``raw`` is then read from its ``population.yaml``; ``total_steps`` may extend it).
+    Returns the summary written to ``population.json``."""
+    out = Path(out_dir)
+    state = None
+    if resume:
+        if not (out / POPULATION_CHECKPOINT).is_file():
+            raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
+        raw = yaml.safe_load((out / POPULATION_CONFIG).read_text())
+        state = load_checkpoint(out / POPULATION_CHECKPOINT)
+    raw = copy.deepcopy(dict(raw or {}))
+    raw.pop("hydra", None)
+    raw["resume"] = None
+    if total_steps is not None:
+        raw["total_steps"] = total_steps
+    overrides, cfgs = agent_configs(raw)  # every agent validated and the scope checked: nothing written yet
+    cfg = cfgs[0]
+    apply_threads(cfg)
+    checked: list[Any] = []
+    for c in cfgs:  # the env contract once per distinct env config, on envs of its own
+        if c.env not in checked:
+            check_env_contract(c)
+            checked.append(c.env)
+    device = torch.device(cfg.device)
+    P, N, T = len(cfgs), cfg.env.num_envs, cfg.rollout_steps
+
+    # Each agent's networks and algorithm state as its single run builds them, under its seed; the
+    # generator state after that is where its single run's action samples and permutations start.
+    agents, algos, generators = [], [], []
+    for c in cfgs:
+        seed_everything(c.seed)
+        probe = make_env(c.env, device=c.device)
+        agent = make_agent(c.policy, probe, make_normalizers(c, probe))
+        agents.append(agent)
+        algos.append(make_algo(c.algo, agent))
+        g = torch.Generator(device=device)
+        g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
+        generators.append(g)
+    env = PopulationReach1D([c.env for c in cfgs], N, stagger=cfg.env.stagger, device=device)
+    env.seed_agents([c.seed for c in cfgs])
+    pop = PopulationAgent(agents, generators, device)
+    update = PopulationPPO(cfgs, algos, pop, N)
+    collector = Collector(env, pop, T, seed=None)
+
+    dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(overrides)]
+    ensure_writable(out)
+    raw_to_save = {k: v for k, v in raw.items() if k != "resume"}
+    (out / POPULATION_CONFIG).write_text(yaml.safe_dump(raw_to_save, sort_keys=False))
+    names = env.cost_names
+    loggers = []
+    for d, c in zip(dirs, cfgs):
+        ensure_writable(d)
+        loggers.append(MetricsLogger(d / METRICS, columns(update.algos[0].stats, names), c.log_interval,
+                                     lambda s: None, resume_iteration=None if state is None else state["iteration"]))
+        run_cfg = dataclasses.asdict(dataclasses.replace(c, resume=None))
+        (d / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
+        if state is None and d != dirs[0]:  # the same provenance (git calls) for every agent: copy it
+            shutil.copyfile(dirs[0] / RUN_INFO, d / RUN_INFO)
+        else:
+            write_run_info(d, resumed_from=None if state is None else state["iteration"])
+
+    per_iter = T * N  # steps per agent per iteration
+    iterations = math.ceil(cfg.total_steps / per_iter)
+    first, elapsed, steps, costs = 1, 0.0, 0, [0.0] * P
+    if state is not None:
+        with torch.no_grad():
+            pop.actor.flat.copy_(state["actor"])
+            pop.critics.flat.copy_(state["critics"])
+        update.load_state_dict(state["update"])
+        collector.load_state_dict(state["collector"])
+        for g, s in zip(generators, state["generators"]):
+            g.set_state(s)
+        first, elapsed, steps, costs = state["iteration"] + 1, state["time_s"], state["step"], list(state["costs"])
+        echo(f"resuming population {out} from iteration {state['iteration']}")
+    echo(f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} (torch, {N} envs each): "
+         f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}")
+    env_id, allow_negative_cost = contract_options(cfg.env)
+    start = time.perf_counter() - elapsed
+    limits = [c.algo.cost_limit for c in cfgs]
+
+    def checkpoint(it: int) -> None:
+        for lg in loggers:
+            lg.sync()
+        save_checkpoint(out / POPULATION_CHECKPOINT, {
+            "algo": cfg.algo.name, "policy": cfg.policy.name, "population": P, "iteration": it, "step": steps,
+            "time_s": time.perf_counter() - start, "actor": pop.actor.flat.detach().clone(),
+            "critics": pop.critics.flat.detach().clone(), "update": update.state_dict(),
+            "collector": collector.state_dict(), "generators": [g.get_state() for g in generators], "costs": costs,
+        })
+
+    try:
+        for it in range(first, iterations + 1):
+            t0 = time.perf_counter()
+            batch = collector.collect()
+            steps += per_iter
+            check_rollout(batch, env_id, allow_negative_cost, first_step=steps // N - T + 1)
+            stats = update.update(batch)
+            batch_costs = batch.get(("next", "cost")).reshape(P, -1).sum(1).tolist()
+            costs = [a + b for a, b in zip(costs, batch_costs)]
+            dt = time.perf_counter() - t0
+            now = time.perf_counter() - start
+            returns, ep_costs = [], []
+            for i in range(P):
+                eps = finished_episodes(batch[i * N:(i + 1) * N])
+                row = {
+                    "iteration": it, "step": steps, "episode_return": _mean(eps["return"]),
+                    "episode_cost": [_mean(eps["cost"][:, 0])], "episode_length": _mean(eps["length"]),
+                    "episodes": int(eps["length"].numel()), "cost_limit": limits[i], "sps": per_iter / dt,
+                    "time_s": now, **stats[i], "cost_rate": [cost_rate(costs[i], steps)],
+                }
+                row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
+                                             [limits[i]], None))
+                loggers[i].log(spread(row, names))
+                returns.append(row["episode_return"])
+                ep_costs.append(row["episode_cost"][0])
+            if it % cfg.log_interval == 0 or it == first or it == iterations:
+                echo(f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
+                     f"mean episode return {_nanmean(returns):.3f}, cost {_nanmean(ep_costs):.3f}")
+            if it % cfg.checkpoint_every == 0 or it == iterations:
+                checkpoint(it)
+    finally:
+        for lg in loggers:
+            lg.close()
+        env.close()
+    train_time = time.perf_counter() - start
+
+    results = evaluate_population(pop, cfgs, device)
+    summary_agents = []
+    for i, (d, c, result) in enumerate(zip(dirs, cfgs, results)):
+        rate = [cost_rate(costs[i], steps)]
+        result.update({"cost_limit": c.algo.cost_limit, "steps": steps, "train_time_s": train_time,
+                       "torch_threads": torch.get_num_threads()})
+        per_cost = {"cost_rate": rate, **normalized_scores(result["episode_return"], [result["episode_cost"]], rate,
+                                                           [c.algo.cost_limit], None)}
+        result.update(spread(per_cost, names))
+        result["reference"] = None
+        _write_agent_checkpoint(d, c, pop, update, i, iterations, steps, train_time)
+        (d / EVAL).write_text(json.dumps(result, indent=2))
+        summary_agents.append({"dir": str(d.relative_to(out)), "values": overrides[i],
+                               "episode_return": result["episode_return"], "episode_cost": result["episode_cost"]})
+    summary = {
+        "agents": P, "algo": cfg.algo.name, "envs_per_agent": N, "iterations": iterations, "steps_per_agent": steps,
+        "steps_summed": steps * P, "train_time_s": train_time, "summed_steps_per_s": steps * P / train_time,
+        "wall_time_s": time.perf_counter() - start, "device": str(device), "torch_threads": torch.get_num_threads(),
+        "runs": summary_agents,
+    }
+    (out / POPULATION_SUMMARY).write_text(json.dumps(summary, indent=2))
+    echo(f"done: {P} agents x {steps:,} steps in {train_time:.1f}s ({summary['summed_steps_per_s']:,.0f} steps/s "
+         f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}")
+    return summary
+
+
+def _nanmean(values: list[float]) -> float:
+    finite = [v for v in values if not math.isnan(v)]
+    return sum(finite) / len(finite) if finite else float("nan")
+
+
+def _write_agent_checkpoint(d: Path, cfg: Any, pop: PopulationAgent, update: PopulationPPO, i: int,
+                            iteration: int, steps: int, train_time: float) -> None:
+    """Agent ``i``'s ``checkpoint.pt`` in its single run's layout (its algorithm's ``state_dict``
+    with the trained networks and Adam moments), for ``evaluate.py``; not resumable on its own
+    (the population resumes from ``population.pt``)."""
+    algo = update.algos[i]
+    agent = algo.agent
+    pop.load_into(i, agent)
+    for opt, module, stacked_opt, stacked in ((algo.actor_opt, agent.actor, update.actor_opt, pop.actor),
+                                              (algo.critic_opt, agent.critics, update.critic_opt, pop.critics)):
+        moments = stacked_opt.agent_state(i, stacked)
+        for name, p in module.named_parameters():
+            opt.state[p] = {"step": torch.tensor(float(stacked_opt.step_count)), **moments[name]}
+    save_checkpoint(d / CHECKPOINT, {
+        "algo": cfg.algo.name, "policy": cfg.policy.name,
+        "config": dataclasses.asdict(dataclasses.replace(cfg, resume=None)), "iteration": iteration, "step": steps,
+        "time_s": train_time, "algo_state": algo.state_dict(), "collector": None, "rng": None,
+    })
+
+
+__all__ = ["AGENTS_DIR", "POPULATION_CHECKPOINT", "POPULATION_CONFIG", "POPULATION_SUMMARY", "is_population_dir",
+           "train_population"]

@@ -1,0 +1,168 @@
+"""Population training (cmdp_rl/population/): agent i of a population trains as its single run
+does, the population resumes after a kill, bad or unsupported configs stop in one line."""
+
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from cmdp_rl import ConfigError, load_config, train
+from cmdp_rl.population import train_population
+from cmdp_rl.population.spec import agent_configs
+from cmdp_rl.sweeps import find_runs
+from conftest import eval_result, metrics_rows, run_script, tiny
+
+# Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
+# kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)
+# sum in another order; training carries these last-bit differences to at most ~5e-4 relative in
+# quantities near zero (loss_pi of 1e-4), so: relative 1e-3 or absolute 1e-6, every other entry
+# (episode counts and costs, steps, multipliers here) equal.
+REL, ABS = 1e-3, 1e-6
+
+
+def torch_tiny(**overrides) -> dict:
+    return tiny(env={"backend": "torch", "num_envs": 4, "stagger": True}, total_steps=4 * 64, **overrides)
+
+
+def assert_close(a, b, where: str) -> None:
+    if isinstance(b, dict):
+        assert set(a) == set(b), where
+        for k in b:
+            assert_close(a[k], b[k], f"{where}.{k}")
+    elif isinstance(b, list):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_close(x, y, f"{where}[{i}]")
+    elif isinstance(b, float) or (isinstance(b, str) and _is_float(b)):
+        x, y = float(a), float(b)
+        assert (math.isnan(x) and math.isnan(y)) or x == pytest.approx(y, rel=REL, abs=ABS), f"{where}: {a} != {b}"
+    else:
+        assert a == b, where
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
+    out = tmp_path / name
+    train_population(raw, out, echo=lambda s: None)
+    return out
+
+
+@pytest.mark.parametrize("algo, grid, agents", [
+    # ppo_lag: the budget and the start distribution per agent (a range draws, a fixed start does not).
+    ({"name": "ppo_lag"}, {"algo": {"cost_limit": [0.2, 0.5]}, "env": {"start": [[0.3, 0.48], 0.1]}}, [0, 3]),
+    ({"name": "penalty", "penalty": 1.0}, {"algo": {"penalty": [0.5, 2.0], "lr": [3e-4, 1e-3]}}, [3]),
+    ({"name": "pid_lag", "kp": 1.0, "ki": 0.2}, {"algo": {"kp": [0.5, 2.0]}, "env": {"obs_noise": [0.05]}}, [1]),
+])
+def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
+    raw = torch_tiny(algo=algo, eval_deterministic=algo["name"] != "penalty")  # penalty: sampled evaluation
+    raw["algo"] = {k: v for k, v in raw["algo"].items() if not (algo["name"] != "ppo_lag" and k == "lambda_lr")}
+    raw["population"] = {"seeds": 1, "grid": grid}
+    pop = _population(tmp_path, raw)
+    dirs = sorted((pop / "agents").iterdir())
+    for i in agents:
+        cfg = load_config(yaml.safe_load((dirs[i] / "config.yaml").read_text()))
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        rows, expected = metrics_rows(dirs[i]), metrics_rows(single)
+        assert len(rows) == len(expected) == 4
+        assert_close(rows, expected, f"agent {i} metrics")
+        assert_close(eval_result(dirs[i]), eval_result(single), f"agent {i} eval")
+
+
+def test_population_outputs_are_runs(tmp_path):
+    raw = torch_tiny()
+    raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2, 0.5]}}}
+    pop = _population(tmp_path, raw)
+    runs = find_runs(pop)  # the sweep readers see the agents, not the population's own directory
+    assert len(runs) == 4 and {r.status for r in runs} == {"ok"}
+    assert sorted((r.get("algo.cost_limit"), r.get("seed")) for r in runs) == [(0.2, 0), (0.2, 1), (0.5, 0), (0.5, 1)]
+    summary = yaml.safe_load((pop / "population.json").read_text())
+    assert summary["agents"] == 4 and summary["steps_per_agent"] == 256 and summary["summed_steps_per_s"] > 0
+
+
+def test_population_resumes_after_a_kill(tmp_path):
+    raw = torch_tiny()
+    raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2]}}}
+    whole = _population(tmp_path, raw, "whole")
+
+    def kill_at_3(line: str) -> None:  # after iteration 3's rows, before any checkpoint of it
+        if line.startswith("iteration 3/"):
+            raise KeyboardInterrupt
+
+    killed = tmp_path / "killed"
+    with pytest.raises(KeyboardInterrupt):
+        train_population(raw, killed, echo=kill_at_3)
+    assert not list(killed.glob("agents/*/eval.json"))
+    train_population(None, killed, echo=lambda s: None, resume=True)
+    for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
+        assert metrics_rows(a) == metrics_rows(b)  # same process, same code: bit for bit
+        assert eval_result(a) == eval_result(b)
+
+
+@pytest.mark.parametrize("population, message", [
+    ({"grid": {"algo": {"cost_limit": [0.2, -1.0]}}},
+     "population.grid.algo.cost_limit: agent 1 (algo.cost_limit=-1.0,seed=0): algo.cost_limit must be"),
+    ({"grid": {"algo": {"gamma": [0.9, 0.99]}}}, "population.grid.algo.gamma must be one of the per-agent fields"),
+    ({"grid": {"algo": {"lr": 0.1}}}, "population.grid.algo.lr must be a non-empty list"),
+    ({"seeds": 0}, "population.seeds must be a positive integer"),
+])
+def test_bad_population_config_is_one_line(population, message):
+    raw = torch_tiny()
+    raw["population"] = population
+    with pytest.raises(ConfigError) as err:
+        agent_configs(raw)
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("change, refused", [
+    ({"algo": {"name": "cpo"}}, "population: algo=cpo is not batched"),
+    ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
+    ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
+    ({"normalize": {"obs": True}}, "population: normalize is not batched"),
+])
+def test_unsupported_population_is_refused(change, refused):
+    raw = torch_tiny()
+    for k, v in change.items():
+        raw.setdefault(k, {}).update(v)
+    if raw["algo"]["name"] == "cpo":
+        raw["algo"] = {"name": "cpo"}
+    raw["population"] = {"seeds": 2}
+    with pytest.raises(ConfigError) as err:
+        agent_configs(raw)
+    assert str(err.value).startswith(refused) and "\n" not in str(err.value)
+
+
+def test_train_cli_refuses_in_one_line(tmp_path):
+    proc = run_script("train.py", "algo=cpo", "env=reach1d_torch", "population.seeds=2", f"hydra.run.dir={tmp_path}/r")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].startswith("config error: population: algo=cpo is not batched")
+
+
+def test_the_exercise_grid_as_populations():
+    """experiments/penalty_vs_constraint.py --population: each algorithm of a sweep is one
+    population whose agents are the sweep's jobs; cpo is left to run job by job."""
+    from cmdp_rl.config import CONFIG_DIR
+    from cmdp_rl.population.sweep import sweep_parts
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    parts = sweep_parts("constraint_sweep")
+    assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", False)]
+    assert len(parts[2].jobs("constraint_sweep")) == 30
+    (penalty,) = sweep_parts("penalty_sweep")
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        raw = OmegaConf.to_container(compose("config", overrides=penalty.overrides(
+            "penalty_sweep", ["env.backend=torch"])), resolve=True)
+    overrides, cfgs = agent_configs(raw)
+    assert len(cfgs) == 42 and {c.algo.name for c in cfgs} == {"penalty"}
+    assert sorted({(c.algo.penalty, str(c.env.start)) for c in cfgs}) == sorted(
+        (p, s) for p in (0.0, 0.5, 1.0, 1.25, 1.5, 2.0, 3.0) for s in ("0.1", "[0.0, 1.0]"))
+    assert [c.seed for c in cfgs[:3]] == [0, 1, 2] and cfgs[0].algo.update_epochs == 10
