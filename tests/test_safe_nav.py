@@ -143,3 +143,4 @@ def test_ppo_lag_trains_and_a_resumed_run_equals_an_uninterrupted_one(tmp_path, 
     assert metrics_rows(tmp_path / "part") == metrics_rows(tmp_path / "whole")
     assert len(metrics_rows(tmp_path / "whole")) == 2
     assert eval_result(tmp_path / "part") == eval_result(tmp_path / "whole")
+
