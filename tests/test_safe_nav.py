@@ -144,3 +144,22 @@ def test_ppo_lag_trains_and_a_resumed_run_equals_an_uninterrupted_one(tmp_path, 
     assert len(metrics_rows(tmp_path / "whole")) == 2
     assert eval_result(tmp_path / "part") == eval_result(tmp_path / "whole")
 
+
+
+def test_threads_and_a_restored_state_give_the_same_steps():
+    """env.threads=2 steps the same worlds in two threads; a fresh env loaded from state_dict()
+    continues as the original does (goals, costs and resets included)."""
+    one, two = SafeNavVecEnv("PointGoal1", 4), SafeNavVecEnv("PointGoal1", 4, max_steps=40, threads=2)
+    one.max_steps = 40
+    one.reset(seed=2), two.reset(seed=2)
+    actions = torch.rand(60, 4, 2) * 2 - 1
+    for a in actions[:30]:
+        s1, s2 = one.step(a), two.step(a)
+        for x, y in zip(s1, s2):
+            assert torch.equal(x, y)
+    restored = SafeNavVecEnv("PointGoal1", 4, max_steps=40)
+    restored.load_state_dict(two.state_dict())
+    for a in actions[30:]:
+        for x, y in zip(two.step(a), restored.step(a)):
+            assert torch.equal(x, y)
+    two.close()
