@@ -148,8 +148,9 @@ class SafeNavVecEnv(VecEnv):
         w = self.worlds
         datas = [w.datas[i] for i in envs]
         xpos = np.stack([d.xpos for d in datas])
+        mat = np.stack([d.xmat[w.agent] for d in datas]).reshape(-1, 3, 3)
         return {"sensordata": np.stack([d.sensordata for d in datas]), "xpos": xpos,
-                "agent_pos": xpos[:, w.agent], "agent_mat": np.stack([d.xmat[w.agent] for d in datas]).reshape(-1, 3, 3)}
+                "agent_pos": xpos[:, w.agent], "agent_mat": mat}
 
     def _obs(self, envs, world: dict[str, np.ndarray]) -> np.ndarray:
         sd = world["sensordata"]
@@ -180,7 +181,8 @@ class SafeNavVecEnv(VecEnv):
         for i, d in enumerate(w.datas):
             if d.ncon:
                 g1, g2 = d.contact.geom1, d.contact.geom2
-                hit[i] = bool(np.any((w.geom_is_vase[g1] & w.geom_is_robot[g2]) | (w.geom_is_robot[g1] & w.geom_is_vase[g2])))
+                touch = (w.geom_is_vase[g1] & w.geom_is_robot[g2]) | (w.geom_is_robot[g1] & w.geom_is_vase[g2])
+                hit[i] = bool(np.any(touch))
             if not hit[i]:
                 speed = np.sqrt(np.sum(np.square(d.qvel[dofs]), axis=-1))
                 hit[i] = bool(np.any(speed >= VASE_SPEED))
@@ -317,6 +319,13 @@ class SafeNavEnvConfig(EnvOptions):
         if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
             raise ConfigError("env.name: env=safe_nav reads the robots' models from Safety-Gymnasium: "
                               "run `make setup-safety-gym`")
+
+    def render_env(self):
+        """The reference task drawing ``rgb_array`` frames (for video): its layouts and trajectories
+        are this env's (docs/safe_nav.md), and it has the renderer's textures, lights and cameras."""
+        from cmdp_rl.envs.safety_gym import make_task
+
+        return make_task(f"Safety{self.task}-v0", self.max_steps, render_mode="rgb_array")
 
 
 def make_safe_nav_vec_env(cfg: SafeNavEnvConfig, num_envs: int, device: str = "cpu") -> SafeNavVecEnv:
