@@ -199,8 +199,7 @@ class NavWorlds:
         for i in envs:
             m, d = models[i], datas[i]
             d.ctrl[:] = ctrl[i]
-            for _ in range(FRAMESKIP):
-                step(m, d)
+            step(m, d, FRAMESKIP)  # FRAMESKIP steps in one call (one GIL release)
             forward(m, d)
 
     def close(self) -> None:
