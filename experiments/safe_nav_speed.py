@@ -135,7 +135,7 @@ def train_rate(overrides: list[str], total_steps: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--tasks", nargs="+", default=["PointGoal1", "CarGoal1"])
+    parser.add_argument("--tasks", nargs="*", default=["PointGoal1", "CarGoal1"])
     parser.add_argument("--num-envs", type=int, nargs="+", default=[1, 16, 64, 256])
     parser.add_argument("--reference-async", type=int, nargs="*", default=[2, 16])
     parser.add_argument("--no-physics", action="store_true", help="leave out the physics-only rows")
