@@ -122,7 +122,7 @@ def main() -> None:
     if args.train:
         same_training()
     rows = [compare(task, args.num_envs, args.steps, args.seed) for task in args.tasks]
-    print("| task | env steps | max |obs diff| | max |reward diff| | cost / end mismatches | physics bit-equal | goals | cost steps | episode ends |")
+    print("| task | env steps | max abs obs diff | max abs reward diff | cost / end mismatches | physics bit-equal | goals | cost steps | episode ends |")
     print("|---|--:|--:|--:|--:|:-:|--:|--:|--:|")
     for r in rows:
         print(f"| {r['task']} | {r['num_envs'] * r['steps']} | {r['obs_max_abs_diff']:.1e} | {r['reward_max_abs_diff']:.1e} "
