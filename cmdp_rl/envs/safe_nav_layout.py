@@ -1,0 +1,120 @@
+"""Layouts of ``env=safe_nav``, drawn as Safety-Gymnasium draws them, one random stream per env.
+
+Safety-Gymnasium places the robot and then each object in turn (goal, hazards, vases), each
+uniformly in the task's square shrunk by the object's keep-out radius, redrawing an object up to
+100 times until it keeps clear of every object placed before it (distance >= the sum of the two
+keep-out radii), and starting the whole layout over (up to 10,000 times) when one cannot be
+placed. Then it draws the rotations (robot, goal, each hazard, each vase) and, at once, a new goal
+place, kept clear of everything else the same way (up to 10,000 draws). Each env step it draws one
+more number (its physics step count, a binomial that is always 10 here).
+
+Each env here has its own ``numpy.random.RandomState``, seeded as gymnasium seeds a vector env's
+envs (``seed + i``), and makes the same draws in the same order, so a seed gives the same layouts
+as the reference env: the tests check this. Drawing is plain Python per env: it happens once per
+episode and once per goal reached, not per step.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from cmdp_rl.envs.safe_nav_world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT, NavSpec
+
+LAYOUT_TRIES = 10_000  # whole layouts, and goal places mid-episode
+OBJECT_TRIES = 100  # places per object within one layout
+
+
+class LayoutError(RuntimeError):
+    """No layout found within the tries (Safety-Gymnasium raises its ResamplingError)."""
+
+
+def _clear(xy: tuple[float, float], keepout: float, placed: list[tuple[float, float, float]]) -> bool:
+    x, y = xy
+    for ox, oy, other_keepout in placed:
+        dx, dy = x - ox, y - oy
+        if math.sqrt(dx * dx + dy * dy) < other_keepout + 0.0 + keepout:  # + 0.0: its placement margin
+            return False
+    return True
+
+
+class LayoutSampler:
+    """Layouts for one task; ``rngs[i]`` is env ``i``'s stream. ``pending[i]`` counts the per-step
+    draws env ``i`` has not yet made: they are made (and discarded) before its next real draw,
+    which keeps the stream in step with the reference at no per-step cost."""
+
+    def __init__(self, spec: NavSpec, num_envs: int) -> None:
+        self.spec = spec
+        self.objects = ([("agent", AGENT_KEEPOUT), ("goal", GOAL_KEEPOUT)]
+                        + [("hazards", HAZARD_KEEPOUT)] * spec.hazards + [("vases", VASE_KEEPOUT)] * spec.vases)
+        self.rngs = [np.random.RandomState(0) for _ in range(num_envs)]
+        self.pending = np.zeros(num_envs, dtype=np.int64)
+
+    def seed(self, seeds: list[int]) -> None:
+        self.rngs = [np.random.RandomState(s) for s in seeds]
+        self.pending[:] = 0
+
+    def _rng(self, i: int) -> np.random.RandomState:
+        rng = self.rngs[i]
+        if self.pending[i]:
+            rng.random_sample(int(self.pending[i]))  # a binomial(n, 1.0) draw consumes one double
+            self.pending[i] = 0
+        return rng
+
+    def _draw(self, rng: np.random.RandomState, keepout: float) -> tuple[float, float]:
+        e = self.spec.extent
+        lo, hi = -e + keepout, e - keepout
+        return rng.uniform(lo, hi), rng.uniform(lo, hi)
+
+    def layout(self, i: int) -> dict[str, Any]:
+        """A new layout for env ``i``: xy of the robot, goal, hazards and vases, and rotations."""
+        rng = self._rng(i)
+        for _ in range(LAYOUT_TRIES):
+            placed: list[tuple[float, float, float]] = []
+            for _, keepout in self.objects:
+                for _ in range(OBJECT_TRIES):
+                    xy = self._draw(rng, keepout)
+                    if _clear(xy, keepout, placed):
+                        placed.append((*xy, keepout))
+                        break
+                else:
+                    break
+            if len(placed) == len(self.objects):
+                break
+        else:
+            raise LayoutError(f"safe_nav: no layout found in {LAYOUT_TRIES} tries")
+        h, v = self.spec.hazards, self.spec.vases
+        xy = np.array([p[:2] for p in placed])
+        two_pi = 2 * np.pi
+        rots = [rng.uniform(0, two_pi) for _ in range(2 + h + v)]
+        layout = {"agent": xy[0], "agent_rot": rots[0], "goal_rot": rots[1],
+                  "hazards": xy[2:2 + h], "hazards_rot": rots[2:2 + h],
+                  "vases": xy[2 + h:], "vases_rot": rots[2 + h:]}
+        # The goal drawn with the layout only reserved room; the episode's goal is drawn anew.
+        others = [(*layout["agent"], AGENT_KEEPOUT)] + [(*p, HAZARD_KEEPOUT) for p in layout["hazards"]]
+        others += [(*p, VASE_KEEPOUT) for p in layout["vases"]]
+        goal = self.goal(i, others)
+        if goal is None:
+            raise LayoutError(f"safe_nav: no goal place found in {LAYOUT_TRIES} tries")
+        layout["goal"] = goal
+        return layout
+
+    def goal(self, i: int, others: list[tuple[float, float, float]]) -> np.ndarray | None:
+        """A goal place for env ``i`` clear of ``others`` (x, y, keep-out), or None if none was
+        found (the reference then ends the episode)."""
+        rng = self._rng(i)
+        for _ in range(LAYOUT_TRIES):
+            xy = self._draw(rng, GOAL_KEEPOUT)
+            if _clear(xy, GOAL_KEEPOUT, others):
+                return np.array(xy)
+        return None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"rngs": [r.get_state() for r in self.rngs], "pending": self.pending.copy()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for rng, saved in zip(self.rngs, state["rngs"]):
+            rng.set_state(saved)
+        self.pending[:] = state["pending"]

@@ -1,0 +1,165 @@
+"""env=safe_nav: Safety-Gymnasium's navigation tasks, batched, against the real tasks (env=safety_gym).
+
+Fidelity is the contract: with the same seed (hence the same layouts) and the same actions, the
+batched env's observations, rewards, costs and episode ends equal the reference's over a whole
+episode, goals reached, hazards entered and the automatic reset included.
+"""
+
+import importlib.util
+
+import numpy as np
+import pytest
+import torch
+
+if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
+    pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
+
+from cmdp_rl import train  # noqa: E402
+from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
+from cmdp_rl.envs.safe_nav import SafeNavVecEnv  # noqa: E402
+from cmdp_rl.envs.safe_nav_world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
+from cmdp_rl.envs.safety_gym import make_task  # noqa: E402
+from conftest import eval_result, metrics_rows  # noqa: E402
+
+
+def toward_goal(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
+    """Actions that mostly steer each robot to its goal (so that goals are reached and hazards
+    crossed on the way), with some noise."""
+    world = env._gather(range(env.num_envs))
+    pos, mat = world["agent_pos"], world["agent_mat"]
+    ego = np.einsum("ni,nij->nj", np.c_[env.goal - pos[:, :2], -pos[:, 2:]], mat)
+    if env.spec.robot == "point":  # forward, turn
+        angle = np.arctan2(ego[:, 1], ego[:, 0])
+        steer = np.c_[np.where(np.abs(angle) < 0.6, 1.0, 0.1), np.clip(2 * angle, -1, 1)]
+    else:  # car: left and right wheels; it faces -y
+        angle = np.arctan2(-ego[:, 0], -ego[:, 1])
+        forward, turn = np.where(np.abs(angle) < 0.6, 1.0, 0.0), np.clip(2 * angle, -1, 1)
+        steer = np.c_[forward - turn, forward + turn]
+    return np.clip(0.7 * steer + 0.3 * rng.uniform(-1, 1, steer.shape), -1, 1).astype(np.float32)
+
+
+def compare(task: str, num_envs: int, steps: int, seed: int = 11) -> dict:
+    """Step the batched env and ``num_envs`` reference envs side by side; assert equality step by
+    step and return what happened."""
+    refs = [make_task(f"Safety{task}-v0") for _ in range(num_envs)]
+    env = SafeNavVecEnv(task, num_envs)
+    env.reset(seed=seed)
+    ref_obs = np.stack([r.reset(seed=seed + i)[0] for i, r in enumerate(refs)])
+    for i, r in enumerate(refs):  # the same layout from the same seed
+        model = r.inner.task.model
+        np.testing.assert_array_equal(env.goal[i], model.body("goal").pos[:2])
+        np.testing.assert_array_equal(env.layouts[i]["agent"], model.body("agent").pos[:2])
+        for k, xy in enumerate(env.hazards[i]):
+            np.testing.assert_array_equal(xy, model.body(f"hazard{k}").pos[:2])
+    np.testing.assert_allclose(env._obs(list(range(num_envs)), env._gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12)
+    rng = np.random.default_rng(0)
+    seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0}
+    for t in range(steps):
+        action = toward_goal(env, rng)
+        out = [r.step(a) for r, a in zip(refs, action)]
+        s = env.step(torch.from_numpy(action))
+        obs = np.stack([o[0] for o in out])
+        seen["obs_error"] = max(seen["obs_error"], float(np.abs(env.last["next_obs"] - obs).max()))
+        assert seen["obs_error"] < 1e-9, t
+        np.testing.assert_array_equal(env.last["reward"], [o[1] for o in out], err_msg=f"step {t}")
+        cost = np.array([o[4]["cost"] for o in out])
+        np.testing.assert_array_equal(s.cost[:, 0].numpy(), cost, err_msg=f"step {t}")
+        np.testing.assert_array_equal(s.terminated[:, 0].numpy(), [o[2] for o in out], err_msg=f"step {t}")
+        np.testing.assert_array_equal(s.truncated[:, 0].numpy(), [o[3] for o in out], err_msg=f"step {t}")
+        seen["cost"] += cost.sum()
+        seen["goals"] += sum(o[4].get("goal_met", False) for o in out)
+        for r, o in zip(refs, out):
+            if o[2] or o[3]:
+                seen["truncated"] += 1
+                r.reset()  # the batched env resets itself, drawing the next layout from the same stream
+    return seen
+
+
+def test_point_goal1_equals_the_reference_over_a_whole_episode_and_the_next_reset():
+    seen = compare("PointGoal1", num_envs=1, steps=1010)
+    assert seen["truncated"] == 1 and seen["goals"] >= 5 and seen["cost"] >= 10  # every path was taken
+
+
+def test_car_goal2_equals_the_reference_vases_included():
+    seen = compare("CarGoal2", num_envs=1, steps=150, seed=3)
+    assert seen["goals"] >= 1 and seen["cost"] >= 1
+
+
+def test_an_imposed_layout_gives_the_reference_trajectory():
+    """A layout taken from a reference env (not drawn from the same seed) and imposed."""
+    ref = make_task("SafetyPointGoal1-v0")
+    ref.reset(seed=123)
+    task = ref.inner.task
+    config, layout = task.world_info.world_config_dict, task.world_info.layout
+    imposed = {"agent": layout["agent"], "agent_rot": config["agent_rot"], "goal": layout["goal"],
+               "goal_rot": config["geoms"]["goal"]["rot"],
+               "hazards": np.array([layout[f"hazard{k}"] for k in range(8)]),
+               "hazards_rot": [config["geoms"][f"hazard{k}"]["rot"] for k in range(8)],
+               "vases": np.array([layout["vase0"]]), "vases_rot": [config["free_geoms"]["vase0"]["rot"]]}
+    env = SafeNavVecEnv("PointGoal1", 1)
+    env.reset(seed=0)
+    env.start_from(0, imposed)
+    actions = np.random.default_rng(1).uniform(-1, 1, (100, 1, 2)).astype(np.float32)
+    for action in actions:
+        obs = ref.step(action[0])[0]
+        env.step(torch.from_numpy(action))
+        np.testing.assert_allclose(env.last["next_obs"][0], obs, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("task", ["PointGoal2", "CarGoal1"])
+def test_layouts_keep_their_distances(task):
+    env = SafeNavVecEnv(task, 64)
+    env.reset(seed=5)
+    extent = env.spec.extent
+    for i, layout in enumerate(env.layouts):
+        objects = ([(layout["agent"], AGENT_KEEPOUT), (env.goal[i], GOAL_KEEPOUT)]
+                   + [(xy, HAZARD_KEEPOUT) for xy in layout["hazards"]] + [(xy, VASE_KEEPOUT) for xy in layout["vases"]])
+        for a, (xy, keepout) in enumerate(objects):
+            assert np.all(np.abs(xy) <= extent - keepout)
+            for other, other_keepout in objects[a + 1:]:
+                assert np.hypot(*(xy - other)) >= keepout + other_keepout
+    # 64 different layouts, drawn again identically from the same seed
+    again = SafeNavVecEnv(task, 64)
+    again.reset(seed=5)
+    assert len({tuple(np.round(g, 9)) for g in env.goal}) == 64
+    np.testing.assert_array_equal(again.goal, env.goal)
+
+
+def test_tasks_not_implemented_are_refused_in_one_line():
+    with pytest.raises(ConfigError, match=r"^env.task: 'PointButton1' is not implemented in safe_nav yet"):
+        compose_config(["env=safe_nav", "env.task=PointButton1"])
+    with pytest.raises(ConfigError, match="use env.task=CarGoal2"):
+        compose_config(["env=safe_nav", "env.task=SafetyCarGoal2-v0"])
+
+
+def test_ppo_lag_trains_and_a_resumed_run_equals_an_uninterrupted_one(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    base = ["env=safe_nav", "env.num_envs=2", "env.max_steps=40", "rollout_steps=32", "eval_episodes=1",
+            "algo=ppo_lag", "checkpoint_every=1"]
+    whole = train(compose_config([*base, "total_steps=128"]), tmp_path / "whole", echo=lambda _: None)
+    assert whole["cost_limit"] == 25.0 and whole["episode_length"] == 40.0
+    train(compose_config([*base, "total_steps=64"]), tmp_path / "part", echo=lambda _: None)
+    train(compose_config([*base, "total_steps=128", f"resume={tmp_path / 'part'}"]), echo=lambda _: None)
+    assert metrics_rows(tmp_path / "part") == metrics_rows(tmp_path / "whole")
+    assert len(metrics_rows(tmp_path / "whole")) == 2
+    assert eval_result(tmp_path / "part") == eval_result(tmp_path / "whole")
+
+
+
+def test_threads_and_a_restored_state_give_the_same_steps():
+    """env.threads=2 steps the same worlds in two threads; a fresh env loaded from state_dict()
+    continues as the original does (goals, costs and resets included)."""
+    one, two = SafeNavVecEnv("PointGoal1", 4), SafeNavVecEnv("PointGoal1", 4, max_steps=40, threads=2)
+    one.max_steps = 40
+    one.reset(seed=2), two.reset(seed=2)
+    actions = torch.rand(60, 4, 2) * 2 - 1
+    for a in actions[:30]:
+        s1, s2 = one.step(a), two.step(a)
+        for x, y in zip(s1, s2):
+            assert torch.equal(x, y)
+    restored = SafeNavVecEnv("PointGoal1", 4, max_steps=40)
+    restored.load_state_dict(two.state_dict())
+    for a in actions[30:]:
+        for x, y in zip(two.step(a), restored.step(a)):
+            assert torch.equal(x, y)
+    two.close()
