@@ -68,7 +68,10 @@ def check_env_contract(cfg: RunConfig) -> None:
     contract (:class:`~cmdp_rl.envs.EnvContractError`, one line naming the env, index, step and
     field). A separate env, so the training env's random streams (and the run's numbers) are those
     of a run without the check."""
-    probe = make_env(cfg.env, num_envs=min(CONTRACT_ENVS, cfg.env.num_envs), device=cfg.device)
+    env_cfg = cfg.env
+    if getattr(env_cfg, "vector", None) == "async":  # the check reads each env's raw info: in this process
+        env_cfg = dataclasses.replace(env_cfg, vector="sync")
+    probe = make_env(env_cfg, num_envs=min(CONTRACT_ENVS, cfg.env.num_envs), device=cfg.device)
     try:
         env_id, allow_negative_cost = contract_options(cfg.env)
         check_env(probe, steps=CONTRACT_STEPS, seed=cfg.seed, allow_negative_cost=allow_negative_cost, env_id=env_id)

@@ -263,3 +263,12 @@ def test_video_of_a_navigation_run_renders_headless(run, tmp_path):
     first, last = np.asarray(clip.get_frame(0)), np.asarray(clip.get_frame(8 / 32))
     assert first.std() > 10 and not np.array_equal(first, last)  # a scene, and the robot moves in it
     clip.close()
+
+
+def test_the_contract_check_of_an_async_run_steps_its_probe_in_this_process():
+    # An async run's envs live in worker processes, where the check cannot read their raw info; its
+    # separate probe envs run in this process instead (this was a TypeError before training).
+    from cmdp_rl.trainer import check_env_contract
+
+    cfg = compose_config(["env=safety_gym", "env.task=SafetyPointGoal1-v0", "env.vector=async", "env.num_envs=2"])
+    check_env_contract(cfg)  # raises on a breach or an unsupported env
