@@ -197,9 +197,9 @@ def test_one_multiplier_keeps_the_single_constraint_state_format():
      "got [1.0, 2.0, 3.0]"),
     ({"name": "ppo", "cost_limit": [1.0]}, "algo.cost_limit must be a number or a list of 2 numbers"),
     ({"name": "penalty", "penalty": [1.0, 2.0, 3.0]}, "algo.penalty must be a number or a list of 2 numbers"),
-    ({"name": "cpo", "cost_limit": 1.0}, "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag or saute for an env with 2 costs "
+    ({"name": "cpo", "cost_limit": 1.0}, "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs "
                                          "(hazard_a, hazard_b): cpo's closed-form dual handles one constraint"),
-    *(({"name": name}, f"algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag or saute for an env with 2 costs "
+    *(({"name": name}, f"algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs "
                        f"(hazard_a, hazard_b): {reason}, got '{name}'")
       for name, reason in (("pcpo", "pcpo projects onto one linearised constraint"),
                            ("crpo", "crpo's step switches on one constraint's slack"),

@@ -239,7 +239,7 @@ def test_single_constraint_algorithms_refuse_the_grid_in_one_line(tmp_path, quie
         train(load_config(cfg), tmp_path / "run", echo=quiet)
     msg = str(err.value)
     assert "\n" not in msg and msg.startswith(
-        "algo must be ppo, penalty, ppo_lag, pid_lag or trpo_lag for an env with 2 costs (hazard_a, hazard_b): ")
+        "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs (hazard_a, hazard_b): ")
     assert not (tmp_path / "run").exists()
 
 

@@ -35,7 +35,7 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
 
 
 # The algorithms that take an env with K > 1 costs (one multiplier or penalty per constraint).
-MULTI_CONSTRAINT = ("ppo", "penalty", "ppo_lag", "pid_lag", "trpo_lag", "saute")
+MULTI_CONSTRAINT = ("ppo", "penalty", "ppo_lag", "pid_lag", "trpo_lag", "saute", "sac", "sac_lag", "td3", "td3_lag")
 
 
 def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str, reason: str) -> float:
