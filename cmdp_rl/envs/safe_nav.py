@@ -133,7 +133,7 @@ class SafeNavVecEnv(VecEnv):
         sizes = {"raw": None, "sincos": 2, "quatmat": 9}
         self.obs_dim = sum(sizes[how] or dim for how, _, dim in self.sensors)
         self.obs_dim += LIDAR_BINS * (1 + (self.spec.level > 0) * 2)
-        n, h, v = num_envs, self.spec.hazards, self.spec.vases
+        n, h = num_envs, self.spec.hazards
         self.layouts: list[dict[str, Any]] = [{} for _ in range(n)]
         self.goal = np.zeros((n, 2))
         self.hazards = np.zeros((n, h, 2))
