@@ -166,3 +166,38 @@ def test_the_exercise_grid_as_populations():
     assert sorted({(c.algo.penalty, str(c.env.start)) for c in cfgs}) == sorted(
         (p, s) for p in (0.0, 0.5, 1.0, 1.25, 1.5, 2.0, 3.0) for s in ("0.1", "[0.0, 1.0]"))
     assert [c.seed for c in cfgs[:3]] == [0, 1, 2] and cfgs[0].algo.update_epochs == 10
+
+
+def test_fused_pass_gradients_equal_autograd_path():
+    """population/fused.py's hand-written backward gives the per-layer autograd path's outputs and
+    gradients bit for bit (same kernels, same order), on sizes past the sigmoid-tanh threshold."""
+    import torch
+
+    from cmdp_rl.envs import make_env
+    from cmdp_rl.normalization import make_normalizers
+    from cmdp_rl.policies import make_agent
+    from cmdp_rl.population.agent import PopulationAgent
+    from cmdp_rl.rng import seed_everything
+
+    raw = torch_tiny(algo={"name": "ppo_lag"})
+    raw["population"] = {"seeds": 3, "grid": {}}
+    _, cfgs = agent_configs(raw)
+    agents = []
+    for c in cfgs:
+        seed_everything(c.seed)
+        probe = make_env(c.env, device="cpu")
+        agents.append(make_agent(c.policy, probe, make_normalizers(c, probe)))
+    pop = PopulationAgent(agents, [torch.Generator() for _ in agents], torch.device("cpu"))
+    assert pop.layout is not None
+    gen = torch.Generator().manual_seed(0)
+    obs = torch.randn(3, 4096, agents[0].actor.head.net[0].weight.shape[1], generator=gen)
+    action = torch.randn(3, 4096, 1, generator=gen)
+    results = []
+    for fused_layout in (pop.layout, None):
+        pop.layout = fused_layout
+        pop.actor.flat.grad = pop.critics.flat.grad = None
+        dist, value, cost = pop.training_pass(obs)
+        (dist.log_prob(action).sum() + value.pow(2).sum() + 3 * cost.sum()).backward()
+        results.append([dist.mean.detach(), value.detach(), cost.detach(), pop.actor.flat.grad, pop.critics.flat.grad])
+    for fused, reference in zip(*results):
+        assert torch.equal(fused, reference)

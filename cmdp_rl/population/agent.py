@@ -22,6 +22,8 @@ from torchrl.modules import IndependentNormal
 
 from cmdp_rl import keys
 from cmdp_rl.policies.agent import Agent
+from cmdp_rl.policies.mlp import Tanh
+from cmdp_rl.population.fused import FusedTanhMLP, layout
 from cmdp_rl.population.params import StackedParams, linear, sequential, template
 
 
@@ -43,6 +45,13 @@ class PopulationAgent:
         self.num_agents = len(agents)
         shapes = [[tuple(p.shape) for p in net.parameters()] for net in (self.actor_net, *self.critic_nets.values())]
         self.fused = len(self.critic_nets) == 2 and all(s == shapes[0] for s in shapes)
+        # Tanh MLPs: the fused pass as one autograd node with a hand-written backward (population/fused.py).
+        linears = [i for i, m in enumerate(self.actor_net) if isinstance(m, nn.Linear)]
+        self.layout = None
+        if self.fused and all(isinstance(m, (nn.Linear, Tanh)) for m in self.actor_net) \
+                and all(isinstance(self.actor_net[i + 1], Tanh) for i in linears[:-1]):
+            self.layout = layout(self.actor, self.critics, [(0, "head.net"), (1, "reward.net"), (1, "cost.net")],
+                                 linears, [tuple(self.actor_net[i].weight.shape) for i in linears])
 
     # --- the networks on [P, rows, ...] ------------------------------------------------------------
     def params(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -61,7 +70,9 @@ class PopulationAgent:
             return self.dist(obs), self.value("reward", obs), self.value("cost", obs)
         p = self.num_agents
         x = obs.repeat(3, 1, 1)
-        for i, module in enumerate(self.actor_net):
+        if self.layout is not None:
+            x = FusedTanhMLP.apply(x, self.actor.flat, self.critics.flat, self.layout)
+        for i, module in enumerate(self.actor_net if self.layout is None else ()):
             if isinstance(module, nn.Linear):
                 w = torch.cat([self.actor.view(f"head.net.{i}.weight"), self.critics.view(f"reward.net.{i}.weight"),
                                self.critics.view(f"cost.net.{i}.weight")])
@@ -112,11 +123,10 @@ class PopulationAgent:
         episode ended there or it is the last step. Here the critic values every next observation
         (the fresh steps' count differs per agent, and one batched call is cheaper than P)."""
         rows, T = batch.shape
-        obs = batch.get(keys.OBS)
-        values = self.value(signal, self._agents(obs)).reshape(rows, T, -1)
+        values = self.value(signal, self._agents(batch.get(keys.OBS))).reshape(rows, T, -1)
+        next_all = self.value(signal, self._agents(batch.get((keys.NEXT, keys.OBS)))).reshape(rows, T, -1)
         fresh = batch.get((keys.NEXT, keys.DONE)).clone()
         fresh[:, -1] = True
-        next_all = self.value(signal, self._agents(batch.get((keys.NEXT, keys.OBS)))).reshape(rows, T, -1)
         next_values = torch.empty_like(values)
         next_values[:, :-1] = values[:, 1:]
         next_values[:, -1] = next_all[:, -1]
