@@ -1,5 +1,6 @@
 """One update of each algorithm on a real batch; how each forms its policy advantage; NaN stop."""
 
+import copy
 import csv
 
 import pytest
@@ -188,3 +189,34 @@ def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monk
     state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo")
     assert state["iteration"] == 2
     assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())
+
+
+def test_anneal_lr_scales_the_rates_linearly_to_zero_over_the_run():
+    # 4 iterations of 2 x 32 steps: iteration i updates with 1 - i/4 of lr, critic_lr and lambda_lr.
+    algo_cfg = {"name": "ppo_lag", "lr": 1e-3, "critic_lr": 2e-3, "lambda_lr": 0.5, "update_epochs": 1,
+                "cost_limit": 0.2, "anneal_lr": True, "anneal_lambda_lr": True}
+    cfg = load_config({"algo": algo_cfg, "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45},
+                       "rollout_steps": 32, "total_steps": 200})
+    assert cfg.algo.anneal_iterations == 4  # ceil(200 / 64)
+    torch.manual_seed(0)
+    e = make_env(cfg.env)
+    lag = make_algo(cfg.algo, make_agent(cfg.policy, e))
+    col = Collector(e, lag.agent, cfg.rollout_steps, seed=0)
+    for i, frac in enumerate([1.0, 0.75, 0.5, 0.25]):
+        before = lag.lagrange_multiplier
+        batch = col.collect()
+        saved = copy.deepcopy(lag.episode_cost.state_dict())
+        cost = lag.episode_cost.update(batch).costs[0]  # the J_c that update() will measure
+        lag.episode_cost.load_state_dict(saved)
+        lag.update(batch)
+        assert lag.actor_opt.param_groups[0]["lr"] == pytest.approx(frac * 1e-3)
+        assert lag.critic_opt.param_groups[0]["lr"] == pytest.approx(frac * 2e-3)
+        assert lag.lagrange_multiplier == pytest.approx(max(0.0, before + frac * 0.5 * (cost - 0.2)))
+    assert lag.state_dict()["iteration"] == 4
+    # Off (the default): the rates stay as given.
+    _, plain, col = setup({"name": "ppo_lag", "update_epochs": 1})
+    assert plain.cfg.anneal_lr is False and plain.cfg.anneal_lambda_lr is False
+    plain.update(col.collect())
+    plain.update(col.collect())
+    assert plain.actor_opt.param_groups[0]["lr"] == plain.cfg.lr
+    assert plain.multiplier.controllers[0].lr == plain.cfg.lambda_lr

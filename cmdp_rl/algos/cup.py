@@ -99,7 +99,8 @@ class CUP(PPO):
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
             units.update({(HALF, k): v for k, v in self.agent.actor.params(units).items()})
         nu_coef = self.multiplier.value * self.cost_coef
-        opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)  # fresh: see the docstring
+        # fresh: see the docstring; at stage 1's rate (lr, or its annealed value with anneal_lr)
+        opt = torch.optim.Adam(self.actor_params, lr=self.actor_opt.param_groups[0]["lr"], fused=True)
         sums, steps = torch.zeros(2), 0
         for _, mb in minibatches(units, cfg.num_minibatches, cfg.projection_epochs):
             dist = self.agent.dist(mb)

@@ -43,7 +43,7 @@ from cmdp_rl.algos.minibatch import minibatches
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import (
-    AUTO, AutoInt, Field, NonNegativeFloat, PositiveFloat, PositiveInt, UnitOpen, finite, options, require,
+    AUTO, AutoInt, Bool, Field, NonNegativeFloat, PositiveFloat, PositiveInt, UnitOpen, finite, options, require,
 )
 
 if TYPE_CHECKING:
@@ -70,6 +70,11 @@ class PPOConfig(AlgoConfig):
     # KL early stopping: null (off), or stop the epoch loop at the first minibatch whose approximate
     # KL exceeds 1.5 * target_kl (KL_STOP).
     target_kl: Optional[PositiveFloat] = None
+    # Linear annealing of the actor's and the critics' learning rates from lr (critic_lr) to 0 over
+    # the run (Huang et al. 2022, "The 37 Implementation Details of PPO", detail 4); false: constant.
+    anneal_lr: Bool = False
+    # The iterations the annealing spans; "auto": the run's, ceil(total_steps / batch).
+    anneal_iterations: AutoInt = AUTO
 
     def resolve_auto(self, run: RunConfig) -> None:
         """``num_minibatches`` and ``update_epochs`` from the batch (see ``config.resolve_auto``):
@@ -82,6 +87,8 @@ class PPOConfig(AlgoConfig):
             self.num_minibatches = 8 if batch <= 2048 else min(64, batch // 512)
         if self.update_epochs == AUTO:
             self.update_epochs = max(1, round(80 / self.num_minibatches))
+        if self.anneal_iterations == AUTO:
+            self.anneal_iterations = max(1, math.ceil(run.total_steps / batch))
 
     def describe_update(self) -> str:
         return f"{self.update_epochs} x {self.num_minibatches} minibatches"
@@ -109,6 +116,10 @@ class PPOLagConfig(PPOConfig):
     name: str = "ppo_lag"
     lambda_init: NonNegativeFloat = 0.0
     lambda_lr: PositiveFloat = 0.05
+    # With anneal_lr, also anneal lambda's step size linearly to 0 (the same schedule): the dual
+    # iterate then settles instead of swinging, as diminishing dual steps do in the convergence
+    # results for primal-dual methods; false: lambda_lr throughout.
+    anneal_lambda_lr: Bool = False
 
 
 @options
@@ -155,6 +166,12 @@ class PPO:
         # fused: one kernel per step for all parameters instead of a dozen ops per tensor.
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, fused=True)
+        self.iteration = 0  # updates done: the learning-rate schedule's clock (anneal_lr)
+
+    def anneal_fraction(self) -> float:
+        """The annealed rates' fraction of their initial values this iteration (``anneal_lr``,
+        ``anneal_lambda_lr``): ``1 - i / anneal_iterations`` for iteration i = 0, 1, ..."""
+        return max(0.0, 1.0 - self.iteration / self.cfg.anneal_iterations)
 
     # --- what the variants change -------------------------------------------------------------
     @property
@@ -171,6 +188,10 @@ class PPO:
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         cfg = self.cfg
+        if cfg.anneal_lr:
+            frac = self.anneal_fraction()
+            self.actor_opt.param_groups[0]["lr"] = frac * cfg.lr
+            self.critic_opt.param_groups[0]["lr"] = frac * cfg.critic_lr
         self.gae(batch, self.agent)
         self.update_multiplier(self.episode_cost.update(batch))
 
@@ -211,6 +232,7 @@ class PPO:
         check_finite(**stats)
         check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
+        self.iteration += 1
         return stats
 
     def policy_loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -249,6 +271,7 @@ class PPO:
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
             "episode_cost": self.episode_cost.state_dict(),
+            "iteration": self.iteration,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -256,6 +279,7 @@ class PPO:
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.episode_cost.load_state_dict(state.get("episode_cost", {}))  # absent before it existed
+        self.iteration = int(state.get("iteration", 0))
 
 
 def penalised(batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float]) -> torch.Tensor:
@@ -307,6 +331,10 @@ class PPOLagrangian(PPO):
         return logged_multiplier(self.multiplier.values)
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
+        if getattr(self.cfg, "anneal_lambda_lr", False):
+            frac = self.anneal_fraction()
+            for c in self.multiplier.controllers:
+                c.lr = frac * self.cfg.lambda_lr
         self.multiplier.update(estimate.costs)  # every iteration (algos/episode_cost.py)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
