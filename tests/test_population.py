@@ -127,6 +127,7 @@ def test_bad_population_config_is_one_line(population, message):
     ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
     ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
     ({"normalize": {"obs": True}}, "population: normalize is not batched"),
+    ({"algo": {"anneal_lr": True}}, "population: algo.anneal_lr / anneal_lambda_lr is not batched"),
 ])
 def test_unsupported_population_is_refused(change, refused):
     raw = torch_tiny()

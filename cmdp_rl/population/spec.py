@@ -141,6 +141,8 @@ def check_supported(cfg: RunConfig) -> None:
         refuse("normalize", "normalize.obs, .reward and .cost must be false")
     if cfg.algo.target_kl is not None:
         refuse(f"algo.target_kl={cfg.algo.target_kl}", "algo.target_kl must be null")
+    if getattr(cfg.algo, "anneal_lr", False) or getattr(cfg.algo, "anneal_lambda_lr", False):
+        refuse("algo.anneal_lr / anneal_lambda_lr", "the learning rates are constant per agent")
     if cfg.logger.name != "csv":
         refuse(f"logger={cfg.logger.name}", "logger must be csv")
     if cfg.reference.run is not None or cfg.reference.episode_return is not None:
