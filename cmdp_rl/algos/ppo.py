@@ -147,6 +147,16 @@ class PIDLagConfig(PPOConfig):
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
 
 
+def clipped_gain(log_prob: torch.Tensor, old_log_prob: torch.Tensor, adv: torch.Tensor,
+                 log_clip: tuple[float, float]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The clipped surrogate's per-sample gain ``min(r A, clip(r) A)`` (Schulman et al. 2017,
+    eq. 7), clipping the log-ratio to ``log_clip = (log(1 - eps), log(1 + eps))``; also returns the
+    log-ratio and its clipped value (for the KL and clip-fraction statistics). Elementwise, so a
+    population's update (population/update.py) reduces it per agent."""
+    log_ratio = (log_prob - old_log_prob).reshape(adv.shape)
+    log_ratio_clip = log_ratio.clamp(*log_clip)
+    return torch.minimum(log_ratio.exp() * adv, log_ratio_clip.exp() * adv), log_ratio, log_ratio_clip
+
 class PPO:
     name = "ppo"
     stats = STATS  # what update() returns besides lagrange_multiplier: metrics.csv's columns
@@ -244,9 +254,7 @@ class PPO:
         log_prob = dist.log_prob(mb[keys.ACTION])
         old_log_prob = mb[keys.LOG_PROB]
         adv = mb[keys.POLICY_ADVANTAGE]
-        log_ratio = (log_prob - old_log_prob).reshape(adv.shape)
-        log_ratio_clip = log_ratio.clamp(*self.log_clip)
-        gain = torch.minimum(log_ratio.exp() * adv, log_ratio_clip.exp() * adv)
+        gain, log_ratio, log_ratio_clip = clipped_gain(log_prob, old_log_prob, adv, self.log_clip)
         entropy = dist.entropy().mean()
         loss = -gain.mean() - self.cfg.entropy_coef * entropy
         with torch.no_grad():

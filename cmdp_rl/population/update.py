@@ -22,7 +22,7 @@ from tensordict import TensorDictBase
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import TrainingDiverged
-from cmdp_rl.algos.ppo import STATS, logged_multiplier
+from cmdp_rl.algos.ppo import STATS, clipped_gain, logged_multiplier
 from cmdp_rl.config import RunConfig
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.params import StackedAdam
@@ -122,9 +122,7 @@ class PopulationPPO:
         log_prob = dist.log_prob(mb[keys.ACTION])
         old_log_prob = mb[keys.LOG_PROB]
         adv = mb[keys.POLICY_ADVANTAGE]
-        log_ratio = (log_prob - old_log_prob).reshape(adv.shape)
-        log_ratio_clip = log_ratio.clamp(*self.log_clip)
-        gain = torch.minimum(log_ratio.exp() * adv, log_ratio_clip.exp() * adv)
+        gain, log_ratio, log_ratio_clip = clipped_gain(log_prob, old_log_prob, adv, self.log_clip)
         entropy = dist.entropy().mean(1)
         loss_pi = -gain.mean((1, 2)) - self.entropy_coef * entropy
         loss_v = (value - mb[keys.VALUE_TARGET]).pow(2).mean((1, 2))
