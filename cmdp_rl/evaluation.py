@@ -76,9 +76,17 @@ def _evaluate(
                     *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
                 ))
     flat = [row for r in rows for row in r]
-    result: dict[str, float] = {"episodes": len(flat), "deterministic": deterministic}
+    return summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit)
+
+
+def summarize_episodes(flat: list[tuple[float, ...]], names: Sequence[str], deterministic: bool,
+                       termination_metric: str | None = None,
+                       cost_limit: float | Sequence[float] | None = None) -> dict[str, Any]:
+    """``evaluate``'s result from its episodes' rows ``(return, length, terminated, cost_0, ...)``:
+    spreads of return, each cost and length, the termination rate, and with ``cost_limit`` the
+    intervals. Shared with the population's evaluation (population/evaluation.py)."""
+    result: dict[str, Any] = {"episodes": len(flat), "deterministic": deterministic}
     result.update(_spread("episode_return", [row[0] for row in flat]))
-    names = env.cost_names
     for k, cost_name in enumerate(names):
         spread = _spread("episode_cost", [row[3 + k] for row in flat])
         result.update({constraint_name(key, cost_name, len(names)): v for key, v in spread.items()})

@@ -15,8 +15,7 @@ import torch
 from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.config import RunConfig
-from cmdp_rl.evaluation import EVAL_SEED_OFFSET, _intervals, _spread
-from cmdp_rl.metrics import constraint_name
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET, summarize_episodes
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import PopulationReach1D
 
@@ -49,22 +48,9 @@ def evaluate_population(agent: PopulationAgent, cfgs: Sequence[RunConfig],
     finally:
         agent.generators = training
     metric = getattr(cfg.env, "termination_metric", None)
-    return [_summary([row for r in rows[i * n:(i + 1) * n] for row in r], c, metric, env.cost_names)
+    return [summarize_episodes([row for r in rows[i * n:(i + 1) * n] for row in r], env.cost_names,
+                               c.eval_deterministic, metric, c.algo.cost_limit)
             for i, c in enumerate(cfgs)]
-
-
-def _summary(flat: list[tuple[float, ...]], cfg: RunConfig, metric: str | None, names: Sequence[str]) -> dict[str, Any]:
-    """``evaluation._evaluate``'s result from one agent's episodes."""
-    result: dict[str, Any] = {"episodes": len(flat), "deterministic": cfg.eval_deterministic}
-    result.update(_spread("episode_return", [row[0] for row in flat]))
-    for k, cost_name in enumerate(names):
-        spread = _spread("episode_cost", [row[3 + k] for row in flat])
-        result.update({constraint_name(key, cost_name, len(names)): v for key, v in spread.items()})
-    result.update(_spread("episode_length", [row[1] for row in flat]))
-    if metric:
-        result[metric] = sum(row[2] for row in flat) / len(flat)
-    result.update(_intervals(flat, names, cfg.algo.cost_limit))
-    return result
 
 
 __all__ = ["evaluate_population"]
