@@ -50,10 +50,16 @@ OMNISAFE = {
 }
 
 
+def package_task(env: dict) -> str:
+    """The Safety-Gymnasium id a run trained on: ``env=safe_nav``'s ``PointGoal1`` is the package's
+    ``SafetyPointGoal1-v0`` (the same task batched: bit-equal physics, rewards and costs, docs/safe_nav.md)."""
+    return f"Safety{env['task']}-v0" if env["name"] == "safe_nav" else env["task"]
+
+
 def runs_by_task(sweep_dir: Path) -> dict[str, list[dict[str, Any]]]:
     out: dict[str, list[dict[str, Any]]] = {}
     for run in velocity_benchmark.load_runs(sweep_dir):
-        out.setdefault(run["config"]["env"]["task"], []).append(run)
+        out.setdefault(package_task(run["config"]["env"]), []).append(run)
     return out
 
 
@@ -63,19 +69,26 @@ def omnisafe_table(task: str) -> str:
     return markdown_table(["algo", "OmniSafe's", "return (1e7 steps)", "cost (1e7 steps)"], rows, "llrr")
 
 
-def speed_rows(tasks: list[str], num_envs: int, episodes: int) -> str:
+def speed_rows(tasks: list[str], num_envs: int, episodes: int, safe_nav: bool = False) -> str:
     """Env steps/s of each task: the package's own loop (one env) and our collector (``num_envs``
-    envs, sync, random actions), whole episodes each (safety_gym_speed.py's measurements)."""
+    envs, sync, random actions), whole episodes each (safety_gym_speed.py's measurements); with
+    ``safe_nav``, also the collector on ``env=safe_nav`` (the sweep's env)."""
     before = os.getloadavg()
     rows = []
     for task in tasks:
         steps = safety_gym_speed.TASKS[task] * episodes
         own = safety_gym_speed.single_loop(safety_gym_speed.package_env(task), steps, six=True)
         ours = safety_gym_speed.collector_rate(task, num_envs, steps, "sync")
-        rows.append([task, f"{own:,.0f}", f"{ours:,.0f}", f"{ours / own:.2f}"])
+        row = [task, f"{own:,.0f}", f"{ours:,.0f}", f"{ours / own:.2f}"]
+        if safe_nav:
+            batched = safety_gym_speed.collector_rate(task, num_envs, steps, "sync", safe_nav=True)
+            row += [f"{batched:,.0f}", f"{batched / own:.2f}"]
+        rows.append(row)
     after = os.getloadavg()
-    table = markdown_table(["task", "Safety-Gymnasium's loop, 1 env", f"our collector, {num_envs} envs", "ratio"],
-                           rows, "lrrr")
+    head = ["task", "Safety-Gymnasium's loop, 1 env", f"our collector, env=safety_gym, {num_envs} envs", "ratio"]
+    if safe_nav:
+        head += [f"our collector, env=safe_nav, {num_envs} envs", "ratio"]
+    table = markdown_table(head, rows, "l" + "r" * (len(head) - 1))
     return (f"{table}\n\nEnv steps/s, {episodes} episode(s) per env, random actions; {os.cpu_count()} cores, "
             f"load average (1, 5, 15 min) before {tuple(round(x, 2) for x in before)}, after "
             f"{tuple(round(x, 2) for x in after)}.\n")
@@ -86,6 +99,11 @@ def gather(sweep_dir: Path, speed_episodes: int = 1) -> str:
     if not by_task:
         raise SystemExit(f"no finished runs (eval.json) under {sweep_dir}")
     parts = [f"# Safety-Gymnasium benchmark: {sweep_dir}\n"]
+    envs = {run["config"]["env"]["name"] for runs in by_task.values() for run in runs}
+    if "safe_nav" in envs:
+        parts.append("Trained on `env=safe_nav`: the package's tasks batched, with bit-equal physics, rewards "
+                     "and costs and observations equal to about 1e-15 (docs/safe_nav.md); a same-seed run on "
+                     "`env=safety_gym` logs the same numbers.\n")
     tasks = sorted(by_task, key=lambda t: (TASKS.index(t) if t in TASKS else len(TASKS), t))  # the config's order
     for task in tasks:
         out = sweep_dir / task
@@ -96,7 +114,7 @@ def gather(sweep_dir: Path, speed_episodes: int = 1) -> str:
                   f"For orientation, {OMNISAFE_SOURCE}:\n", omnisafe_table(task) + "\n"]
     if speed_episodes > 0:
         num_envs = next(iter(by_task.values()))[0]["config"]["env"]["num_envs"]
-        parts += ["## Speed\n", speed_rows(tasks, num_envs, speed_episodes)]
+        parts += ["## Speed\n", speed_rows(tasks, num_envs, speed_episodes, safe_nav="safe_nav" in envs)]
     report = "\n".join(parts)
     (sweep_dir / "report.md").write_text(report)
     print(f"\n{report}\nwrote {sweep_dir / 'report.md'} and, per task, table.md, table.csv, curves.png")

@@ -77,8 +77,15 @@ class RandomActions:
         return {keys.ACTION: self.low + (self.high - self.low) * torch.rand(n, self.low.shape[0], generator=self.gen)}
 
 
-def collector_rate(task: str, n: int, steps_per_env: int, vector: str) -> float:
-    env = make_env(SafetyGymEnvConfig(task=task, num_envs=n, vector=vector))
+def collector_rate(task: str, n: int, steps_per_env: int, vector: str, safe_nav: bool = False) -> float:
+    """Steps/s of our collector on ``task`` with random actions; ``safe_nav``: on ``env=safe_nav``'s
+    batched twin of the task instead (``vector`` is then not read)."""
+    if safe_nav:
+        from cmdp_rl.envs.safe_nav import SafeNavEnvConfig
+
+        env = make_env(SafeNavEnvConfig(task=task.removeprefix("Safety").removesuffix("-v0"), num_envs=n))
+    else:
+        env = make_env(SafetyGymEnvConfig(task=task, num_envs=n, vector=vector))
     collector = Collector(env, RandomActions(env.action_low, env.action_high), rollout_steps=steps_per_env,
                           seed=0)  # reset (and worker start) not timed
     t0 = time.perf_counter()
