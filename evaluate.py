@@ -119,7 +119,8 @@ def main(argv: list[str]) -> int:
         print(f"wrote {plot_reach1d(eps, cfg.env, opts.plot, title)}")
     if opts.video:
         video_dir = Path(opts.video_dir) if opts.video_dir else Path(opts.run) / "videos"
-        for v in record_video(agent, cfg.env, video_dir, opts.video_episodes, deterministic, seed, opts.video_steps):
+        for v in record_video(agent, cfg.env, video_dir, opts.video_episodes, deterministic, seed, opts.video_steps,
+                            algo=cfg.algo):
             costs = v.episode_cost if isinstance(v.episode_cost, tuple) else (v.episode_cost,)
             print(f"wrote {v.path} ({v.frames} frames: return {v.episode_return:.3f}, "
                   f"cost {'/'.join(f'{c:.0f}' for c in costs)})")

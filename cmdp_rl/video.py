@@ -125,16 +125,20 @@ class _PolicyOnOneEnv:
     """The trained actor driving one plain env, carrying its memory from step to step as the
     collector does. ``act`` is the one place the policy is called (as ``replay.record_reach1d`` does)."""
 
-    def __init__(self, agent: Agent, action_space: gym.Space, deterministic: bool) -> None:
-        self.agent, self.deterministic = agent, deterministic
+    def __init__(self, agent: Agent, action_space: gym.Space, deterministic: bool, extra: Any = None) -> None:
+        self.agent, self.deterministic, self.extra = agent, deterministic, extra
         self.memory = PolicyMemory(agent, 1, action_space, torch.device("cpu"))
 
     def start(self) -> None:
         self.carried, self.is_init = self.memory.start(), True
+        if self.extra is not None:
+            self.extra.start()
 
     def act(self, obs: np.ndarray) -> torch.Tensor:
         # as GymVecEnv hands observations to the collector: float32, flat
         obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))
+        if self.extra is not None:  # what the algorithm's env transform adds (Sauté's remaining budget)
+            obs_t = self.extra.observation(obs_t)
         self.wrote = self.agent.act({**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])},
                                     self.deterministic)
         return self.wrote[keys.ACTION][0]
@@ -142,6 +146,8 @@ class _PolicyOnOneEnv:
     def observe(self, cost: np.ndarray) -> None:
         """After the env's step: the policy's next state, previous action and cost (all K of them)."""
         cost_t = torch.as_tensor(cost, dtype=torch.float32).view(1, -1)
+        if self.extra is not None:
+            self.extra.observe(cost_t)
         _, self.carried = self.memory.step(self.wrote, cost_t, torch.tensor([[False]]))
         self.is_init = False
 
@@ -149,18 +155,22 @@ class _PolicyOnOneEnv:
 @torch.no_grad()
 def record_video(
     agent: Agent, env_cfg: Any, video_dir: str | Path, episodes: int = 1, deterministic: bool = True,
-    seed: int = 0, max_steps: int | None = None, name_prefix: str = "policy",
+    seed: int = 0, max_steps: int | None = None, name_prefix: str = "policy", algo: Any = None,
 ) -> list[VideoEpisode]:
     """Record ``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with
     ``seed`` once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
     (``<name_prefix>-episode-<i>.mp4``: the reset frame and one per step). ``max_steps`` cuts each
-    episode short (MuJoCo renders about 10 frames a second in software)."""
+    episode short (MuJoCo renders about 10 frames a second in software). ``algo``: the run's
+    algorithm options; if they declare ``observation_state(cost_names)`` (an env transform's state
+    the policy sees beside the env's observation: Sauté's budget), it is carried along the episode."""
     from gymnasium.wrappers import RecordVideo
 
     env = make_render_env(env_cfg)
     env = RecordVideo(env, str(video_dir), episode_trigger=lambda i: i < episodes, name_prefix=name_prefix,
                       fps=exact_fps(env.metadata.get("render_fps", 30)))
-    policy = _PolicyOnOneEnv(agent, env.action_space, deterministic)
+    make_extra = getattr(algo, "observation_state", None)
+    policy = _PolicyOnOneEnv(agent, env.action_space, deterministic,
+                             None if make_extra is None else make_extra(agent.cost_names))
     out: list[VideoEpisode] = []
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)

@@ -214,3 +214,36 @@ def test_grid_video_is_written_by_evaluate(tmp_path, capsys):
     frames = int(out.split(f"wrote {video} (")[1].split(" frames")[0])
     assert 2 <= frames <= 7 and frames_in(video) == frames  # the reset frame and one per step, at most 6 steps
     assert "cost " in out and "/" in out.split(f"wrote {video}")[1]  # both costs, hazard_a/hazard_b
+
+
+def test_a_saute_policy_sees_its_budget_state_in_the_video(tmp_path, monkeypatch):
+    # Sauté's policy acts on (observation, remaining budget): the video's plain env must carry the
+    # budget along as the training env does, z_{t+1} = z_t - c_t / d, restored at each episode's start.
+    out = tmp_path / "run"
+    cfg = tiny(total_steps=64, algo={"name": "saute", "update_epochs": 1, "num_minibatches": 2, "cost_limit": 0.5})
+    del cfg["algo"]["lambda_lr"]
+    train(load_config(cfg), out, echo=lambda s: None)
+    from cmdp_rl.envs.saute import BudgetState
+
+    episodes: list[list[tuple[float, float]]] = []  # per episode: (z the policy saw, the step's cost)
+    start, observe = BudgetState.start, BudgetState.observe
+
+    def spy_start(self):
+        start(self)
+        if self.z.shape[0] == 1:  # the video's one env (the evaluation's vector env resets its own)
+            episodes.append([])
+
+    def spy_observe(self, cost):
+        episodes[-1].append((float(self.z[0, 0]), float(cost[0, 0])))
+        observe(self, cost)
+
+    monkeypatch.setattr(BudgetState, "start", spy_start)
+    monkeypatch.setattr(BudgetState, "observe", spy_observe)
+    assert evaluate_cli.main([f"run={out}", "video=true", "video_episodes=8", "episodes=2", "deterministic=false"]) == 0
+    assert len(episodes) == 8
+    for ep in episodes:
+        z = 1.0  # each episode starts with the whole budget
+        for seen_z, cost in ep:
+            assert seen_z == pytest.approx(z)
+            z -= cost / 0.5
+    assert sum(c for ep in episodes for _, c in ep) > 0  # the budget did move (some episode crossed the wall)

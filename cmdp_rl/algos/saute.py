@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 from cmdp_rl.algos.base import Algorithm, per_constraint
 from cmdp_rl.algos.ppo import PPOConfig
-from cmdp_rl.envs.saute import BudgetStateEnv
+from cmdp_rl.envs.saute import BudgetState, BudgetStateEnv
 from cmdp_rl.envs.vector import VecEnv
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import component, register
@@ -53,6 +53,10 @@ class SauteConfig(PPOConfig):
         """The safety augmented env: one budget state per cost; the reward reshaped for training."""
         budgets = per_constraint(self.cost_limit, "algo.cost_limit", env.cost_names)
         return BudgetStateEnv(env, budgets, self.budget_discount, self.unsafe_reward, reshape_reward=not evaluation)
+
+    def observation_state(self, cost_names: tuple[str, ...]) -> BudgetState:
+        """The budget state of one env, for paths that step a plain env (video.py)."""
+        return BudgetState(per_constraint(self.cost_limit, "algo.cost_limit", cost_names), self.budget_discount, 1)
 
 
 def make_saute(cfg: SauteConfig, agent: Agent) -> Algorithm:

@@ -26,6 +26,43 @@ import torch
 from cmdp_rl.envs.vector import Step, VecEnv
 
 
+class BudgetState:
+    """The K normalised remaining budgets ``z`` of ``num_envs`` episodes (module docstring): the
+    training env's and the video's (``video.py``) one count, so the policy sees the same state in both."""
+
+    def __init__(self, budgets: Sequence[float], discount: float, num_envs: int,
+                 device: torch.device | str = "cpu") -> None:
+        if min(budgets) <= 0:
+            raise ValueError(f"budget state: one budget > 0 per cost needed, got {list(budgets)}")
+        if not 0 < discount <= 1:
+            raise ValueError(f"budget state: discount must be in (0, 1], got {discount}")
+        self.budgets = torch.tensor(list(budgets), dtype=torch.float32, device=device).view(1, -1)
+        self.discount = float(discount)
+        self.z = self.full(num_envs)
+
+    def full(self, num_envs: int | None = None) -> torch.Tensor:
+        n = self.z.shape[0] if num_envs is None else num_envs
+        return torch.ones(n, self.budgets.shape[1], dtype=torch.float32, device=self.budgets.device)
+
+    def after(self, cost: torch.Tensor) -> torch.Tensor:
+        """``z_{t+1} = (z_t - c_t / d) / gamma_c`` per constraint (z normalised by d)."""
+        return (self.z - cost.to(self.z.dtype) / self.budgets) / self.discount
+
+    @staticmethod
+    def augment(obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        return torch.cat([obs, z.to(obs.dtype)], dim=-1)
+
+    # the video's one-env path (video.py): the policy's observation, then the step's cost
+    def start(self) -> None:
+        self.z = self.full()
+
+    def observation(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.augment(obs, self.z)
+
+    def observe(self, cost: torch.Tensor) -> None:
+        self.z = self.after(cost.view(self.z.shape))
+
+
 class BudgetStateEnv(VecEnv):
     """``env`` with each observation followed by the K normalised remaining budgets ``z`` (module
     docstring) and, if ``reshape_reward``, every reward replaced by ``unsafe_reward`` on steps after
@@ -35,24 +72,19 @@ class BudgetStateEnv(VecEnv):
 
     def __init__(self, env: VecEnv, budgets: Sequence[float], discount: float = 1.0, unsafe_reward: float = 0.0,
                  reshape_reward: bool = True) -> None:
-        if len(budgets) != env.num_costs or min(budgets) <= 0:
+        if len(budgets) != env.num_costs:
             raise ValueError(f"budget state: one budget > 0 per cost ({env.num_costs}) needed, got {list(budgets)}")
-        if not 0 < discount <= 1:
-            raise ValueError(f"budget state: discount must be in (0, 1], got {discount}")
+        self.state = BudgetState(budgets, discount, env.num_envs, env.device)
         self.env = env
         self.num_envs, self.num_costs = env.num_envs, env.num_costs
         self.obs_dim = env.obs_dim + env.num_costs
         self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
         self.device = env.device
-        self.budgets = torch.tensor(list(budgets), dtype=torch.float32, device=self.device).view(1, -1)
-        self.discount, self.unsafe_reward, self.reshape_reward = float(discount), float(unsafe_reward), reshape_reward
-        self.z = self._full()
+        self.unsafe_reward, self.reshape_reward = float(unsafe_reward), reshape_reward
 
-    def _full(self) -> torch.Tensor:
-        return torch.ones(self.num_envs, self.num_costs, dtype=torch.float32, device=self.device)
-
-    def _augment(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        return torch.cat([obs, z.to(obs.dtype)], dim=-1)
+    @property
+    def z(self) -> torch.Tensor:
+        return self.state.z
 
     @property
     def cost_names(self) -> tuple[str, ...]:
@@ -67,31 +99,30 @@ class BudgetStateEnv(VecEnv):
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         obs = self.env.reset(seed=seed)
-        self.z = self._full()
-        return self._augment(obs, self.z)
+        self.state.start()
+        return self.state.observation(obs)
 
     def step(self, action: torch.Tensor) -> Step:
         s = self.env.step(action)
-        # The safety state's update z_{t+1} = (z_t - c_t / d) / gamma_c, per constraint (z normalised by d).
-        z_next = (self.z - s.cost.to(self.z.dtype) / self.budgets) / self.discount
+        z_next = self.state.after(s.cost)
         reward = s.reward
         if self.reshape_reward:  # the reshaped objective: a spent budget earns the penalty
             spent = (z_next < 0).any(dim=-1, keepdim=True)
             reward = torch.where(spent, torch.full_like(reward, self.unsafe_reward), reward)
         done = s.terminated | s.truncated
-        self.z = torch.where(done, self._full(), z_next)  # a new episode starts with the whole budget
-        return Step(next_obs=self._augment(s.next_obs, z_next), reward=reward, cost=s.cost,
-                    terminated=s.terminated, truncated=s.truncated, obs=self._augment(s.obs, self.z))
+        self.state.z = torch.where(done, self.state.full(), z_next)  # a new episode starts with the whole budget
+        return Step(next_obs=self.state.augment(s.next_obs, z_next), reward=reward, cost=s.cost,
+                    terminated=s.terminated, truncated=s.truncated, obs=self.state.observation(s.obs))
 
     def state_dict(self) -> dict[str, Any]:
         return {"env": self.env.state_dict(), "z": self.z.clone()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.env.load_state_dict(state["env"])
-        self.z = state["z"].to(self.device).clone()
+        self.state.z = state["z"].to(self.device).clone()
 
     def close(self) -> None:
         self.env.close()
 
 
-__all__ = ["BudgetStateEnv"]
+__all__ = ["BudgetState", "BudgetStateEnv"]
