@@ -1,5 +1,6 @@
 """TRPO-Lagrangian (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep Reinforcement
-Learning", Section 5: the Lagrangian baselines).
+Learning", Section 5: the Lagrangian baselines). The section and equation numbers here are from
+memory, unchecked: neither paper's text could be read past its opening here (issue 18).
 
 TRPO's update (Schulman et al. 2015, "Trust Region Policy Optimization", eq. 14 and Appendix C) on
 the Lagrangian's advantage ``A = (A_r - lambda A_c) / (1 + lambda)``, the same policy advantage as
