@@ -1,23 +1,24 @@
 """Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel, 2017, "Constrained Policy
 Optimization", ICML; Section 6 and Algorithm 1).
 
-Each iteration solves the approximate CPO update around the policy ``pi_k`` that collected the
-batch (Section 6), with ``x = theta - theta_k``::
+Each iteration solves the approximate CPO update (eq. 11, Section 6.1) around the policy ``pi_k``
+that collected the batch, with ``x = theta - theta_k``::
 
     max_x  g^T x    s.t.   c + b^T x <= 0,    1/2 x^T H x <= delta
 
 ``g`` and ``b`` are the gradients of the reward and cost surrogates (importance-weighted GAE
 advantages), ``H`` is the Fisher information of the policy (the Hessian of the mean KL, used only
 through products ``H v``) and ``delta`` is ``algo.target_kl``. With ``q = g^T H^-1 g``,
-``r = g^T H^-1 b``, ``s = b^T H^-1 b`` the problem has the two-variable dual of Theorem 2,
-solved in closed form by :func:`solve_dual`; it has three cases:
+``r = g^T H^-1 b``, ``s = b^T H^-1 b`` the problem has a two-variable dual (eq. 12 with one
+constraint), solved in closed form by :func:`solve_dual` (the supplement's Theorem 2); three cases:
 
 - ``TRPO`` (case 0): the whole trust region satisfies the linearised constraint (or the cost has
   no gradient): the constraint is inactive and the step is the natural gradient step of TRPO.
-- ``CONSTRAINED`` (case 1): feasible, and the constraint may bind: ``x* = H^-1 (g - nu* b) / lambda*``.
+- ``CONSTRAINED`` (case 1): feasible, and the constraint may bind:
+  ``x* = H^-1 (g - nu* b) / lambda*`` (eq. 13).
 - ``RECOVERY`` (case 2): no point of the trust region satisfies the linearised constraint: the
   step purely reduces cost, ``x = -sqrt(2 delta / s) H^-1 b`` (the paper's recovery rule for
-  infeasible iterates, Section 6).
+  infeasible iterates, eq. 14, Section 6.2).
 
 A backtracking line search then shrinks the step until the sampled KL is within ``delta`` and the
 cost surrogate stays within what the case allows (Algorithm 1). Both critics regress on their GAE
@@ -28,8 +29,8 @@ dual over nu gives ``nu* = max(0, (lambda c + r) / s)`` (derived in :func:`solve
 check the step against a brute-force solution of the subproblem).
 
 One constraint only: an env with K > 1 costs is refused with a config error. With K linearised
-constraints the dual is a QP in K + 1 variables (lambda and nu_1..nu_K, Achiam et al. 2017, eq. 10
-with B a matrix) with no closed form like Theorem 2's, and the recovery step must choose which
+constraints the dual is a QP in K + 1 variables (lambda and nu_1..nu_K, Achiam et al. 2017, eq. 12
+with B = [b_1 .. b_K]) with no closed form like Theorem 2's, and the recovery step must choose which
 constraints to restore; solving it (and testing it against a brute-force solution as the K = 1
 case is) is future work, not a guess to ship.
 """
@@ -83,8 +84,10 @@ class DualSolution:
 def solve_dual(q: float, r: float, s: float, c: float, delta: float) -> DualSolution:
     """Solve the dual of the CPO subproblem in closed form.
 
-    The dual (Theorem 2) is ``max_{lambda >= 0, nu >= 0}  -(q - 2 r nu + s nu^2) / (2 lambda) + nu c
-    - lambda delta``. For fixed lambda its maximiser is ``nu = max(0, (lambda c + r) / s)``.
+    The dual (eq. 12, K = 1) is ``max_{lambda >= 0, nu >= 0}  -(q - 2 r nu + s nu^2) / (2 lambda)
+    + nu c - lambda delta`` (the paper prints ``lambda delta / 2``, the dual of Theorem 2's
+    ``x^T H x <= delta``; eq. 11's ``1/2 x^T H x <= delta`` gives ``lambda delta``: Theorem 2's
+    delta is 2 delta here). For fixed lambda its maximiser is ``nu = max(0, (lambda c + r) / s)``.
     Where that is positive, substituting gives ``f_a(lambda) = -(A / lambda + B lambda) / 2 + r c / s``
     with ``A = q - r^2 / s``, ``B = 2 delta - c^2 / s``; where it is 0, ``f_b(lambda) =
     -(q / lambda + 2 delta lambda) / 2``. Both are concave, so their maximisers ``sqrt(A / B)`` and
@@ -162,15 +165,15 @@ class CPO(NaturalGradient):
 
         sol = solve_dual(q, r, s, c, cfg.target_kl)
         if sol.case == RECOVERY:
-            step = -sol.nu * h_inv_b
+            step = -sol.nu * h_inv_b  # eq. 14
         else:
-            step = (h_inv_g - sol.nu * h_inv_b) / sol.lam
+            step = (h_inv_g - sol.nu * h_inv_b) / sol.lam  # eq. 13
         self.nu = sol.nu
 
-        # Backtracking line search (Section 6.3): accept the first fraction whose sampled KL is
-        # within delta and whose cost surrogate change is what the case allows: in RECOVERY it
-        # must fall; otherwise it may rise by the slack -c if there is one, and must not rise when
-        # the current policy is over budget. Where the current policy is feasible (c < 0) the
+        # Backtracking line search (Section 6.1, Algorithm 1): accept the first fraction whose
+        # sampled KL is within delta and whose cost surrogate change is what the case allows: in
+        # RECOVERY it must fall; otherwise it may rise by the slack -c if there is one, and must
+        # not rise when the current policy is over budget. Where the current policy is feasible (c < 0) the
         # optimum improves the reward surrogate, so the step must do that too.
         def accept(d_reward: float, d_cost: float) -> bool:
             if sol.case == RECOVERY:

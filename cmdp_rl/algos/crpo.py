@@ -1,5 +1,6 @@
 """Constraint-Rectified Policy Optimization (Xu, Liang, Lan, 2021, "CRPO: A New Approach for Safe
-Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1).
+Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1). Equation and line numbers
+are not cited: the paper's text could not be read past its opening here (issue 18).
 
 Each iteration looks at the constraint's slack: if the estimate ``J_c`` is within the budget plus a
 tolerance, ``J_c <= d + eta``, the policy takes a step that improves the reward (here: PPO's clipped
@@ -47,7 +48,7 @@ class CRPO(PPO):
         self.cost_step = False
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
-        """Algorithm 1, line 5: the constraint is violated beyond the tolerance -> a cost step."""
+        """Algorithm 1's switch: the constraint is violated beyond the tolerance -> a cost step."""
         self.cost_step = estimate.cost > self.cost_limit + self.cfg.tolerance
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:

@@ -1,5 +1,6 @@
 """Constrained Update Projection (Yang, Ji, Dai, Zhang, Zhou, Li, Yang, Pan, 2022, "Constrained
-Update Projection Approach to Safe Policy Optimization", NeurIPS; Section 4 and Algorithm 1).
+Update Projection Approach to Safe Policy Optimization", NeurIPS; its Algorithm 1). Equation and
+section numbers are not cited: the paper's text could not be read past its opening here (issue 18).
 
 Two stages per iteration:
 

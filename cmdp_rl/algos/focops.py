@@ -1,6 +1,7 @@
 """First Order Constrained Optimization in Policy Space (Zhang, Vuong, Ross, 2020, NeurIPS;
-Theorem 1 and Algorithm 1; the paper's steps are cited by name: the section numbers written here
-before were from memory and could not be checked against its text in this environment).
+Theorem 1 and Algorithm 1). Equation numbers are not cited: the paper's text could not be read
+past its opening here (issue 18); its steps are cited by name, its theorem and algorithm by the
+numbers remembered for them, unchecked.
 
 Two steps per iteration, both first order:
 

@@ -46,7 +46,8 @@ class MultiplierController(ABC):
 class DualAscent(MultiplierController):
     """Projected gradient ascent on the dual: ``lambda <- max(0, lambda + lr * (J_c - d))``.
 
-    As in PPO-Lagrangian (Ray, Achiam, Amodei, "Benchmarking Safe Exploration in Deep RL", 2019).
+    As in PPO-Lagrangian (Ray, Achiam, Amodei, "Benchmarking Safe Exploration in Deep RL", 2019);
+    the primal-dual (PDO) update of Achiam et al. 2017, "Constrained Policy Optimization", eq. 16.
     """
 
     def __init__(self, cost_limit: float, lr: float, init: float = 0.0) -> None:

@@ -5,15 +5,15 @@ Two steps per iteration, with ``x = theta - theta_k``, ``g`` and ``b`` the gradi
 and cost surrogates, ``H`` the Fisher matrix, ``c`` the constraint value (J_c - d, in the
 surrogate's per-step units: natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``:
 
-1. the reward improvement step (Section 4, linearised): the TRPO step
+1. the reward improvement step (linearised): the TRPO step
    ``x_r = sqrt(2 delta / g^T H^-1 g) H^-1 g``, the best point of the KL trust region;
-2. the projection step (Section 4, linearised): the point of ``{x : c + b^T x <= 0}`` closest to
+2. the projection step (linearised): the point of ``{x : c + b^T x <= 0}`` closest to
    ``x_r`` in the metric ``L``: ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``, with
    ``L = H`` for the KL projection and ``L = I`` for the L2 projection (``algo.projection``; the
    paper's closed form of the two steps, in its notation ``a`` for ``b`` and ``b`` for ``c``).
 
-The steps are cited by name, not by equation number: the numbers written here before (eq. 3 and
-eq. 4) were from memory and could not be checked against the paper's text in this environment.
+Numbers are not cited: the paper's text could not be read past its opening here (issue 18), so
+the eq. 3 and eq. 4 once written from memory stay out and the steps are cited by name.
 
 A step already inside the linearised constraint set is not moved by the projection; an infeasible
 iterate is projected back onto its boundary (no separate recovery rule, unlike CPO). The paper

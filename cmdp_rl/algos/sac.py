@@ -1,9 +1,9 @@
 """SAC and SAC-Lagrangian on a replay buffer (``algo=sac``, ``algo=sac_lag``).
 
 - SAC with automatic entropy tuning: Haarnoja et al. 2018b, "Soft Actor-Critic Algorithms and
-  Applications" (arXiv:1812.05905): twin soft Q-critics (eq. 5, clipped double Q), the
-  reparameterised tanh-Gaussian policy (eq. 7), the temperature (eq. 18) towards a target entropy
-  (-dim(A) by default).
+  Applications" (arXiv:1812.05905): twin soft Q-critics (eq. 5, clipped double Q: Section 6), the
+  policy loss (eq. 7, reparameterised: eqs. 8-9; tanh squashing: Appendix C), the temperature
+  (eq. 18) towards a target entropy (-dim(A) by default, as its Appendix D).
 - SAC-Lagrangian: the policy ascends ``min_j Q_j - alpha log pi - sum_k lambda_k Q_c,k`` (Ha et al.
   2020, "Learning to Walk in the Real World with Minimal Human Effort": a Lagrangian on the expected
   discounted cost of a cost Q-critic), lambda_k by a controller of ``lagrange.py`` on

@@ -1,5 +1,6 @@
 """TRPO-Lagrangian (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep Reinforcement
-Learning", Section 5: the Lagrangian baselines).
+Learning", Section 5: the Lagrangian baselines; that section number is from memory, unchecked:
+the paper's text could not be read here, issue 18. TRPO's numbers below are checked).
 
 TRPO's update (Schulman et al. 2015, "Trust Region Policy Optimization", eq. 14 and Appendix C) on
 the Lagrangian's advantage ``A = (A_r - lambda A_c) / (1 + lambda)``, the same policy advantage as
@@ -81,7 +82,7 @@ class TRPOLagrangian(NaturalGradient):
         check_finite(gradient=g.norm(), q=q)
         if q <= 0.0:  # no gradient (e.g. all advantages equal): nothing to follow
             return {**NO_STEP, "entropy": self.entropy(units)}
-        step = math.sqrt(2 * cfg.target_kl / q) * h_inv_g  # the trust region's boundary along H^-1 g
+        step = math.sqrt(2 * cfg.target_kl / q) * h_inv_g  # the trust region's boundary along H^-1 g (App. C)
         accepted = line_search(params, step, surrogates, (surr.item(), cost_surr.item()), cfg.target_kl,
                                cfg.line_search_steps, cfg.backtrack_coef, lambda d_reward, d_cost: d_reward > 0)
         return {"entropy": self.entropy(units), **accepted}
