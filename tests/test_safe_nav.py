@@ -22,12 +22,21 @@ from cmdp_rl.envs.safety_gym import make_task  # noqa: E402
 from conftest import eval_result, metrics_rows  # noqa: E402
 
 
+def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
+    """Where each robot steers: its goal; on Circle tasks, a point ahead on a circle of radius 1.5
+    (so that the sigwalls are crossed)."""
+    if env.spec.family == "Circle":
+        phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
+        return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
+    return env.goal
+
+
 def toward_goal(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
-    """Actions that mostly steer each robot to its goal (so that goals are reached and hazards
+    """Actions that mostly steer each robot to its target (so that goals are reached and hazards
     crossed on the way), with some noise."""
     world = env._gather(range(env.num_envs))
     pos, mat = world["agent_pos"], world["agent_mat"]
-    ego = np.einsum("ni,nij->nj", np.c_[env.goal - pos[:, :2], -pos[:, 2:]], mat)
+    ego = np.einsum("ni,nij->nj", np.c_[target(env, pos) - pos[:, :2], -pos[:, 2:]], mat)
     if env.spec.robot == "point":  # forward, turn
         angle = np.arctan2(ego[:, 1], ego[:, 0])
         steer = np.c_[np.where(np.abs(angle) < 0.6, 1.0, 0.1), np.clip(2 * angle, -1, 1)]
@@ -45,15 +54,13 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11) -> dict:
     env = SafeNavVecEnv(task, num_envs)
     env.reset(seed=seed)
     ref_obs = np.stack([r.reset(seed=seed + i)[0] for i, r in enumerate(refs)])
-    for i, r in enumerate(refs):  # the same layout from the same seed
+    for i, r in enumerate(refs):  # the same layout from the same seed: every body placed alike
         model = r.inner.task.model
-        np.testing.assert_array_equal(env.goal[i], model.body("goal").pos[:2])
-        np.testing.assert_array_equal(env.layouts[i]["agent"], model.body("agent").pos[:2])
-        for k, xy in enumerate(env.hazards[i]):
-            np.testing.assert_array_equal(xy, model.body(f"hazard{k}").pos[:2])
+        np.testing.assert_array_equal(env.worlds.models[i].body_pos, model.body_pos)
+        np.testing.assert_array_equal(env.worlds.models[i].body_quat, model.body_quat)
     np.testing.assert_allclose(env._obs(list(range(num_envs)), env._gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12)
     rng = np.random.default_rng(0)
-    seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0}
+    seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0, "reward": 0.0}
     for t in range(steps):
         action = toward_goal(env, rng)
         out = [r.step(a) for r, a in zip(refs, action)]
@@ -67,6 +74,7 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11) -> dict:
         np.testing.assert_array_equal(s.terminated[:, 0].numpy(), [o[2] for o in out], err_msg=f"step {t}")
         np.testing.assert_array_equal(s.truncated[:, 0].numpy(), [o[3] for o in out], err_msg=f"step {t}")
         seen["cost"] += cost.sum()
+        seen["reward"] += float(np.sum(env.last["reward"]))
         seen["goals"] += sum(o[4].get("goal_met", False) for o in out)
         for r, o in zip(refs, out):
             if o[2] or o[3]:
@@ -83,6 +91,15 @@ def test_point_goal1_equals_the_reference_over_a_whole_episode_and_the_next_rese
 def test_car_goal2_equals_the_reference_vases_included():
     seen = compare("CarGoal2", num_envs=1, steps=150, seed=3)
     assert seen["goals"] >= 1 and seen["cost"] >= 1
+
+
+@pytest.mark.parametrize("task, num_envs, steps", [("PointCircle1", 1, 510), ("CarCircle2", 2, 300)])
+def test_circle_equals_the_reference(task, num_envs, steps):
+    """Circle: the circle reward, the sigwalls' cost (x only at level 1, x or y at level 2), the
+    500-step episode and the reset after it."""
+    seen = compare(task, num_envs=num_envs, steps=steps, seed=4)
+    assert seen["cost"] >= 20 and seen["reward"] > 1.0 and seen["goals"] == 0
+    assert seen["truncated"] == (1 if steps > 500 else 0)
 
 
 def test_an_imposed_layout_gives_the_reference_trajectory():

@@ -31,6 +31,11 @@ GOAL_SIZE, GOAL_KEEPOUT, GOAL_Z = 0.3, 0.305, 0.3 / 2 + 1e-2
 HAZARD_SIZE, HAZARD_KEEPOUT, HAZARD_Z = 0.2, 0.18, 2e-2
 VASE_SIZE, VASE_KEEPOUT, VASE_DENSITY, VASE_SINK = 0.1, 0.15, 0.001, 4e-5
 AGENT_KEEPOUT = 0.4
+# Circle tasks: the circle (radius, never touched: it only shapes the reward and the lidar) and the
+# sigwalls, boundaries without contacts at x = +-1.125 (and y = +-1.125 at level 2), placed, as
+# the reference places every fixed object, by a draw within 1e-9 of their location.
+CIRCLE_RADIUS, CIRCLE_Z = 1.5, 1e-2
+SIGWALL_AT, SIGWALL_SIZE, SIGWALL_Z = 1.125, (0.05, 3.5, 0.3), 0.25
 FRAMESKIP = 10  # physics steps per env step (binomial(10, p=1): always 10)
 ROBOTS = {"Point": "point", "Car": "car"}
 
@@ -38,7 +43,7 @@ ROBOTS = {"Point": "point", "Car": "car"}
 @dataclass(frozen=True)
 class NavSpec:
     """What a navigation task places: the robot, and counts of each object kind, in a square
-    ``[-extent, extent]^2``."""
+    ``[-extent, extent]^2``; ``family`` is the task family (Goal, Circle)."""
 
     robot: str
     level: int
@@ -46,6 +51,8 @@ class NavSpec:
     hazards: int
     vases: int
     vases_constrained: bool
+    family: str = "Goal"
+    sigwalls: int = 0
 
 
 def nav_spec(task: str) -> NavSpec:
@@ -55,6 +62,9 @@ def nav_spec(task: str) -> NavSpec:
                 ((1.0, 0, 0, False), (1.5, 8, 1, False), (2.0, 10, 10, True))):
             if task == f"{robot}Goal{level}":
                 return NavSpec(ROBOTS[robot], level, extent, hazards, vases, constrained)
+        for level, sigwalls in enumerate((0, 2, 4)):
+            if task == f"{robot}Circle{level}":
+                return NavSpec(ROBOTS[robot], level, 2.0, 0, 0, False, "Circle", sigwalls)
     raise KeyError(task)
 
 
@@ -85,11 +95,15 @@ def world_xml(spec: NavSpec) -> str:
         ET.SubElement(body, "freejoint", name=f"vase{i}")
         ET.SubElement(body, "geom", name=f"vase{i}", type="box", size=_fmt([VASE_SIZE] * 3),
                       density=repr(VASE_DENSITY), group="4")
-    statics = [("goal", [GOAL_SIZE, GOAL_SIZE / 2], "9")]
-    statics += [(f"hazard{i}", [HAZARD_SIZE, 1e-2], "3") for i in range(spec.hazards)]
-    for name, size, group in statics:
+    if spec.family == "Circle":
+        statics = [("circle", "cylinder", [CIRCLE_RADIUS, 1e-2], "6")]
+        statics += [(f"sigwall{i}", "box", SIGWALL_SIZE, "10") for i in range(spec.sigwalls)]
+    else:
+        statics = [("goal", "cylinder", [GOAL_SIZE, GOAL_SIZE / 2], "9")]
+        statics += [(f"hazard{i}", "cylinder", [HAZARD_SIZE, 1e-2], "3") for i in range(spec.hazards)]
+    for name, kind, size, group in statics:
         body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
-        ET.SubElement(body, "geom", name=name, type="cylinder", size=_fmt(size), group=group,
+        ET.SubElement(body, "geom", name=name, type=kind, size=_fmt(size), group=group,
                       contype="0", conaffinity="0")
     return ET.tostring(root, encoding="unicode")
 
@@ -126,7 +140,9 @@ class NavWorlds:
         self.datas = [mujoco.MjData(m) for m in self.models]
         body = lambda name: mujoco.mj_name2id(base, mujoco.mjtObj.mjOBJ_BODY, name)  # noqa: E731
         self.agent = body("agent")
-        self.goal = body("goal")
+        self.goal = body("goal")  # -1 where there is none (Circle)
+        self.circle = body("circle")
+        self.sigwalls = np.array([body(f"sigwall{i}") for i in range(spec.sigwalls)], dtype=np.int64)
         self.hazards = np.array([body(f"hazard{i}") for i in range(spec.hazards)], dtype=np.int64)
         self.vases = np.array([body(f"vase{i}") for i in range(spec.vases)], dtype=np.int64)
         self.vase_qpos = np.array([base.jnt_qposadr[base.body_jntadr[b]] for b in self.vases], dtype=np.int64)
@@ -163,8 +179,14 @@ class NavWorlds:
             a = self.agent_qpos
             m.qpos0[a:a + 3] = m.qpos_spring[a:a + 3] = agent_pos
             m.qpos0[a + 3:a + 7] = m.qpos_spring[a + 3:a + 7] = agent_quat
-        m.body_pos[self.goal] = [*layout["goal"], GOAL_Z]
-        m.body_quat[self.goal] = rot_quat(layout["goal_rot"])
+        if self.goal >= 0:
+            m.body_pos[self.goal] = [*layout["goal"], GOAL_Z]
+            m.body_quat[self.goal] = rot_quat(layout["goal_rot"])
+        if self.circle >= 0:  # the reference gives the circle and sigwalls fixed rotations
+            m.body_pos[self.circle] = [*layout["circle"], CIRCLE_Z]
+        for k, b in enumerate(self.sigwalls):
+            m.body_pos[b] = [*layout["sigwalls"][k], SIGWALL_Z]
+            m.body_quat[b] = rot_quat(math.pi / 2 if k >= 2 else 0.0)
         for k, b in enumerate(self.hazards):
             m.body_pos[b] = [*layout["hazards"][k], HAZARD_Z]
             m.body_quat[b] = rot_quat(layout["hazards_rot"][k])
