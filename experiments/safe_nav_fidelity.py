@@ -8,7 +8,8 @@ via our compatibility layer, same mujoco) reset with seeds ``seed + i`` and one 
 reset with ``seed`` (so each env draws the reference's layout), then the same actions for
 ``--steps`` steps (2100: two whole episodes and the automatic resets between them). The actions
 mostly steer each robot to its goal (with 30% uniform noise), so that goals are reached and hazards
-and vases hit (Circle tasks: round the circle of radius 1.5, so that the sigwalls are crossed). Printed per task: the largest difference of any observation entry (float64), of any
+and vases hit (Circle tasks: round the circle of radius 1.5, so that the sigwalls are crossed;
+Button tasks: to the goal button, and every other 80 steps to a wrong one). Printed per task: the largest difference of any observation entry (float64), of any
 reward, the number of steps whose cost, terminated or truncated differ, whether the MuJoCo states
 (qpos, qvel, sensors) were equal bit for bit at every step, and what happened (goals, cost steps,
 episode ends). The JSON has the same figures.
@@ -36,10 +37,15 @@ from cmdp_rl.envs.safety_gym import make_task
 
 
 def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
-    """The goal; on Circle tasks a point ahead on the circle of radius 1.5 (past the sigwalls)."""
+    """The goal; on Circle tasks a point ahead on the circle of radius 1.5 (past the sigwalls); on
+    Button tasks a wrong button every other 80 steps (so that wrong buttons are pressed too)."""
     if env.spec.family == "Circle":
         phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
         return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
+    if env.spec.family == "Button":
+        logic = env.logic
+        pick = (logic.goal_button + (env.steps // 80) % 2) % env.spec.buttons
+        return logic.buttons[np.arange(env.num_envs), pick]
     return env.goal
 
 

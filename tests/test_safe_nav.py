@@ -24,10 +24,15 @@ from conftest import eval_result, metrics_rows  # noqa: E402
 
 def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
     """Where each robot steers: its goal; on Circle tasks, a point ahead on a circle of radius 1.5
-    (so that the sigwalls are crossed)."""
+    (so that the sigwalls are crossed); on Button tasks, a wrong button every other 80 steps (so
+    that wrong buttons are pressed too)."""
     if env.spec.family == "Circle":
         phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
         return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
+    if env.spec.family == "Button":
+        logic = env.logic
+        pick = (logic.goal_button + (env.steps // 80) % 2) % env.spec.buttons
+        return logic.buttons[np.arange(env.num_envs), pick]
     return env.goal
 
 
@@ -47,11 +52,11 @@ def toward_goal(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
     return np.clip(0.7 * steer + 0.3 * rng.uniform(-1, 1, steer.shape), -1, 1).astype(np.float32)
 
 
-def compare(task: str, num_envs: int, steps: int, seed: int = 11) -> dict:
+def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int = 0) -> dict:
     """Step the batched env and ``num_envs`` reference envs side by side; assert equality step by
-    step and return what happened."""
-    refs = [make_task(f"Safety{task}-v0") for _ in range(num_envs)]
-    env = SafeNavVecEnv(task, num_envs)
+    step and return what happened (``max_steps``: shorter episodes on both sides)."""
+    refs = [make_task(f"Safety{task}-v0", max_steps) for _ in range(num_envs)]
+    env = SafeNavVecEnv(task, num_envs, max_steps)
     env.reset(seed=seed)
     ref_obs = np.stack([r.reset(seed=seed + i)[0] for i, r in enumerate(refs)])
     for i, r in enumerate(refs):  # the same layout from the same seed: every body placed alike
@@ -60,7 +65,7 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11) -> dict:
         np.testing.assert_array_equal(env.worlds.models[i].body_quat, model.body_quat)
     np.testing.assert_allclose(env._obs(list(range(num_envs)), env._gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12)
     rng = np.random.default_rng(0)
-    seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0, "reward": 0.0}
+    seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0, "reward": 0.0, "cost_kinds": set()}
     for t in range(steps):
         action = toward_goal(env, rng)
         out = [r.step(a) for r, a in zip(refs, action)]
@@ -76,6 +81,7 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11) -> dict:
         seen["cost"] += cost.sum()
         seen["reward"] += float(np.sum(env.last["reward"]))
         seen["goals"] += sum(o[4].get("goal_met", False) for o in out)
+        seen["cost_kinds"] |= {k for o in out for k, v in o[4].items() if k.startswith("cost_") and k != "cost_sum" and v}
         for r, o in zip(refs, out):
             if o[2] or o[3]:
                 seen["truncated"] += 1
@@ -100,6 +106,15 @@ def test_circle_equals_the_reference(task, num_envs, steps):
     seen = compare(task, num_envs=num_envs, steps=steps, seed=4)
     assert seen["cost"] >= 20 and seen["reward"] > 1.0 and seen["goals"] == 0
     assert seen["truncated"] == (1 if steps > 500 else 0)
+
+
+def test_button_equals_the_reference():
+    """Button: goal buttons pressed (reward, a new goal button, the 10-step timer blanking the
+    button lidar), hazards, gremlins (mocap bodies moved before every physics step) and wrong
+    buttons costing, and, with 150-step episodes, resets (each draws its layout and goal button)."""
+    seen = compare("CarButton2", num_envs=1, steps=330, seed=2, max_steps=150)
+    assert seen["goals"] >= 3 and seen["truncated"] == 2
+    assert seen["cost_kinds"] == {"cost_hazards", "cost_gremlins", "cost_buttons"}
 
 
 def test_an_imposed_layout_gives_the_reference_trajectory():
@@ -143,8 +158,12 @@ def test_layouts_keep_their_distances(task):
 
 
 def test_tasks_not_implemented_are_refused_in_one_line():
-    with pytest.raises(ConfigError, match=r"^env.task: 'PointButton1' is not implemented in safe_nav yet"):
-        compose_config(["env=safe_nav", "env.task=PointButton1"])
+    with pytest.raises(ConfigError, match=r"^env.task: 'PointPush1' is not implemented in safe_nav yet"):
+        compose_config(["env=safe_nav", "env.task=PointPush1"])
+    with pytest.raises(ConfigError, match=r"^env.task: 'RacecarButton1' is not implemented in safe_nav yet"):
+        compose_config(["env=safe_nav", "env.task=RacecarButton1"])
+    with pytest.raises(ConfigError, match=r"env.max_steps must be in \[0, 500\]"):
+        compose_config(["env=safe_nav", "env.task=CarCircle1", "env.max_steps=600"])
     with pytest.raises(ConfigError, match="use env.task=CarGoal2"):
         compose_config(["env=safe_nav", "env.task=SafetyCarGoal2-v0"])
 

@@ -10,7 +10,8 @@ reset recompiles the MuJoCo model; physics is a tenth of it. Here:
 - layouts: drawn as the reference draws them, from one random stream per env seeded as gymnasium
   seeds a vector env, so a seed gives the reference's layouts (``safe_nav_layout.py``);
 - the task family's logic (reward, cost, lidar observations, goal reached, time limit), numpy over
-  the N envs: one module per family (``safe_nav_goal.py``, ``safe_nav_circle.py``), in ``FAMILIES``.
+  the N envs: one module per family (``safe_nav_goal.py``, ``safe_nav_circle.py``,
+  ``safe_nav_button.py``), in ``FAMILIES``.
 
 This module: the batch itself (physics step, the robot's sensors, which every family observes
 first: accelerometer, velocimeter, gyro and magnetometer, Car's rear ball joint's angular velocity
@@ -25,6 +26,7 @@ import numpy as np
 import torch
 
 from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.safe_nav_button import ButtonTask
 from cmdp_rl.envs.safe_nav_circle import CircleTask
 from cmdp_rl.envs.safe_nav_goal import GoalTask
 from cmdp_rl.envs.safe_nav_layout import LayoutSampler
@@ -34,9 +36,9 @@ from cmdp_rl.envs.vector import Step, VecEnv
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, PositiveInt, options, require
 
-FAMILIES = {"Goal": GoalTask, "Circle": CircleTask}  # family -> its logic (a module each)
+FAMILIES = {"Goal": GoalTask, "Circle": CircleTask, "Button": ButtonTask}  # family -> its logic (a module each)
 TASKS = tuple(f"{robot}{family}{level}" for family in FAMILIES for robot in ROBOTS for level in (0, 1, 2))
-_NOT_YET = ("Button", "Push", "Run")
+_NOT_YET = ("Push", "Run")
 _OTHER_ROBOTS = ("Racecar", "Doggo", "Ant")
 
 

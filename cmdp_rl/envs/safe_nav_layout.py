@@ -9,6 +9,8 @@ place, kept clear of everything else the same way (up to 10,000 draws). Each env
 more number (its physics step count, a binomial that is always 10 here). An object with a fixed
 location (the Circle tasks' circle and sigwalls) is still drawn, within 1e-9 of it; the Circle
 tasks' robot is drawn in its own square, ``[-0.8, 0.8]^2``, with no keep-out, and they draw no goal.
+The Button tasks place the robot, buttons, goal, hazards and gremlins, draw no new goal place (the
+goal is a button, chosen with ``choice``).
 
 Each env here has its own ``numpy.random.RandomState``, seeded as gymnasium seeds a vector env's
 envs (``seed + i``), and makes the same draws in the same order, so a seed gives the same layouts
@@ -23,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav_world import (AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT,
-                                         NavSpec)
+from cmdp_rl.envs.safe_nav_world import (AGENT_KEEPOUT, BUTTON_GOAL_KEEPOUT, BUTTON_HAZARD_KEEPOUT, BUTTON_KEEPOUT, GOAL_KEEPOUT,
+                                         GREMLIN_KEEPOUT, HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT, NavSpec)
 
 LAYOUT_TRIES = 10_000  # whole layouts, and goal places mid-episode
 OBJECT_TRIES = 100  # places per object within one layout
@@ -45,6 +47,10 @@ def placements(spec: NavSpec) -> list[tuple[str, float, Box | None]]:
         walls = [(SIGWALL_AT, 0.0), (-SIGWALL_AT, 0.0), (0.0, SIGWALL_AT), (0.0, -SIGWALL_AT)]
         return ([("agent", 0.0, (-0.8, -0.8, 0.8, 0.8)), ("circle", 0.0, _fixed(0.0, 0.0, 0.0))]
                 + [("sigwalls", 0.0, _fixed(*walls[k], 0.0)) for k in range(spec.sigwalls)])
+    if spec.family == "Button":
+        return ([("agent", AGENT_KEEPOUT, None)] + [("buttons", BUTTON_KEEPOUT, None)] * spec.buttons
+                + [("goal", BUTTON_GOAL_KEEPOUT, None)] + [("hazards", BUTTON_HAZARD_KEEPOUT, None)] * spec.hazards
+                + [("gremlins", GREMLIN_KEEPOUT, None)] * spec.gremlins)
     return ([("agent", AGENT_KEEPOUT, None), ("goal", GOAL_KEEPOUT, None)]
             + [("hazards", HAZARD_KEEPOUT, None)] * spec.hazards + [("vases", VASE_KEEPOUT, None)] * spec.vases)
 
@@ -120,22 +126,27 @@ class LayoutSampler:
                 layout[kind], layout[f"{kind}_rot"] = xy[at].reshape(-1, 2), [rots[k] for k in at]
         if self.spec.family != "Goal":
             return layout
-        # The goal drawn with the layout only reserved room; the episode's goal is drawn anew.
-        others = [(*layout["agent"], AGENT_KEEPOUT)] + [(*p, HAZARD_KEEPOUT) for p in layout["hazards"]]
-        others += [(*p, VASE_KEEPOUT) for p in layout["vases"]]
-        goal = self.goal(i, others)
+        # The goal drawn with the layout only reserved room; the episode's goal is drawn anew,
+        # clear of the others (keep-outs as placed).
+        keepout = {kind: k for kind, k, _ in self.objects}
+        others = [(*p, k) for (kind, k, _), p in zip(self.objects, xy) if kind != "goal"]
+        goal = self.goal(i, others, keepout["goal"])
         if goal is None:
             raise LayoutError(f"safe_nav: no goal place found in {LAYOUT_TRIES} tries")
         layout["goal"] = goal
         return layout
 
-    def goal(self, i: int, others: list[tuple[float, float, float]]) -> np.ndarray | None:
+    def choice(self, i: int, n: int) -> int:
+        """One ``RandomState.choice(n)`` from env ``i``'s stream (the Button tasks' goal button)."""
+        return int(self._rng(i).choice(n))
+
+    def goal(self, i: int, others: list[tuple[float, float, float]], keepout: float = GOAL_KEEPOUT) -> np.ndarray | None:
         """A goal place for env ``i`` clear of ``others`` (x, y, keep-out), or None if none was
         found (the reference then ends the episode)."""
         rng = self._rng(i)
         for _ in range(LAYOUT_TRIES):
-            xy = self._draw(rng, GOAL_KEEPOUT)
-            if _clear(xy, GOAL_KEEPOUT, others):
+            xy = self._draw(rng, keepout)
+            if _clear(xy, keepout, others):
                 return np.array(xy)
         return None
 

@@ -36,6 +36,13 @@ AGENT_KEEPOUT = 0.4
 # the reference places every fixed object, by a draw within 1e-9 of their location.
 CIRCLE_RADIUS, CIRCLE_Z = 1.5, 1e-2
 SIGWALL_AT, SIGWALL_SIZE, SIGWALL_Z = 1.125, (0.05, 3.5, 0.3), 0.25
+# Button tasks: 4 buttons (spheres the robot can touch), a smaller goal (marking the goal button),
+# and at levels 1, 2 gremlins: boxes welded to mocap bodies that circle (radius 0.35) round their
+# places, moved before each physics step.
+BUTTON_SIZE, BUTTON_KEEPOUT = 0.1, 0.2
+BUTTON_GOAL_SIZE, BUTTON_GOAL_KEEPOUT = 0.2, 0.4
+BUTTON_HAZARD_KEEPOUT = 0.18
+GREMLIN_SIZE, GREMLIN_KEEPOUT, GREMLIN_TRAVEL, GREMLIN_DENSITY = 0.1, 0.4, 0.35, 0.001
 FRAMESKIP = 10  # physics steps per env step (binomial(10, p=1): always 10)
 ROBOTS = {"Point": "point", "Car": "car"}
 
@@ -43,7 +50,7 @@ ROBOTS = {"Point": "point", "Car": "car"}
 @dataclass(frozen=True)
 class NavSpec:
     """What a navigation task places: the robot, and counts of each object kind, in a square
-    ``[-extent, extent]^2``; ``family`` is the task family (Goal, Circle)."""
+    ``[-extent, extent]^2``; ``family`` is the task family (Goal, Circle, Button)."""
 
     robot: str
     level: int
@@ -53,6 +60,9 @@ class NavSpec:
     vases_constrained: bool
     family: str = "Goal"
     sigwalls: int = 0
+    buttons: int = 0
+    gremlins: int = 0
+    goal_size: float = GOAL_SIZE
 
 
 def nav_spec(task: str) -> NavSpec:
@@ -65,6 +75,10 @@ def nav_spec(task: str) -> NavSpec:
         for level, sigwalls in enumerate((0, 2, 4)):
             if task == f"{robot}Circle{level}":
                 return NavSpec(ROBOTS[robot], level, 2.0, 0, 0, False, "Circle", sigwalls)
+        for level, (extent, hazards, gremlins) in enumerate(((1.0, 0, 0), (1.5, 4, 4), (1.8, 8, 6))):
+            if task == f"{robot}Button{level}":
+                return NavSpec(ROBOTS[robot], level, extent, hazards, 0, False, "Button", buttons=4,
+                               gremlins=gremlins, goal_size=BUTTON_GOAL_SIZE)
     raise KeyError(task)
 
 
@@ -90,21 +104,35 @@ def world_xml(spec: NavSpec) -> str:
     for geom in worldbody.findall("geom"):
         if geom.get("name") == "floor":
             geom.set("size", "3.5 3.5 0.1")
-    for i in range(spec.vases):
-        body = ET.SubElement(worldbody, "body", name=f"vase{i}", pos="0 0 0", quat="1 0 0 0")
-        ET.SubElement(body, "freejoint", name=f"vase{i}")
-        ET.SubElement(body, "geom", name=f"vase{i}", type="box", size=_fmt([VASE_SIZE] * 3),
-                      density=repr(VASE_DENSITY), group="4")
+    frees = [(f"vase{i}", VASE_SIZE, VASE_DENSITY, "4") for i in range(spec.vases)]
+    frees += [(f"gremlin{i}obj", GREMLIN_SIZE, GREMLIN_DENSITY, "5") for i in range(spec.gremlins)]
+    for name, size, density, group in frees:
+        body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
+        ET.SubElement(body, "freejoint", name=name)
+        ET.SubElement(body, "geom", name=name, type="box", size=_fmt([size] * 3), density=repr(density), group=group)
+    if spec.gremlins:
+        equality = root.find("equality")
+        equality = ET.SubElement(root, "equality") if equality is None else equality
+    for i in range(spec.gremlins):
+        # The mocap body stays at the origin; its geom sits at the gremlin's place (placeholder
+        # pose off the body frame, so that the compiler does not mark the two frames as one).
+        body = ET.SubElement(worldbody, "body", name=f"gremlin{i}mocap", mocap="true")
+        ET.SubElement(body, "geom", name=f"gremlin{i}mocap", type="box", size=_fmt([GREMLIN_SIZE] * 3),
+                      pos="0.5 0.5 0.1", quat=_fmt(rot_quat(1.0)), contype="0", conaffinity="0", group="5")
+        ET.SubElement(equality, "weld", name=f"gremlin{i}mocap", body1=f"gremlin{i}mocap", body2=f"gremlin{i}obj",
+                      solref=".02 1.5")
+    # (name, type, size, group, has contacts)
     if spec.family == "Circle":
-        statics = [("circle", "cylinder", [CIRCLE_RADIUS, 1e-2], "6")]
-        statics += [(f"sigwall{i}", "box", SIGWALL_SIZE, "10") for i in range(spec.sigwalls)]
+        statics = [("circle", "cylinder", [CIRCLE_RADIUS, 1e-2], "6", False)]
+        statics += [(f"sigwall{i}", "box", SIGWALL_SIZE, "10", False) for i in range(spec.sigwalls)]
     else:
-        statics = [("goal", "cylinder", [GOAL_SIZE, GOAL_SIZE / 2], "9")]
-        statics += [(f"hazard{i}", "cylinder", [HAZARD_SIZE, 1e-2], "3") for i in range(spec.hazards)]
-    for name, kind, size, group in statics:
+        statics = [(f"button{i}", "sphere", [BUTTON_SIZE] * 3, "1", True) for i in range(spec.buttons)]
+        statics += [("goal", "cylinder", [spec.goal_size, spec.goal_size / 2], "9", False)]
+        statics += [(f"hazard{i}", "cylinder", [HAZARD_SIZE, 1e-2], "3", False) for i in range(spec.hazards)]
+    for name, kind, size, group, touch in statics:
         body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
         ET.SubElement(body, "geom", name=name, type=kind, size=_fmt(size), group=group,
-                      contype="0", conaffinity="0")
+                      contype="1" if touch else "0", conaffinity="1" if touch else "0")
     return ET.tostring(root, encoding="unicode")
 
 
@@ -145,7 +173,10 @@ class NavWorlds:
         self.sigwalls = np.array([body(f"sigwall{i}") for i in range(spec.sigwalls)], dtype=np.int64)
         self.hazards = np.array([body(f"hazard{i}") for i in range(spec.hazards)], dtype=np.int64)
         self.vases = np.array([body(f"vase{i}") for i in range(spec.vases)], dtype=np.int64)
-        self.vase_qpos = np.array([base.jnt_qposadr[base.body_jntadr[b]] for b in self.vases], dtype=np.int64)
+        self.buttons = np.array([body(f"button{i}") for i in range(spec.buttons)], dtype=np.int64)
+        self.gremlins = np.array([body(f"gremlin{i}obj") for i in range(spec.gremlins)], dtype=np.int64)
+        self.gremlin_mocaps = np.array([body(f"gremlin{i}mocap") for i in range(spec.gremlins)], dtype=np.int64)
+        self.goal_z = spec.goal_size / 2 + 1e-2
         self.vase_dof = np.array([base.jnt_dofadr[base.body_jntadr[b]] for b in self.vases], dtype=np.int64)
         agent_joint = base.body_jntadr[self.agent]
         self.agent_free = base.jnt_type[agent_joint] == mujoco.mjtJoint.mjJNT_FREE
@@ -159,6 +190,8 @@ class NavWorlds:
         self.geom_is_robot = np.array([base.geom_bodyid[g] in robot_bodies and names[g] != "floor"
                                        for g in range(base.ngeom)])
         self.geom_is_vase = np.array([n.startswith("vase") for n in names])
+        self.geom_button = np.array([int(n[6:]) if n.startswith("button") else -1 for n in names])
+        self.geom_is_gremlin = np.array([n.startswith("gremlin") for n in names])
         threads = max(1, min(threads, num_envs))
         bounds = np.linspace(0, num_envs, threads + 1).astype(int)
         self.shares = [range(lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:])]
@@ -180,7 +213,7 @@ class NavWorlds:
             m.qpos0[a:a + 3] = m.qpos_spring[a:a + 3] = agent_pos
             m.qpos0[a + 3:a + 7] = m.qpos_spring[a + 3:a + 7] = agent_quat
         if self.goal >= 0:
-            m.body_pos[self.goal] = [*layout["goal"], GOAL_Z]
+            m.body_pos[self.goal] = [*layout["goal"], self.goal_z]
             m.body_quat[self.goal] = rot_quat(layout["goal_rot"])
         if self.circle >= 0:  # the reference gives the circle and sigwalls fixed rotations
             m.body_pos[self.circle] = [*layout["circle"], CIRCLE_Z]
@@ -191,16 +224,30 @@ class NavWorlds:
             m.body_pos[b] = [*layout["hazards"][k], HAZARD_Z]
             m.body_quat[b] = rot_quat(layout["hazards_rot"][k])
         for k, b in enumerate(self.vases):
-            pos = np.array([*layout["vases"][k], VASE_SIZE - VASE_SINK])
-            quat = rot_quat(layout["vases_rot"][k])
-            m.body_pos[b] = pos
-            m.body_quat[b] = quat
-            a = self.vase_qpos[k]
-            m.qpos0[a:a + 3] = m.qpos_spring[a:a + 3] = pos
-            m.qpos0[a + 3:a + 7] = m.qpos_spring[a + 3:a + 7] = quat
+            self._place_free(m, b, layout["vases"][k], VASE_SIZE - VASE_SINK, layout["vases_rot"][k])
+        for k, b in enumerate(self.buttons):
+            m.body_pos[b] = [*layout["buttons"][k], BUTTON_SIZE]
+            m.body_quat[b] = rot_quat(layout["buttons_rot"][k])
+        for k, (b, mocap) in enumerate(zip(self.gremlins, self.gremlin_mocaps)):
+            pos, quat = self._place_free(m, b, layout["gremlins"][k], GREMLIN_SIZE, layout["gremlins_rot"][k])
+            # what the compiler derives from the placed geom: the mocap body's inertial frame (its
+            # one geom's) and the weld's relative pose (the box's pose, the mocap body at the origin)
+            g = m.body_geomadr[mocap]
+            m.geom_pos[g] = m.body_ipos[mocap] = m.eq_data[k, 3:6] = pos
+            m.geom_quat[g] = m.body_iquat[mocap] = m.eq_data[k, 6:10] = quat
         mj.mj_setConst(m, d)
         mj.mj_resetData(m, d)
         mj.mj_forward(m, d)
+
+    @staticmethod
+    def _place_free(m, body: int, xy, z: float, rot: float) -> tuple[np.ndarray, np.ndarray]:
+        """A free body's place: its body frame and its joint's initial (and spring) pose."""
+        pos, quat = np.array([*xy, z]), rot_quat(rot)
+        m.body_pos[body], m.body_quat[body] = pos, quat
+        a = m.jnt_qposadr[m.body_jntadr[body]]
+        m.qpos0[a:a + 3] = m.qpos_spring[a:a + 3] = pos
+        m.qpos0[a + 3:a + 7] = m.qpos_spring[a + 3:a + 7] = quat
+        return pos, quat
 
     def move_goal(self, i: int, xy: np.ndarray) -> None:
         """A new goal mid-episode: the goal has no contacts, so only its position changes."""
@@ -218,6 +265,19 @@ class NavWorlds:
     def _step_share(self, envs: range, ctrl: np.ndarray) -> None:
         step, forward = self.mj.mj_step, self.mj.mj_forward
         models, datas = self.models, self.datas
+        if len(self.gremlins):
+            for i in envs:
+                m, d = models[i], datas[i]
+                d.ctrl[:] = ctrl[i]
+                for _ in range(FRAMESKIP):
+                    # every gremlin's mocap body to the same point on a circle, by the time (the
+                    # reference's arithmetic: numpy's sin and cos of the float time, times 0.35)
+                    phase = float(d.time)
+                    target = np.array([np.sin(phase), np.cos(phase)]) * GREMLIN_TRAVEL
+                    d.mocap_pos[:] = np.r_[target, [GREMLIN_SIZE]]
+                    step(m, d)
+                forward(m, d)
+            return
         for i in envs:
             m, d = models[i], datas[i]
             d.ctrl[:] = ctrl[i]
