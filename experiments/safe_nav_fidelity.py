@@ -9,7 +9,8 @@ reset with ``seed`` (so each env draws the reference's layout), then the same ac
 ``--steps`` steps (2100: two whole episodes and the automatic resets between them). The actions
 mostly steer each robot to its goal (with 30% uniform noise), so that goals are reached and hazards
 and vases hit (Circle tasks: round the circle of radius 1.5, so that the sigwalls are crossed;
-Button tasks: to the goal button, and every other 80 steps to a wrong one). Printed per task: the largest difference of any observation entry (float64), of any
+Button tasks: to the goal button, and every other 80 steps to a wrong one; Push tasks: round the
+box to behind it, then through it towards the goal). Printed per task: the largest difference of any observation entry (float64), of any
 reward, the number of steps whose cost, terminated or truncated differ, whether the MuJoCo states
 (qpos, qvel, sensors) were equal bit for bit at every step, and what happened (goals, cost steps,
 episode ends). The JSON has the same figures.
@@ -42,6 +43,16 @@ def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
     if env.spec.family == "Circle":
         phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
         return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
+    if env.spec.family == "Push":  # round the box to behind it (seen from the goal), then through it
+        box = env._gather(range(env.num_envs))["xpos"][:, env.worlds.push_box, :2]
+        ahead = env.goal - box
+        ahead /= np.linalg.norm(ahead, axis=-1, keepdims=True) + 1e-9
+        rel = pos[:, :2] - box
+        normal = np.c_[-ahead[:, 1], ahead[:, 0]]
+        side = normal * np.sign(np.sum(rel * normal, axis=-1) + 1e-9)[:, None]
+        behind, past = box - 0.5 * ahead, np.sum(rel * ahead, axis=-1) > -0.25
+        ready = (np.linalg.norm(pos[:, :2] - behind, axis=-1) < 0.3) & ~past
+        return np.where(ready[:, None], box + 0.2 * ahead, np.where(past[:, None], box + 0.6 * side - 0.3 * ahead, behind))
     if env.spec.family == "Button":
         logic = env.logic
         pick = (logic.goal_button + (env.steps // 80) % 2) % env.spec.buttons

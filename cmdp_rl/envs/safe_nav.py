@@ -11,7 +11,7 @@ reset recompiles the MuJoCo model; physics is a tenth of it. Here:
   seeds a vector env, so a seed gives the reference's layouts (``safe_nav_layout.py``);
 - the task family's logic (reward, cost, lidar observations, goal reached, time limit), numpy over
   the N envs: one module per family (``safe_nav_goal.py``, ``safe_nav_circle.py``,
-  ``safe_nav_button.py``), in ``FAMILIES``.
+  ``safe_nav_button.py``, ``safe_nav_push.py``), in ``FAMILIES``.
 
 This module: the batch itself (physics step, the robot's sensors, which every family observes
 first: accelerometer, velocimeter, gyro and magnetometer, Car's rear ball joint's angular velocity
@@ -30,15 +30,16 @@ from cmdp_rl.envs.safe_nav_button import ButtonTask
 from cmdp_rl.envs.safe_nav_circle import CircleTask
 from cmdp_rl.envs.safe_nav_goal import GoalTask
 from cmdp_rl.envs.safe_nav_layout import LayoutSampler
+from cmdp_rl.envs.safe_nav_push import PushTask
 from cmdp_rl.envs.safe_nav_lidar import LIDAR_BINS, pseudo_lidar
 from cmdp_rl.envs.safe_nav_world import ROBOTS, NavWorlds, nav_spec
 from cmdp_rl.envs.vector import Step, VecEnv
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, PositiveInt, options, require
 
-FAMILIES = {"Goal": GoalTask, "Circle": CircleTask, "Button": ButtonTask}  # family -> its logic (a module each)
+FAMILIES = {"Goal": GoalTask, "Circle": CircleTask, "Button": ButtonTask, "Push": PushTask}  # family -> its logic (a module each)
 TASKS = tuple(f"{robot}{family}{level}" for family in FAMILIES for robot in ROBOTS for level in (0, 1, 2))
-_NOT_YET = ("Push", "Run")
+_NOT_YET = ("Run",)
 _OTHER_ROBOTS = ("Racecar", "Doggo", "Ant")
 
 

@@ -10,7 +10,8 @@ more number (its physics step count, a binomial that is always 10 here). An obje
 location (the Circle tasks' circle and sigwalls) is still drawn, within 1e-9 of it; the Circle
 tasks' robot is drawn in its own square, ``[-0.8, 0.8]^2``, with no keep-out, and they draw no goal.
 The Button tasks place the robot, buttons, goal, hazards and gremlins, draw no new goal place (the
-goal is a button, chosen with ``choice``).
+goal is a button, chosen with ``choice``); the Push tasks place the robot, goal, hazards, pillars
+and the box, then draw a goal place as the Goal tasks do.
 
 Each env here has its own ``numpy.random.RandomState``, seeded as gymnasium seeds a vector env's
 envs (``seed + i``), and makes the same draws in the same order, so a seed gives the same layouts
@@ -26,12 +27,13 @@ from typing import Any
 import numpy as np
 
 from cmdp_rl.envs.safe_nav_world import (AGENT_KEEPOUT, BUTTON_GOAL_KEEPOUT, BUTTON_HAZARD_KEEPOUT, BUTTON_KEEPOUT, GOAL_KEEPOUT,
-                                         GREMLIN_KEEPOUT, HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT, NavSpec)
+                                         GREMLIN_KEEPOUT, HAZARD_KEEPOUT, PILLAR_KEEPOUT, PUSH_BOX, PUSH_GOAL_KEEPOUT,
+                                         PUSH_HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT, NavSpec)
 
 LAYOUT_TRIES = 10_000  # whole layouts, and goal places mid-episode
 OBJECT_TRIES = 100  # places per object within one layout
 FIXED_SLACK = 1e-9  # a fixed location is drawn within this of its place (as the reference does)
-SINGLE = ("agent", "goal", "circle")  # kinds with one object: a layout holds its xy and rotation plainly
+SINGLE = ("agent", "goal", "circle", "push_box")  # kinds with one object: a layout holds its xy and rotation plainly
 Box = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax
 
 
@@ -51,6 +53,10 @@ def placements(spec: NavSpec) -> list[tuple[str, float, Box | None]]:
         return ([("agent", AGENT_KEEPOUT, None)] + [("buttons", BUTTON_KEEPOUT, None)] * spec.buttons
                 + [("goal", BUTTON_GOAL_KEEPOUT, None)] + [("hazards", BUTTON_HAZARD_KEEPOUT, None)] * spec.hazards
                 + [("gremlins", GREMLIN_KEEPOUT, None)] * spec.gremlins)
+    if spec.family == "Push":
+        return ([("agent", AGENT_KEEPOUT, None), ("goal", PUSH_GOAL_KEEPOUT, None)]
+                + [("hazards", PUSH_HAZARD_KEEPOUT, None)] * spec.hazards + [("pillars", PILLAR_KEEPOUT, None)] * spec.pillars
+                + [("push_box", PUSH_BOX[spec.robot][0], None)])
     return ([("agent", AGENT_KEEPOUT, None), ("goal", GOAL_KEEPOUT, None)]
             + [("hazards", HAZARD_KEEPOUT, None)] * spec.hazards + [("vases", VASE_KEEPOUT, None)] * spec.vases)
 
@@ -76,7 +82,7 @@ class LayoutSampler:
     def __init__(self, spec: NavSpec, num_envs: int) -> None:
         self.spec = spec
         self.objects = placements(spec)
-        self.kinds = list(dict.fromkeys([k for k, _, _ in self.objects] + ["hazards", "vases"]))
+        self.kinds = list(dict.fromkeys([k for k, _, _ in self.objects] + ["hazards", "vases", "pillars"]))
         self.rngs = [np.random.RandomState(0) for _ in range(num_envs)]
         self.pending = np.zeros(num_envs, dtype=np.int64)
 
@@ -124,7 +130,7 @@ class LayoutSampler:
                 layout[kind], layout[f"{kind}_rot"] = xy[at[0]], rots[at[0]]
             else:
                 layout[kind], layout[f"{kind}_rot"] = xy[at].reshape(-1, 2), [rots[k] for k in at]
-        if self.spec.family != "Goal":
+        if self.spec.family not in ("Goal", "Push"):
             return layout
         # The goal drawn with the layout only reserved room; the episode's goal is drawn anew,
         # clear of the others (keep-outs as placed).

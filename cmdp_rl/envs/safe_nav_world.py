@@ -43,6 +43,12 @@ BUTTON_SIZE, BUTTON_KEEPOUT = 0.1, 0.2
 BUTTON_GOAL_SIZE, BUTTON_GOAL_KEEPOUT = 0.2, 0.4
 BUTTON_HAZARD_KEEPOUT = 0.18
 GREMLIN_SIZE, GREMLIN_KEEPOUT, GREMLIN_TRAVEL, GREMLIN_DENSITY = 0.1, 0.4, 0.35, 0.001
+# Push tasks: a box (four smaller boxes at its corners) to push onto the goal, wider hazards, and
+# pillars (cylinders with contacts). The Car pushes a smaller, lighter box.
+PUSH_BOX = {"point": (0.2, 0.001), "car": (0.125, 0.0005)}  # half-size (= keep-out), density
+PUSH_HAZARD_SIZE, PUSH_HAZARD_KEEPOUT = 0.3, 0.4
+PUSH_GOAL_KEEPOUT = 0.4
+PILLAR_SIZE, PILLAR_HEIGHT, PILLAR_KEEPOUT = 0.2, 0.5, 0.3
 FRAMESKIP = 10  # physics steps per env step (binomial(10, p=1): always 10)
 ROBOTS = {"Point": "point", "Car": "car"}
 
@@ -50,7 +56,7 @@ ROBOTS = {"Point": "point", "Car": "car"}
 @dataclass(frozen=True)
 class NavSpec:
     """What a navigation task places: the robot, and counts of each object kind, in a square
-    ``[-extent, extent]^2``; ``family`` is the task family (Goal, Circle, Button)."""
+    ``[-extent, extent]^2``; ``family`` is the task family (Goal, Circle, Button, Push)."""
 
     robot: str
     level: int
@@ -63,6 +69,10 @@ class NavSpec:
     buttons: int = 0
     gremlins: int = 0
     goal_size: float = GOAL_SIZE
+    hazard_size: float = HAZARD_SIZE
+    pillars: int = 0
+    pillars_constrained: bool = False
+    push_box: bool = False
 
 
 def nav_spec(task: str) -> NavSpec:
@@ -79,6 +89,10 @@ def nav_spec(task: str) -> NavSpec:
             if task == f"{robot}Button{level}":
                 return NavSpec(ROBOTS[robot], level, extent, hazards, 0, False, "Button", buttons=4,
                                gremlins=gremlins, goal_size=BUTTON_GOAL_SIZE)
+        for level, (extent, hazards, pillars) in enumerate(((1.0, 0, 0), (1.5, 2, 1), (2.0, 4, 4))):
+            if task == f"{robot}Push{level}":
+                return NavSpec(ROBOTS[robot], level, extent, hazards, 0, False, "Push", hazard_size=PUSH_HAZARD_SIZE,
+                               pillars=pillars, pillars_constrained=level == 2, push_box=True)
     raise KeyError(task)
 
 
@@ -104,6 +118,14 @@ def world_xml(spec: NavSpec) -> str:
     for geom in worldbody.findall("geom"):
         if geom.get("name") == "floor":
             geom.set("size", "3.5 3.5 0.1")
+    if spec.push_box:
+        size, density = PUSH_BOX[spec.robot]
+        body = ET.SubElement(worldbody, "body", name="push_box", pos="0 0 0", quat="1 0 0 0")
+        ET.SubElement(body, "freejoint", name="push_box")
+        ET.SubElement(body, "geom", name="push_box", type="box", size=_fmt([size] * 3), density=repr(density), group="1")
+        for k, (sx, sy) in enumerate(((1, 1), (-1, 1), (1, -1), (-1, -1))):
+            ET.SubElement(body, "geom", name=f"col{k + 1}", type="box", size=_fmt([size / 2, size / 2, size]),
+                          density=repr(density), group="1", pos=_fmt([sx * size, sy * size, 0.0]))
     frees = [(f"vase{i}", VASE_SIZE, VASE_DENSITY, "4") for i in range(spec.vases)]
     frees += [(f"gremlin{i}obj", GREMLIN_SIZE, GREMLIN_DENSITY, "5") for i in range(spec.gremlins)]
     for name, size, density, group in frees:
@@ -128,7 +150,8 @@ def world_xml(spec: NavSpec) -> str:
     else:
         statics = [(f"button{i}", "sphere", [BUTTON_SIZE] * 3, "1", True) for i in range(spec.buttons)]
         statics += [("goal", "cylinder", [spec.goal_size, spec.goal_size / 2], "9", False)]
-        statics += [(f"hazard{i}", "cylinder", [HAZARD_SIZE, 1e-2], "3", False) for i in range(spec.hazards)]
+        statics += [(f"hazard{i}", "cylinder", [spec.hazard_size, 1e-2], "3", False) for i in range(spec.hazards)]
+        statics += [(f"pillar{i}", "cylinder", [PILLAR_SIZE, PILLAR_HEIGHT], "2", True) for i in range(spec.pillars)]
     for name, kind, size, group, touch in statics:
         body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
         ET.SubElement(body, "geom", name=name, type=kind, size=_fmt(size), group=group,
@@ -174,6 +197,8 @@ class NavWorlds:
         self.hazards = np.array([body(f"hazard{i}") for i in range(spec.hazards)], dtype=np.int64)
         self.vases = np.array([body(f"vase{i}") for i in range(spec.vases)], dtype=np.int64)
         self.buttons = np.array([body(f"button{i}") for i in range(spec.buttons)], dtype=np.int64)
+        self.pillars = np.array([body(f"pillar{i}") for i in range(spec.pillars)], dtype=np.int64)
+        self.push_box = body("push_box")  # -1 where there is none
         self.gremlins = np.array([body(f"gremlin{i}obj") for i in range(spec.gremlins)], dtype=np.int64)
         self.gremlin_mocaps = np.array([body(f"gremlin{i}mocap") for i in range(spec.gremlins)], dtype=np.int64)
         self.goal_z = spec.goal_size / 2 + 1e-2
@@ -192,6 +217,7 @@ class NavWorlds:
         self.geom_is_vase = np.array([n.startswith("vase") for n in names])
         self.geom_button = np.array([int(n[6:]) if n.startswith("button") else -1 for n in names])
         self.geom_is_gremlin = np.array([n.startswith("gremlin") for n in names])
+        self.geom_is_pillar = np.array([n.startswith("pillar") for n in names])
         threads = max(1, min(threads, num_envs))
         bounds = np.linspace(0, num_envs, threads + 1).astype(int)
         self.shares = [range(lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:])]
@@ -225,6 +251,11 @@ class NavWorlds:
             m.body_quat[b] = rot_quat(layout["hazards_rot"][k])
         for k, b in enumerate(self.vases):
             self._place_free(m, b, layout["vases"][k], VASE_SIZE - VASE_SINK, layout["vases_rot"][k])
+        for k, b in enumerate(self.pillars):
+            m.body_pos[b] = [*layout["pillars"][k], PILLAR_HEIGHT]
+            m.body_quat[b] = rot_quat(layout["pillars_rot"][k])
+        if self.push_box >= 0:
+            self._place_free(m, self.push_box, layout["push_box"], PUSH_BOX[self.spec.robot][0], layout["push_box_rot"])
         for k, b in enumerate(self.buttons):
             m.body_pos[b] = [*layout["buttons"][k], BUTTON_SIZE]
             m.body_quat[b] = rot_quat(layout["buttons_rot"][k])
