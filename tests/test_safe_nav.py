@@ -38,7 +38,8 @@ def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
         side = normal * np.sign(np.sum(rel * normal, axis=-1) + 1e-9)[:, None]
         behind, past = box - 0.5 * ahead, np.sum(rel * ahead, axis=-1) > -0.25
         ready = (np.linalg.norm(pos[:, :2] - behind, axis=-1) < 0.3) & ~past
-        return np.where(ready[:, None], box + 0.2 * ahead, np.where(past[:, None], box + 0.6 * side - 0.3 * ahead, behind))
+        around = box + 0.6 * side - 0.3 * ahead
+        return np.where(ready[:, None], box + 0.2 * ahead, np.where(past[:, None], around, behind))
     if env.spec.family == "Button":
         logic = env.logic
         pick = (logic.goal_button + (env.steps // 80) % 2) % env.spec.buttons

@@ -30,14 +30,15 @@ from cmdp_rl.envs.safe_nav_button import ButtonTask
 from cmdp_rl.envs.safe_nav_circle import CircleTask
 from cmdp_rl.envs.safe_nav_goal import GoalTask
 from cmdp_rl.envs.safe_nav_layout import LayoutSampler
-from cmdp_rl.envs.safe_nav_push import PushTask
 from cmdp_rl.envs.safe_nav_lidar import LIDAR_BINS, pseudo_lidar
+from cmdp_rl.envs.safe_nav_push import PushTask
 from cmdp_rl.envs.safe_nav_world import ROBOTS, NavWorlds, nav_spec
 from cmdp_rl.envs.vector import Step, VecEnv
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, PositiveInt, options, require
 
-FAMILIES = {"Goal": GoalTask, "Circle": CircleTask, "Button": ButtonTask, "Push": PushTask}  # family -> its logic (a module each)
+# task family -> its logic (a module each)
+FAMILIES = {"Goal": GoalTask, "Circle": CircleTask, "Button": ButtonTask, "Push": PushTask}
 TASKS = tuple(f"{robot}{family}{level}" for family in FAMILIES for robot in ROBOTS for level in (0, 1, 2))
 _NOT_YET = ("Run",)
 _OTHER_ROBOTS = ("Racecar", "Doggo", "Ant")

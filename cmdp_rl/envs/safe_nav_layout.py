@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav_world import (AGENT_KEEPOUT, BUTTON_GOAL_KEEPOUT, BUTTON_HAZARD_KEEPOUT, BUTTON_KEEPOUT, GOAL_KEEPOUT,
-                                         GREMLIN_KEEPOUT, HAZARD_KEEPOUT, PILLAR_KEEPOUT, PUSH_BOX, PUSH_GOAL_KEEPOUT,
-                                         PUSH_HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT, NavSpec)
+from cmdp_rl.envs.safe_nav_world import (AGENT_KEEPOUT, BUTTON_GOAL_KEEPOUT, BUTTON_HAZARD_KEEPOUT, BUTTON_KEEPOUT,
+                                         GOAL_KEEPOUT, GREMLIN_KEEPOUT, HAZARD_KEEPOUT, PILLAR_KEEPOUT, PUSH_BOX,
+                                         PUSH_GOAL_KEEPOUT, PUSH_HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT, NavSpec)
 
 LAYOUT_TRIES = 10_000  # whole layouts, and goal places mid-episode
 OBJECT_TRIES = 100  # places per object within one layout
@@ -55,7 +55,8 @@ def placements(spec: NavSpec) -> list[tuple[str, float, Box | None]]:
                 + [("gremlins", GREMLIN_KEEPOUT, None)] * spec.gremlins)
     if spec.family == "Push":
         return ([("agent", AGENT_KEEPOUT, None), ("goal", PUSH_GOAL_KEEPOUT, None)]
-                + [("hazards", PUSH_HAZARD_KEEPOUT, None)] * spec.hazards + [("pillars", PILLAR_KEEPOUT, None)] * spec.pillars
+                + [("hazards", PUSH_HAZARD_KEEPOUT, None)] * spec.hazards
+                + [("pillars", PILLAR_KEEPOUT, None)] * spec.pillars
                 + [("push_box", PUSH_BOX[spec.robot][0], None)])
     return ([("agent", AGENT_KEEPOUT, None), ("goal", GOAL_KEEPOUT, None)]
             + [("hazards", HAZARD_KEEPOUT, None)] * spec.hazards + [("vases", VASE_KEEPOUT, None)] * spec.vases)
@@ -146,7 +147,8 @@ class LayoutSampler:
         """One ``RandomState.choice(n)`` from env ``i``'s stream (the Button tasks' goal button)."""
         return int(self._rng(i).choice(n))
 
-    def goal(self, i: int, others: list[tuple[float, float, float]], keepout: float = GOAL_KEEPOUT) -> np.ndarray | None:
+    def goal(self, i: int, others: list[tuple[float, float, float]],
+             keepout: float = GOAL_KEEPOUT) -> np.ndarray | None:
         """A goal place for env ``i`` clear of ``others`` (x, y, keep-out), or None if none was
         found (the reference then ends the episode)."""
         rng = self._rng(i)

@@ -1,14 +1,15 @@
 """The MuJoCo side of ``env=safe_nav``: one world per task, compiled once, N copies stepped.
 
 Safety-Gymnasium builds a navigation task's world as MJCF text (the robot's XML from its package,
-plus a body per goal, hazard and vase) and compiles it again at every reset, with the new layout
+plus a body per goal, hazard, vase, button, ...) and compiles it again at every reset, with the new layout
 written into the text (about 0.8 s per compile here, a fifth of its run time;
 ``shared/notes/safety-gymnasium-facts.md``). Here the same world is compiled once, with the same
 bodies in the same order, the same geoms and the same defaults (the robot's own XML, read from the
 installed package at run time), so MuJoCo integrates it with the same arithmetic; each env gets a
 copy of the compiled model, and a new layout moves bodies in that copy (``body_pos``, ``body_quat``,
-``qpos0`` of free bodies), then re-derives what the compiler computes from the initial pose
-(``mj_setConst``) and starts from a fresh state (``mj_resetData``), which is what a fresh compile and
+``qpos0`` of free bodies; for the Button tasks' gremlins also what the compiler derives from
+their places: mocap geom poses and weld poses), then re-derives what the compiler computes from the
+initial pose (``mj_setConst``) and starts from a fresh state (``mj_resetData``), which is what a fresh compile and
 a fresh ``MjData`` give. What only renders (textures, materials, lights, cameras) is left out: it
 is most of the compile time and none of the physics.
 """
@@ -110,9 +111,10 @@ def _fmt(values) -> str:
 
 
 def world_xml(spec: NavSpec) -> str:
-    """The task's MJCF: the robot's XML with the floor resized as Safety-Gymnasium does, then the
-    vases, the goal and the hazards (its body order). Positions are placeholders; layouts are set
-    on the compiled model."""
+    """The task's MJCF: the robot's XML with the floor resized as Safety-Gymnasium does, then, in
+    its body order, the free bodies (box, vases, gremlins), the gremlins' mocap bodies (and their
+    welds), and the fixed ones (circle and sigwalls; or buttons, goal, hazards, pillars).
+    Positions are placeholders; layouts are set on the compiled model."""
     root = ET.parse(os.path.join(package_dir(), "assets", "xmls", f"{spec.robot}.xml")).getroot()
     worldbody = root.find("worldbody")
     for geom in worldbody.findall("geom"):
@@ -122,7 +124,8 @@ def world_xml(spec: NavSpec) -> str:
         size, density = PUSH_BOX[spec.robot]
         body = ET.SubElement(worldbody, "body", name="push_box", pos="0 0 0", quat="1 0 0 0")
         ET.SubElement(body, "freejoint", name="push_box")
-        ET.SubElement(body, "geom", name="push_box", type="box", size=_fmt([size] * 3), density=repr(density), group="1")
+        ET.SubElement(body, "geom", name="push_box", type="box", size=_fmt([size] * 3), density=repr(density),
+                      group="1")
         for k, (sx, sy) in enumerate(((1, 1), (-1, 1), (1, -1), (-1, -1))):
             ET.SubElement(body, "geom", name=f"col{k + 1}", type="box", size=_fmt([size / 2, size / 2, size]),
                           density=repr(density), group="1", pos=_fmt([sx * size, sy * size, 0.0]))
@@ -218,6 +221,7 @@ class NavWorlds:
         self.geom_button = np.array([int(n[6:]) if n.startswith("button") else -1 for n in names])
         self.geom_is_gremlin = np.array([n.startswith("gremlin") for n in names])
         self.geom_is_pillar = np.array([n.startswith("pillar") for n in names])
+        self._targets: dict[float, np.ndarray] = {}  # gremlin targets by simulation time
         threads = max(1, min(threads, num_envs))
         bounds = np.linspace(0, num_envs, threads + 1).astype(int)
         self.shares = [range(lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:])]
@@ -301,11 +305,7 @@ class NavWorlds:
                 m, d = models[i], datas[i]
                 d.ctrl[:] = ctrl[i]
                 for _ in range(FRAMESKIP):
-                    # every gremlin's mocap body to the same point on a circle, by the time (the
-                    # reference's arithmetic: numpy's sin and cos of the float time, times 0.35)
-                    phase = float(d.time)
-                    target = np.array([np.sin(phase), np.cos(phase)]) * GREMLIN_TRAVEL
-                    d.mocap_pos[:] = np.r_[target, [GREMLIN_SIZE]]
+                    d.mocap_pos[:] = self._gremlin_target(float(d.time))
                     step(m, d)
                 forward(m, d)
             return
@@ -314,6 +314,17 @@ class NavWorlds:
             d.ctrl[:] = ctrl[i]
             step(m, d, FRAMESKIP)  # FRAMESKIP steps in one call (one GIL release)
             forward(m, d)
+
+    def _gremlin_target(self, time: float) -> np.ndarray:
+        """Where every gremlin's mocap body goes before a physics step at ``time``: the same point
+        on a circle, with the reference's arithmetic (numpy's sin and cos of the float time, times
+        0.35). Every env runs through the same times (each starts at 0 and adds the same time
+        step), so each point is computed once and looked up after."""
+        pos = self._targets.get(time)
+        if pos is None:
+            target = np.array([np.sin(time), np.cos(time)]) * GREMLIN_TRAVEL
+            pos = self._targets[time] = np.r_[target, [GREMLIN_SIZE]]
+        return pos
 
     def close(self) -> None:
         if self.pool is not None:
