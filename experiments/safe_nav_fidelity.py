@@ -8,7 +8,9 @@ via our compatibility layer, same mujoco) reset with seeds ``seed + i`` and one 
 reset with ``seed`` (so each env draws the reference's layout), then the same actions for
 ``--steps`` steps (2100: two whole episodes and the automatic resets between them). The actions
 mostly steer each robot to its goal (with 30% uniform noise), so that goals are reached and hazards
-and vases hit. Printed per task: the largest difference of any observation entry (float64), of any
+and vases hit (Circle tasks: round the circle of radius 1.5, so that the sigwalls are crossed;
+Button tasks: to the goal button, and every other 80 steps to a wrong one; Push tasks: round the
+box to behind it, then through it towards the goal). Printed per task: the largest difference of any observation entry (float64), of any
 reward, the number of steps whose cost, terminated or truncated differ, whether the MuJoCo states
 (qpos, qvel, sensors) were equal bit for bit at every step, and what happened (goals, cost steps,
 episode ends). The JSON has the same figures.
@@ -35,10 +37,34 @@ from cmdp_rl.envs.safe_nav import TASKS, SafeNavVecEnv
 from cmdp_rl.envs.safety_gym import make_task
 
 
+def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
+    """The goal; on Circle tasks a point ahead on the circle of radius 1.5 (past the sigwalls); on
+    Button tasks a wrong button every other 80 steps (so that wrong buttons are pressed too)."""
+    if env.spec.family == "Circle":
+        phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
+        return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
+    if env.spec.family == "Push":  # round the box to behind it (seen from the goal), then through it
+        box = env._gather(range(env.num_envs))["xpos"][:, env.worlds.push_box, :2]
+        ahead = env.goal - box
+        ahead /= np.linalg.norm(ahead, axis=-1, keepdims=True) + 1e-9
+        rel = pos[:, :2] - box
+        normal = np.c_[-ahead[:, 1], ahead[:, 0]]
+        side = normal * np.sign(np.sum(rel * normal, axis=-1) + 1e-9)[:, None]
+        behind, past = box - 0.5 * ahead, np.sum(rel * ahead, axis=-1) > -0.25
+        ready = (np.linalg.norm(pos[:, :2] - behind, axis=-1) < 0.3) & ~past
+        around = box + 0.6 * side - 0.3 * ahead
+        return np.where(ready[:, None], box + 0.2 * ahead, np.where(past[:, None], around, behind))
+    if env.spec.family == "Button":
+        logic = env.logic
+        pick = (logic.goal_button + (env.steps // 80) % 2) % env.spec.buttons
+        return logic.buttons[np.arange(env.num_envs), pick]
+    return env.goal
+
+
 def steer(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
     world = env._gather(range(env.num_envs))
     pos, mat = world["agent_pos"], world["agent_mat"]
-    ego = np.einsum("ni,nij->nj", np.c_[env.goal - pos[:, :2], -pos[:, 2:]], mat)
+    ego = np.einsum("ni,nij->nj", np.c_[target(env, pos) - pos[:, :2], -pos[:, 2:]], mat)
     if env.spec.robot == "point":
         angle = np.arctan2(ego[:, 1], ego[:, 0])
         act = np.c_[np.where(np.abs(angle) < 0.6, 1.0, 0.1), np.clip(2 * angle, -1, 1)]

@@ -22,12 +22,37 @@ from cmdp_rl.envs.safety_gym import make_task  # noqa: E402
 from conftest import eval_result, metrics_rows  # noqa: E402
 
 
+def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
+    """Where each robot steers: its goal; on Circle tasks, a point ahead on a circle of radius 1.5
+    (so that the sigwalls are crossed); on Button tasks, a wrong button every other 80 steps (so
+    that wrong buttons are pressed too); on Push tasks, round the box and through it."""
+    if env.spec.family == "Circle":
+        phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
+        return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
+    if env.spec.family == "Push":  # round the box to behind it (seen from the goal), then through it
+        box = env._gather(range(env.num_envs))["xpos"][:, env.worlds.push_box, :2]
+        ahead = env.goal - box
+        ahead /= np.linalg.norm(ahead, axis=-1, keepdims=True) + 1e-9
+        rel = pos[:, :2] - box
+        normal = np.c_[-ahead[:, 1], ahead[:, 0]]
+        side = normal * np.sign(np.sum(rel * normal, axis=-1) + 1e-9)[:, None]
+        behind, past = box - 0.5 * ahead, np.sum(rel * ahead, axis=-1) > -0.25
+        ready = (np.linalg.norm(pos[:, :2] - behind, axis=-1) < 0.3) & ~past
+        around = box + 0.6 * side - 0.3 * ahead
+        return np.where(ready[:, None], box + 0.2 * ahead, np.where(past[:, None], around, behind))
+    if env.spec.family == "Button":
+        logic = env.logic
+        pick = (logic.goal_button + (env.steps // 80) % 2) % env.spec.buttons
+        return logic.buttons[np.arange(env.num_envs), pick]
+    return env.goal
+
+
 def toward_goal(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
-    """Actions that mostly steer each robot to its goal (so that goals are reached and hazards
+    """Actions that mostly steer each robot to its target (so that goals are reached and hazards
     crossed on the way), with some noise."""
     world = env._gather(range(env.num_envs))
     pos, mat = world["agent_pos"], world["agent_mat"]
-    ego = np.einsum("ni,nij->nj", np.c_[env.goal - pos[:, :2], -pos[:, 2:]], mat)
+    ego = np.einsum("ni,nij->nj", np.c_[target(env, pos) - pos[:, :2], -pos[:, 2:]], mat)
     if env.spec.robot == "point":  # forward, turn
         angle = np.arctan2(ego[:, 1], ego[:, 0])
         steer = np.c_[np.where(np.abs(angle) < 0.6, 1.0, 0.1), np.clip(2 * angle, -1, 1)]
@@ -38,22 +63,20 @@ def toward_goal(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
     return np.clip(0.7 * steer + 0.3 * rng.uniform(-1, 1, steer.shape), -1, 1).astype(np.float32)
 
 
-def compare(task: str, num_envs: int, steps: int, seed: int = 11) -> dict:
+def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int = 0) -> dict:
     """Step the batched env and ``num_envs`` reference envs side by side; assert equality step by
-    step and return what happened."""
-    refs = [make_task(f"Safety{task}-v0") for _ in range(num_envs)]
-    env = SafeNavVecEnv(task, num_envs)
+    step and return what happened (``max_steps``: shorter episodes on both sides)."""
+    refs = [make_task(f"Safety{task}-v0", max_steps) for _ in range(num_envs)]
+    env = SafeNavVecEnv(task, num_envs, max_steps)
     env.reset(seed=seed)
     ref_obs = np.stack([r.reset(seed=seed + i)[0] for i, r in enumerate(refs)])
-    for i, r in enumerate(refs):  # the same layout from the same seed
+    for i, r in enumerate(refs):  # the same layout from the same seed: every body placed alike
         model = r.inner.task.model
-        np.testing.assert_array_equal(env.goal[i], model.body("goal").pos[:2])
-        np.testing.assert_array_equal(env.layouts[i]["agent"], model.body("agent").pos[:2])
-        for k, xy in enumerate(env.hazards[i]):
-            np.testing.assert_array_equal(xy, model.body(f"hazard{k}").pos[:2])
+        np.testing.assert_array_equal(env.worlds.models[i].body_pos, model.body_pos)
+        np.testing.assert_array_equal(env.worlds.models[i].body_quat, model.body_quat)
     np.testing.assert_allclose(env._obs(list(range(num_envs)), env._gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12)
     rng = np.random.default_rng(0)
-    seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0}
+    seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0, "reward": 0.0, "cost_kinds": set()}
     for t in range(steps):
         action = toward_goal(env, rng)
         out = [r.step(a) for r, a in zip(refs, action)]
@@ -67,7 +90,9 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11) -> dict:
         np.testing.assert_array_equal(s.terminated[:, 0].numpy(), [o[2] for o in out], err_msg=f"step {t}")
         np.testing.assert_array_equal(s.truncated[:, 0].numpy(), [o[3] for o in out], err_msg=f"step {t}")
         seen["cost"] += cost.sum()
+        seen["reward"] += float(np.sum(env.last["reward"]))
         seen["goals"] += sum(o[4].get("goal_met", False) for o in out)
+        seen["cost_kinds"] |= {k for o in out for k, v in o[4].items() if k.startswith("cost_") and k != "cost_sum" and v}
         for r, o in zip(refs, out):
             if o[2] or o[3]:
                 seen["truncated"] += 1
@@ -83,6 +108,31 @@ def test_point_goal1_equals_the_reference_over_a_whole_episode_and_the_next_rese
 def test_car_goal2_equals_the_reference_vases_included():
     seen = compare("CarGoal2", num_envs=1, steps=150, seed=3)
     assert seen["goals"] >= 1 and seen["cost"] >= 1
+
+
+@pytest.mark.parametrize("task, num_envs, steps", [("PointCircle1", 1, 510), ("CarCircle2", 1, 300)])
+def test_circle_equals_the_reference(task, num_envs, steps):
+    """Circle: the circle reward, the sigwalls' cost (x only at level 1, x or y at level 2), the
+    500-step episode and the reset after it."""
+    seen = compare(task, num_envs=num_envs, steps=steps, seed=4)
+    assert seen["cost"] >= 20 and seen["reward"] > 1.0 and seen["goals"] == 0
+    assert seen["truncated"] == (1 if steps > 500 else 0)
+
+
+def test_button_equals_the_reference():
+    """Button: goal buttons pressed (reward, a new goal button, the 10-step timer blanking the
+    button lidar), hazards, gremlins (mocap bodies moved before every physics step) and wrong
+    buttons costing, and, with 150-step episodes, resets (each draws its layout and goal button)."""
+    seen = compare("CarButton2", num_envs=1, steps=330, seed=2, max_steps=150)
+    assert seen["goals"] >= 3 and seen["truncated"] == 2
+    assert seen["cost_kinds"] == {"cost_hazards", "cost_gremlins", "cost_buttons"}
+
+
+def test_push_equals_the_reference():
+    """Push: the robot-box and box-goal reward terms, the box reaching the goal (a new goal drawn
+    clear of where the robot, hazards, pillar and box are now), hazards, and a reset."""
+    seen = compare("CarPush1", num_envs=1, steps=260, seed=14, max_steps=200)
+    assert seen["goals"] >= 1 and seen["cost"] >= 5 and seen["truncated"] == 1
 
 
 def test_an_imposed_layout_gives_the_reference_trajectory():
@@ -126,8 +176,12 @@ def test_layouts_keep_their_distances(task):
 
 
 def test_tasks_not_implemented_are_refused_in_one_line():
-    with pytest.raises(ConfigError, match=r"^env.task: 'PointButton1' is not implemented in safe_nav yet"):
-        compose_config(["env=safe_nav", "env.task=PointButton1"])
+    with pytest.raises(ConfigError, match=r"^env.task: 'PointRun0' is not implemented in safe_nav yet"):
+        compose_config(["env=safe_nav", "env.task=PointRun0"])
+    with pytest.raises(ConfigError, match=r"^env.task: 'RacecarButton1' is not implemented in safe_nav yet"):
+        compose_config(["env=safe_nav", "env.task=RacecarButton1"])
+    with pytest.raises(ConfigError, match=r"env.max_steps must be in \[0, 500\]"):
+        compose_config(["env=safe_nav", "env.task=CarCircle1", "env.max_steps=600"])
     with pytest.raises(ConfigError, match="use env.task=CarGoal2"):
         compose_config(["env=safe_nav", "env.task=SafetyCarGoal2-v0"])
 
@@ -146,20 +200,23 @@ def test_ppo_lag_trains_and_a_resumed_run_equals_an_uninterrupted_one(tmp_path, 
 
 
 
-def test_threads_and_a_restored_state_give_the_same_steps():
+@pytest.mark.parametrize("task", ["PointGoal1", "PointCircle2", "CarButton2", "PointPush2"])
+def test_threads_and_a_restored_state_give_the_same_steps(task):
     """env.threads=2 steps the same worlds in two threads; a fresh env loaded from state_dict()
-    continues as the original does (goals, costs and resets included)."""
-    one, two = SafeNavVecEnv("PointGoal1", 4), SafeNavVecEnv("PointGoal1", 4, max_steps=40, threads=2)
-    one.max_steps = 40
+    continues as the original does (goals, costs, button timers and resets included)."""
+    one, two = SafeNavVecEnv(task, 4), SafeNavVecEnv(task, 4, max_steps=50, threads=2)
+    one.max_steps = 50
     one.reset(seed=2), two.reset(seed=2)
-    actions = torch.rand(60, 4, 2) * 2 - 1
-    for a in actions[:30]:
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        a = torch.from_numpy(toward_goal(two, rng))
         s1, s2 = one.step(a), two.step(a)
         for x, y in zip(s1, s2):
             assert torch.equal(x, y)
-    restored = SafeNavVecEnv("PointGoal1", 4, max_steps=40)
+    restored = SafeNavVecEnv(task, 4, max_steps=50)
     restored.load_state_dict(two.state_dict())
-    for a in actions[30:]:
+    for _ in range(40):
+        a = torch.from_numpy(toward_goal(two, rng))
         for x, y in zip(two.step(a), restored.step(a)):
             assert torch.equal(x, y)
     two.close()

@@ -9,42 +9,38 @@ reset recompiles the MuJoCo model; physics is a tenth of it. Here:
   numbers, bit for bit (tests/test_safe_nav.py);
 - layouts: drawn as the reference draws them, from one random stream per env seeded as gymnasium
   seeds a vector env, so a seed gives the reference's layouts (``safe_nav_layout.py``);
-- the task (reward, cost, observation, goal reached, time limit): numpy over the N envs, below.
+- the task family's logic (reward, cost, lidar observations, goal reached, time limit), numpy over
+  the N envs: one module per family (``safe_nav_goal.py``, ``safe_nav_circle.py``,
+  ``safe_nav_button.py``, ``safe_nav_push.py``), in ``FAMILIES``.
 
-The task, as Safety-Gymnasium 1.0.0 defines its Goal tasks (facts from its source, our code):
-reward = (last distance to goal - distance now) + 1 on reaching it (distance <= 0.3), clipped to
-[-10, 10]; a goal reached is replaced by a new one (the episode goes on; if no place is found the
-episode terminates). Cost = 1 on a step where the robot is inside a hazard (xy distance < 0.2) or,
-at level 2, touches a vase or a vase moves (speed >= 1e-4); else 0. Observation: the robot's
-accelerometer, velocimeter, gyro and magnetometer (Car adds its rear ball joint's angular velocity
-and rotation matrix), then a 16-bin pseudo-lidar per object kind (goal, hazards, vases): each object
-lights the bin of its egocentric angle with ``max(0, 3 - d) / 3`` (d its xy distance) and its two
-neighbours in proportion to where in the bin it lies; the closest wins. Episodes truncate at 1000
-steps.
+This module: the batch itself (physics step, the robot's sensors, which every family observes
+first: accelerometer, velocimeter, gyro and magnetometer, Car's rear ball joint's angular velocity
+and rotation matrix), the time limit, per-env automatic reset, and resume.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Annotated, Any
 
 import numpy as np
 import torch
 
 from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.safe_nav_button import ButtonTask
+from cmdp_rl.envs.safe_nav_circle import CircleTask
+from cmdp_rl.envs.safe_nav_goal import GoalTask
 from cmdp_rl.envs.safe_nav_layout import LayoutSampler
-from cmdp_rl.envs.safe_nav_world import (AGENT_KEEPOUT, GOAL_SIZE, HAZARD_KEEPOUT, HAZARD_SIZE, ROBOTS,
-                                         VASE_KEEPOUT, NavWorlds, nav_spec)
+from cmdp_rl.envs.safe_nav_lidar import LIDAR_BINS, pseudo_lidar
+from cmdp_rl.envs.safe_nav_push import PushTask
+from cmdp_rl.envs.safe_nav_world import ROBOTS, NavWorlds, nav_spec
 from cmdp_rl.envs.vector import Step, VecEnv
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, PositiveInt, options, require
 
-TASKS = tuple(f"{robot}Goal{level}" for robot in ROBOTS for level in (0, 1, 2))
-EPISODE = 1000
-LIDAR_BINS, LIDAR_MAX = 16, 3.0
-REWARD_CLIP = 10.0
-VASE_SPEED = 1e-4  # a vase moving at least this fast costs (level 2)
-_NOT_YET = ("Button", "Push", "Circle", "Run")
+# task family -> its logic (a module each)
+FAMILIES = {"Goal": GoalTask, "Circle": CircleTask, "Button": ButtonTask, "Push": PushTask}
+TASKS = tuple(f"{robot}{family}{level}" for family in FAMILIES for robot in ROBOTS for level in (0, 1, 2))
+_NOT_YET = ("Run",)
 _OTHER_ROBOTS = ("Racecar", "Doggo", "Ant")
 
 
@@ -87,28 +83,6 @@ def _quat_mat(q: np.ndarray) -> np.ndarray:
                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
 
 
-def pseudo_lidar(objects_xy: np.ndarray, agent_pos: np.ndarray, agent_mat: np.ndarray) -> np.ndarray:
-    """Safety-Gymnasium's pseudo-lidar of M objects per env: ``objects_xy`` ``[N, M, 2]``,
-    the robot's position ``[N, 3]`` and frame ``[N, 3, 3]`` -> ``[N, 16]``."""
-    n, m = objects_xy.shape[:2]
-    out = np.zeros((n, LIDAR_BINS))
-    if m == 0:
-        return out
-    world = np.concatenate([objects_xy, np.zeros((n, m, 1))], axis=-1) - agent_pos[:, None, :]
-    ego = np.matmul(world, agent_mat)  # the offset in the robot's frame (row vector times frame)
-    dist = np.hypot(ego[..., 0], ego[..., 1])
-    angle = np.arctan2(ego[..., 1], ego[..., 0]) % (2 * np.pi)
-    width = 2 * np.pi / LIDAR_BINS
-    bins = (angle / width).astype(np.int64) % LIDAR_BINS
-    reading = np.maximum(0.0, LIDAR_MAX - dist) / LIDAR_MAX
-    alias = (angle - width * bins) / width  # where in its bin: it lights the neighbours in proportion
-    rows = np.broadcast_to(np.arange(n)[:, None], bins.shape)
-    np.maximum.at(out, (rows, bins), reading)
-    np.maximum.at(out, (rows, (bins + 1) % LIDAR_BINS), alias * reading)
-    np.maximum.at(out, (rows, (bins - 1) % LIDAR_BINS), (1 - alias) * reading)
-    return out
-
-
 class SafeNavVecEnv(VecEnv):
     """N instances of one navigation task (module docstring), stepped as one batch on the CPU;
     tensors handed out live on ``device``."""
@@ -121,24 +95,25 @@ class SafeNavVecEnv(VecEnv):
         self.task = task
         self.spec = nav_spec(task)
         self.num_envs = num_envs
-        self.max_steps = max_steps or EPISODE
         self.device = torch.device(device)
         self.worlds = NavWorlds(self.spec, num_envs, threads)
         self.sampler = LayoutSampler(self.spec, num_envs)
+        self.logic = FAMILIES[self.spec.family](self.worlds, self.sampler)
+        self.max_steps = max_steps or self.logic.episode
         w = self.worlds
         self.sensors = _sensor_plan(w.models[0])
         self.action_dim = len(w.ctrl_low)
         self.action_low = torch.as_tensor(w.ctrl_low, dtype=torch.float32, device=self.device)
         self.action_high = torch.as_tensor(w.ctrl_high, dtype=torch.float32, device=self.device)
         sizes = {"raw": None, "sincos": 2, "quatmat": 9}
-        self.obs_dim = sum(sizes[how] or dim for how, _, dim in self.sensors)
-        self.obs_dim += LIDAR_BINS * (1 + (self.spec.level > 0) * 2)
-        n, h = num_envs, self.spec.hazards
-        self.layouts: list[dict[str, Any]] = [{} for _ in range(n)]
-        self.goal = np.zeros((n, 2))
-        self.hazards = np.zeros((n, h, 2))
-        self.last_dist = np.zeros(n)
-        self.steps = np.zeros(n, dtype=np.int64)
+        self.obs_dim = sum(sizes[how] or dim for how, _, dim in self.sensors) + LIDAR_BINS * self.logic.lidar_groups
+        self.layouts: list[dict[str, Any]] = [{} for _ in range(num_envs)]
+        self.steps = np.zeros(num_envs, dtype=np.int64)
+
+    @property
+    def goal(self) -> np.ndarray:
+        """Each env's goal xy ``[N, 2]`` (Goal tasks)."""
+        return self.logic.goal
 
     def close(self) -> None:
         self.worlds.close()
@@ -162,57 +137,21 @@ class SafeNavVecEnv(VecEnv):
                 cols += [np.sin(sd[:, adr:adr + 1]), np.cos(sd[:, adr:adr + 1])]
             else:
                 cols.append(_quat_mat(sd[:, adr:adr + 4]))
-        pos, mat = world["agent_pos"], world["agent_mat"]
-        cols.append(pseudo_lidar(self.goal[envs, None], pos, mat))
-        if self.spec.level > 0:
-            cols.append(pseudo_lidar(self.hazards[envs], pos, mat))
-            cols.append(pseudo_lidar(world["xpos"][:, self.worlds.vases, :2], pos, mat))
+        cols += self.logic.lidars(envs, world)
         return np.concatenate(cols, axis=1)
-
-    def _dist_goal(self, envs, world) -> np.ndarray:
-        d = self.goal[envs] - world["agent_pos"][:, :2]
-        return np.sqrt(np.sum(np.square(d), axis=-1))
-
-    def _vase_cost(self) -> np.ndarray:
-        """Level 2: a robot geom touching a vase, or a vase moving, costs."""
-        w = self.worlds
-        hit = np.zeros(self.num_envs, dtype=bool)
-        dofs = w.vase_dof[:, None] + np.arange(3)
-        for i, d in enumerate(w.datas):
-            if d.ncon:
-                g1, g2 = d.contact.geom1, d.contact.geom2
-                touch = (w.geom_is_vase[g1] & w.geom_is_robot[g2]) | (w.geom_is_robot[g1] & w.geom_is_vase[g2])
-                hit[i] = bool(np.any(touch))
-            if not hit[i]:
-                speed = np.sqrt(np.sum(np.square(d.qvel[dofs]), axis=-1))
-                hit[i] = bool(np.any(speed >= VASE_SPEED))
-        return hit
 
     # --- episodes ------------------------------------------------------------------------------
     def _start(self, envs: list[int], layouts: list[dict[str, Any]] | None = None) -> np.ndarray:
         """New episodes for ``envs`` (from new layouts, or the ones given); their first observations."""
-        for k, i in enumerate(envs):
-            layout = self.sampler.layout(i) if layouts is None else layouts[k]
+        if layouts is None:
+            layouts = [self.sampler.layout(i) for i in envs]
+        for i, layout in zip(envs, layouts):
             self.layouts[i] = layout
             self.worlds.place(i, layout)
-            self.goal[i] = layout["goal"]
-            self.hazards[i] = layout["hazards"]
         self.steps[envs] = 0
         world = self._gather(envs)
-        self.last_dist[envs] = self._dist_goal(envs, world)
+        self.logic.start(envs, layouts, world)
         return self._obs(envs, world)
-
-    def _new_goal(self, i: int, world: dict[str, np.ndarray], row: int) -> bool:
-        """Env ``i`` reached its goal: a new one, clear of where everything is now (False: none)."""
-        others = [(*world["agent_pos"][row, :2], AGENT_KEEPOUT)]
-        others += [(*xy, HAZARD_KEEPOUT) for xy in self.hazards[i]]
-        others += [(*xy, VASE_KEEPOUT) for xy in world["xpos"][row, self.worlds.vases, :2]]
-        goal = self.sampler.goal(i, others)
-        if goal is None:
-            return False
-        self.goal[i] = goal
-        self.worlds.move_goal(i, goal)
-        return True
 
     def start_from(self, i: int, layout: dict[str, Any]) -> torch.Tensor:
         """Env ``i`` starts a new episode from ``layout`` (``safe_nav_layout.py``'s keys: xy of the
@@ -235,21 +174,7 @@ class SafeNavVecEnv(VecEnv):
         self.worlds.step(action.detach().cpu().numpy().astype(np.float64))
         self.sampler.pending += 1  # the reference's per-step draw
         world = self._gather(range(n))
-        dist = self._dist_goal(every, world)
-        reached = dist <= GOAL_SIZE
-        reward = np.clip(self.last_dist - dist + reached * 1.0, -REWARD_CLIP, REWARD_CLIP)
-        agent_xy = world["agent_pos"][:, None, :2]
-        hazard_dist = np.sqrt(np.sum(np.square(self.hazards - agent_xy), axis=-1))
-        cost = np.any(hazard_dist < HAZARD_SIZE, axis=-1)  # the reference's cost > 0, as an indicator
-        if self.spec.vases_constrained:
-            cost |= self._vase_cost()
-        terminated = np.zeros(n, dtype=bool)
-        self.last_dist = dist
-        for i in np.flatnonzero(reached):
-            if self._new_goal(i, world, i):
-                self.last_dist[i] = math.sqrt(float(np.sum(np.square(self.goal[i] - world["agent_pos"][i, :2]))))
-            else:
-                terminated[i] = True
+        reward, cost, terminated = self.logic.step(world)
         self.steps += 1
         truncated = self.steps >= self.max_steps
         next_obs = self._obs(every, world)
@@ -265,8 +190,8 @@ class SafeNavVecEnv(VecEnv):
 
     # --- resume --------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        """Each env's layout, goal and MuJoCo integration state, the step counters and the random
-        streams: a fresh env restored from it continues bit for bit."""
+        """Each env's layout, task state (e.g. its goal) and MuJoCo integration state, the step
+        counters and the random streams: a fresh env restored from it continues bit for bit."""
         mj = self.worlds.mj
         spec = mj.mjtState.mjSTATE_INTEGRATION
         states = []
@@ -274,24 +199,21 @@ class SafeNavVecEnv(VecEnv):
             state = np.empty(mj.mj_stateSize(m, spec))
             mj.mj_getState(m, d, state, spec)
             states.append(state)
-        return {"num_envs": self.num_envs, "task": self.task, "layouts": self.layouts, "goal": self.goal.copy(),
-                "last_dist": self.last_dist.copy(), "steps": self.steps.copy(), "mujoco": states,
-                "sampler": self.sampler.state_dict()}
+        return {"num_envs": self.num_envs, "task": self.task, "layouts": self.layouts, "steps": self.steps.copy(),
+                "mujoco": states, "sampler": self.sampler.state_dict(), **self.logic.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state["num_envs"] != self.num_envs or state["task"] != self.task:
             raise ValueError(f"env: saved state is for {state['num_envs']} envs of {state['task']}, "
                              f"this one has {self.num_envs} of {self.task}")
         mj = self.worlds.mj
-        for i, (m, d) in enumerate(zip(self.worlds.models, self.worlds.datas)):
-            self.layouts[i] = state["layouts"][i]
-            self.worlds.place(i, self.layouts[i])
-            self.hazards[i] = self.layouts[i]["hazards"]
-            self.worlds.move_goal(i, state["goal"][i])
-            mj.mj_setState(m, d, state["mujoco"][i], mj.mjtState.mjSTATE_INTEGRATION)
+        for i, layout in enumerate(state["layouts"]):
+            self.layouts[i] = layout
+            self.worlds.place(i, layout)
+        self.logic.load_state_dict(state, self.layouts)
+        for m, d, saved in zip(self.worlds.models, self.worlds.datas, state["mujoco"]):
+            mj.mj_setState(m, d, saved, mj.mjtState.mjSTATE_INTEGRATION)
             mj.mj_forward(m, d)
-        self.goal[:] = state["goal"]
-        self.last_dist[:] = state["last_dist"]
         self.steps[:] = state["steps"]
         self.sampler.load_state_dict(state["sampler"])
 
@@ -313,7 +235,8 @@ class SafeNavEnvConfig(EnvOptions):
         problem = task_problem(self.task)
         if problem:
             raise ConfigError(problem)
-        require(self.max_steps <= EPISODE, "env.max_steps", f"in [0, {EPISODE}] (0: the task's limit)", self.max_steps)
+        episode = FAMILIES[nav_spec(self.task).family].episode
+        require(self.max_steps <= episode, "env.max_steps", f"in [0, {episode}] (0: the task's limit)", self.max_steps)
         import importlib.util
 
         if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:

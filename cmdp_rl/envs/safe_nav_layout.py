@@ -6,7 +6,12 @@ uniformly in the task's square shrunk by the object's keep-out radius, redrawing
 keep-out radii), and starting the whole layout over (up to 10,000 times) when one cannot be
 placed. Then it draws the rotations (robot, goal, each hazard, each vase) and, at once, a new goal
 place, kept clear of everything else the same way (up to 10,000 draws). Each env step it draws one
-more number (its physics step count, a binomial that is always 10 here).
+more number (its physics step count, a binomial that is always 10 here). An object with a fixed
+location (the Circle tasks' circle and sigwalls) is still drawn, within 1e-9 of it; the Circle
+tasks' robot is drawn in its own square, ``[-0.8, 0.8]^2``, with no keep-out, and they draw no goal.
+The Button tasks place the robot, buttons, goal, hazards and gremlins, draw no new goal place (the
+goal is a button, chosen with ``choice``); the Push tasks place the robot, goal, hazards, pillars
+and the box, then draw a goal place as the Goal tasks do.
 
 Each env here has its own ``numpy.random.RandomState``, seeded as gymnasium seeds a vector env's
 envs (``seed + i``), and makes the same draws in the same order, so a seed gives the same layouts
@@ -21,10 +26,40 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav_world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT, NavSpec
+from cmdp_rl.envs.safe_nav_world import (AGENT_KEEPOUT, BUTTON_GOAL_KEEPOUT, BUTTON_HAZARD_KEEPOUT, BUTTON_KEEPOUT,
+                                         GOAL_KEEPOUT, GREMLIN_KEEPOUT, HAZARD_KEEPOUT, PILLAR_KEEPOUT, PUSH_BOX,
+                                         PUSH_GOAL_KEEPOUT, PUSH_HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT, NavSpec)
 
 LAYOUT_TRIES = 10_000  # whole layouts, and goal places mid-episode
 OBJECT_TRIES = 100  # places per object within one layout
+FIXED_SLACK = 1e-9  # a fixed location is drawn within this of its place (as the reference does)
+SINGLE = ("agent", "goal", "circle", "push_box")  # kinds with one object: a layout holds its xy and rotation plainly
+Box = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax
+
+
+def _fixed(x: float, y: float, keepout: float) -> Box:
+    k = keepout + FIXED_SLACK
+    return (x - k, y - k, x + k, y + k)
+
+
+def placements(spec: NavSpec) -> list[tuple[str, float, Box | None]]:
+    """The objects a layout places, in the reference's order: (kind, keep-out radius, the box it is
+    drawn in, or None for the task's square)."""
+    if spec.family == "Circle":
+        walls = [(SIGWALL_AT, 0.0), (-SIGWALL_AT, 0.0), (0.0, SIGWALL_AT), (0.0, -SIGWALL_AT)]
+        return ([("agent", 0.0, (-0.8, -0.8, 0.8, 0.8)), ("circle", 0.0, _fixed(0.0, 0.0, 0.0))]
+                + [("sigwalls", 0.0, _fixed(*walls[k], 0.0)) for k in range(spec.sigwalls)])
+    if spec.family == "Button":
+        return ([("agent", AGENT_KEEPOUT, None)] + [("buttons", BUTTON_KEEPOUT, None)] * spec.buttons
+                + [("goal", BUTTON_GOAL_KEEPOUT, None)] + [("hazards", BUTTON_HAZARD_KEEPOUT, None)] * spec.hazards
+                + [("gremlins", GREMLIN_KEEPOUT, None)] * spec.gremlins)
+    if spec.family == "Push":
+        return ([("agent", AGENT_KEEPOUT, None), ("goal", PUSH_GOAL_KEEPOUT, None)]
+                + [("hazards", PUSH_HAZARD_KEEPOUT, None)] * spec.hazards
+                + [("pillars", PILLAR_KEEPOUT, None)] * spec.pillars
+                + [("push_box", PUSH_BOX[spec.robot][0], None)])
+    return ([("agent", AGENT_KEEPOUT, None), ("goal", GOAL_KEEPOUT, None)]
+            + [("hazards", HAZARD_KEEPOUT, None)] * spec.hazards + [("vases", VASE_KEEPOUT, None)] * spec.vases)
 
 
 class LayoutError(RuntimeError):
@@ -47,8 +82,8 @@ class LayoutSampler:
 
     def __init__(self, spec: NavSpec, num_envs: int) -> None:
         self.spec = spec
-        self.objects = ([("agent", AGENT_KEEPOUT), ("goal", GOAL_KEEPOUT)]
-                        + [("hazards", HAZARD_KEEPOUT)] * spec.hazards + [("vases", VASE_KEEPOUT)] * spec.vases)
+        self.objects = placements(spec)
+        self.kinds = list(dict.fromkeys([k for k, _, _ in self.objects] + ["hazards", "vases", "pillars"]))
         self.rngs = [np.random.RandomState(0) for _ in range(num_envs)]
         self.pending = np.zeros(num_envs, dtype=np.int64)
 
@@ -63,19 +98,20 @@ class LayoutSampler:
             self.pending[i] = 0
         return rng
 
-    def _draw(self, rng: np.random.RandomState, keepout: float) -> tuple[float, float]:
+    def _draw(self, rng: np.random.RandomState, keepout: float, box: Box | None = None) -> tuple[float, float]:
         e = self.spec.extent
-        lo, hi = -e + keepout, e - keepout
-        return rng.uniform(lo, hi), rng.uniform(lo, hi)
+        xmin, ymin, xmax, ymax = box if box is not None else (-e, -e, e, e)
+        return rng.uniform(xmin + keepout, xmax - keepout), rng.uniform(ymin + keepout, ymax - keepout)
 
     def layout(self, i: int) -> dict[str, Any]:
-        """A new layout for env ``i``: xy of the robot, goal, hazards and vases, and rotations."""
+        """A new layout for env ``i``: xy of each object (``hazards``, ``vases``, ``sigwalls``:
+        ``[count, 2]``) and its rotation (``<kind>_rot``)."""
         rng = self._rng(i)
         for _ in range(LAYOUT_TRIES):
             placed: list[tuple[float, float, float]] = []
-            for _, keepout in self.objects:
+            for _, keepout, box in self.objects:
                 for _ in range(OBJECT_TRIES):
-                    xy = self._draw(rng, keepout)
+                    xy = self._draw(rng, keepout, box)
                     if _clear(xy, keepout, placed):
                         placed.append((*xy, keepout))
                         break
@@ -85,29 +121,40 @@ class LayoutSampler:
                 break
         else:
             raise LayoutError(f"safe_nav: no layout found in {LAYOUT_TRIES} tries")
-        h, v = self.spec.hazards, self.spec.vases
         xy = np.array([p[:2] for p in placed])
         two_pi = 2 * np.pi
-        rots = [rng.uniform(0, two_pi) for _ in range(2 + h + v)]
-        layout = {"agent": xy[0], "agent_rot": rots[0], "goal_rot": rots[1],
-                  "hazards": xy[2:2 + h], "hazards_rot": rots[2:2 + h],
-                  "vases": xy[2 + h:], "vases_rot": rots[2 + h:]}
-        # The goal drawn with the layout only reserved room; the episode's goal is drawn anew.
-        others = [(*layout["agent"], AGENT_KEEPOUT)] + [(*p, HAZARD_KEEPOUT) for p in layout["hazards"]]
-        others += [(*p, VASE_KEEPOUT) for p in layout["vases"]]
-        goal = self.goal(i, others)
+        rots = [rng.uniform(0, two_pi) for _ in self.objects]
+        layout: dict[str, Any] = {}
+        for kind in self.kinds:
+            at = [k for k, (name, _, _) in enumerate(self.objects) if name == kind]
+            if kind in SINGLE:
+                layout[kind], layout[f"{kind}_rot"] = xy[at[0]], rots[at[0]]
+            else:
+                layout[kind], layout[f"{kind}_rot"] = xy[at].reshape(-1, 2), [rots[k] for k in at]
+        if self.spec.family not in ("Goal", "Push"):
+            return layout
+        # The goal drawn with the layout only reserved room; the episode's goal is drawn anew,
+        # clear of the others (keep-outs as placed).
+        keepout = {kind: k for kind, k, _ in self.objects}
+        others = [(*p, k) for (kind, k, _), p in zip(self.objects, xy) if kind != "goal"]
+        goal = self.goal(i, others, keepout["goal"])
         if goal is None:
             raise LayoutError(f"safe_nav: no goal place found in {LAYOUT_TRIES} tries")
         layout["goal"] = goal
         return layout
 
-    def goal(self, i: int, others: list[tuple[float, float, float]]) -> np.ndarray | None:
+    def choice(self, i: int, n: int) -> int:
+        """One ``RandomState.choice(n)`` from env ``i``'s stream (the Button tasks' goal button)."""
+        return int(self._rng(i).choice(n))
+
+    def goal(self, i: int, others: list[tuple[float, float, float]],
+             keepout: float = GOAL_KEEPOUT) -> np.ndarray | None:
         """A goal place for env ``i`` clear of ``others`` (x, y, keep-out), or None if none was
         found (the reference then ends the episode)."""
         rng = self._rng(i)
         for _ in range(LAYOUT_TRIES):
-            xy = self._draw(rng, GOAL_KEEPOUT)
-            if _clear(xy, GOAL_KEEPOUT, others):
+            xy = self._draw(rng, keepout)
+            if _clear(xy, keepout, others):
                 return np.array(xy)
         return None
 
