@@ -286,10 +286,16 @@ class OffPolicy:
         """``(min_j Q_j(s, a) - sum_k lambda_k Q_c,k(s, a), Q_c(s, a))`` on features ``x`` and a
         scaled action: what the actor ascends (the Lagrangian of Ha et al. 2020), and the cost
         estimate the multiplier reads."""
+        if not any(self.lagrange.values):
+            # lambda = 0 (or unconstrained): the cost term adds nothing to the actor's gradient; Q_c is read without a
+            # graph, which spares its backward (a third of the actor step's critic backward).
+            q_r = self.q_values(reward_critics, x, action)
+            with torch.no_grad():
+                (q_c,) = self.q_values((Q_COST,), x, action)
+            return (q_r[0] if len(q_r) == 1 else torch.min(*q_r)), q_c
         *q_r, q_c = self.q_values((*reward_critics, Q_COST), x, action)
         q_r = q_r[0] if len(q_r) == 1 else torch.min(*q_r)
-        lams = self.lagrange.weights(q_c.device)
-        return (q_r if lams is None else q_r - (q_c * lams).sum(-1, keepdim=True)), q_c
+        return q_r - (q_c * self.lagrange.weights(x.device)).sum(-1, keepdim=True), q_c
 
     # --- what an algorithm provides -------------------------------------------------------------
     def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
