@@ -120,13 +120,14 @@ class TargetCritics:
     def __init__(self, modules: dict[str, nn.Module]) -> None:
         self.live = modules
         self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}
+        # Listed once (load_state_dict copies into these tensors): one lerp over all of them a step.
+        self._pairs = ([p for k in modules for p in self.target[k].parameters()],
+                       [p for m in modules.values() for p in m.parameters()])
 
     @torch.no_grad()
     def soft_update(self, tau: float) -> None:
         """``theta' <- tau theta + (1 - tau) theta'`` (Haarnoja et al. 2018b; Fujimoto et al. 2018)."""
-        for k, m in self.live.items():
-            tp, lp = list(self.target[k].parameters()), list(m.parameters())
-            torch._foreach_lerp_(tp, lp, tau)
+        torch._foreach_lerp_(*self._pairs, tau)
 
     def state_dict(self) -> dict:
         return {k: m.state_dict() for k, m in self.target.items()}
