@@ -9,7 +9,8 @@ Per algorithm: the buffer is filled by the warm-up (random actions), then ``iter
 of collect + update run through the trainer's pieces. It prints this process's CPU time
 (``time.process_time``, what a free core would give on a shared machine) per gradient step inside
 ``algo.update``, and env steps per CPU second for collection and update together, with the load
-average. ``--profile``: cProfile's top entries of the timed updates instead. Before/after figures of
+average, and the float32 matmul rate of one thread (the step is mostly 256-wide matmuls: about
+0.8 GFLOP a SAC step, docs/off_policy.md). ``--profile``: cProfile's top entries of the timed updates instead. Before/after figures of
 a change are two runs of this script on the two commits (docs/off_policy.md, "Speed").
 """
 
@@ -75,6 +76,18 @@ def measure(algo_name: str, iterations: int, profile: bool, lambda_init: float) 
     env.close()
 
 
+def matmul_rate(size: int = 256, repeats: int = 300) -> float:
+    """GFLOP/s of one [size, size] x [size, size] float32 matmul on one thread (the floor's unit:
+    a 256 x 256 layer at batch 256)."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    for _ in range(20):
+        a @ b
+    start = time.process_time()
+    for _ in range(repeats):
+        a @ b
+    return 2 * size**3 * repeats / (time.process_time() - start) / 1e9
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--iterations", type=int, default=15, help="timed iterations (64 env steps each)")
@@ -85,6 +98,8 @@ def main() -> None:
                              "through the cost critic (at 0 it reads Q_c without a graph)")
     args = parser.parse_args()
     print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s) before the config applies 1")
+    torch.set_num_threads(1)
+    print(f"float32 matmul 256^3 on one thread: {matmul_rate():.0f} GFLOP/s", flush=True)
     for name in args.algos:
         measure(name, args.iterations, args.profile, args.lambda_init)
 

@@ -10,7 +10,8 @@
   ``E[Q_c,k(s, pi(s))] - d_k``, the budget on the discounted scale (``off_policy.discounted_budget``).
 
 log pi is measured in the squashed [-1, 1] action units (the env-unit density plus
-``sum log half_width``), so that the target entropy -dim(A) means the same on any box.
+``sum log half_width``: :meth:`SAC.sample`), so that the target entropy -dim(A) means the same on
+any box; the critics read actions in the same units.
 """
 
 from __future__ import annotations
