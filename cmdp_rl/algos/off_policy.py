@@ -33,7 +33,7 @@ from cmdp_rl import keys
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers, PIDLagrangian
 from cmdp_rl.algos.ppo import logged_multiplier
-from cmdp_rl.policies.agent import Agent, Critic
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, to_off_policy
 from cmdp_rl.validation import (
     AUTO, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt, finite, options, require,
@@ -120,13 +120,14 @@ class TargetCritics:
     def __init__(self, modules: dict[str, nn.Module]) -> None:
         self.live = modules
         self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}
+        # Listed once (load_state_dict copies into these tensors): one lerp over all of them a step.
+        self._pairs = ([p for k in modules for p in self.target[k].parameters()],
+                       [p for m in modules.values() for p in m.parameters()])
 
     @torch.no_grad()
     def soft_update(self, tau: float) -> None:
         """``theta' <- tau theta + (1 - tau) theta'`` (Haarnoja et al. 2018b; Fujimoto et al. 2018)."""
-        for k, m in self.live.items():
-            tp, lp = list(self.target[k].parameters()), list(m.parameters())
-            torch._foreach_lerp_(tp, lp, tau)
+        torch._foreach_lerp_(*self._pairs, tau)
 
     def state_dict(self) -> dict:
         return {k: m.state_dict() for k, m in self.target.items()}
@@ -134,10 +135,6 @@ class TargetCritics:
     def load_state_dict(self, state: dict) -> None:
         for k, m in self.target.items():
             m.load_state_dict(state[k])
-
-
-def target_critic(critic: Critic, net: nn.Module) -> Critic:
-    return Critic(critic.body, net)
 
 
 def td_target(signal: torch.Tensor, terminated: torch.Tensor, gamma: float, next_value: torch.Tensor) -> torch.Tensor:
@@ -247,48 +244,68 @@ class OffPolicy:
         self.steps_due = 0.0  # fractional gradient steps carried over (utd_ratio < 1)
         self.gradient_steps = 0
 
-    def target(self, name: str) -> Critic:
-        return target_critic(self.agent.critics[name], self.targets.target[name])
+    # The critics are called on their output networks with the inputs prepared once per gradient
+    # step (the observation normalized once, the action scaled to [-1, 1] once, one concatenation
+    # for all critics) rather than through Critic/QBody per call (docs/off_policy.md, "Speed").
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        """The observation as the actor's body (and every Q-critic's) prepares it."""
+        return self.agent.actor.body({keys.OBS: obs})[0]
 
-    def q(self, name: str, obs: dict, action: torch.Tensor) -> torch.Tensor:
-        return self.agent.critics[name]({**obs, keys.ACTION: action})
+    def scaled(self, action: torch.Tensor) -> torch.Tensor:
+        """An env-unit action in the critics' [-1, 1] units (QBody's scaling)."""
+        body = self.agent.critics[Q_COST].body
+        return (action - body.center) / body.half_width
 
-    def critic_loss(self, mb: TensorDictBase) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def q_values(self, names: tuple[str, ...], x: torch.Tensor, a: torch.Tensor, target: bool = False) -> list[torch.Tensor]:
+        """``Q_n(s, a)`` of each critic in ``names`` (live or target) on features ``x`` and a scaled action."""
+        h = torch.cat([x, a], dim=-1)
+        nets = self.targets.target if target else {n: self.agent.critics[n].net for n in names}
+        return [nets[n](h) for n in names]
+
+    def critic_loss(self, mb: TensorDictBase, x: torch.Tensor | None = None,
+                    x_next: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Both reward twins and the cost critic regress on one-step TD targets with the same next
         action a' (the algorithm's): ``r + gamma (1 - term) (min_j Q'_j(s', a') + bonus)`` and
-        ``c + gamma_c (1 - term) Q'_c(s', a')`` (Haarnoja et al. 2018b eq. 5; Fujimoto et al. 2018 eq. 10)."""
+        ``c + gamma_c (1 - term) Q'_c(s', a')`` (Haarnoja et al. 2018b eq. 5; Fujimoto et al. 2018 eq. 10).
+        ``x``, ``x_next``: the batch's observation features if already computed."""
         cfg = self.cfg
-        nxt = {k: mb.get((keys.NEXT, k)) for k in self.agent.actor.body.in_keys}
+        x = self.features(mb.get(keys.OBS)) if x is None else x
+        x_next = self.features(mb.get((keys.NEXT, keys.OBS))) if x_next is None else x_next
         term = mb.get((keys.NEXT, keys.TERMINATED))
         with torch.no_grad():
-            a_next, bonus = self.next_action(nxt)
-            q_next = torch.min(*[self.target(n)({**nxt, keys.ACTION: a_next}) for n in Q_REWARD]) + bonus
-            y = td_target(mb.get((keys.NEXT, keys.REWARD)), term, cfg.gamma, q_next)
-            y_c = td_target(mb.get((keys.NEXT, keys.COST)), term, cfg.cost_gamma,
-                            self.target(Q_COST)({**nxt, keys.ACTION: a_next}))
-        obs = {k: mb.get(k) for k in self.agent.actor.body.in_keys}
-        q = [self.q(n, obs, mb.get(keys.ACTION)) for n in Q_REWARD]
-        loss_q = sum((qi - y).pow(2).mean() for qi in q)
-        loss_qc = (self.q(Q_COST, obs, mb.get(keys.ACTION)) - y_c).pow(2).mean()
-        return loss_q + loss_qc, {"loss_q": loss_q.detach(), "loss_qc": loss_qc.detach(), "q_reward": q[0].mean().detach()}
+            a_next, bonus = self.next_action(x_next)
+            q1, q2, q_c_next = self.q_values((*Q_REWARD, Q_COST), x_next, a_next, target=True)
+            y = td_target(mb.get((keys.NEXT, keys.REWARD)), term, cfg.gamma, torch.min(q1, q2) + bonus)
+            y_c = td_target(mb.get((keys.NEXT, keys.COST)), term, cfg.cost_gamma, q_c_next)
+        q1, q2, q_c = self.q_values((*Q_REWARD, Q_COST), x, self.scaled(mb.get(keys.ACTION)))
+        loss_q = (q1 - y).pow(2).mean() + (q2 - y).pow(2).mean()
+        loss_qc = (q_c - y_c).pow(2).mean()
+        return loss_q + loss_qc, {"loss_q": loss_q.detach(), "loss_qc": loss_qc.detach(), "q_reward": q1.mean().detach()}
 
-    def penalised_q(self, obs: dict, action: torch.Tensor,
+    def penalised_q(self, x: torch.Tensor, action: torch.Tensor,
                     reward_critics: tuple[str, ...] = Q_REWARD) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(min_j Q_j(s, a) - sum_k lambda_k Q_c,k(s, a), Q_c(s, a))``: what the actor ascends
-        (the Lagrangian of Ha et al. 2020), and the cost estimate the multiplier reads."""
-        q_r = [self.q(n, obs, action) for n in reward_critics]
+        """``(min_j Q_j(s, a) - sum_k lambda_k Q_c,k(s, a), Q_c(s, a))`` on features ``x`` and a
+        scaled action: what the actor ascends (the Lagrangian of Ha et al. 2020), and the cost
+        estimate the multiplier reads."""
+        if not any(self.lagrange.values):
+            # lambda = 0 (or unconstrained): the cost term adds nothing to the actor's gradient; Q_c is read without a
+            # graph, which spares its backward (a third of the actor step's critic backward).
+            q_r = self.q_values(reward_critics, x, action)
+            with torch.no_grad():
+                (q_c,) = self.q_values((Q_COST,), x, action)
+            return (q_r[0] if len(q_r) == 1 else torch.min(*q_r)), q_c
+        *q_r, q_c = self.q_values((*reward_critics, Q_COST), x, action)
         q_r = q_r[0] if len(q_r) == 1 else torch.min(*q_r)
-        q_c = self.q(Q_COST, obs, action)
-        lams = self.lagrange.weights(q_c.device)
-        return (q_r if lams is None else q_r - (q_c * lams).sum(-1, keepdim=True)), q_c
+        return q_r - (q_c * self.lagrange.weights(x.device)).sum(-1, keepdim=True), q_c
 
     # --- what an algorithm provides -------------------------------------------------------------
-    def next_action(self, nxt: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """The TD target's next action and the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
+    def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The TD target's next action (scaled to [-1, 1]) on the next observation's features, and
+        the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
         raise NotImplementedError
 
-    def actor_step(self, obs: dict) -> dict[str, torch.Tensor] | None:
-        """One actor (and temperature) step; returns its statistics with ``q_cost`` ``[K]``, or None
+    def actor_step(self, x: torch.Tensor) -> dict[str, torch.Tensor] | None:
+        """One actor (and temperature) step on the observation features ``x``; returns its statistics with ``q_cost`` ``[K]``, or None
         (a delayed step)."""
         raise NotImplementedError
 
@@ -305,12 +322,13 @@ class OffPolicy:
         counts: dict[str, int] = {}
         for _ in range(n):
             mb = self.replay.sample()
-            loss, stats = self.critic_loss(mb)
+            x = self.features(mb.get(keys.OBS))
+            loss, stats = self.critic_loss(mb, x, self.features(mb.get((keys.NEXT, keys.OBS))))
             self.critic_opt.zero_grad(set_to_none=True)
             loss.backward()
             self.critic_opt.step()
             self.gradient_steps += 1
-            actor = self.actor_step({k: mb.get(k) for k in self.agent.actor.body.in_keys})
+            actor = self.actor_step(x)
             if actor is not None:
                 stats.update(actor)
                 self.targets.soft_update(cfg.tau)  # every step for SAC; delayed with the actor for TD3

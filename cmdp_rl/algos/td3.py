@@ -46,22 +46,21 @@ class TD3(OffPolicy):
         super().__init__(cfg, agent)
         self.target_actor = TargetCritics({"actor": agent.actor.head.net})
 
-    def mu(self, obs: dict, target: bool = False) -> torch.Tensor:
-        head = self.agent.actor.head
-        net = self.target_actor.target["actor"] if target else head.net
-        return head.center + head.half_width * torch.tanh(net(*self.agent.actor.body(obs)))
+    def mu(self, x: torch.Tensor, target: bool = False) -> torch.Tensor:
+        """The deterministic action on features ``x``, in the [-1, 1] units (``tanh(net)``)."""
+        net = self.target_actor.target["actor"] if target else self.agent.actor.head.net
+        return torch.tanh(net(x))
 
-    def next_action(self, nxt: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        head, cfg = self.agent.actor.head, self.cfg
-        action = self.mu(nxt, target=True)
+    def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        cfg = self.cfg
+        action = self.mu(x_next, target=True)
         noise = (torch.randn_like(action) * cfg.target_noise).clamp(-cfg.noise_clip, cfg.noise_clip)  # eq. 14
-        action = torch.maximum(torch.minimum(action + noise * head.half_width, head.high), head.low)
-        return action, torch.zeros(())
+        return (action + noise).clamp(-1.0, 1.0), torch.zeros(())  # noise in half-widths, clipped to the box
 
-    def actor_step(self, obs: dict) -> dict[str, torch.Tensor] | None:
+    def actor_step(self, x: torch.Tensor) -> dict[str, torch.Tensor] | None:
         if self.gradient_steps % self.cfg.policy_delay:
             return None  # delayed policy updates (Algorithm 1)
-        q_pen, q_c = self.penalised_q(obs, self.mu(obs), reward_critics=Q_REWARD[:1])
+        q_pen, q_c = self.penalised_q(x, self.mu(x), reward_critics=Q_REWARD[:1])
         loss_pi = -q_pen.mean()  # the deterministic policy gradient on Q_1 (Algorithm 1)
         self.actor_opt.zero_grad(set_to_none=True)
         loss_pi.backward(inputs=self.actor_params)  # the actor's loss moves the actor only
