@@ -39,7 +39,8 @@ from cmdp_rl.envs.safety_gym import make_task
 
 def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
     """The goal; on Circle tasks a point ahead on the circle of radius 1.5 (past the sigwalls); on
-    Button tasks a wrong button every other 80 steps (so that wrong buttons are pressed too)."""
+    Button tasks a wrong button every other 80 steps (so that wrong buttons are pressed too); on
+    Push tasks round the box and through it."""
     if env.spec.family == "Circle":
         phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
         return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
@@ -62,6 +63,8 @@ def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
 
 
 def steer(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
+    """Actions that mostly steer each robot to its :func:`target` (so that goals are reached and
+    hazards crossed on the way), with some noise; also tests/test_safe_nav.py's actions."""
     world = env._gather(range(env.num_envs))
     pos, mat = world["agent_pos"], world["agent_mat"]
     ego = np.einsum("ni,nij->nj", np.c_[target(env, pos) - pos[:, :2], -pos[:, 2:]], mat)

@@ -6,6 +6,7 @@ episode, goals reached, hazards entered and the automatic reset included.
 """
 
 import importlib.util
+import sys
 
 import numpy as np
 import pytest
@@ -19,48 +20,10 @@ from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safe_nav import SafeNavVecEnv  # noqa: E402
 from cmdp_rl.envs.safe_nav_world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
 from cmdp_rl.envs.safety_gym import make_task  # noqa: E402
-from conftest import eval_result, metrics_rows  # noqa: E402
+from conftest import ROOT, eval_result, metrics_rows  # noqa: E402
 
-
-def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
-    """Where each robot steers: its goal; on Circle tasks, a point ahead on a circle of radius 1.5
-    (so that the sigwalls are crossed); on Button tasks, a wrong button every other 80 steps (so
-    that wrong buttons are pressed too); on Push tasks, round the box and through it."""
-    if env.spec.family == "Circle":
-        phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
-        return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
-    if env.spec.family == "Push":  # round the box to behind it (seen from the goal), then through it
-        box = env._gather(range(env.num_envs))["xpos"][:, env.worlds.push_box, :2]
-        ahead = env.goal - box
-        ahead /= np.linalg.norm(ahead, axis=-1, keepdims=True) + 1e-9
-        rel = pos[:, :2] - box
-        normal = np.c_[-ahead[:, 1], ahead[:, 0]]
-        side = normal * np.sign(np.sum(rel * normal, axis=-1) + 1e-9)[:, None]
-        behind, past = box - 0.5 * ahead, np.sum(rel * ahead, axis=-1) > -0.25
-        ready = (np.linalg.norm(pos[:, :2] - behind, axis=-1) < 0.3) & ~past
-        around = box + 0.6 * side - 0.3 * ahead
-        return np.where(ready[:, None], box + 0.2 * ahead, np.where(past[:, None], around, behind))
-    if env.spec.family == "Button":
-        logic = env.logic
-        pick = (logic.goal_button + (env.steps // 80) % 2) % env.spec.buttons
-        return logic.buttons[np.arange(env.num_envs), pick]
-    return env.goal
-
-
-def toward_goal(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
-    """Actions that mostly steer each robot to its target (so that goals are reached and hazards
-    crossed on the way), with some noise."""
-    world = env._gather(range(env.num_envs))
-    pos, mat = world["agent_pos"], world["agent_mat"]
-    ego = np.einsum("ni,nij->nj", np.c_[target(env, pos) - pos[:, :2], -pos[:, 2:]], mat)
-    if env.spec.robot == "point":  # forward, turn
-        angle = np.arctan2(ego[:, 1], ego[:, 0])
-        steer = np.c_[np.where(np.abs(angle) < 0.6, 1.0, 0.1), np.clip(2 * angle, -1, 1)]
-    else:  # car: left and right wheels; it faces -y
-        angle = np.arctan2(-ego[:, 0], -ego[:, 1])
-        forward, turn = np.where(np.abs(angle) < 0.6, 1.0, 0.0), np.clip(2 * angle, -1, 1)
-        steer = np.c_[forward - turn, forward + turn]
-    return np.clip(0.7 * steer + 0.3 * rng.uniform(-1, 1, steer.shape), -1, 1).astype(np.float32)
+sys.path.insert(0, str(ROOT / "experiments"))
+from safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the steering the fidelity table uses)
 
 
 def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int = 0) -> dict:
