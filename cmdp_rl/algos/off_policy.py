@@ -8,13 +8,19 @@ transitions to the buffer, then runs ``utd_ratio`` gradient steps per new transi
 holds ``warmup_steps`` (the trainer's collector acts uniformly at random until then:
 ``uniform_action_steps``).
 
-The cost budget. The multiplier compares the cost critic's estimate ``E_s[Q_c(s, pi(s))]`` over
-replayed states with a budget on the discounted scale: an episode budget ``d`` spent uniformly over
+The cost budget. The multiplier compares the cost critic's estimate ``E_s[Q_c(s, pi(s))]`` over the
+states of the newest ``cost_window`` transitions (:meth:`OffPolicy.cost_estimate`) with a budget on
+the discounted scale: an episode budget ``d`` spent uniformly over
 an episode of ``T`` steps is ``d / T`` per step, whose discounted sum from the episode's start is
 :func:`discounted_budget` ``= d (1 - gamma^T) / (T (1 - gamma))``; the conversion of the
 Safety-Starter-Agents SAC-Lagrangian and of WCSAC (Yang et al. 2021). For ``T >> 1/(1 - gamma)``
 it is the per-step-rate form ``d / (T (1 - gamma))`` (Q_c of a stationary cost rate ``d / T``).
 What it assumes: cost spread evenly over the episode (docs/off_policy.md).
+
+Why the newest states and not the replayed minibatches': a uniform sample of the buffer comes mostly
+from older, different policies. On HalfCheetah at 100k steps the replayed-state estimate sat at the
+budget while the current policy's cost on its own states was about 1.7 times it, and lambda drifted
+down with every seed over budget (docs/off_policy.md, "The multiplier's estimate").
 """
 
 from __future__ import annotations
@@ -66,6 +72,9 @@ class LagrangeFields:
     ki: NonNegativeFloat = 0.01
     kd: NonNegativeFloat = 0.0
     lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
+    # The multiplier's Q_c estimate averages over the states of the newest cost_window transitions
+    # (the current policy's own); 0 averages over the replayed minibatches' states instead (module docstring).
+    cost_window: NonNegativeInt = 1000
     # T of the budget conversion: "auto" reads the env's time limit (env.max_steps).
     episode_length: Annotated[Union[PositiveInt, Literal["auto"]], Field(
         description="a positive integer or 'auto'")] = AUTO
@@ -162,6 +171,13 @@ class Replay:
 
     def sample(self) -> TensorDictBase:
         return self.buffer.sample()
+
+    def newest(self, n: int) -> TensorDictBase:
+        """The ``n`` transitions added last (all, if fewer are stored), oldest first: the writer's
+        cursor is the next row it overwrites, so the newest rows end just before it, modulo capacity."""
+        n = min(n, len(self.buffer))
+        cursor = self.buffer.writer.state_dict()["_cursor"]
+        return self.buffer.storage.get((cursor - n + torch.arange(n)) % self.buffer.storage.max_size)
 
     def state_dict(self) -> dict:
         """The stored transitions in storage order (only the filled rows, not the whole capacity)
@@ -299,6 +315,11 @@ class OffPolicy:
         return q_r - (q_c * self.lagrange.weights(x.device)).sum(-1, keepdim=True), q_c
 
     # --- what an algorithm provides -------------------------------------------------------------
+    def policy_action(self, x: torch.Tensor) -> torch.Tensor:
+        """The current policy's action on features ``x`` (scaled to [-1, 1]): a sample, or the
+        deterministic action of a deterministic policy."""
+        raise NotImplementedError
+
     def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The TD target's next action (scaled to [-1, 1]) on the next observation's features, and
         the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
@@ -308,6 +329,14 @@ class OffPolicy:
         """One actor (and temperature) step on the observation features ``x``; returns its statistics with ``q_cost`` ``[K]``, or None
         (a delayed step)."""
         raise NotImplementedError
+
+    @torch.no_grad()
+    def cost_estimate(self) -> torch.Tensor:
+        """``[K]`` ``E[Q_c(s, pi(s))]`` over the states of the newest ``cost_window`` transitions,
+        the estimate the multiplier reads (module docstring)."""
+        x = self.features(self.replay.newest(self.cfg.cost_window).get(keys.OBS))
+        (q_c,) = self.q_values((Q_COST,), x, self.policy_action(x))
+        return q_c.mean(0)
 
     # --- the shared update ----------------------------------------------------------------------
     def update(self, batch: TensorDictBase) -> dict[str, float]:
@@ -336,7 +365,9 @@ class OffPolicy:
                 sums[k] = sums[k] + v if k in sums else v
                 counts[k] = counts.get(k, 0) + 1
         means = {k: v / counts[k] for k, v in sums.items()}
-        q_cost = means.pop("q_cost_k", None)
+        q_cost = means.pop("q_cost_k", None)  # over the replayed states
+        if q_cost is not None and self.lagrange.multipliers is not None and self.cfg.cost_window:
+            q_cost = self.cost_estimate()  # over the current policy's own states
         if q_cost is not None:
             self.lagrange.update(q_cost.tolist())  # once per iteration, as ppo_lag's lambda
         out = {k: v.item() for k, v in means.items()}

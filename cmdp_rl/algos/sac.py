@@ -77,6 +77,9 @@ class SAC(OffPolicy):
         log_pi = (-0.5 * eps.pow(2) - std.log() - HALF_LOG_2PI - 2.0 * (LOG_2 - u - F.softplus(-2.0 * u))).sum(-1, keepdim=True)
         return torch.tanh(u), log_pi
 
+    def policy_action(self, x: torch.Tensor) -> torch.Tensor:
+        return self.sample(x)[0]
+
     def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         action, log_pi = self.sample(x_next)
         return action, -self.log_alpha.exp() * log_pi  # the soft value's entropy bonus (eq. 3)

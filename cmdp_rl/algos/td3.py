@@ -51,6 +51,9 @@ class TD3(OffPolicy):
         net = self.target_actor.target["actor"] if target else self.agent.actor.head.net
         return torch.tanh(net(x))
 
+    def policy_action(self, x: torch.Tensor) -> torch.Tensor:
+        return self.mu(x)
+
     def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         cfg = self.cfg
         action = self.mu(x_next, target=True)
