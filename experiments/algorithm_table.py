@@ -17,7 +17,9 @@ grid's part alone (``--task grid``) is issue 15's LP-gap table. Overrides go to 
   metrics against this sweep's ppo runs, OmniSafe's published numbers beside.
 
 The report writes ``algorithms.md`` and ``figures/algorithms_<task>.png`` into ``--out`` (default
-ROOT; ``--out docs`` for the repository's docs/algorithms.md), and prints the tables. Every number is
+ROOT; ``--out docs`` for the repository's docs/algorithms.md), and prints the tables. Where ``--out``
+already has an ``algorithms.md`` and ``--task`` names some of the tasks, only those tasks' sections
+are replaced (with ``--measured`` at the top of each), so a task measured on another day keeps its own. Every number is
 mean ± sample std over seeds, from each run's ``eval.json`` (final policy) and ``metrics.csv``.
 """
 
@@ -270,7 +272,12 @@ def unfinished_note(unfinished: Sequence[RunRecord]) -> str:
 
 
 def report(root: Path, tasks: Sequence[str], out: Path, figures: Path, measured: str) -> str:
-    parts = [HEADER.format(measured=measured)]
+    return "\n".join([HEADER.format(measured=measured), *sections(root, tasks, out, figures).values()])
+
+
+def sections(root: Path, tasks: Sequence[str], out: Path, figures: Path, lead: str = "") -> dict[str, str]:
+    """Each task's section of the page (its heading, text, table and figure); ``lead`` opens each."""
+    parts: dict[str, str] = {}
     for task in tasks:
         sweeps, unfinished = {}, []
         for sweep in TASKS[task]:
@@ -279,7 +286,7 @@ def report(root: Path, tasks: Sequence[str], out: Path, figures: Path, measured:
                 sweeps[sweep] = done
             unfinished += bad
         if not sweeps:
-            parts.append(f"## {TITLES[task]}\n\nNo finished runs under {root}/{'/'.join(TASKS[task])}.\n")
+            parts[task] = f"## {TITLES[task]}\n\nNo finished runs under {root}/{'/'.join(TASKS[task])}.\n"
             continue
         if task == "grid":
             rows = grid_rows(sweeps.get("grid", []), "K = 2") + grid_rows(sweeps.get("grid_k1", []), "K = 1")
@@ -297,9 +304,23 @@ def report(root: Path, tasks: Sequence[str], out: Path, figures: Path, measured:
         rel = png.relative_to(out) if out in png.parents else png
         first = next(iter(sweeps.values()))[0]
         text = TEXT[task](rows, first)
-        parts.append(f"## {TITLES[task]}\n\n{text['before']}\n\n{table}{unfinished_note(unfinished)}\n\n"
-                     f"{text['after']}\n\n![{task}]({rel})\n")
-    return "\n".join(parts)
+        opening = f"{lead}\n\n" if lead else ""
+        parts[task] = (f"## {TITLES[task]}\n\n{opening}{text['before']}\n\n{table}{unfinished_note(unfinished)}\n\n"
+                       f"{text['after']}\n\n![{task}]({rel})\n")
+    return parts
+
+
+def splice(page: str, new: dict[str, str]) -> str:
+    """``page`` with each task's section (from its heading to the next ``## `` heading) replaced."""
+    lines = page.splitlines(keepends=True)
+    for task, section in new.items():
+        head = f"## {TITLES[task]}"
+        start = next((i for i, line in enumerate(lines) if line.rstrip() == head), None)
+        if start is None:
+            raise SystemExit(f"{head!r} is not in the page: write the whole page (all tasks) instead")
+        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+        lines[start:end] = [section + "\n"]
+    return "".join(lines)
 
 
 TITLES = {"grid": "1. The tabular reference CMDP: gap to the LP optimum (env=grid)",
@@ -411,8 +432,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         root = Path(args.root_or_overrides[0])
     out = Path(args.out) if args.out else root
     out.mkdir(parents=True, exist_ok=True)
-    text = report(root, tasks, out, out / "figures", args.measured)
-    (out / "algorithms.md").write_text(text)
+    page = out / "algorithms.md"
+    if page.exists() and args.task and set(tasks) != set(TASKS):
+        text = splice(page.read_text(), sections(root, tasks, out, out / "figures", args.measured))
+    else:
+        text = report(root, tasks, out, out / "figures", args.measured)
+    page.write_text(text)
     print(text)
     print(f"wrote {out / 'algorithms.md'} and {out / 'figures'}/algorithms_<task>.png")
 

@@ -52,3 +52,20 @@ def test_grid_report_gives_the_lp_gap_and_each_violation(tmp_path):
     assert "| cpo | K = 1 | 4,096 | 0.700 | 0.692 | -0.008 | not reported | 0.100 (0.15) |  | 0.000 |" in rows["cpo"]
     assert "not run" in rows["saute"]  # every algorithm has a row
     assert (tmp_path / "out" / "figures" / "algorithms_grid.png").stat().st_size > 0
+
+
+def test_reporting_one_task_replaces_only_its_section(tmp_path):
+    """--task grid into an existing page: the grid section is new, the others and the header stay."""
+    both = ["hazard_a", "hazard_b"]
+    _run(tmp_path / "grid" / "ppo_lag_s0", "ppo_lag", 0, both, [0.3, 0.15], 0.5, [0.2, 0.25])
+    script = _script()
+    out = tmp_path / "out"
+    out.mkdir()
+    old = (f"# page\n\nkept header\n\n## {script.TITLES['grid']}\n\nold grid table\n\n"
+           f"## {script.TITLES['reach1d']}\n\nkept reach1d\n\n## Reading the tables\n\nkept notes\n")
+    (out / "algorithms.md").write_text(old)
+    script.main([str(tmp_path), "--task", "grid", "--out", str(out), "--measured", "Measured today."])
+    text = (out / "algorithms.md").read_text()
+    assert "old grid table" not in text and "| ppo_lag | K = 2 |" in text and "Measured today." in text
+    assert text.startswith("# page\n\nkept header\n") and "kept reach1d" in text and text.endswith("kept notes\n")
+    assert text.index(script.TITLES["grid"]) < text.index("| ppo_lag |") < text.index(script.TITLES["reach1d"])
