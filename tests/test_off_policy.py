@@ -11,7 +11,8 @@ from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.algos import make_algo
-from cmdp_rl.algos.off_policy import Replay, discounted_budget
+from cmdp_rl.algos.off_policy import discounted_budget
+from cmdp_rl.algos.replay_buffer import Replay
 from cmdp_rl.config import ConfigError
 from cmdp_rl.envs import make_env
 from cmdp_rl.policies import make_agent

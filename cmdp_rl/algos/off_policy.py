@@ -31,13 +31,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Literal, Union
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torch import nn
-from torchrl.data import LazyMemmapStorage, LazyTensorStorage, TensorDictReplayBuffer
 
 from cmdp_rl import keys
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers, PIDLagrangian
+from cmdp_rl.algos.replay_buffer import Replay
 from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, to_off_policy
@@ -47,12 +47,6 @@ from cmdp_rl.validation import (
 
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
-
-# What a transition keeps in the buffer: reward and cost are twins, as in the batch. A truncated
-# step keeps its final observation under "next" and bootstraps from it (only termination masks).
-STORED = (keys.OBS, keys.ACTION, (keys.NEXT, keys.OBS), (keys.NEXT, keys.REWARD), (keys.NEXT, keys.COST),
-          (keys.NEXT, keys.TERMINATED))
-
 
 def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
     """The episode budget ``d`` on the discounted scale of a cost Q-critic:
@@ -150,46 +144,6 @@ def td_target(signal: torch.Tensor, terminated: torch.Tensor, gamma: float, next
     """One-step TD target ``x + gamma (1 - terminated) V'``: a truncated step bootstraps from its
     final observation; only termination stops the sum."""
     return signal + gamma * (~terminated).float() * next_value
-
-
-class Replay:
-    """torchrl's ``TensorDictReplayBuffer`` of single transitions (:data:`STORED`), uniform sampling
-    from torch's generator (seeded by the run; restored on resume)."""
-
-    def __init__(self, size: int, batch_size: int, storage: str, device: torch.device | str = "cpu") -> None:
-        store = LazyMemmapStorage(size, device=device) if storage == "memmap" else LazyTensorStorage(size, device=device)
-        self.buffer = TensorDictReplayBuffer(storage=store, batch_size=batch_size)
-
-    def __len__(self) -> int:
-        return len(self.buffer)
-
-    def add(self, batch: TensorDictBase) -> int:
-        """Add the ``[N, T]`` batch's transitions; returns how many."""
-        flat = batch.select(*STORED).reshape(-1)
-        self.buffer.extend(flat)
-        return flat.shape[0]
-
-    def sample(self) -> TensorDictBase:
-        return self.buffer.sample()
-
-    def newest(self, n: int) -> TensorDictBase:
-        """The ``n`` transitions added last (all, if fewer are stored), oldest first: the writer's
-        cursor is the next row it overwrites, so the newest rows end just before it, modulo capacity."""
-        n = min(n, len(self.buffer))
-        cursor = self.buffer.writer.state_dict()["_cursor"]
-        return self.buffer.storage.get((cursor - n + torch.arange(n)) % self.buffer.storage.max_size)
-
-    def state_dict(self) -> dict:
-        """The stored transitions in storage order (only the filled rows, not the whole capacity)
-        and the writer's cursor: a buffer loading it samples the same indices to the same data."""
-        n = len(self.buffer)
-        data = self.buffer.storage.get(torch.arange(n)).to_dict() if n else {}
-        return {"data": data, "len": n, "writer": self.buffer.writer.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        if state["len"]:
-            self.buffer.extend(TensorDict(state["data"], batch_size=[state["len"]]))
-        self.buffer.writer.load_state_dict(state["writer"])
 
 
 class LagrangeTerm:
@@ -400,5 +354,5 @@ class OffPolicy:
         self.steps_due, self.gradient_steps = float(state["steps_due"]), int(state["gradient_steps"])
 
 
-__all__ = ["LagrangeFields", "OffPolicy", "OffPolicyConfig", "Replay", "STORED", "TargetCritics",
+__all__ = ["LagrangeFields", "OffPolicy", "OffPolicyConfig", "TargetCritics",
            "discounted_budget", "td_target"]
