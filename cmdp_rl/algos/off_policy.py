@@ -20,7 +20,7 @@ What it assumes: cost spread evenly over the episode (docs/off_policy.md).
 Why the newest states and not the replayed minibatches': a uniform sample of the buffer comes mostly
 from older, different policies. On HalfCheetah at 100k steps the replayed-state estimate sat at the
 budget while the current policy's cost on its own states was about 1.7 times it, and lambda drifted
-down with every seed over budget (docs/off_policy.md, "The multiplier's estimate").
+down with every seed over budget (docs/off_policy.md, "HalfCheetah velocity: the benchmark").
 """
 
 from __future__ import annotations
