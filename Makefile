@@ -34,7 +34,7 @@ bench-velocity-smoke: .venv/.mujoco
 # Safety-Gymnasium (env=safety_gym, docs/safety_gym.md). Its only release, 1.0.0, pins gymnasium 0.28,
 # mujoco 2.3 and pygame 2.1, which would downgrade our stack (pygame 2.1 has no wheel for Python
 # 3.11): it goes in with --no-deps, after the few packages it really needs (the `safety_gym` extra).
-# Our pins are untouched; cmdp_rl/envs/safety_gym_compat.py makes it import on gymnasium 1.x.
+# Our pins are untouched; cmdp_rl/envs/safety_gym/compat.py makes it import on gymnasium 1.x.
 SAFETY_GYM_VERSION := 1.0.0
 .venv/.safety_gym: .venv/.installed
 	$(PY) -m pip install -q -e '.[safety_gym]'

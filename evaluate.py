@@ -26,7 +26,7 @@ Options (cmdp_rl.config.EvalConfig):
   video_steps=N        cut each recorded episode after N steps (default: whole episodes)
 
 Video without a display: MuJoCo renders through EGL (MUJOCO_GL=egl is set when no DISPLAY is);
-on Debian that needs libegl1, libegl-mesa0 and libgl1-mesa-dri (see cmdp_rl/video.py).
+on Debian that needs libegl1, libegl-mesa0 and libgl1-mesa-dri (see cmdp_rl/report/video.py).
 """
 
 from __future__ import annotations
@@ -41,11 +41,11 @@ from omegaconf.errors import OmegaConfBaseException
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.config import ConfigError, load_eval_config
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
-from cmdp_rl.metrics import constraint_name
-from cmdp_rl.replay import plot_reach1d, record_reach1d
-from cmdp_rl.rundir import load_trained, run_config
-from cmdp_rl.summary import interval_summary
-from cmdp_rl.video import VideoError, make_render_env, record_video
+from cmdp_rl.report.metrics import constraint_name
+from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
+from cmdp_rl.run.rundir import load_trained, run_config
+from cmdp_rl.report.summary import interval_summary
+from cmdp_rl.report.video import VideoError, make_render_env, record_video
 
 
 def _line(name: str, r: dict, fmt: str) -> str:

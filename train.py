@@ -2,7 +2,7 @@
 
 Options are documented in ``configs/``; outputs go to Hydra's run directory.
 ``python train.py resume=<run dir> [total_steps=...]`` continues that run from its last checkpoint,
-in that directory, with the run's own config (see ``cmdp_rl/resume.py`` for what may change).
+in that directory, with the run's own config (see ``cmdp_rl/run/resume.py`` for what may change).
 Sweeps are Hydra multiruns (``-m``), e.g. ``python train.py -m +experiment=penalty_sweep``; see
 ``configs/experiment/``.
 """
@@ -21,9 +21,9 @@ from omegaconf import DictConfig, OmegaConf
 from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.population.spec import population_active
-from cmdp_rl.resume import resume_config
-from cmdp_rl.rundir import CHECKPOINT, POPULATION_CHECKPOINT, RunDirError
-from cmdp_rl.sweeps import clear_outputs, record_failure
+from cmdp_rl.run.resume import resume_config
+from cmdp_rl.run.rundir import CHECKPOINT, POPULATION_CHECKPOINT, RunDirError
+from cmdp_rl.run.sweeps import clear_outputs, record_failure
 
 # How a single run ends on each error (inside a sweep train.py raises instead: see _fail).
 EXIT_CODES = ((RunDirError, 2, "cannot write outputs"), (ConfigError, 2, "config error"), (CheckpointError, 2, "cannot resume"),

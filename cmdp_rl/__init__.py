@@ -27,7 +27,7 @@ from cmdp_rl.trainer import train
 __version__ = "0.1.0"
 
 if REACH1D_ID not in _gym.registry:
-    _gym.register(id=REACH1D_ID, entry_point="cmdp_rl.envs.reach1d:Reach1D")
+    _gym.register(id=REACH1D_ID, entry_point="cmdp_rl.envs.reach1d.env:Reach1D")
 
 __all__ = [
     "Agent", "Collector", "ConfigError", "GymVecEnv", "PIDLagrangianPPO", "PPO", "PPOLagrangian",

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping, Optional, Sequence
 
 from cmdp_rl.registry import KINDS, component
-from cmdp_rl.safety_metrics import ReferenceConfig
+from cmdp_rl.report.safety_metrics import ReferenceConfig
 from cmdp_rl.threads import apply_threads
 from cmdp_rl.validation import (
     AUTO, AutoInt, Bool, ConfigError, Field, PositiveFloat, PositiveInt, build, options, recheck, require,
@@ -70,7 +70,7 @@ class RunConfig:
     eval_deterministic: Bool = True
     checkpoint_every: PositiveInt = 10
     log_interval: PositiveInt = 5
-    # A run directory to continue from its last checkpoint (see cmdp_rl/resume.py); None: a new run.
+    # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
     resume: Annotated[Optional[str], Field(pattern=r"\S", description="null or a run directory")] = None
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
@@ -88,7 +88,7 @@ class EvalConfig:
     plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
     plot_episodes: int = 3  # episodes drawn in the PNG
     output: Optional[str] = None  # also write the results as JSON to this path
-    video: Bool = False  # write mp4s of the policy (cmdp_rl/video.py): Reach1D, the velocity tasks
+    video: Bool = False  # write mp4s of the policy (cmdp_rl/report/video.py): Reach1D, the velocity tasks
     video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
     video_dir: Optional[str] = None  # default: <run>/videos
     video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps

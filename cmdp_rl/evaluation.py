@@ -9,8 +9,8 @@ import torch
 from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import VecEnv
-from cmdp_rl.intervals import summarize as interval_estimates
-from cmdp_rl.metrics import constraint_name
+from cmdp_rl.report.intervals import summarize as interval_estimates
+from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.policies.agent import Agent
 
 EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
@@ -43,7 +43,7 @@ def evaluate(
     ``fork_rng``: the same seed gives the same numbers, and the caller's generator is left as it was.
     With ``cost_limit`` (the budget d), the result also has 95% intervals over the episodes: of mean
     return and mean cost, cost's upper bound, and the rate of episodes with cost above d
-    (:func:`cmdp_rl.intervals.summarize`). With K > 1 costs ``cost_limit`` is one budget for every
+    (:func:`cmdp_rl.report.intervals.summarize`). With K > 1 costs ``cost_limit`` is one budget for every
     constraint or a list of K, and each constraint's cost and violation keys carry ``/<cost>``
     (``episode_cost_ucb95/hazard_a``, ``violation_rate/hazard_a``, ``intervals/hazard_a``).
     """
@@ -100,7 +100,7 @@ def summarize_episodes(flat: list[tuple[float, ...]], names: Sequence[str], dete
 
 def _intervals(flat: list[tuple[float, ...]], names: Sequence[str], cost_limit: float | Sequence[float]) -> dict[str, Any]:
     """The interval keys for each constraint (rows: return, length, terminated, cost_0, ...); with
-    one cost exactly :func:`cmdp_rl.intervals.summarize`'s keys, with K > 1 the return's interval
+    one cost exactly :func:`cmdp_rl.report.intervals.summarize`'s keys, with K > 1 the return's interval
     once and every other key per constraint as ``<key>/<cost>``."""
     k = len(names)
     limits = [float(cost_limit)] * k if isinstance(cost_limit, (int, float)) else [float(d) for d in cost_limit]

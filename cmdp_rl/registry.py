@@ -55,7 +55,8 @@ def load_builtins() -> None:
     _loaded = True
     for package in _PACKAGES.values():
         pkg = importlib.import_module(package)
-        for info in pkgutil.iter_modules(pkg.__path__, f"{package}."):
+        # walk_packages recurses, so an env family's sub-package (envs/reach1d/, ...) registers too
+        for info in pkgutil.walk_packages(pkg.__path__, f"{package}."):
             importlib.import_module(info.name)
 
 

@@ -23,16 +23,16 @@ from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.algos.base import per_constraint
-from cmdp_rl.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
+from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.legacy import upgrade_algo_state
-from cmdp_rl.progress import Progress
-from cmdp_rl.resume import load_resume_state
+from cmdp_rl.run.progress import Progress
+from cmdp_rl.run.resume import load_resume_state
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
-from cmdp_rl.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
-from cmdp_rl.safety_metrics import cost_rate, load_reference, normalized_scores
-from cmdp_rl.summary import summary_lines
+from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
+from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
+from cmdp_rl.report.summary import summary_lines
 from cmdp_rl.threads import apply_threads
 
 
@@ -81,13 +81,13 @@ def check_env_contract(cfg: RunConfig) -> None:
 
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
-    ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/rundir.py``). Returns the
+    ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/run/rundir.py``). Returns the
     evaluation summary. Same config and seed, same numbers (on the same machine and versions).
 
     With ``cfg.resume`` set to a run directory, continue that run from its last checkpoint, in that
     directory (``out_dir`` may be omitted). Its ``metrics.csv`` keeps the rows up to the
     checkpoint and continues after them; the run ends with the numbers it would have reached
-    uninterrupted (see ``cmdp_rl/resume.py``).
+    uninterrupted (see ``cmdp_rl/run/resume.py``).
     """
     validate(cfg)
     out = _run_dir(cfg, out_dir)

@@ -10,7 +10,7 @@ grid's part alone (``--task grid``) is issue 15's LP-gap table. Overrides go to 
 
 - ``grid``: the two-hazard gridworld (K = 2, budgets 0.3 / 0.15) for the algorithms that take K > 1,
   and its K = 1 variant (``env.costs=[hazard_b]``, budget 0.15) for those that take one constraint. Per algorithm: the final policy's return, its gap to the exact LP optimum
-  of its variant (``envs/grid_lp.py``), and each constraint's cost and violation ``max(0, J_c - d)``.
+  of its variant (``envs/grid/optimum.py``), and each constraint's cost and violation ``max(0, J_c - d)``.
 - ``reach1d``: Reach1D, passable wall, budget 0.5 (batched preset): return, cost, training cost rate,
   and the gap to Reach1D's exact constrained optimum.
 - ``velocity``: HalfCheetah velocity, budget 25: return, cost, cost rate, Safety Gym's normalised
@@ -37,11 +37,11 @@ import numpy as np
 
 from cmdp_rl.analysis.stats import sample_mean_std
 from cmdp_rl.analysis.tables import markdown_table, pm
-from cmdp_rl.compare import curve_band, group_runs, load_runs
-from cmdp_rl.metrics import constraint_name
-from cmdp_rl.plot import pyplot, save_figure
-from cmdp_rl.safety_metrics import Reference, normalized_scores
-from cmdp_rl.sweeps import RunRecord, experiment_sweep_dir
+from cmdp_rl.report.compare import curve_band, group_runs, load_runs
+from cmdp_rl.report.metrics import constraint_name
+from cmdp_rl.report.plot import pyplot, save_figure
+from cmdp_rl.report.safety_metrics import Reference, normalized_scores
+from cmdp_rl.run.sweeps import RunRecord, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 ALGOS = ("ppo", "penalty", "ppo_lag", "pid_lag", "cpo", "trpo_lag", "pcpo", "crpo", "focops", "cup", "saute")
@@ -94,14 +94,14 @@ def minutes(group: Sequence[RunRecord]) -> str:
 @lru_cache(maxsize=None)
 def lp_optimum(layout: tuple[str, ...], slip: float, end_prob: float, budgets: tuple[float, ...]) -> float:
     """The exact constrained optimum's return, budgets in grid.COST_NAMES order (inf: unconstrained)."""
-    from cmdp_rl.envs.grid_lp import solve_constrained
-    from cmdp_rl.envs.tabular import grid_cmdp
+    from cmdp_rl.envs.grid.optimum import solve_constrained
+    from cmdp_rl.envs.grid.tabular import grid_cmdp
 
     return float(solve_constrained(grid_cmdp(layout, slip, end_prob), budgets).ret)
 
 
 def grid_rows(runs: Sequence[RunRecord], variant: str) -> list[dict[str, Any]]:
-    from cmdp_rl.envs.grid import COST_NAMES
+    from cmdp_rl.envs.grid.env import COST_NAMES
 
     rows = []
     for algo, group in by_algo(runs).items():
@@ -123,7 +123,7 @@ def grid_rows(runs: Sequence[RunRecord], variant: str) -> list[dict[str, Any]]:
 
 
 def grid_table(rows: Sequence[dict[str, Any]]) -> str:
-    from cmdp_rl.envs.grid import COST_NAMES
+    from cmdp_rl.envs.grid.env import COST_NAMES
 
     header = ["algo", "grid", "steps", "return", "LP optimum", "gap", *[f"{c} (d)" for c in COST_NAMES],
               *[f"violation {c}" for c in COST_NAMES], "minutes / run"]
@@ -210,7 +210,7 @@ def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path,
     first = next(r for runs in sweeps.values() for r in runs)
     names = list(first.config["env"].get("costs", ["cost"])) if task == "grid" else ["cost"]
     if task == "grid":
-        from cmdp_rl.envs.grid import COST_NAMES
+        from cmdp_rl.envs.grid.env import COST_NAMES
         names = list(COST_NAMES)
     for c in names:
         panels.append((c, f"episode cost{'' if c == 'cost' else ': ' + c}", None))

@@ -53,7 +53,7 @@ sys.path.insert(0, str(ROOT))
 import cmdp_rl  # noqa: E402
 from cmdp_rl import Collector, load_config, make_agent, make_env  # noqa: E402
 from cmdp_rl.config import compose_config  # noqa: E402
-from cmdp_rl.envs.reach1d_task import Reach1DConfig  # noqa: E402
+from cmdp_rl.envs.reach1d.task import Reach1DConfig  # noqa: E402
 from cmdp_rl.policies.mlp import PolicyConfig  # noqa: E402
 from cmdp_rl.envs import Reach1D  # noqa: E402
 

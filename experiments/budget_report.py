@@ -25,7 +25,7 @@ import numpy as np
 
 from cmdp_rl.analysis.stats import sample_mean_std
 from cmdp_rl.analysis.tables import markdown_table, pm
-from cmdp_rl.sweeps import RunRecord, finished_runs
+from cmdp_rl.run.sweeps import RunRecord, finished_runs
 
 
 def run_summary(run: RunRecord) -> dict:

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's cmdp_rl
 
 from cmdp_rl.config import compose_config  # noqa: E402
-from cmdp_rl.summary import optimum_of  # noqa: E402
+from cmdp_rl.report.summary import optimum_of  # noqa: E402
 
 WITHIN = 0.05  # the README's claim: eval return within 5% of the optimum, cost within budget
 

@@ -24,9 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.analysis.grid_policy import exact_gap  # noqa: E402
 from cmdp_rl.config import compose_config  # noqa: E402
-from cmdp_rl.envs.grid_lp import solve_constrained  # noqa: E402
-from cmdp_rl.envs.tabular import grid_cmdp  # noqa: E402
-from cmdp_rl.rundir import load_trained  # noqa: E402
+from cmdp_rl.envs.grid.optimum import solve_constrained  # noqa: E402
+from cmdp_rl.envs.grid.tabular import grid_cmdp  # noqa: E402
+from cmdp_rl.run.rundir import load_trained  # noqa: E402
 
 
 def one_seed(overrides: list[str], seed: int, out: Path) -> dict:

@@ -24,12 +24,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cmdp_rl import sweeps
+from cmdp_rl.run import sweeps
 from cmdp_rl.analysis import tables
 from cmdp_rl.analysis.stats import population_mean_std
 from cmdp_rl.analysis.tables import markdown_table, pm
-from cmdp_rl.plot import pyplot, save_figure
-from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
+from cmdp_rl.report.plot import pyplot, save_figure
+from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ["total_steps=6144", "env.max_steps=200"]  # sac_lag: 5,000 warm-up steps, then 1,144 trained

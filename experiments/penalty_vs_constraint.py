@@ -20,7 +20,7 @@ is re-trained) and writes, into ``--out`` (default ``<first dir>/report``):
   horizontal line, the penalty-optimal step function from the analysis; achieved cost against d
   for the constrained runs, the diagonal the ideal;
 - ``answers.md``: the exercise's answers computed from the env's parameters
-  (``cmdp_rl.envs.reach1d_dp``) and checked against the runs.
+  (``cmdp_rl.envs.reach1d.optimum``) and checked against the runs.
 
 ``--population DIR`` first trains the whole grid of both sweeps in this process, as populations
 (``cmdp_rl.population``: one batched program per algorithm, on ``env.backend=torch``; the
@@ -51,7 +51,7 @@ from cmdp_rl.analysis.penalty_constraint import (
 )
 from cmdp_rl.analysis.reach1d_reference import answers_markdown, reach1d_reference
 from cmdp_rl.analysis.tables import write_csv
-from cmdp_rl.sweeps import MISSING, SUPERSEDED
+from cmdp_rl.run.sweeps import MISSING, SUPERSEDED
 
 SHOW_NOT_OK = 20  # runs that did not finish listed on the console (all of them in runs.csv)
 

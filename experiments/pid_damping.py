@@ -33,9 +33,9 @@ import numpy as np
 
 from cmdp_rl.analysis.stats import count_finite, sample_mean_std
 from cmdp_rl.analysis.tables import markdown_table, pm
-from cmdp_rl.plot import pyplot, save_figure
-from cmdp_rl import sweeps
-from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
+from cmdp_rl.report.plot import pyplot, save_figure
+from cmdp_rl.run import sweeps
+from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 METRICS = ("first_crossing", "overshoot", "overshoot_smooth", "violation", "oscillation", "eval_return", "eval_cost")

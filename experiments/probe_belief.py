@@ -31,12 +31,12 @@ from cmdp_rl import Collector, RunConfig, keys, load_config, make_agent, make_en
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 from cmdp_rl.policies.legacy import upgrade_algo_state
-from cmdp_rl import sweeps
+from cmdp_rl.run import sweeps
 from cmdp_rl.analysis.stats import population_mean_std
 from cmdp_rl.analysis import tables
 from cmdp_rl.analysis.tables import markdown_table, pm
-from cmdp_rl.plot import pyplot, save_figure
-from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
+from cmdp_rl.report.plot import pyplot, save_figure
+from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 POLICY_ORDER = ("mlp", "lstm", "gru", "transformer")

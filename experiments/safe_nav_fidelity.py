@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from cmdp_rl.envs.safe_nav import TASKS, SafeNavVecEnv
-from cmdp_rl.envs.safety_gym import make_task
+from cmdp_rl.envs.safe_nav.env import TASKS, SafeNavVecEnv
+from cmdp_rl.envs.safety_gym.env import make_task
 
 
 def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:

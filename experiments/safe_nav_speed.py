@@ -42,9 +42,9 @@ import torch
 
 from cmdp_rl import make_env, train
 from cmdp_rl.config import compose_config
-from cmdp_rl.envs.safe_nav import SafeNavVecEnv
-from cmdp_rl.envs.safe_nav_world import FRAMESKIP
-from cmdp_rl.envs.safety_gym import SafetyGymEnvConfig, make_task
+from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv
+from cmdp_rl.envs.safe_nav.world import FRAMESKIP
+from cmdp_rl.envs.safety_gym.env import SafetyGymEnvConfig, make_task
 
 
 def load() -> float:

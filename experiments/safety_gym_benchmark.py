@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from cmdp_rl.analysis.tables import markdown_table
-from cmdp_rl.sweeps import experiment_arg_parser, experiment_sweep_dir
+from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import safety_gym_speed  # noqa: E402

@@ -10,7 +10,7 @@ with pip downloads). Steps:
    with its own dependencies (gymnasium 0.28.1, mujoco 2.3.3, pygame 2.1.0, gymnasium-robotics 1.2.2)
    and ``numpy<2`` (mujoco 2.3.3's wheels are built against numpy 1). Envs are built with
    ``safety_gymnasium.make``, the package's own way.
-2. Ours: the same tasks through ``cmdp_rl.envs.safety_gym.make_task`` in this interpreter
+2. Ours: the same tasks through ``cmdp_rl.envs.safety_gym.env.make_task`` in this interpreter
    (gymnasium 1.x, mujoco 3+/4, numpy 2, the compatibility layer).
 3. Both sides reset each task with the same seed, then apply the same actions (uniform in the
    action box, drawn here once and handed to both), resetting (without a seed) whenever an episode
@@ -118,7 +118,7 @@ def ours(tasks, seeds, actions) -> tuple[dict, dict, dict]:
     import gymnasium
     import mujoco
 
-    from cmdp_rl.envs.safety_gym import make_task
+    from cmdp_rl.envs.safety_gym.env import make_task
 
     arrays, timings = {}, {}
     for task, seed in zip(tasks, seeds):
@@ -189,8 +189,8 @@ def main() -> None:
         pinned_worker(*args.worker)
         return
 
-    from cmdp_rl.envs.safety_gym import make_task
-    from cmdp_rl.envs.safety_gym_tasks import TASKS
+    from cmdp_rl.envs.safety_gym.env import make_task
+    from cmdp_rl.envs.safety_gym.tasks import TASKS
 
     setup = make_pinned_venv(find_python(args.python), Path(args.venv))
     print(f"pinned venv ready in {setup['seconds']:.0f} s")

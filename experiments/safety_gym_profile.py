@@ -79,7 +79,7 @@ def groups(stats: pstats.Stats) -> list[tuple[str, float]]:
     collect = _outer(stats, _fn("cmdp_rl/collector.py", "collect"))
     policy = _outer(stats, _fn("cmdp_rl/policies/agent.py", "act"))
     vec_step = _outer(stats, _fn("cmdp_rl/envs/vector.py", "step"))
-    adapter = _outer(stats, _fn("cmdp_rl/envs/safety_gym.py", "step"))
+    adapter = _outer(stats, _fn("cmdp_rl/envs/safety_gym/env.py", "step"))
     reset = _outer(stats, _fn("safety_gymnasium/builder.py", "reset"))
     compile_ = _outer(stats, _builtin("from_xml_string"))
     pkg_step = _outer(stats, _fn("safety_gymnasium/builder.py", "step"))

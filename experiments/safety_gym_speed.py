@@ -30,15 +30,15 @@ import numpy as np
 import torch
 
 from cmdp_rl import Collector, keys, make_env
-from cmdp_rl.envs.safety_gym import SafetyGymEnvConfig, make_task
-from cmdp_rl.envs.safety_gym_tasks import TASKS
+from cmdp_rl.envs.safety_gym.env import SafetyGymEnvConfig, make_task
+from cmdp_rl.envs.safety_gym.tasks import TASKS
 
 
 def package_env(task: str):
     import gymnasium as gym
     from gymnasium.envs.registration import load_env_creator
 
-    from cmdp_rl.envs.safety_gym_compat import import_safety_gymnasium
+    from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium
 
     import_safety_gymnasium()
     spec = gym.spec(task)
@@ -81,7 +81,7 @@ def collector_rate(task: str, n: int, steps_per_env: int, vector: str, safe_nav:
     """Steps/s of our collector on ``task`` with random actions; ``safe_nav``: on ``env=safe_nav``'s
     batched twin of the task instead (``vector`` is then not read)."""
     if safe_nav:
-        from cmdp_rl.envs.safe_nav import SafeNavEnvConfig
+        from cmdp_rl.envs.safe_nav.env import SafeNavEnvConfig
 
         env = make_env(SafeNavEnvConfig(task=task.removeprefix("Safety").removesuffix("-v0"), num_envs=n))
     else:

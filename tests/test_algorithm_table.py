@@ -19,7 +19,7 @@ def _script():
 
 
 def _run(path: Path, algo: str, seed: int, costs: list[str], limit, ret: float, cost_values: list[float]) -> None:
-    from cmdp_rl.envs.grid import DEFAULT_LAYOUT
+    from cmdp_rl.envs.grid.env import DEFAULT_LAYOUT
 
     path.mkdir(parents=True)
     config = {"algo": {"name": algo, "cost_limit": limit}, "seed": seed,

@@ -12,7 +12,7 @@ from cmdp_rl.analysis.penalty_constraint import (
 )
 from cmdp_rl.analysis.stats import count_finite, population_mean_std, sample_mean_std, tail_mean
 from cmdp_rl.analysis.tables import markdown_table, pm, write_csv
-from cmdp_rl.sweeps import FAILED, MISSING, OK, MissingJob, finished_runs, job_values, read_sweeps, started_runs
+from cmdp_rl.run.sweeps import FAILED, MISSING, OK, MissingJob, finished_runs, job_values, read_sweeps, started_runs
 
 
 def test_sample_mean_std_is_over_finite_seeds_with_ddof_1():

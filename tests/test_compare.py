@@ -1,4 +1,4 @@
-"""python -m cmdp_rl.compare: groups, hand-computable means and IQMs, verdicts on constructed cases,
+"""python -m cmdp_rl.report.compare: groups, hand-computable means and IQMs, verdicts on constructed cases,
 the CLI's table, CSV and figure, and real (tiny) runs."""
 
 import csv
@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from cmdp_rl import load_config, train
-from cmdp_rl.compare import (INCONCLUSIVE, VIOLATES, WITHIN, compare, format_table, interval_estimates, main,
+from cmdp_rl.report.compare import (INCONCLUSIVE, VIOLATES, WITHIN, compare, format_table, interval_estimates, main,
                              verdict)
 from conftest import tiny
 

@@ -27,7 +27,7 @@ from cmdp_rl.algos.base import AlgoConfig, check_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import minibatches
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
-from cmdp_rl.metrics import MetricsLogger
+from cmdp_rl.report.metrics import MetricsLogger
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import PositiveFloat, PositiveInt, options

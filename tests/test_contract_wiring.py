@@ -16,7 +16,7 @@ from cmdp_rl import keys, load_config, train
 from cmdp_rl.config import ConfigError
 from cmdp_rl.envs import EnvContractError
 from cmdp_rl.envs.contract import check_rollout
-from cmdp_rl.rundir import RunDirError
+from cmdp_rl.run.rundir import RunDirError
 from conftest import ROOT, metrics_rows, tiny
 
 

@@ -23,9 +23,9 @@ from cmdp_rl.algos import make_algo
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.envs import GymVecEnv
-from cmdp_rl.metrics import columns
+from cmdp_rl.report.metrics import columns
 from cmdp_rl.normalization import ReturnScaler
-from cmdp_rl.plot import group_runs, main as plot_main
+from cmdp_rl.report.plot import group_runs, main as plot_main
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig
 from cmdp_rl.validation import ConfigError

@@ -28,7 +28,7 @@ from cmdp_rl.evaluation import evaluate
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.distributions import Categorical, CategoricalHead, MultiCategorical, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder
-from cmdp_rl.rundir import load_trained
+from cmdp_rl.run.rundir import load_trained
 from conftest import ROOT
 
 log = math.log

@@ -8,8 +8,8 @@ import torch
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
-from cmdp_rl.envs.reach1d_task import Reach1DConfig
-from cmdp_rl.replay import plot_reach1d, record_reach1d
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
+from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
 from conftest import ROOT, eval_result, run_script, tiny
 
 _spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")

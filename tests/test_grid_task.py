@@ -64,8 +64,8 @@ def test_a_trained_policy_is_valued_exactly_against_the_lp():
     import torch
 
     from cmdp_rl.analysis.grid_policy import exact_gap, policy_table
-    from cmdp_rl.envs.grid_lp import solve_constrained
-    from cmdp_rl.envs.tabular import evaluate, grid_cmdp
+    from cmdp_rl.envs.grid.optimum import solve_constrained
+    from cmdp_rl.envs.grid.tabular import evaluate, grid_cmdp
     from cmdp_rl.policies import make_agent
 
     cfg = load_config({"env": {"name": "grid", "num_envs": 2}, "policy": {"name": "mlp", "hidden_sizes": [8]}})

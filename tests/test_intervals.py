@@ -1,4 +1,4 @@
-"""cmdp_rl.intervals: exact binomial bounds against closed forms and published values, the bootstrap
+"""cmdp_rl.report.intervals: exact binomial bounds against closed forms and published values, the bootstrap
 against the normal-theory interval, reproducibility, and the degenerate samples a real evaluation
 gives (every episode alike, one episode)."""
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from cmdp_rl.intervals import (episodes_for_violation_bound, mean_interval, summarize, summary_lines,
+from cmdp_rl.report.intervals import (episodes_for_violation_bound, mean_interval, summarize, summary_lines,
                                violation_interval)
 
 

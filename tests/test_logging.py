@@ -8,9 +8,9 @@ import pytest
 from cmdp_rl import load_config, train
 from cmdp_rl.config import ConfigError
 from cmdp_rl.algos.ppo import PPO
-from cmdp_rl.metrics import MetricsLogger, columns
-from cmdp_rl.plot import aggregate, group_runs, main as plot_main, smooth
-from cmdp_rl.resume import resume_config
+from cmdp_rl.report.metrics import MetricsLogger, columns
+from cmdp_rl.report.plot import aggregate, group_runs, main as plot_main, smooth
+from cmdp_rl.run.resume import resume_config
 from conftest import tiny
 
 pytest.importorskip("tensorboard")

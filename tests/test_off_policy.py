@@ -257,7 +257,7 @@ def test_off_policy_lag_reaches_the_goal_through_the_wall_within_budget(tmp_path
     each of 0-2."""
     algo = {k: v for k, v in REACH["algo"].items() if name == "sac_lag" or k not in TD3_OPTIONS}
     cfg = load_config({**REACH_PASS, "algo": {**algo, "name": name}})
-    from cmdp_rl.envs.reach1d_dp import constrained_optimum
+    from cmdp_rl.envs.reach1d.optimum import constrained_optimum
     best = constrained_optimum(cfg.env, 1.0)
     assert best.cost == 1.0 and best.value == pytest.approx(1.8)  # one crossing, goal reached
     result = train(cfg, tmp_path, echo=quiet)

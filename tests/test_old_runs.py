@@ -24,8 +24,8 @@ import torch
 from cmdp_rl import Collector, keys, train
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.policies.legacy import is_legacy
-from cmdp_rl.resume import resume_config
-from cmdp_rl.rundir import load_trained
+from cmdp_rl.run.resume import resume_config
+from cmdp_rl.run.rundir import load_trained
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "tests" / "fixtures" / "old_runs"

@@ -10,7 +10,7 @@ import yaml
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.population import train_population
 from cmdp_rl.population.spec import agent_configs
-from cmdp_rl.sweeps import find_runs
+from cmdp_rl.run.sweeps import find_runs
 from conftest import eval_result, metrics_rows, run_script, tiny
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused

@@ -4,7 +4,7 @@ import io
 import sys
 
 from cmdp_rl import load_config, train
-from cmdp_rl.progress import Progress
+from cmdp_rl.run.progress import Progress
 from conftest import tiny
 
 
@@ -44,7 +44,7 @@ def test_own_echo_is_never_live():
 def test_a_row_without_a_multiplier_prints_what_it_has():
     """An algorithm whose stats carry no lagrange_multiplier: the line and the bar leave lambda out
     (it was a KeyError halfway through the first iteration)."""
-    from cmdp_rl.metrics import format_row
+    from cmdp_rl.report.metrics import format_row
 
     base = {"iteration": 1, "step": 32, "sps": 100.0, "episode_return": 0.5}
     one = {**base, "episode_cost": 1.0}

@@ -4,8 +4,8 @@ against brute-force value iteration on r - lambda * c."""
 import numpy as np
 import pytest
 
-from cmdp_rl.envs.reach1d_task import Reach1DConfig
-from cmdp_rl.envs.reach1d_dp import closed_form_threshold, constrained_optimum, crossing_thresholds, penalized_crosses
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
+from cmdp_rl.envs.reach1d.optimum import closed_form_threshold, constrained_optimum, crossing_thresholds, penalized_crosses
 
 PASS = Reach1DConfig(wall="pass")
 

@@ -15,8 +15,8 @@ import torch
 from cmdp_rl import load_config, train
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.config import ConfigError
-from cmdp_rl.metrics import MetricsLogger
-from cmdp_rl.resume import resume_config
+from cmdp_rl.report.metrics import MetricsLogger
+from cmdp_rl.run.resume import resume_config
 from conftest import ROOT, cli_args, eval_result, metrics_rows, run_script, tiny
 
 

@@ -17,9 +17,9 @@ if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_s
 
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
-from cmdp_rl.envs.safe_nav import SafeNavVecEnv  # noqa: E402
-from cmdp_rl.envs.safe_nav_world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
-from cmdp_rl.envs.safety_gym import make_task  # noqa: E402
+from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
+from cmdp_rl.envs.safe_nav.world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
+from cmdp_rl.envs.safety_gym.env import make_task  # noqa: E402
 from conftest import ROOT, eval_result, metrics_rows  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "experiments"))

@@ -23,10 +23,10 @@ if importlib.util.find_spec("safety_gymnasium") is None:
 from cmdp_rl import Collector, finished_episodes, keys, make_env, train  # noqa: E402
 from cmdp_rl.checkpoint import load_checkpoint  # noqa: E402
 from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
-from cmdp_rl.envs.safety_gym import SafetyGymEnvConfig, make_task  # noqa: E402
-from cmdp_rl.envs.safety_gym_compat import import_safety_gymnasium  # noqa: E402
-from cmdp_rl.envs.safety_gym_tasks import TASKS, task_problem  # noqa: E402
-from cmdp_rl.resume import resume_config  # noqa: E402
+from cmdp_rl.envs.safety_gym.env import SafetyGymEnvConfig, make_task  # noqa: E402
+from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium  # noqa: E402
+from cmdp_rl.envs.safety_gym.tasks import TASKS, task_problem  # noqa: E402
+from cmdp_rl.run.resume import resume_config  # noqa: E402
 from conftest import ROOT, ForwardPolicy, eval_result, metrics_rows  # noqa: E402
 
 FULL = bool(os.environ.get("SAFETY_GYM_ALL_TASKS"))
@@ -234,7 +234,7 @@ def _headless_gl_problem() -> str | None:
     import mujoco
     from gymnasium.envs.mujoco.mujoco_rendering import OffScreenViewer
 
-    from cmdp_rl.video import HEADLESS_GL, _headless_gl
+    from cmdp_rl.report.video import HEADLESS_GL, _headless_gl
 
     _headless_gl()
     model = mujoco.MjModel.from_xml_string("<mujoco/>")

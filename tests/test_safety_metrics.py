@@ -8,7 +8,7 @@ import torch
 
 from cmdp_rl import Collector, ConfigError, keys, load_config, train
 from cmdp_rl.envs import GymVecEnv, Reach1D
-from cmdp_rl.safety_metrics import EPSILON, Reference, normalized_scores
+from cmdp_rl.report.safety_metrics import EPSILON, Reference, normalized_scores
 from conftest import ForwardPolicy
 
 

@@ -2,8 +2,8 @@
 
 import pytest
 
-from cmdp_rl.envs.reach1d_task import Reach1DConfig
-from cmdp_rl.summary import Constraint, constraint_line, summary_lines
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
+from cmdp_rl.report.summary import Constraint, constraint_line, summary_lines
 
 
 def result(ret=0.38, cost=0.0, goal=0.0):

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cmdp_rl.sweeps import FAILED, OK, find_runs, missing_jobs
+from cmdp_rl.run.sweeps import FAILED, OK, find_runs, missing_jobs
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["env.start=0.1", "seed=0", "total_steps=256", "rollout_steps=32", "env.num_envs=4",

@@ -13,11 +13,11 @@ import pytest
 
 from cmdp_rl import load_config, train
 from cmdp_rl.config import ConfigError, compose_config
-from cmdp_rl.envs.reach1d import FRAME_H, FRAME_W, Reach1D, render_reach1d
-from cmdp_rl.envs.reach1d_task import Reach1DConfig
-from cmdp_rl.replay import record_reach1d
-from cmdp_rl.rundir import load_trained
-from cmdp_rl.video import VideoError, exact_fps, make_render_env, record_video
+from cmdp_rl.envs.reach1d.env import FRAME_H, FRAME_W, Reach1D, render_reach1d
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
+from cmdp_rl.report.reach1d_episodes import record_reach1d
+from cmdp_rl.run.rundir import load_trained
+from cmdp_rl.report.video import VideoError, exact_fps, make_render_env, record_video
 from conftest import ROOT, tiny
 
 pytest.importorskip("moviepy")  # the test extra installs it (pip install -e '.[test]')
@@ -181,7 +181,7 @@ def test_missing_moviepy_is_one_line(monkeypatch):
 
 # --- the gridworld (discrete actions, K = 2 costs) -----------------------------------------------
 def test_grid_frame_is_drawn_where_the_agent_is():
-    from cmdp_rl.envs.grid import AGENT_COLOUR, CELL_PX, GRID_COLOURS, GridWorld
+    from cmdp_rl.envs.grid.env import AGENT_COLOUR, CELL_PX, GRID_COLOURS, GridWorld
 
     env = GridWorld(render_mode="rgb_array")
     env.reset(seed=0)

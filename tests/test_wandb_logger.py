@@ -151,7 +151,7 @@ def test_csv_runs_write_no_wandb_files(tmp_path):
 
 
 def test_a_run_left_open_by_a_failed_train_is_finished_by_the_next(tmp_path):
-    from cmdp_rl.metrics import WandbRun
+    from cmdp_rl.report.metrics import WandbRun
 
     dirs = [tmp_path / "a", tmp_path / "b"]
     for d in dirs:

@@ -8,5 +8,5 @@
 - ``reach1d_reference``: the exact (dynamic-programming) reference for that study on Reach1D, and
   the seed exercise's answers derived from it.
 
-Reading run directories is ``cmdp_rl.sweeps``; nothing here trains.
+Reading run directories is ``cmdp_rl.run.sweeps``; nothing here trains.
 """

@@ -16,8 +16,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from cmdp_rl.analysis.penalty_constraint import Reference, Run
-from cmdp_rl.plot import pyplot, save_figure
-from cmdp_rl.sweeps import OK
+from cmdp_rl.report.plot import pyplot, save_figure
+from cmdp_rl.run.sweeps import OK
 
 
 def dodge(i: int, n: int, span: float) -> float:

@@ -1,5 +1,5 @@
 """A trained memoryless policy on the gridworld, valued exactly: its action probabilities in every
-state, read off the network, then :func:`cmdp_rl.envs.tabular.evaluate` (one linear solve). No
+state, read off the network, then :func:`cmdp_rl.envs.grid.tabular.evaluate` (one linear solve). No
 episodes, so no sampling noise: the optimality gap and each constraint's slack are exact for the
 stochastic policy the network represents.
 
@@ -16,8 +16,8 @@ import numpy as np
 import torch
 
 from cmdp_rl import keys
-from cmdp_rl.envs.grid_lp import ConstrainedOptimum
-from cmdp_rl.envs.tabular import GridCMDP, PolicyValue, evaluate
+from cmdp_rl.envs.grid.optimum import ConstrainedOptimum
+from cmdp_rl.envs.grid.tabular import GridCMDP, PolicyValue, evaluate
 from cmdp_rl.policies.agent import Agent
 
 

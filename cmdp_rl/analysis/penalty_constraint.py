@@ -5,7 +5,7 @@ constrained algorithm with a budget d, from some start distribution. Runs of one
 d, start) are one group; the table gives each group's seed statistics and compares them with a
 :class:`Reference`, the exact answer of the env the study ran on (for Reach1D:
 ``cmdp_rl.analysis.reach1d_reference``). Every job a sweep expected is listed with its status
-(``cmdp_rl.sweeps``), so that a report says what is missing rather than silently averaging less.
+(``cmdp_rl.run.sweeps``), so that a report says what is missing rather than silently averaging less.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 
 from cmdp_rl.analysis.stats import sample_mean_std, tail_mean
 from cmdp_rl.analysis.tables import markdown_table, pm
-from cmdp_rl.sweeps import (
+from cmdp_rl.run.sweeps import (
     MISSING, OK, SUPERSEDED, MissingJob, RunRecord, job_values, read_sweeps, rerun_command, sweep_dir_of,
 )
 

@@ -2,7 +2,7 @@
 answers derived from it.
 
 The penalty-optimal plans come from dynamic programming on the env's true-state dynamics
-(``cmdp_rl.envs.reach1d_dp``), for the env and discounts the runs used; nothing is learned. This
+(``cmdp_rl.envs.reach1d.optimum``), for the env and discounts the runs used; nothing is learned. This
 module is a :class:`cmdp_rl.analysis.penalty_constraint.Reference` and writes ``answers.md``: (a)
 a penalty under which the optimal policy still collides, (b) why no single λ enforces a budget.
 """
@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from cmdp_rl.analysis.penalty_constraint import budget_markdown, penalty_markdown, start_label
-from cmdp_rl.envs.reach1d_dp import CrossingThresholds, closed_form_threshold, crossing_thresholds
-from cmdp_rl.envs.reach1d_task import Reach1DConfig
-from cmdp_rl.sweeps import RunRecord
+from cmdp_rl.envs.reach1d.optimum import CrossingThresholds, closed_form_threshold, crossing_thresholds
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
+from cmdp_rl.run.sweeps import RunRecord
 
 SEED_START = 0.1  # the seed exercise's start state
 
@@ -81,7 +81,7 @@ def answers_markdown(reference: Reach1DReference | None, rows: list[dict[str, An
     out.append(
         f"Env: wall={e.wall}, wall_x={e.wall_x}, goal={e.goal}, max_steps={e.max_steps}; "
         f"gamma={g}, cost_gamma={reference.cost_gamma}. Exact plans on the true state "
-        "(no sensor noise), positions on a 0.001 grid (`cmdp_rl/envs/reach1d_dp.py`).\n"
+        "(no sensor noise), positions on a 0.001 grid (`cmdp_rl/envs/reach1d/optimum.py`).\n"
     )
     if reference.mixed_envs:
         out.append(f"Warning: {len(reference.mixed_envs)} runs used other env parameters than the first "

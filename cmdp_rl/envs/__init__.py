@@ -7,12 +7,12 @@ import dataclasses
 from typing import Any
 
 from cmdp_rl.envs.contract import EnvContractError, check_env
-from cmdp_rl.envs.grid import GRID_ID, GridWorld
-from cmdp_rl.envs.grid_task import GridEnvConfig
+from cmdp_rl.envs.grid.env import GRID_ID, GridWorld
+from cmdp_rl.envs.grid.task import GridEnvConfig
 from cmdp_rl.envs.gym_cost import make_cost_env
-from cmdp_rl.envs.reach1d import Reach1D
-from cmdp_rl.envs.reach1d_task import Reach1DConfig
-from cmdp_rl.envs.reach1d_torch import NoiseSource, TorchNoise, TorchReach1D
+from cmdp_rl.envs.reach1d.env import Reach1D
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
+from cmdp_rl.envs.reach1d.batched import NoiseSource, TorchNoise, TorchReach1D
 from cmdp_rl.envs.vector import GymVecEnv, Step, VecEnv
 from cmdp_rl.envs.velocity import make_velocity_env
 from cmdp_rl.registry import component

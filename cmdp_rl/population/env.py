@@ -1,6 +1,6 @@
 """All agents' Reach1D envs as one batched env: agent i owns envs ``[i N, (i + 1) N)``.
 
-:class:`PopulationReach1D` is :class:`~cmdp_rl.envs.reach1d_torch.TorchReach1D` on ``P N`` envs
+:class:`PopulationReach1D` is :class:`~cmdp_rl.envs.reach1d.batched.TorchReach1D` on ``P N`` envs
 whose per-agent options (``obs_noise``, ``wall_x``, ``goal``, ``start``) are float64 tensors
 ``[P N]`` instead of Python floats: the same float64 arithmetic elementwise, so each agent's envs
 step exactly as a single run's ``TorchReach1D`` with its options does. Noise comes from
@@ -15,11 +15,11 @@ from typing import Any, Sequence
 
 import torch
 
-from cmdp_rl.envs.reach1d_torch import TorchReach1D
+from cmdp_rl.envs.reach1d.batched import TorchReach1D
 
 
 class PopulationNoise:
-    """A :class:`~cmdp_rl.envs.reach1d_torch.NoiseSource` for P agents of N envs each: agent i's
+    """A :class:`~cmdp_rl.envs.reach1d.batched.NoiseSource` for P agents of N envs each: agent i's
     draws come from its own generator, N at every call (as :class:`TorchNoise` draws for all its
     envs); :meth:`uniform` draws only for the agents in ``agents``."""
 

@@ -6,7 +6,7 @@ population's env and agent), check the rollout, update (``update.PopulationPPO``
 
 - ``agents/<k>_<values>/``: one run directory per agent, as a single run writes it
   (``config.yaml`` with the agent's own config, ``run_info.json``, ``metrics.csv``, ``eval.json``,
-  ``checkpoint.pt`` loadable by ``evaluate.py``), so ``cmdp_rl.plot``, ``cmdp_rl.sweeps`` and the
+  ``checkpoint.pt`` loadable by ``evaluate.py``), so ``cmdp_rl.report.plot``, ``cmdp_rl.run.sweeps`` and the
   penalty-versus-constraint report read them unchanged;
 - ``population.yaml``: the composed config the population was started with (its ``population``
   node included), which a resume rebuilds it from;
@@ -36,7 +36,7 @@ from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.envs import make_env
 from cmdp_rl.envs.contract import check_rollout
-from cmdp_rl.metrics import MetricsLogger, columns, spread
+from cmdp_rl.report.metrics import MetricsLogger, columns, spread
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
@@ -45,12 +45,12 @@ from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.rng import seed_everything
-from cmdp_rl.rundir import (
+from cmdp_rl.run.rundir import (
     CHECKPOINT, CONFIG, EVAL, METRICS, POPULATION_CHECKPOINT, POPULATION_CONFIG, POPULATION_SUMMARY, RUN_INFO,
     ensure_writable,
     write_run_info,
 )
-from cmdp_rl.safety_metrics import cost_rate, normalized_scores
+from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
 from cmdp_rl.threads import apply_threads
 from cmdp_rl.trainer import check_env_contract, contract_options
 

@@ -1,4 +1,4 @@
-"""Learning curves of runs: ``python -m cmdp_rl.plot <run dirs...> [-o curves.png] [--smooth K]``.
+"""Learning curves of runs: ``python -m cmdp_rl.report.plot <run dirs...> [-o curves.png] [--smooth K]``.
 
 Draws episode return, episode cost (with each config's budget d as a dashed line) and the Lagrange
 multiplier against env steps, from each run's ``metrics.csv``. Runs whose configs differ only in
@@ -26,7 +26,7 @@ import numpy as np
 import yaml
 
 from cmdp_rl.config import flatten_dict
-from cmdp_rl.rundir import CONFIG, METRICS
+from cmdp_rl.run.rundir import CONFIG, METRICS
 
 PANELS = (("episode_return", "episode return"), ("episode_cost", "episode cost"),
           ("lagrange_multiplier", "Lagrange multiplier λ"))  # with one cost
@@ -192,7 +192,7 @@ def save_figure(fig: Any, path: str | Path, dpi: int = 100) -> Path:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m cmdp_rl.plot", description=__doc__.split("\n\n")[1],
+    parser = argparse.ArgumentParser(prog="python -m cmdp_rl.report.plot", description=__doc__.split("\n\n")[1],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="run directories (each with metrics.csv and config.yaml)")
     parser.add_argument("-o", "--out", default="curves.png", help="PNG to write (default: curves.png)")

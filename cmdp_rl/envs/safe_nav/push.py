@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav_layout import LayoutSampler
-from cmdp_rl.envs.safe_nav_lidar import pseudo_lidar
-from cmdp_rl.envs.safe_nav_world import GOAL_SIZE, NavWorlds
+from cmdp_rl.envs.safe_nav.layout import LayoutSampler
+from cmdp_rl.envs.safe_nav.lidar import pseudo_lidar
+from cmdp_rl.envs.safe_nav.world import GOAL_SIZE, NavWorlds
 
 EPISODE = 1000
 REWARD_CLIP = 10.0

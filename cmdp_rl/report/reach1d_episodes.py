@@ -4,7 +4,7 @@ The collector keeps only what learning needs; the true position lives in the env
 never reaches a batch. Replay steps one plain Reach1D per episode and records it, away from the
 collector's hot path. It sends actions in the env's own dtype, as ``GymVecEnv`` does.
 
-Videos of a policy (Reach1D's drawn frame, the MuJoCo velocity tasks) are ``cmdp_rl/video.py``'s.
+Videos of a policy (Reach1D's drawn frame, the MuJoCo velocity tasks) are ``cmdp_rl/report/video.py``'s.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import torch
 from cmdp_rl import keys
 from cmdp_rl.collector import PolicyMemory
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.envs.reach1d_task import Reach1DConfig
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.envs import Reach1D, reach1d_kwargs
-from cmdp_rl.plot import pyplot, save_figure
+from cmdp_rl.report.plot import pyplot, save_figure
 
 
 @dataclass

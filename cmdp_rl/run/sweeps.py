@@ -1,6 +1,6 @@
 """Recording a run's failure, and reading a Hydra sweep's run directories back.
 
-A run directory (``train.py``'s Hydra output dir; its layout is in ``cmdp_rl/rundir.py``) holds
+A run directory (``train.py``'s Hydra output dir; its layout is in ``cmdp_rl/run/rundir.py``) holds
 ``.hydra/{config,overrides}.yaml`` (written by Hydra when the job starts), then ``config.yaml``
 and ``metrics.csv`` (training started), then ``eval.json`` (training and evaluation finished) or
 ``error.txt`` (the job raised).
@@ -28,11 +28,11 @@ from typing import Any
 
 import yaml
 
-from cmdp_rl.rundir import CONFIG as CONFIG_FILE
-from cmdp_rl.rundir import ERROR as ERROR_FILE
-from cmdp_rl.rundir import EVAL as EVAL_FILE
-from cmdp_rl.rundir import METRICS as METRICS_FILE
-from cmdp_rl.rundir import POPULATION_CONFIG
+from cmdp_rl.run.rundir import CONFIG as CONFIG_FILE
+from cmdp_rl.run.rundir import ERROR as ERROR_FILE
+from cmdp_rl.run.rundir import EVAL as EVAL_FILE
+from cmdp_rl.run.rundir import METRICS as METRICS_FILE
+from cmdp_rl.run.rundir import POPULATION_CONFIG
 
 HYDRA_DIR = ".hydra"
 MULTIRUN_FILE = "multirun.yaml"

@@ -25,7 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
-from cmdp_rl.envs.tabular import TabularCMDP
+from cmdp_rl.envs.grid.tabular import TabularCMDP
 
 
 @dataclass(frozen=True, eq=False)

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav_world import (AGENT_KEEPOUT, BUTTON_GOAL_KEEPOUT, BUTTON_HAZARD_KEEPOUT, BUTTON_KEEPOUT,
+from cmdp_rl.envs.safe_nav.world import (AGENT_KEEPOUT, BUTTON_GOAL_KEEPOUT, BUTTON_HAZARD_KEEPOUT, BUTTON_KEEPOUT,
                                          GOAL_KEEPOUT, GREMLIN_KEEPOUT, HAZARD_KEEPOUT, PILLAR_KEEPOUT, PUSH_BOX,
                                          PUSH_GOAL_KEEPOUT, PUSH_HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT, NavSpec)
 

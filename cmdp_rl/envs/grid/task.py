@@ -1,5 +1,5 @@
 """The slippery two-hazard gridworld as a component (``env=grid``): its options, checked before
-anything is built, and its vector env (gymnasium's, one :class:`~cmdp_rl.envs.grid.GridWorld` per
+anything is built, and its vector env (gymnasium's, one :class:`~cmdp_rl.envs.grid.env.GridWorld` per
 env). Discrete actions (4 directions) and K = 2 costs (``hazard_a``, ``hazard_b``): train it with an
 algorithm that takes several constraints and one budget per cost, e.g.
 ``python train.py env=grid algo=ppo_lag 'algo.cost_limit=[0.3,0.15]'`` (``grid.DEFAULT_BUDGETS``)."""
@@ -10,7 +10,7 @@ from dataclasses import field
 from functools import partial
 from typing import TYPE_CHECKING, Annotated, Literal
 
-from cmdp_rl.envs.grid import COST_NAMES, DEFAULT_END_PROB, DEFAULT_LAYOUT, DEFAULT_SLIP, GRID_ID, GridWorld, parse_layout
+from cmdp_rl.envs.grid.env import COST_NAMES, DEFAULT_END_PROB, DEFAULT_LAYOUT, DEFAULT_SLIP, GRID_ID, GridWorld, parse_layout
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 from cmdp_rl.registry import register

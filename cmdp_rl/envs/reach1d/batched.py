@@ -4,7 +4,7 @@ The state is a float64 tensor ``x[N]``, so every step does the gymnasium :class:
 arithmetic elementwise and, fed the same noise draws, produces the same observations, rewards,
 costs, flags and positions to the last bit (``tests/test_reach1d_torch.py`` checks this step for
 step, episode resets included). Actions are cast to float32 and clipped to the float32 bound
-first, as the gymnasium path does, so the seed's float64 wall edge (see ``envs/reach1d.py``) is
+first, as the gymnasium path does, so the seed's float64 wall edge (see ``envs/reach1d/env.py``) is
 out of reach here too. One vectorized step moves all N envs; envs whose episode ended are reset
 in the same step (gymnasium's SAME_STEP autoreset), with no Python loop over envs and no host
 sync, so it runs on CPU or CUDA alike.
@@ -20,7 +20,7 @@ from typing import Any, Protocol
 
 import torch
 
-from cmdp_rl.envs.reach1d import WALL_MODES
+from cmdp_rl.envs.reach1d.env import WALL_MODES
 from cmdp_rl.envs.vector import Step, VecEnv
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
-from cmdp_rl.intervals import summary_lines as interval_lines
+from cmdp_rl.report.intervals import summary_lines as interval_lines
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ class Reach1D(gym.Env):
     """
 
     # rgb_array: a drawn frame (render_reach1d below), for gymnasium's RecordVideo; 8 steps a second
-    # (a power of two: see cmdp_rl/video.py's exact_fps).
+    # (a power of two: see cmdp_rl/report/video.py's exact_fps).
     metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
 
     def __init__(

@@ -14,7 +14,7 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from cmdp_rl.rundir import RunDirError, ensure_writable
+from cmdp_rl.run.rundir import RunDirError, ensure_writable
 
 EXIT_STATUS = 2
 

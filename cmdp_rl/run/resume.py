@@ -22,7 +22,7 @@ from typing import Any, Iterable, Mapping
 
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, flatten_dict, load_config
-from cmdp_rl.rundir import checkpoint_path, saved_config
+from cmdp_rl.run.rundir import checkpoint_path, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
 # shape of anything saved. Prefixes: every field under ``logger.``.

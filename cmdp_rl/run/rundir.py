@@ -4,10 +4,10 @@
 
     config.yaml     the run's resolved config (cmdp_rl.config.RunConfig), what a resume continues with
     run_info.json   package version, git commit, library versions, command; one entry per resume
-    metrics.csv     one row per iteration (cmdp_rl.metrics.COLUMNS)
+    metrics.csv     one row per iteration (cmdp_rl.report.metrics.COLUMNS)
     checkpoint.pt   the last checkpoint (cmdp_rl.checkpoint), written atomically
     eval.json       the final evaluation
-    error.txt       why the run failed, if it did (train.py; cmdp_rl.sweeps reads it back)
+    error.txt       why the run failed, if it did (train.py; cmdp_rl.run.sweeps reads it back)
     tb/             TensorBoard events, with ``logger=tensorboard``
     wandb/          Weights & Biases files, with ``logger=wandb`` (wandb_id.txt: its run id, for a resume)
     .hydra/         Hydra's record of the command (train.py only)
@@ -86,7 +86,7 @@ def provenance() -> dict[str, Any]:
 
     # Only the checkout the package's source lives in (not, say, a repo that holds a virtualenv).
     top = _git("rev-parse", "--show-toplevel")
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parents[1]  # the cmdp_rl package directory
     commit = _git("rev-parse", "HEAD") if top and (Path(top) / here.name).resolve() == here else None
     status = _git("status", "--porcelain") if commit else None
     libs = {}

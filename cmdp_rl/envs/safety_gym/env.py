@@ -28,8 +28,8 @@ import numpy as np
 
 from cmdp_rl.envs.env_state import env_state, load_env_state
 from cmdp_rl.envs.options import EnvOptions
-from cmdp_rl.envs.safety_gym_compat import import_safety_gymnasium
-from cmdp_rl.envs.safety_gym_tasks import TASKS, task_problem
+from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium
+from cmdp_rl.envs.safety_gym.tasks import TASKS, task_problem
 from cmdp_rl.envs.vector import GymVecEnv, default_cost_names
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options, require

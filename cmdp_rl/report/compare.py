@@ -1,4 +1,4 @@
-"""Compare runs across seeds: ``python -m cmdp_rl.compare RUN_OR_SWEEP_DIRS... [--by algo.name]
+"""Compare runs across seeds: ``python -m cmdp_rl.report.compare RUN_OR_SWEEP_DIRS... [--by algo.name]
 [--csv out.csv] [--figure curves.png] [--resamples N] [--seed S]``.
 
 Finished runs (an ``eval.json``) under the given directories are grouped by config: by the fields
@@ -32,8 +32,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from cmdp_rl.config import flatten_dict
-from cmdp_rl.plot import IGNORED, pyplot, save_figure, smooth
-from cmdp_rl.sweeps import OK, RunRecord, find_runs, mark_superseded
+from cmdp_rl.report.plot import IGNORED, pyplot, save_figure, smooth
+from cmdp_rl.run.sweeps import OK, RunRecord, find_runs, mark_superseded
 
 # (eval.json key, table name, number format)
 METRICS = (("episode_return", "return", ".3f"), ("episode_cost", "cost", ".3f"),
@@ -122,7 +122,7 @@ def interval_estimates(scores: np.ndarray, resamples: int = RESAMPLES, seed: int
 
 def load_runs(paths: Sequence[str | Path]) -> tuple[list[RunRecord], list[RunRecord]]:
     """``(finished, not finished)`` runs under ``paths`` (run or sweep directories); a rerun
-    supersedes the run it repeats (:func:`cmdp_rl.sweeps.mark_superseded`)."""
+    supersedes the run it repeats (:func:`cmdp_rl.run.sweeps.mark_superseded`)."""
     records: dict[Path, RunRecord] = {}
     for p in paths:
         if not Path(p).is_dir():
@@ -273,7 +273,7 @@ def plot_groups(groups: Sequence[Group], out: str | Path, k: int = 5, resamples:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m cmdp_rl.compare", description=__doc__.split("\n\n")[1],
+    parser = argparse.ArgumentParser(prog="python -m cmdp_rl.report.compare", description=__doc__.split("\n\n")[1],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("paths", nargs="+", help="run directories or sweep directories (searched for runs)")
     parser.add_argument("--by", action="append", default=[],

@@ -8,9 +8,9 @@ from functools import partial
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
 
 from cmdp_rl.envs.options import EnvOptions
-from cmdp_rl.envs.reach1d import GOAL_TOLERANCE, Reach1D
-from cmdp_rl.envs.reach1d_dp import constrained_optimum
-from cmdp_rl.envs.reach1d_torch import TorchReach1D
+from cmdp_rl.envs.reach1d.env import GOAL_TOLERANCE, Reach1D
+from cmdp_rl.envs.reach1d.optimum import constrained_optimum
+from cmdp_rl.envs.reach1d.batched import TorchReach1D
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 from cmdp_rl.registry import register
 from cmdp_rl.validation import Bool, Field, NonNegativeFloat, PositiveInt, finite, is_finite, options, require

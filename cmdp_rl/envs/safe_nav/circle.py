@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav_lidar import pseudo_lidar
-from cmdp_rl.envs.safe_nav_world import CIRCLE_RADIUS, SIGWALL_AT, NavWorlds
+from cmdp_rl.envs.safe_nav.lidar import pseudo_lidar
+from cmdp_rl.envs.safe_nav.world import CIRCLE_RADIUS, SIGWALL_AT, NavWorlds
 
 EPISODE = 500
 REWARD_FACTOR = 0.1

@@ -2,7 +2,7 @@
 ``RecordVideo`` wrapper (which writes the mp4 with moviepy: ``pip install 'cmdp_rl[video]'``).
 
 An env component that can render declares ``render_env()`` on its options: one gymnasium env of its
-config with ``render_mode="rgb_array"``. Reach1D draws its frame with numpy (``envs/reach1d.py``;
+config with ``render_mode="rgb_array"``. Reach1D draws its frame with numpy (``envs/reach1d/env.py``;
 the batched torch backend renders through this gym twin of the same config), the velocity tasks use
 MuJoCo's camera (``env=safety_gym``'s navigation tasks: its "track" camera, following the robot),
 and ``env=gym`` offers its env's own frames when it has an ``rgb_array`` mode.

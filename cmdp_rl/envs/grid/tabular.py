@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from cmdp_rl.envs.grid import COST_NAMES, DEFAULT_END_PROB, DEFAULT_LAYOUT, DEFAULT_SLIP, MOVES, Layout, parse_layout
+from cmdp_rl.envs.grid.env import COST_NAMES, DEFAULT_END_PROB, DEFAULT_LAYOUT, DEFAULT_SLIP, MOVES, Layout, parse_layout
 
 
 @dataclass(frozen=True, eq=False)

@@ -26,13 +26,13 @@ import numpy as np
 import torch
 
 from cmdp_rl.envs.options import EnvOptions
-from cmdp_rl.envs.safe_nav_button import ButtonTask
-from cmdp_rl.envs.safe_nav_circle import CircleTask
-from cmdp_rl.envs.safe_nav_goal import GoalTask
-from cmdp_rl.envs.safe_nav_layout import LayoutSampler
-from cmdp_rl.envs.safe_nav_lidar import LIDAR_BINS, pseudo_lidar
-from cmdp_rl.envs.safe_nav_push import PushTask
-from cmdp_rl.envs.safe_nav_world import ROBOTS, NavWorlds, nav_spec
+from cmdp_rl.envs.safe_nav.button import ButtonTask
+from cmdp_rl.envs.safe_nav.circle import CircleTask
+from cmdp_rl.envs.safe_nav.goal import GoalTask
+from cmdp_rl.envs.safe_nav.layout import LayoutSampler
+from cmdp_rl.envs.safe_nav.lidar import LIDAR_BINS, pseudo_lidar
+from cmdp_rl.envs.safe_nav.push import PushTask
+from cmdp_rl.envs.safe_nav.world import ROBOTS, NavWorlds, nav_spec
 from cmdp_rl.envs.vector import Step, VecEnv
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, PositiveInt, options, require
@@ -246,7 +246,7 @@ class SafeNavEnvConfig(EnvOptions):
     def render_env(self):
         """The reference task drawing ``rgb_array`` frames (for video): its layouts and trajectories
         are this env's (docs/safe_nav.md), and it has the renderer's textures, lights and cameras."""
-        from cmdp_rl.envs.safety_gym import make_task
+        from cmdp_rl.envs.safety_gym.env import make_task
 
         return make_task(f"Safety{self.task}-v0", self.max_steps, render_mode="rgb_array")
 

@@ -207,7 +207,7 @@ def render_grid(layout: Layout, cell: int, cost: np.ndarray) -> np.ndarray:
 
 
 if GRID_ID not in gym.registry:
-    gym.register(id=GRID_ID, entry_point="cmdp_rl.envs.grid:GridWorld")
+    gym.register(id=GRID_ID, entry_point="cmdp_rl.envs.grid.env:GridWorld")
 
 __all__ = [
     "ACTION_NAMES", "COST_NAMES", "DEFAULT_BUDGETS", "DEFAULT_END_PROB", "DEFAULT_LAYOUT", "DEFAULT_SLIP", "GRID_ID",

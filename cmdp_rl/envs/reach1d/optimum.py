@@ -32,7 +32,7 @@ from typing import Protocol, Union
 
 import numpy as np
 
-from cmdp_rl.envs.reach1d import GOAL_TOLERANCE, MAX_SPEED
+from cmdp_rl.envs.reach1d.env import GOAL_TOLERANCE, MAX_SPEED
 
 
 class Reach1DConfig(Protocol):

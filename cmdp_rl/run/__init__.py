@@ -1,0 +1,1 @@
+"""Run plumbing: the run directory, resume, the progress line, sweeps and Hydra callbacks."""
