@@ -43,9 +43,9 @@ from cmdp_rl.config import ConfigError, load_eval_config
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
-from cmdp_rl.run.rundir import load_trained, run_config
 from cmdp_rl.report.summary import interval_summary
 from cmdp_rl.report.video import VideoError, make_render_env, record_video
+from cmdp_rl.run.rundir import load_trained, run_config
 
 
 def _line(name: str, r: dict, fmt: str) -> str:
@@ -94,14 +94,17 @@ def main(argv: list[str]) -> int:
         return 2
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
-    result = evaluate(agent, env, episodes, deterministic, seed=seed, termination_metric=metric,
-                      cost_limit=cfg.algo.cost_limit)
+    result = evaluate(
+        agent, env, episodes, deterministic, seed=seed, termination_metric=metric, cost_limit=cfg.algo.cost_limit
+    )
     cost_names = env.cost_names
     env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
     mode = "deterministic" if deterministic else "stochastic"
-    print(f"{opts.run}: {cfg.algo.name} on {cfg.env.name}, checkpoint of iteration {iteration} (step {step:,}); "
-          f"{result['episodes']} episodes, {mode} policy, seed {seed}")
+    print(
+        f"{opts.run}: {cfg.algo.name} on {cfg.env.name}, checkpoint of iteration {iteration} (step {step:,}); "
+        f"{result['episodes']} episodes, {mode} policy, seed {seed}"
+    )
     print(_line("episode_return", result, ".3f"))
     for line in _cost_lines(result, cost_names, cfg.algo.cost_limit):
         print(line)
@@ -119,11 +122,14 @@ def main(argv: list[str]) -> int:
         print(f"wrote {plot_reach1d(eps, cfg.env, opts.plot, title)}")
     if opts.video:
         video_dir = Path(opts.video_dir) if opts.video_dir else Path(opts.run) / "videos"
-        for v in record_video(agent, cfg.env, video_dir, opts.video_episodes, deterministic, seed, opts.video_steps,
-                            algo=cfg.algo):
+        for v in record_video(
+            agent, cfg.env, video_dir, opts.video_episodes, deterministic, seed, opts.video_steps, algo=cfg.algo
+        ):
             costs = v.episode_cost if isinstance(v.episode_cost, tuple) else (v.episode_cost,)
-            print(f"wrote {v.path} ({v.frames} frames: return {v.episode_return:.3f}, "
-                  f"cost {'/'.join(f'{c:.0f}' for c in costs)})")
+            print(
+                f"wrote {v.path} ({v.frames} frames: return {v.episode_return:.3f}, "
+                f"cost {'/'.join(f'{c:.0f}' for c in costs)})"
+            )
     return 0
 
 

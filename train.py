@@ -26,8 +26,12 @@ from cmdp_rl.run.rundir import CHECKPOINT, POPULATION_CHECKPOINT, RunDirError
 from cmdp_rl.run.sweeps import clear_outputs, record_failure
 
 # How a single run ends on each error (inside a sweep train.py raises instead: see _fail).
-EXIT_CODES = ((RunDirError, 2, "cannot write outputs"), (ConfigError, 2, "config error"), (CheckpointError, 2, "cannot resume"),
-              (TrainingDiverged, 3, "training stopped"))
+EXIT_CODES = (
+    (RunDirError, 2, "cannot write outputs"),
+    (ConfigError, 2, "config error"),
+    (CheckpointError, 2, "cannot resume"),
+    (TrainingDiverged, 3, "training stopped"),
+)
 
 
 def _if_resumable(resume: str | None, then: str, otherwise: str) -> str:
@@ -93,10 +97,12 @@ def _population(raw: dict, new_dir: str | None = None, resume: bool = False) -> 
 
     try:
         if resume:
-            explicit = [o.key_or_group for o in OverridesParser.create().parse_overrides(
-                list(HydraConfig.get().overrides.task))]
-            train_population(None, raw["resume"], resume=True,
-                             total_steps=raw["total_steps"] if "total_steps" in explicit else None)
+            explicit = [
+                o.key_or_group for o in OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
+            ]
+            train_population(
+                None, raw["resume"], resume=True, total_steps=raw["total_steps"] if "total_steps" in explicit else None
+            )
         else:
             clear_outputs(new_dir)
             train_population(raw, new_dir)

@@ -33,8 +33,10 @@ def check_action_space(space: gym.Space, env_id: str = "env") -> None:
     if not isinstance(space, (spaces.Box, spaces.Discrete, spaces.MultiDiscrete)):
         raise UnsupportedActionSpace(f"env {env_id}: action space {space} is not supported; supported: {SUPPORTED}")
     if isinstance(space, spaces.Box) and not np.issubdtype(space.dtype, np.floating):
-        raise UnsupportedActionSpace(f"env {env_id}: action space {space} is not supported: a Box of integers "
-                                     f"(dtype {space.dtype}); use Discrete or MultiDiscrete")
+        raise UnsupportedActionSpace(
+            f"env {env_id}: action space {space} is not supported: a Box of integers "
+            f"(dtype {space.dtype}); use Discrete or MultiDiscrete"
+        )
 
 
 def is_discrete(space: gym.Space) -> bool:
@@ -95,5 +97,15 @@ def uniform_actions(space: gym.Space, n: int, device: torch.device | str) -> tup
     return action, (-sizes.float().log().sum()).expand(n)
 
 
-__all__ = ["SUPPORTED", "UnsupportedActionSpace", "action_dim", "action_dtype", "categories",
-           "check_action_space", "is_discrete", "no_action", "to_env", "uniform_actions"]
+__all__ = [
+    "SUPPORTED",
+    "UnsupportedActionSpace",
+    "action_dim",
+    "action_dtype",
+    "categories",
+    "check_action_space",
+    "is_discrete",
+    "no_action",
+    "to_env",
+    "uniform_actions",
+]

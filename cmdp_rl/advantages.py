@@ -26,13 +26,21 @@ class TwinGAE:
     def __init__(self, gamma: float, cost_gamma: float, lmbda: float) -> None:
         self.reward = GAE(gamma=gamma, lmbda=lmbda, value_network=None)
         self.reward.set_keys(
-            reward=keys.REWARD, value=keys.VALUE, advantage=keys.ADVANTAGE, value_target=keys.VALUE_TARGET,
-            done=keys.DONE, terminated=keys.TERMINATED,
+            reward=keys.REWARD,
+            value=keys.VALUE,
+            advantage=keys.ADVANTAGE,
+            value_target=keys.VALUE_TARGET,
+            done=keys.DONE,
+            terminated=keys.TERMINATED,
         )
         self.cost = GAE(gamma=cost_gamma, lmbda=lmbda, value_network=None)
         self.cost.set_keys(
-            reward=keys.COST, value=keys.COST_VALUE, advantage=keys.COST_ADVANTAGE,
-            value_target=keys.COST_VALUE_TARGET, done=keys.DONE, terminated=keys.TERMINATED,
+            reward=keys.COST,
+            value=keys.COST_VALUE,
+            advantage=keys.COST_ADVANTAGE,
+            value_target=keys.COST_VALUE_TARGET,
+            done=keys.DONE,
+            terminated=keys.TERMINATED,
         )
 
     @torch.no_grad()
@@ -56,11 +64,16 @@ class TwinGAE:
             return
         nxt = batch.get(keys.NEXT)
         flags = {(keys.NEXT, f): nxt.get(f).expand(*batch.shape, k) for f in (keys.DONE, keys.TERMINATED)}
-        view = TensorDict({
-            keys.COST_VALUE: batch.get(keys.COST_VALUE),
-            (keys.NEXT, keys.COST_VALUE): nxt.get(keys.COST_VALUE),
-            (keys.NEXT, keys.COST): nxt.get(keys.COST), **flags,
-        }, batch_size=batch.shape, device=batch.device)
+        view = TensorDict(
+            {
+                keys.COST_VALUE: batch.get(keys.COST_VALUE),
+                (keys.NEXT, keys.COST_VALUE): nxt.get(keys.COST_VALUE),
+                (keys.NEXT, keys.COST): nxt.get(keys.COST),
+                **flags,
+            },
+            batch_size=batch.shape,
+            device=batch.device,
+        )
         self.cost(view)
         batch.set(keys.COST_ADVANTAGE, view.get(keys.COST_ADVANTAGE))
         batch.set(keys.COST_VALUE_TARGET, view.get(keys.COST_VALUE_TARGET))

@@ -44,8 +44,9 @@ class PolicyMemory:
     previous action and cost if its ``in_keys`` ask for them. Used by the collector and by
     ``replay.py``, which steps one plain env."""
 
-    def __init__(self, agent: Agent, num_envs: int, action_space: gym.Space, device: torch.device,
-                 num_costs: int = 1) -> None:
+    def __init__(
+        self, agent: Agent, num_envs: int, action_space: gym.Space, device: torch.device, num_costs: int = 1
+    ) -> None:
         self.initial = agent.initial_state(num_envs, device)
         in_keys = agent.in_keys
         self.prev_action = keys.PREV_ACTION in in_keys
@@ -61,8 +62,9 @@ class PolicyMemory:
         """The root entries of every env's first step (besides observation and ``is_init``)."""
         root = dict(self.initial)
         if self.prev_action:
-            root[keys.PREV_ACTION] = torch.full((self.num_envs, self.action_dim), self.no_action,
-                                                dtype=self.action_dtype, device=self.device)
+            root[keys.PREV_ACTION] = torch.full(
+                (self.num_envs, self.action_dim), self.no_action, dtype=self.action_dtype, device=self.device
+            )
         if self.prev_cost:
             root[keys.PREV_COST] = torch.zeros(self.num_envs, self.num_costs, device=self.device)
         return root
@@ -114,7 +116,8 @@ class Collector:
         n, dev = env.num_envs, env.device
         self._memory = PolicyMemory(agent, n, env.action_space, dev, env.num_costs)
         self._root: Entries = {
-            **self._memory.start(), keys.OBS: env.reset(seed=seed),
+            **self._memory.start(),
+            keys.OBS: env.reset(seed=seed),
             keys.IS_INIT: torch.ones(n, 1, dtype=torch.bool, device=dev),
         }
         self._ep_return = torch.zeros(n, 1, device=dev)
@@ -133,25 +136,30 @@ class Collector:
             out = self.agent.act(root, self.deterministic)
             if self.total_steps + t * self.env.num_envs < self.uniform_steps:
                 out[keys.ACTION], out[keys.LOG_PROB] = uniform_actions(
-                    self.env.action_space, self.env.num_envs, self.env.device)
+                    self.env.action_space, self.env.num_envs, self.env.device
+                )
             step = self.env.step(out[keys.ACTION])
             done = step.terminated | step.truncated
             ep_return = ep_return + step.reward
             ep_cost = ep_cost + step.cost
             ep_length = ep_length + 1
             history, carried = self._memory.step(out, step.cost, done)
-            steps.append({
-                **root, **out, **history,
-                (keys.NEXT, keys.OBS): step.next_obs,
-                (keys.NEXT, keys.REWARD): step.reward,
-                (keys.NEXT, keys.COST): step.cost,
-                (keys.NEXT, keys.TERMINATED): step.terminated,
-                (keys.NEXT, keys.TRUNCATED): step.truncated,
-                (keys.NEXT, keys.DONE): done,
-                (keys.NEXT, keys.EPISODE_RETURN): ep_return,
-                (keys.NEXT, keys.EPISODE_COST): ep_cost,
-                (keys.NEXT, keys.EPISODE_LENGTH): ep_length,
-            })
+            steps.append(
+                {
+                    **root,
+                    **out,
+                    **history,
+                    (keys.NEXT, keys.OBS): step.next_obs,
+                    (keys.NEXT, keys.REWARD): step.reward,
+                    (keys.NEXT, keys.COST): step.cost,
+                    (keys.NEXT, keys.TERMINATED): step.terminated,
+                    (keys.NEXT, keys.TRUNCATED): step.truncated,
+                    (keys.NEXT, keys.DONE): done,
+                    (keys.NEXT, keys.EPISODE_RETURN): ep_return,
+                    (keys.NEXT, keys.EPISODE_COST): ep_cost,
+                    (keys.NEXT, keys.EPISODE_LENGTH): ep_length,
+                }
+            )
             ep_return = ep_return.masked_fill(done, 0.0)
             ep_cost = ep_cost.masked_fill(done, 0.0)
             ep_length = ep_length.masked_fill(done, 0)
@@ -162,7 +170,8 @@ class Collector:
         n = self.env.num_envs
         batch = TensorDict(
             {k: torch.stack([s[k] for s in steps], dim=1) for k in steps[0]},
-            batch_size=[n, self.rollout_steps], device=self.env.device,
+            batch_size=[n, self.rollout_steps],
+            device=self.env.device,
         )
         cost = batch.get((keys.NEXT, keys.COST))
         # K = 1 sums the whole batch in one reduction, exactly as before costs became vectors.

@@ -18,7 +18,17 @@ from cmdp_rl.registry import KINDS, component
 from cmdp_rl.report.safety_metrics import ReferenceConfig
 from cmdp_rl.threads import apply_threads
 from cmdp_rl.validation import (
-    AUTO, AutoInt, Bool, ConfigError, Field, PositiveFloat, PositiveInt, build, options, recheck, require,
+    AUTO,
+    AutoInt,
+    Bool,
+    ConfigError,
+    Field,
+    PositiveFloat,
+    PositiveInt,
+    build,
+    options,
+    recheck,
+    require,
 )
 
 TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
@@ -57,9 +67,9 @@ class LoggerConfig:
 
 @options
 class RunConfig:
-    env: Any = _default("env")        # the options class registered under env.name
+    env: Any = _default("env")  # the options class registered under env.name
     policy: Any = _default("policy")  # ... under policy.name
-    algo: Any = _default("algo")      # ... under algo.name
+    algo: Any = _default("algo")  # ... under algo.name
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     seed: int = 0
     total_steps: PositiveInt = 400_000
@@ -200,11 +210,27 @@ def validate(cfg: RunConfig) -> None:
 
 
 def _validate_normalize(cfg: RunConfig) -> None:
-    require(not (cfg.normalize.cost and getattr(cfg.algo, "reads_raw_cost", False)), "normalize.cost",
-            f"false with algo={cfg.algo.name} (it reads costs in their own units)", cfg.normalize.cost)
+    require(
+        not (cfg.normalize.cost and getattr(cfg.algo, "reads_raw_cost", False)),
+        "normalize.cost",
+        f"false with algo={cfg.algo.name} (it reads costs in their own units)",
+        cfg.normalize.cost,
+    )
 
 
 __all__ = [
-    "AUTO", "CONFIG_DIR", "ConfigError", "EvalConfig", "LoggerConfig", "NormalizeConfig", "ReferenceConfig",
-    "RunConfig", "compose_config", "flatten_dict", "load_config", "load_eval_config", "resolve_auto", "validate",
+    "AUTO",
+    "CONFIG_DIR",
+    "ConfigError",
+    "EvalConfig",
+    "LoggerConfig",
+    "NormalizeConfig",
+    "ReferenceConfig",
+    "RunConfig",
+    "compose_config",
+    "flatten_dict",
+    "load_config",
+    "load_eval_config",
+    "resolve_auto",
+    "validate",
 ]

@@ -9,9 +9,9 @@ import torch
 from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import VecEnv
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.intervals import summarize as interval_estimates
 from cmdp_rl.report.metrics import constraint_name
-from cmdp_rl.policies.agent import Agent
 
 EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
 
@@ -27,8 +27,13 @@ def _spread(name: str, values: list[float]) -> dict[str, float]:
 
 
 def evaluate(
-    agent: Agent, env: VecEnv, episodes: int, deterministic: bool = True, seed: int | None = None,
-    termination_metric: str | None = None, cost_limit: float | Sequence[float] | None = None,
+    agent: Agent,
+    env: VecEnv,
+    episodes: int,
+    deterministic: bool = True,
+    seed: int | None = None,
+    termination_metric: str | None = None,
+    cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, float]:
     """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
     With K > 1 costs, each constraint's episode cost has its own keys, ``episode_cost/<cost>``,
@@ -54,8 +59,13 @@ def evaluate(
 
 
 def _evaluate(
-    agent: Agent, env: VecEnv, episodes: int, deterministic: bool, seed: int | None,
-    termination_metric: str | None, cost_limit: float | Sequence[float] | None = None,
+    agent: Agent,
+    env: VecEnv,
+    episodes: int,
+    deterministic: bool,
+    seed: int | None,
+    termination_metric: str | None,
+    cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, float]:
     n = env.num_envs
     quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
@@ -69,19 +79,25 @@ def _evaluate(
         done = nxt.get(keys.DONE).squeeze(-1)
         for i, t in done.nonzero().tolist():
             if len(rows[i]) < quota[i]:
-                rows[i].append((
-                    nxt.get(keys.EPISODE_RETURN)[i, t, 0].item(),
-                    float(nxt.get(keys.EPISODE_LENGTH)[i, t, 0].item()),
-                    float(nxt.get(keys.TERMINATED)[i, t, 0].item()),
-                    *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
-                ))
+                rows[i].append(
+                    (
+                        nxt.get(keys.EPISODE_RETURN)[i, t, 0].item(),
+                        float(nxt.get(keys.EPISODE_LENGTH)[i, t, 0].item()),
+                        float(nxt.get(keys.TERMINATED)[i, t, 0].item()),
+                        *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
+                    )
+                )
     flat = [row for r in rows for row in r]
     return summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit)
 
 
-def summarize_episodes(flat: list[tuple[float, ...]], names: Sequence[str], deterministic: bool,
-                       termination_metric: str | None = None,
-                       cost_limit: float | Sequence[float] | None = None) -> dict[str, Any]:
+def summarize_episodes(
+    flat: list[tuple[float, ...]],
+    names: Sequence[str],
+    deterministic: bool,
+    termination_metric: str | None = None,
+    cost_limit: float | Sequence[float] | None = None,
+) -> dict[str, Any]:
     """``evaluate``'s result from its episodes' rows ``(return, length, terminated, cost_0, ...)``:
     spreads of return, each cost and length, the termination rate, and with ``cost_limit`` the
     intervals. Shared with the population's evaluation (population/evaluation.py)."""
@@ -98,7 +114,9 @@ def summarize_episodes(flat: list[tuple[float, ...]], names: Sequence[str], dete
     return result
 
 
-def _intervals(flat: list[tuple[float, ...]], names: Sequence[str], cost_limit: float | Sequence[float]) -> dict[str, Any]:
+def _intervals(
+    flat: list[tuple[float, ...]], names: Sequence[str], cost_limit: float | Sequence[float]
+) -> dict[str, Any]:
     """The interval keys for each constraint (rows: return, length, terminated, cost_0, ...); with
     one cost exactly :func:`cmdp_rl.report.intervals.summarize`'s keys, with K > 1 the return's interval
     once and every other key per constraint as ``<key>/<cost>``."""

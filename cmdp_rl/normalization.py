@@ -131,5 +131,6 @@ class Normalizers(nn.Module):
 
 def make_normalizers(cfg: RunConfig, env: VecEnv) -> Normalizers:
     """The normalizers ``cfg.normalize`` asks for, with the algorithm's discounts."""
-    return Normalizers.from_config(cfg.normalize, env.obs_dim, env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma,
-                                   getattr(env, "num_costs", 1))
+    return Normalizers.from_config(
+        cfg.normalize, env.obs_dim, env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma, getattr(env, "num_costs", 1)
+    )

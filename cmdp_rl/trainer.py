@@ -16,23 +16,23 @@ import torch
 import yaml
 
 from cmdp_rl.algos import TrainingDiverged, make_algo
+from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import RunConfig, validate
 from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
-from cmdp_rl.algos.base import per_constraint
-from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.legacy import upgrade_algo_state
-from cmdp_rl.run.progress import Progress
-from cmdp_rl.run.resume import load_resume_state
-from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
-from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
+from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
+from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
+from cmdp_rl.run.progress import Progress
+from cmdp_rl.run.resume import load_resume_state
+from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
 from cmdp_rl.threads import apply_threads
 
 
@@ -105,12 +105,16 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     # reported, no directory created), before any training.
     ensure_writable(out)
     # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
-    collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed,
-                          uniform_steps=getattr(cfg.algo, "uniform_action_steps", 0))
+    collector = Collector(
+        env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=getattr(cfg.algo, "uniform_action_steps", 0)
+    )
     env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
-            out / METRICS, columns(algo.stats, names), cfg.log_interval, echo,
+            out / METRICS,
+            columns(algo.stats, names),
+            cfg.log_interval,
+            echo,
             resume_iteration=None if state is None else state["iteration"],
             tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
             resume_step=None if state is None else state["step"],
@@ -148,11 +152,20 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             if not cannot_resume:
                 cannot_resume.append(str(exc))
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
-        save_checkpoint(ckpt_path, {
-            "algo": cfg.algo.name, "policy": cfg.policy.name, "config": run_cfg,
-            "iteration": iteration, "step": collector.total_steps, "time_s": time.perf_counter() - start,
-            "algo_state": algo.state_dict(), "collector": rollout, "rng": rng_state(),
-        })
+        save_checkpoint(
+            ckpt_path,
+            {
+                "algo": cfg.algo.name,
+                "policy": cfg.policy.name,
+                "config": run_cfg,
+                "iteration": iteration,
+                "step": collector.total_steps,
+                "time_s": time.perf_counter() - start,
+                "algo_state": algo.state_dict(),
+                "collector": rollout,
+                "rng": rng_state(),
+            },
+        )
 
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
@@ -161,8 +174,10 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         shape += f"; {cfg.algo.describe_update()}"
     backend = getattr(cfg.env, "backend", None)  # only envs with several implementations have one
     where = f"{backend}, " if backend else ""
-    echo(f"training {cfg.algo.name} on {cfg.env.name} ({where}{env.num_envs} envs): "
-         f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}")
+    echo(
+        f"training {cfg.algo.name} on {cfg.env.name} ({where}{env.num_envs} envs): "
+        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}"
+    )
     progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
     logger.echo = progress.row_echo
     try:
@@ -170,28 +185,41 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             t0 = time.perf_counter()
             batch = collector.collect()
             # The contract on what was collected (raw values): finite, costs >= 0; vectorised.
-            check_rollout(batch, env_id, allow_negative_cost,
-                          first_step=collector.total_steps // env.num_envs - cfg.rollout_steps + 1)
+            check_rollout(
+                batch,
+                env_id,
+                allow_negative_cost,
+                first_step=collector.total_steps // env.num_envs - cfg.rollout_steps + 1,
+            )
             agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
             try:
                 stats = algo.update(batch)
             except TrainingDiverged as exc:
-                last = f"the last good checkpoint is {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written yet"
+                last = (
+                    f"the last good checkpoint is {ckpt_path}"
+                    if ckpt_path.exists()
+                    else "no checkpoint was written yet"
+                )
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
             agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
             eps = finished_episodes(batch)
             # Per-constraint values are lists of K here; spread() gives each its own column.
             row = {
-                "iteration": it, "step": collector.total_steps,
+                "iteration": it,
+                "step": collector.total_steps,
                 "episode_return": _mean(eps["return"]),
                 "episode_cost": [_mean(eps["cost"][:, k]) for k in range(len(names))],
-                "episode_length": _mean(eps["length"]), "episodes": int(eps["length"].numel()),
-                "cost_limit": cfg.algo.cost_limit, "sps": per_iter / (time.perf_counter() - t0),
-                "time_s": time.perf_counter() - start, **stats,
+                "episode_length": _mean(eps["length"]),
+                "episodes": int(eps["length"].numel()),
+                "cost_limit": cfg.algo.cost_limit,
+                "sps": per_iter / (time.perf_counter() - t0),
+                "time_s": time.perf_counter() - start,
+                **stats,
                 "cost_rate": [cost_rate(total, collector.total_steps) for total in collector.total_costs],
             }
-            row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
-                                         limits, reference))
+            row.update(
+                normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"], limits, reference)
+            )
             row = spread(row, names)
             logger.log(row, force_echo=it == iterations)
             progress.update(row)
@@ -206,13 +234,27 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
-    eval_env = make_eval_env(cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device,
-                             algo=cfg.algo)
-    result = evaluate(agent, eval_env, cfg.eval_episodes, cfg.eval_deterministic, seed=cfg.seed + EVAL_SEED_OFFSET,
-                      termination_metric=metric, cost_limit=cfg.algo.cost_limit)
+    eval_env = make_eval_env(
+        cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
+    )
+    result = evaluate(
+        agent,
+        eval_env,
+        cfg.eval_episodes,
+        cfg.eval_deterministic,
+        seed=cfg.seed + EVAL_SEED_OFFSET,
+        termination_metric=metric,
+        cost_limit=cfg.algo.cost_limit,
+    )
     eval_env.close()
-    result.update({"cost_limit": cfg.algo.cost_limit, "steps": collector.total_steps, "train_time_s": train_time,
-                   "torch_threads": torch.get_num_threads()})
+    result.update(
+        {
+            "cost_limit": cfg.algo.cost_limit,
+            "steps": collector.total_steps,
+            "train_time_s": train_time,
+            "torch_threads": torch.get_num_threads(),
+        }
+    )
     k = len(names)
     eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
     rates = [cost_rate(total, collector.total_steps) for total in collector.total_costs]

@@ -133,8 +133,7 @@ def build(cls: type[T], data: Mapping[str, Any], prefix: str) -> T:
         field = str(err["loc"][0]) if err["loc"] else ""
         if field not in names:  # not a field's value: pass pydantic's own words on
             raise ConfigError(f"{prefix or 'config'}: {err['msg']}") from None
-        raise ConfigError(
-            f"{_dotted(prefix, field)} must be {allowed(cls, field)}, got {data.get(field)!r}") from None
+        raise ConfigError(f"{_dotted(prefix, field)} must be {allowed(cls, field)}, got {data.get(field)!r}") from None
 
 
 def recheck(obj: T, prefix: str) -> T:
@@ -147,8 +146,22 @@ def is_finite(x: Any) -> bool:
 
 
 __all__ = [
-    "AUTO", "AutoInt", "Bool", "ConfigError", "Discount", "Field", "NonNegativeFloat", "NonNegativeInt",
-    "PositiveFloat", "PositiveInt", "UnitOpen", "allowed", "build", "finite", "is_finite", "options", "recheck",
+    "AUTO",
+    "AutoInt",
+    "Bool",
+    "ConfigError",
+    "Discount",
+    "Field",
+    "NonNegativeFloat",
+    "NonNegativeInt",
+    "PositiveFloat",
+    "PositiveInt",
+    "UnitOpen",
+    "allowed",
+    "build",
+    "finite",
+    "is_finite",
+    "options",
+    "recheck",
     "require",
 ]
-

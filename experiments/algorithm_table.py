@@ -53,9 +53,11 @@ VELOCITY_SPS = 5400  # one HalfCheetah velocity job with a core to itself (docs/
 # OmniSafe's published on-policy benchmark, SafetyHalfCheetahVelocity-v1 at 1M steps (return, cost),
 # mean ± std over their seeds 0, 5, 10, 15, 20 with their hyperparameters: PKU-Alignment/omnisafe,
 # benchmarks/on-policy/README.md at commit 31adb38adb522bb1e273449b290404066e12dd93, the "(1M)" tables.
-OMNISAFE_SOURCE = ("OmniSafe's on-policy benchmark, `benchmarks/on-policy/README.md` of PKU-Alignment/omnisafe "
-                   "(commit 31adb38), its 1M-step tables for SafetyHalfCheetahVelocity-v1 (5 seeds, their "
-                   "hyperparameters)")
+OMNISAFE_SOURCE = (
+    "OmniSafe's on-policy benchmark, `benchmarks/on-policy/README.md` of PKU-Alignment/omnisafe "
+    "(commit 31adb38), its 1M-step tables for SafetyHalfCheetahVelocity-v1 (5 seeds, their "
+    "hyperparameters)"
+)
 OMNISAFE = {  # ours -> (their name, return, return std, cost, cost std)
     "ppo": ("PPO", 3641.1, 1202.3, 812.8, 219.1),
     "ppo_lag": ("PPOLag", 2065.5, 234.5, 4.7, 5.1),
@@ -108,12 +110,21 @@ def grid_rows(runs: Sequence[RunRecord], variant: str) -> list[dict[str, Any]]:
         env = group[0].config["env"]
         names = list(env["costs"])
         limits = dict(zip(names, budgets_of(group[0], names)))
-        opt = lp_optimum(tuple(env["layout"]), env["slip"], env["end_prob"],
-                         tuple(limits.get(c, math.inf) for c in COST_NAMES))
+        opt = lp_optimum(
+            tuple(env["layout"]), env["slip"], env["end_prob"], tuple(limits.get(c, math.inf) for c in COST_NAMES)
+        )
         returns = [r.eval["episode_return"] for r in group]
-        row: dict[str, Any] = {"task": "grid", "variant": variant, "algo": algo, "seeds": len(group),
-                               "steps": group[0].eval["steps"], "lp_optimum": opt, "returns": returns,
-                               "gaps": [opt - x for x in returns], "minutes": minutes(group)}
+        row: dict[str, Any] = {
+            "task": "grid",
+            "variant": variant,
+            "algo": algo,
+            "seeds": len(group),
+            "steps": group[0].eval["steps"],
+            "lp_optimum": opt,
+            "returns": returns,
+            "gaps": [opt - x for x in returns],
+            "minutes": minutes(group),
+        }
         for c in COST_NAMES:
             if c in names:
                 costs = [r.eval[constraint_name("episode_cost", c, len(names))] for r in group]
@@ -125,15 +136,35 @@ def grid_rows(runs: Sequence[RunRecord], variant: str) -> list[dict[str, Any]]:
 def grid_table(rows: Sequence[dict[str, Any]]) -> str:
     from cmdp_rl.envs.grid.env import COST_NAMES
 
-    header = ["algo", "grid", "steps", "return", "LP optimum", "gap", *[f"{c} (d)" for c in COST_NAMES],
-              *[f"violation {c}" for c in COST_NAMES], "minutes / run"]
+    header = [
+        "algo",
+        "grid",
+        "steps",
+        "return",
+        "LP optimum",
+        "gap",
+        *[f"{c} (d)" for c in COST_NAMES],
+        *[f"violation {c}" for c in COST_NAMES],
+        "minutes / run",
+    ]
     cells = []
     seen = set()
     for r in rows:
         per = [f"{cell(r[c]['costs'], '.3f')} ({r[c]['d']:g})" if c in r else "not reported" for c in COST_NAMES]
         vio = [cell(r[c]["violations"], ".3f") if c in r else "" for c in COST_NAMES]
-        cells.append([r["algo"], r["variant"], f"{r['steps']:,}", cell(r["returns"], ".3f"), f"{r['lp_optimum']:.3f}",
-                      cell(r["gaps"], ".3f"), *per, *vio, r["minutes"]])
+        cells.append(
+            [
+                r["algo"],
+                r["variant"],
+                f"{r['steps']:,}",
+                cell(r["returns"], ".3f"),
+                f"{r['lp_optimum']:.3f}",
+                cell(r["gaps"], ".3f"),
+                *per,
+                *vio,
+                r["minutes"],
+            ]
+        )
         seen.add(r["algo"])
     for algo in ALGOS:
         if algo not in seen:
@@ -152,18 +183,39 @@ def reach1d_rows(runs: Sequence[RunRecord]) -> list[dict[str, Any]]:
             cfg = load_config({k: v for k, v in group[0].config.items() if k != "resume"})
             optimum = cfg.env.optimum(float(cfg.algo.cost_limit))
         returns = [r.eval["episode_return"] for r in group]
-        rows.append({"task": "reach1d", "algo": algo, "seeds": len(group), "steps": group[0].eval["steps"],
-                     "d": float(group[0].get("algo.cost_limit")), "returns": returns, "optimum": optimum,
-                     "gaps": [optimum - x for x in returns], "costs": [r.eval["episode_cost"] for r in group],
-                     "cost_rates": [r.eval["cost_rate"] for r in group], "minutes": minutes(group)})
+        rows.append(
+            {
+                "task": "reach1d",
+                "algo": algo,
+                "seeds": len(group),
+                "steps": group[0].eval["steps"],
+                "d": float(group[0].get("algo.cost_limit")),
+                "returns": returns,
+                "optimum": optimum,
+                "gaps": [optimum - x for x in returns],
+                "costs": [r.eval["episode_cost"] for r in group],
+                "cost_rates": [r.eval["cost_rate"] for r in group],
+                "minutes": minutes(group),
+            }
+        )
     return rows
 
 
 def reach1d_table(rows: Sequence[dict[str, Any]]) -> str:
     header = ["algo", "steps", "return", "gap to optimum", "cost", "within d", "cost rate (training)", "minutes / run"]
-    cells = [[r["algo"], f"{r['steps']:,}", cell(r["returns"], ".3f"), cell(r["gaps"], ".3f"), cell(r["costs"], ".2f"),
-              f"{sum(c <= r['d'] for c in r['costs'])}/{r['seeds']}", cell(r["cost_rates"], ".4f"), r["minutes"]]
-             for r in rows]
+    cells = [
+        [
+            r["algo"],
+            f"{r['steps']:,}",
+            cell(r["returns"], ".3f"),
+            cell(r["gaps"], ".3f"),
+            cell(r["costs"], ".2f"),
+            f"{sum(c <= r['d'] for c in r['costs'])}/{r['seeds']}",
+            cell(r["cost_rates"], ".4f"),
+            r["minutes"],
+        ]
+        for r in rows
+    ]
     return markdown_table(header, cells)
 
 
@@ -172,36 +224,77 @@ def velocity_rows(runs: Sequence[RunRecord]) -> list[dict[str, Any]]:
     ref = None
     if "ppo" in groups:  # Safety Gym's normalisation against this sweep's own ppo runs
         ppo = groups["ppo"]
-        ref = Reference(*(float(np.mean([r.eval[k] for r in ppo])) for k in ("episode_return", "episode_cost", "cost_rate")),
-                        source="ppo runs of this sweep")
+        ref = Reference(
+            *(float(np.mean([r.eval[k] for r in ppo])) for k in ("episode_return", "episode_cost", "cost_rate")),
+            source="ppo runs of this sweep",
+        )
     rows = []
     for algo, group in groups.items():
-        scores = [normalized_scores(r.eval["episode_return"], r.eval["episode_cost"], r.eval["cost_rate"],
-                                    r.eval["cost_limit"], ref) for r in group]
-        norm = {k: [s[k] for s in scores if s[k] is not None]
-                for k in ("normalized_return", "normalized_violation", "normalized_cost_rate")}
-        rows.append({"task": "velocity", "algo": algo, "seeds": len(group), "steps": group[0].eval["steps"],
-                     "returns": [r.eval["episode_return"] for r in group], "costs": [r.eval["episode_cost"] for r in group],
-                     "cost_rates": [r.eval["cost_rate"] for r in group], **norm, "minutes": minutes(group)})
+        scores = [
+            normalized_scores(
+                r.eval["episode_return"], r.eval["episode_cost"], r.eval["cost_rate"], r.eval["cost_limit"], ref
+            )
+            for r in group
+        ]
+        norm = {
+            k: [s[k] for s in scores if s[k] is not None]
+            for k in ("normalized_return", "normalized_violation", "normalized_cost_rate")
+        }
+        rows.append(
+            {
+                "task": "velocity",
+                "algo": algo,
+                "seeds": len(group),
+                "steps": group[0].eval["steps"],
+                "returns": [r.eval["episode_return"] for r in group],
+                "costs": [r.eval["episode_cost"] for r in group],
+                "cost_rates": [r.eval["cost_rate"] for r in group],
+                **norm,
+                "minutes": minutes(group),
+            }
+        )
     return rows
 
 
 def velocity_table(rows: Sequence[dict[str, Any]]) -> str:
-    header = ["algo", "steps", "return", "cost", "cost rate", "norm. return", "norm. violation", "norm. cost rate",
-              "minutes / run", "OmniSafe 1M: return", "OmniSafe 1M: cost"]
+    header = [
+        "algo",
+        "steps",
+        "return",
+        "cost",
+        "cost rate",
+        "norm. return",
+        "norm. violation",
+        "norm. cost rate",
+        "minutes / run",
+        "OmniSafe 1M: return",
+        "OmniSafe 1M: cost",
+    ]
     cells = []
     for r in rows:
         o = OMNISAFE.get(r["algo"])
         theirs = [f"{o[1]:.1f} ± {o[2]:.1f}", f"{o[3]:.1f} ± {o[4]:.1f}"] if o else ["not published", ""]
-        cells.append([r["algo"], f"{r['steps']:,}", cell(r["returns"], ".1f"), cell(r["costs"], ".1f"),
-                      cell(r["cost_rates"], ".4f"), cell(r["normalized_return"], ".2f"),
-                      cell(r["normalized_violation"], ".2f"), cell(r["normalized_cost_rate"], ".2f"), r["minutes"], *theirs])
+        cells.append(
+            [
+                r["algo"],
+                f"{r['steps']:,}",
+                cell(r["returns"], ".1f"),
+                cell(r["costs"], ".1f"),
+                cell(r["cost_rates"], ".4f"),
+                cell(r["normalized_return"], ".2f"),
+                cell(r["normalized_violation"], ".2f"),
+                cell(r["normalized_cost_rate"], ".2f"),
+                r["minutes"],
+                *theirs,
+            ]
+        )
     return markdown_table(header, cells)
 
 
 # --- figures -----------------------------------------------------------------------------------
-def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path,
-              optima: dict[str, float] | None = None) -> Path:
+def plot_task(
+    task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path, optima: dict[str, float] | None = None
+) -> Path:
     """Training curves per algorithm: return and each cost against env steps, mean over seeds with
     its 95% bootstrap band (compare.curve_band); the budget dashed. Sauté's training return is its
     reshaped return (the eval tables report the task's)."""
@@ -211,6 +304,7 @@ def plot_task(task: str, sweeps: dict[str, Sequence[RunRecord]], out: Path,
     names = list(first.config["env"].get("costs", ["cost"])) if task == "grid" else ["cost"]
     if task == "grid":
         from cmdp_rl.envs.grid.env import COST_NAMES
+
         names = list(COST_NAMES)
     for c in names:
         panels.append((c, f"episode cost{'' if c == 'cost' else ': ' + c}", None))
@@ -309,8 +403,10 @@ def sections(root: Path, tasks: Sequence[str], out: Path, figures: Path, lead: s
         first = next(iter(sweeps.values()))[0]
         text = TEXT[task](rows, first)
         opening = f"{lead}\n\n" if lead else ""
-        parts[task] = (f"## {TITLES[task]}\n\n{opening}{text['before']}\n\n{table}{unfinished_note(unfinished)}\n\n"
-                       f"{text['after']}\n\n![{task}]({rel})\n")
+        parts[task] = (
+            f"## {TITLES[task]}\n\n{opening}{text['before']}\n\n{table}{unfinished_note(unfinished)}\n\n"
+            f"{text['after']}\n\n![{task}]({rel})\n"
+        )
     return parts
 
 
@@ -327,9 +423,11 @@ def splice(page: str, new: dict[str, str]) -> str:
     return "".join(lines)
 
 
-TITLES = {"grid": "1. The tabular reference CMDP: gap to the LP optimum (env=grid)",
-          "reach1d": "2. Reach1D, passable wall, budget 0.5 (env=reach1d_torch)",
-          "velocity": "3. HalfCheetah velocity, budget 25 (env=velocity)"}
+TITLES = {
+    "grid": "1. The tabular reference CMDP: gap to the LP optimum (env=grid)",
+    "reach1d": "2. Reach1D, passable wall, budget 0.5 (env=reach1d_torch)",
+    "velocity": "3. HalfCheetah velocity, budget 25 (env=velocity)",
+}
 
 HEADER = """# The on-policy family on three tasks
 
@@ -350,31 +448,38 @@ reshaped return it maximises (the tables: the task's return).
 
 def _grid_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str, str]:
     episodes = first.get("eval_episodes")
-    return {"before": (
-        f"The slippery two-hazard gridworld (docs/grid.md), 32 envs × 64 steps an iteration, the steps per run "
-        f"in the table, {episodes} evaluation episodes. Algorithms that take several constraints run on the K = 2 grid "
-        "(budgets hazard_a 0.3, hazard_b 0.15); those that take one (cpo, pcpo, crpo, focops, cup) refuse K > 1 "
-        "and run on its K = 1 variant, `env.costs=[hazard_b]` with budget 0.15, a different CMDP with its own "
-        "LP optimum. Gap = LP optimum − return (the LP's return is the "
-        "expected undiscounted episode return, what `eval.json` reports; docs/grid.md). Violation = "
-        "max(0, cost − d) per seed. A negative gap is a return above the constrained optimum, which only a policy "
-        "over some budget can have. The hazard-free route's return is 0.528; the unconstrained optimum 0.736."),
+    return {
+        "before": (
+            f"The slippery two-hazard gridworld (docs/grid.md), 32 envs × 64 steps an iteration, the steps per run "
+            f"in the table, {episodes} evaluation episodes. Algorithms that take several constraints run on the K = 2 grid "
+            "(budgets hazard_a 0.3, hazard_b 0.15); those that take one (cpo, pcpo, crpo, focops, cup) refuse K > 1 "
+            "and run on its K = 1 variant, `env.costs=[hazard_b]` with budget 0.15, a different CMDP with its own "
+            "LP optimum. Gap = LP optimum − return (the LP's return is the "
+            "expected undiscounted episode return, what `eval.json` reports; docs/grid.md). Violation = "
+            "max(0, cost − d) per seed. A negative gap is a return above the constrained optimum, which only a policy "
+            "over some budget can have. The hazard-free route's return is 0.528; the unconstrained optimum 0.736."
+        ),
         "after": (
-        "Reproduce: `python experiments/algorithm_table.py --run --task grid` (the two grid sweeps, then this "
-        "table); `python experiments/algorithm_table.py <root> --task grid` prints it again from the runs.")}
+            "Reproduce: `python experiments/algorithm_table.py --run --task grid` (the two grid sweeps, then this "
+            "table); `python experiments/algorithm_table.py <root> --task grid` prints it again from the runs."
+        ),
+    }
 
 
 def _reach1d_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str, str]:
     steps, episodes = first.eval["steps"], first.get("eval_episodes")
     opt = rows[0]["optimum"] if rows else float("nan")
-    return {"before": (
-        f"Reach1D with `env.wall=pass` (a crossing costs 1), budget d = 0.5 crossings per episode, on the batched "
-        f"preset (1024 envs, 32-step rollouts), {steps:,} steps per run, {episodes} evaluation episodes. The exact "
-        f"constrained optimum of the return at d = 0.5 is {opt:.3f} (Reach1D's solver, "
-        "`Reach1DConfig.optimum`); it mixes crossing and not crossing, which a policy reaches only in "
-        "expectation (a negative gap: over the budget). An almost surely safe policy (Sauté) cannot cross at all "
-        "at d < 1: its optimum is walking up to the wall."),
-        "after": "Reproduce: `python experiments/algorithm_table.py --run --task reach1d`."}
+    return {
+        "before": (
+            f"Reach1D with `env.wall=pass` (a crossing costs 1), budget d = 0.5 crossings per episode, on the batched "
+            f"preset (1024 envs, 32-step rollouts), {steps:,} steps per run, {episodes} evaluation episodes. The exact "
+            f"constrained optimum of the return at d = 0.5 is {opt:.3f} (Reach1D's solver, "
+            "`Reach1DConfig.optimum`); it mixes crossing and not crossing, which a policy reaches only in "
+            "expectation (a negative gap: over the budget). An almost surely safe policy (Sauté) cannot cross at all "
+            "at d < 1: its optimum is walking up to the wall."
+        ),
+        "after": "Reproduce: `python experiments/algorithm_table.py --run --task reach1d`.",
+    }
 
 
 def _velocity_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str, str]:
@@ -391,19 +496,26 @@ def _velocity_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str
             f"(measured on this machine, docs/benchmarks.md), 2 jobs side by side take about {quiet_h:.1f} hours "
             "of training plus evaluation; the second-order and FOCOPS/CUP updates cost more per step (the 3M-step "
             "benchmark took 17.3 min a run for ppo_lag and cpo against 12.1 for ppo), so plan on 2 to 3 hours "
-            "on a quiet 2-core machine, several times that while it is shared.")
+            "on a quiet 2-core machine, several times that while it is shared."
+        )
     else:
         status = f"{steps:,} steps per run."
-    return {"before": (
-        "SafetyHalfCheetahVelocity-v1's task (cost 1 per step faster than 3.2096 m/s), budget 25 per 1000-step "
-        "episode, 8 envs × 256 steps an iteration, observation normalisation, 20 evaluation episodes; "
-        "normalised metrics (Ray et al. 2019) against the mean of this sweep's ppo runs. " + status +
-        f"\n\nBeside ours, for orientation: {OMNISAFE_SOURCE}. Their step budget is the same, 1M steps; their "
-        "hyperparameters, normalisation choices and seeds differ. They publish no row for penalty, pid_lag, "
-        "crpo or saute in those tables."),
-        "after": ("Run it: `python experiments/algorithm_table.py --run --task velocity` (the full sweep); the "
-                  "smoke run: `python experiments/algorithm_table.py --run --task velocity total_steps=4096 "
-                  "env.num_envs=2 env.max_steps=100 seed=0 eval_episodes=2`.")}
+    return {
+        "before": (
+            "SafetyHalfCheetahVelocity-v1's task (cost 1 per step faster than 3.2096 m/s), budget 25 per 1000-step "
+            "episode, 8 envs × 256 steps an iteration, observation normalisation, 20 evaluation episodes; "
+            "normalised metrics (Ray et al. 2019) against the mean of this sweep's ppo runs. "
+            + status
+            + f"\n\nBeside ours, for orientation: {OMNISAFE_SOURCE}. Their step budget is the same, 1M steps; their "
+            "hyperparameters, normalisation choices and seeds differ. They publish no row for penalty, pid_lag, "
+            "crpo or saute in those tables."
+        ),
+        "after": (
+            "Run it: `python experiments/algorithm_table.py --run --task velocity` (the full sweep); the "
+            "smoke run: `python experiments/algorithm_table.py --run --task velocity total_steps=4096 "
+            "env.num_envs=2 env.max_steps=100 seed=0 eval_episodes=2`."
+        ),
+    }
 
 
 TEXT = {"grid": _grid_text, "reach1d": _reach1d_text, "velocity": _velocity_text}
@@ -425,7 +537,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         overrides = [o for o in args.root_or_overrides if not o.startswith("hydra.sweep.dir=")]
         for task in tasks:
             for sweep in TASKS[task]:
-                ns = argparse.Namespace(run=True, sweep_dir_or_overrides=[*overrides, f"hydra.sweep.dir={root / sweep}"])
+                ns = argparse.Namespace(
+                    run=True, sweep_dir_or_overrides=[*overrides, f"hydra.sweep.dir={root / sweep}"]
+                )
                 try:
                     experiment_sweep_dir(parser, ns, f"algorithm_table_{sweep}", ROOT)
                 except subprocess.CalledProcessError as exc:  # a failed job: the report lists it

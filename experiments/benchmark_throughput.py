@@ -53,9 +53,9 @@ sys.path.insert(0, str(ROOT))
 import cmdp_rl  # noqa: E402
 from cmdp_rl import Collector, load_config, make_agent, make_env  # noqa: E402
 from cmdp_rl.config import compose_config  # noqa: E402
+from cmdp_rl.envs import Reach1D  # noqa: E402
 from cmdp_rl.envs.reach1d.task import Reach1DConfig  # noqa: E402
 from cmdp_rl.policies.mlp import PolicyConfig  # noqa: E402
-from cmdp_rl.envs import Reach1D  # noqa: E402
 
 MEMORY_HEADS = ("lstm", "transformer")  # history-dependent heads, benchmarked at N = 1024
 
@@ -192,8 +192,17 @@ def plain_loop_rate(num_envs: int, rollout_steps: int, seconds: float) -> float:
             a = torch.normal(loc, scale)
             logp = torch.distributions.Normal(loc, scale).log_prob(a).sum(-1)
             obs, r, term, trunc, info = raw.step(a.numpy())
-            rows.append((o, a, logp, torch.from_numpy(r), torch.from_numpy(np.asarray(info.get("cost", zeros))),
-                         torch.from_numpy(term), torch.from_numpy(trunc)))
+            rows.append(
+                (
+                    o,
+                    a,
+                    logp,
+                    torch.from_numpy(r),
+                    torch.from_numpy(np.asarray(info.get("cost", zeros))),
+                    torch.from_numpy(term),
+                    torch.from_numpy(trunc),
+                )
+            )
         state["obs"] = obs
         [torch.stack(col) for col in zip(*rows)]
         return rollout_steps * num_envs
@@ -221,9 +230,15 @@ def train_rate(overrides: list[str], iterations: int, device: str, threads: int)
     sps = [float(r["sps"]) for r in rows]
     steady = sps[1:] or sps
     return {
-        "train_sps": statistics.median(steady), "train_sps_all": sps, "iterations": len(sps),
-        "batch": per_iter, "rollout_steps": cfg.rollout_steps, "update_epochs": cfg.algo.update_epochs,
-        "num_minibatches": cfg.algo.num_minibatches, "policy": cfg.policy.name, "net": net_label(cfg.policy),
+        "train_sps": statistics.median(steady),
+        "train_sps_all": sps,
+        "iterations": len(sps),
+        "batch": per_iter,
+        "rollout_steps": cfg.rollout_steps,
+        "update_epochs": cfg.algo.update_epochs,
+        "num_minibatches": cfg.algo.num_minibatches,
+        "policy": cfg.policy.name,
+        "net": net_label(cfg.policy),
         "overrides": overrides,
     }
 
@@ -249,7 +264,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the config's default: 1)")
     p.add_argument("--out", default=str(ROOT / "outputs" / "benchmark_throughput.json"), help="JSON output path")
-    p.add_argument("--seconds", type=float, default=None, help="time per env/rollout measurement (default 2, quick 0.05)")
+    p.add_argument(
+        "--seconds", type=float, default=None, help="time per env/rollout measurement (default 2, quick 0.05)"
+    )
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     seconds = args.seconds or (0.05 if args.quick else 2.0)
@@ -260,8 +277,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     settings = [
         Setting("gym", 1, 256, ["env=reach1d", "env.num_envs=1"]),
         Setting("gym", 8, 256, ["env=reach1d"]),
-        Setting("torch", 64, 256, [*preset, "env.num_envs=64", "rollout_steps=256", "algo.update_epochs=1",
-                                   "algo.num_minibatches=64"]),
+        Setting(
+            "torch",
+            64,
+            256,
+            [*preset, "env.num_envs=64", "rollout_steps=256", "algo.update_epochs=1", "algo.num_minibatches=64"],
+        ),
         Setting("torch", 1024, 32, preset),
         Setting("torch", 16384, 32, [*preset, "env.num_envs=16384"]),
     ]
@@ -274,10 +295,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         row: dict[str, Any] = {"setting": s.label, "backend": s.backend, "num_envs": s.num_envs}
         row["env_sps"], row["env_mem"] = measure("env", lambda: env_rate(s, seconds, args.device), args.device)
         row["rollout_sps"], row["rollout_mem"] = measure(
-            "rollout", lambda: rollout_rate(s, s.rollout_steps, seconds, args.device), args.device)
+            "rollout", lambda: rollout_rate(s, s.rollout_steps, seconds, args.device), args.device
+        )
         overrides = s.train_overrides + (quick_train if args.quick else [])
         iters = 2 if args.quick else train_iters[s.num_envs]
-        train, row["train_mem"] = measure("train", lambda: train_rate(overrides, iters, args.device, args.threads), args.device)
+        train, row["train_mem"] = measure(
+            "train", lambda: train_rate(overrides, iters, args.device, args.threads), args.device
+        )
         row.update(train)
         row["train_over_rollout"] = row["train_sps"] / row["rollout_sps"]
         rows.append(row)
@@ -288,7 +312,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     literal_1024 = ["env=reach1d", "env.backend=torch", "env.num_envs=1024"]
     if args.quick:
         literal_1024 += quick_train
-    t, mem = measure("train", lambda: train_rate(literal_1024, 2 if args.quick else 10, args.device, args.threads), args.device)
+    t, mem = measure(
+        "train", lambda: train_rate(literal_1024, 2 if args.quick else 10, args.device, args.threads), args.device
+    )
     literal = {"setting": "torch N=1024, env=reach1d defaults", "train_mem": mem, **t}
     extra.append(literal)
     for head in MEMORY_HEADS:
@@ -301,21 +327,30 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     t1024 = next(r for r in rows if r["backend"] == "torch" and r["num_envs"] == 1024)
     result = {
         "meta": {
-            "device": args.device, "torch_threads": torch.get_num_threads(), "quick": args.quick,
-            "seconds_per_measurement": seconds, "torch": torch.__version__, "python": platform.python_version(),
-            "cpu_count": os.cpu_count(), "loadavg_before": load_before, "loadavg_after": os.getloadavg(),
+            "device": args.device,
+            "torch_threads": torch.get_num_threads(),
+            "quick": args.quick,
+            "seconds_per_measurement": seconds,
+            "torch": torch.__version__,
+            "python": platform.python_version(),
+            "cpu_count": os.cpu_count(),
+            "loadavg_before": load_before,
+            "loadavg_after": os.getloadavg(),
             # Below about 0.9 (one thread), other processes took CPU time from the measurement:
             # its steps/s are then lower than on a quiet machine by about this factor.
-            "cpu_share_min": min(CPU_SHARE), "cpu_share_median": statistics.median(CPU_SHARE),
+            "cpu_share_min": min(CPU_SHARE),
+            "cpu_share_median": statistics.median(CPU_SHARE),
             "cpu_share_max": max(CPU_SHARE),
-            "wall_s": time.perf_counter() - started, "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+            "wall_s": time.perf_counter() - started,
+            "date": time.strftime("%Y-%m-%d %H:%M:%S"),
         },
         "rows": rows,
         "extra": extra,
         "plain_loop_sync8": {"rollout_sps": plain, "mem": plain_mem},
         "targets": {
             # as the issue states it: `train.py algo=ppo_lag env=reach1d env.backend=torch env.num_envs=1024`
-            "train_sps_torch_1024": literal["train_sps"], "train_sps_torch_1024_ge_100k": literal["train_sps"] >= 100_000,
+            "train_sps_torch_1024": literal["train_sps"],
+            "train_sps_torch_1024_ge_100k": literal["train_sps"] >= 100_000,
             "train_over_rollout_torch_1024": t1024["train_over_rollout"],
             "train_over_rollout_ge_0.3": t1024["train_over_rollout"] >= 0.3,
             "collector_over_plain_loop_sync8": gym8["rollout_sps"] / plain,
@@ -334,13 +369,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 def print_table(r: dict[str, Any]) -> None:
     m = r["meta"]
     mem_key = "cuda_max_allocated_mb" if m["device"] == "cuda" else "peak_rss_mb"
-    print(f"\nthroughput on {m['device']}, torch {m['torch']}, {m['torch_threads']} thread(s), "
-          f"load average {m['loadavg_before'][0]:.1f} -> {m['loadavg_after'][0]:.1f}, "
-          f"CPU share of the measurements {m['cpu_share_min']:.2f}..{m['cpu_share_max']:.2f}"
-          f"{' (machine busy: figures noisy and low)' if m['cpu_share_median'] < 0.9 * m['torch_threads'] else ''}"
-          f"{' (QUICK smoke run: not meaningful)' if m['quick'] else ''}")
-    head = (f"{'setting':34s} {'env steps/s':>12s} {'rollout st/s':>12s} {'train st/s':>11s} {'train/roll':>10s}"
-            f"  {'batch':>7s} {'ep x mb':>7s} {'net':>11s}  peak MB env/roll/train  CPU share env/roll/train")
+    print(
+        f"\nthroughput on {m['device']}, torch {m['torch']}, {m['torch_threads']} thread(s), "
+        f"load average {m['loadavg_before'][0]:.1f} -> {m['loadavg_after'][0]:.1f}, "
+        f"CPU share of the measurements {m['cpu_share_min']:.2f}..{m['cpu_share_max']:.2f}"
+        f"{' (machine busy: figures noisy and low)' if m['cpu_share_median'] < 0.9 * m['torch_threads'] else ''}"
+        f"{' (QUICK smoke run: not meaningful)' if m['quick'] else ''}"
+    )
+    head = (
+        f"{'setting':34s} {'env steps/s':>12s} {'rollout st/s':>12s} {'train st/s':>11s} {'train/roll':>10s}"
+        f"  {'batch':>7s} {'ep x mb':>7s} {'net':>11s}  peak MB env/roll/train  CPU share env/roll/train"
+    )
     print(head)
     print("-" * len(head))
 
@@ -348,24 +387,32 @@ def print_table(r: dict[str, Any]) -> None:
         return f"{row[k][mem_key]:.0f}" if k in row else "-"
 
     for row in r["rows"]:
-        print(f"{row['setting']:34s} {row['env_sps']:12,.0f} {row['rollout_sps']:12,.0f} {row['train_sps']:11,.0f}"
-              f" {row['train_over_rollout']:10.2f}  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}"
-              f" {row['net']:>11s}"
-              f"  {mb(row, 'env_mem')}/{mb(row, 'rollout_mem')}/{mb(row, 'train_mem')}"
-              f"  {row['env_mem']['cpu_share']:.2f}/{row['rollout_mem']['cpu_share']:.2f}/{row['train_mem']['cpu_share']:.2f}")
+        print(
+            f"{row['setting']:34s} {row['env_sps']:12,.0f} {row['rollout_sps']:12,.0f} {row['train_sps']:11,.0f}"
+            f" {row['train_over_rollout']:10.2f}  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d}"
+            f" {row['net']:>11s}"
+            f"  {mb(row, 'env_mem')}/{mb(row, 'rollout_mem')}/{mb(row, 'train_mem')}"
+            f"  {row['env_mem']['cpu_share']:.2f}/{row['rollout_mem']['cpu_share']:.2f}/{row['train_mem']['cpu_share']:.2f}"
+        )
     for row in r["extra"]:
-        print(f"{row['setting']:34s} {'':>12s} {'':>12s} {row['train_sps']:11,.0f} {'':>10s}"
-              f"  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d} {row['net']:>11s}"
-              f"  -/-/{mb(row, 'train_mem')}"
-              f"  {row['train_mem']['cpu_share']:.2f}")
+        print(
+            f"{row['setting']:34s} {'':>12s} {'':>12s} {row['train_sps']:11,.0f} {'':>10s}"
+            f"  {row['batch']:7d} {row['update_epochs']:>3d}x{row['num_minibatches']:<3d} {row['net']:>11s}"
+            f"  -/-/{mb(row, 'train_mem')}"
+            f"  {row['train_mem']['cpu_share']:.2f}"
+        )
     pl = r["plain_loop_sync8"]
-    print(f"{'plain loop, gym N=8 (yardstick)':34s} {'':>12s} {pl['rollout_sps']:12,.0f}"
-          f"{'':>40s}{pl['mem']['peak_rss_mb']:.0f}  {pl['mem']['cpu_share']:.2f}")
+    print(
+        f"{'plain loop, gym N=8 (yardstick)':34s} {'':>12s} {pl['rollout_sps']:12,.0f}"
+        f"{'':>40s}{pl['mem']['peak_rss_mb']:.0f}  {pl['mem']['cpu_share']:.2f}"
+    )
     t = r["targets"]
-    print(f"\ntargets: train sps torch N=1024 {t['train_sps_torch_1024']:,.0f} (>= 100,000: {t['train_sps_torch_1024_ge_100k']}); "
-          f"train/rollout {t['train_over_rollout_torch_1024']:.2f} (>= 0.3: {t['train_over_rollout_ge_0.3']}); "
-          f"collector/plain loop gym N=8 {t['collector_over_plain_loop_sync8']:.2f} (>= 0.5: {t['collector_over_plain_loop_ge_0.5']}); "
-          f"benchmark took {m['wall_s']:.0f}s")
+    print(
+        f"\ntargets: train sps torch N=1024 {t['train_sps_torch_1024']:,.0f} (>= 100,000: {t['train_sps_torch_1024_ge_100k']}); "
+        f"train/rollout {t['train_over_rollout_torch_1024']:.2f} (>= 0.3: {t['train_over_rollout_ge_0.3']}); "
+        f"collector/plain loop gym N=8 {t['collector_over_plain_loop_sync8']:.2f} (>= 0.5: {t['collector_over_plain_loop_ge_0.5']}); "
+        f"benchmark took {m['wall_s']:.0f}s"
+    )
 
 
 if __name__ == "__main__":

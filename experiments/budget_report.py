@@ -34,8 +34,11 @@ def run_summary(run: RunRecord) -> dict:
     costs = costs[np.isfinite(costs)]  # iterations in which no episode ended log nan
     ev = run.eval
     return {
-        "algo": run.get("algo.name"), "d": d, "seed": run.get("seed"),
-        "eval_return": ev["episode_return"], "eval_cost": ev["episode_cost"],
+        "algo": run.get("algo.name"),
+        "d": d,
+        "seed": run.get("seed"),
+        "eval_return": ev["episode_return"],
+        "eval_cost": ev["episode_cost"],
         "within_budget": float((costs <= d).mean()) if costs.size else math.nan,
         "train_cost": float(costs.mean()) if costs.size else math.nan,
         "train_time_s": ev.get("train_time_s", math.nan),
@@ -53,13 +56,31 @@ def report(sweep_dir: Path) -> str:
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in runs:
         groups[(r["algo"], r["d"])].append(r)
-    header = ["algo", "d", "seeds", "eval return", "eval cost", "iterations with J_c <= d", "mean training J_c",
-              "per-seed within-budget"]
+    header = [
+        "algo",
+        "d",
+        "seeds",
+        "eval return",
+        "eval cost",
+        "iterations with J_c <= d",
+        "mean training J_c",
+        "per-seed within-budget",
+    ]
     cells = []
     for (algo, d), g in sorted(groups.items()):
         per_seed = ", ".join(f"s{r['seed']}: {r['within_budget']:.2f}" for r in sorted(g, key=lambda r: r["seed"]))
-        cells.append([algo, f"{d:g}", str(len(g)), _ms([r["eval_return"] for r in g]), _ms([r["eval_cost"] for r in g]),
-                      _ms([r["within_budget"] for r in g]), _ms([r["train_cost"] for r in g]), per_seed])
+        cells.append(
+            [
+                algo,
+                f"{d:g}",
+                str(len(g)),
+                _ms([r["eval_return"] for r in g]),
+                _ms([r["eval_cost"] for r in g]),
+                _ms([r["within_budget"] for r in g]),
+                _ms([r["train_cost"] for r in g]),
+                per_seed,
+            ]
+        )
     text = markdown_table(header, cells, "lrrrrrrl") + "\n"
     (sweep_dir / "budget_report.md").write_text(text)
     return text

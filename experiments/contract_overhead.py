@@ -25,8 +25,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "experiments"))
 
-import cmdp_rl.trainer as trainer  # noqa: E402
 from benchmark_throughput import train_rate  # noqa: E402
+
+import cmdp_rl.trainer as trainer  # noqa: E402
 from cmdp_rl import Collector, make_agent, make_env  # noqa: E402
 from cmdp_rl.config import compose_config  # noqa: E402
 from cmdp_rl.envs.contract import check_rollout  # noqa: E402
@@ -43,6 +44,7 @@ def check_seconds(cfg, calls: int = 200) -> float:
         check_rollout(batch, "bench", False, 1)
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
+
 
 SETTINGS = {
     "torch N=1024 (env=reach1d_torch)": ["env=reach1d_torch"],
@@ -65,18 +67,20 @@ def main(argv: list[str] | None = None) -> None:
         once = time.perf_counter() - t0
         sps: dict[str, list[float]] = {"off": [], "on": []}
         for pair in range(args.pairs):
-            for mode in (("off", "on") if pair % 2 == 0 else ("on", "off")):
+            for mode in ("off", "on") if pair % 2 == 0 else ("on", "off"):
                 trainer.check_rollout = real if mode == "on" else (lambda *a, **k: None)
                 sps[mode].append(train_rate(overrides, args.iterations, "cpu", 1)["train_sps"])
         trainer.check_rollout = real
         off, on = statistics.median(sps["off"]), statistics.median(sps["on"])
         per_iter = cfg.rollout_steps * cfg.env.num_envs
         alone = check_seconds(cfg)
-        print(f"{name}: check off {off:,.0f} steps/s, on {on:,.0f} steps/s, on/off {on / off:.4f} "
-              f"(medians of {args.pairs} runs each; per-run off {[round(x) for x in sps['off']]}, "
-              f"on {[round(x) for x in sps['on']]}); check alone {alone * 1e6:.0f} us per batch of {per_iter} "
-              f"steps = {alone / (per_iter / on):.3%} of an iteration at {on:,.0f} steps/s; "
-              f"the check before training took {once * 1000:.0f} ms")
+        print(
+            f"{name}: check off {off:,.0f} steps/s, on {on:,.0f} steps/s, on/off {on / off:.4f} "
+            f"(medians of {args.pairs} runs each; per-run off {[round(x) for x in sps['off']]}, "
+            f"on {[round(x) for x in sps['on']]}); check alone {alone * 1e6:.0f} us per batch of {per_iter} "
+            f"steps = {alone / (per_iter / on):.3%} of an iteration at {on:,.0f} steps/s; "
+            f"the check before training took {once * 1000:.0f} ms"
+        )
     print(f"load average after: {os.getloadavg()}")
 
 

@@ -50,19 +50,31 @@ def main() -> None:
     good, times = 0, []
     for seed in args.seeds:
         run_dir = Path(args.out) / f"s{seed}"
-        subprocess.run([sys.executable, "train.py", *overrides, f"seed={seed}", f"hydra.run.dir={run_dir}"],
-                       cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
-        res = json.loads((ROOT / run_dir / "eval.json").read_text() if not run_dir.is_absolute()
-                         else (run_dir / "eval.json").read_text())
+        subprocess.run(
+            [sys.executable, "train.py", *overrides, f"seed={seed}", f"hydra.run.dir={run_dir}"],
+            cwd=ROOT,
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+        res = json.loads(
+            (ROOT / run_dir / "eval.json").read_text()
+            if not run_dir.is_absolute()
+            else (run_dir / "eval.json").read_text()
+        )
         ret, cost, t = res["episode_return"], res["episode_cost"], res["train_time_s"]
         gap = optimum - ret if optimum is not None else float("nan")
         ok = cost <= cfg.algo.cost_limit and (optimum is None or gap <= WITHIN * abs(optimum))
         good += ok
         times.append(t)
-        print(f"| {seed} | {t:.1f} | {ret:.3f} | {optimum:.3f} | {gap:.3f} ({gap / optimum:.1%}) | "
-              f"{cost:.2f} | {cfg.algo.cost_limit:g} |", flush=True)
-    print(f"{good}/{len(args.seeds)} seeds within {WITHIN:.0%} of the optimum and within budget; "
-          f"training {min(times):.1f}-{max(times):.1f} s")
+        print(
+            f"| {seed} | {t:.1f} | {ret:.3f} | {optimum:.3f} | {gap:.3f} ({gap / optimum:.1%}) | "
+            f"{cost:.2f} | {cfg.algo.cost_limit:g} |",
+            flush=True,
+        )
+    print(
+        f"{good}/{len(args.seeds)} seeds within {WITHIN:.0%} of the optimum and within budget; "
+        f"training {min(times):.1f}-{max(times):.1f} s"
+    )
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 

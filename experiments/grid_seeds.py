@@ -42,11 +42,21 @@ def one_seed(overrides: list[str], seed: int, out: Path) -> dict:
     budgets = cfg.algo.cost_limit if isinstance(cfg.algo.cost_limit, list) else [cfg.algo.cost_limit] * 2
     g = exact_gap(trained.agent, cmdp, solve_constrained(cmdp, budgets))
     names = cmdp.cost_names
-    return {"seed": seed, "wall_s": wall, "steps": res.get("total_steps", None),
-            "eval_return": res["episode_return"], "eval_costs": [res[f"episode_cost/{n}"] for n in names],
-            "eval_episodes": res["episodes"], "deterministic": res["deterministic"],
-            "exact_return": g.ret, "exact_costs": list(g.costs), "optimum": g.optimum, "gap": g.gap,
-            "budgets": list(g.budgets), "ok": g.within_budgets and g.gap <= 0.10}
+    return {
+        "seed": seed,
+        "wall_s": wall,
+        "steps": res.get("total_steps", None),
+        "eval_return": res["episode_return"],
+        "eval_costs": [res[f"episode_cost/{n}"] for n in names],
+        "eval_episodes": res["episodes"],
+        "deterministic": res["deterministic"],
+        "exact_return": g.ret,
+        "exact_costs": list(g.costs),
+        "optimum": g.optimum,
+        "gap": g.gap,
+        "budgets": list(g.budgets),
+        "ok": g.within_budgets and g.gap <= 0.10,
+    }
 
 
 def main() -> None:
@@ -61,13 +71,17 @@ def main() -> None:
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(one_seed, [args.overrides] * len(args.seeds), args.seeds, [out] * len(args.seeds)))
     first = rows[0]
-    print(f"LP optimum {first['optimum']:.4f} at budgets {first['budgets']}; eval over {first['eval_episodes']} "
-          f"{'deterministic' if first['deterministic'] else 'sampled'} episodes")
+    print(
+        f"LP optimum {first['optimum']:.4f} at budgets {first['budgets']}; eval over {first['eval_episodes']} "
+        f"{'deterministic' if first['deterministic'] else 'sampled'} episodes"
+    )
     print("seed | wall s | eval return | eval costs  | exact return | exact costs   | gap    | ok")
     for r in rows:
-        print(f"{r['seed']:4d} | {r['wall_s']:6.1f} | {r['eval_return']:11.3f} | "
-              f"{'/'.join(f'{c:.3f}' for c in r['eval_costs']):11s} | {r['exact_return']:12.4f} | "
-              f"{'/'.join(f'{c:.4f}' for c in r['exact_costs']):13s} | {100 * r['gap']:5.1f}% | {r['ok']}")
+        print(
+            f"{r['seed']:4d} | {r['wall_s']:6.1f} | {r['eval_return']:11.3f} | "
+            f"{'/'.join(f'{c:.3f}' for c in r['eval_costs']):11s} | {r['exact_return']:12.4f} | "
+            f"{'/'.join(f'{c:.4f}' for c in r['exact_costs']):13s} | {100 * r['gap']:5.1f}% | {r['ok']}"
+        )
     print(f"{sum(r['ok'] for r in rows)}/{len(rows)} seeds within 10% of the optimum and within every budget (exact)")
     (out / "grid_seeds.json").write_text(json.dumps(rows, indent=1))
 

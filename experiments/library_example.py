@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def readme_example(readme: Path = ROOT / "README.md") -> str:
     """The first python block under the README's "Using it as a library" heading."""
     text = readme.read_text()
-    section = text[text.index("## Using it as a library"):]
+    section = text[text.index("## Using it as a library") :]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
@@ -75,8 +75,10 @@ def main() -> None:
     for default_threads, busy in cases:
         wall, threads = run(default_threads, busy)
         how = "torch default threads" if default_threads else "as written (config threads)"
-        print(f"{how:<28} | {'one busy process beside it' if busy else 'alone':<26} | "
-              f"torch threads {threads} | {wall:6.1f} s")
+        print(
+            f"{how:<28} | {'one busy process beside it' if busy else 'alone':<26} | "
+            f"torch threads {threads} | {wall:6.1f} s"
+        )
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 

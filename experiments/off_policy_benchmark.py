@@ -24,11 +24,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cmdp_rl.run import sweeps
 from cmdp_rl.analysis import tables
 from cmdp_rl.analysis.stats import population_mean_std
 from cmdp_rl.analysis.tables import markdown_table, pm
 from cmdp_rl.report.plot import pyplot, save_figure
+from cmdp_rl.run import sweeps
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,14 +36,26 @@ SMOKE = ["total_steps=6144", "env.max_steps=200"]  # sac_lag: 5,000 warm-up step
 
 
 def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
-    return [{"algo": run.get("algo.name"), "seed": run.get("seed"), "config": run.config, "eval": run.eval,
-             "rows": run.metrics} for run in sweeps.finished_runs(sweep_dir)]
+    return [
+        {
+            "algo": run.get("algo.name"),
+            "seed": run.get("seed"),
+            "config": run.config,
+            "eval": run.eval,
+            "rows": run.metrics,
+        }
+        for run in sweeps.finished_runs(sweep_dir)
+    ]
 
 
 def training_sps(run: dict[str, Any]) -> float:
     """Env steps per second of training, over the iterations that trained (sac_lag: after warm-up)."""
-    rows = [r for r in run["rows"] if r.get("gradient_steps", 1) not in (0, None)
-            and not (isinstance(r.get("gradient_steps"), float) and math.isnan(r["gradient_steps"]))]
+    rows = [
+        r
+        for r in run["rows"]
+        if r.get("gradient_steps", 1) not in (0, None)
+        and not (isinstance(r.get("gradient_steps"), float) and math.isnan(r["gradient_steps"]))
+    ]
     if len(rows) < 2:
         return math.nan
     return (rows[-1]["step"] - rows[0]["step"]) / (rows[-1]["time_s"] - rows[0]["time_s"])
@@ -55,8 +67,12 @@ def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
         by_algo.setdefault(run["algo"], []).append(run)
     table = []
     for algo, group in sorted(by_algo.items()):
-        row: dict[str, Any] = {"algo": algo, "seeds": len(group), "steps": group[0]["eval"]["steps"],
-                               "cost_limit": group[0]["eval"]["cost_limit"]}
+        row: dict[str, Any] = {
+            "algo": algo,
+            "seeds": len(group),
+            "steps": group[0]["eval"]["steps"],
+            "cost_limit": group[0]["eval"]["cost_limit"],
+        }
         for key in ("episode_return", "episode_cost", "cost_rate", "train_time_s"):
             row[key], row[f"{key}_std"] = population_mean_std([r["eval"][key] for r in group])
         row["sps"], row["sps_std"] = population_mean_std([training_sps(r) for r in group])
@@ -65,18 +81,37 @@ def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def write_table(table: list[dict[str, Any]], out: Path) -> str:
-    header = ["algo", "seeds", "steps", "return (eval)", "cost (eval)", "cost rate (training)", "minutes / run",
-              "training steps/s"]
-    cells = [[r["algo"], str(r["seeds"]), f"{r['steps']:,}", pm(r["episode_return"], r["episode_return_std"], ".1f"),
-              pm(r["episode_cost"], r["episode_cost_std"], ".1f"), pm(r["cost_rate"], r["cost_rate_std"], ".4f"),
-              f"{r['train_time_s'] / 60:.1f}", pm(r["sps"], r["sps_std"], ".0f")] for r in table]
+    header = [
+        "algo",
+        "seeds",
+        "steps",
+        "return (eval)",
+        "cost (eval)",
+        "cost rate (training)",
+        "minutes / run",
+        "training steps/s",
+    ]
+    cells = [
+        [
+            r["algo"],
+            str(r["seeds"]),
+            f"{r['steps']:,}",
+            pm(r["episode_return"], r["episode_return_std"], ".1f"),
+            pm(r["episode_cost"], r["episode_cost_std"], ".1f"),
+            pm(r["cost_rate"], r["cost_rate_std"], ".4f"),
+            f"{r['train_time_s'] / 60:.1f}",
+            pm(r["sps"], r["sps_std"], ".0f"),
+        ]
+        for r in table
+    ]
     limit = table[0]["cost_limit"] if table else math.nan
     load = os.getloadavg()
     text = markdown_table(header, cells) + (
         f"\n\nBudget d = {limit:g} per episode. Return and cost: the final policy over eval_episodes episodes "
         f"(eval.json), mean ± std over seeds. Training steps/s: env steps per wall-clock second over the "
         f"iterations that trained (sac_lag after its warm-up). Load average when reported: "
-        f"{load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f} (2 cores).\n")
+        f"{load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f} (2 cores).\n"
+    )
     return tables.write_table(out, text, table)
 
 
@@ -84,8 +119,11 @@ def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
     plt = pyplot()
     import numpy as np
 
-    panels = (("episode_return", "episode return"), ("episode_cost", "episode cost"),
-              ("cost_rate", "cost rate (training)"))
+    panels = (
+        ("episode_return", "episode return"),
+        ("episode_cost", "episode cost"),
+        ("cost_rate", "cost rate (training)"),
+    )
     fig, axes = plt.subplots(2, 3, figsize=(15, 8))
     by_algo: dict[str, list[dict[str, Any]]] = {}
     for run in runs:
@@ -157,19 +195,28 @@ def throughput(iterations: int) -> None:
         agent.normalizers.update_observation_stats(batch)
     wall, cpu, steps = time.perf_counter() - wall, time.process_time() - cpu, collector.total_steps - steps
     load = os.getloadavg()
-    print(f"sac_lag, HalfCheetah velocity, utd_ratio {cfg.algo.utd_ratio:g}, batch {cfg.algo.batch_size}, "
-          f"networks {cfg.policy.hidden_sizes} {cfg.policy.activation}, {cfg.env.num_envs} envs x "
-          f"{cfg.rollout_steps} steps per iteration: {steps} steps in {wall:.1f} s wall "
-          f"({steps / wall:.1f} steps/s), {cpu:.1f} s CPU ({steps / cpu:.1f} steps per CPU second); "
-          f"load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}")
+    print(
+        f"sac_lag, HalfCheetah velocity, utd_ratio {cfg.algo.utd_ratio:g}, batch {cfg.algo.batch_size}, "
+        f"networks {cfg.policy.hidden_sizes} {cfg.policy.activation}, {cfg.env.num_envs} envs x "
+        f"{cfg.rollout_steps} steps per iteration: {steps} steps in {wall:.1f} s wall "
+        f"({steps / wall:.1f} steps/s), {cpu:.1f} s CPU ({steps / cpu:.1f} steps per CPU second); "
+        f"load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}"
+    )
     env.close()
 
 
 def main() -> None:
     parser = experiment_arg_parser(__doc__)
     parser.add_argument("--smoke", action="store_true", help="--run with a few thousand steps per run")
-    parser.add_argument("--throughput", type=int, nargs="?", const=20, default=None, metavar="N",
-                        help="measure sac_lag's training steps/s over N iterations (default 20) and exit")
+    parser.add_argument(
+        "--throughput",
+        type=int,
+        nargs="?",
+        const=20,
+        default=None,
+        metavar="N",
+        help="measure sac_lag's training steps/s over N iterations (default 20) and exit",
+    )
     args = parser.parse_args()
     if args.throughput is not None:
         return throughput(args.throughput)

@@ -36,8 +36,15 @@ NETWORKS = ["policy.hidden_sizes=[256,256]", "policy.activation=relu"]
 
 
 def measure(algo_name: str, iterations: int, profile: bool, lambda_init: float) -> None:
-    cfg = compose_config(["+experiment=off_policy_benchmark", f"algo={algo_name}", *NETWORKS, "threads=1",
-                          f"algo.lambda_init={lambda_init}"])
+    cfg = compose_config(
+        [
+            "+experiment=off_policy_benchmark",
+            f"algo={algo_name}",
+            *NETWORKS,
+            "threads=1",
+            f"algo.lambda_init={lambda_init}",
+        ]
+    )
     torch.manual_seed(0)
     env = make_env(cfg.env)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
@@ -68,9 +75,12 @@ def measure(algo_name: str, iterations: int, profile: bool, lambda_init: float) 
         profiler.disable()
     cpu, steps = time.process_time() - cpu, collector.total_steps - steps
     load = os.getloadavg()
-    print(f"{algo_name} (lambda_init {lambda_init:g}): {1000 * update_cpu / grad_steps:.2f} ms CPU per gradient step ({grad_steps} steps), "
-          f"{steps / cpu:.1f} env steps per CPU second ({steps} steps, {cpu:.1f} s CPU); "
-          f"load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}", flush=True)
+    print(
+        f"{algo_name} (lambda_init {lambda_init:g}): {1000 * update_cpu / grad_steps:.2f} ms CPU per gradient step ({grad_steps} steps), "
+        f"{steps / cpu:.1f} env steps per CPU second ({steps} steps, {cpu:.1f} s CPU); "
+        f"load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}",
+        flush=True,
+    )
     if profiler:
         pstats.Stats(profiler).sort_stats("tottime").print_stats(25)
     env.close()
@@ -93,9 +103,13 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=15, help="timed iterations (64 env steps each)")
     parser.add_argument("--algos", nargs="+", default=["sac_lag", "td3_lag"])
     parser.add_argument("--profile", action="store_true", help="cProfile the timed updates")
-    parser.add_argument("--lambda-init", type=float, default=0.0,
-                        help="> 0: the multiplier is positive from the start, so the actor's step goes "
-                             "through the cost critic (at 0 it reads Q_c without a graph)")
+    parser.add_argument(
+        "--lambda-init",
+        type=float,
+        default=0.0,
+        help="> 0: the multiplier is positive from the start, so the actor's step goes "
+        "through the cost critic (at 0 it reads Q_c without a graph)",
+    )
     args = parser.parse_args()
     print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s) before the config applies 1")
     torch.set_num_threads(1)

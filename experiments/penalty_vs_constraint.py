@@ -47,7 +47,12 @@ from typing import Any
 
 from cmdp_rl.analysis.figures import penalty_constraint_figure
 from cmdp_rl.analysis.penalty_constraint import (
-    gather, rerun_script, status_rows, table_markdown, table_rows, unfinished,
+    gather,
+    rerun_script,
+    status_rows,
+    table_markdown,
+    table_rows,
+    unfinished,
 )
 from cmdp_rl.analysis.reach1d_reference import answers_markdown, reach1d_reference
 from cmdp_rl.analysis.tables import write_csv
@@ -134,13 +139,16 @@ def compare(rows: list[dict[str, Any]], table_md: Path) -> dict[str, Any]:
             continue
         mine = [tuple(float(x) for x in c.split("±")) for c in cells[4:6]]
         n = int(cells[3].split("/")[0]) or 1
-        ok = all(abs(m[0] - o[0]) <= max(2 * ((m[1] ** 2 + o[1] ** 2) / n) ** 0.5, 0.05)
-                 for m, o in zip(mine, other[key]))
+        ok = all(
+            abs(m[0] - o[0]) <= max(2 * ((m[1] ** 2 + o[1] ** 2) / n) ** 0.5, 0.05) for m, o in zip(mine, other[key])
+        )
         total += 1
         agree += ok
         if not ok:
-            differ.append(f"{' '.join(key)}: return {cells[4]} vs {other[key][0][0]:.3f} ± {other[key][0][1]:.3f}, "
-                          f"cost {cells[5]} vs {other[key][1][0]:.3f} ± {other[key][1][1]:.3f}")
+            differ.append(
+                f"{' '.join(key)}: return {cells[4]} vs {other[key][0][0]:.3f} ± {other[key][0][1]:.3f}, "
+                f"cost {cells[5]} vs {other[key][1][0]:.3f} ± {other[key][1][1]:.3f}"
+            )
     return {"rows": total, "agree": agree, "differ": differ}
 
 
@@ -148,8 +156,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dirs", nargs="*", type=Path, help="sweep directories (searched recursively)")
     parser.add_argument("--out", type=Path, default=None, help="where to write (default: <first dir>/report)")
-    parser.add_argument("--population", type=Path, default=None,
-                        help="train the whole grid into this directory as populations first, then report on it")
+    parser.add_argument(
+        "--population",
+        type=Path,
+        default=None,
+        help="train the whole grid into this directory as populations first, then report on it",
+    )
     parser.add_argument("--skip-unbatched", action="store_true", help="with --population: leave out cpo's jobs")
     parser.add_argument("--compare", type=Path, default=None, help="another report's table.md to compare with")
     args = parser.parse_args(argv)
@@ -170,8 +182,11 @@ def main(argv: list[str] | None = None) -> int:
     result = report(args.dirs, out)
     print(table_markdown(result["rows"]))
     counts = result["counts"]
-    print("runs: " + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("ok", "failed", "incomplete", "missing"))
-          + (f" ({counts[SUPERSEDED]} superseded by reruns)" if counts.get(SUPERSEDED) else ""))
+    print(
+        "runs: "
+        + ", ".join(f"{counts.get(s, 0)} {s}" for s in ("ok", "failed", "incomplete", "missing"))
+        + (f" ({counts[SUPERSEDED]} superseded by reruns)" if counts.get(SUPERSEDED) else "")
+    )
     not_ok = unfinished(result["runs"])
     for r in not_ok[:SHOW_NOT_OK]:
         where = r.path if r.status != MISSING else f"{r.path}: {' '.join(r.overrides)}"

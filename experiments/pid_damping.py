@@ -46,10 +46,17 @@ def load_run(run: sweeps.RunRecord) -> dict:
     cfg, ev = run.config, run.eval or {}
     col = lambda name: np.array([r[name] for r in run.metrics])  # noqa: E731
     return {
-        "dir": run.path.name, "ki": cfg["algo"]["ki"], "kp": cfg["algo"]["kp"], "kd": cfg["algo"]["kd"],
-        "seed": cfg["seed"], "d": cfg["algo"]["cost_limit"], "step": col("step"),
-        "cost": col("episode_cost"), "lam": col("lagrange_multiplier"),
-        "eval_return": ev.get("episode_return", math.nan), "eval_cost": ev.get("episode_cost", math.nan),
+        "dir": run.path.name,
+        "ki": cfg["algo"]["ki"],
+        "kp": cfg["algo"]["kp"],
+        "kd": cfg["algo"]["kd"],
+        "seed": cfg["seed"],
+        "d": cfg["algo"]["cost_limit"],
+        "step": col("step"),
+        "cost": col("episode_cost"),
+        "lam": col("lagrange_multiplier"),
+        "eval_return": ev.get("episode_return", math.nan),
+        "eval_cost": ev.get("episode_cost", math.nan),
     }
 
 
@@ -95,13 +102,27 @@ def _fmt(mean: float, std: float, n: int, total: int) -> str:
 def write_table(table: dict, runs: list[dict], out: Path) -> str:
     d = runs[0]["d"]
     steps = int(max(r["step"][-1] for r in runs))
-    intro = (f"PID-Lagrangian PPO, Reach1D `env.wall=pass`, budget d = {d}, {steps:,} steps per run; "
-             "mean ± sample std over seeds (n/total: runs where the metric exists).")
-    header = ["Ki", "Kp", "Kd", "seeds", "first crossing (iter)", "overshoot: peak J_c - d after it",
-              f"peak of its {SMOOTH}-iteration mean", "violation: mean (J_c - d)+ after it",
-              "oscillation: mean abs(J_c - d) after it", "eval return", "eval cost"]
-    cells = [[f"{ki:g}", f"{kp:g}", f"{kd:g}", str(row["overshoot"][3]), *(_fmt(*row[m]) for m in METRICS)]
-             for (ki, kp, kd), row in table.items()]
+    intro = (
+        f"PID-Lagrangian PPO, Reach1D `env.wall=pass`, budget d = {d}, {steps:,} steps per run; "
+        "mean ± sample std over seeds (n/total: runs where the metric exists)."
+    )
+    header = [
+        "Ki",
+        "Kp",
+        "Kd",
+        "seeds",
+        "first crossing (iter)",
+        "overshoot: peak J_c - d after it",
+        f"peak of its {SMOOTH}-iteration mean",
+        "violation: mean (J_c - d)+ after it",
+        "oscillation: mean abs(J_c - d) after it",
+        "eval return",
+        "eval cost",
+    ]
+    cells = [
+        [f"{ki:g}", f"{kp:g}", f"{kd:g}", str(row["overshoot"][3]), *(_fmt(*row[m]) for m in METRICS)]
+        for (ki, kp, kd), row in table.items()
+    ]
     text = intro + "\n\n" + markdown_table(header, cells, "r" * len(header)) + "\n"
     (out / "pid_damping.md").write_text(text)
     with open(out / "pid_damping_runs.csv", "w", newline="") as f:
@@ -157,7 +178,9 @@ def main() -> None:
     parser = experiment_arg_parser(__doc__)
     sweep_dir = experiment_sweep_dir(parser, parser.parse_args(), "pid_damping", ROOT)
     print(analyse(sweep_dir))
-    print(f"wrote {sweep_dir / 'pid_damping.md'}, {sweep_dir / 'pid_damping_runs.csv'}, {sweep_dir / 'pid_damping.png'}")
+    print(
+        f"wrote {sweep_dir / 'pid_damping.md'}, {sweep_dir / 'pid_damping_runs.csv'}, {sweep_dir / 'pid_damping.png'}"
+    )
 
 
 if __name__ == "__main__":

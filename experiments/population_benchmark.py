@@ -51,8 +51,17 @@ def composed(overrides: list[str]) -> dict:
 
 def base(envs: int, iterations: int, device: str, threads: int) -> list[str]:
     steps = iterations * envs * max(32, min(256, 2048 // envs))
-    return ["algo=ppo_lag", "env=reach1d_torch", f"env.num_envs={envs}", f"total_steps={steps}", f"device={device}",
-            f"threads={threads}", "eval_episodes=4", "log_interval=1000", "checkpoint_every=1000"]
+    return [
+        "algo=ppo_lag",
+        "env=reach1d_torch",
+        f"env.num_envs={envs}",
+        f"total_steps={steps}",
+        f"device={device}",
+        f"threads={threads}",
+        "eval_episodes=4",
+        "log_interval=1000",
+        "checkpoint_every=1000",
+    ]
 
 
 def together(args, agents: int, tmp: Path) -> dict:
@@ -60,9 +69,14 @@ def together(args, agents: int, tmp: Path) -> dict:
     cpu = time.process_time()
     summary = train_population(raw, tmp / f"pop{agents}", echo=lambda s: None)
     cpu = time.process_time() - cpu
-    return {"agents": agents, "train_time_s": summary["train_time_s"], "steps_summed": summary["steps_summed"],
-            "summed_steps_per_s": summary["summed_steps_per_s"], "cpu_s": cpu,
-            "steps_per_cpu_s": summary["steps_summed"] / cpu}
+    return {
+        "agents": agents,
+        "train_time_s": summary["train_time_s"],
+        "steps_summed": summary["steps_summed"],
+        "summed_steps_per_s": summary["summed_steps_per_s"],
+        "cpu_s": cpu,
+        "steps_per_cpu_s": summary["steps_summed"] / cpu,
+    }
 
 
 def one_after_another(args, tmp: Path) -> dict:
@@ -75,8 +89,14 @@ def one_after_another(args, tmp: Path) -> dict:
         total_time += result["train_time_s"]
         steps += result["steps"]
     cpu = time.process_time() - cpu
-    return {"agents": len(cfgs), "train_time_s": total_time, "steps_summed": steps,
-            "summed_steps_per_s": steps / total_time, "cpu_s": cpu, "steps_per_cpu_s": steps / cpu}
+    return {
+        "agents": len(cfgs),
+        "train_time_s": total_time,
+        "steps_summed": steps,
+        "summed_steps_per_s": steps / total_time,
+        "cpu_s": cpu,
+        "steps_per_cpu_s": steps / cpu,
+    }
 
 
 def layers(sizes: list[int], rows: int, hidden: int, device: str) -> list[dict]:
@@ -85,10 +105,17 @@ def layers(sizes: list[int], rows: int, hidden: int, device: str) -> list[dict]:
 
     out = []
     for p in sizes:
-        net = torch.nn.Sequential(torch.nn.Linear(2, hidden), torch.nn.Tanh(), torch.nn.Linear(hidden, hidden),
-                                  torch.nn.Tanh(), torch.nn.Linear(hidden, 1)).to(device)
-        stacked = {k: v.detach().unsqueeze(0).repeat(p, *([1] * v.dim())).requires_grad_(True)
-                   for k, v in net.named_parameters()}
+        net = torch.nn.Sequential(
+            torch.nn.Linear(2, hidden),
+            torch.nn.Tanh(),
+            torch.nn.Linear(hidden, hidden),
+            torch.nn.Tanh(),
+            torch.nn.Linear(hidden, 1),
+        ).to(device)
+        stacked = {
+            k: v.detach().unsqueeze(0).repeat(p, *([1] * v.dim())).requires_grad_(True)
+            for k, v in net.named_parameters()
+        }
         x = torch.randn(p, rows, 2, device=device)
 
         def bmm() -> torch.Tensor:
@@ -113,8 +140,9 @@ def layers(sizes: list[int], rows: int, hidden: int, device: str) -> list[dict]:
                     torch.cuda.synchronize()
                 best = min(best, time.perf_counter() - t0)
             timing[name] = best * 1e3
-        out.append({"agents": p, "rows": rows, "hidden": hidden, "baddbmm_ms": timing["baddbmm"],
-                    "vmap_ms": timing["vmap"]})
+        out.append(
+            {"agents": p, "rows": rows, "hidden": hidden, "baddbmm_ms": timing["baddbmm"], "vmap_ms": timing["vmap"]}
+        )
     return out
 
 
@@ -130,35 +158,49 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--skip-layers", action="store_true", help="leave out the baddbmm / vmap comparison")
     parser.add_argument("--out", type=Path, default=ROOT / "outputs" / "population_benchmark.json")
     args = parser.parse_args(argv)
-    report: dict = {"load_before": os.getloadavg(), "device": args.device, "threads": args.threads,
-                    "cpu": platform.processor() or platform.machine(), "envs_per_agent": args.envs,
-                    "iterations": args.iterations}
+    report: dict = {
+        "load_before": os.getloadavg(),
+        "device": args.device,
+        "threads": args.threads,
+        "cpu": platform.processor() or platform.machine(),
+        "envs_per_agent": args.envs,
+        "iterations": args.iterations,
+    }
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        report["layers"] = [] if args.skip_layers else layers([int(p) for p in args.scan.split(",")], 256, 32,
-                                                                args.device)
+        report["layers"] = (
+            [] if args.skip_layers else layers([int(p) for p in args.scan.split(",")], 256, 32, args.device)
+        )
         print("one forward + backward of every agent's 32 x 32 MLP on 256 rows (ms): baddbmm | vmap")
         for r in report["layers"]:
             print(f"  P = {r['agents']:4d}: {r['baddbmm_ms']:8.2f} | {r['vmap_ms']:8.2f}")
         report["together"] = together(args, args.agents, tmp)
         t = report["together"]
-        print(f"together: {t['agents']} agents x {args.envs} envs: {t['summed_steps_per_s']:,.0f} summed steps/s "
-              f"({t['steps_summed']:,} steps in {t['train_time_s']:.1f} s)")
+        print(
+            f"together: {t['agents']} agents x {args.envs} envs: {t['summed_steps_per_s']:,.0f} summed steps/s "
+            f"({t['steps_summed']:,} steps in {t['train_time_s']:.1f} s)"
+        )
         if not args.skip_sequential:
             report["one_after_another"] = s = one_after_another(args, tmp)
             report["ratio"] = t["summed_steps_per_s"] / s["summed_steps_per_s"]
             report["ratio_cpu"] = t["steps_per_cpu_s"] / s["steps_per_cpu_s"]
-            print(f"one after another: {s['summed_steps_per_s']:,.0f} summed steps/s "
-                  f"({s['steps_summed']:,} steps in {s['train_time_s']:.1f} s); ratio {report['ratio']:.1f}x")
-            print(f"per CPU-second of the whole calls (setup and evaluation included; less sensitive to other "
-                  f"processes): together {t['steps_per_cpu_s']:,.0f}, one after another {s['steps_per_cpu_s']:,.0f}; "
-                  f"ratio {report['ratio_cpu']:.1f}x")
+            print(
+                f"one after another: {s['summed_steps_per_s']:,.0f} summed steps/s "
+                f"({s['steps_summed']:,} steps in {s['train_time_s']:.1f} s); ratio {report['ratio']:.1f}x"
+            )
+            print(
+                f"per CPU-second of the whole calls (setup and evaluation included; less sensitive to other "
+                f"processes): together {t['steps_per_cpu_s']:,.0f}, one after another {s['steps_per_cpu_s']:,.0f}; "
+                f"ratio {report['ratio_cpu']:.1f}x"
+            )
         report["scan"] = []
         for p in [int(p) for p in args.scan.split(",")]:
             r = together(args, p, tmp)
             report["scan"].append(r)
-            print(f"scan: P = {p:4d}: {r['summed_steps_per_s']:>12,.0f} summed steps/s, "
-                  f"{r['summed_steps_per_s'] / p:>10,.0f} per agent; {r['steps_per_cpu_s']:>10,.0f} per CPU-second")
+            print(
+                f"scan: P = {p:4d}: {r['summed_steps_per_s']:>12,.0f} summed steps/s, "
+                f"{r['summed_steps_per_s'] / p:>10,.0f} per agent; {r['steps_per_cpu_s']:>10,.0f} per CPU-second"
+            )
     report["load_after"] = os.getloadavg()
     print(f"load average before {report['load_before']}, after {report['load_after']}")
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -60,6 +60,7 @@ def main() -> int:
             if iteration[0] >= 2:  # the first iteration warms up
                 spent[label] += time.process_time() - t
             return r
+
         setattr(owner, name, timed)
 
     for owner, name, label in PARTS:

@@ -28,14 +28,14 @@ from typing import Any
 import torch
 
 from cmdp_rl import Collector, RunConfig, keys, load_config, make_agent, make_env
+from cmdp_rl.analysis import tables
+from cmdp_rl.analysis.stats import population_mean_std
+from cmdp_rl.analysis.tables import markdown_table, pm
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 from cmdp_rl.policies.legacy import upgrade_algo_state
-from cmdp_rl.run import sweeps
-from cmdp_rl.analysis.stats import population_mean_std
-from cmdp_rl.analysis import tables
-from cmdp_rl.analysis.tables import markdown_table, pm
 from cmdp_rl.report.plot import pyplot, save_figure
+from cmdp_rl.run import sweeps
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,12 +78,17 @@ def load_runs(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> list[dict[str,
         if not probe_path.is_file():
             run_cfg = load_config(cfg)
             probe_path.write_text(json.dumps(probe_stats(run_cfg, run_dir, probe_steps), indent=2))
-        runs.append({
-            "dir": run_dir, "policy": cfg["policy"]["name"], "probe": bool(cfg["env"]["probe"]), "seed": cfg["seed"],
-            "eval": run.eval,
-            "probe_stats": json.loads(probe_path.read_text()),
-            "rows": run.metrics,
-        })
+        runs.append(
+            {
+                "dir": run_dir,
+                "policy": cfg["policy"]["name"],
+                "probe": bool(cfg["env"]["probe"]),
+                "seed": cfg["seed"],
+                "eval": run.eval,
+                "probe_stats": json.loads(probe_path.read_text()),
+                "rows": run.metrics,
+            }
+        )
     return runs
 
 
@@ -105,28 +110,56 @@ def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
         groups.setdefault((run["policy"], run["probe"]), []).append(run)
     table = []
     for (policy, probe), group in groups.items():
-        row: dict[str, Any] = {"policy": policy, "probe": probe, "seeds": len(group),
-                               "steps": group[0]["eval"]["steps"], "cost_limit": group[0]["eval"]["cost_limit"]}
+        row: dict[str, Any] = {
+            "policy": policy,
+            "probe": probe,
+            "seeds": len(group),
+            "steps": group[0]["eval"]["steps"],
+            "cost_limit": group[0]["eval"]["cost_limit"],
+        }
         for key in ("episode_return", "episode_cost", "goal_reached", "episode_length"):
             row[key], row[f"{key}_std"] = population_mean_std([r["eval"][key] for r in group])
         for key in ("probe_rate", "probe_rate_early", "probe_rate_later"):
-            row[key], row[f"{key}_std"] = population_mean_std([r["probe_stats"][key] for r in group
-                                                               if r["probe_stats"].get(key) is not None])
+            row[key], row[f"{key}_std"] = population_mean_std(
+                [r["probe_stats"][key] for r in group if r["probe_stats"].get(key) is not None]
+            )
         row["train_sps"], row["train_sps_std"] = population_mean_std([_train_sps(r["rows"]) for r in group])
         table.append(row)
     return table
 
 
 def write_table(table: list[dict[str, Any]], out: Path) -> str:
-    header = ["policy", "probe", "seeds", "steps", "return", "cost", "goal reached", "episode length",
-              "probe rate", "probe rate, first 5 steps", "probe rate, later", "training steps/s"]
-    cells = [[
-        r["policy"], "yes" if r["probe"] else "no", str(r["seeds"]), f"{r['steps']:,}",
-        pm(r["episode_return"], r["episode_return_std"], ".3f"), pm(r["episode_cost"], r["episode_cost_std"], ".3f"),
-        pm(r["goal_reached"], r["goal_reached_std"], ".2f"), pm(r["episode_length"], r["episode_length_std"], ".1f"),
-        pm(r["probe_rate"], r["probe_rate_std"], ".2f"), pm(r["probe_rate_early"], r["probe_rate_early_std"], ".2f"),
-        pm(r["probe_rate_later"], r["probe_rate_later_std"], ".2f"), pm(r["train_sps"], r["train_sps_std"], ",.0f"),
-    ] for r in table]
+    header = [
+        "policy",
+        "probe",
+        "seeds",
+        "steps",
+        "return",
+        "cost",
+        "goal reached",
+        "episode length",
+        "probe rate",
+        "probe rate, first 5 steps",
+        "probe rate, later",
+        "training steps/s",
+    ]
+    cells = [
+        [
+            r["policy"],
+            "yes" if r["probe"] else "no",
+            str(r["seeds"]),
+            f"{r['steps']:,}",
+            pm(r["episode_return"], r["episode_return_std"], ".3f"),
+            pm(r["episode_cost"], r["episode_cost_std"], ".3f"),
+            pm(r["goal_reached"], r["goal_reached_std"], ".2f"),
+            pm(r["episode_length"], r["episode_length_std"], ".1f"),
+            pm(r["probe_rate"], r["probe_rate_std"], ".2f"),
+            pm(r["probe_rate_early"], r["probe_rate_early_std"], ".2f"),
+            pm(r["probe_rate_later"], r["probe_rate_later_std"], ".2f"),
+            pm(r["train_sps"], r["train_sps_std"], ",.0f"),
+        ]
+        for r in table
+    ]
     limit = table[0]["cost_limit"] if table else float("nan")
     text = markdown_table(header, cells) + (
         f"\n\nBudget d = {limit:g} crossing per episode. Return, cost, goal rate and length: the final stochastic "
@@ -148,11 +181,27 @@ def plot_cost_vs_return(runs: list[dict[str, Any]], table: list[dict[str, Any]],
         color = colors.setdefault(policy, f"C{len(colors)}")
         marker = "o" if probe else "s"
         face = color if probe else "none"
-        ax.scatter([r["eval"]["episode_return"] for r in group], [r["eval"]["episode_cost"] for r in group],
-                   marker=marker, facecolors=face, edgecolors=color, s=28, alpha=0.6)
-        ax.errorbar(row["episode_return"], row["episode_cost"], xerr=row["episode_return_std"],
-                    yerr=row["episode_cost_std"], fmt=marker, color=color, mfc=face, ms=10, capsize=3,
-                    label=f"{policy}, {'probe' if probe else 'no probe'} ({row['seeds']} seed{'s' if row['seeds'] > 1 else ''})")
+        ax.scatter(
+            [r["eval"]["episode_return"] for r in group],
+            [r["eval"]["episode_cost"] for r in group],
+            marker=marker,
+            facecolors=face,
+            edgecolors=color,
+            s=28,
+            alpha=0.6,
+        )
+        ax.errorbar(
+            row["episode_return"],
+            row["episode_cost"],
+            xerr=row["episode_return_std"],
+            yerr=row["episode_cost_std"],
+            fmt=marker,
+            color=color,
+            mfc=face,
+            ms=10,
+            capsize=3,
+            label=f"{policy}, {'probe' if probe else 'no probe'} ({row['seeds']} seed{'s' if row['seeds'] > 1 else ''})",
+        )
     limit = table[0]["cost_limit"]
     ax.axhline(limit, color="k", linestyle="--", linewidth=1, label=f"budget d = {limit:g}")
     ax.set_xlabel("episode return (final policy, sampled actions)")

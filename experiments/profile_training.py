@@ -20,6 +20,7 @@ import torch
 import cmdp_rl
 from cmdp_rl.config import compose_config
 
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("overrides", nargs="*", help="train.py overrides, e.g. env=reach1d_torch total_steps=131072")
@@ -34,9 +35,11 @@ def main() -> None:
     stats = pstats.Stats(prof)
     stats.sort_stats("tottime").print_stats(args.top)
     total = stats.total_tt
-    parts = (("rollout (Collector.collect)", "collector.py", "collect"),
-             ("update (PPO.update, GAE included)", "ppo.py", "update"),
-             ("  of which GAE (TwinGAE)", "advantages.py", "__call__"))
+    parts = (
+        ("rollout (Collector.collect)", "collector.py", "collect"),
+        ("update (PPO.update, GAE included)", "ppo.py", "update"),
+        ("  of which GAE (TwinGAE)", "advantages.py", "__call__"),
+    )
     for label, file, fn in parts:
         cum = sum(v[3] for k, v in stats.stats.items() if k[0].endswith(file) and k[2] == fn)
         print(f"{label:36s} {cum:7.2f} s CPU of {total:.2f} s ({cum / total:.0%})")

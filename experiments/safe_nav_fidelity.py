@@ -85,9 +85,19 @@ def compare(task: str, n: int, steps: int, seed: int) -> dict:
     for i, r in enumerate(refs):
         r.reset(seed=seed + i)
     rng = np.random.default_rng(0)
-    out = {"task": task, "num_envs": n, "steps": steps, "obs_max_abs_diff": 0.0, "reward_max_abs_diff": 0.0,
-           "cost_mismatches": 0, "end_mismatches": 0, "physics_bit_equal": True, "goals": 0, "cost_steps": 0,
-           "episode_ends": 0}
+    out = {
+        "task": task,
+        "num_envs": n,
+        "steps": steps,
+        "obs_max_abs_diff": 0.0,
+        "reward_max_abs_diff": 0.0,
+        "cost_mismatches": 0,
+        "end_mismatches": 0,
+        "physics_bit_equal": True,
+        "goals": 0,
+        "cost_steps": 0,
+        "episode_ends": 0,
+    }
     t0 = time.perf_counter()
     for _ in range(steps):
         action = steer(env, rng)
@@ -95,13 +105,17 @@ def compare(task: str, n: int, steps: int, seed: int) -> dict:
         s = env.step(torch.from_numpy(action))
         for i, r in enumerate(refs):  # compare the worlds before the reference resets its own
             d, rd = env.worlds.datas[i], r.inner.task.data
-            if not (np.array_equal(d.qpos, rd.qpos) and np.array_equal(d.qvel, rd.qvel)
-                    and np.array_equal(d.sensordata, rd.sensordata)) and not (res[i][2] or res[i][3]):
+            if not (
+                np.array_equal(d.qpos, rd.qpos)
+                and np.array_equal(d.qvel, rd.qvel)
+                and np.array_equal(d.sensordata, rd.sensordata)
+            ) and not (res[i][2] or res[i][3]):
                 out["physics_bit_equal"] = False
         obs = np.stack([x[0] for x in res])
         out["obs_max_abs_diff"] = max(out["obs_max_abs_diff"], float(np.abs(env.last["next_obs"] - obs).max()))
-        out["reward_max_abs_diff"] = max(out["reward_max_abs_diff"],
-                                         float(np.abs(env.last["reward"] - [x[1] for x in res]).max()))
+        out["reward_max_abs_diff"] = max(
+            out["reward_max_abs_diff"], float(np.abs(env.last["reward"] - [x[1] for x in res]).max())
+        )
         cost = np.array([x[4]["cost"] for x in res])
         out["cost_mismatches"] += int(np.any(s.cost[:, 0].numpy() != cost))
         ends = np.c_[[x[2] for x in res], [x[3] for x in res]]
@@ -120,10 +134,20 @@ def same_training() -> bool:
     from cmdp_rl import train
     from cmdp_rl.config import compose_config
 
-    common = ["env.num_envs=2", "env.max_steps=200", "rollout_steps=100", "total_steps=800", "eval_episodes=2",
-              "algo=ppo_lag", "seed=3"]
+    common = [
+        "env.num_envs=2",
+        "env.max_steps=200",
+        "rollout_steps=100",
+        "total_steps=800",
+        "eval_episodes=2",
+        "algo=ppo_lag",
+        "seed=3",
+    ]
     with tempfile.TemporaryDirectory() as tmp:
-        runs = {"nav": ["env=safe_nav", "env.task=PointGoal1"], "gym": ["env=safety_gym", "env.task=SafetyPointGoal1-v0"]}
+        runs = {
+            "nav": ["env=safe_nav", "env.task=PointGoal1"],
+            "gym": ["env=safety_gym", "env.task=SafetyPointGoal1-v0"],
+        }
         logged = {}
         for name, env in runs.items():
             train(compose_config([*env, *common]), Path(tmp) / name, echo=lambda _: None)
@@ -133,8 +157,10 @@ def same_training() -> bool:
             evaluation.pop("train_time_s")
             logged[name] = (rows, evaluation)
     same = logged["nav"] == logged["gym"]
-    print(f"ppo_lag, same config and seed, {len(logged['nav'][0])} iterations: "
-          f"{'the same' if same else 'DIFFERENT'} metrics.csv rows and evaluation on safe_nav and safety_gym")
+    print(
+        f"ppo_lag, same config and seed, {len(logged['nav'][0])} iterations: "
+        f"{'the same' if same else 'DIFFERENT'} metrics.csv rows and evaluation on safe_nav and safety_gym"
+    )
     return same
 
 
@@ -151,12 +177,16 @@ def main() -> None:
     if args.train:
         same_training()
     rows = [compare(task, args.num_envs, args.steps, args.seed) for task in args.tasks]
-    print("| task | env steps | max abs obs diff | max abs reward diff | cost / end mismatches | physics bit-equal | goals | cost steps | episode ends |")
+    print(
+        "| task | env steps | max abs obs diff | max abs reward diff | cost / end mismatches | physics bit-equal | goals | cost steps | episode ends |"
+    )
     print("|---|--:|--:|--:|--:|:-:|--:|--:|--:|")
     for r in rows:
-        print(f"| {r['task']} | {r['num_envs'] * r['steps']} | {r['obs_max_abs_diff']:.1e} | {r['reward_max_abs_diff']:.1e} "
-              f"| {r['cost_mismatches']} / {r['end_mismatches']} | {'yes' if r['physics_bit_equal'] else 'NO'} "
-              f"| {r['goals']} | {r['cost_steps']} | {r['episode_ends']} |")
+        print(
+            f"| {r['task']} | {r['num_envs'] * r['steps']} | {r['obs_max_abs_diff']:.1e} | {r['reward_max_abs_diff']:.1e} "
+            f"| {r['cost_mismatches']} / {r['end_mismatches']} | {'yes' if r['physics_bit_equal'] else 'NO'} "
+            f"| {r['goals']} | {r['cost_steps']} | {r['episode_ends']} |"
+        )
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(rows, indent=2))

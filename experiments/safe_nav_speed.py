@@ -178,7 +178,9 @@ def main() -> None:
         best_ref = max(r["steps_per_s"] for r in rows if r["task"] == task and r["setup"].startswith("reference"))
         for r in rows:
             if r["task"] == task and r["setup"].startswith("safe_nav"):
-                print(f"{task} N={r['num_envs']:<4} {r['setup']:<22} {r['steps_per_s'] / best_ref:5.1f}x the reference's best")
+                print(
+                    f"{task} N={r['num_envs']:<4} {r['setup']:<22} {r['steps_per_s'] / best_ref:5.1f}x the reference's best"
+                )
     trained = {r["setup"]: r["steps_per_s"] for r in rows if r["setup"].startswith("train")}
     if trained:
         ours = trained["train ppo_lag: safe_nav"]

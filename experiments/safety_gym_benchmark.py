@@ -40,13 +40,23 @@ TASKS = ("SafetyPointGoal1-v0", "SafetyCarGoal1-v0")
 # OmniSafe's on-policy benchmark, Table 2 (1e7 steps, cost_limit 25; reward and cost, mean ± std over
 # their evaluation of several seeds): github.com/PKU-Alignment/omnisafe, benchmarks/on-policy/README.md
 # at commit 15603dd (2025-03-17). Their names: PPO, PPOLag, CPPOPID, CPO.
-OMNISAFE_SOURCE = ("OmniSafe's on-policy benchmark, Table 2 (1e7 steps, cost limit 25): "
-                   "github.com/PKU-Alignment/omnisafe, benchmarks/on-policy/README.md (commit 15603dd)")
+OMNISAFE_SOURCE = (
+    "OmniSafe's on-policy benchmark, Table 2 (1e7 steps, cost limit 25): "
+    "github.com/PKU-Alignment/omnisafe, benchmarks/on-policy/README.md (commit 15603dd)"
+)
 OMNISAFE = {
-    "SafetyPointGoal1-v0": {"ppo": ("PPO", 25.44, 5.43, 55.72, 35.55), "ppo_lag": ("PPOLag", 12.96, 6.95, 25.80, 34.99),
-                            "pid_lag": ("CPPOPID", 8.43, 3.43, 25.74, 7.83), "cpo": ("CPO", 20.46, 1.38, 28.84, 7.76)},
-    "SafetyCarGoal1-v0": {"ppo": ("PPO", 33.41, 2.89, 58.06, 42.06), "ppo_lag": ("PPOLag", 13.27, 9.26, 21.72, 32.06),
-                          "pid_lag": ("CPPOPID", 10.60, 2.51, 30.66, 7.53), "cpo": ("CPO", 25.52, 2.65, 43.32, 14.35)},
+    "SafetyPointGoal1-v0": {
+        "ppo": ("PPO", 25.44, 5.43, 55.72, 35.55),
+        "ppo_lag": ("PPOLag", 12.96, 6.95, 25.80, 34.99),
+        "pid_lag": ("CPPOPID", 8.43, 3.43, 25.74, 7.83),
+        "cpo": ("CPO", 20.46, 1.38, 28.84, 7.76),
+    },
+    "SafetyCarGoal1-v0": {
+        "ppo": ("PPO", 33.41, 2.89, 58.06, 42.06),
+        "ppo_lag": ("PPOLag", 13.27, 9.26, 21.72, 32.06),
+        "pid_lag": ("CPPOPID", 10.60, 2.51, 30.66, 7.53),
+        "cpo": ("CPO", 25.52, 2.65, 43.32, 14.35),
+    },
 }
 
 
@@ -64,8 +74,10 @@ def runs_by_task(sweep_dir: Path) -> dict[str, list[dict[str, Any]]]:
 
 
 def omnisafe_table(task: str) -> str:
-    rows = [[algo, name, f"{r:.2f} ± {rs:.2f}", f"{c:.2f} ± {cs:.2f}"]
-            for algo, (name, r, rs, c, cs) in OMNISAFE.get(task, {}).items()]
+    rows = [
+        [algo, name, f"{r:.2f} ± {rs:.2f}", f"{c:.2f} ± {cs:.2f}"]
+        for algo, (name, r, rs, c, cs) in OMNISAFE.get(task, {}).items()
+    ]
     return markdown_table(["algo", "OmniSafe's", "return (1e7 steps)", "cost (1e7 steps)"], rows, "llrr")
 
 
@@ -89,9 +101,11 @@ def speed_rows(tasks: list[str], num_envs: int, episodes: int, safe_nav: bool = 
     if safe_nav:
         head += [f"our collector, env=safe_nav, {num_envs} envs", "ratio"]
     table = markdown_table(head, rows, "l" + "r" * (len(head) - 1))
-    return (f"{table}\n\nEnv steps/s, {episodes} episode(s) per env, random actions; {os.cpu_count()} cores, "
-            f"load average (1, 5, 15 min) before {tuple(round(x, 2) for x in before)}, after "
-            f"{tuple(round(x, 2) for x in after)}.\n")
+    return (
+        f"{table}\n\nEnv steps/s, {episodes} episode(s) per env, random actions; {os.cpu_count()} cores, "
+        f"load average (1, 5, 15 min) before {tuple(round(x, 2) for x in before)}, after "
+        f"{tuple(round(x, 2) for x in after)}.\n"
+    )
 
 
 def gather(sweep_dir: Path, speed_episodes: int = 1) -> str:
@@ -101,17 +115,24 @@ def gather(sweep_dir: Path, speed_episodes: int = 1) -> str:
     parts = [f"# Safety-Gymnasium benchmark: {sweep_dir}\n"]
     envs = {run["config"]["env"]["name"] for runs in by_task.values() for run in runs}
     if "safe_nav" in envs:
-        parts.append("Trained on `env=safe_nav`: the package's tasks batched, with bit-equal physics, rewards "
-                     "and costs and observations equal to about 1e-15 (docs/safe_nav.md); a same-seed run on "
-                     "`env=safety_gym` logs the same numbers.\n")
+        parts.append(
+            "Trained on `env=safe_nav`: the package's tasks batched, with bit-equal physics, rewards "
+            "and costs and observations equal to about 1e-15 (docs/safe_nav.md); a same-seed run on "
+            "`env=safety_gym` logs the same numbers.\n"
+        )
     tasks = sorted(by_task, key=lambda t: (TASKS.index(t) if t in TASKS else len(TASKS), t))  # the config's order
     for task in tasks:
         out = sweep_dir / task
         out.mkdir(exist_ok=True)
         text = velocity_benchmark.write_table(velocity_benchmark.summarize(by_task[task]), out)
         png = velocity_benchmark.plot_curves(by_task[task], out)
-        parts += [f"## {task}\n", text, f"Curves: {png.relative_to(sweep_dir)}\n",
-                  f"For orientation, {OMNISAFE_SOURCE}:\n", omnisafe_table(task) + "\n"]
+        parts += [
+            f"## {task}\n",
+            text,
+            f"Curves: {png.relative_to(sweep_dir)}\n",
+            f"For orientation, {OMNISAFE_SOURCE}:\n",
+            omnisafe_table(task) + "\n",
+        ]
     if speed_episodes > 0:
         num_envs = next(iter(by_task.values()))[0]["config"]["env"]["num_envs"]
         parts += ["## Speed\n", speed_rows(tasks, num_envs, speed_episodes, safe_nav="safe_nav" in envs)]
@@ -123,8 +144,9 @@ def gather(sweep_dir: Path, speed_episodes: int = 1) -> str:
 
 def main() -> None:
     parser = experiment_arg_parser(__doc__)
-    parser.add_argument("--speed-episodes", type=int, default=1,
-                        help="whole episodes per env for the speed rows (0: no speed rows)")
+    parser.add_argument(
+        "--speed-episodes", type=int, default=1, help="whole episodes per env for the speed rows (0: no speed rows)"
+    )
     args, overrides = parser.parse_known_args()
     args.sweep_dir_or_overrides += overrides
     gather(experiment_sweep_dir(parser, args, "safety_gym_benchmark", ROOT), args.speed_episodes)

@@ -39,12 +39,20 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PINNED = ["safety-gymnasium==1.0.0", "gymnasium==0.28.1", "mujoco==2.3.3", "numpy<2"]
-DEFAULT_TASKS = ["SafetyPointGoal1-v0", "SafetyCarGoal1-v0", "SafetyPointButton1-v0", "SafetyPointPush1-v0",
-                 "SafetyPointCircle1-v0", "SafetyDoggoGoal1-v0", "SafetyHalfCheetahVelocity-v1",
-                 "SafetyAntVelocity-v1"]
+DEFAULT_TASKS = [
+    "SafetyPointGoal1-v0",
+    "SafetyCarGoal1-v0",
+    "SafetyPointButton1-v0",
+    "SafetyPointPush1-v0",
+    "SafetyPointCircle1-v0",
+    "SafetyDoggoGoal1-v0",
+    "SafetyHalfCheetahVelocity-v1",
+    "SafetyAntVelocity-v1",
+]
 
 
 # -- one side's rollout: runs in both interpreters, so it imports nothing of cmdp_rl ---------------
+
 
 def rollout(make, task: str, seed: int, actions: np.ndarray, six: bool) -> dict[str, np.ndarray]:
     env = make(task)
@@ -71,10 +79,9 @@ def rollout(make, task: str, seed: int, actions: np.ndarray, six: bool) -> dict[
 
 def pinned_worker(request: str, result: str) -> None:
     """Runs in the pinned venv: ``safety_gymnasium.make`` as the package intends."""
-    import safety_gymnasium
-
-    import mujoco
     import gymnasium
+    import mujoco
+    import safety_gymnasium
 
     req = np.load(request, allow_pickle=True)
     arrays, timings = {}, {}
@@ -83,12 +90,18 @@ def pinned_worker(request: str, result: str) -> None:
         data = rollout(lambda t: safety_gymnasium.make(t), str(task), int(seed), req[f"actions/{task}"], six=True)
         timings[str(task)] = len(data["reward"]) / (time.perf_counter() - t0)
         arrays.update({f"{task}/{k}": v for k, v in data.items()})
-    versions = {"python": sys.version.split()[0], "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
-                "numpy": np.__version__, "safety_gymnasium": safety_gymnasium.__version__}
+    versions = {
+        "python": sys.version.split()[0],
+        "gymnasium": gymnasium.__version__,
+        "mujoco": mujoco.__version__,
+        "numpy": np.__version__,
+        "safety_gymnasium": safety_gymnasium.__version__,
+    }
     np.savez(result, meta=json.dumps({"versions": versions, "steps_per_s": timings}), **arrays)
 
 
 # -- the driver -----------------------------------------------------------------------------------
+
 
 def find_python(name: str) -> str:
     found = shutil.which(name)
@@ -110,7 +123,9 @@ def make_pinned_venv(python: str, venv: Path) -> dict:
         subprocess.run([*pip, "--upgrade", "pip"], check=True)
         subprocess.run([*pip, *PINNED], check=True)
         (venv / ".ready").touch()
-    freeze = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "freeze"], capture_output=True, text=True).stdout
+    freeze = subprocess.run(
+        [str(venv / "bin" / "python"), "-m", "pip", "freeze"], capture_output=True, text=True
+    ).stdout
     return {"seconds": time.perf_counter() - t0, "freeze": freeze.split()}
 
 
@@ -126,15 +141,19 @@ def ours(tasks, seeds, actions) -> tuple[dict, dict, dict]:
         data = rollout(make_task, task, seed, actions[task], six=False)
         timings[task] = len(data["reward"]) / (time.perf_counter() - t0)
         arrays.update({f"{task}/{k}": v for k, v in data.items()})
-    versions = {"python": sys.version.split()[0], "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
-                "numpy": np.__version__}
+    versions = {
+        "python": sys.version.split()[0],
+        "gymnasium": gymnasium.__version__,
+        "mujoco": mujoco.__version__,
+        "numpy": np.__version__,
+    }
     return arrays, versions, timings
 
 
 def episode_sums(values: np.ndarray, ends: np.ndarray) -> list[float]:
     sums, start = [], 0
     for i in np.flatnonzero(ends):
-        sums.append(float(values[start:i + 1].sum()))
+        sums.append(float(values[start : i + 1].sum()))
         start = i + 1
     return sums
 
@@ -163,14 +182,23 @@ def compare(task: str, a: dict, b: dict) -> dict:
         "identical": first is None,
         "first_step_differing": first,  # 0-based index of the step
         "first_step_obs_diff_over_1e-6": int(first_big[0]) if len(first_big) else None,
-        "obs_max_abs_diff": {"steps_1_10": window(obs_diff, 0, 10), "steps_1_100": window(obs_diff, 0, 100),
-                             "all": window(obs_diff, 0, steps)},
+        "obs_max_abs_diff": {
+            "steps_1_10": window(obs_diff, 0, 10),
+            "steps_1_100": window(obs_diff, 0, 100),
+            "all": window(obs_diff, 0, steps),
+        },
         "reward_max_abs_diff": {"steps_1_100": window(rew_diff, 0, 100), "all": window(rew_diff, 0, steps)},
-        "cost_steps": {"pinned": int((get(a, "cost") > 0).sum()), "ours": int((get(b, "cost") > 0).sum()),
-                       "disagreeing": int(cost_differs.sum())},
+        "cost_steps": {
+            "pinned": int((get(a, "cost") > 0).sum()),
+            "ours": int((get(b, "cost") > 0).sum()),
+            "disagreeing": int(cost_differs.sum()),
+        },
         "episode_ends": {"pinned": np.flatnonzero(ends_a).tolist(), "ours": np.flatnonzero(ends_b).tolist()},
         "episode_start_obs_max_abs_diff": [float(np.abs(starts_a[i] - starts_b[i]).max()) for i in range(k)],
-        "episode_return": {"pinned": episode_sums(get(a, "reward"), ends_a), "ours": episode_sums(get(b, "reward"), ends_b)},
+        "episode_return": {
+            "pinned": episode_sums(get(a, "reward"), ends_a),
+            "ours": episode_sums(get(b, "reward"), ends_b),
+        },
         "episode_cost": {"pinned": episode_sums(get(a, "cost"), ends_a), "ours": episode_sums(get(b, "cost"), ends_b)},
     }
 
@@ -202,11 +230,16 @@ def main() -> None:
         actions[task] = rng.uniform(space.low, space.high, (TASKS[task] * args.episodes, *space.shape))
     with tempfile.TemporaryDirectory() as tmp:
         request, result = os.path.join(tmp, "request.npz"), os.path.join(tmp, "result.npz")
-        np.savez(request, tasks=np.array(args.tasks), seeds=np.array(seeds),
-                 **{f"actions/{t}": a for t, a in actions.items()})
+        np.savez(
+            request,
+            tasks=np.array(args.tasks),
+            seeds=np.array(seeds),
+            **{f"actions/{t}": a for t, a in actions.items()},
+        )
         t0 = time.perf_counter()
-        subprocess.run([str(Path(args.venv) / "bin" / "python"), __file__, "--worker", request, result], check=True,
-                       cwd=tmp)  # not the repository root: the pinned side must not see cmdp_rl
+        subprocess.run(
+            [str(Path(args.venv) / "bin" / "python"), __file__, "--worker", request, result], check=True, cwd=tmp
+        )  # not the repository root: the pinned side must not see cmdp_rl
         pinned_seconds = time.perf_counter() - t0
         with np.load(result, allow_pickle=False) as f:
             pinned = {k: f[k] for k in f.files}
@@ -215,22 +248,36 @@ def main() -> None:
     mine, versions, timings = ours(args.tasks, seeds, actions)
     ours_seconds = time.perf_counter() - t0
     report = {
-        "pinned": {**meta, "seconds": pinned_seconds, "venv_setup_seconds": setup["seconds"], "freeze": setup["freeze"]},
+        "pinned": {
+            **meta,
+            "seconds": pinned_seconds,
+            "venv_setup_seconds": setup["seconds"],
+            "freeze": setup["freeze"],
+        },
         "ours": {"versions": versions, "steps_per_s": timings, "seconds": ours_seconds},
-        "seed": args.seed, "episodes": args.episodes,
+        "seed": args.seed,
+        "episodes": args.episodes,
         "tasks": {task: compare(task, pinned, mine) for task in args.tasks},
     }
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=1))
     print(f"pinned {meta['versions']}, ours {versions}; rollouts {pinned_seconds:.0f} s / {ours_seconds:.0f} s")
-    print(f"{'task':<30} {'first diff':>10} {'obs diff 1-100':>15} {'obs diff all':>13} {'rew diff all':>13} "
-          f"{'cost steps p/o':>15} {'ends same':>9}")
+    print(
+        f"{'task':<30} {'first diff':>10} {'obs diff 1-100':>15} {'obs diff all':>13} {'rew diff all':>13} "
+        f"{'cost steps p/o':>15} {'ends same':>9}"
+    )
     for task, r in report["tasks"].items():
-        o100, oall, rall = r["obs_max_abs_diff"]["steps_1_100"], r["obs_max_abs_diff"]["all"], r["reward_max_abs_diff"]["all"]
-        print(f"{task:<30} {str(r['first_step_differing']):>10} {o100['max']:>15.2e} {oall['max']:>13.2e} "
-              f"{rall['max']:>13.2e} {r['cost_steps']['pinned']:>7}/{r['cost_steps']['ours']:<7} "
-              f"{str(r['episode_ends']['pinned'] == r['episode_ends']['ours']):>9}")
+        o100, oall, rall = (
+            r["obs_max_abs_diff"]["steps_1_100"],
+            r["obs_max_abs_diff"]["all"],
+            r["reward_max_abs_diff"]["all"],
+        )
+        print(
+            f"{task:<30} {str(r['first_step_differing']):>10} {o100['max']:>15.2e} {oall['max']:>13.2e} "
+            f"{rall['max']:>13.2e} {r['cost_steps']['pinned']:>7}/{r['cost_steps']['ours']:<7} "
+            f"{str(r['episode_ends']['pinned'] == r['episode_ends']['ours']):>9}"
+        )
     print(f"written to {out}")
 
 

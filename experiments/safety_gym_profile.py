@@ -71,8 +71,13 @@ def _builtin(part: str, but: str = "\0"):
 
 def _called_from(stats: pstats.Stats, match, caller_match) -> float:
     """Time spent in calls of ``match``-ed functions made directly by ``caller_match``-ed ones."""
-    return sum(ct for key, (_, _, _, _, callers) in stats.stats.items() if match(key)
-               for caller, (_, _, _, ct) in callers.items() if caller_match(caller))
+    return sum(
+        ct
+        for key, (_, _, _, _, callers) in stats.stats.items()
+        if match(key)
+        for caller, (_, _, _, ct) in callers.items()
+        if caller_match(caller)
+    )
 
 
 def groups(stats: pstats.Stats) -> list[tuple[str, float]]:
@@ -90,8 +95,9 @@ def groups(stats: pstats.Stats) -> list[tuple[str, float]]:
     in_obs = _fn("safety_gymnasium/bases/base_task.py", "obs")
     obs = _outer(stats, in_obs)
     physics_in_obs = _called_from(stats, _builtin("mujoco._functions."), in_obs)  # its mj_forward
-    lidar = _outer(stats, _fn("safety_gymnasium/bases/base_task.py",
-                              "_obs_lidar", "_obs_lidar_pseudo", "_obs_lidar_natural"))
+    lidar = _outer(
+        stats, _fn("safety_gymnasium/bases/base_task.py", "_obs_lidar", "_obs_lidar_pseudo", "_obs_lidar_natural")
+    )
     spaces = _outer(stats, lambda k: "gymnasium/spaces/" in k[0] and k[2] == "contains")
     lookups = _outer(stats, _builtin("mujoco._structs.", but="from_xml_string"))
     cost = _outer(stats, lambda k: "safety_gymnasium/" in k[0] and k[2] == "calculate_cost")
@@ -126,8 +132,15 @@ def main() -> None:
     parser.add_argument("--top", type=int, default=0, help="also print the N functions with the most own time")
     parser.add_argument("--save", default="outputs/safety_gym_profile.prof", help="the raw cProfile stats (pstats)")
     args = parser.parse_args()
-    cfg = compose_config(["env=safety_gym", f"env.task={args.task}", f"algo={args.algo}",
-                          f"env.num_envs={args.num_envs}", f"rollout_steps={args.steps_per_env}"])
+    cfg = compose_config(
+        [
+            "env=safety_gym",
+            f"env.task={args.task}",
+            f"algo={args.algo}",
+            f"env.num_envs={args.num_envs}",
+            f"rollout_steps={args.steps_per_env}",
+        ]
+    )
     torch.set_num_threads(cfg.threads)
     seed_everything(cfg.seed)
     env = make_env(cfg.env)
@@ -146,9 +159,11 @@ def main() -> None:
     steps = args.num_envs * args.steps_per_env
     rows = groups(stats)
     total = rows[0][1]
-    print(f"{args.task}, {args.algo} agent (untrained), {args.num_envs} envs x {args.steps_per_env} steps = {steps} "
-          f"env steps, one collector rollout under cProfile; {os.cpu_count()} cores, load average (1, 5, 15 min) "
-          f"before {tuple(round(x, 2) for x in load_before)}, after {tuple(round(x, 2) for x in load_after)}")
+    print(
+        f"{args.task}, {args.algo} agent (untrained), {args.num_envs} envs x {args.steps_per_env} steps = {steps} "
+        f"env steps, one collector rollout under cProfile; {os.cpu_count()} cores, load average (1, 5, 15 min) "
+        f"before {tuple(round(x, 2) for x in load_before)}, after {tuple(round(x, 2) for x in load_after)}"
+    )
     print(f"CPU {total:.2f} s ({steps / total:,.0f} steps/s profiled), wall {wall:.2f} s\n")
     width = max(len(r[0]) for r in rows)
     print(f"{'part':<{width}} | ms/step | share")

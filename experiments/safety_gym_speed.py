@@ -86,8 +86,9 @@ def collector_rate(task: str, n: int, steps_per_env: int, vector: str, safe_nav:
         env = make_env(SafeNavEnvConfig(task=task.removeprefix("Safety").removesuffix("-v0"), num_envs=n))
     else:
         env = make_env(SafetyGymEnvConfig(task=task, num_envs=n, vector=vector))
-    collector = Collector(env, RandomActions(env.action_low, env.action_high), rollout_steps=steps_per_env,
-                          seed=0)  # reset (and worker start) not timed
+    collector = Collector(
+        env, RandomActions(env.action_low, env.action_high), rollout_steps=steps_per_env, seed=0
+    )  # reset (and worker start) not timed
     t0 = time.perf_counter()
     collector.collect()
     rate = collector.total_steps / (time.perf_counter() - t0)
@@ -106,29 +107,47 @@ def main() -> None:
     steps = TASKS[args.task] * args.episodes
     load_before = os.getloadavg()
     rows = [
-        ("Safety-Gymnasium's own loop, 1 env (six-value step)", 1, single_loop(package_env(args.task), steps, six=True)),
-        ("cmdp_rl SafetyGymTask, 1 env (five-value step, cost in info)", 1,
-         single_loop(make_task(args.task), steps, six=False)),
+        (
+            "Safety-Gymnasium's own loop, 1 env (six-value step)",
+            1,
+            single_loop(package_env(args.task), steps, six=True),
+        ),
+        (
+            "cmdp_rl SafetyGymTask, 1 env (five-value step, cost in info)",
+            1,
+            single_loop(make_task(args.task), steps, six=False),
+        ),
     ]
     for n in args.num_envs:
         for vector in ("sync", "async"):
-            rows.append((f"cmdp_rl Collector, env.vector={vector}, {n} envs", n,
-                         collector_rate(args.task, n, steps, vector)))
+            rows.append(
+                (f"cmdp_rl Collector, env.vector={vector}, {n} envs", n, collector_rate(args.task, n, steps, vector))
+            )
     load_after = os.getloadavg()
     width = max(len(r[0]) for r in rows)
-    print(f"{args.task}, {steps} steps per env, {os.cpu_count()} cores; load average (1, 5, 15 min) "
-          f"before {tuple(round(x, 2) for x in load_before)}, after {tuple(round(x, 2) for x in load_after)}")
+    print(
+        f"{args.task}, {steps} steps per env, {os.cpu_count()} cores; load average (1, 5, 15 min) "
+        f"before {tuple(round(x, 2) for x in load_before)}, after {tuple(round(x, 2) for x in load_after)}"
+    )
     print(f"{'setup':<{width}} | steps/s")
     print(f"{'-' * width}-|--------")
     for name, _, sps in rows:
         print(f"{name:<{width}} | {sps:7,.0f}")
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
-        "task": args.task, "steps_per_env": steps, "cores": os.cpu_count(),
-        "load_before": load_before, "load_after": load_after,
-        "rows": [{"setup": name, "num_envs": n, "steps_per_s": sps} for name, n, sps in rows],
-    }, indent=2))
+    out.write_text(
+        json.dumps(
+            {
+                "task": args.task,
+                "steps_per_env": steps,
+                "cores": os.cpu_count(),
+                "load_before": load_before,
+                "load_after": load_after,
+                "rows": [{"setup": name, "num_envs": n, "steps_per_s": sps} for name, n, sps in rows],
+            },
+            indent=2,
+        )
+    )
 
 
 if __name__ == "__main__":

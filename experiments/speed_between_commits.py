@@ -39,6 +39,7 @@ with tempfile.TemporaryDirectory() as out:
 print(statistics.median(sps[1:] or sps))  # the first iteration pays for warm-up
 """
 
+
 def export(rev: str, into: Path) -> Path:
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True).stdout
     into.mkdir(parents=True)
@@ -65,20 +66,25 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--only", choices=["gym", "torch"], default=None, help="measure one setting")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        trees = {"base": export(args.base, Path(tmp) / "base"),
-                 "new": ROOT if args.new is None else export(args.new, Path(tmp) / "new")}
+        trees = {
+            "base": export(args.base, Path(tmp) / "base"),
+            "new": ROOT if args.new is None else export(args.new, Path(tmp) / "new"),
+        }
         print(f"base {args.base}, new {args.new or 'working tree'}; load average {os.getloadavg()[0]:.1f} at start")
         for label, overrides in SETTINGS.items():
             if args.only and args.only not in label:
                 continue
             rates: dict[str, list[float]] = {"base": [], "new": []}
             for r in range(args.rounds):
-                for which in (("base", "new") if r % 2 == 0 else ("new", "base")):
+                for which in ("base", "new") if r % 2 == 0 else ("new", "base"):
                     rates[which].append(measure(trees[which], overrides, args.iterations))
             ratios = [n / b for n, b in zip(rates["new"], rates["base"])]
-            print(f"{label}: base {statistics.median(rates['base']):,.0f} steps/s, new "
-                  f"{statistics.median(rates['new']):,.0f} steps/s (medians); new/base per round "
-                  + ", ".join(f"{x:.2f}" for x in ratios) + f"; median {statistics.median(ratios):.2f}")
+            print(
+                f"{label}: base {statistics.median(rates['base']):,.0f} steps/s, new "
+                f"{statistics.median(rates['new']):,.0f} steps/s (medians); new/base per round "
+                + ", ".join(f"{x:.2f}" for x in ratios)
+                + f"; median {statistics.median(ratios):.2f}"
+            )
         print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 

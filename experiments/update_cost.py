@@ -17,7 +17,6 @@ import statistics
 import time
 
 import torch
-
 from benchmark_throughput import net_label  # same folder
 
 from cmdp_rl import Collector, make_agent, make_algo, make_env
@@ -38,8 +37,10 @@ def main() -> None:
     collector = Collector(env, ac, cfg.rollout_steps, seed=cfg.seed)
     batch = collector.collect()
     steps = batch.numel()
-    print(f"{cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs), {net_label(cfg.policy)}, batch {steps} steps, "
-          f"one pass, {torch.get_num_threads()} thread(s)")
+    print(
+        f"{cfg.env.name} ({cfg.env.backend}, {env.num_envs} envs), {net_label(cfg.policy)}, batch {steps} steps, "
+        f"one pass, {torch.get_num_threads()} thread(s)"
+    )
     print(f"{'minibatch':>9s} {'minibatches':>11s} {'update ms':>9s} {'ms / minibatch':>14s} {'us / step':>9s}")
     for size in args.sizes:
         if steps % size:

@@ -22,13 +22,12 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-
-from cmdp_rl.analysis.stats import population_mean_std
 from cmdp_rl.analysis import tables
+from cmdp_rl.analysis.stats import population_mean_std
 from cmdp_rl.analysis.tables import markdown_table, pm
+from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.report.safety_metrics import Reference, normalized_scores
 from cmdp_rl.run import sweeps
-from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,8 +36,17 @@ REFERENCE_ALGO = "ppo"
 
 def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
     """Every finished run under ``sweep_dir``: its config, eval.json and metrics.csv rows."""
-    return [{"dir": run.path, "algo": run.get("algo.name"), "seed": run.get("seed"), "config": run.config,
-             "eval": run.eval, "rows": run.metrics} for run in sweeps.finished_runs(sweep_dir)]
+    return [
+        {
+            "dir": run.path,
+            "algo": run.get("algo.name"),
+            "seed": run.get("seed"),
+            "config": run.config,
+            "eval": run.eval,
+            "rows": run.metrics,
+        }
+        for run in sweeps.finished_runs(sweep_dir)
+    ]
 
 
 def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -49,16 +57,30 @@ def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     ref = None
     if REFERENCE_ALGO in by_algo:
         ppo = by_algo[REFERENCE_ALGO]
-        ref = Reference(*(statistics.fmean(r["eval"][k] for r in ppo) for k in ("episode_return", "episode_cost", "cost_rate")),
-                        source=f"{REFERENCE_ALGO} runs of this sweep")
+        ref = Reference(
+            *(statistics.fmean(r["eval"][k] for r in ppo) for k in ("episode_return", "episode_cost", "cost_rate")),
+            source=f"{REFERENCE_ALGO} runs of this sweep",
+        )
     table = []
     for algo, group in sorted(by_algo.items(), key=lambda kv: (kv[0] != REFERENCE_ALGO, kv[0])):
-        row: dict[str, Any] = {"algo": algo, "seeds": len(group), "steps": group[0]["eval"]["steps"],
-                               "cost_limit": group[0]["eval"]["cost_limit"]}
+        row: dict[str, Any] = {
+            "algo": algo,
+            "seeds": len(group),
+            "steps": group[0]["eval"]["steps"],
+            "cost_limit": group[0]["eval"]["cost_limit"],
+        }
         for key in ("episode_return", "episode_cost", "cost_rate", "train_time_s"):
             row[key], row[f"{key}_std"] = population_mean_std([r["eval"][key] for r in group])
-        per_seed = [normalized_scores(r["eval"]["episode_return"], r["eval"]["episode_cost"], r["eval"]["cost_rate"],
-                                      r["eval"]["cost_limit"], ref) for r in group]
+        per_seed = [
+            normalized_scores(
+                r["eval"]["episode_return"],
+                r["eval"]["episode_cost"],
+                r["eval"]["cost_rate"],
+                r["eval"]["cost_limit"],
+                ref,
+            )
+            for r in group
+        ]
         for key in ("normalized_return", "normalized_violation", "normalized_cost_rate"):
             values = [s[key] for s in per_seed if s[key] is not None]
             row[key], row[f"{key}_std"] = population_mean_std(values)
@@ -67,17 +89,33 @@ def summarize(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def write_table(table: list[dict[str, Any]], out: Path) -> str:
-    header = ["algo", "seeds", "steps", "return (eval)", "cost (eval)", "cost rate (training)",
-              "norm. return", "norm. violation", "norm. cost rate", "minutes / run"]
-    cells = [[
-        r["algo"], str(r["seeds"]), f"{r['steps']:,}", pm(r["episode_return"], r["episode_return_std"], ".1f", missing=""),
-        pm(r["episode_cost"], r["episode_cost_std"], ".1f", missing=""),
-        pm(r["cost_rate"], r["cost_rate_std"], ".4f", missing=""),
-        pm(r["normalized_return"], r["normalized_return_std"], ".2f", missing=""),
-        pm(r["normalized_violation"], r["normalized_violation_std"], ".2f", missing=""),
-        pm(r["normalized_cost_rate"], r["normalized_cost_rate_std"], ".2f", missing=""),
-        f"{r['train_time_s'] / 60:.1f}",
-    ] for r in table]
+    header = [
+        "algo",
+        "seeds",
+        "steps",
+        "return (eval)",
+        "cost (eval)",
+        "cost rate (training)",
+        "norm. return",
+        "norm. violation",
+        "norm. cost rate",
+        "minutes / run",
+    ]
+    cells = [
+        [
+            r["algo"],
+            str(r["seeds"]),
+            f"{r['steps']:,}",
+            pm(r["episode_return"], r["episode_return_std"], ".1f", missing=""),
+            pm(r["episode_cost"], r["episode_cost_std"], ".1f", missing=""),
+            pm(r["cost_rate"], r["cost_rate_std"], ".4f", missing=""),
+            pm(r["normalized_return"], r["normalized_return_std"], ".2f", missing=""),
+            pm(r["normalized_violation"], r["normalized_violation_std"], ".2f", missing=""),
+            pm(r["normalized_cost_rate"], r["normalized_cost_rate_std"], ".2f", missing=""),
+            f"{r['train_time_s'] / 60:.1f}",
+        ]
+        for r in table
+    ]
     limit = table[0]["cost_limit"] if table else math.nan
     text = markdown_table(header, cells) + (
         f"\n\nBudget d = {limit:g} per episode. Return and cost: the final policy over eval_episodes episodes "
@@ -91,7 +129,11 @@ def plot_curves(runs: list[dict[str, Any]], out: Path) -> Path:
     plt = pyplot()
     import numpy as np
 
-    panels = (("episode_return", "episode return"), ("episode_cost", "episode cost"), ("cost_rate", "cost rate (training)"))
+    panels = (
+        ("episode_return", "episode return"),
+        ("episode_cost", "episode cost"),
+        ("cost_rate", "cost rate (training)"),
+    )
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     by_algo: dict[str, list[dict[str, Any]]] = {}
     for run in runs:

@@ -67,11 +67,17 @@ def collection(task: str, steps: int, n: int) -> float:
 def training(task: str, iterations: int, n: int) -> tuple[float, float]:
     """Mean steps/s of the iterations after the first, and of the whole run (with evaluation)."""
     rollout = 256
-    cfg = load_config({
-        "env": {"name": "velocity", "task": task, "num_envs": n}, "normalize": {"obs": True},
-        "algo": {"name": "ppo_lag", "cost_limit": 25.0}, "rollout_steps": rollout,
-        "total_steps": iterations * rollout * n, "eval_episodes": 1, "log_interval": 10**6,
-    })
+    cfg = load_config(
+        {
+            "env": {"name": "velocity", "task": task, "num_envs": n},
+            "normalize": {"obs": True},
+            "algo": {"name": "ppo_lag", "cost_limit": 25.0},
+            "rollout_steps": rollout,
+            "total_steps": iterations * rollout * n,
+            "eval_episodes": 1,
+            "log_interval": 10**6,
+        }
+    )
     with tempfile.TemporaryDirectory() as out:
         t0 = time.perf_counter()
         train(cfg, out, echo=lambda _: None)
@@ -91,14 +97,20 @@ def main() -> None:
     torch.set_num_threads(1)
     rows = [
         (f"gymnasium {args.task}-v5, 1 env, random actions", raw_single(args.task, args.steps)),
-        (f"gymnasium SyncVectorEnv x{args.num_envs} + velocity cost, random actions",
-         raw_vector(args.task, args.steps, args.num_envs)),
-        (f"cmdp_rl GymVecEnv x{args.num_envs} + Collector + MLP actor (no learning)",
-         collection(args.task, args.steps, args.num_envs)),
+        (
+            f"gymnasium SyncVectorEnv x{args.num_envs} + velocity cost, random actions",
+            raw_vector(args.task, args.steps, args.num_envs),
+        ),
+        (
+            f"cmdp_rl GymVecEnv x{args.num_envs} + Collector + MLP actor (no learning)",
+            collection(args.task, args.steps, args.num_envs),
+        ),
     ]
     per_iter, overall = training(args.task, args.iterations, args.num_envs)
     rows.append((f"cmdp_rl train, ppo_lag, {args.num_envs} envs x 256 steps, 10 epochs (per iteration)", per_iter))
-    rows.append((f"cmdp_rl train, the same, whole run incl. set-up and 1 eval episode ({args.iterations} iterations)", overall))
+    rows.append(
+        (f"cmdp_rl train, the same, whole run incl. set-up and 1 eval episode ({args.iterations} iterations)", overall)
+    )
     width = max(len(r[0]) for r in rows)
     print(f"{'setup':<{width}} | steps/s")
     print(f"{'-' * width}-|--------")

@@ -18,7 +18,11 @@ WALL_CLOCK = ("sps", "time_s")  # the only columns allowed to differ between ide
 TINY = {
     "env": {"num_envs": 2, "max_steps": 12, "wall": "pass", "start": [0.3, 0.48]},
     "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.2, "lambda_lr": 0.5},
-    "rollout_steps": 16, "total_steps": 7 * 32, "checkpoint_every": 2, "eval_episodes": 4, "log_interval": 1,
+    "rollout_steps": 16,
+    "total_steps": 7 * 32,
+    "checkpoint_every": 2,
+    "eval_episodes": 4,
+    "log_interval": 1,
 }
 
 
@@ -49,8 +53,9 @@ def cli_args(cfg: dict) -> list[str]:
 
 
 def run_script(script: str, *args: str, timeout: int = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(ROOT / script), *args], cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, str(ROOT / script), *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+    )
 
 
 def metrics_rows(run_dir: Path, drop=WALL_CLOCK) -> list[dict]:
@@ -75,7 +80,6 @@ def eval_result(run_dir: Path) -> dict:
 @pytest.fixture
 def quiet():
     return lambda s: None
-
 
 
 class ForwardPolicy:

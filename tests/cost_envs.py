@@ -78,8 +78,12 @@ class TupleActions(Broken):
 
 
 def register() -> None:
-    for env_id, entry, kwargs in ((MATCH_ID, Match, {}), (MULTI_MATCH_ID, Match, {"sizes": (3, 2)}),
-                                  (BROKEN_ID, Broken, {}), (TUPLE_ID, TupleActions, {})):
+    for env_id, entry, kwargs in (
+        (MATCH_ID, Match, {}),
+        (MULTI_MATCH_ID, Match, {"sizes": (3, 2)}),
+        (BROKEN_ID, Broken, {}),
+        (TUPLE_ID, TupleActions, {}),
+    ):
         if env_id not in gym.registry:
             gym.register(env_id, entry_point=entry, kwargs=kwargs, max_episode_steps=8 if "Match" in env_id else 50)
 

@@ -10,7 +10,7 @@ from cmdp_rl.policies import Agent, Critic
 from cmdp_rl.policies.mlp import MLPBody
 
 GAMMA, LAM = 0.9, 0.8
-V = [0.5, 0.2, 0.1]       # V(s_0..s_2)
+V = [0.5, 0.2, 0.1]  # V(s_0..s_2)
 V_NEXT = [0.2, 0.1, 0.3]  # V(s_1..s_3); the critic's value of each step's next observation
 R = [1.0, 0.0, 2.0]
 C = [0.0, 1.0, 1.0]
@@ -37,13 +37,20 @@ def batch(terminated_at=None, truncated_at=None):
         term[0, terminated_at] = True
     if truncated_at is not None:
         trunc[0, truncated_at] = True
-    return TensorDict({
-        keys.OBS: obs,
-        keys.NEXT: {
-            keys.OBS: nxt, keys.REWARD: torch.tensor(R).view(1, 3, 1), keys.COST: torch.tensor(C).view(1, 3, 1),
-            keys.TERMINATED: term, keys.TRUNCATED: trunc, keys.DONE: term | trunc,
+    return TensorDict(
+        {
+            keys.OBS: obs,
+            keys.NEXT: {
+                keys.OBS: nxt,
+                keys.REWARD: torch.tensor(R).view(1, 3, 1),
+                keys.COST: torch.tensor(C).view(1, 3, 1),
+                keys.TERMINATED: term,
+                keys.TRUNCATED: trunc,
+                keys.DONE: term | trunc,
+            },
         },
-    }, batch_size=[1, 3])
+        batch_size=[1, 3],
+    )
 
 
 def closed_form(signal, done_at=None, terminal=False):
@@ -63,7 +70,9 @@ def closed_form(signal, done_at=None, terminal=False):
 def critics():
     """Both critics, on the observation, in an Agent (the actor is not used by GAE)."""
     table = torch.tensor(V + [V_NEXT[-1]])
-    return Agent(actor=None, critics={signal: Critic(MLPBody(None, None), Lookup(table)) for signal in ("reward", "cost")})
+    return Agent(
+        actor=None, critics={signal: Critic(MLPBody(None, None), Lookup(table)) for signal in ("reward", "cost")}
+    )
 
 
 @pytest.mark.parametrize("case", ["none", "truncated", "terminated"])
@@ -72,7 +81,10 @@ def test_twin_gae_matches_closed_form(case):
     b = batch(**kw)
     TwinGAE(GAMMA, GAMMA, LAM)(b, critics())
     done_at = 1 if case != "none" else None
-    for sig, adv_key, tgt_key in ((R, keys.ADVANTAGE, keys.VALUE_TARGET), (C, keys.COST_ADVANTAGE, keys.COST_VALUE_TARGET)):
+    for sig, adv_key, tgt_key in (
+        (R, keys.ADVANTAGE, keys.VALUE_TARGET),
+        (C, keys.COST_ADVANTAGE, keys.COST_VALUE_TARGET),
+    ):
         expected = torch.tensor(closed_form(sig, done_at, terminal=case == "terminated"))
         assert torch.allclose(b[adv_key].view(-1), expected, atol=1e-6), (case, adv_key)
         assert torch.allclose(b[tgt_key].view(-1), expected + torch.tensor(V), atol=1e-6)

@@ -22,8 +22,11 @@ def _run(path: Path, algo: str, seed: int, costs: list[str], limit, ret: float, 
     from cmdp_rl.envs.grid.env import DEFAULT_LAYOUT
 
     path.mkdir(parents=True)
-    config = {"algo": {"name": algo, "cost_limit": limit}, "seed": seed,
-              "env": {"name": "grid", "costs": costs, "layout": list(DEFAULT_LAYOUT), "slip": 0.1, "end_prob": 0.05}}
+    config = {
+        "algo": {"name": algo, "cost_limit": limit},
+        "seed": seed,
+        "env": {"name": "grid", "costs": costs, "layout": list(DEFAULT_LAYOUT), "slip": 0.1, "end_prob": 0.05},
+    }
     (path / "config.yaml").write_text(yaml.safe_dump(config))
     k = len(costs)
     result = {"episode_return": ret, "steps": 4096, "train_time_s": 60.0}
@@ -47,8 +50,10 @@ def test_grid_report_gives_the_lp_gap_and_each_violation(tmp_path):
     rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| ")}
     # LP optima: 0.626 with both budgets (K = 2), 0.692 with hazard_b <= 0.15 alone (K = 1).
     # ppo_lag: gaps 0.126 and 0.026 (mean 0.076, sample std 0.071); violations a: 0, 0.1; b: 0.1, 0.
-    assert "| ppo_lag | K = 2 | 4,096 | 0.550 ± 0.071 | 0.626 | 0.076 ± 0.071 | 0.300 ± 0.141 (0.3) | 0.150 ± 0.141 (0.15) | " \
-           "0.050 ± 0.071 | 0.050 ± 0.071 |" in rows["ppo_lag"]
+    assert (
+        "| ppo_lag | K = 2 | 4,096 | 0.550 ± 0.071 | 0.626 | 0.076 ± 0.071 | 0.300 ± 0.141 (0.3) | 0.150 ± 0.141 (0.15) | "
+        "0.050 ± 0.071 | 0.050 ± 0.071 |" in rows["ppo_lag"]
+    )
     assert "| cpo | K = 1 | 4,096 | 0.700 | 0.692 | -0.008 | not reported | 0.100 (0.15) |  | 0.000 |" in rows["cpo"]
     assert "not run" in rows["saute"]  # every algorithm has a row
     assert (tmp_path / "out" / "figures" / "algorithms_grid.png").stat().st_size > 0
@@ -61,8 +66,10 @@ def test_reporting_one_task_replaces_only_its_section(tmp_path):
     script = _script()
     out = tmp_path / "out"
     out.mkdir()
-    old = (f"# page\n\nkept header\n\n## {script.TITLES['grid']}\n\nold grid table\n\n"
-           f"## {script.TITLES['reach1d']}\n\nkept reach1d\n\n## Reading the tables\n\nkept notes\n")
+    old = (
+        f"# page\n\nkept header\n\n## {script.TITLES['grid']}\n\nold grid table\n\n"
+        f"## {script.TITLES['reach1d']}\n\nkept reach1d\n\n## Reading the tables\n\nkept notes\n"
+    )
     (out / "algorithms.md").write_text(old)
     script.main([str(tmp_path), "--task", "grid", "--out", str(out), "--measured", "Measured today."])
     text = (out / "algorithms.md").read_text()

@@ -34,6 +34,7 @@ def test_policy_advantages():
     adv = torch.tensor([[[1.0], [2.0]]])
     cadv = torch.tensor([[[0.5], [-1.0]]])
     from tensordict import TensorDict
+
     b = TensorDict({keys.ADVANTAGE: adv, keys.COST_ADVANTAGE: cadv}, [1, 2])
     _, ppo, _ = setup({"name": "ppo"})
     _, pen, _ = setup({"name": "penalty", "penalty": 2.0})
@@ -45,11 +46,17 @@ def test_policy_advantages():
 
 def test_lagrangian_update_moves_lambda_with_the_batch_cost():
     # wall=pass with 3-step episodes from 0.45: almost every episode crosses (cost 1 > d = 0.2)
-    _, lag, col = setup({"name": "ppo_lag", "cost_limit": 0.2, "lambda_lr": 0.5, "update_epochs": 1},
-                        wall="pass", start=0.45, max_steps=3)
+    _, lag, col = setup(
+        {"name": "ppo_lag", "cost_limit": 0.2, "lambda_lr": 0.5, "update_epochs": 1},
+        wall="pass",
+        start=0.45,
+        max_steps=3,
+    )
     stats = lag.update(col.collect())
     assert stats["lagrange_multiplier"] > 0.0
-    _, lag, col = setup({"name": "ppo_lag", "cost_limit": 5.0, "lambda_init": 1.0, "lambda_lr": 0.5, "update_epochs": 1})
+    _, lag, col = setup(
+        {"name": "ppo_lag", "cost_limit": 5.0, "lambda_init": 1.0, "lambda_lr": 0.5, "update_epochs": 1}
+    )
     assert lag.update(col.collect())["lagrange_multiplier"] < 1.0  # cost 0 < d: lambda falls
 
 
@@ -82,8 +89,15 @@ def test_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, mon
         return adv * float("nan") if calls["n"] >= 3 else adv
 
     monkeypatch.setattr(PPO, "policy_advantage", poisoned)
-    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1}, "env": {"num_envs": 2},
-                       "rollout_steps": 16, "total_steps": 320, "checkpoint_every": 1})
+    cfg = load_config(
+        {
+            "algo": {"name": "ppo", "update_epochs": 1},
+            "env": {"num_envs": 2},
+            "rollout_steps": 16,
+            "total_steps": 320,
+            "checkpoint_every": 1,
+        }
+    )
     with pytest.raises(TrainingDiverged, match="iteration 3: loss_pi is nan.*last good checkpoint"):
         train(cfg, tmp_path, echo=lambda s: None)
     state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo", policy="mlp")
@@ -100,8 +114,15 @@ def test_checkpoint_errors(tmp_path):
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="corrupt"):
         load_checkpoint(tmp_path / "bad.pt")
-    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1}, "env": {"num_envs": 2},
-                       "rollout_steps": 16, "total_steps": 32, "eval_episodes": 2})
+    cfg = load_config(
+        {
+            "algo": {"name": "ppo", "update_epochs": 1},
+            "env": {"num_envs": 2},
+            "rollout_steps": 16,
+            "total_steps": 32,
+            "eval_episodes": 2,
+        }
+    )
     train(cfg, tmp_path, echo=lambda s: None)
     with pytest.raises(CheckpointError, match="algo='ppo'.*algo='ppo_lag'"):
         load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo_lag")
@@ -127,9 +148,14 @@ def test_policy_loss_equals_torchrl_clip_ppo_loss():
         def forward(self, obs):
             return tuple(actor.params({keys.OBS: obs}).values())
 
-    td_actor = ProbabilisticActor(TensorDictModule(Params(), [keys.OBS], [keys.LOC, keys.SCALE]),
-                                  in_keys=[keys.LOC, keys.SCALE], out_keys=[keys.ACTION],
-                                  distribution_class=IndependentNormal, return_log_prob=True, log_prob_key=keys.LOG_PROB)
+    td_actor = ProbabilisticActor(
+        TensorDictModule(Params(), [keys.OBS], [keys.LOC, keys.SCALE]),
+        in_keys=[keys.LOC, keys.SCALE],
+        out_keys=[keys.ACTION],
+        distribution_class=IndependentNormal,
+        return_log_prob=True,
+        log_prob_key=keys.LOG_PROB,
+    )
     ref = ClipPPOLoss(td_actor, critic_network=None, clip_epsilon=0.1, entropy_coeff=0.01, normalize_advantage=False)
     ref.set_keys(advantage=keys.POLICY_ADVANTAGE, sample_log_prob=keys.LOG_PROB)
     out = ref(flat)
@@ -145,8 +171,9 @@ def test_kl_early_stopping_stops_the_update_at_the_first_minibatch_past_1_5_targ
     1.5 * target_kl and stops the update: the policy moved once; with target_kl=None, all 4 steps."""
     steps = {}
     for target in (1e-12, None):
-        cfg, algo, col = setup({"name": "ppo", "update_epochs": 2, "num_minibatches": 2, "target_kl": target,
-                                "lr": 1e-2})
+        cfg, algo, col = setup(
+            {"name": "ppo", "update_epochs": 2, "num_minibatches": 2, "target_kl": target, "lr": 1e-2}
+        )
         taken = []
         step = algo.actor_opt.step
         algo.actor_opt.step = lambda *a, **k: (taken.append(1), step(*a, **k))[1]
@@ -182,8 +209,15 @@ def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monk
         return out
 
     monkeypatch.setattr(torch.optim.Adam, "step", step_then_break)
-    cfg = load_config({"algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2}, "env": {"num_envs": 2},
-                       "rollout_steps": 16, "total_steps": 320, "checkpoint_every": 1})
+    cfg = load_config(
+        {
+            "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2},
+            "env": {"num_envs": 2},
+            "rollout_steps": 16,
+            "total_steps": 320,
+            "checkpoint_every": 1,
+        }
+    )
     with pytest.raises(TrainingDiverged, match=r"iteration 3: parameter critics\.reward\.net\.0\.weight is not finite"):
         train(cfg, tmp_path, echo=lambda s: None)
     state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo")
@@ -193,10 +227,24 @@ def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monk
 
 def test_anneal_lr_scales_the_rates_linearly_to_zero_over_the_run():
     # 4 iterations of 2 x 32 steps: iteration i updates with 1 - i/4 of lr, critic_lr and lambda_lr.
-    algo_cfg = {"name": "ppo_lag", "lr": 1e-3, "critic_lr": 2e-3, "lambda_lr": 0.5, "update_epochs": 1,
-                "cost_limit": 0.2, "anneal_lr": True, "anneal_lambda_lr": True}
-    cfg = load_config({"algo": algo_cfg, "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45},
-                       "rollout_steps": 32, "total_steps": 200})
+    algo_cfg = {
+        "name": "ppo_lag",
+        "lr": 1e-3,
+        "critic_lr": 2e-3,
+        "lambda_lr": 0.5,
+        "update_epochs": 1,
+        "cost_limit": 0.2,
+        "anneal_lr": True,
+        "anneal_lambda_lr": True,
+    }
+    cfg = load_config(
+        {
+            "algo": algo_cfg,
+            "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45},
+            "rollout_steps": 32,
+            "total_steps": 200,
+        }
+    )
     assert cfg.algo.anneal_iterations == 4  # ceil(200 / 64)
     torch.manual_seed(0)
     e = make_env(cfg.env)

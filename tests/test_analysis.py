@@ -8,7 +8,13 @@ import pytest
 import yaml
 
 from cmdp_rl.analysis.penalty_constraint import (
-    GroupKey, Run, from_missing, group_key, start_label, table_markdown, table_rows,
+    GroupKey,
+    Run,
+    from_missing,
+    group_key,
+    start_label,
+    table_markdown,
+    table_rows,
 )
 from cmdp_rl.analysis.stats import count_finite, population_mean_std, sample_mean_std, tail_mean
 from cmdp_rl.analysis.tables import markdown_table, pm, write_csv
@@ -69,8 +75,12 @@ def test_groups_of_a_penalty_constraint_study():
     assert group_key("penalty", 2, None, 0.1) == GroupKey("penalty", "lambda", 2.0, "x0=0.1")
     assert group_key("cpo", None, "0.25", [0, 1]) == GroupKey("cpo", "d", 0.25, "x0~U[0,1]")
     assert group_key("cpo", None, None, 0.1) is None and group_key(None, 1, 1, 0.1) is None
-    missing = from_missing(MissingJob(__import__("pathlib").Path("/s"), ["algo=sweep/ppo_lag", "algo.cost_limit=0.5",
-                                                                      "env.start=[0.0,1.0]", "seed=1"]))
+    missing = from_missing(
+        MissingJob(
+            __import__("pathlib").Path("/s"),
+            ["algo=sweep/ppo_lag", "algo.cost_limit=0.5", "env.start=[0.0,1.0]", "seed=1"],
+        )
+    )
     assert (missing.key, missing.status, missing.seed) == (GroupKey("ppo_lag", "d", 0.5, "x0~U[0,1]"), MISSING, 1)
 
 
@@ -87,10 +97,12 @@ class _Reference:  # a made-up env: crossing pays below lambda = 1, and 60 % of 
 def test_table_rows_compare_the_seeds_with_the_reference():
     pen = GroupKey("penalty", "lambda", 0.5, "x0=0.1")
     con = GroupKey("ppo_lag", "d", 1.0, "x0=0.1")
-    runs = [Run(pen, OK, "a", [], eval_return=1.0, eval_cost=0.5, train_cost=0.7, final_lambda=0.5),
-            Run(pen, OK, "b", [], eval_return=2.0, eval_cost=1.0, train_cost=0.9, final_lambda=0.5),
-            Run(pen, FAILED, "c", []),
-            Run(con, OK, "d", [], eval_return=3.0, eval_cost=0.62, train_cost=0.5, final_lambda=2.0)]
+    runs = [
+        Run(pen, OK, "a", [], eval_return=1.0, eval_cost=0.5, train_cost=0.7, final_lambda=0.5),
+        Run(pen, OK, "b", [], eval_return=2.0, eval_cost=1.0, train_cost=0.9, final_lambda=0.5),
+        Run(pen, FAILED, "c", []),
+        Run(con, OK, "d", [], eval_return=3.0, eval_cost=0.62, train_cost=0.5, final_lambda=2.0),
+    ]
     pen_row, con_row = table_rows(runs, _Reference())
     assert (pen_row["runs_ok"], pen_row["runs"]) == (2, 3)
     assert pen_row["return_mean"] == 1.5 and pen_row["return_std"] == pytest.approx(math.sqrt(0.5))
@@ -100,15 +112,21 @@ def test_table_rows_compare_the_seeds_with_the_reference():
     assert con_row["check"] == "meets d" and math.isnan(con_row["cost_std"])
     lines = table_markdown([pen_row, con_row]).splitlines()
     assert lines[1] == "|---|---:|---|---:|---:|---:|---:|---:|---:|---|"
-    assert lines[2] == ("| penalty | λ=0.5 | x0=0.1 | 2/3 | 1.500 ± 0.707 | 0.750 ± 0.354 | 0.800 ± 0.141 | "
-                        "0.50 | 0.60 | agrees |")
+    assert lines[2] == (
+        "| penalty | λ=0.5 | x0=0.1 | 2/3 | 1.500 ± 0.707 | 0.750 ± 0.354 | 0.800 ± 0.141 | 0.50 | 0.60 | agrees |"
+    )
     assert lines[3] == "| ppo_lag | d=1 | x0=0.1 | 1/1 | 3.000 | 0.620 | 0.500 | 2.00 | 0.60 | meets d |"
     assert table_rows(runs, None)[0]["check"] == "" and math.isnan(table_rows(runs, None)[0]["predicted_cost"])
 
 
 def test_job_values_reads_overrides_as_yaml():
     assert job_values(["algo=sweep/penalty", "+env.start=[0.0,1.0]", "seed=2", "~x=y", "bad=[1,"]) == {
-        "algo": "sweep/penalty", "env.start": [0.0, 1.0], "seed": 2, "x": "y", "bad": "[1,"}
+        "algo": "sweep/penalty",
+        "env.start": [0.0, 1.0],
+        "seed": 2,
+        "x": "y",
+        "bad": "[1,",
+    }
 
 
 def _run_dir(d, overrides, finished=True, started=True):

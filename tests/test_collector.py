@@ -41,7 +41,9 @@ def test_batch_layout_costs_and_episode_ends():
     per_episode_cost = torch.tensor([0, 0, 0, 1, 1, 1, 1], dtype=torch.float32)
     expected_cost = per_episode_cost.repeat(3)[:20]
     assert torch.equal(nxt[keys.COST][0, :, 0], expected_cost)
-    assert torch.equal(nxt[keys.REWARD][0, :, 0] != 0, expected_cost.eq(0) & torch.tensor([1, 1, 1, 0, 0, 0, 0]).repeat(3)[:20].bool())
+    assert torch.equal(
+        nxt[keys.REWARD][0, :, 0] != 0, expected_cost.eq(0) & torch.tensor([1, 1, 1, 0, 0, 0, 0]).repeat(3)[:20].bool()
+    )
     done = nxt[keys.DONE][0, :, 0]
     assert done.nonzero().view(-1).tolist() == [6, 13]
     assert torch.equal(nxt[keys.TRUNCATED][0, :, 0], done) and not nxt[keys.TERMINATED].any()
@@ -140,13 +142,16 @@ def test_state_dict_continues_the_same_trajectories():
     have: next observations, running episode sums and each env's generator all come back. Both
     ways an env saves itself are checked: Reach1D's own state_dict, and pickling (a wrapped env)."""
     import gymnasium as gym
+
     from cmdp_rl.envs import GymVecEnv
 
     def noisy(value):
         return ConstantPolicy(value, noise=0.05)
 
-    for make_one in (lambda: Reach1D(max_steps=9, start=[0.2, 0.45], wall="pass"),
-                     lambda: gym.wrappers.RecordEpisodeStatistics(Reach1D(max_steps=9, start=[0.2, 0.45]))):
+    for make_one in (
+        lambda: Reach1D(max_steps=9, start=[0.2, 0.45], wall="pass"),
+        lambda: gym.wrappers.RecordEpisodeStatistics(Reach1D(max_steps=9, start=[0.2, 0.45])),
+    ):
         torch.manual_seed(0)
         col = Collector(GymVecEnv(make_one, 3), noisy(0.04), rollout_steps=13, seed=5)
         col.collect()

@@ -7,18 +7,29 @@ import json
 import numpy as np
 import pytest
 import yaml
+from conftest import tiny
 
 from cmdp_rl import load_config, train
-from cmdp_rl.report.compare import (INCONCLUSIVE, VIOLATES, WITHIN, compare, format_table, interval_estimates, main,
-                             verdict)
-from conftest import tiny
+from cmdp_rl.report.compare import (
+    INCONCLUSIVE,
+    VIOLATES,
+    WITHIN,
+    compare,
+    format_table,
+    interval_estimates,
+    main,
+    verdict,
+)
 
 
 def fake_run(path, algo, seed, d, ret, cost, viol=None, iters=12):
     """A finished run directory as train.py leaves it (config.yaml, metrics.csv, eval.json)."""
     path.mkdir(parents=True)
-    (path / "config.yaml").write_text(yaml.safe_dump(
-        {"seed": seed, "total_steps": 1000, "algo": {"name": algo, "cost_limit": d}, "env": {"name": "reach1d"}}))
+    (path / "config.yaml").write_text(
+        yaml.safe_dump(
+            {"seed": seed, "total_steps": 1000, "algo": {"name": algo, "cost_limit": d}, "env": {"name": "reach1d"}}
+        )
+    )
     with open(path / "metrics.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["step", "episode_return", "episode_cost"])
@@ -38,19 +49,19 @@ def sweep(tmp_path):
     # cpo: 8 seeds, one outlying return; costs well under d = 0.5
     for s, (r, c) in enumerate(zip([1, 2, 3, 4, 5, 6, 7, 100], [0.1, 0.2, 0.1, 0.2, 0.15, 0.1, 0.2, 0.15])):
         fake_run(root / f"cpo_s{s}", "cpo", s, 0.5, r, c, viol=0.05)
-    for s, c in enumerate([1.0, 1.2, 1.1, 1.3, 0.9]):          # ppo: far over d = 0.5
+    for s, c in enumerate([1.0, 1.2, 1.1, 1.3, 0.9]):  # ppo: far over d = 0.5
         fake_run(root / f"ppo_s{s}", "ppo", s, 0.5, 2.0, c, viol=0.9)
-    for s, c in enumerate([0.2, 0.8, 0.3, 0.7, 0.5]):          # ppo_lag: around d = 0.5
+    for s, c in enumerate([0.2, 0.8, 0.3, 0.7, 0.5]):  # ppo_lag: around d = 0.5
         fake_run(root / f"ppo_lag_s{s}", "ppo_lag", s, 0.5, 1.0, c, viol=0.5 if s % 2 else None)
-    (root / "killed").mkdir()                                   # started, never finished
+    (root / "killed").mkdir()  # started, never finished
     (root / "killed" / "config.yaml").write_text(yaml.safe_dump({"seed": 9, "algo": {"name": "ppo"}}))
     return root
 
 
 def test_verdict_follows_the_interval_against_the_budget():
-    assert verdict(0.1, 0.5, 0.5) == WITHIN          # upper end at the budget: within
+    assert verdict(0.1, 0.5, 0.5) == WITHIN  # upper end at the budget: within
     assert verdict(0.51, 0.9, 0.5) == VIOLATES
-    assert verdict(0.5, 0.9, 0.5) == INCONCLUSIVE    # lower end at the budget: not a violation
+    assert verdict(0.5, 0.9, 0.5) == INCONCLUSIVE  # lower end at the budget: not a violation
     assert verdict(0.2, 0.8, 0.5) == INCONCLUSIVE
     assert verdict(None, None, 0.5).startswith("no verdict")
     assert verdict(0.1, 0.2, None).startswith("no verdict")
@@ -59,10 +70,10 @@ def test_verdict_follows_the_interval_against_the_budget():
 def test_interval_estimates_mean_and_iqm_by_hand():
     s = interval_estimates(np.array([1, 2, 3, 4, 5, 6, 7, 100.0]), resamples=500)
     assert s["n"] == 8 and s["mean"] == pytest.approx(16.0)
-    assert s["iqm"] == pytest.approx(4.5)            # the middle half: (3 + 4 + 5 + 6) / 4
+    assert s["iqm"] == pytest.approx(4.5)  # the middle half: (3 + 4 + 5 + 6) / 4
     assert 1 <= s["mean_low"] < s["mean"] < s["mean_high"] <= 100
-    assert s["iqm_low"] < 4.5 < s["iqm_high"] < s["mean_high"]   # the outlier moves the IQM less
-    assert interval_estimates(np.array([1, 2, 3, 4, 5, 6, 7, 100.0]), resamples=500) == s   # seeded
+    assert s["iqm_low"] < 4.5 < s["iqm_high"] < s["mean_high"]  # the outlier moves the IQM less
+    assert interval_estimates(np.array([1, 2, 3, 4, 5, 6, 7, 100.0]), resamples=500) == s  # seeded
     one = interval_estimates(np.array([3.0, np.nan]))  # a missing number is left out, not zero
     assert one["n"] == 1 and one["mean"] == 3.0 and one["mean_low"] is None
 
@@ -77,7 +88,7 @@ def test_groups_verdicts_and_skipped_runs(sweep):
     assert by["algo.name=ppo"].verdict == VIOLATES
     assert by["algo.name=ppo_lag"].verdict == INCONCLUSIVE
     assert by["algo.name=ppo"].stats["episode_cost"]["mean"] == pytest.approx(1.1)
-    assert by["algo.name=ppo_lag"].stats["violation_rate"]["n"] == 2   # three eval.json lack it
+    assert by["algo.name=ppo_lag"].stats["violation_rate"]["n"] == 2  # three eval.json lack it
     text = format_table(groups)
     assert "algo.name=ppo_lag" in text and WITHIN in text and "16.000 [" in text and "4.500 [" in text
 
@@ -85,7 +96,7 @@ def test_groups_verdicts_and_skipped_runs(sweep):
 def test_default_grouping_is_everything_but_the_seed(sweep):
     groups, _ = compare([sweep / "cpo_s0", sweep / "cpo_s1", sweep / "ppo_s0"], resamples=200)
     assert [(g.label, len(g.runs)) for g in groups] == [("algo.name=cpo", 2), ("algo.name=ppo", 1)]
-    assert groups[1].verdict.startswith("no verdict")   # one run: no interval over runs
+    assert groups[1].verdict.startswith("no verdict")  # one run: no interval over runs
 
 
 def test_cli_prints_the_table_and_writes_csv_and_figure(sweep, tmp_path, capsys):
@@ -131,4 +142,5 @@ def test_bootstrap_leaves_numpys_global_generator_as_it_was():
     interval_estimates(np.arange(6.0), resamples=200, seed=4)
     assert np.random.rand() == want
     assert interval_estimates(np.arange(6.0), resamples=200, seed=5) != interval_estimates(
-        np.arange(6.0), resamples=200, seed=4)
+        np.arange(6.0), resamples=200, seed=4
+    )

@@ -19,6 +19,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT, eval_result, metrics_rows
 from tensordict import TensorDictBase
 
 from cmdp_rl import ConfigError, evaluate, keys, load_config, make_agent, make_env, train
@@ -27,11 +28,10 @@ from cmdp_rl.algos.base import AlgoConfig, check_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import minibatches
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
-from cmdp_rl.report.metrics import MetricsLogger
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
+from cmdp_rl.report.metrics import MetricsLogger
 from cmdp_rl.validation import PositiveFloat, PositiveInt, options
-from conftest import ROOT, eval_result, metrics_rows
 
 
 # --- A toy env: a gymnasium env that reports its cost in info["cost"] ----------------------------
@@ -59,7 +59,7 @@ class TargetEnv(gym.Env):
         self.t += 1
         miss = abs(a - self.target)
         obs = np.array([self.target], np.float32)
-        return obs, -miss**2, miss < 0.1, self.t >= self.max_steps, {"cost": float(a > 0.5)}
+        return obs, -(miss**2), miss < 0.1, self.t >= self.max_steps, {"cost": float(a > 0.5)}
 
 
 @options
@@ -132,8 +132,11 @@ class Reinforce:
         return {**out, "lagrange_multiplier": 0.0}
 
     def state_dict(self) -> dict:
-        return {"networks": self.agent.state_dict(), "actor_opt": self.actor_opt.state_dict(),
-                "critic_opt": self.critic_opt.state_dict()}
+        return {
+            "networks": self.agent.state_dict(),
+            "actor_opt": self.actor_opt.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
@@ -160,7 +163,11 @@ def toy(**overrides) -> dict:
         "env": {"name": "toy_target", "num_envs": 4, "max_steps": 4},
         "algo": {"name": "toy_reinforce", "gae_lambda": 1.0, "cost_limit": 0.5},
         "policy": {"name": "mlp", "hidden_sizes": [16]},
-        "rollout_steps": 16, "total_steps": 6 * 64, "checkpoint_every": 2, "eval_episodes": 8, "log_interval": 1,
+        "rollout_steps": 16,
+        "total_steps": 6 * 64,
+        "checkpoint_every": 2,
+        "eval_episodes": 8,
+        "log_interval": 1,
     }
     for k, v in overrides.items():
         cfg[k] = {**cfg[k], **v} if isinstance(v, dict) else v
@@ -170,10 +177,24 @@ def toy(**overrides) -> dict:
 # Written out rather than imported from metrics.py: the run's own columns, the algorithm's declared
 # stats in its order, the safety metrics.
 EXPECTED_COLUMNS = [
-    "iteration", "step", "episode_return", "episode_cost", "episode_length", "episodes", "lagrange_multiplier",
-    "cost_limit", "sps", "time_s",
-    "loss_pi", "loss_v", "loss_vc", "entropy",
-    "cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate",
+    "iteration",
+    "step",
+    "episode_return",
+    "episode_cost",
+    "episode_length",
+    "episodes",
+    "lagrange_multiplier",
+    "cost_limit",
+    "sps",
+    "time_s",
+    "loss_pi",
+    "loss_v",
+    "loss_vc",
+    "entropy",
+    "cost_rate",
+    "normalized_return",
+    "normalized_violation",
+    "normalized_cost_rate",
 ]
 
 
@@ -201,14 +222,20 @@ def test_undeclared_stat_is_an_error_not_dropped(tmp_path, quiet):
         train(load_config(toy(algo={"name": "toy_leaky"})), tmp_path / "run", echo=quiet)
 
 
-@pytest.mark.parametrize("override,message", [
-    ({"algo": {"lr": 0}}, "algo.lr must be a positive number, got 0"),
-    ({"algo": {"critic_minibatches": 1.5}}, "algo.critic_minibatches must be a positive integer, got 1.5"),
-    ({"env": {"max_steps": -3}}, "env.max_steps must be a positive integer, got -3"),
-    ({"algo": {"lr_typo": 1}}, "algo: unknown option(s) ['lr_typo']; allowed: ['cost_gamma', 'cost_limit', "
-     "'critic_lr', 'critic_minibatches', 'gae_lambda', 'gamma', 'lr', 'max_grad_norm', 'name', "
-     "'normalize_advantage']"),
-])
+@pytest.mark.parametrize(
+    "override,message",
+    [
+        ({"algo": {"lr": 0}}, "algo.lr must be a positive number, got 0"),
+        ({"algo": {"critic_minibatches": 1.5}}, "algo.critic_minibatches must be a positive integer, got 1.5"),
+        ({"env": {"max_steps": -3}}, "env.max_steps must be a positive integer, got -3"),
+        (
+            {"algo": {"lr_typo": 1}},
+            "algo: unknown option(s) ['lr_typo']; allowed: ['cost_gamma', 'cost_limit', "
+            "'critic_lr', 'critic_minibatches', 'gae_lambda', 'gamma', 'lr', 'max_grad_norm', 'name', "
+            "'normalize_advantage']",
+        ),
+    ],
+)
 def test_bad_option_is_a_one_line_config_error(override, message):
     with pytest.raises(ConfigError) as err:
         load_config(toy(**override))
@@ -242,8 +269,9 @@ def test_toy_algorithm_learns_the_toy_env(tmp_path, quiet):
     -0.02, -0.07 and on-target 1.0, 1.0, 0.68, 0.48 (seed 0 here)."""
     cfg = load_config(toy(total_steps=60 * 64, eval_episodes=40, checkpoint_every=100))
     torch.manual_seed(cfg.seed)
-    untrained = evaluate(make_agent(cfg.policy, make_env(cfg.env)), make_env(cfg.env), 40, seed=1,
-                         termination_metric="on_target")
+    untrained = evaluate(
+        make_agent(cfg.policy, make_env(cfg.env)), make_env(cfg.env), 40, seed=1, termination_metric="on_target"
+    )
     trained = train(cfg, tmp_path / "run", echo=quiet)
     assert untrained["on_target"] <= 0.25 and untrained["episode_return"] < -1.0
     assert trained["on_target"] >= 0.4

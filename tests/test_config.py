@@ -98,12 +98,18 @@ def test_wrong_shaped_action_is_rejected():
         env.step(torch.zeros(1))
 
 
-@pytest.mark.parametrize("num_envs,rollout,epochs,minibatches", [
-    (1, 256, 10, 8), (8, 256, 10, 8),       # the gym default, unchanged
-    (16, 128, 10, 8), (64, 32, 10, 8),      # batch 2048
-    (256, 32, 5, 16),                       # batch 8192: minibatches of 512, ~80 steps
-    (1024, 32, 1, 64), (16384, 32, 1, 64),  # one pass; 64 minibatches of 512, then larger
-])
+@pytest.mark.parametrize(
+    "num_envs,rollout,epochs,minibatches",
+    [
+        (1, 256, 10, 8),
+        (8, 256, 10, 8),  # the gym default, unchanged
+        (16, 128, 10, 8),
+        (64, 32, 10, 8),  # batch 2048
+        (256, 32, 5, 16),  # batch 8192: minibatches of 512, ~80 steps
+        (1024, 32, 1, 64),
+        (16384, 32, 1, 64),  # one pass; 64 minibatches of 512, then larger
+    ],
+)
 def test_auto_batch_shape_follows_num_envs(num_envs, rollout, epochs, minibatches):
     cfg = load_config({"env": {"num_envs": num_envs, "backend": "torch"}})
     assert (cfg.rollout_steps, cfg.algo.update_epochs, cfg.algo.num_minibatches) == (rollout, epochs, minibatches)
@@ -114,8 +120,10 @@ def test_auto_keeps_given_numbers_and_rejects_other_words():
     assert (cfg.rollout_steps, cfg.algo.num_minibatches, cfg.algo.update_epochs) == (64, 4, 20)
     cfg = load_config({"algo": {"name": "cpo"}, "env": {"num_envs": 1024}})  # CPO: only the rollout is auto
     assert cfg.rollout_steps == 32 and not hasattr(cfg.algo, "update_epochs")
-    for raw, field in (({"rollout_steps": "many"}, "rollout_steps"),
-                       ({"algo": {"update_epochs": "lots"}}, "algo.update_epochs"),
-                       ({"algo": {"num_minibatches": "some"}}, "algo.num_minibatches")):
+    for raw, field in (
+        ({"rollout_steps": "many"}, "rollout_steps"),
+        ({"algo": {"update_epochs": "lots"}}, "algo.update_epochs"),
+        ({"algo": {"num_minibatches": "some"}}, "algo.num_minibatches"),
+    ):
         with pytest.raises(ConfigError, match=f"^{field} must be a positive integer or 'auto'"):
             load_config(raw)

@@ -7,32 +7,42 @@ import os
 import subprocess
 import sys
 
+import cost_envs
 import pytest
 import torch
+from conftest import ROOT, metrics_rows, tiny
 from tensordict import TensorDict
 
-import cost_envs
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.config import ConfigError
 from cmdp_rl.envs import EnvContractError
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.run.rundir import RunDirError
-from conftest import ROOT, metrics_rows, tiny
 
 
 def broken(fault: str, at: int = 1, total_steps: int = 640, **env) -> dict:
-    return {"env": {"name": "gym", "id": cost_envs.BROKEN_ID, "num_envs": 2, "kwargs": {"fault": fault, "at": at},
-                    **env},
-            "algo": {"name": "ppo_lag", "update_epochs": 1, "num_minibatches": 2},
-            "rollout_steps": 32, "total_steps": total_steps, "eval_episodes": 2, "log_interval": 1}
+    return {
+        "env": {"name": "gym", "id": cost_envs.BROKEN_ID, "num_envs": 2, "kwargs": {"fault": fault, "at": at}, **env},
+        "algo": {"name": "ppo_lag", "update_epochs": 1, "num_minibatches": 2},
+        "rollout_steps": 32,
+        "total_steps": total_steps,
+        "eval_episodes": 2,
+        "log_interval": 1,
+    }
 
 
-@pytest.mark.parametrize("fault,message", [
-    ("nan_reward", "env cost_test/Broken-v0 (env 0, step 1): reward is nan; rewards must be finite"),
-    ("inf_obs", "env cost_test/Broken-v0 (env 0, step 1): observation is not finite: [inf inf]"),
-    ("nan_cost", 'env cost_test/Broken-v0 (env 0, step 1): info["cost"] is nan; costs must be finite'),
-    ("negative_cost", 'env cost_test/Broken-v0 (env 0, step 1): info["cost"] is -0.5; costs must be >= 0 in a CMDP'),
-])
+@pytest.mark.parametrize(
+    "fault,message",
+    [
+        ("nan_reward", "env cost_test/Broken-v0 (env 0, step 1): reward is nan; rewards must be finite"),
+        ("inf_obs", "env cost_test/Broken-v0 (env 0, step 1): observation is not finite: [inf inf]"),
+        ("nan_cost", 'env cost_test/Broken-v0 (env 0, step 1): info["cost"] is nan; costs must be finite'),
+        (
+            "negative_cost",
+            'env cost_test/Broken-v0 (env 0, step 1): info["cost"] is -0.5; costs must be >= 0 in a CMDP',
+        ),
+    ],
+)
 def test_a_broken_env_stops_train_before_anything_is_written(tmp_path, quiet, fault, message):
     with pytest.raises(EnvContractError) as err:
         train(load_config(broken(fault)), tmp_path, echo=quiet)
@@ -65,11 +75,16 @@ def test_a_fault_after_the_check_stops_the_run_at_its_rollout(tmp_path, quiet):
 
 
 def _batch(n: int = 3, t: int = 5) -> TensorDict:
-    return TensorDict({
-        keys.OBS: torch.zeros(n, t, 2),
-        keys.NEXT: TensorDict({keys.OBS: torch.zeros(n, t, 2), keys.REWARD: torch.zeros(n, t, 1),
-                               keys.COST: torch.zeros(n, t, 1)}, batch_size=[n, t]),
-    }, batch_size=[n, t])
+    return TensorDict(
+        {
+            keys.OBS: torch.zeros(n, t, 2),
+            keys.NEXT: TensorDict(
+                {keys.OBS: torch.zeros(n, t, 2), keys.REWARD: torch.zeros(n, t, 1), keys.COST: torch.zeros(n, t, 1)},
+                batch_size=[n, t],
+            ),
+        },
+        batch_size=[n, t],
+    )
 
 
 def test_check_rollout_names_the_earliest_breach():
@@ -124,17 +139,24 @@ def test_an_unwritable_run_directory_stops_train(tmp_path, quiet):
 
 def _train_py(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "tests"), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
+    )
 
 
 def test_train_py_exits_2_with_one_line_on_a_broken_env(tmp_path):
-    out = _train_py("env=gym", f"env.id=cost_envs:{cost_envs.BROKEN_ID}", "+env.kwargs.fault=negative_cost",
-                    f"hydra.run.dir={tmp_path}")
+    out = _train_py(
+        "env=gym",
+        f"env.id=cost_envs:{cost_envs.BROKEN_ID}",
+        "+env.kwargs.fault=negative_cost",
+        f"hydra.run.dir={tmp_path}",
+    )
     assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
-    assert lines == [f'config error: env cost_envs:{cost_envs.BROKEN_ID} (env 0, step 1): info["cost"] is -0.5; '
-                     "costs must be >= 0 in a CMDP (env.allow_negative_cost=true accepts signed costs)"]
+    assert lines == [
+        f'config error: env cost_envs:{cost_envs.BROKEN_ID} (env 0, step 1): info["cost"] is -0.5; '
+        "costs must be >= 0 in a CMDP (env.allow_negative_cost=true accepts signed costs)"
+    ]
     assert not (tmp_path / "metrics.csv").exists() and not (tmp_path / "eval.json").exists()
 
 
@@ -143,4 +165,5 @@ def test_train_py_exits_2_with_one_line_on_an_unwritable_run_directory():
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [
         "cannot write outputs: run directory /proc/cmdp_rl_cannot_exist cannot be created or written: "
-        "No such file or directory"]
+        "No such file or directory"
+    ]

@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT
 from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
@@ -23,13 +24,13 @@ from cmdp_rl.algos import make_algo
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.envs import GymVecEnv
-from cmdp_rl.report.metrics import columns
 from cmdp_rl.normalization import ReturnScaler
-from cmdp_rl.report.plot import group_runs, main as plot_main
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig
+from cmdp_rl.report.metrics import columns
+from cmdp_rl.report.plot import group_runs
+from cmdp_rl.report.plot import main as plot_main
 from cmdp_rl.validation import ConfigError
-from conftest import ROOT
 
 ENV_ID = "cmdp_rl_test/TwoCost-v0"
 NAMES = ("hazard_a", "hazard_b")
@@ -82,7 +83,11 @@ def run_cfg(**overrides) -> dict:
     cfg = {
         "env": {"name": "gym", "id": ENV_ID, "num_envs": 2, "kwargs": {"length": 4, "mode": "learn"}},
         "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": [0.5, 1.0]},
-        "rollout_steps": 16, "total_steps": 6 * 32, "checkpoint_every": 100, "eval_episodes": 4, "log_interval": 1,
+        "rollout_steps": 16,
+        "total_steps": 6 * 32,
+        "checkpoint_every": 100,
+        "eval_episodes": 4,
+        "log_interval": 1,
     }
     for k, v in overrides.items():
         if isinstance(v, dict) and k in cfg:
@@ -119,7 +124,10 @@ def test_collector_keeps_one_episode_sum_and_one_previous_cost_per_constraint():
     prev = torch.tensor([[0.0, 0], [1, 1], [1, 2], [0, 0], [1, 1], [1, 2], [0, 0]])
     assert torch.equal(batch.get(keys.PREV_COST), prev.expand(2, 7, 2))
     # The cost critic values both constraints.
-    assert agent.value("cost", {keys.OBS: batch.get(keys.OBS)[:, 0], keys.PREV_COST: prev[:1].expand(2, 2)}).shape == (2, 2)
+    assert agent.value("cost", {keys.OBS: batch.get(keys.OBS)[:, 0], keys.PREV_COST: prev[:1].expand(2, 2)}).shape == (
+        2,
+        2,
+    )
     # A checkpoint keeps the per-constraint totals and running sums.
     again = Collector(two_cost_env(length=3), agent, rollout_steps=7, seed=0)
     again.load_state_dict(collector.state_dict())
@@ -140,15 +148,19 @@ def test_each_constraints_gae_is_the_gae_of_that_cost_alone():
     assert adv.shape == (3, 64, 2)
     nxt = batch.get(keys.NEXT)
     for k in range(2):
-        alone = TensorDict({
-            keys.COST_VALUE: batch.get(keys.COST_VALUE)[..., k:k + 1],
-            (keys.NEXT, keys.COST_VALUE): nxt.get(keys.COST_VALUE)[..., k:k + 1],
-            (keys.NEXT, keys.COST): nxt.get(keys.COST)[..., k:k + 1],
-            (keys.NEXT, keys.DONE): nxt.get(keys.DONE), (keys.NEXT, keys.TERMINATED): nxt.get(keys.TERMINATED),
-        }, batch_size=batch.shape)
+        alone = TensorDict(
+            {
+                keys.COST_VALUE: batch.get(keys.COST_VALUE)[..., k : k + 1],
+                (keys.NEXT, keys.COST_VALUE): nxt.get(keys.COST_VALUE)[..., k : k + 1],
+                (keys.NEXT, keys.COST): nxt.get(keys.COST)[..., k : k + 1],
+                (keys.NEXT, keys.DONE): nxt.get(keys.DONE),
+                (keys.NEXT, keys.TERMINATED): nxt.get(keys.TERMINATED),
+            },
+            batch_size=batch.shape,
+        )
         gae.cost(alone)  # the K = 1 path
-        assert torch.equal(alone.get(keys.COST_ADVANTAGE), adv[..., k:k + 1])
-        assert torch.equal(alone.get(keys.COST_VALUE_TARGET), target[..., k:k + 1])
+        assert torch.equal(alone.get(keys.COST_ADVANTAGE), adv[..., k : k + 1])
+        assert torch.equal(alone.get(keys.COST_VALUE_TARGET), target[..., k : k + 1])
     assert not torch.equal(adv[..., 0], adv[..., 1])
 
 
@@ -163,8 +175,13 @@ def test_cost_scaling_is_per_constraint():
 
 def test_policy_advantage_sums_over_constraints_with_todays_normalisation():
     env = two_cost_env()
-    batch = TensorDict({keys.ADVANTAGE: torch.tensor([[[1.0], [2.0]]]),
-                        keys.COST_ADVANTAGE: torch.tensor([[[1.0, 10.0], [-1.0, 0.5]]])}, batch_size=[1, 2])
+    batch = TensorDict(
+        {
+            keys.ADVANTAGE: torch.tensor([[[1.0], [2.0]]]),
+            keys.COST_ADVANTAGE: torch.tensor([[[1.0, 10.0], [-1.0, 0.5]]]),
+        },
+        batch_size=[1, 2],
+    )
     cfg = load_config(run_cfg()).algo
     lag = make_algo(cfg, make_agent(PolicyConfig(), env))
     for controller, value in zip(lag.multiplier.controllers, (0.5, 2.0)):
@@ -173,10 +190,13 @@ def test_policy_advantage_sums_over_constraints_with_todays_normalisation():
     expected = torch.tensor([[[(1 - 0.5 - 20) / 3.5], [(2 + 0.5 - 1) / 3.5]]])
     assert torch.allclose(lag.policy_advantage(batch), expected)
     assert lag.lagrange_multiplier == [0.5, 2.0]
-    penalty = make_algo(load_config(run_cfg(algo={"name": "penalty", "penalty": [1.0, 0.1]})).algo,
-                        make_agent(PolicyConfig(), env))
+    penalty = make_algo(
+        load_config(run_cfg(algo={"name": "penalty", "penalty": [1.0, 0.1]})).algo, make_agent(PolicyConfig(), env)
+    )
     assert torch.allclose(penalty.policy_advantage(batch), torch.tensor([[[1 - 1 - 1.0], [2 + 1 - 0.05]]]))
-    one = make_algo(load_config(run_cfg(algo={"name": "penalty", "penalty": 3.0})).algo, make_agent(PolicyConfig(), env))
+    one = make_algo(
+        load_config(run_cfg(algo={"name": "penalty", "penalty": 3.0})).algo, make_agent(PolicyConfig(), env)
+    )
     assert one.lagrange_multiplier == [3.0, 3.0]
 
 
@@ -191,26 +211,44 @@ def test_one_multiplier_keeps_the_single_constraint_state_format():
     assert other.values == double.values
 
 
-@pytest.mark.parametrize(("algo", "message"), [
-    ({"name": "ppo_lag", "cost_limit": [1.0, 2.0, 3.0]},
-     "algo.cost_limit must be a number or a list of 2 numbers, one per cost of the env (hazard_a, hazard_b), "
-     "got [1.0, 2.0, 3.0]"),
-    ({"name": "ppo", "cost_limit": [1.0]}, "algo.cost_limit must be a number or a list of 2 numbers"),
-    ({"name": "penalty", "penalty": [1.0, 2.0, 3.0]}, "algo.penalty must be a number or a list of 2 numbers"),
-    ({"name": "cpo", "cost_limit": 1.0}, "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs "
-                                         "(hazard_a, hazard_b): cpo's closed-form dual handles one constraint"),
-    *(({"name": name}, f"algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs "
-                       f"(hazard_a, hazard_b): {reason}, got '{name}'")
-      for name, reason in (("pcpo", "pcpo projects onto one linearised constraint"),
-                           ("crpo", "crpo's step switches on one constraint's slack"),
-                           ("focops", "focops has one cost multiplier nu"),
-                           ("cup", "cup has one cost multiplier nu"))),
-])
+@pytest.mark.parametrize(
+    ("algo", "message"),
+    [
+        (
+            {"name": "ppo_lag", "cost_limit": [1.0, 2.0, 3.0]},
+            "algo.cost_limit must be a number or a list of 2 numbers, one per cost of the env (hazard_a, hazard_b), "
+            "got [1.0, 2.0, 3.0]",
+        ),
+        ({"name": "ppo", "cost_limit": [1.0]}, "algo.cost_limit must be a number or a list of 2 numbers"),
+        ({"name": "penalty", "penalty": [1.0, 2.0, 3.0]}, "algo.penalty must be a number or a list of 2 numbers"),
+        (
+            {"name": "cpo", "cost_limit": 1.0},
+            "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs "
+            "(hazard_a, hazard_b): cpo's closed-form dual handles one constraint",
+        ),
+        *(
+            (
+                {"name": name},
+                f"algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs "
+                f"(hazard_a, hazard_b): {reason}, got '{name}'",
+            )
+            for name, reason in (
+                ("pcpo", "pcpo projects onto one linearised constraint"),
+                ("crpo", "crpo's step switches on one constraint's slack"),
+                ("focops", "focops has one cost multiplier nu"),
+                ("cup", "cup has one cost multiplier nu"),
+            )
+        ),
+    ],
+)
 def test_per_constraint_options_of_the_wrong_length_are_config_errors(tmp_path, quiet, algo, message):
     cfg = run_cfg()
     cfg["algo"] = algo
-    with pytest.raises(ConfigError, match="^" + message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")
-                       .replace("]", r"\]").replace(".", r"\.")):
+    with pytest.raises(
+        ConfigError,
+        match="^"
+        + message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[").replace("]", r"\]").replace(".", r"\."),
+    ):
         train(load_config(cfg), tmp_path / "run", echo=quiet)
     assert not (tmp_path / "run").exists()  # stopped before anything was written
 
@@ -218,14 +256,35 @@ def test_per_constraint_options_of_the_wrong_length_are_config_errors(tmp_path, 
 def test_metrics_columns_for_two_constraints():
     cols = columns(("loss_pi",), NAMES)
     assert cols[:12] == [
-        "iteration", "step", "episode_return", "episode_cost/hazard_a", "episode_cost/hazard_b", "episode_length",
-        "episodes", "lagrange_multiplier/hazard_a", "lagrange_multiplier/hazard_b", "cost_limit/hazard_a",
-        "cost_limit/hazard_b", "sps"]
-    assert cols[-7:] == ["cost_rate/hazard_a", "cost_rate/hazard_b", "normalized_return",
-                         "normalized_violation/hazard_a", "normalized_violation/hazard_b",
-                         "normalized_cost_rate/hazard_a", "normalized_cost_rate/hazard_b"]
-    assert columns(("loss_pi",))[3:8] == ["episode_cost", "episode_length", "episodes", "lagrange_multiplier",
-                                          "cost_limit"]
+        "iteration",
+        "step",
+        "episode_return",
+        "episode_cost/hazard_a",
+        "episode_cost/hazard_b",
+        "episode_length",
+        "episodes",
+        "lagrange_multiplier/hazard_a",
+        "lagrange_multiplier/hazard_b",
+        "cost_limit/hazard_a",
+        "cost_limit/hazard_b",
+        "sps",
+    ]
+    assert cols[-7:] == [
+        "cost_rate/hazard_a",
+        "cost_rate/hazard_b",
+        "normalized_return",
+        "normalized_violation/hazard_a",
+        "normalized_violation/hazard_b",
+        "normalized_cost_rate/hazard_a",
+        "normalized_cost_rate/hazard_b",
+    ]
+    assert columns(("loss_pi",))[3:8] == [
+        "episode_cost",
+        "episode_length",
+        "episodes",
+        "lagrange_multiplier",
+        "cost_limit",
+    ]
 
 
 def read_rows(path):
@@ -239,8 +298,13 @@ def test_ppo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_pa
     out = tmp_path / "run"
     result = train(load_config(run_cfg()), out, echo=quiet)
     rows = read_rows(out / "metrics.csv")
-    assert len(rows) == 6 and list(rows[0])[:5] == ["iteration", "step", "episode_return", "episode_cost/hazard_a",
-                                                    "episode_cost/hazard_b"]
+    assert len(rows) == 6 and list(rows[0])[:5] == [
+        "iteration",
+        "step",
+        "episode_return",
+        "episode_cost/hazard_a",
+        "episode_cost/hazard_b",
+    ]
     lam_a = prev_a = 0.0
     for row in rows:
         j_a, j_b = float(row["episode_cost/hazard_a"]), float(row["episode_cost/hazard_b"])
@@ -254,17 +318,26 @@ def test_ppo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_pa
     assert float(rows[0]["episode_cost/hazard_a"]) > 0.5 and prev_a > 0.0  # it was over budget and lambda rose
     written = json.loads((out / "eval.json").read_text())
     assert written == result
-    for key in ("episode_cost/hazard_a", "episode_cost_std/hazard_a", "episode_cost_max/hazard_b",
-                "cost_limit/hazard_a", "cost_rate/hazard_b", "normalized_violation/hazard_a"):
+    for key in (
+        "episode_cost/hazard_a",
+        "episode_cost_std/hazard_a",
+        "episode_cost_max/hazard_b",
+        "cost_limit/hazard_a",
+        "cost_rate/hazard_b",
+        "normalized_violation/hazard_a",
+    ):
         assert key in written
     assert "episode_cost" not in written and written["cost_limit/hazard_b"] == 1.0
     assert written["episode_cost/hazard_b"] == 0.0
 
 
-@pytest.mark.parametrize("policy", [
-    {"name": "lstm", "hidden_size": 8, "head_sizes": [8]},
-    {"name": "transformer", "window": 3, "width": 8, "heads": 2, "layers": 1, "feedforward": 8, "head_sizes": [8]},
-])
+@pytest.mark.parametrize(
+    "policy",
+    [
+        {"name": "lstm", "hidden_size": 8, "head_sizes": [8]},
+        {"name": "transformer", "window": 3, "width": 8, "heads": 2, "layers": 1, "feedforward": 8, "head_sizes": [8]},
+    ],
+)
 def test_memory_policies_read_the_cost_vector(tmp_path, quiet, policy):
     cfg = run_cfg(policy=policy, total_steps=2 * 32, algo={"name": "pid_lag"})
     train(load_config(cfg), tmp_path / "run", echo=quiet)
@@ -275,8 +348,13 @@ def test_memory_policies_read_the_cost_vector(tmp_path, quiet, policy):
 def test_plots_draw_a_panel_per_constraint(tmp_path, quiet):
     train(load_config(run_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
     (curve,) = group_runs([tmp_path / "run"])
-    assert [p for p, _ in curve.panels] == ["episode_return", "episode_cost/hazard_a", "episode_cost/hazard_b",
-                                            "lagrange_multiplier/hazard_a", "lagrange_multiplier/hazard_b"]
+    assert [p for p, _ in curve.panels] == [
+        "episode_return",
+        "episode_cost/hazard_a",
+        "episode_cost/hazard_b",
+        "lagrange_multiplier/hazard_a",
+        "lagrange_multiplier/hazard_b",
+    ]
     assert curve.cost_limits == {"episode_cost/hazard_a": 0.5, "episode_cost/hazard_b": 1.0}
     out = tmp_path / "curves.png"
     assert plot_main([str(tmp_path / "run"), "-o", str(out)]) == 0 and out.read_bytes()[:4] == b"\x89PNG"
@@ -290,8 +368,9 @@ def test_evaluate_script_prints_a_cost_line_per_constraint(tmp_path, quiet, caps
     assert script.main([f"run={tmp_path / 'run'}", "episodes=2", f"output={tmp_path / 'e.json'}"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert any(line.strip().startswith("cost/hazard_a") and line.endswith("(limit 0.5)") for line in lines)
-    assert any(line.split()[:4] == ["cost/hazard_b", "0.00", "±", "0.00"] and line.endswith("(limit 1.0)")
-               for line in lines)
+    assert any(
+        line.split()[:4] == ["cost/hazard_b", "0.00", "±", "0.00"] and line.endswith("(limit 1.0)") for line in lines
+    )
     assert json.loads((tmp_path / "e.json").read_text())["episode_cost/hazard_b"] == 0.0
 
 
@@ -299,14 +378,25 @@ def test_train_cli_stops_on_a_wrong_length_budget_with_one_line(tmp_path):
     # The toy env is imported from this file through env.id=<module>:<id>.
     env = {**os.environ, "PYTHONPATH": str(ROOT / "tests")}
     proc = subprocess.run(
-        [sys.executable, "train.py", "env=gym", f"env.id=test_cost_vector:{ENV_ID}", "algo.cost_limit=[1,2,3]",
-         f"hydra.run.dir={tmp_path / 'run'}"],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+        [
+            sys.executable,
+            "train.py",
+            "env=gym",
+            f"env.id=test_cost_vector:{ENV_ID}",
+            "algo.cost_limit=[1,2,3]",
+            f"hydra.run.dir={tmp_path / 'run'}",
+        ],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
     assert proc.stderr.strip().splitlines()[-1] == (
         "config error: algo.cost_limit must be a number or a list of 2 numbers, one per cost of the env "
-        "(hazard_a, hazard_b), got [1.0, 2.0, 3.0]")
+        "(hazard_a, hazard_b), got [1.0, 2.0, 3.0]"
+    )
     assert not (tmp_path / "run" / "metrics.csv").exists()
 
 

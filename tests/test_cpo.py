@@ -26,7 +26,10 @@ def test_conjugate_gradient_solves_a_random_spd_system():
     assert torch.allclose(x, torch.linalg.solve(a, b), rtol=1e-6, atol=1e-8)
     x3 = conjugate_gradient(lambda v: a @ v, b, iters=3)
     assert not torch.allclose(x3, torch.linalg.solve(a, b), rtol=1e-3)  # truncated: not yet there
-    assert torch.equal(conjugate_gradient(lambda v: a @ v, torch.zeros(12, dtype=torch.float64), 5), torch.zeros(12, dtype=torch.float64))
+    assert torch.equal(
+        conjugate_gradient(lambda v: a @ v, torch.zeros(12, dtype=torch.float64), 5),
+        torch.zeros(12, dtype=torch.float64),
+    )
 
 
 def _tiny_actor(hidden=(3,)):
@@ -56,8 +59,15 @@ def test_fisher_vector_product_matches_the_analytic_fisher_of_the_gaussian_polic
     out = actor.params(obs)
     loc, log_scale = out[keys.LOC][:, 0], out[keys.SCALE][:, 0].log()
     for i in range(7):
-        j_mu = torch.cat([g.reshape(-1) for g in torch.autograd.grad(loc[i], params, retain_graph=True, materialize_grads=True)])
-        j_ls = torch.cat([g.reshape(-1) for g in torch.autograd.grad(log_scale[i], params, retain_graph=True, materialize_grads=True)])
+        j_mu = torch.cat(
+            [g.reshape(-1) for g in torch.autograd.grad(loc[i], params, retain_graph=True, materialize_grads=True)]
+        )
+        j_ls = torch.cat(
+            [
+                g.reshape(-1)
+                for g in torch.autograd.grad(log_scale[i], params, retain_graph=True, materialize_grads=True)
+            ]
+        )
         sigma2 = out[keys.SCALE][i, 0].detach() ** 2
         fisher += (torch.outer(j_mu, j_mu) / sigma2 + 2.0 * torch.outer(j_ls, j_ls)) / 7
     assert fisher.abs().max() > 1.0  # a real matrix, not zeros
@@ -182,8 +192,13 @@ def test_accepted_cpo_step_keeps_kl_within_delta_and_obeys_its_case(episode_cost
 
 
 def test_cpo_update_on_collected_batch_changes_the_networks_and_checkpoints():
-    cfg = load_config({"algo": {"name": "cpo", "critic_epochs": 2, "critic_minibatches": 2},
-                       "env": {"num_envs": 2, "max_steps": 20}, "rollout_steps": 32})
+    cfg = load_config(
+        {
+            "algo": {"name": "cpo", "critic_epochs": 2, "critic_minibatches": 2},
+            "env": {"num_envs": 2, "max_steps": 20},
+            "rollout_steps": 32,
+        }
+    )
     torch.manual_seed(0)
     env = make_env(cfg.env)
     ac = make_agent(cfg.policy, env)
@@ -192,7 +207,16 @@ def test_cpo_update_on_collected_batch_changes_the_networks_and_checkpoints():
     before = [p.detach().clone() for p in ac.parameters()]
     stats = cpo.update(col.collect())
     assert all(not torch.equal(b, a) for b, a in zip(before, ac.parameters()))
-    assert {"cpo_case", "step_fraction", "kl", "dual_lambda", "dual_nu", "lagrange_multiplier", "loss_v", "loss_vc"} <= stats.keys()
+    assert {
+        "cpo_case",
+        "step_fraction",
+        "kl",
+        "dual_lambda",
+        "dual_nu",
+        "lagrange_multiplier",
+        "loss_v",
+        "loss_vc",
+    } <= stats.keys()
     assert stats["lagrange_multiplier"] == stats["dual_nu"] >= 0.0 and stats["kl"] <= cfg.algo.target_kl
     state = cpo.state_dict()
     cpo2 = make_algo(cfg.algo, make_agent(cfg.policy, env))
@@ -208,8 +232,12 @@ def _episode_batch(ends_at: list[int], cost_per_step: float = 1.0, T: int = 8) -
     length = torch.arange(1, T + 1, dtype=torch.float32).reshape(1, T, 1) + 100  # 100 steps in already
     for t in ends_at:
         done[0, t] = True
-    nxt = {keys.DONE: done, keys.EPISODE_LENGTH: length, keys.EPISODE_COST: length * cost_per_step,
-           keys.EPISODE_RETURN: torch.zeros(1, T, 1)}
+    nxt = {
+        keys.DONE: done,
+        keys.EPISODE_LENGTH: length,
+        keys.EPISODE_COST: length * cost_per_step,
+        keys.EPISODE_RETURN: torch.zeros(1, T, 1),
+    }
     return TensorDict({keys.NEXT: TensorDict(nxt, [1, T])}, [1, T])
 
 

@@ -4,17 +4,22 @@ import csv
 
 import pytest
 import torch
+from conftest import tail_means
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.episode_cost import EpisodeCostEstimate
 from cmdp_rl.config import compose_config
-from conftest import tail_means
 
 
 def setup(algo: dict):
     # wall=pass, 3-step episodes from 0.45: most episodes cross the wall (cost 1), some do not.
-    cfg = load_config({"algo": {"name": "crpo", "update_epochs": 1, **algo}, "rollout_steps": 32,
-                       "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45}})
+    cfg = load_config(
+        {
+            "algo": {"name": "crpo", "update_epochs": 1, **algo},
+            "rollout_steps": 32,
+            "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45},
+        }
+    )
     torch.manual_seed(0)
     env = make_env(cfg.env)
     agent = make_agent(cfg.policy, env)
@@ -48,8 +53,9 @@ def test_a_cost_step_is_taken_exactly_when_the_estimate_exceeds_budget_plus_tole
 
 
 def test_cost_step_is_a_metrics_column(tmp_path):
-    cfg = load_config({"algo": {"name": "crpo", "cost_limit": 0.0}, "total_steps": 2048, "log_interval": 1,
-                       "env": {"wall": "pass"}})
+    cfg = load_config(
+        {"algo": {"name": "crpo", "cost_limit": 0.0}, "total_steps": 2048, "log_interval": 1, "env": {"wall": "pass"}}
+    )
     train(cfg, tmp_path, echo=lambda s: None)
     rows = list(csv.DictReader((tmp_path / "metrics.csv").open()))
     assert rows and all(r["cost_step"] in ("0.0", "1.0") for r in rows)
@@ -57,6 +63,7 @@ def test_cost_step_is_a_metrics_column(tmp_path):
 
 def test_negative_tolerance_is_a_config_error():
     from cmdp_rl.validation import ConfigError
+
     with pytest.raises(ConfigError, match=r"^algo.tolerance must be a number >= 0, got -0.1$"):
         load_config({"algo": {"name": "crpo", "tolerance": -0.1}})
 
@@ -65,9 +72,20 @@ def test_crpo_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5 crossings per episode. Measured on seed 0: the initial
     policy's training return is 0.00 (iteration 1); CRPO's last 10 iterations average return 0.56 at
     cost 0.48 (it alternates reward and cost steps around the budget)."""
-    cfg = compose_config(["env=reach1d_torch", "env.wall=pass", "env.num_envs=256", "algo=crpo",
-                          "algo.cost_limit=0.5", "algo.num_minibatches=4", "algo.update_epochs=5",
-                          "total_steps=327680", "log_interval=1", "seed=0"])
+    cfg = compose_config(
+        [
+            "env=reach1d_torch",
+            "env.wall=pass",
+            "env.num_envs=256",
+            "algo=crpo",
+            "algo.cost_limit=0.5",
+            "algo.num_minibatches=4",
+            "algo.update_epochs=5",
+            "total_steps=327680",
+            "log_interval=1",
+            "seed=0",
+        ]
+    )
     train(cfg, tmp_path, echo=lambda s: None)
     rows = list(csv.DictReader((tmp_path / "metrics.csv").open()))
     ret, cost = tail_means(tmp_path, "episode_return", "episode_cost")

@@ -3,18 +3,23 @@
 import csv
 
 import torch
+from conftest import tail_means
 from torch.distributions import kl_divergence
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config import compose_config
-from conftest import tail_means
 
 
 def setup(algo: dict):
     # wall=pass, 3-step episodes from 0.45: most episodes cross the wall (cost 1).
-    cfg = load_config({"algo": {"name": "cup", "update_epochs": 2, "num_minibatches": 2, **algo}, "rollout_steps": 32,
-                       "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45}})
+    cfg = load_config(
+        {
+            "algo": {"name": "cup", "update_epochs": 2, "num_minibatches": 2, **algo},
+            "rollout_steps": 32,
+            "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45},
+        }
+    )
     torch.manual_seed(0)
     env = make_env(cfg.env)
     agent = make_agent(cfg.policy, env)
@@ -85,9 +90,22 @@ def test_cup_learns_reach1d_within_budget(tmp_path):
     around iterations 27-30 (nu peaks near 0.42), the last 10 iterations hover short of the wall,
     return 0.30 at cost 0.04. The outcome is sensitive to nu's start: nu_init = 0.7 ended mid-swing
     (cost 1.37), nu_init = 0 with nu_lr = 0.1 still crossing every episode (cost 1.0)."""
-    cfg = compose_config(["env=reach1d_torch", "env.wall=pass", "env.num_envs=256", "algo=cup",
-                          "algo.cost_limit=0.5", "algo.nu_init=0.5", "algo.nu_lr=0.05", "algo.num_minibatches=4",
-                          "algo.update_epochs=5", "total_steps=327680", "log_interval=1", "seed=0"])
+    cfg = compose_config(
+        [
+            "env=reach1d_torch",
+            "env.wall=pass",
+            "env.num_envs=256",
+            "algo=cup",
+            "algo.cost_limit=0.5",
+            "algo.nu_init=0.5",
+            "algo.nu_lr=0.05",
+            "algo.num_minibatches=4",
+            "algo.update_epochs=5",
+            "total_steps=327680",
+            "log_interval=1",
+            "seed=0",
+        ]
+    )
     train(cfg, tmp_path, echo=lambda s: None)
     rows = list(csv.DictReader((tmp_path / "metrics.csv").open()))
     ret, cost = tail_means(tmp_path, "episode_return", "episode_cost")

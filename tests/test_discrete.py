@@ -11,13 +11,14 @@ import os
 import subprocess
 import sys
 
+import cost_envs
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT
 from torch.distributions import kl_divergence
 
-import cost_envs
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.actions import UnsupportedActionSpace, action_dim, check_action_space, to_env
 from cmdp_rl.algos.cpo import fisher_vector_product
@@ -29,7 +30,6 @@ from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.distributions import Categorical, CategoricalHead, MultiCategorical, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder
 from cmdp_rl.run.rundir import load_trained
-from conftest import ROOT
 
 log = math.log
 
@@ -78,8 +78,9 @@ def test_heads_are_chosen_from_the_space():
     assert isinstance(make_action_head(gym.spaces.Discrete(4), net), CategoricalHead)
     head = make_action_head(gym.spaces.MultiDiscrete([3, 2]), net)
     assert isinstance(head.dist({keys.LOGITS: torch.zeros(1, 5)}), MultiCategorical)
-    with pytest.raises(UnsupportedActionSpace, match="action space Tuple.* is not supported; supported: Box, "
-                                                    "Discrete, MultiDiscrete"):
+    with pytest.raises(
+        UnsupportedActionSpace, match="action space Tuple.* is not supported; supported: Box, Discrete, MultiDiscrete"
+    ):
         make_action_head(gym.spaces.Tuple((gym.spaces.Discrete(2),)), net)
 
 
@@ -116,13 +117,17 @@ def test_gym_vec_env_steps_discrete_actions():
         GymVecEnv(lambda: make_cost_env(cost_envs.TUPLE_ID), 2, env_id=cost_envs.TUPLE_ID)
 
 
-@pytest.mark.parametrize("policy", [
-    {"name": "mlp", "include_prev_action": True, "include_prev_cost": True},
-    {"name": "transformer", "window": 4, "width": 8, "heads": 2, "feedforward": 8, "head_sizes": [8]},
-])
+@pytest.mark.parametrize(
+    "policy",
+    [
+        {"name": "mlp", "include_prev_action": True, "include_prev_cost": True},
+        {"name": "transformer", "window": 4, "width": 8, "heads": 2, "feedforward": 8, "head_sizes": [8]},
+    ],
+)
 def test_collector_stores_integer_actions_and_the_previous_one(policy):
-    cfg = load_config({"env": {"name": "gym", "id": cost_envs.MATCH_ID, "num_envs": 2}, "policy": policy,
-                       "rollout_steps": 20})
+    cfg = load_config(
+        {"env": {"name": "gym", "id": cost_envs.MATCH_ID, "num_envs": 2}, "policy": policy, "rollout_steps": 20}
+    )
     from cmdp_rl.envs import make_env
 
     env = make_env(cfg.env)
@@ -159,8 +164,8 @@ def test_fisher_vector_product_of_categorical_kl_is_softmax_fisher(sizes):
     fisher = torch.zeros(5, 5)
     i = 0
     for n in blocks:
-        p = torch.softmax(theta.detach()[i:i + n], -1)
-        fisher[i:i + n, i:i + n] = torch.diag(p) - torch.outer(p, p)
+        p = torch.softmax(theta.detach()[i : i + n], -1)
+        fisher[i : i + n, i : i + n] = torch.diag(p) - torch.outer(p, p)
         i += n
     v = torch.tensor([1.0, -2.0, 0.5, 3.0, -1.0])
     assert torch.allclose(fvp(v), fisher @ v + 0.1 * v, atol=1e-6)
@@ -183,11 +188,22 @@ SMALL_GRID = {"name": "grid", "num_envs": 2, "layout": ["SaG", ".b.", "..."], "e
 
 def _cfg(env: str | dict, algo: str, policy: dict, steps: int, rollout: int = 16, **top) -> dict:
     a = {"name": algo}
-    a.update({"critic_epochs": 1, "critic_minibatches": 2} if algo in NATURAL_GRADIENT
-             else {"update_epochs": 2 if steps > 2 * rollout else 1, "num_minibatches": 2})
+    a.update(
+        {"critic_epochs": 1, "critic_minibatches": 2}
+        if algo in NATURAL_GRADIENT
+        else {"update_epochs": 2 if steps > 2 * rollout else 1, "num_minibatches": 2}
+    )
     env_cfg = env if isinstance(env, dict) else {"name": "gym", "id": env, "num_envs": 2}
-    return {"env": env_cfg, "algo": a, "policy": policy, "rollout_steps": rollout, "total_steps": steps,
-            "eval_episodes": 2, "checkpoint_every": 100, **top}
+    return {
+        "env": env_cfg,
+        "algo": a,
+        "policy": policy,
+        "rollout_steps": rollout,
+        "total_steps": steps,
+        "eval_episodes": 2,
+        "checkpoint_every": 100,
+        **top,
+    }
 
 
 def _check_outputs(run, result: dict, iterations: int) -> None:
@@ -239,7 +255,8 @@ def test_single_constraint_algorithms_refuse_the_grid_in_one_line(tmp_path, quie
         train(load_config(cfg), tmp_path / "run", echo=quiet)
     msg = str(err.value)
     assert "\n" not in msg and msg.startswith(
-        "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs (hazard_a, hazard_b): ")
+        "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs (hazard_a, hazard_b): "
+    )
     assert not (tmp_path / "run").exists()
 
 
@@ -254,15 +271,23 @@ def test_checkpoint_reloads_and_evaluates_greedily_and_sampled(tmp_path, quiet):
     trained.env.close()
 
 
-@pytest.mark.parametrize("env_id,random_return,min_return", [
-    (cost_envs.MATCH_ID, 2.0, 7.5),          # a uniform policy matches 1 context in 4
-    (cost_envs.MULTI_MATCH_ID, 10 / 3, 6.5),  # 8 * (1/3 + 1/2) / 2
-])
+@pytest.mark.parametrize(
+    "env_id,random_return,min_return",
+    [
+        (cost_envs.MATCH_ID, 2.0, 7.5),  # a uniform policy matches 1 context in 4
+        (cost_envs.MULTI_MATCH_ID, 10 / 3, 6.5),  # 8 * (1/3 + 1/2) / 2
+    ],
+)
 def test_discrete_ppo_learns_the_contextual_bandit(tmp_path, quiet, env_id, random_return, min_return):
     """PPO, seed 0, 2048 steps (about 2 s): the greedy policy matches nearly every context (best: 8
     per episode) where a uniform policy earns ``random_return``."""
-    cfg = {"env": {"name": "gym", "id": env_id, "num_envs": 4}, "algo": {"name": "ppo", "update_epochs": 2,
-           "num_minibatches": 2}, "rollout_steps": 32, "total_steps": 2048, "eval_episodes": 8}
+    cfg = {
+        "env": {"name": "gym", "id": env_id, "num_envs": 4},
+        "algo": {"name": "ppo", "update_epochs": 2, "num_minibatches": 2},
+        "rollout_steps": 32,
+        "total_steps": 2048,
+        "eval_episodes": 8,
+    }
     res = train(load_config(cfg), tmp_path, echo=quiet)
     assert res["episode_return"] >= min_return > random_return + 3
 
@@ -270,9 +295,13 @@ def test_discrete_ppo_learns_the_contextual_bandit(tmp_path, quiet, env_id, rand
 def test_ppo_lagrangian_avoids_the_costly_action(tmp_path, quiet):
     """Budget 0.5 per episode against the cost of 2 an unconstrained best policy pays: ppo_lag's
     greedy policy stays within it and still matches the other contexts (best feasible: 6)."""
-    cfg = {"env": {"name": "gym", "id": cost_envs.MATCH_ID, "num_envs": 4},
-           "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.5, "lambda_lr": 0.5},
-           "rollout_steps": 32, "total_steps": 2048, "eval_episodes": 8}
+    cfg = {
+        "env": {"name": "gym", "id": cost_envs.MATCH_ID, "num_envs": 4},
+        "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.5, "lambda_lr": 0.5},
+        "rollout_steps": 32,
+        "total_steps": 2048,
+        "eval_episodes": 8,
+    }
     res = train(load_config(cfg), tmp_path, echo=quiet)
     assert res["episode_cost"] <= 0.5 and res["episode_return"] >= 5.0
 
@@ -287,10 +316,25 @@ def test_unsupported_action_space_stops_train_with_one_line(tmp_path, quiet):
 def test_train_py_on_a_discrete_gym_env(tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "tests"), os.environ.get("PYTHONPATH", "")])}
     out = subprocess.run(
-        [sys.executable, str(ROOT / "train.py"), "env=gym", f"env.id=cost_envs:{cost_envs.MATCH_ID}", "env.num_envs=2",
-         "rollout_steps=16", "total_steps=64", "eval_episodes=2", "algo.update_epochs=1", "algo.num_minibatches=2",
-         f"hydra.run.dir={tmp_path / 'run'}"],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+        [
+            sys.executable,
+            str(ROOT / "train.py"),
+            "env=gym",
+            f"env.id=cost_envs:{cost_envs.MATCH_ID}",
+            "env.num_envs=2",
+            "rollout_steps=16",
+            "total_steps=64",
+            "eval_episodes=2",
+            "algo.update_epochs=1",
+            "algo.num_minibatches=2",
+            f"hydra.run.dir={tmp_path / 'run'}",
+        ],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr
     result = json.loads((tmp_path / "run" / "eval.json").read_text())
     assert result["episodes"] == 2 and result["episode_length"] == 8

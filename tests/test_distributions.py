@@ -10,7 +10,11 @@ from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.policies.distributions import (
-    CategoricalHead, GaussianHead, action_outputs, make_action_head, sample,
+    CategoricalHead,
+    GaussianHead,
+    action_outputs,
+    make_action_head,
+    sample,
 )
 
 LOG_2PI = 1.8378770664093453  # log(2 pi)
@@ -53,9 +57,13 @@ def test_gaussian_samples_follow_loc_and_scale_and_carry_gradients():
     assert a.std(0).tolist() == pytest.approx([1.0, 0.5], abs=0.02)
 
 
-LOGITS = torch.tensor([[0.0, np.log(2.0), np.log(3.0)],   # probabilities (1, 2, 3) / 6
-                       [np.log(4.0), 0.0, 0.0]],          # probabilities (4, 1, 1) / 6
-                      dtype=torch.float32)
+LOGITS = torch.tensor(
+    [
+        [0.0, np.log(2.0), np.log(3.0)],  # probabilities (1, 2, 3) / 6
+        [np.log(4.0), 0.0, 0.0],
+    ],  # probabilities (4, 1, 1) / 6
+    dtype=torch.float32,
+)
 
 
 def test_categorical_on_discrete_has_the_hand_computed_log_prob_entropy_and_mode():
@@ -89,7 +97,9 @@ def test_the_action_space_chooses_the_network_outputs_and_refuses_others():
     assert action_outputs(gym.spaces.Discrete(5)) == 5  # one logit per action
     assert action_outputs(gym.spaces.MultiDiscrete([2, 3])) == 5  # one logit per action of each component
     for bad in (gym.spaces.MultiBinary(2), gym.spaces.Text(4)):
-        with pytest.raises(ValueError, match=re.escape(f"action space {bad} is not supported; supported: Box, Discrete")):
+        with pytest.raises(
+            ValueError, match=re.escape(f"action space {bad} is not supported; supported: Box, Discrete")
+        ):
             action_outputs(bad)
         with pytest.raises(ValueError, match="Box, Discrete"):
             make_action_head(bad, nn.Identity())

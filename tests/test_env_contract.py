@@ -20,8 +20,9 @@ class Toy(gym.Env):
     """A well-behaved CMDP env (2-D float32 observation in [-1, 1], one cost) whose step values are
     replaced, from step BREAK_AT on, by whatever ``broken`` (step values -> step values) returns."""
 
-    def __init__(self, broken=None, action_space=None, observation_space=None, cost_names=None, episode=50,
-                 break_at=BREAK_AT):
+    def __init__(
+        self, broken=None, action_space=None, observation_space=None, cost_names=None, episode=50, break_at=BREAK_AT
+    ):
         self.observation_space = observation_space or spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.action_space = action_space or spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
         if cost_names is not None:
@@ -69,28 +70,46 @@ def message(env, **kw):
 STEP = f"(env 0, step {BREAK_AT})"
 
 
-@pytest.mark.parametrize("broken, expected", [
-    (with_info(other=1), 'info["cost"] is missing (info keys: [\'other\']); a CMDP env reports its cost there'),
-    (with_cost(float("nan")), 'info["cost"] is nan; costs must be finite'),
-    (with_cost(np.array([-np.inf], dtype=np.float32)), 'info["cost"] is -inf; costs must be finite'),
-    (with_cost("1.0"), 'info["cost"] must be a number or a 1-D array of numbers, got \'1.0\' (str)'),
-    (with_cost(True), 'info["cost"] must be a number or a 1-D array of numbers, got True'),
-    (with_cost(np.zeros((1, 1))), 'info["cost"] must be a number or a 1-D array of numbers, got shape (1, 1)'),
-    (with_cost(np.array([], dtype=np.float32)), 'info["cost"] must be a number or a 1-D array of numbers, got shape (0,)'),
-    (growing_cost, 'info["cost"] has 2 entries, earlier steps had 1'),
-    (with_cost(-0.5), 'info["cost"] is -0.5; costs must be >= 0 in a CMDP (env.allow_negative_cost=true accepts signed costs)'),
-    (at("obs", np.array([0.0, 2.0], dtype=np.float32)), "observation [0. 2.] is outside observation_space Box(-1.0, 1.0, (2,), float32)"),
-    (at("obs", np.zeros(2, dtype=np.float64)), "observation has dtype float64, observation_space has float32"),
-    (at("obs", np.zeros(3, dtype=np.float32)), "observation has shape (3,), observation_space has (2,)"),
-    (at("obs", np.array([np.nan, 0.0], dtype=np.float32)), "observation is not finite: [nan 0.]"),
-    (at("obs", [0.0, 0.0]), "observation must be a numpy array (observation_space is Box(-1.0, 1.0, (2,), float32)), got list"),
-    (at("reward", math.inf), "reward is inf; rewards must be finite"),
-    (at("reward", np.float32("nan")), "reward is nan; rewards must be finite"),
-    (at("reward", None), "reward must be a number, got None"),
-    (at("terminated", 0), "terminated must be a bool, got 0 (int)"),
-    (at("truncated", np.float64(1.0)), "truncated must be a bool, got np.float64(1.0) (float64)"),
-    (lambda *out: out + (1.0,), "step() must return (observation, reward, terminated, truncated, info), got 6 values"),
-])
+@pytest.mark.parametrize(
+    "broken, expected",
+    [
+        (with_info(other=1), "info[\"cost\"] is missing (info keys: ['other']); a CMDP env reports its cost there"),
+        (with_cost(float("nan")), 'info["cost"] is nan; costs must be finite'),
+        (with_cost(np.array([-np.inf], dtype=np.float32)), 'info["cost"] is -inf; costs must be finite'),
+        (with_cost("1.0"), "info[\"cost\"] must be a number or a 1-D array of numbers, got '1.0' (str)"),
+        (with_cost(True), 'info["cost"] must be a number or a 1-D array of numbers, got True'),
+        (with_cost(np.zeros((1, 1))), 'info["cost"] must be a number or a 1-D array of numbers, got shape (1, 1)'),
+        (
+            with_cost(np.array([], dtype=np.float32)),
+            'info["cost"] must be a number or a 1-D array of numbers, got shape (0,)',
+        ),
+        (growing_cost, 'info["cost"] has 2 entries, earlier steps had 1'),
+        (
+            with_cost(-0.5),
+            'info["cost"] is -0.5; costs must be >= 0 in a CMDP (env.allow_negative_cost=true accepts signed costs)',
+        ),
+        (
+            at("obs", np.array([0.0, 2.0], dtype=np.float32)),
+            "observation [0. 2.] is outside observation_space Box(-1.0, 1.0, (2,), float32)",
+        ),
+        (at("obs", np.zeros(2, dtype=np.float64)), "observation has dtype float64, observation_space has float32"),
+        (at("obs", np.zeros(3, dtype=np.float32)), "observation has shape (3,), observation_space has (2,)"),
+        (at("obs", np.array([np.nan, 0.0], dtype=np.float32)), "observation is not finite: [nan 0.]"),
+        (
+            at("obs", [0.0, 0.0]),
+            "observation must be a numpy array (observation_space is Box(-1.0, 1.0, (2,), float32)), got list",
+        ),
+        (at("reward", math.inf), "reward is inf; rewards must be finite"),
+        (at("reward", np.float32("nan")), "reward is nan; rewards must be finite"),
+        (at("reward", None), "reward must be a number, got None"),
+        (at("terminated", 0), "terminated must be a bool, got 0 (int)"),
+        (at("truncated", np.float64(1.0)), "truncated must be a bool, got np.float64(1.0) (float64)"),
+        (
+            lambda *out: out + (1.0,),
+            "step() must return (observation, reward, terminated, truncated, info), got 6 values",
+        ),
+    ],
+)
 def test_each_breach_is_one_line_naming_env_index_step_and_field(broken, expected):
     assert message(Toy(broken)) == f"env Toy {STEP}: {expected}"
 
@@ -109,22 +128,28 @@ def test_negative_costs_pass_when_allowed():
     assert "must be finite" in message(Toy(with_cost(-math.inf)), allow_negative_cost=True)
 
 
-@pytest.mark.parametrize("names, expected", [
-    (("speed",), 'cost_names has 1 names (\'speed\',), but info["cost"] has 2 entries'),
-    ("ab", "cost_names must be a sequence of strings, got 'ab'"),
-    (("a", "a"), "cost_names must be distinct, got ('a', 'a')"),
-    (("a", 2), "cost_names must be a sequence of strings, got ('a', 2)"),
-])
+@pytest.mark.parametrize(
+    "names, expected",
+    [
+        (("speed",), "cost_names has 1 names ('speed',), but info[\"cost\"] has 2 entries"),
+        ("ab", "cost_names must be a sequence of strings, got 'ab'"),
+        (("a", "a"), "cost_names must be distinct, got ('a', 'a')"),
+        (("a", 2), "cost_names must be a sequence of strings, got ('a', 2)"),
+    ],
+)
 def test_cost_names_must_name_each_cost_once(names, expected):
     text = message(Toy(with_cost(np.zeros(2)), cost_names=names, break_at=1))
     assert text.endswith(expected)
 
 
-@pytest.mark.parametrize("space, field", [
-    (spaces.Dict({"x": spaces.Box(-1, 1, (1,))}), "action_space"),
-    (spaces.Tuple((spaces.Discrete(2), spaces.Discrete(3))), "action_space"),
-    (spaces.MultiBinary(3), "action_space"),
-])
+@pytest.mark.parametrize(
+    "space, field",
+    [
+        (spaces.Dict({"x": spaces.Box(-1, 1, (1,))}), "action_space"),
+        (spaces.Tuple((spaces.Discrete(2), spaces.Discrete(3))), "action_space"),
+        (spaces.MultiBinary(3), "action_space"),
+    ],
+)
 def test_unsupported_action_spaces_are_refused_before_stepping(space, field):
     text = message(Toy(action_space=space))
     assert text.startswith(f"env Toy: {field} ") and "supported: Box, Discrete, MultiDiscrete" in text
@@ -132,15 +157,22 @@ def test_unsupported_action_spaces_are_refused_before_stepping(space, field):
 
 def test_unsupported_observation_space_is_refused():
     text = message(Toy(observation_space=spaces.Dict({"x": spaces.Box(-1, 1, (1,))})))
-    assert text.startswith("env Toy: observation_space ") and "supported: Box, Discrete, MultiDiscrete, MultiBinary" in text
+    assert (
+        text.startswith("env Toy: observation_space ")
+        and "supported: Box, Discrete, MultiDiscrete, MultiBinary" in text
+    )
 
 
 def test_well_behaved_envs_pass_and_report_their_costs():
     assert check_env(gym.make(GRID_ID), steps=200) == EnvContract(2, ("hazard_a", "hazard_b"))
     assert check_env(gym.make("cmdp_rl/Reach1D-v0"), steps=200) == EnvContract(1, ("cost_0",))
     # episodes end inside the check (every 5 steps) and the reset observation is checked too
-    multi = Toy(lambda o, r, te, tr, i: (o, r, te, tr, {"cost": np.float32(0.0)}),
-                action_space=spaces.MultiDiscrete([3, 2]), observation_space=spaces.Discrete(5), episode=5)
+    multi = Toy(
+        lambda o, r, te, tr, i: (o, r, te, tr, {"cost": np.float32(0.0)}),
+        action_space=spaces.MultiDiscrete([3, 2]),
+        observation_space=spaces.Discrete(5),
+        episode=5,
+    )
     assert check_env(multi, steps=30) == EnvContract(1, ("cost_0",))
     assert check_env(GymVecEnv(Reach1D, 2), steps=50).num_costs == 1
     assert check_env(TorchReach1D(16), steps=50).num_costs == 1
@@ -170,7 +202,10 @@ class BrokenTorchReach1D(TorchReach1D):
 
 
 def test_a_batched_torch_env_is_checked_on_its_tensors():
-    assert message(BrokenTorchReach1D(8)) == 'env BrokenTorchReach1D (env 3, step 5): info["cost"] is nan; costs must be finite'
+    assert (
+        message(BrokenTorchReach1D(8))
+        == 'env BrokenTorchReach1D (env 3, step 5): info["cost"] is nan; costs must be finite'
+    )
     assert "costs must be >= 0" in message(BrokenTorchReach1D(8, value=-1.0))
     assert check_env(BrokenTorchReach1D(8, value=-1.0), steps=10, allow_negative_cost=True).num_costs == 1
 

@@ -5,12 +5,12 @@ import json
 
 import pytest
 import torch
+from conftest import ROOT, eval_result, run_script, tiny
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
-from conftest import ROOT, eval_result, run_script, tiny
 
 _spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
 evaluate_cli = importlib.util.module_from_spec(_spec)
@@ -31,7 +31,8 @@ def test_default_evaluation_repeats_the_runs_eval_json(run, tmp_path, capsys):
     # eval.json adds training-time figures (cost rate over training, normalized scores); the
     # evaluation's own numbers must be the same
     same = {"episodes", "deterministic", "goal_reached", "cost_limit"} | {
-        f"episode_{m}{s}" for m in ("return", "cost", "length") for s in ("", "_std", "_min", "_max")}
+        f"episode_{m}{s}" for m in ("return", "cost", "length") for s in ("", "_std", "_min", "_max")
+    }
     assert same <= got.keys() and {k: got[k] for k in same} == {k: want[k] for k in same}
     text = capsys.readouterr().out
     assert "episode_return" in text and "episode_cost" in text and "±" in text and "[min" in text
@@ -135,9 +136,14 @@ def test_cli_in_a_subprocess(run):
 
 def test_a_mujoco_run_with_normalization_evaluates_as_it_did_in_training(tmp_path):
     pytest.importorskip("mujoco")
-    cfg = {"env": {"name": "velocity", "task": "Hopper", "num_envs": 3, "max_steps": 20},
-           "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2},
-           "normalize": {"obs": True, "reward": True}, "rollout_steps": 16, "total_steps": 96, "eval_episodes": 2}
+    cfg = {
+        "env": {"name": "velocity", "task": "Hopper", "num_envs": 3, "max_steps": 20},
+        "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2},
+        "normalize": {"obs": True, "reward": True},
+        "rollout_steps": 16,
+        "total_steps": 96,
+        "eval_episodes": 2,
+    }
     train(load_config(cfg), tmp_path, echo=lambda s: None)  # evaluates on 2 envs, trained on 3
     out = tmp_path / "e.json"
     assert evaluate_cli.main([f"run={tmp_path}", f"output={out}"]) == 0

@@ -5,10 +5,10 @@ import subprocess
 import sys
 
 import torch
+from conftest import ROOT, cli_args, eval_result, metrics_rows, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.checkpoint import load_checkpoint
-from conftest import ROOT, cli_args, eval_result, metrics_rows, tiny
 
 # Loaded at interpreter start through PYTHONPATH: from the CMDP_NAN_AT-th update on, the reward
 # advantage every algorithm builds its policy advantage from is NaN, as after a numerical blow-up.
@@ -41,8 +41,14 @@ def test_nan_stops_the_cli_run_and_its_last_checkpoint_evaluates_and_resumes(tmp
     # installed copy elsewhere would otherwise shadow at interpreter start.
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "site"), str(ROOT)]), "CMDP_NAN_AT": "6"}
     cfg = tiny()
-    proc = subprocess.run([sys.executable, str(ROOT / "train.py"), *cli_args(cfg), f"hydra.run.dir={run}"],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), *cli_args(cfg), f"hydra.run.dir={run}"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 3, proc.stderr[-2000:]
     assert "training stopped: iteration 6: loss_pi is nan" in proc.stderr
     assert f"the last good checkpoint is {run / 'checkpoint.pt'}" in proc.stderr

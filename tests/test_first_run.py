@@ -7,6 +7,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 
 import first_run  # noqa: E402
 import library_example  # noqa: E402
+
 from cmdp_rl.config import compose_config  # noqa: E402
 
 

@@ -5,6 +5,7 @@ import csv
 
 import pytest
 import torch
+from conftest import tail_means
 from torchrl.modules import IndependentNormal
 
 from cmdp_rl import Collector, load_config, make_agent, make_algo, make_env, train
@@ -12,7 +13,6 @@ from cmdp_rl.algos.episode_cost import FINISHED, EpisodeCost
 from cmdp_rl.algos.focops import focops_loss
 from cmdp_rl.config import compose_config
 from cmdp_rl.validation import ConfigError
-from conftest import tail_means
 
 A = torch.tensor([[0.4], [0.0], [-0.2]], dtype=torch.float64)  # actions, 3 states, 1-d
 ADV = torch.tensor([[1.0], [-2.0], [0.5]], dtype=torch.float64)  # A_r - nu A_c
@@ -55,14 +55,21 @@ def test_a_state_past_delta_leaves_the_loss():
     _loss(mu2, LOG_STD_K.clone(), delta=1.0)[0].backward()
     var = (2 * LOG_STD_K).exp()
     dist_grad = (mu2 - MU_K).detach() / var / 3
-    ratio = torch.exp(IndependentNormal(mu2.detach(), var.sqrt().expand_as(mu2)).log_prob(A)
-                      - IndependentNormal(MU_K, var.sqrt().expand_as(MU_K)).log_prob(A)).unsqueeze(-1)
+    ratio = torch.exp(
+        IndependentNormal(mu2.detach(), var.sqrt().expand_as(mu2)).log_prob(A)
+        - IndependentNormal(MU_K, var.sqrt().expand_as(MU_K)).log_prob(A)
+    ).unsqueeze(-1)
     torch.testing.assert_close(mu2.grad, dist_grad - ratio * ADV * (A - mu2.detach()) / var / (1.5 * 3))
 
 
 def setup(algo: dict):
-    cfg = load_config({"algo": {"name": "focops", "update_epochs": 1, **algo}, "rollout_steps": 32,
-                       "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45}})
+    cfg = load_config(
+        {
+            "algo": {"name": "focops", "update_epochs": 1, **algo},
+            "rollout_steps": 32,
+            "env": {"num_envs": 2, "max_steps": 3, "wall": "pass", "start": 0.45},
+        }
+    )
     torch.manual_seed(0)
     env = make_env(cfg.env)
     agent = make_agent(cfg.policy, env)
@@ -85,6 +92,7 @@ def test_nu_is_projected_dual_ascent_clipped_to_0_and_nu_max():
     assert algo.lagrange_multiplier == pytest.approx(0.6)
     with pytest.raises(ConfigError, match=r"^algo.nu_init must be a number in \[0, algo.nu_max\], got 3.0$"):
         from cmdp_rl.config import validate
+
         validate(load_config({"algo": {"name": "focops", "nu_init": 3.0}}))
 
 
@@ -102,9 +110,22 @@ def test_focops_learns_reach1d_within_budget(tmp_path):
     seed 0). With the paper's nu_lr = 0.01 and nu_max = 2, nu is too slow and too small here (cost 1.0
     per episode after 40 iterations): crossing is worth about 1.4 in reward. With nu_lr = 0.5 and
     nu_max = 3, measured on seed 0: last 10 iterations return 0.42 at cost 0.34."""
-    cfg = compose_config(["env=reach1d_torch", "env.wall=pass", "env.num_envs=256", "algo=focops",
-                          "algo.cost_limit=0.5", "algo.nu_lr=0.5", "algo.nu_max=3", "algo.num_minibatches=4",
-                          "algo.update_epochs=5", "total_steps=327680", "log_interval=1", "seed=0"])
+    cfg = compose_config(
+        [
+            "env=reach1d_torch",
+            "env.wall=pass",
+            "env.num_envs=256",
+            "algo=focops",
+            "algo.cost_limit=0.5",
+            "algo.nu_lr=0.5",
+            "algo.nu_max=3",
+            "algo.num_minibatches=4",
+            "algo.update_epochs=5",
+            "total_steps=327680",
+            "log_interval=1",
+            "seed=0",
+        ]
+    )
     train(cfg, tmp_path, echo=lambda s: None)
     rows = list(csv.DictReader((tmp_path / "metrics.csv").open()))
     ret, cost = tail_means(tmp_path, "episode_return", "episode_cost")

@@ -22,10 +22,9 @@ from pathlib import Path
 
 import pytest
 import torch
-
-from cmdp_rl import load_config, train
 from conftest import eval_result, metrics_rows, tiny
 
+from cmdp_rl import load_config, train
 
 GOLDEN = Path(__file__).parent / "golden"
 WRITE = os.environ.get("CMDP_RL_WRITE_GOLDEN") == "1"
@@ -34,23 +33,32 @@ CASES = {
     "ppo_lag_mlp": tiny(),
     "ppo_mlp_obsnorm": tiny(algo={"name": "ppo"}, normalize={"obs": True, "reward": True, "cost": True}),
     "penalty_mlp": tiny(algo={"name": "penalty", "penalty": 1.5}),
-    "pid_lag_torch": tiny(env={"backend": "torch", "num_envs": 16, "stagger": True},
-                          algo={"name": "pid_lag", "update_epochs": 2, "num_minibatches": 4, "kp": 1.0, "ki": 0.2}),
+    "pid_lag_torch": tiny(
+        env={"backend": "torch", "num_envs": 16, "stagger": True},
+        algo={"name": "pid_lag", "update_epochs": 2, "num_minibatches": 4, "kp": 1.0, "ki": 0.2},
+    ),
     "cpo_mlp": tiny(algo={"name": "cpo", "critic_epochs": 2, "critic_minibatches": 2}),
     "ppo_lag_lstm": tiny(policy={"name": "lstm", "hidden_size": 8, "head_sizes": [8], "segment_length": 8}),
     "ppo_lag_gru": tiny(policy={"name": "gru", "hidden_size": 8, "head_sizes": [], "segment_length": 0}),
-    "ppo_lag_transformer": tiny(policy={"name": "transformer", "window": 4, "width": 8, "heads": 2,
-                                        "feedforward": 8, "head_sizes": [8]}),
-    "cpo_lstm": tiny(algo={"name": "cpo", "critic_epochs": 1, "critic_minibatches": 2},
-                     policy={"name": "lstm", "hidden_size": 8, "head_sizes": [8], "segment_length": 8}),
-    "ppo_lag_mlp_prev": tiny(policy={"name": "mlp", "hidden_sizes": [16], "include_prev_action": True,
-                                     "include_prev_cost": True}),
+    "ppo_lag_transformer": tiny(
+        policy={"name": "transformer", "window": 4, "width": 8, "heads": 2, "feedforward": 8, "head_sizes": [8]}
+    ),
+    "cpo_lstm": tiny(
+        algo={"name": "cpo", "critic_epochs": 1, "critic_minibatches": 2},
+        policy={"name": "lstm", "hidden_size": 8, "head_sizes": [8], "segment_length": 8},
+    ),
+    "ppo_lag_mlp_prev": tiny(
+        policy={"name": "mlp", "hidden_sizes": [16], "include_prev_action": True, "include_prev_cost": True}
+    ),
 }
 for case in CASES.values():
-    case["algo"] = {k: v for k, v in case["algo"].items()
-                    if not (case["algo"]["name"] == "cpo" and k in ("update_epochs", "num_minibatches", "lambda_lr"))
-                    and not (case["algo"]["name"] in ("ppo", "penalty") and k == "lambda_lr")
-                    and not (case["algo"]["name"] == "pid_lag" and k == "lambda_lr")}
+    case["algo"] = {
+        k: v
+        for k, v in case["algo"].items()
+        if not (case["algo"]["name"] == "cpo" and k in ("update_epochs", "num_minibatches", "lambda_lr"))
+        and not (case["algo"]["name"] in ("ppo", "penalty") and k == "lambda_lr")
+        and not (case["algo"]["name"] == "pid_lag" and k == "lambda_lr")
+    }
 
 
 def _outputs(run_dir: Path) -> dict:
@@ -75,6 +83,7 @@ def machine() -> str:
 def _mismatch(got: dict, want: dict, close: bool) -> str | None:
     """First difference between two outputs (``None`` if none); ``close`` compares numbers with
     the cross-machine tolerance instead of exactly."""
+
     def same(g, w) -> bool:
         if g == w:
             return True

@@ -29,6 +29,7 @@ def small_enumerated():
 
 # --- the gym env is the tabular CMDP ------------------------------------------------------------
 
+
 def test_registered_env_starts_at_s_with_a_one_hot_observation():
     env = gym.make(GRID_ID)
     obs, info = env.reset(seed=0)
@@ -102,6 +103,7 @@ def test_episode_totals_of_the_gym_env_are_the_discounted_values_the_lp_optimise
 
 # --- exact evaluation, by hand -------------------------------------------------------------------
 
+
 def test_exact_evaluation_matches_hand_computed_corridors():
     right = np.eye(4)[[1]]
     # "SG", slip 0: right reaches the goal at step 0 -> J = 1; staying (left) never does -> 0.
@@ -134,6 +136,7 @@ def test_value_iteration_is_the_best_deterministic_policy(small_enumerated):
 
 
 # --- the LP --------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("budgets", [(0.1, 0.1), (0.2, 0.05), (0.5, 0.3), (0.05, 0.5), (0.3, 10.0)])
 def test_lp_optimum_is_at_least_every_feasible_deterministic_policy(small_enumerated, budgets):
@@ -232,13 +235,19 @@ def test_default_grid_constrained_optimum_lies_strictly_between_and_both_constra
     q_ret = default.r[start] + default.gamma * default.P[start] @ v.value
     q_cost = default.c[:, start].T + default.gamma * default.P[start] @ v.cost_value.T
     np.testing.assert_allclose(q_ret, [0.6018, 0.7198, 0.5454, 0.5912], atol=1e-4)
-    np.testing.assert_allclose(q_cost, [[0.0588, 0.2019], [0.8013, 0.1893], [0.0588, 0.0171], [0.2565, 0.1385]],
-                               atol=1e-4)
+    np.testing.assert_allclose(
+        q_cost, [[0.0588, 0.2019], [0.8013, 0.1893], [0.0588, 0.0171], [0.2565, 0.1385]], atol=1e-4
+    )
 
 
-@pytest.mark.parametrize("layout, match", [
-    (("S.", "G"), "equal length"), (("SxG",), "unknown character"), (("S..",), "exactly one 'G'"),
-])
+@pytest.mark.parametrize(
+    "layout, match",
+    [
+        (("S.", "G"), "equal length"),
+        (("SxG",), "unknown character"),
+        (("S..",), "exactly one 'G'"),
+    ],
+)
 def test_bad_layouts_are_refused(layout, match):
     with pytest.raises(ValueError, match=match):
         parse_layout(layout)

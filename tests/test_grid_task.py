@@ -22,8 +22,10 @@ def test_grid_env_builds_with_discrete_actions_and_two_named_costs():
 def test_grid_costs_option_reports_a_subset_of_the_hazards_in_order():
     import torch
 
-    envs = [make_env(load_config({"env": {"name": "grid", "num_envs": 4, "costs": c}}).env)
-            for c in (["hazard_a", "hazard_b"], ["hazard_b"])]
+    envs = [
+        make_env(load_config({"env": {"name": "grid", "num_envs": 4, "costs": c}}).env)
+        for c in (["hazard_a", "hazard_b"], ["hazard_b"])
+    ]
     try:
         assert envs[1].cost_names == ("hazard_b",) and envs[1].num_costs == 1
         for env in envs:
@@ -46,9 +48,16 @@ def test_grid_bad_layout_is_a_one_line_config_error():
 
 
 def test_ppo_lag_trains_on_grid_with_a_budget_per_hazard(tmp_path, quiet):
-    cfg = load_config({"env": {"name": "grid", "num_envs": 2},
-                       "algo": {"name": "ppo_lag", "cost_limit": [0.3, 0.15]},
-                       "rollout_steps": 64, "total_steps": 2 * 128, "eval_episodes": 4, "log_interval": 1})
+    cfg = load_config(
+        {
+            "env": {"name": "grid", "num_envs": 2},
+            "algo": {"name": "ppo_lag", "cost_limit": [0.3, 0.15]},
+            "rollout_steps": 64,
+            "total_steps": 2 * 128,
+            "eval_episodes": 4,
+            "log_interval": 1,
+        }
+    )
     result = train(cfg, tmp_path / "run", echo=quiet)
     with open(tmp_path / "run" / "metrics.csv") as f:
         rows = list(csv.DictReader(f))

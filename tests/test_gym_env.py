@@ -4,10 +4,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import ForwardPolicy
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, make_env
 from cmdp_rl.envs.gym_cost import SixValueStep, make_cost_env
-from conftest import ForwardPolicy
 
 SIX_ID = "cmdp_rl_test/SixValueCounter-v0"
 FIVE_ID = "cmdp_rl_test/FiveValueCounter-v0"
@@ -118,12 +118,15 @@ def test_an_env_without_cost_is_refused_with_its_id_named():
         env.step(torch.zeros(1, 1))
 
 
-@pytest.mark.parametrize("env,field", [
-    ({}, "env.id"),
-    ({"id": "X-v0", "step_api": "seven"}, "env.step_api"),
-    ({"id": "X-v0", "max_steps": -1}, "env.max_steps"),
-    ({"id": "X-v0", "backend": "torch"}, "env.backend"),
-])
+@pytest.mark.parametrize(
+    "env,field",
+    [
+        ({}, "env.id"),
+        ({"id": "X-v0", "step_api": "seven"}, "env.step_api"),
+        ({"id": "X-v0", "max_steps": -1}, "env.max_steps"),
+        ({"id": "X-v0", "backend": "torch"}, "env.backend"),
+    ],
+)
 def test_gym_env_config_errors_name_the_field(env, field):
     with pytest.raises(Exception) as err:
         load_config({"env": {"name": "gym", **env}})

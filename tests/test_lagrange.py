@@ -5,12 +5,12 @@ from cmdp_rl.algos.lagrange import DualAscent
 
 def test_lambda_rises_above_budget_falls_below_and_stays_nonnegative():
     m = DualAscent(cost_limit=2.0, lr=0.5)
-    assert m.update(6.0) == pytest.approx(2.0)   # J_c > d: up by lr * (J_c - d)
+    assert m.update(6.0) == pytest.approx(2.0)  # J_c > d: up by lr * (J_c - d)
     assert m.update(4.0) == pytest.approx(3.0)
-    assert m.update(1.0) == pytest.approx(2.5)   # J_c < d: down
+    assert m.update(1.0) == pytest.approx(2.5)  # J_c < d: down
     assert m.update(0.0) == pytest.approx(1.5)
     assert m.update(0.0) == pytest.approx(0.5)
-    assert m.update(0.0) == 0.0                  # projected: never below 0
+    assert m.update(0.0) == 0.0  # projected: never below 0
     assert m.update(0.0) == 0.0
 
 
@@ -73,10 +73,10 @@ def test_proportional_term_reacts_in_the_same_iteration():
 
 def test_derivative_acts_on_rising_smoothed_cost_only():
     pid = PIDLagrangian(cost_limit=10.0, kp=0.0, ki=0.0, kd=1.0, d_ema_alpha=0.5)
-    assert pid.update(0.0) == 0.0               # first measurement: no derivative yet
+    assert pid.update(0.0) == 0.0  # first measurement: no derivative yet
     assert pid.update(4.0) == pytest.approx(2.0)  # EMA 0 -> 2: D = 2
     assert pid.update(4.0) == pytest.approx(1.0)  # EMA 2 -> 3
-    assert pid.update(0.0) == 0.0               # EMA 3 -> 1.5: falling cost, positive part is 0
+    assert pid.update(0.0) == 0.0  # EMA 3 -> 1.5: falling cost, positive part is 0
 
 
 def test_lambda_max_clamps_lambda_and_integral():

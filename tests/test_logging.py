@@ -4,14 +4,15 @@ import csv
 
 import numpy as np
 import pytest
+from conftest import tiny
 
 from cmdp_rl import load_config, train
-from cmdp_rl.config import ConfigError
 from cmdp_rl.algos.ppo import PPO
+from cmdp_rl.config import ConfigError
 from cmdp_rl.report.metrics import MetricsLogger, columns
-from cmdp_rl.report.plot import aggregate, group_runs, main as plot_main, smooth
+from cmdp_rl.report.plot import aggregate, group_runs, smooth
+from cmdp_rl.report.plot import main as plot_main
 from cmdp_rl.run.resume import resume_config
-from conftest import tiny
 
 pytest.importorskip("tensorboard")
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator  # noqa: E402
@@ -83,10 +84,20 @@ def test_missing_tensorboard_is_a_clear_config_error(monkeypatch):
 def test_smooth_and_aggregate_skip_missing_values():
     x = np.array([1.0, np.nan, 3.0, 5.0])
     assert np.allclose(smooth(x, 2), [1.0, 1.0, 3.0, 4.0])
-    runs = [{"step": np.array([10.0, 20.0, 30.0]), "episode_return": np.array([1.0, np.nan, 3.0]),
-             "episode_cost": np.array([0.0, 2.0, 4.0]), "lagrange_multiplier": np.zeros(3)},
-            {"step": np.array([10.0, 20.0]), "episode_return": np.array([3.0, 5.0]),
-             "episode_cost": np.array([2.0, 2.0]), "lagrange_multiplier": np.ones(2)}]
+    runs = [
+        {
+            "step": np.array([10.0, 20.0, 30.0]),
+            "episode_return": np.array([1.0, np.nan, 3.0]),
+            "episode_cost": np.array([0.0, 2.0, 4.0]),
+            "lagrange_multiplier": np.zeros(3),
+        },
+        {
+            "step": np.array([10.0, 20.0]),
+            "episode_return": np.array([3.0, 5.0]),
+            "episode_cost": np.array([2.0, 2.0]),
+            "lagrange_multiplier": np.ones(2),
+        },
+    ]
     step, mean, std = aggregate(runs)
     assert step.tolist() == [10.0, 20.0]  # the iterations both runs reached
     assert mean["episode_return"].tolist() == [2.0, 5.0] and std["episode_return"].tolist() == [1.0, 0.0]

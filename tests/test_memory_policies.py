@@ -39,7 +39,11 @@ def recurrent_log_probs(ac, b):
     data = actor_units(ac, b)
     with torch.no_grad():
         dist = ac.dist(data)
-    return dist.log_prob(data[keys.ACTION]), dist.mean, ac.training_units({keys.LOG_PROB: b[keys.LOG_PROB], keys.LOC: b[keys.LOC]})
+    return (
+        dist.log_prob(data[keys.ACTION]),
+        dist.mean,
+        ac.training_units({keys.LOG_PROB: b[keys.LOG_PROB], keys.LOC: b[keys.LOC]}),
+    )
 
 
 def step_mode_log_prob(ac, data):
@@ -90,15 +94,15 @@ def test_recurrent_state_resets_where_an_episode_starts_mid_batch(name):
     row, t = next((i, t) for i, t in is_init.nonzero().tolist() if t > 0)
     in_keys = ac.actor.body.in_keys
     with torch.no_grad():
-        full = ac.dist({k: b[k][row: row + 1] for k in in_keys}).mean
+        full = ac.dist({k: b[k][row : row + 1] for k in in_keys}).mean
         # The episode alone, from a zero state ...
-        alone = {k: b[k][row: row + 1, t:] for k in in_keys}
+        alone = {k: b[k][row : row + 1, t:] for k in in_keys}
         for k in (keys.ACTOR_HIDDEN, keys.ACTOR_CELL):
             if k in alone:
                 alone[k] = torch.zeros_like(alone[k])
         loc_alone = ac.dist(alone).mean
         # ... and the row with the steps before it scrambled: the new episode does not see them.
-        scrambled = {k: b[k][row: row + 1].clone() for k in in_keys}
+        scrambled = {k: b[k][row : row + 1].clone() for k in in_keys}
         scrambled[keys.OBS][:, :t] = torch.rand_like(scrambled[keys.OBS][:, :t])
         scrambled[keys.PREV_ACTION][:, :t] = torch.rand_like(scrambled[keys.PREV_ACTION][:, :t])
         loc_scrambled = ac.dist(scrambled).mean
@@ -165,9 +169,8 @@ def test_transformer_incremental_equals_the_explicit_window(positions):
 
 
 def test_transformer_last_query_equals_the_full_layer():
-    from cmdp_rl.policies.transformer import TransformerPolicyConfig
     from cmdp_rl.policies.inputs import InputEncoder
-    from cmdp_rl.policies.transformer import WindowTransformer
+    from cmdp_rl.policies.transformer import TransformerPolicyConfig, WindowTransformer
 
     torch.manual_seed(0)
     cfg = TransformerPolicyConfig(window=6, layers=2, heads=2, width=8, feedforward=16)
@@ -197,8 +200,14 @@ def test_collector_writes_previous_action_and_cost():
     assert (b[keys.PREV_COST] != 0).any() or (b[keys.NEXT][keys.COST][:, :-1] == 0).all()
 
 
-@pytest.mark.parametrize("policy", [{"name": "lstm", "segment_length": 5}, {"name": "transformer"},
-                                    {"name": "mlp", "include_prev_action": True, "include_prev_cost": True}])
+@pytest.mark.parametrize(
+    "policy",
+    [
+        {"name": "lstm", "segment_length": 5},
+        {"name": "transformer"},
+        {"name": "mlp", "include_prev_action": True, "include_prev_cost": True},
+    ],
+)
 def test_acting_equals_the_training_pass(policy):
     """One execution path: the distribution the agent acted from, step by step with its carried
     state (the collector), is the one the training pass gives on the batch's training units
@@ -218,15 +227,26 @@ def test_acting_equals_the_training_pass(policy):
     assert torch.allclose(dist.log_prob(data[keys.ACTION]), stored[keys.LOG_PROB], atol=1e-5)
 
 
-@pytest.mark.parametrize("overrides,message", [
-    ({"policy": {"name": "lstm", "segment_length": 7}}, "policy.segment_length must be 0 or >= rollout_steps (whole rollouts), or a divisor of rollout_steps=64"),
-    ({"policy": {"name": "lstm", "segment_length": 0}, "env": {"num_envs": 2}, "algo": {"num_minibatches": 4}},
-     "algo.num_minibatches must be at most the number of training segments"),
-    ({"policy": {"name": "transformer", "width": 30, "heads": 4}}, "policy.width must be a positive multiple of policy.heads=4"),
-    ({"policy": {"name": "transformer", "positions": "rotary"}}, "policy.positions must be one of"),
-    ({"policy": {"name": "lstm", "window": 8}}, "policy: unknown option(s) ['window']"),
-    ({"policy": {"name": "rnn"}}, "policy.name: unknown policy 'rnn'"),
-])
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        (
+            {"policy": {"name": "lstm", "segment_length": 7}},
+            "policy.segment_length must be 0 or >= rollout_steps (whole rollouts), or a divisor of rollout_steps=64",
+        ),
+        (
+            {"policy": {"name": "lstm", "segment_length": 0}, "env": {"num_envs": 2}, "algo": {"num_minibatches": 4}},
+            "algo.num_minibatches must be at most the number of training segments",
+        ),
+        (
+            {"policy": {"name": "transformer", "width": 30, "heads": 4}},
+            "policy.width must be a positive multiple of policy.heads=4",
+        ),
+        ({"policy": {"name": "transformer", "positions": "rotary"}}, "policy.positions must be one of"),
+        ({"policy": {"name": "lstm", "window": 8}}, "policy: unknown option(s) ['window']"),
+        ({"policy": {"name": "rnn"}}, "policy.name: unknown policy 'rnn'"),
+    ],
+)
 def test_bad_policy_options_are_named(overrides, message):
     with pytest.raises(ConfigError) as err:
         load_config({"rollout_steps": 64, **overrides})

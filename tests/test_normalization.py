@@ -54,10 +54,14 @@ def test_return_scaler_divides_by_the_std_of_the_discounted_sums():
 
 
 def _reach1d_cfg(**normalize):
-    return load_config({
-        "env": {"num_envs": 2}, "rollout_steps": 32, "normalize": normalize,
-        "algo": {"name": "ppo_lag", "update_epochs": 1, "num_minibatches": 2},
-    })
+    return load_config(
+        {
+            "env": {"num_envs": 2},
+            "rollout_steps": 32,
+            "normalize": normalize,
+            "algo": {"name": "ppo_lag", "update_epochs": 1, "num_minibatches": 2},
+        }
+    )
 
 
 def test_statistics_survive_save_and_load(tmp_path):
@@ -75,7 +79,11 @@ def test_statistics_survive_save_and_load(tmp_path):
     make_algo(cfg.algo, fresh).load_state_dict(load_checkpoint(tmp_path / "c.pt")["algo_state"])
     for name in ("obs", "reward", "cost"):
         a, b = getattr(ac.normalizers, name), getattr(fresh.normalizers, name)
-        assert a.stats.count.item() > 1 and torch.equal(a.stats.mean, b.stats.mean) and torch.equal(a.stats.var, b.stats.var)
+        assert (
+            a.stats.count.item() > 1
+            and torch.equal(a.stats.mean, b.stats.mean)
+            and torch.equal(a.stats.var, b.stats.var)
+        )
     # the networks of the loaded copy normalize with the loaded statistics: the same outputs
     probe = {keys.OBS: torch.tensor([[0.3, 0.9], [0.7, 0.9]])}
     with torch.no_grad():
@@ -84,20 +92,29 @@ def test_statistics_survive_save_and_load(tmp_path):
         assert torch.equal(ac.actor.params(probe)[keys.LOC], fresh.actor.params(probe)[keys.LOC])
         # ... which are not those of fresh statistics
         unloaded = make_agent(cfg.policy, env, make_normalizers(cfg, env))
-        unloaded.load_state_dict({k: v for k, v in fresh.state_dict().items() if ".stats." not in k},
-                                 strict=False)
+        unloaded.load_state_dict({k: v for k, v in fresh.state_dict().items() if ".stats." not in k}, strict=False)
         assert not torch.equal(ac.value("reward", probe), unloaded.value("reward", probe))
     # one shared normalizer instance sits in front of all three networks
     assert fresh.normalizers.obs is not None
-    assert (fresh.actor.body.prep is fresh.normalizers.obs is fresh.critics["reward"].body.prep
-            is fresh.critics["cost"].body.prep)
+    assert (
+        fresh.actor.body.prep
+        is fresh.normalizers.obs
+        is fresh.critics["reward"].body.prep
+        is fresh.critics["cost"].body.prep
+    )
 
 
 def test_training_updates_statistics_from_collected_data_and_evaluation_leaves_them(tmp_path):
-    cfg = load_config({
-        "env": {"num_envs": 2}, "rollout_steps": 32, "total_steps": 128, "eval_episodes": 2,
-        "normalize": {"obs": True}, "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2},
-    })
+    cfg = load_config(
+        {
+            "env": {"num_envs": 2},
+            "rollout_steps": 32,
+            "total_steps": 128,
+            "eval_episodes": 2,
+            "normalize": {"obs": True},
+            "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2},
+        }
+    )
     train(cfg, tmp_path, echo=lambda _: None)
     env = make_env(cfg.env)
     ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
@@ -123,11 +140,14 @@ def test_off_by_default_and_nothing_extra_in_the_checkpoint():
     assert isinstance(ac.normalizers, Normalizers) and ac.normalizers.obs is None
 
 
-@pytest.mark.parametrize("override,field", [
-    ({"normalize": {"obs_clip": 0.0}}, "normalize.obs_clip"),
-    ({"normalize": {"cost": True}, "algo": {"name": "penalty"}}, "normalize.cost"),
-    ({"normalize": {"scale": True}}, "normalize"),
-])
+@pytest.mark.parametrize(
+    "override,field",
+    [
+        ({"normalize": {"obs_clip": 0.0}}, "normalize.obs_clip"),
+        ({"normalize": {"cost": True}, "algo": {"name": "penalty"}}, "normalize.cost"),
+        ({"normalize": {"scale": True}}, "normalize"),
+    ],
+)
 def test_normalize_config_errors_name_the_field(override, field):
     with pytest.raises(ConfigError) as err:
         load_config(override)

@@ -7,7 +7,9 @@ import math
 
 import pytest
 import torch
+from conftest import tiny
 from tensordict import TensorDict
+from test_resume import assert_same_run, crash_then_resume, final_state
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.algos import make_algo
@@ -17,12 +19,12 @@ from cmdp_rl.config import ConfigError
 from cmdp_rl.envs import make_env
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD
-from conftest import tiny
-from test_resume import assert_same_run, crash_then_resume, final_state
 
 
 def build(algo: dict, **run):
-    cfg = load_config({"algo": {"buffer_size": 1000, **algo}, "env": {"num_envs": 2}, "policy": {"hidden_sizes": [8]}, **run})
+    cfg = load_config(
+        {"algo": {"buffer_size": 1000, **algo}, "env": {"num_envs": 2}, "policy": {"hidden_sizes": [8]}, **run}
+    )
     env = make_env(cfg.env)
     agent = make_agent(cfg.policy, env)
     return make_algo(cfg.algo, agent), env
@@ -39,12 +41,17 @@ def constant(net: torch.nn.Sequential, value: float) -> None:
 def transitions(reward, cost, terminated) -> TensorDict:
     n = len(reward)
     col = lambda x: torch.tensor(x, dtype=torch.float32).reshape(n, 1)  # noqa: E731
-    return TensorDict({
-        keys.OBS: torch.rand(n, 2), keys.ACTION: torch.rand(n, 1) * 0.2 - 0.1,
-        (keys.NEXT, keys.OBS): torch.rand(n, 2), (keys.NEXT, keys.REWARD): col(reward),
-        (keys.NEXT, keys.COST): col(cost),
-        (keys.NEXT, keys.TERMINATED): torch.tensor(terminated).reshape(n, 1),
-    }, batch_size=[n])
+    return TensorDict(
+        {
+            keys.OBS: torch.rand(n, 2),
+            keys.ACTION: torch.rand(n, 1) * 0.2 - 0.1,
+            (keys.NEXT, keys.OBS): torch.rand(n, 2),
+            (keys.NEXT, keys.REWARD): col(reward),
+            (keys.NEXT, keys.COST): col(cost),
+            (keys.NEXT, keys.TERMINATED): torch.tensor(terminated).reshape(n, 1),
+        },
+        batch_size=[n],
+    )
 
 
 def test_the_budget_conversion_by_hand():
@@ -89,12 +96,30 @@ def test_reward_target_takes_the_smaller_target_twin():
 def test_the_multiplier_rises_above_the_budget_and_falls_below(name):
     """The cost critic held at a constant Q_c (learning rate ~0): one update moves lambda by
     lambda_lr * (Q_c - d_Q), d_Q the discounted budget: up at Q_c = 5, down at Q_c = 0."""
-    algo, env = build({"name": name, "warmup_steps": 0, "batch_size": 4, "critic_lr": 1e-12, "lambda_lr": 0.1,
-                       "lambda_init": 0.3, "policy_delay": 1} if name == "td3_lag" else
-                      {"name": name, "warmup_steps": 0, "batch_size": 4, "critic_lr": 1e-12, "lambda_lr": 0.1,
-                       "lambda_init": 0.3}, rollout_steps=2)
+    algo, env = build(
+        {
+            "name": name,
+            "warmup_steps": 0,
+            "batch_size": 4,
+            "critic_lr": 1e-12,
+            "lambda_lr": 0.1,
+            "lambda_init": 0.3,
+            "policy_delay": 1,
+        }
+        if name == "td3_lag"
+        else {
+            "name": name,
+            "warmup_steps": 0,
+            "batch_size": 4,
+            "critic_lr": 1e-12,
+            "lambda_lr": 0.1,
+            "lambda_init": 0.3,
+        },
+        rollout_steps=2,
+    )
     d_q = algo.lagrange.budgets[0]
     from cmdp_rl.collector import Collector
+
     collector = Collector(env, algo.agent, 2, seed=0)
     constant(algo.agent.critics[Q_COST].net, 5.0)
     stats = algo.update(collector.collect())
@@ -140,9 +165,11 @@ def test_the_multiplier_reads_q_c_on_the_newest_states(name):
         algo.replay.add(positions(0.0, 900))
         algo.replay.add(positions(1.0, 100))
         assert algo.cost_estimate().tolist() == pytest.approx([expected])
-    algo, env = build({"name": name, "cost_window": 0, "warmup_steps": 0, "batch_size": 64, "lambda_lr": 1.0,
-                       "policy_delay": 1} if name == "td3_lag" else
-                      {"name": name, "cost_window": 0, "warmup_steps": 0, "batch_size": 64, "lambda_lr": 1.0})
+    algo, env = build(
+        {"name": name, "cost_window": 0, "warmup_steps": 0, "batch_size": 64, "lambda_lr": 1.0, "policy_delay": 1}
+        if name == "td3_lag"
+        else {"name": name, "cost_window": 0, "warmup_steps": 0, "batch_size": 64, "lambda_lr": 1.0}
+    )
     algo.agent.critics[Q_COST].net = FirstFeature()
     algo.replay.add(positions(0.0, 900))
     stats = algo.update(positions(1.0, 100))  # 100 gradient steps on replayed states
@@ -152,6 +179,7 @@ def test_the_multiplier_reads_q_c_on_the_newest_states(name):
 def test_warm_up_acts_uniformly_and_does_not_update():
     algo, env = build({"name": "sac", "warmup_steps": 8, "batch_size": 4})
     from cmdp_rl.collector import Collector
+
     collector = Collector(env, algo.agent, 2, seed=0, uniform_steps=8)
     first = collector.collect()  # 4 steps of 2 envs: all uniform (log-density of U(-0.1, 0.1) = log 5)
     assert torch.allclose(first.get(keys.LOG_PROB), torch.full((2, 2), math.log(5.0)))
@@ -172,8 +200,10 @@ def test_replay_state_restores_the_buffer_exactly(storage):
     b = Replay(6, 3, "memory")
     b.load_state_dict(a.state_dict())
     assert len(b) == 6
-    assert torch.equal(a.buffer.storage.get(torch.arange(6)).get((keys.NEXT, keys.REWARD)).flatten(),
-                       torch.tensor([6.0, 7.0, 8.0, 3.0, 4.0, 5.0]))
+    assert torch.equal(
+        a.buffer.storage.get(torch.arange(6)).get((keys.NEXT, keys.REWARD)).flatten(),
+        torch.tensor([6.0, 7.0, 8.0, 3.0, 4.0, 5.0]),
+    )
     for rb in (a, b):
         rb.add(transitions([9.0], [0.0], [False]).unsqueeze(0))  # overwrites row 3
     torch.manual_seed(1)
@@ -191,18 +221,28 @@ def test_sac_lag_resumes_exactly_with_its_buffer(tmp_path, monkeypatch, quiet):
     whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
     assert_same_run(whole, broken)
     replay = final_state(broken)["replay"]
-    assert replay["len"] == 64 and torch.equal(replay["data"]["observation"],
-                                               final_state(whole)["replay"]["data"]["observation"])
+    assert replay["len"] == 64 and torch.equal(
+        replay["data"]["observation"], final_state(whole)["replay"]["data"]["observation"]
+    )
 
 
-@pytest.mark.parametrize("override, message", [
-    ({"policy": {"name": "lstm"}}, "policy must be mlp for algo=sac_lag"),
-    ({"algo": {"name": "sac"}, "env": {"name": "grid"}}, "sac needs a Box action space"),
-    ({"algo": {"name": "sac_lag", "episode_length": 10}, "env": {"name": "grid"}}, "sac_lag needs a Box action space"),
-    ({"algo": {"name": "sac_lag", "buffer_size": 8, "batch_size": 16}}, "algo.buffer_size must be >= algo.batch_size"),
-    ({"algo": {"name": "sac_lag", "utd_ratio": 0}}, "algo.utd_ratio must be in (0, 64]"),
-    ({"algo": {"name": "td3_lag", "multiplier": "adam"}}, "algo.multiplier must be one of ('dual', 'pid')"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ({"policy": {"name": "lstm"}}, "policy must be mlp for algo=sac_lag"),
+        ({"algo": {"name": "sac"}, "env": {"name": "grid"}}, "sac needs a Box action space"),
+        (
+            {"algo": {"name": "sac_lag", "episode_length": 10}, "env": {"name": "grid"}},
+            "sac_lag needs a Box action space",
+        ),
+        (
+            {"algo": {"name": "sac_lag", "buffer_size": 8, "batch_size": 16}},
+            "algo.buffer_size must be >= algo.batch_size",
+        ),
+        ({"algo": {"name": "sac_lag", "utd_ratio": 0}}, "algo.utd_ratio must be in (0, 64]"),
+        ({"algo": {"name": "td3_lag", "multiplier": "adam"}}, "algo.multiplier must be one of ('dual', 'pid')"),
+    ],
+)
 def test_refusals_are_one_line(tmp_path, quiet, override, message):
     cfg = {"algo": {"name": "sac_lag"}, **override}
     with pytest.raises(ConfigError) as exc:
@@ -216,11 +256,25 @@ def test_refusals_are_one_line(tmp_path, quiet, override, message):
 # Q-critics' TD targets settle in a few thousand steps.
 REACH = {
     "env": {"max_steps": 30},
-    "algo": {"name": "sac_lag", "cost_limit": 1.0, "gamma": 0.9, "cost_gamma": 0.9, "warmup_steps": 300,
-             "utd_ratio": 0.5, "batch_size": 64, "lr": 1e-3, "critic_lr": 1e-3, "alpha_init": 0.1,
-             "alpha_lr": 1e-3, "lambda_lr": 0.05},
+    "algo": {
+        "name": "sac_lag",
+        "cost_limit": 1.0,
+        "gamma": 0.9,
+        "cost_gamma": 0.9,
+        "warmup_steps": 300,
+        "utd_ratio": 0.5,
+        "batch_size": 64,
+        "lr": 1e-3,
+        "critic_lr": 1e-3,
+        "alpha_init": 0.1,
+        "alpha_lr": 1e-3,
+        "lambda_lr": 0.05,
+    },
     "policy": {"hidden_sizes": [32, 32], "activation": "relu"},
-    "seed": 0, "total_steps": 3000, "eval_episodes": 8, "checkpoint_every": 1000,
+    "seed": 0,
+    "total_steps": 3000,
+    "eval_episodes": 8,
+    "checkpoint_every": 1000,
 }
 
 
@@ -233,6 +287,7 @@ def test_sac_lag_learns_reach1d_within_budget(tmp_path, quiet):
     assert result["episode_cost"] <= 1.0, result
     assert result["episode_return"] >= 0.6 * cfg.env.optimum(1.0), result
     from conftest import metrics_rows
+
     assert max(float(r["lagrange_multiplier"]) for r in metrics_rows(tmp_path)) > 0.05
 
 
@@ -242,8 +297,7 @@ def test_sac_lag_learns_reach1d_within_budget(tmp_path, quiet):
 # moves), so the budget conversion's T (max_steps) is near the real episode length. The budget does
 # not bind at the optimum (its multiplier is 0): this checks that the Lagrangian does not
 # over-correct (stop at the wall); the blocking-wall test above checks that lambda acts.
-REACH_PASS = {**REACH, "env": {"wall": "pass", "max_steps": 15}, "total_steps": 6000,
-              "checkpoint_every": 100000}
+REACH_PASS = {**REACH, "env": {"wall": "pass", "max_steps": 15}, "total_steps": 6000, "checkpoint_every": 100000}
 TD3_OPTIONS = ("alpha_init", "alpha_lr")  # SAC's entropy options: td3_lag refuses them
 
 
@@ -258,6 +312,7 @@ def test_off_policy_lag_reaches_the_goal_through_the_wall_within_budget(tmp_path
     algo = {k: v for k, v in REACH["algo"].items() if name == "sac_lag" or k not in TD3_OPTIONS}
     cfg = load_config({**REACH_PASS, "algo": {**algo, "name": name}})
     from cmdp_rl.envs.reach1d.optimum import constrained_optimum
+
     best = constrained_optimum(cfg.env, 1.0)
     assert best.cost == 1.0 and best.value == pytest.approx(1.8)  # one crossing, goal reached
     result = train(cfg, tmp_path, echo=quiet)
@@ -269,13 +324,24 @@ def test_off_policy_lag_reaches_the_goal_through_the_wall_within_budget(tmp_path
 def test_one_multiplier_per_constraint_on_the_cost_critics_k_outputs(tmp_path, quiet):
     """K = 2 (tests/test_cost_vector.py's env: the first cost is paid for every rewarding action, the
     second never): one λ column per cost; the first rises, the second (estimate 0 < budget) stays 0."""
-    from test_cost_vector import run_cfg
     from conftest import metrics_rows
+    from test_cost_vector import run_cfg
 
     # A short discount (d_Q = 0.5 (1 - 0.5^4) / (4 x 0.5) = 0.23 for the first cost) and a fast critic:
     # Q_c of the first cost passes its budget within the run's 80 gradient steps.
-    cfg = run_cfg(algo={"name": "sac_lag", "episode_length": 4, "warmup_steps": 32, "batch_size": 16,
-                        "lambda_lr": 0.5, "utd_ratio": 0.5, "gamma": 0.5, "cost_gamma": 0.5, "critic_lr": 1e-2})
+    cfg = run_cfg(
+        algo={
+            "name": "sac_lag",
+            "episode_length": 4,
+            "warmup_steps": 32,
+            "batch_size": 16,
+            "lambda_lr": 0.5,
+            "utd_ratio": 0.5,
+            "gamma": 0.5,
+            "cost_gamma": 0.5,
+            "critic_lr": 1e-2,
+        }
+    )
     cfg["algo"].pop("update_epochs"), cfg["algo"].pop("num_minibatches")
     cfg["policy"] = {"hidden_sizes": [16]}
     train(load_config(cfg), tmp_path, echo=quiet)
@@ -286,14 +352,28 @@ def test_one_multiplier_per_constraint_on_the_cost_critics_k_outputs(tmp_path, q
 
 def test_the_pid_multiplier_acts_on_the_cost_critic():
     """algo.multiplier=pid: lambda = kp (Q_c - d_Q) + I, I += ki (Q_c - d_Q) (lagrange.PIDLagrangian)."""
-    algo, env = build({"name": "sac_lag", "warmup_steps": 0, "batch_size": 4, "critic_lr": 1e-12,
-                       "multiplier": "pid", "kp": 1.0, "ki": 0.1, "lambda_init": 0.3}, rollout_steps=2)
+    algo, env = build(
+        {
+            "name": "sac_lag",
+            "warmup_steps": 0,
+            "batch_size": 4,
+            "critic_lr": 1e-12,
+            "multiplier": "pid",
+            "kp": 1.0,
+            "ki": 0.1,
+            "lambda_init": 0.3,
+        },
+        rollout_steps=2,
+    )
     from cmdp_rl.collector import Collector
+
     collector = Collector(env, algo.agent, 2, seed=0)
     d_q = algo.lagrange.budgets[0]
     constant(algo.agent.critics[Q_COST].net, 5.0)
     integral = 0.3 + 0.1 * (5.0 - d_q)
-    assert algo.update(collector.collect())["lagrange_multiplier"] == pytest.approx(1.0 * (5.0 - d_q) + integral, abs=1e-4)
+    assert algo.update(collector.collect())["lagrange_multiplier"] == pytest.approx(
+        1.0 * (5.0 - d_q) + integral, abs=1e-4
+    )
     constant(algo.agent.critics[Q_COST].net, 0.0)
     integral -= 0.1 * d_q
     assert algo.update(collector.collect())["lagrange_multiplier"] == pytest.approx(max(0.0, integral - d_q), abs=1e-4)
@@ -311,7 +391,10 @@ def test_sacs_written_out_log_prob_is_the_tanh_normals():
         head.net[-1].bias.normal_(0.0, 1.0)
         x = torch.randn(2000, 2) * 3
         a, log_pi = algo.sample(x)
-        ref = head.dist(head(x)).log_prob(head.low + head.half_width * (a + 1)).unsqueeze(-1) + head.half_width.log().sum()
+        ref = (
+            head.dist(head(x)).log_prob(head.low + head.half_width * (a + 1)).unsqueeze(-1)
+            + head.half_width.log().sum()
+        )
     inside = a.abs().squeeze(-1) < 0.9
     assert inside.sum() > 200 and (~inside).sum() > 200  # both regimes sampled
     assert torch.allclose(log_pi[inside], ref[inside], atol=1e-3)

@@ -5,11 +5,11 @@ import math
 
 import pytest
 import torch
+from test_trpo_lag import RANDOM_RETURN
 
 from cmdp_rl.algos.pcpo import projected_step
 from cmdp_rl.config import compose_config
 from cmdp_rl.trainer import train
-from test_trpo_lag import RANDOM_RETURN
 
 H = torch.tensor([[2.0, 0.5], [0.5, 1.0]], dtype=torch.float64)
 G = torch.tensor([1.0, 0.0], dtype=torch.float64)
@@ -66,8 +66,17 @@ def test_projection_leaves_a_feasible_reward_step_alone(projection):
 
 def test_pcpo_learns_reach1d_then_returns_within_budget(tmp_path):
     """Reach1D with the passable wall, budget 0.5 (see test_trpo_lag: RANDOM_RETURN)."""
-    cfg = compose_config(["algo=pcpo", "env=reach1d_torch", "env.wall=pass", "algo.cost_limit=0.5",
-                          "total_steps=262144", "seed=0", "eval_episodes=2"])
+    cfg = compose_config(
+        [
+            "algo=pcpo",
+            "env=reach1d_torch",
+            "env.wall=pass",
+            "algo.cost_limit=0.5",
+            "total_steps=262144",
+            "seed=0",
+            "eval_episodes=2",
+        ]
+    )
     train(cfg, out_dir=tmp_path, echo=lambda s: None)
     with open(tmp_path / "metrics.csv") as f:
         rows = list(csv.DictReader(f))

@@ -15,7 +15,9 @@ from cmdp_rl.algos.ppo import PenaltyConfig, PPOLagConfig
 from cmdp_rl.config import RunConfig
 
 ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("penalty_vs_constraint", ROOT / "experiments" / "penalty_vs_constraint.py")
+spec = importlib.util.spec_from_file_location(
+    "penalty_vs_constraint", ROOT / "experiments" / "penalty_vs_constraint.py"
+)
 pvc = importlib.util.module_from_spec(spec)
 sys.modules[spec.name] = pvc  # dataclasses look their module up there
 spec.loader.exec_module(pvc)
@@ -44,7 +46,9 @@ def write_run(d: Path, overrides: list, algo, start, seed, eval_=None, costs=Non
             for i, c in enumerate(costs):
                 w.writerow([i + 1, 0.5, c, 0.7 + i])
     if eval_ is not None:
-        (d / "eval.json").write_text(json.dumps({"episode_return": eval_[0], "episode_cost": eval_[1], "episodes": 100}))
+        (d / "eval.json").write_text(
+            json.dumps({"episode_return": eval_[0], "episode_cost": eval_[1], "episodes": 100})
+        )
     if error is not None:
         (d / "error.txt").write_text(error + "\n\nTraceback ...")
 
@@ -110,10 +114,12 @@ def test_table_status_and_answers_from_a_fixture_sweep(sweep, capsys):
     assert "TrainingDiverged: loss_pi is nan" in printed
     assert "algo.cost_limit=0.5 env.start=[0.0,1.0] seed=1" in printed
     rerun = (out / "rerun.sh").read_text().splitlines()[2:]
-    assert sorted(rerun) == sorted([
-        f"python train.py -m algo=sweep/penalty algo.penalty=2.0 env.start=0.1 seed=1 +experiment=x hydra.sweep.dir={sweep / 'penalty' / 'rerun'}",
-        f"python train.py -m algo=sweep/ppo_lag algo.cost_limit=0.5 'env.start=[0.0,1.0]' seed=1 +experiment=x hydra.sweep.dir={sweep / 'constraint' / 'rerun'}",
-    ])
+    assert sorted(rerun) == sorted(
+        [
+            f"python train.py -m algo=sweep/penalty algo.penalty=2.0 env.start=0.1 seed=1 +experiment=x hydra.sweep.dir={sweep / 'penalty' / 'rerun'}",
+            f"python train.py -m algo=sweep/ppo_lag algo.cost_limit=0.5 'env.start=[0.0,1.0]' seed=1 +experiment=x hydra.sweep.dir={sweep / 'constraint' / 'rerun'}",
+        ]
+    )
 
     answers = (out / "answers.md").read_text()
     assert "lambda* = 1.3643" in answers and "a drop of 0.500 at λ = 1.3643" in answers

@@ -6,12 +6,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.population import train_population
 from cmdp_rl.population.spec import agent_configs
 from cmdp_rl.run.sweeps import find_runs
-from conftest import eval_result, metrics_rows, run_script, tiny
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
 # kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)
@@ -55,12 +55,15 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
     return out
 
 
-@pytest.mark.parametrize("algo, grid, agents", [
-    # ppo_lag: the budget and the start distribution per agent (a range draws, a fixed start does not).
-    ({"name": "ppo_lag"}, {"algo": {"cost_limit": [0.2, 0.5]}, "env": {"start": [[0.3, 0.48], 0.1]}}, [0, 3]),
-    ({"name": "penalty", "penalty": 1.0}, {"algo": {"penalty": [0.5, 2.0], "lr": [3e-4, 1e-3]}}, [3]),
-    ({"name": "pid_lag", "kp": 1.0, "ki": 0.2}, {"algo": {"kp": [0.5, 2.0]}, "env": {"obs_noise": [0.05]}}, [1]),
-])
+@pytest.mark.parametrize(
+    "algo, grid, agents",
+    [
+        # ppo_lag: the budget and the start distribution per agent (a range draws, a fixed start does not).
+        ({"name": "ppo_lag"}, {"algo": {"cost_limit": [0.2, 0.5]}, "env": {"start": [[0.3, 0.48], 0.1]}}, [0, 3]),
+        ({"name": "penalty", "penalty": 1.0}, {"algo": {"penalty": [0.5, 2.0], "lr": [3e-4, 1e-3]}}, [3]),
+        ({"name": "pid_lag", "kp": 1.0, "ki": 0.2}, {"algo": {"kp": [0.5, 2.0]}, "env": {"obs_noise": [0.05]}}, [1]),
+    ],
+)
 def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
     raw = torch_tiny(algo=algo, eval_deterministic=algo["name"] != "penalty")  # penalty: sampled evaluation
     raw["algo"] = {k: v for k, v in raw["algo"].items() if not (algo["name"] != "ppo_lag" and k == "lambda_lr")}
@@ -107,13 +110,18 @@ def test_population_resumes_after_a_kill(tmp_path):
         assert eval_result(a) == eval_result(b)
 
 
-@pytest.mark.parametrize("population, message", [
-    ({"grid": {"algo": {"cost_limit": [0.2, -1.0]}}},
-     "population.grid.algo.cost_limit: agent 1 (algo.cost_limit=-1.0,seed=0): algo.cost_limit must be"),
-    ({"grid": {"algo": {"gamma": [0.9, 0.99]}}}, "population.grid.algo.gamma must be one of the per-agent fields"),
-    ({"grid": {"algo": {"lr": 0.1}}}, "population.grid.algo.lr must be a non-empty list"),
-    ({"seeds": 0}, "population.seeds must be a positive integer"),
-])
+@pytest.mark.parametrize(
+    "population, message",
+    [
+        (
+            {"grid": {"algo": {"cost_limit": [0.2, -1.0]}}},
+            "population.grid.algo.cost_limit: agent 1 (algo.cost_limit=-1.0,seed=0): algo.cost_limit must be",
+        ),
+        ({"grid": {"algo": {"gamma": [0.9, 0.99]}}}, "population.grid.algo.gamma must be one of the per-agent fields"),
+        ({"grid": {"algo": {"lr": 0.1}}}, "population.grid.algo.lr must be a non-empty list"),
+        ({"seeds": 0}, "population.seeds must be a positive integer"),
+    ],
+)
 def test_bad_population_config_is_one_line(population, message):
     raw = torch_tiny()
     raw["population"] = population
@@ -122,13 +130,16 @@ def test_bad_population_config_is_one_line(population, message):
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
 
 
-@pytest.mark.parametrize("change, refused", [
-    ({"algo": {"name": "cpo"}}, "population: algo=cpo is not batched"),
-    ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
-    ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
-    ({"normalize": {"obs": True}}, "population: normalize is not batched"),
-    ({"algo": {"anneal_lr": True}}, "population: algo.anneal_lr / anneal_lambda_lr is not batched"),
-])
+@pytest.mark.parametrize(
+    "change, refused",
+    [
+        ({"algo": {"name": "cpo"}}, "population: algo=cpo is not batched"),
+        ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
+        ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
+        ({"normalize": {"obs": True}}, "population: normalize is not batched"),
+        ({"algo": {"anneal_lr": True}}, "population: algo.anneal_lr / anneal_lambda_lr is not batched"),
+    ],
+)
 def test_unsupported_population_is_refused(change, refused):
     raw = torch_tiny()
     for k, v in change.items():
@@ -150,22 +161,25 @@ def test_train_cli_refuses_in_one_line(tmp_path):
 def test_the_exercise_grid_as_populations():
     """experiments/penalty_vs_constraint.py --population: each algorithm of a sweep is one
     population whose agents are the sweep's jobs; cpo is left to run job by job."""
-    from cmdp_rl.config import CONFIG_DIR
-    from cmdp_rl.population.sweep import sweep_parts
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
+
+    from cmdp_rl.config import CONFIG_DIR
+    from cmdp_rl.population.sweep import sweep_parts
 
     parts = sweep_parts("constraint_sweep")
     assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", False)]
     assert len(parts[2].jobs("constraint_sweep")) == 30
     (penalty,) = sweep_parts("penalty_sweep")
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        raw = OmegaConf.to_container(compose("config", overrides=penalty.overrides(
-            "penalty_sweep", ["env.backend=torch"])), resolve=True)
+        raw = OmegaConf.to_container(
+            compose("config", overrides=penalty.overrides("penalty_sweep", ["env.backend=torch"])), resolve=True
+        )
     overrides, cfgs = agent_configs(raw)
     assert len(cfgs) == 42 and {c.algo.name for c in cfgs} == {"penalty"}
     assert sorted({(c.algo.penalty, str(c.env.start)) for c in cfgs}) == sorted(
-        (p, s) for p in (0.0, 0.5, 1.0, 1.25, 1.5, 2.0, 3.0) for s in ("0.1", "[0.0, 1.0]"))
+        (p, s) for p in (0.0, 0.5, 1.0, 1.25, 1.5, 2.0, 3.0) for s in ("0.1", "[0.0, 1.0]")
+    )
     assert [c.seed for c in cfgs[:3]] == [0, 1, 2] and cfgs[0].algo.update_epochs == 10
 
 

@@ -21,8 +21,14 @@ from cmdp_rl.checkpoint import save_checkpoint  # noqa: E402
 def test_probe_rate_counts_the_policys_probes(tmp_path, policy, probe_loc):
     """A policy whose probe dimension has mean +0.9 (std 0.06) probes on (almost) every step;
     with mean -0.9, on none."""
-    cfg = load_config({"policy": {"name": policy, "init_log_std": -3.0}, "seed": 0, "rollout_steps": 64,
-                       "env": {"backend": "torch", "num_envs": 16, "probe": True, "max_steps": 10}})
+    cfg = load_config(
+        {
+            "policy": {"name": policy, "init_log_std": -3.0},
+            "seed": 0,
+            "rollout_steps": 64,
+            "env": {"backend": "torch", "num_envs": 16, "probe": True, "max_steps": 10},
+        }
+    )
     ac = make_agent(cfg.policy, make_env(cfg.env))
     head = ac.actor.head  # the Gaussian head, whatever the body
     with torch.no_grad():
@@ -37,19 +43,36 @@ def test_probe_rate_counts_the_policys_probes(tmp_path, policy, probe_loc):
 
 
 # (policy, probe, seed) -> eval return, eval cost, probe rate, training steps/s
-RUNS = {("mlp", False, 0): (1.0, 1.2, None, 30000.0), ("mlp", False, 1): (0.8, 1.4, None, 20000.0),
-        ("lstm", True, 0): (1.5, 1.0, 0.2, 3000.0), ("lstm", True, 1): (1.3, 1.0, 0.4, 5000.0)}
+RUNS = {
+    ("mlp", False, 0): (1.0, 1.2, None, 30000.0),
+    ("mlp", False, 1): (0.8, 1.4, None, 20000.0),
+    ("lstm", True, 0): (1.5, 1.0, 0.2, 3000.0),
+    ("lstm", True, 1): (1.3, 1.0, 0.4, 5000.0),
+}
 
 
 def _fake_sweep(root: Path) -> None:
     for (policy, probe, seed), (ret, cost, rate, sps) in RUNS.items():
         d = root / f"{policy}_probe{probe}_s{seed}"
         d.mkdir(parents=True)
-        (d / "config.yaml").write_text(yaml.safe_dump({"policy": {"name": policy}, "env": {"probe": probe}, "seed": seed}))
-        (d / "eval.json").write_text(json.dumps({
-            "episode_return": ret, "episode_cost": cost, "goal_reached": 0.5, "episode_length": 10.0,
-            "cost_limit": 1.0, "steps": 8192}))
-        (d / "probe.json").write_text(json.dumps({"probe_rate": rate, "probe_rate_early": rate, "probe_rate_later": rate}))
+        (d / "config.yaml").write_text(
+            yaml.safe_dump({"policy": {"name": policy}, "env": {"probe": probe}, "seed": seed})
+        )
+        (d / "eval.json").write_text(
+            json.dumps(
+                {
+                    "episode_return": ret,
+                    "episode_cost": cost,
+                    "goal_reached": 0.5,
+                    "episode_length": 10.0,
+                    "cost_limit": 1.0,
+                    "steps": 8192,
+                }
+            )
+        )
+        (d / "probe.json").write_text(
+            json.dumps({"probe_rate": rate, "probe_rate_early": rate, "probe_rate_later": rate})
+        )
         with open(d / "metrics.csv", "w", newline="") as f:
             w = csv.DictWriter(f, ["step", "sps"])
             w.writeheader()

@@ -3,9 +3,10 @@
 import io
 import sys
 
+from conftest import tiny
+
 from cmdp_rl import load_config, train
 from cmdp_rl.run.progress import Progress
-from conftest import tiny
 
 
 class FakeTTY(io.StringIO):
@@ -53,7 +54,8 @@ def test_a_row_without_a_multiplier_prints_what_it_has():
     two = {**base, "episode_cost/a": 1.0, "episode_cost/b": 2.0}
     assert format_row(two).endswith("| cost 1.00/2.00")
     assert format_row({**two, "lagrange_multiplier/a": 0.1, "lagrange_multiplier/b": 0.2}).endswith(
-        "| cost 1.00/2.00 | lambda 0.100/0.200")
+        "| cost 1.00/2.00 | lambda 0.100/0.200"
+    )
     stream = FakeTTY()
     bar = Progress(64, 0, print, stream=stream)
     bar.update(one)

@@ -4,8 +4,13 @@ against brute-force value iteration on r - lambda * c."""
 import numpy as np
 import pytest
 
+from cmdp_rl.envs.reach1d.optimum import (
+    closed_form_threshold,
+    constrained_optimum,
+    crossing_thresholds,
+    penalized_crosses,
+)
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
-from cmdp_rl.envs.reach1d.optimum import closed_form_threshold, constrained_optimum, crossing_thresholds, penalized_crosses
 
 PASS = Reach1DConfig(wall="pass")
 
@@ -56,6 +61,7 @@ def test_expected_cost_is_a_step_function_of_the_penalty():
 # the best stop short of the wall is x = 0.499: 0.399. Crossing (wall=pass) and landing on the goal:
 # 0.8 + 1 = 1.8, for one crossing.
 
+
 def test_blocking_wall_optimum_is_stopping_just_short_of_the_wall():
     for d in (0.0, 1.0, 5.0):
         opt = constrained_optimum(Reach1DConfig(), d)
@@ -63,8 +69,9 @@ def test_blocking_wall_optimum_is_stopping_just_short_of_the_wall():
         assert opt.cost == 0.0
 
 
-@pytest.mark.parametrize("d, value", [(0.0, 0.399), (0.25, 0.75 * 0.399 + 0.25 * 1.8), (0.5, 1.0995), (1.0, 1.8),
-                                      (3.0, 1.8)])
+@pytest.mark.parametrize(
+    "d, value", [(0.0, 0.399), (0.25, 0.75 * 0.399 + 0.25 * 1.8), (0.5, 1.0995), (1.0, 1.8), (3.0, 1.8)]
+)
 def test_passable_wall_optimum_mixes_stopping_and_crossing(d, value):
     # The budget buys the crossing plan with probability min(d, 1): a randomised policy.
     opt = constrained_optimum(PASS, d)

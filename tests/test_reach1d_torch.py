@@ -8,11 +8,11 @@ float32 actions; every output and the true position must then be equal, across e
 import numpy as np
 import pytest
 import torch
+from conftest import ForwardPolicy
 from gymnasium.utils import seeding
 
 from cmdp_rl import Collector, ConfigError, keys, load_config, make_env, train
 from cmdp_rl.envs import GymVecEnv, Reach1D, TorchReach1D
-from conftest import ForwardPolicy
 
 
 class GymDraws:
@@ -138,7 +138,9 @@ def test_make_env_and_collector_on_the_batched_env():
     env = make_env(cfg.env)
     assert isinstance(env, TorchReach1D) and env.num_envs == 16
 
-    b = Collector(env, ForwardPolicy(lambda obs: torch.full((obs.shape[0], 1), 0.1)), rollout_steps=25, seed=0).collect()
+    b = Collector(
+        env, ForwardPolicy(lambda obs: torch.full((obs.shape[0], 1), 0.1)), rollout_steps=25, seed=0
+    ).collect()
     assert b.batch_size == torch.Size([16, 25])
     done = b[keys.NEXT][keys.DONE][:, :, 0]
     assert done[:, 9].all() and done[:, 19].all() and done.sum().item() == 32
@@ -148,10 +150,15 @@ def test_make_env_and_collector_on_the_batched_env():
 
 
 def test_train_runs_on_the_batched_env(tmp_path):
-    cfg = load_config({
-        "env": {"backend": "torch", "num_envs": 64}, "total_steps": 64 * 32 * 2, "rollout_steps": 32,
-        "eval_episodes": 4, "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 4},
-    })
+    cfg = load_config(
+        {
+            "env": {"backend": "torch", "num_envs": 64},
+            "total_steps": 64 * 32 * 2,
+            "rollout_steps": 32,
+            "eval_episodes": 4,
+            "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 4},
+        }
+    )
     result = train(cfg, tmp_path, echo=lambda s: None)
     assert result["episodes"] == 4 and result["steps"] == 4096
     assert (tmp_path / "metrics.csv").read_text().count("\n") == 3  # header + 2 iterations

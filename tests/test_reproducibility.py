@@ -5,11 +5,11 @@ import subprocess
 
 import torch
 import yaml
+from conftest import ROOT, eval_result, metrics_rows, tiny
 
 import cmdp_rl
 from cmdp_rl import load_config, train
 from cmdp_rl.checkpoint import load_checkpoint
-from conftest import ROOT, eval_result, metrics_rows, tiny
 
 
 def test_same_config_and_seed_give_identical_metrics(tmp_path, quiet):

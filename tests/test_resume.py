@@ -11,13 +11,13 @@ from typing import Callable
 
 import pytest
 import torch
+from conftest import ROOT, cli_args, eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.config import ConfigError
 from cmdp_rl.report.metrics import MetricsLogger
 from cmdp_rl.run.resume import resume_config
-from conftest import ROOT, cli_args, eval_result, metrics_rows, run_script, tiny
 
 
 class Crash(Exception):
@@ -36,8 +36,9 @@ def crash_after_row(monkeypatch, iteration: int) -> None:
     monkeypatch.setattr(MetricsLogger, "log", log)
 
 
-def crash_then_resume(cfg: dict, tmp_path: Path, monkeypatch, quiet, crash_after: int = 5,
-                      checked: Callable[[Path], None] | None = None) -> tuple[Path, Path]:
+def crash_then_resume(
+    cfg: dict, tmp_path: Path, monkeypatch, quiet, crash_after: int = 5, checked: Callable[[Path], None] | None = None
+) -> tuple[Path, Path]:
     """Train ``cfg`` whole, then again dying after row ``crash_after`` and resumed from its last
     checkpoint (``checked(broken)`` runs between the crash and the resume); both run dirs."""
     whole, broken = tmp_path / "whole", tmp_path / "broken"
@@ -78,6 +79,7 @@ def test_crash_between_checkpoints_then_resume_equals_uninterrupted(tmp_path, mo
         for k in ("update_epochs", "num_minibatches"):
             cfg["algo"].pop(k)
         cfg["algo"].update(critic_epochs=2, critic_minibatches=2)
+
     def crashed_past_the_last_checkpoint(broken: Path) -> None:  # checkpoints at 2 and 4, then row 5
         assert len(metrics_rows(broken)) == 5 and load_checkpoint(broken / "checkpoint.pt")["iteration"] == 4
 
@@ -102,8 +104,12 @@ def test_sigkill_at_a_random_point_then_resume_loses_nothing(tmp_path, quiet):
 
     rng = random.Random()
     rows_before_kill, extra_sleep = rng.randint(1, 11), rng.uniform(0.0, 0.2)
-    proc = subprocess.Popen([sys.executable, str(ROOT / "train.py"), *cli_args(cfg), f"hydra.run.dir={killed}"],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "train.py"), *cli_args(cfg), f"hydra.run.dir={killed}"],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:
         if (killed / "checkpoint.pt").exists() and (killed / "metrics.csv").exists():
@@ -227,10 +233,15 @@ def test_an_env_that_cannot_save_its_state_trains_but_refuses_to_resume(tmp_path
 def test_mujoco_run_with_normalization_resumes_exactly(tmp_path, monkeypatch, quiet):
     """A MuJoCo env (its whole MjData saved) and running normalization statistics come back too."""
     pytest.importorskip("mujoco")
-    cfg = {"env": {"name": "velocity", "task": "Hopper", "num_envs": 2, "max_steps": 24},
-           "algo": {"name": "ppo_lag", "update_epochs": 1, "num_minibatches": 2, "cost_limit": 1.0},
-           "normalize": {"obs": True, "reward": True, "cost": True},
-           "rollout_steps": 16, "total_steps": 6 * 32, "checkpoint_every": 2, "eval_episodes": 2}
+    cfg = {
+        "env": {"name": "velocity", "task": "Hopper", "num_envs": 2, "max_steps": 24},
+        "algo": {"name": "ppo_lag", "update_epochs": 1, "num_minibatches": 2, "cost_limit": 1.0},
+        "normalize": {"obs": True, "reward": True, "cost": True},
+        "rollout_steps": 16,
+        "total_steps": 6 * 32,
+        "checkpoint_every": 2,
+        "eval_episodes": 2,
+    }
     whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
     assert_same_run(whole, broken)
     stats = final_state(broken)["networks"]

@@ -15,12 +15,13 @@ import torch
 if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
     pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
 
+from conftest import ROOT, eval_result, metrics_rows  # noqa: E402
+
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
 from cmdp_rl.envs.safe_nav.world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
 from cmdp_rl.envs.safety_gym.env import make_task  # noqa: E402
-from conftest import ROOT, eval_result, metrics_rows  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "experiments"))
 from safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the steering the fidelity table uses)
@@ -37,7 +38,9 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int
         model = r.inner.task.model
         np.testing.assert_array_equal(env.worlds.models[i].body_pos, model.body_pos)
         np.testing.assert_array_equal(env.worlds.models[i].body_quat, model.body_quat)
-    np.testing.assert_allclose(env._obs(list(range(num_envs)), env._gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        env._obs(list(range(num_envs)), env._gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12
+    )
     rng = np.random.default_rng(0)
     seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0, "reward": 0.0, "cost_kinds": set()}
     for t in range(steps):
@@ -55,7 +58,9 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int
         seen["cost"] += cost.sum()
         seen["reward"] += float(np.sum(env.last["reward"]))
         seen["goals"] += sum(o[4].get("goal_met", False) for o in out)
-        seen["cost_kinds"] |= {k for o in out for k, v in o[4].items() if k.startswith("cost_") and k != "cost_sum" and v}
+        seen["cost_kinds"] |= {
+            k for o in out for k, v in o[4].items() if k.startswith("cost_") and k != "cost_sum" and v
+        }
         for r, o in zip(refs, out):
             if o[2] or o[3]:
                 seen["truncated"] += 1
@@ -104,11 +109,16 @@ def test_an_imposed_layout_gives_the_reference_trajectory():
     ref.reset(seed=123)
     task = ref.inner.task
     config, layout = task.world_info.world_config_dict, task.world_info.layout
-    imposed = {"agent": layout["agent"], "agent_rot": config["agent_rot"], "goal": layout["goal"],
-               "goal_rot": config["geoms"]["goal"]["rot"],
-               "hazards": np.array([layout[f"hazard{k}"] for k in range(8)]),
-               "hazards_rot": [config["geoms"][f"hazard{k}"]["rot"] for k in range(8)],
-               "vases": np.array([layout["vase0"]]), "vases_rot": [config["free_geoms"]["vase0"]["rot"]]}
+    imposed = {
+        "agent": layout["agent"],
+        "agent_rot": config["agent_rot"],
+        "goal": layout["goal"],
+        "goal_rot": config["geoms"]["goal"]["rot"],
+        "hazards": np.array([layout[f"hazard{k}"] for k in range(8)]),
+        "hazards_rot": [config["geoms"][f"hazard{k}"]["rot"] for k in range(8)],
+        "vases": np.array([layout["vase0"]]),
+        "vases_rot": [config["free_geoms"]["vase0"]["rot"]],
+    }
     env = SafeNavVecEnv("PointGoal1", 1)
     env.reset(seed=0)
     env.start_from(0, imposed)
@@ -125,11 +135,14 @@ def test_layouts_keep_their_distances(task):
     env.reset(seed=5)
     extent = env.spec.extent
     for i, layout in enumerate(env.layouts):
-        objects = ([(layout["agent"], AGENT_KEEPOUT), (env.goal[i], GOAL_KEEPOUT)]
-                   + [(xy, HAZARD_KEEPOUT) for xy in layout["hazards"]] + [(xy, VASE_KEEPOUT) for xy in layout["vases"]])
+        objects = (
+            [(layout["agent"], AGENT_KEEPOUT), (env.goal[i], GOAL_KEEPOUT)]
+            + [(xy, HAZARD_KEEPOUT) for xy in layout["hazards"]]
+            + [(xy, VASE_KEEPOUT) for xy in layout["vases"]]
+        )
         for a, (xy, keepout) in enumerate(objects):
             assert np.all(np.abs(xy) <= extent - keepout)
-            for other, other_keepout in objects[a + 1:]:
+            for other, other_keepout in objects[a + 1 :]:
                 assert np.hypot(*(xy - other)) >= keepout + other_keepout
     # 64 different layouts, drawn again identically from the same seed
     again = SafeNavVecEnv(task, 64)
@@ -151,8 +164,15 @@ def test_tasks_not_implemented_are_refused_in_one_line():
 
 def test_ppo_lag_trains_and_a_resumed_run_equals_an_uninterrupted_one(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    base = ["env=safe_nav", "env.num_envs=2", "env.max_steps=40", "rollout_steps=32", "eval_episodes=1",
-            "algo=ppo_lag", "checkpoint_every=1"]
+    base = [
+        "env=safe_nav",
+        "env.num_envs=2",
+        "env.max_steps=40",
+        "rollout_steps=32",
+        "eval_episodes=1",
+        "algo=ppo_lag",
+        "checkpoint_every=1",
+    ]
     whole = train(compose_config([*base, "total_steps=128"]), tmp_path / "whole", echo=lambda _: None)
     assert whole["cost_limit"] == 25.0 and whole["episode_length"] == 40.0
     train(compose_config([*base, "total_steps=64"]), tmp_path / "part", echo=lambda _: None)
@@ -160,7 +180,6 @@ def test_ppo_lag_trains_and_a_resumed_run_equals_an_uninterrupted_one(tmp_path, 
     assert metrics_rows(tmp_path / "part") == metrics_rows(tmp_path / "whole")
     assert len(metrics_rows(tmp_path / "whole")) == 2
     assert eval_result(tmp_path / "part") == eval_result(tmp_path / "whole")
-
 
 
 @pytest.mark.parametrize("task", ["PointGoal1", "PointCircle2", "CarButton2", "PointPush2"])

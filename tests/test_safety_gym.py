@@ -20,19 +20,26 @@ import torch
 if importlib.util.find_spec("safety_gymnasium") is None:
     pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
 
+from conftest import ROOT, ForwardPolicy, eval_result, metrics_rows  # noqa: E402
+
 from cmdp_rl import Collector, finished_episodes, keys, make_env, train  # noqa: E402
 from cmdp_rl.checkpoint import load_checkpoint  # noqa: E402
 from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
-from cmdp_rl.envs.safety_gym.env import SafetyGymEnvConfig, make_task  # noqa: E402
 from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium  # noqa: E402
+from cmdp_rl.envs.safety_gym.env import SafetyGymEnvConfig, make_task  # noqa: E402
 from cmdp_rl.envs.safety_gym.tasks import TASKS, task_problem  # noqa: E402
 from cmdp_rl.run.resume import resume_config  # noqa: E402
-from conftest import ROOT, ForwardPolicy, eval_result, metrics_rows  # noqa: E402
 
 FULL = bool(os.environ.get("SAFETY_GYM_ALL_TASKS"))
 # Every robot (Point: the training run below), family, level; every velocity task.
-SAMPLE = ["SafetyCarButton1-v0", "SafetyRacecarPush0-v0", "SafetyDoggoCircle1-v0", "SafetyAntGoal2-v0",
-          "SafetyPointRun0-v0", *[t for t in TASKS if "Velocity" in t]]
+SAMPLE = [
+    "SafetyCarButton1-v0",
+    "SafetyRacecarPush0-v0",
+    "SafetyDoggoCircle1-v0",
+    "SafetyAntGoal2-v0",
+    "SafetyPointRun0-v0",
+    *[t for t in TASKS if "Velocity" in t],
+]
 CHECKED = sorted(TASKS) if FULL else SAMPLE
 
 
@@ -165,7 +172,9 @@ def test_config_defaults_and_checks():
 
 def test_missing_package_is_a_one_line_config_error(monkeypatch):
     real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "safety_gymnasium" else real(name, *a))
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "safety_gymnasium" else real(name, *a)
+    )
     with pytest.raises(ConfigError, match="make setup-safety-gym"):
         compose_config(["env=safety_gym"])
 
@@ -173,16 +182,27 @@ def test_missing_package_is_a_one_line_config_error(monkeypatch):
 def test_unsupported_task_is_refused_in_one_line():
     with pytest.raises(ConfigError) as refused:
         compose_config(["env=safety_gym", "env.task=SafetyPointGoal1Vision-v0"])
-    assert str(refused.value) == ("env.task must be an offered Safety-Gymnasium task, got 'SafetyPointGoal1Vision-v0': "
-                                  "it observes camera images (our policies take flat vectors); use SafetyPointGoal1-v0")
+    assert str(refused.value) == (
+        "env.task must be an offered Safety-Gymnasium task, got 'SafetyPointGoal1Vision-v0': "
+        "it observes camera images (our policies take flat vectors); use SafetyPointGoal1-v0"
+    )
 
 
 # One short ppo_lag run on SafetyPointGoal1-v0: 2 iterations of 64 steps on one env, whose first
 # episode spans the checkpoint after iteration 1 (so a resume restores a world mid-episode). Episodes
 # of 150 steps: none ends in the contract check's 100 steps or in training, each end costing a reset
 # (a world rebuild).
-RUN = ["env=safety_gym", "env.task=SafetyPointGoal1-v0", "algo=ppo_lag", "env.num_envs=1", "env.max_steps=150",
-       "rollout_steps=64", "total_steps=128", "checkpoint_every=1", "eval_episodes=1"]
+RUN = [
+    "env=safety_gym",
+    "env.task=SafetyPointGoal1-v0",
+    "algo=ppo_lag",
+    "env.num_envs=1",
+    "env.max_steps=150",
+    "rollout_steps=64",
+    "total_steps=128",
+    "checkpoint_every=1",
+    "eval_episodes=1",
+]
 
 
 def _evaluate_cli():
@@ -201,7 +221,9 @@ def run(tmp_path_factory):
 
 def test_a_short_ppo_lag_run_writes_its_outputs(run):
     out, result = run
-    assert {"config.yaml", "metrics.csv", "eval.json", "checkpoint.pt", "run_info.json"} <= {p.name for p in out.iterdir()}
+    assert {"config.yaml", "metrics.csv", "eval.json", "checkpoint.pt", "run_info.json"} <= {
+        p.name for p in out.iterdir()
+    }
     assert [row["iteration"] for row in metrics_rows(out)] == ["1", "2"]
     assert result["cost_limit"] == 25.0 and result["episodes"] == 1 and result["episode_length"] == 150.0
     assert 0.0 <= result["episode_cost"] <= 150.0 and eval_result(out)["episode_length"] == 150.0
@@ -252,8 +274,10 @@ def test_video_of_a_navigation_run_renders_headless(run, tmp_path):
     if problem:
         pytest.skip(f"no headless OpenGL (MUJOCO_GL={os.environ.get('MUJOCO_GL')}): {problem}")
     out, _ = run
-    assert _evaluate_cli().main([f"run={out}", "video=true", "video_steps=8", "episodes=1",
-                                 f"video_dir={tmp_path / 'v'}"]) == 0
+    assert (
+        _evaluate_cli().main([f"run={out}", "video=true", "video_steps=8", "episodes=1", f"video_dir={tmp_path / 'v'}"])
+        == 0
+    )
     from moviepy import VideoFileClip
 
     video = tmp_path / "v" / "policy-episode-0.mp4"

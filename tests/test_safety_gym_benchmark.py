@@ -15,27 +15,46 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import safety_gym_benchmark  # noqa: E402
 
 # task, algo, seed -> final eval return, eval cost, training cost rate
-RUNS = {("SafetyPointGoal1-v0", "ppo", 0): (20.0, 60.0, 0.06), ("SafetyPointGoal1-v0", "ppo", 1): (10.0, 40.0, 0.04),
-        ("SafetyPointGoal1-v0", "cpo", 0): (9.0, 20.0, 0.02),
-        ("SafetyCarGoal1-v0", "ppo", 0): (30.0, 80.0, 0.08), ("SafetyCarGoal1-v0", "pid_lag", 0): (6.0, 30.0, 0.03)}
+RUNS = {
+    ("SafetyPointGoal1-v0", "ppo", 0): (20.0, 60.0, 0.06),
+    ("SafetyPointGoal1-v0", "ppo", 1): (10.0, 40.0, 0.04),
+    ("SafetyPointGoal1-v0", "cpo", 0): (9.0, 20.0, 0.02),
+    ("SafetyCarGoal1-v0", "ppo", 0): (30.0, 80.0, 0.08),
+    ("SafetyCarGoal1-v0", "pid_lag", 0): (6.0, 30.0, 0.03),
+}
 
 
 def _fake_sweep(root: Path, safe_nav: bool = False) -> None:
     for (task, algo, seed), (ret, cost, rate) in RUNS.items():
         d = root / f"{task}_{algo}_s{seed}"
         d.mkdir(parents=True)
-        env = ({"name": "safe_nav", "task": task.removeprefix("Safety").removesuffix("-v0")} if safe_nav
-               else {"name": "safety_gym", "task": task})
-        (d / "config.yaml").write_text(yaml.safe_dump({"algo": {"name": algo}, "seed": seed,
-                                                       "env": {**env, "num_envs": 8}}))
-        (d / "eval.json").write_text(json.dumps({"episode_return": ret, "episode_cost": cost, "cost_rate": rate,
-                                                 "cost_limit": 25.0, "steps": 8000, "train_time_s": 60.0}))
+        env = (
+            {"name": "safe_nav", "task": task.removeprefix("Safety").removesuffix("-v0")}
+            if safe_nav
+            else {"name": "safety_gym", "task": task}
+        )
+        (d / "config.yaml").write_text(
+            yaml.safe_dump({"algo": {"name": algo}, "seed": seed, "env": {**env, "num_envs": 8}})
+        )
+        (d / "eval.json").write_text(
+            json.dumps(
+                {
+                    "episode_return": ret,
+                    "episode_cost": cost,
+                    "cost_rate": rate,
+                    "cost_limit": 25.0,
+                    "steps": 8000,
+                    "train_time_s": 60.0,
+                }
+            )
+        )
         with open(d / "metrics.csv", "w", newline="") as f:
             w = csv.DictWriter(f, ["step", "episode_return", "episode_cost", "cost_rate"])
             w.writeheader()
             for i in (1, 2):
-                w.writerow({"step": 4000 * i, "episode_return": ret * i / 2, "episode_cost": cost * i / 2,
-                            "cost_rate": rate})
+                w.writerow(
+                    {"step": 4000 * i, "episode_return": ret * i / 2, "episode_cost": cost * i / 2, "cost_rate": rate}
+                )
 
 
 def test_report_is_per_task_with_omnisafes_numbers_beside(tmp_path):
@@ -64,7 +83,11 @@ def test_a_sweep_on_safe_nav_reports_under_the_package_task_names(tmp_path):
 def test_the_experiment_config_is_the_benchmark():
     cfg = compose_config(["+experiment=safety_gym_benchmark"])
     assert cfg.env.name == "safety_gym" and cfg.total_steps == 500_000 and cfg.algo.cost_limit == 25.0
-    sweep = yaml.safe_load((Path(__file__).resolve().parents[1] / "configs/experiment/safety_gym_benchmark.yaml")
-                           .read_text())["hydra"]["sweeper"]["params"]
-    assert sweep == {"env.task": "SafetyPointGoal1-v0,SafetyCarGoal1-v0", "algo": "ppo,ppo_lag,pid_lag,cpo",
-                     "seed": "0,1,2"}
+    sweep = yaml.safe_load(
+        (Path(__file__).resolve().parents[1] / "configs/experiment/safety_gym_benchmark.yaml").read_text()
+    )["hydra"]["sweeper"]["params"]
+    assert sweep == {
+        "env.task": "SafetyPointGoal1-v0,SafetyCarGoal1-v0",
+        "algo": "ppo,ppo_lag,pid_lag,cpo",
+        "seed": "0,1,2",
+    }

@@ -5,11 +5,11 @@ import json
 
 import pytest
 import torch
+from conftest import ForwardPolicy
 
 from cmdp_rl import Collector, ConfigError, keys, load_config, train
 from cmdp_rl.envs import GymVecEnv, Reach1D
 from cmdp_rl.report.safety_metrics import EPSILON, Reference, normalized_scores
-from conftest import ForwardPolicy
 
 
 def test_normalized_scores_follow_safety_gym():
@@ -25,7 +25,8 @@ def test_normalized_scores_follow_safety_gym():
     assert normalized_scores(1.0, 26.0, 0.0, 25.0, within)["normalized_violation"] == pytest.approx(1.0 / EPSILON)
     # unknown reference numbers leave their metric blank
     assert normalized_scores(1.0, 1.0, 0.1, 25.0, None) == dict.fromkeys(
-        ["normalized_return", "normalized_violation", "normalized_cost_rate"])
+        ["normalized_return", "normalized_violation", "normalized_cost_rate"]
+    )
     partial = normalized_scores(1.0, 1.0, 0.1, 25.0, Reference(episode_return=2.0))
     assert partial == {"normalized_return": 0.5, "normalized_violation": None, "normalized_cost_rate": None}
 
@@ -39,8 +40,13 @@ def test_collector_counts_every_cost_it_collects():
     assert col.total_cost == sum(sums) == 3 * 3 * 2 * 4 and col.total_steps == 126
 
 
-SHORT = {"env": {"num_envs": 2}, "rollout_steps": 32, "total_steps": 128, "eval_episodes": 2,
-         "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2}}
+SHORT = {
+    "env": {"num_envs": 2},
+    "rollout_steps": 32,
+    "total_steps": 128,
+    "eval_episodes": 2,
+    "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2},
+}
 
 
 def _rows(path):
@@ -67,18 +73,35 @@ def test_a_reference_run_normalizes_the_metrics(tmp_path):
     ref_dir, run_dir = tmp_path / "ppo", tmp_path / "lag"
     ref = train(load_config(SHORT), ref_dir, echo=lambda _: None)
     messages = []
-    cfg = load_config({**SHORT, "algo": {**SHORT["algo"], "name": "ppo_lag", "cost_limit": 0.5},
-                       "seed": 1, "reference": {"run": str(ref_dir)}})
+    cfg = load_config(
+        {
+            **SHORT,
+            "algo": {**SHORT["algo"], "name": "ppo_lag", "cost_limit": 0.5},
+            "seed": 1,
+            "reference": {"run": str(ref_dir)},
+        }
+    )
     ev = train(cfg, run_dir, echo=messages.append)
     assert not [m for m in messages if m.startswith("warning")]
-    assert ev["reference"] == {"episode_return": ref["episode_return"], "episode_cost": ref["episode_cost"],
-                               "cost_rate": ref["cost_rate"], "source": str(ref_dir)}
-    expected = normalized_scores(ev["episode_return"], ev["episode_cost"], ev["cost_rate"], 0.5, Reference(
-        ref["episode_return"], ref["episode_cost"], ref["cost_rate"]))
+    assert ev["reference"] == {
+        "episode_return": ref["episode_return"],
+        "episode_cost": ref["episode_cost"],
+        "cost_rate": ref["cost_rate"],
+        "source": str(ref_dir),
+    }
+    expected = normalized_scores(
+        ev["episode_return"],
+        ev["episode_cost"],
+        ev["cost_rate"],
+        0.5,
+        Reference(ref["episode_return"], ref["episode_cost"], ref["cost_rate"]),
+    )
     assert {k: ev[k] for k in expected} == expected
     for row in _rows(run_dir):
         if row["episode_return"] != "nan":
-            assert float(row["normalized_return"]) == pytest.approx(float(row["episode_return"]) / ref["episode_return"])
+            assert float(row["normalized_return"]) == pytest.approx(
+                float(row["episode_return"]) / ref["episode_return"]
+            )
         assert float(row["normalized_cost_rate"]) == pytest.approx(float(row["cost_rate"]) / ref["cost_rate"])
 
 
@@ -86,8 +109,11 @@ def test_reference_numbers_and_warnings(tmp_path):
     ref_dir = tmp_path / "ref"
     train(load_config({**SHORT, "algo": {**SHORT["algo"], "name": "ppo_lag"}}), ref_dir, echo=lambda _: None)
     messages = []
-    train(load_config({**SHORT, "total_steps": 64, "reference": {"run": str(ref_dir)}}), tmp_path / "run",
-          echo=messages.append)
+    train(
+        load_config({**SHORT, "total_steps": 64, "reference": {"run": str(ref_dir)}}),
+        tmp_path / "run",
+        echo=messages.append,
+    )
     warnings = [m for m in messages if m.startswith("warning")]
     assert len(warnings) == 2 and "algo=ppo_lag" in warnings[0] and "128 steps" in warnings[1]
     ev = train(load_config({**SHORT, "reference": {"episode_return": 2.0}}), tmp_path / "numbers", echo=lambda _: None)

@@ -33,8 +33,14 @@ class Scripted(VecEnv):
         self.t += 1
         truncated = torch.tensor([[self.t == self.end_after], [False]])
         obs = torch.full((2, 1), float(self.t))
-        return Step(next_obs=obs, reward=torch.ones(2, 1), cost=cost, terminated=torch.zeros(2, 1, dtype=torch.bool),
-                    truncated=truncated, obs=obs)
+        return Step(
+            next_obs=obs,
+            reward=torch.ones(2, 1),
+            cost=cost,
+            terminated=torch.zeros(2, 1, dtype=torch.bool),
+            truncated=truncated,
+            obs=obs,
+        )
 
     def state_dict(self):
         return {"t": self.t}
@@ -104,8 +110,18 @@ def test_saute_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5: any crossing (cost 1) spends the budget, so the almost
     surely safe policy walks up to the wall and stops short of it. Measured on seed 0: the first
     iteration's return is 0.02; the final policy's eval return 0.30 at cost 0 (every episode)."""
-    cfg = compose_config(["env=reach1d_torch", "env.wall=pass", "env.num_envs=256", "algo=saute",
-                          "algo.cost_limit=0.5", "total_steps=327680", "log_interval=1", "seed=0"])
+    cfg = compose_config(
+        [
+            "env=reach1d_torch",
+            "env.wall=pass",
+            "env.num_envs=256",
+            "algo=saute",
+            "algo.cost_limit=0.5",
+            "total_steps=327680",
+            "log_interval=1",
+            "seed=0",
+        ]
+    )
     result = train(cfg, tmp_path, echo=lambda s: None)
     assert result["episode_cost"] <= 0.5, result["episode_cost"]
     assert result["episode_return"] >= 0.2, result["episode_return"]  # the initial policy's: 0.02

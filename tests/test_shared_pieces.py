@@ -14,8 +14,12 @@ def batch(done, cost, length):
     """A [N, T] batch whose ("next", ...) entries are the given per-step lists of lists."""
     t = lambda x, dt: torch.tensor(x, dtype=dt).unsqueeze(-1)  # noqa: E731
     n, T = len(done), len(done[0])
-    nxt = {keys.DONE: t(done, torch.bool), keys.EPISODE_COST: t(cost, torch.float32),
-           keys.EPISODE_LENGTH: t(length, torch.int64), keys.EPISODE_RETURN: t(cost, torch.float32)}
+    nxt = {
+        keys.DONE: t(done, torch.bool),
+        keys.EPISODE_COST: t(cost, torch.float32),
+        keys.EPISODE_LENGTH: t(length, torch.int64),
+        keys.EPISODE_RETURN: t(cost, torch.float32),
+    }
     return TensorDict({keys.NEXT: TensorDict(nxt, batch_size=[n, T])}, batch_size=[n, T])
 
 
@@ -32,7 +36,11 @@ def test_j_c_from_this_batch_then_the_window_then_running_cost():
     # The window survives a checkpoint.
     again = EpisodeCostEstimate(window=2)
     again.load_state_dict(est.state_dict())
-    assert again.update(batch([[0], [0]], [[0], [0]], [[1], [1]])) == (pytest.approx((2.0,)), pytest.approx(25.0), WINDOW)
+    assert again.update(batch([[0], [0]], [[0], [0]], [[1], [1]])) == (
+        pytest.approx((2.0,)),
+        pytest.approx(25.0),
+        WINDOW,
+    )
 
 
 def test_minibatches_cover_every_unit_once_per_epoch_and_repeat_with_the_seed():

@@ -7,8 +7,14 @@ from cmdp_rl.report.summary import Constraint, constraint_line, summary_lines
 
 
 def result(ret=0.38, cost=0.0, goal=0.0):
-    return {"episodes": 20, "episode_return": ret, "episode_return_std": 0.01, "episode_cost": cost,
-            "episode_cost_std": 0.05, "goal_reached": goal}
+    return {
+        "episodes": 20,
+        "episode_return": ret,
+        "episode_return_std": 0.01,
+        "episode_cost": cost,
+        "episode_cost_std": 0.05,
+        "goal_reached": goal,
+    }
 
 
 class Solvable:
@@ -39,7 +45,9 @@ def test_no_solver_no_optimum_and_a_goal_fraction():
 
 
 def test_over_budget_verdict():
-    assert constraint_line(Constraint("cost", 1.5, 0.5, 1.0)) == "cost 1.50 ± 0.50 against budget 1: over budget by 0.50"
+    assert (
+        constraint_line(Constraint("cost", 1.5, 0.5, 1.0)) == "cost 1.50 ± 0.50 against budget 1: over budget by 0.50"
+    )
     assert constraint_line(Constraint("cost", 1.0, 0.0, 1.0)).endswith(": within budget")  # d is allowed
     lines = summary_lines(result(cost=2.25), Solvable(), 1.0, header="done")
     assert lines[2] == "  cost 2.25 ± 0.05 against budget 1: over budget by 1.25"
@@ -53,8 +61,7 @@ def test_reach1d_blocking_wall_says_out_of_reach_not_zero_percent():
     assert "goal reached" not in text and "0%" not in text.replace("4.8%", "")
 
 
-@pytest.mark.parametrize("env", [Reach1DConfig(wall="pass"), Reach1DConfig(start=[0.0, 1.0]),
-                                 Reach1DConfig(goal=0.51)])
+@pytest.mark.parametrize("env", [Reach1DConfig(wall="pass"), Reach1DConfig(start=[0.0, 1.0]), Reach1DConfig(goal=0.51)])
 def test_reach1d_goal_fraction_where_the_goal_can_be_reached(env):
     # passable wall; starts on the goal's side; a goal within its tolerance of the wall
     lines = summary_lines(result(goal=0.6), env, 1.0, header="done", optimum=1.0)

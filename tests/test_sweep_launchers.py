@@ -13,8 +13,16 @@ import yaml
 from cmdp_rl.run.sweeps import FAILED, OK, find_runs, missing_jobs
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = ["env.start=0.1", "seed=0", "total_steps=256", "rollout_steps=32", "env.num_envs=4",
-        "eval_episodes=4", "algo.update_epochs=1", "algo.num_minibatches=2"]
+TINY = [
+    "env.start=0.1",
+    "seed=0",
+    "total_steps=256",
+    "rollout_steps=32",
+    "env.num_envs=4",
+    "eval_episodes=4",
+    "algo.update_epochs=1",
+    "algo.num_minibatches=2",
+]
 
 
 def multirun(tmp_path, *args):
@@ -43,8 +51,13 @@ def test_two_job_multirun_through_a_launcher(tmp_path, launcher):
 
 
 def test_a_failing_job_does_not_lose_the_others_results(tmp_path):
-    proc = multirun(tmp_path, "+experiment=constraint_sweep", "hydra/launcher=joblib", "algo=sweep/ppo_lag",
-                    "algo.cost_limit=-1,0.5")
+    proc = multirun(
+        tmp_path,
+        "+experiment=constraint_sweep",
+        "hydra/launcher=joblib",
+        "algo=sweep/ppo_lag",
+        "algo.cost_limit=-1,0.5",
+    )
     assert proc.returncode != 0  # Hydra raises once every job has finished
     assert "algo.cost_limit must be a number >= 0" in proc.stderr
     runs = {r.get("algo.cost_limit"): r for r in find_runs(tmp_path)}
@@ -54,9 +67,19 @@ def test_a_failing_job_does_not_lose_the_others_results(tmp_path):
 
 
 def test_slurm_launcher_config_composes_with_the_sweeps():
-    cmd = [sys.executable, str(ROOT / "train.py"), "+experiment=constraint_sweep", "hydra/launcher=submitit_slurm",
-           "hydra.launcher.partition=cpu", "hydra.launcher.timeout_min=30", "hydra.launcher.cpus_per_task=1",
-           "--cfg", "hydra", "--package", "hydra.launcher"]
+    cmd = [
+        sys.executable,
+        str(ROOT / "train.py"),
+        "+experiment=constraint_sweep",
+        "hydra/launcher=submitit_slurm",
+        "hydra.launcher.partition=cpu",
+        "hydra.launcher.timeout_min=30",
+        "hydra.launcher.cpus_per_task=1",
+        "--cfg",
+        "hydra",
+        "--package",
+        "hydra.launcher",
+    ]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
     launcher = yaml.safe_load(proc.stdout)  # the hydra.launcher node alone
@@ -66,7 +89,12 @@ def test_slurm_launcher_config_composes_with_the_sweeps():
 
 def test_two_job_multirun_through_ray(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_ray_launcher", reason="optional: pip install -e '.[ray]'")
-    proc = multirun(tmp_path, "+experiment=penalty_sweep", "hydra/launcher=ray",
-                    "+hydra.launcher.ray.init.num_cpus=2", "algo.penalty=0,5")
+    proc = multirun(
+        tmp_path,
+        "+experiment=penalty_sweep",
+        "hydra/launcher=ray",
+        "+hydra.launcher.ray.init.num_cpus=2",
+        "algo.penalty=0,5",
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     check_two_penalty_runs(tmp_path)

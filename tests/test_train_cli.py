@@ -9,18 +9,31 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SHORT = ["total_steps=512", "rollout_steps=64", "env.num_envs=4", "eval_episodes=4",
-         "algo.update_epochs=2", "algo.num_minibatches=2"]
+SHORT = [
+    "total_steps=512",
+    "rollout_steps=64",
+    "env.num_envs=4",
+    "eval_episodes=4",
+    "algo.update_epochs=2",
+    "algo.num_minibatches=2",
+]
 
 
 def run(*args, cwd=ROOT):
-    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), *args], cwd=cwd, capture_output=True, text=True, timeout=300
+    )
 
 
 def test_each_algorithm_trains_and_writes_its_outputs(tmp_path):
-    proc = run("-m", "algo=ppo,penalty,ppo_lag,pid_lag", "env=reach1d", *SHORT,
-               f"hydra.sweep.dir={tmp_path}", "hydra.sweep.subdir=${algo.name}")
+    proc = run(
+        "-m",
+        "algo=ppo,penalty,ppo_lag,pid_lag",
+        "env=reach1d",
+        *SHORT,
+        f"hydra.sweep.dir={tmp_path}",
+        "hydra.sweep.subdir=${algo.name}",
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     for name, lam in (("ppo", 0.0), ("penalty", 1.0), ("ppo_lag", None), ("pid_lag", None)):
         out = tmp_path / name
@@ -38,8 +51,15 @@ def test_each_algorithm_trains_and_writes_its_outputs(tmp_path):
 
 
 def test_cpo_trains_and_logs_its_dual(tmp_path):
-    proc = run("algo=cpo", "env=reach1d", "env.wall=pass", "algo.cost_limit=0.5", "algo.critic_epochs=2",
-               *[a for a in SHORT if not a.startswith("algo.")], f"hydra.run.dir={tmp_path}")
+    proc = run(
+        "algo=cpo",
+        "env=reach1d",
+        "env.wall=pass",
+        "algo.cost_limit=0.5",
+        "algo.critic_epochs=2",
+        *[a for a in SHORT if not a.startswith("algo.")],
+        f"hydra.run.dir={tmp_path}",
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
     assert len(rows) == 2 and rows[-1]["step"] == "512"
@@ -51,13 +71,16 @@ def test_cpo_trains_and_logs_its_dual(tmp_path):
     assert "done: cpo 512 steps" in proc.stdout
 
 
-@pytest.mark.parametrize("args,message", [
-    (["algo=no_such_algo"], "algo"),
-    (["algo.cost_limit=-1"], "algo.cost_limit must be a number >= 0"),
-    (["algo.gamma=1.0"], "algo.gamma must be in [0, 1)"),
-    (["total_steps=0"], "total_steps must be a positive integer"),
-    (["env.wall=soft"], "env.wall must be one of"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["algo=no_such_algo"], "algo"),
+        (["algo.cost_limit=-1"], "algo.cost_limit must be a number >= 0"),
+        (["algo.gamma=1.0"], "algo.gamma must be in [0, 1)"),
+        (["total_steps=0"], "total_steps must be a positive integer"),
+        (["env.wall=soft"], "env.wall must be one of"),
+    ],
+)
 def test_bad_input_fails_before_training_with_the_field_named(tmp_path, args, message):
     proc = run(*args, f"hydra.run.dir={tmp_path}")
     assert proc.returncode != 0
@@ -65,10 +88,14 @@ def test_bad_input_fails_before_training_with_the_field_named(tmp_path, args, me
     assert not (tmp_path / "metrics.csv").exists()
 
 
-@pytest.mark.parametrize("algo", [
-    ["algo=ppo_lag", "algo.update_epochs=2", "algo.num_minibatches=2"],   # the PPO family
-    ["algo=cpo", "algo.critic_epochs=2", "algo.critic_minibatches=2"],    # CPO (second derivatives)
-], ids=["ppo_lag", "cpo"])
+@pytest.mark.parametrize(
+    "algo",
+    [
+        ["algo=ppo_lag", "algo.update_epochs=2", "algo.num_minibatches=2"],  # the PPO family
+        ["algo=cpo", "algo.critic_epochs=2", "algo.critic_minibatches=2"],  # CPO (second derivatives)
+    ],
+    ids=["ppo_lag", "cpo"],
+)
 def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
     """One multirun per algorithm family: every history-dependent head on the probe env (a 2-D
     action), from train.py to eval.json and a checkpoint that reloads and replays the evaluation."""
@@ -77,8 +104,15 @@ def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
     from cmdp_rl.evaluation import EVAL_SEED_OFFSET
 
     short = ["total_steps=512", "rollout_steps=64", "env.num_envs=4", "eval_episodes=4"]
-    proc = run("-m", "policy=lstm,gru,transformer", "env.probe=true", *short, *algo,
-               f"hydra.sweep.dir={tmp_path}", "hydra.sweep.subdir=${policy.name}")
+    proc = run(
+        "-m",
+        "policy=lstm,gru,transformer",
+        "env.probe=true",
+        *short,
+        *algo,
+        f"hydra.sweep.dir={tmp_path}",
+        "hydra.sweep.subdir=${policy.name}",
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     name_of_algo = algo[0].split("=")[1]
     for name in ("lstm", "gru", "transformer"):
@@ -92,7 +126,13 @@ def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
         ac = make_agent(cfg.policy, make_env(cfg.env))
         ac.load_state_dict(state["algo_state"]["networks"])
         # the reloaded memory policy replays the run's own evaluation exactly
-        again = evaluate(ac, make_env(cfg.env, num_envs=4), 4, True, seed=cfg.seed + EVAL_SEED_OFFSET,
-                         termination_metric=cfg.env.termination_metric)
+        again = evaluate(
+            ac,
+            make_env(cfg.env, num_envs=4),
+            4,
+            True,
+            seed=cfg.seed + EVAL_SEED_OFFSET,
+            termination_metric=cfg.env.termination_metric,
+        )
         assert again["episode_return"] == pytest.approx(ev["episode_return"], abs=1e-6)
         assert again["episode_cost"] == ev["episode_cost"]

@@ -5,12 +5,12 @@ import csv
 
 import pytest
 import torch
+from test_cpo import _hand_built_units
 from torch.distributions import kl_divergence
 
 from cmdp_rl import keys, load_config, make_agent, make_algo, make_env
 from cmdp_rl.config import compose_config
 from cmdp_rl.trainer import train
-from test_cpo import _hand_built_units
 
 
 def _trpo_lag(**algo):
@@ -89,9 +89,19 @@ RANDOM_RETURN = 0.556
 
 
 def test_trpo_lag_learns_reach1d_then_returns_within_budget(tmp_path):
-    cfg = compose_config(["algo=trpo_lag", "env=reach1d_torch", "env.wall=pass", "algo.cost_limit=0.5",
-                          "algo.lambda_lr=0.5", "policy.init_log_std=-0.5", "total_steps=262144", "seed=0",
-                          "eval_episodes=2"])
+    cfg = compose_config(
+        [
+            "algo=trpo_lag",
+            "env=reach1d_torch",
+            "env.wall=pass",
+            "algo.cost_limit=0.5",
+            "algo.lambda_lr=0.5",
+            "policy.init_log_std=-0.5",
+            "total_steps=262144",
+            "seed=0",
+            "eval_episodes=2",
+        ]
+    )
     train(cfg, out_dir=tmp_path, echo=lambda s: None)
     with open(tmp_path / "metrics.csv") as f:
         rows = list(csv.DictReader(f))

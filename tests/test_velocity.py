@@ -11,13 +11,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import ForwardPolicy
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, train
 from cmdp_rl.config import compose_config
-from cmdp_rl.envs.velocity import VelocityEnvConfig
 from cmdp_rl.envs import GymVecEnv
-from cmdp_rl.envs.velocity import VELOCITY_TASKS, VelocityCost, make_velocity_env
-from conftest import ForwardPolicy
+from cmdp_rl.envs.velocity import VELOCITY_TASKS, VelocityCost, VelocityEnvConfig, make_velocity_env
 
 PLANAR = {"Ant", "Humanoid"}  # planar speed sqrt(vx^2 + vy^2); the others: signed x velocity
 
@@ -46,8 +45,14 @@ def test_task_tables_agree():
 
     assert set(get_args(VelocityEnvConfig.__pydantic_fields__["task"].annotation)) == set(VELOCITY_TASKS)
     assert {t for t, spec in VELOCITY_TASKS.items() if spec.planar} == PLANAR
-    expected = {"Ant": 2.6222, "HalfCheetah": 3.2096, "Hopper": 0.7402, "Humanoid": 1.4149,
-                "Swimmer": 0.2282, "Walker2d": 2.3415}
+    expected = {
+        "Ant": 2.6222,
+        "HalfCheetah": 3.2096,
+        "Hopper": 0.7402,
+        "Humanoid": 1.4149,
+        "Swimmer": 0.2282,
+        "Walker2d": 2.3415,
+    }
     assert {t: spec.threshold for t, spec in VELOCITY_TASKS.items()} == expected
 
 
@@ -58,12 +63,12 @@ def test_cost_fires_exactly_above_the_threshold(task):
     above, below = math.nextafter(thr, math.inf), math.nextafter(thr, -math.inf)
     # (vx, vy) and whether the step costs
     script = [
-        ((thr, 0.0), 0.0),              # exactly at the threshold: no cost (strict test)
-        ((above, 0.0), 1.0),            # the next float above: cost
+        ((thr, 0.0), 0.0),  # exactly at the threshold: no cost (strict test)
+        ((above, 0.0), 1.0),  # the next float above: cost
         ((below, 0.0), 0.0),
         ((0.0, 0.0), 0.0),
         ((-3 * thr, 0.0), 1.0 if task in PLANAR else 0.0),  # fast backwards: only a speed norm counts it
-        ((0.0, 3 * thr), 1.0 if task in PLANAR else 0.0),   # fast sideways: only a planar speed counts it
+        ((0.0, 3 * thr), 1.0 if task in PLANAR else 0.0),  # fast sideways: only a planar speed counts it
         ((0.8 * thr, 0.8 * thr), 1.0 if task in PLANAR else 0.0),  # norm 1.13 thr, x alone below
     ]
     env = VelocityCost(ScriptedVelocity([v for v, _ in script]), spec.threshold, spec.planar)
@@ -117,6 +122,7 @@ def test_config_selects_the_velocity_env_and_checks_its_fields():
 
 
 # --- on gymnasium's MuJoCo envs -----------------------------------------------------------------------
+
 
 def _planar_position(env: gym.Env, task: str) -> np.ndarray:
     """The position Safety-Gymnasium differentiates: the torso (Ant), the mass centre (Humanoid),
@@ -177,8 +183,19 @@ def test_env_velocity_turns_observation_normalization_on_by_default():
 def test_a_short_training_run_on_halfcheetah(tmp_path, monkeypatch):
     pytest.importorskip("mujoco")
     monkeypatch.chdir(tmp_path)
-    cfg = compose_config(["env=velocity", "env.num_envs=2", "env.max_steps=40", "rollout_steps=40", "total_steps=160",
-                          "eval_episodes=2", "algo=ppo_lag", "algo.cost_limit=25", "algo.update_epochs=1"])
+    cfg = compose_config(
+        [
+            "env=velocity",
+            "env.num_envs=2",
+            "env.max_steps=40",
+            "rollout_steps=40",
+            "total_steps=160",
+            "eval_episodes=2",
+            "algo=ppo_lag",
+            "algo.cost_limit=25",
+            "algo.update_epochs=1",
+        ]
+    )
     result = train(cfg, tmp_path / "run", echo=lambda _: None)
     assert result["episodes"] == 2 and result["episode_length"] == 40.0
     assert 0.0 <= result["episode_cost"] <= 40.0

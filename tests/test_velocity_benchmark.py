@@ -13,24 +13,40 @@ import velocity_benchmark  # noqa: E402
 from conftest import run_script  # noqa: E402
 
 # algo, seed -> final eval return, eval cost, training cost rate
-RUNS = {("ppo", 0): (3000.0, 500.0, 0.4), ("ppo", 1): (1000.0, 300.0, 0.2),
-        ("ppo_lag", 0): (1500.0, 20.0, 0.05), ("ppo_lag", 1): (500.0, 45.0, 0.15)}
+RUNS = {
+    ("ppo", 0): (3000.0, 500.0, 0.4),
+    ("ppo", 1): (1000.0, 300.0, 0.2),
+    ("ppo_lag", 0): (1500.0, 20.0, 0.05),
+    ("ppo_lag", 1): (500.0, 45.0, 0.15),
+}
 
 
 def _fake_sweep(root: Path) -> None:
     for (algo, seed), (ret, cost, rate) in RUNS.items():
         d = root / f"{algo}_s{seed}"
         d.mkdir(parents=True)
-        (d / "config.yaml").write_text(yaml.safe_dump({"algo": {"name": algo}, "seed": seed,
-                                                       "env": {"name": "velocity", "task": "HalfCheetah"}}))
-        (d / "eval.json").write_text(json.dumps({"episode_return": ret, "episode_cost": cost, "cost_rate": rate,
-                                                 "cost_limit": 25.0, "steps": 4096, "train_time_s": 60.0}))
+        (d / "config.yaml").write_text(
+            yaml.safe_dump({"algo": {"name": algo}, "seed": seed, "env": {"name": "velocity", "task": "HalfCheetah"}})
+        )
+        (d / "eval.json").write_text(
+            json.dumps(
+                {
+                    "episode_return": ret,
+                    "episode_cost": cost,
+                    "cost_rate": rate,
+                    "cost_limit": 25.0,
+                    "steps": 4096,
+                    "train_time_s": 60.0,
+                }
+            )
+        )
         with open(d / "metrics.csv", "w", newline="") as f:
             w = csv.DictWriter(f, ["step", "episode_return", "episode_cost", "cost_rate"])
             w.writeheader()
             for i in (1, 2):
-                w.writerow({"step": 2048 * i, "episode_return": ret * i / 2, "episode_cost": cost * i / 2,
-                            "cost_rate": rate})
+                w.writerow(
+                    {"step": 2048 * i, "episode_return": ret * i / 2, "episode_cost": cost * i / 2, "cost_rate": rate}
+                )
 
 
 def test_report_normalizes_by_the_sweeps_own_ppo_runs(tmp_path):
@@ -54,8 +70,17 @@ def test_run_launches_the_experiment_through_train_py_and_reports(tmp_path):
     the report, here for one tiny job of each algorithm."""
     pytest.importorskip("mujoco")
     sweep = tmp_path / "sweep"
-    proc = run_script("experiments/velocity_benchmark.py", "--run", "seed=0", "total_steps=256", "rollout_steps=64",
-                      "env.num_envs=2", "env.max_steps=64", "eval_episodes=1", f"hydra.sweep.dir={sweep}")
+    proc = run_script(
+        "experiments/velocity_benchmark.py",
+        "--run",
+        "seed=0",
+        "total_steps=256",
+        "rollout_steps=64",
+        "env.num_envs=2",
+        "env.max_steps=64",
+        "eval_episodes=1",
+        f"hydra.sweep.dir={sweep}",
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows = {r["algo"]: r for r in csv.DictReader(open(sweep / "table.csv"))}
     assert set(rows) == {"ppo", "ppo_lag", "cpo"} and all(r["steps"] == "256" for r in rows.values())

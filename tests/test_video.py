@@ -10,15 +10,15 @@ import importlib.util
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import ROOT, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.config import ConfigError, compose_config
 from cmdp_rl.envs.reach1d.env import FRAME_H, FRAME_W, Reach1D, render_reach1d
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.report.reach1d_episodes import record_reach1d
-from cmdp_rl.run.rundir import load_trained
 from cmdp_rl.report.video import VideoError, exact_fps, make_render_env, record_video
-from conftest import ROOT, tiny
+from cmdp_rl.run.rundir import load_trained
 
 pytest.importorskip("moviepy")  # the test extra installs it (pip install -e '.[test]')
 imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")  # moviepy's ffmpeg
@@ -107,8 +107,17 @@ def test_the_torch_backend_renders_through_its_gym_twin():
 
 def test_velocity_video_renders_headless(tmp_path, monkeypatch):
     pytest.importorskip("mujoco")
-    cfg = compose_config(["env=velocity", "env.num_envs=2", "env.max_steps=30", "rollout_steps=30", "total_steps=60",
-                          "eval_episodes=2", "algo.update_epochs=1"])
+    cfg = compose_config(
+        [
+            "env=velocity",
+            "env.num_envs=2",
+            "env.max_steps=30",
+            "rollout_steps=30",
+            "total_steps=60",
+            "eval_episodes=2",
+            "algo.update_epochs=1",
+        ]
+    )
     try:
         make_render_env(cfg.env).close()
     except VideoError as exc:  # no EGL here: the error is one line naming what to install
@@ -116,8 +125,12 @@ def test_velocity_video_renders_headless(tmp_path, monkeypatch):
         pytest.skip(str(exc))
     monkeypatch.chdir(tmp_path)
     train(cfg, tmp_path / "run", echo=lambda _: None)
-    assert evaluate_cli.main([f"run={tmp_path / 'run'}", "video=true", "video_steps=8", "episodes=1",
-                              f"video_dir={tmp_path / 'v'}"]) == 0
+    assert (
+        evaluate_cli.main(
+            [f"run={tmp_path / 'run'}", "video=true", "video_steps=8", "episodes=1", f"video_dir={tmp_path / 'v'}"]
+        )
+        == 0
+    )
     video = tmp_path / "v" / "policy-episode-0.mp4"
     assert frames_in(video) == 9
     from moviepy import VideoFileClip
@@ -205,8 +218,13 @@ def test_grid_frame_is_drawn_where_the_agent_is():
 
 
 def test_grid_video_is_written_by_evaluate(tmp_path, capsys):
-    raw = {"env": {"name": "grid", "num_envs": 2}, "algo": {"name": "ppo_lag", "cost_limit": [0.3, 0.15],
-           "update_epochs": 1, "num_minibatches": 2}, "rollout_steps": 16, "total_steps": 32, "eval_episodes": 2}
+    raw = {
+        "env": {"name": "grid", "num_envs": 2},
+        "algo": {"name": "ppo_lag", "cost_limit": [0.3, 0.15], "update_epochs": 1, "num_minibatches": 2},
+        "rollout_steps": 16,
+        "total_steps": 32,
+        "eval_episodes": 2,
+    }
     train(load_config(raw), tmp_path / "run", echo=lambda _: None)
     assert evaluate_cli.main([f"run={tmp_path / 'run'}", "video=true", "video_steps=6", "episodes=2"]) == 0
     video = tmp_path / "run" / "videos" / "policy-episode-0.mp4"

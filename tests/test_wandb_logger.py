@@ -13,10 +13,10 @@ import struct
 import time
 
 import pytest
+from conftest import tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.config import ConfigError, compose_config
-from conftest import tiny
 
 pytest.importorskip("wandb")  # the test extra installs it (pip install -e '.[test]')
 import wandb  # noqa: E402
@@ -34,11 +34,11 @@ def records(path):
         if left < 7:  # a block's tail too short for a header is padding
             pos += left
             continue
-        _crc, length, kind = struct.unpack("<IHB", data[pos:pos + 7])
+        _crc, length, kind = struct.unpack("<IHB", data[pos : pos + 7])
         if length == 0 and kind == 0:
             pos += left
             continue
-        parts += data[pos + 7:pos + 7 + length]
+        parts += data[pos + 7 : pos + 7 + length]
         pos += 7 + length
         if kind in (1, 4):  # FULL, or LAST of a FIRST/MIDDLE/LAST chain
             rec = pb.Record()
@@ -63,7 +63,7 @@ def read_run(offline_dir):
         kind = rec.WhichOneof("record_type")
         if kind in ("run", "config"):
             # wandb sends an update under a plain key or, depending on timing, a nested key path
-            for u in (rec.run.config.update if kind == "run" else rec.config.update):
+            for u in rec.run.config.update if kind == "run" else rec.config.update:
                 path = [u.key] if u.key else list(u.nested_key)
                 node = config
                 for part in path[:-1]:
@@ -134,7 +134,12 @@ def test_a_resume_continues_under_the_same_wandb_id(tmp_path):
 
 def test_the_logger_group_defaults_to_offline():
     cfg = compose_config(["logger=wandb"])
-    assert (cfg.logger.name, cfg.logger.project, cfg.logger.entity, cfg.logger.mode) == ("wandb", "cmdp_rl", None, "offline")
+    assert (cfg.logger.name, cfg.logger.project, cfg.logger.entity, cfg.logger.mode) == (
+        "wandb",
+        "cmdp_rl",
+        None,
+        "offline",
+    )
 
 
 def test_missing_wandb_is_a_one_line_config_error(monkeypatch):

@@ -17,8 +17,9 @@ if TYPE_CHECKING:
 
 Budget = Annotated[float, finite(ge=0)]
 # A number (the same for every constraint) or one number per constraint.
-PerConstraint = Annotated[Union[Budget, list[Budget]], Field(
-    description="a number >= 0 or a list of numbers >= 0, one per cost")]
+PerConstraint = Annotated[
+    Union[Budget, list[Budget]], Field(description="a number >= 0 or a list of numbers >= 0, one per cost")
+]
 
 
 def per_constraint(value: float | Sequence[float], field: str, cost_names: Sequence[str]) -> list[float]:
@@ -29,8 +30,12 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
     if isinstance(value, (int, float)):
         return [float(value)] * k
     values = list(value)
-    require(len(values) == k, field, f"a number or a list of {k} numbers, one per cost of the env "
-                                     f"({', '.join(cost_names)})", values)
+    require(
+        len(values) == k,
+        field,
+        f"a number or a list of {k} numbers, one per cost of the env ({', '.join(cost_names)})",
+        values,
+    )
     return [float(v) for v in values]
 
 
@@ -42,8 +47,13 @@ def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str
     """The budget d of an algorithm that handles one constraint (``agent.num_costs`` must be 1);
     an env with K > 1 costs is a config error naming the algorithms that take it and ``reason``."""
     k = agent.num_costs
-    require(k == 1, "algo", f"{', '.join(MULTI_CONSTRAINT[:-1])} or {MULTI_CONSTRAINT[-1]} for an env with {k} "
-                            f"costs ({', '.join(agent.cost_names)}): {reason}", algo)
+    require(
+        k == 1,
+        "algo",
+        f"{', '.join(MULTI_CONSTRAINT[:-1])} or {MULTI_CONSTRAINT[-1]} for an env with {k} "
+        f"costs ({', '.join(agent.cost_names)}): {reason}",
+        algo,
+    )
     (d,) = per_constraint(cost_limit, "algo.cost_limit", agent.cost_names)
     return d
 
@@ -62,8 +72,10 @@ class AlgoConfig:
     # The budget d on expected undiscounted episode cost. Only constrained algorithms act on it;
     # every run reports against it. With K costs: one number for every constraint, or a list of K
     # budgets in the env's cost order (per_constraint).
-    cost_limit: Annotated[Union[Budget, list[Budget]], Field(
-        description="a number >= 0 (the budget d) or a list of such numbers, one per cost")] = 1.0
+    cost_limit: Annotated[
+        Union[Budget, list[Budget]],
+        Field(description="a number >= 0 (the budget d) or a list of such numbers, one per cost"),
+    ] = 1.0
 
     def check(self, run: RunConfig) -> None:
         """Rules that relate this algorithm's options to the rest of the run (none here)."""

@@ -46,7 +46,10 @@ import torch
 from cmdp_rl.algos.base import check_finite, single_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.natural_gradient import (
-    NaturalGradient, NaturalGradientConfig, fisher_vector_product, line_search,
+    NaturalGradient,
+    NaturalGradientConfig,
+    fisher_vector_product,
+    line_search,
     per_step_constraint,
 )
 from cmdp_rl.policies.agent import Agent
@@ -139,11 +142,23 @@ class CPO(NaturalGradient):
     # case (0 trpo, 1 constrained, 2 recovery), the accepted fraction of the full step (0: none
     # accepted), the dual's trust-region and cost multipliers, the accepted step's change of the
     # reward and cost surrogates, and the critics' losses.
-    stats = ("loss_v", "loss_vc", "entropy", "kl", "cpo_case", "step_fraction", "dual_lambda", "dual_nu",
-             "surr_reward_change", "surr_cost_change")
+    stats = (
+        "loss_v",
+        "loss_vc",
+        "entropy",
+        "kl",
+        "cpo_case",
+        "step_fraction",
+        "dual_lambda",
+        "dual_nu",
+        "surr_reward_change",
+        "surr_cost_change",
+    )
 
     def __init__(self, cfg: CPOConfig, agent: Agent) -> None:
-        self.cost_limit = single_constraint(cfg.cost_limit, agent, "cpo", "cpo's closed-form dual handles one constraint")
+        self.cost_limit = single_constraint(
+            cfg.cost_limit, agent, "cpo", "cpo's closed-form dual handles one constraint"
+        )
         super().__init__(cfg, agent)
         self.nu = 0.0
 
@@ -152,7 +167,9 @@ class CPO(NaturalGradient):
         """The dual's cost multiplier nu of the last step."""
         return self.nu
 
-    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float) -> dict[str, float]:
+    def policy_step(
+        self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
+    ) -> dict[str, float]:
         """Solve the CPO subproblem on training units (steps, or segments for a recurrent policy)
         carrying GAE advantages and take the step the line search accepts (or none)."""
         cfg, params = self.cfg, self.policy_params
@@ -180,10 +197,16 @@ class CPO(NaturalGradient):
                 return d_cost < 0
             return d_cost <= max(-c, 0.0) and (c >= 0 or d_reward > 0)
 
-        accepted = line_search(params, step, surrogates, surr_values, cfg.target_kl,
-                               cfg.line_search_steps, cfg.backtrack_coef, accept)
-        return {"cpo_case": sol.case, "dual_lambda": sol.lam, "dual_nu": sol.nu, "entropy": self.entropy(units),
-                **accepted}
+        accepted = line_search(
+            params, step, surrogates, surr_values, cfg.target_kl, cfg.line_search_steps, cfg.backtrack_coef, accept
+        )
+        return {
+            "cpo_case": sol.case,
+            "dual_lambda": sol.lam,
+            "dual_nu": sol.nu,
+            "entropy": self.entropy(units),
+            **accepted,
+        }
 
     def state_dict(self) -> dict:
         return {**super().state_dict(), "nu": self.nu}

@@ -42,8 +42,9 @@ class CRPO(PPO):
     stats = (*STATS, "cost_step")
 
     def __init__(self, cfg: CRPOConfig, agent: Agent) -> None:
-        self.cost_limit = single_constraint(cfg.cost_limit, agent, "crpo",
-                                            "crpo's step switches on one constraint's slack")
+        self.cost_limit = single_constraint(
+            cfg.cost_limit, agent, "crpo", "crpo's step switches on one constraint's slack"
+        )
         super().__init__(cfg, agent)
         self.cost_step = False
 

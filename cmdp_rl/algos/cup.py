@@ -95,8 +95,14 @@ class CUP(PPO):
             cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
         present = batch.keys(True)
         inputs = [k for k in self.agent.in_keys if k in present and k not in (keys.ACTION, keys.LOG_PROB)]
-        units = self.agent.training_units({keys.ACTION: batch.get(keys.ACTION), keys.LOG_PROB: batch.get(keys.LOG_PROB),
-                                           keys.COST_ADVANTAGE: cost_adv, **{k: batch.get(k) for k in inputs}})
+        units = self.agent.training_units(
+            {
+                keys.ACTION: batch.get(keys.ACTION),
+                keys.LOG_PROB: batch.get(keys.LOG_PROB),
+                keys.COST_ADVANTAGE: cost_adv,
+                **{k: batch.get(k) for k in inputs},
+            }
+        )
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
             units.update({(HALF, k): v for k, v in self.agent.actor.params(units).items()})
         nu_coef = self.multiplier.value * self.cost_coef

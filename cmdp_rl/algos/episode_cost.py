@@ -68,8 +68,11 @@ class EpisodeCostEstimate:
             recent = torch.tensor(list(self._recent), dtype=torch.float64)
             return EpisodeCost(_column_means(recent[:, :-1]), recent[:, -1].mean().item(), WINDOW)
         last = batch.get(keys.NEXT)[:, -1]
-        return EpisodeCost(_column_means(last.get(keys.EPISODE_COST).float()),
-                           last.get(keys.EPISODE_LENGTH).float().mean().item(), RUNNING)
+        return EpisodeCost(
+            _column_means(last.get(keys.EPISODE_COST).float()),
+            last.get(keys.EPISODE_LENGTH).float().mean().item(),
+            RUNNING,
+        )
 
     def state_dict(self) -> dict:
         return {"recent": list(self._recent), "window": self.window}

@@ -65,8 +65,15 @@ class FOCOPSConfig(PPOConfig):
         require(self.nu_init <= self.nu_max, "algo.nu_init", "a number in [0, algo.nu_max]", self.nu_init)
 
 
-def focops_loss(dist: Distribution, old_dist: Distribution, action: torch.Tensor, old_log_prob: torch.Tensor,
-                adv: torch.Tensor, temperature: float, delta: float) -> tuple[torch.Tensor, torch.Tensor]:
+def focops_loss(
+    dist: Distribution,
+    old_dist: Distribution,
+    action: torch.Tensor,
+    old_log_prob: torch.Tensor,
+    adv: torch.Tensor,
+    temperature: float,
+    delta: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The projection step's loss on a minibatch: per state ``KL(pi_theta || pi_k)[s] -
     ratio * adv / temperature``, kept where ``KL <= delta`` (Algorithm 1), averaged over all states.
     ``adv`` is ``A_r - nu A_c``, shaped ``[..., 1]``. Returns the loss and the per-state KL."""
@@ -88,8 +95,9 @@ class FOCOPS(PPO):
         cost_limit = single_constraint(cfg.cost_limit, agent, "focops", "focops has one cost multiplier nu")
         super().__init__(cfg, agent)
         self.kl_limit = cfg.target_kl  # Algorithm 1 stops at delta itself, not PPO's 1.5 delta
-        self.multiplier = PIDLagrangian(cost_limit, kp=0.0, ki=cfg.nu_lr, kd=0.0, init=cfg.nu_init,
-                                        lambda_max=cfg.nu_max)
+        self.multiplier = PIDLagrangian(
+            cost_limit, kp=0.0, ki=cfg.nu_lr, kd=0.0, init=cfg.nu_init, lambda_max=cfg.nu_max
+        )
 
     @property
     def lagrange_multiplier(self) -> float:
@@ -105,8 +113,15 @@ class FOCOPS(PPO):
         head = self.agent.actor.head
         dist = self.agent.dist(mb)
         old_dist = head.dist({k: mb[k] for k in head.param_keys})  # pi_k, as it acted
-        loss, kl = focops_loss(dist, old_dist, mb[keys.ACTION], mb[keys.LOG_PROB], mb[keys.POLICY_ADVANTAGE],
-                               self.cfg.temperature, self.cfg.target_kl)
+        loss, kl = focops_loss(
+            dist,
+            old_dist,
+            mb[keys.ACTION],
+            mb[keys.LOG_PROB],
+            mb[keys.POLICY_ADVANTAGE],
+            self.cfg.temperature,
+            self.cfg.target_kl,
+        )
         entropy = dist.entropy().mean()
         loss = loss - self.cfg.entropy_coef * entropy
         with torch.no_grad():

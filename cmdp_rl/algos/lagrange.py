@@ -129,8 +129,11 @@ class PIDLagrangian(MultiplierController):
 
     def state_dict(self) -> dict:
         return {
-            "value": self.value, "integral": self.integral, "delta_p": self.delta_p,
-            "cost_d": self.cost_d, "history": list(self.history),
+            "value": self.value,
+            "integral": self.integral,
+            "delta_p": self.delta_p,
+            "cost_d": self.cost_d,
+            "history": list(self.history),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -170,8 +173,9 @@ class Multipliers:
     def load_state_dict(self, state: dict) -> None:
         states = state["constraints"] if "constraints" in state else [state]
         if len(states) != len(self.controllers):
-            raise ValueError(f"the saved multipliers are for {len(states)} constraints, this run has "
-                             f"{len(self.controllers)}")
+            raise ValueError(
+                f"the saved multipliers are for {len(states)} constraints, this run has {len(self.controllers)}"
+            )
         for c, s in zip(self.controllers, states):
             c.load_state_dict(s)
 

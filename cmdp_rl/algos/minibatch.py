@@ -24,7 +24,7 @@ def minibatches(
         perm = torch.randperm(total, device=device)
         shuffled = {k: v[perm] for k, v in data.items()}
         for i in range(num_minibatches):
-            yield epoch, {k: v[i * size:(i + 1) * size] for k, v in shuffled.items()}
+            yield epoch, {k: v[i * size : (i + 1) * size] for k, v in shuffled.items()}
 
 
 __all__ = ["minibatches"]

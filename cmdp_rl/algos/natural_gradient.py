@@ -36,8 +36,9 @@ if TYPE_CHECKING:
 class NaturalGradientConfig(AlgoConfig):
     """The trust region, the conjugate gradient, and the critics' regression."""
 
-    target_kl: Annotated[float, Field(gt=0, allow_inf_nan=False,
-                                      description="a positive number (the KL radius delta)")] = 0.01
+    target_kl: Annotated[
+        float, Field(gt=0, allow_inf_nan=False, description="a positive number (the KL radius delta)")
+    ] = 0.01
     cg_iters: PositiveInt = 10
     cg_damping: NonNegativeFloat = 0.1
     critic_epochs: PositiveInt = 10
@@ -45,8 +46,12 @@ class NaturalGradientConfig(AlgoConfig):
 
     def check(self, run: RunConfig) -> None:
         batch = run.rollout_steps * run.env.num_envs
-        require(batch >= self.critic_minibatches, "algo.critic_minibatches",
-                f"at most rollout_steps * env.num_envs = {batch}", self.critic_minibatches)
+        require(
+            batch >= self.critic_minibatches,
+            "algo.critic_minibatches",
+            f"at most rollout_steps * env.num_envs = {batch}",
+            self.critic_minibatches,
+        )
 
 
 def fisher_vector_product(
@@ -78,7 +83,7 @@ def assign(params: list[nn.Parameter], vector: torch.Tensor) -> None:
     from an uninterrupted one in the last bits.)"""
     offset = 0
     for p in params:
-        p.copy_(vector[offset:offset + p.numel()].view_as(p))
+        p.copy_(vector[offset : offset + p.numel()].view_as(p))
         offset += p.numel()
 
 
@@ -98,8 +103,7 @@ class Surrogates:
     mean KL from ``pi_k``, the policy that collected the units (its distribution parameters are in
     them). Calling it evaluates all three at the current parameters."""
 
-    def __init__(self, agent: Agent, units: dict[str, torch.Tensor], adv: torch.Tensor,
-                 cost_adv: torch.Tensor) -> None:
+    def __init__(self, agent: Agent, units: dict[str, torch.Tensor], adv: torch.Tensor, cost_adv: torch.Tensor) -> None:
         self.agent, self.units, self.adv, self.cost_adv = agent, units, adv, cost_adv
         head = agent.actor.head
         self.old_dist = head.dist({k: units[k] for k in head.param_keys})
@@ -116,8 +120,14 @@ NO_STEP = {"step_fraction": 0.0, "kl": 0.0, "surr_reward_change": 0.0, "surr_cos
 
 @torch.no_grad()
 def line_search(
-    params: list[nn.Parameter], step: torch.Tensor, surrogates: Surrogates, old: tuple[float, float],
-    target_kl: float, steps: int, coef: float, accept: Callable[[float, float], bool],
+    params: list[nn.Parameter],
+    step: torch.Tensor,
+    surrogates: Surrogates,
+    old: tuple[float, float],
+    target_kl: float,
+    steps: int,
+    coef: float,
+    accept: Callable[[float, float], bool],
 ) -> dict[str, float]:
     """Backtracking line search (Schulman et al. 2015, Appendix C): try the fractions 1, coef,
     coef^2, ... of ``step`` and keep the first whose sampled KL is finite and within ``target_kl``
@@ -162,8 +172,9 @@ class NaturalGradient:
     def lagrange_multiplier(self) -> float:
         return 0.0
 
-    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float,
-                    episode_length: float) -> dict[str, float]:
+    def policy_step(
+        self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
+    ) -> dict[str, float]:
         """Move the policy on training units carrying GAE advantages; returns its statistics."""
         raise NotImplementedError
 
@@ -172,8 +183,15 @@ class NaturalGradient:
         self.gae(batch, self.agent)
         estimate = self.episode_cost.update(batch)
         # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
-        needed = [*self.agent.in_keys, keys.ACTION, keys.LOG_PROB, *self.agent.actor.head.param_keys,
-                  keys.ADVANTAGE, keys.COST_ADVANTAGE, *self.critics.target_keys()]
+        needed = [
+            *self.agent.in_keys,
+            keys.ACTION,
+            keys.LOG_PROB,
+            *self.agent.actor.head.param_keys,
+            keys.ADVANTAGE,
+            keys.COST_ADVANTAGE,
+            *self.critics.target_keys(),
+        ]
         present = batch.keys(True)
         units = self.agent.training_units({k: batch.get(k) for k in dict.fromkeys(needed) if k in present})
         # J_c, or K numbers with K constraints (only trpo_lag takes K > 1; the others refuse it when built).
@@ -192,8 +210,9 @@ class NaturalGradient:
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         return adv, units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
 
-    def linearise(self, units: dict[str, torch.Tensor]) -> tuple[Surrogates, tuple[float, float], torch.Tensor,
-                                                                torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
+    def linearise(
+        self, units: dict[str, torch.Tensor]
+    ) -> tuple[Surrogates, tuple[float, float], torch.Tensor, torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
         """What CPO and PCPO build their subproblem from, at the current policy: the surrogates
         (for the line search), their values, the gradients ``g`` (reward) and ``b`` (cost) and the
         Fisher-vector product ``v -> H v``."""
@@ -230,8 +249,11 @@ class NaturalGradient:
         return {k: v / n for k, v in sums.items()}
 
     def state_dict(self) -> dict:
-        return {"networks": self.agent.state_dict(), "critic_opt": self.critic_opt.state_dict(),
-                "episode_cost": self.episode_cost.state_dict()}
+        return {
+            "networks": self.agent.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+            "episode_cost": self.episode_cost.state_dict(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])

@@ -37,16 +37,25 @@ from torch import nn
 from cmdp_rl import keys
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers, PIDLagrangian
-from cmdp_rl.algos.replay_buffer import Replay
 from cmdp_rl.algos.ppo import logged_multiplier
+from cmdp_rl.algos.replay_buffer import Replay
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, to_off_policy
 from cmdp_rl.validation import (
-    AUTO, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt, finite, options, require,
+    AUTO,
+    Field,
+    NonNegativeFloat,
+    NonNegativeInt,
+    PositiveFloat,
+    PositiveInt,
+    finite,
+    options,
+    require,
 )
 
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
+
 
 def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
     """The episode budget ``d`` on the discounted scale of a cost Q-critic:
@@ -70,8 +79,9 @@ class LagrangeFields:
     # (the current policy's own); 0 averages over the replayed minibatches' states instead (module docstring).
     cost_window: NonNegativeInt = 1000
     # T of the budget conversion: "auto" reads the env's time limit (env.max_steps).
-    episode_length: Annotated[Union[PositiveInt, Literal["auto"]], Field(
-        description="a positive integer or 'auto'")] = AUTO
+    episode_length: Annotated[
+        Union[PositiveInt, Literal["auto"]], Field(description="a positive integer or 'auto'")
+    ] = AUTO
 
 
 @options
@@ -101,19 +111,33 @@ class OffPolicyConfig(AlgoConfig):
     def resolve_auto(self, run: RunConfig) -> None:
         if getattr(self, "episode_length", None) == AUTO:
             T = getattr(run.env, "max_steps", None)
-            require(T is not None, "algo.episode_length", f"a positive integer for env={run.env.name} "
-                                                           "(it has no max_steps to read)", AUTO)
+            require(
+                T is not None,
+                "algo.episode_length",
+                f"a positive integer for env={run.env.name} (it has no max_steps to read)",
+                AUTO,
+            )
             self.episode_length = int(T)
 
     def describe_update(self) -> str:
-        return (f"{self.utd_ratio:g} gradient steps per transition on batches of {self.batch_size} "
-                f"after {self.warmup_steps} warm-up steps")
+        return (
+            f"{self.utd_ratio:g} gradient steps per transition on batches of {self.batch_size} "
+            f"after {self.warmup_steps} warm-up steps"
+        )
 
     def check(self, run: RunConfig) -> None:
-        require(run.policy.name == "mlp", "policy", f"mlp for algo={self.name} (recurrent and transformer "
-                                                    "policies are not supported off-policy)", run.policy.name)
-        require(self.buffer_size >= self.batch_size, "algo.buffer_size", f">= algo.batch_size ({self.batch_size})",
-                self.buffer_size)
+        require(
+            run.policy.name == "mlp",
+            "policy",
+            f"mlp for algo={self.name} (recurrent and transformer policies are not supported off-policy)",
+            run.policy.name,
+        )
+        require(
+            self.buffer_size >= self.batch_size,
+            "algo.buffer_size",
+            f">= algo.batch_size ({self.batch_size})",
+            self.buffer_size,
+        )
 
 
 class TargetCritics:
@@ -124,8 +148,10 @@ class TargetCritics:
         self.live = modules
         self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}
         # Listed once (load_state_dict copies into these tensors): one lerp over all of them a step.
-        self._pairs = ([p for k in modules for p in self.target[k].parameters()],
-                       [p for m in modules.values() for p in m.parameters()])
+        self._pairs = (
+            [p for k in modules for p in self.target[k].parameters()],
+            [p for m in modules.values() for p in m.parameters()],
+        )
 
     @torch.no_grad()
     def soft_update(self, tau: float) -> None:
@@ -159,8 +185,9 @@ class LagrangeTerm:
 
             def make(d: float):
                 if cfg.multiplier == "pid":
-                    return PIDLagrangian(d, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init,
-                                         lambda_max=cfg.lambda_max)
+                    return PIDLagrangian(
+                        d, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init, lambda_max=cfg.lambda_max
+                    )
                 return DualAscent(d, cfg.lambda_lr, cfg.lambda_init)
 
             self.multipliers = Multipliers(make, self.budgets)
@@ -226,14 +253,17 @@ class OffPolicy:
         body = self.agent.critics[Q_COST].body
         return (action - body.center) / body.half_width
 
-    def q_values(self, names: tuple[str, ...], x: torch.Tensor, a: torch.Tensor, target: bool = False) -> list[torch.Tensor]:
+    def q_values(
+        self, names: tuple[str, ...], x: torch.Tensor, a: torch.Tensor, target: bool = False
+    ) -> list[torch.Tensor]:
         """``Q_n(s, a)`` of each critic in ``names`` (live or target) on features ``x`` and a scaled action."""
         h = torch.cat([x, a], dim=-1)
         nets = self.targets.target if target else {n: self.agent.critics[n].net for n in names}
         return [nets[n](h) for n in names]
 
-    def critic_loss(self, mb: TensorDictBase, x: torch.Tensor | None = None,
-                    x_next: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def critic_loss(
+        self, mb: TensorDictBase, x: torch.Tensor | None = None, x_next: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Both reward twins and the cost critic regress on one-step TD targets with the same next
         action a' (the algorithm's): ``r + gamma (1 - term) (min_j Q'_j(s', a') + bonus)`` and
         ``c + gamma_c (1 - term) Q'_c(s', a')`` (Haarnoja et al. 2018b eq. 5; Fujimoto et al. 2018 eq. 10).
@@ -250,10 +280,15 @@ class OffPolicy:
         q1, q2, q_c = self.q_values((*Q_REWARD, Q_COST), x, self.scaled(mb.get(keys.ACTION)))
         loss_q = (q1 - y).pow(2).mean() + (q2 - y).pow(2).mean()
         loss_qc = (q_c - y_c).pow(2).mean()
-        return loss_q + loss_qc, {"loss_q": loss_q.detach(), "loss_qc": loss_qc.detach(), "q_reward": q1.mean().detach()}
+        return loss_q + loss_qc, {
+            "loss_q": loss_q.detach(),
+            "loss_qc": loss_qc.detach(),
+            "q_reward": q1.mean().detach(),
+        }
 
-    def penalised_q(self, x: torch.Tensor, action: torch.Tensor,
-                    reward_critics: tuple[str, ...] = Q_REWARD) -> tuple[torch.Tensor, torch.Tensor]:
+    def penalised_q(
+        self, x: torch.Tensor, action: torch.Tensor, reward_critics: tuple[str, ...] = Q_REWARD
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``(min_j Q_j(s, a) - sum_k lambda_k Q_c,k(s, a), Q_c(s, a))`` on features ``x`` and a
         scaled action: what the actor ascends (the Lagrangian of Ha et al. 2020), and the cost
         estimate the multiplier reads."""
@@ -338,10 +373,16 @@ class OffPolicy:
 
     # --- checkpointing: networks, targets, optimizers, multiplier and the buffer -----------------
     def state_dict(self) -> dict:
-        return {"networks": self.agent.state_dict(), "targets": self.targets.state_dict(),
-                "actor_opt": self.actor_opt.state_dict(), "critic_opt": self.critic_opt.state_dict(),
-                "multiplier": self.lagrange.state_dict(), "replay": self.replay.state_dict(),
-                "steps_due": self.steps_due, "gradient_steps": self.gradient_steps}
+        return {
+            "networks": self.agent.state_dict(),
+            "targets": self.targets.state_dict(),
+            "actor_opt": self.actor_opt.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+            "multiplier": self.lagrange.state_dict(),
+            "replay": self.replay.state_dict(),
+            "steps_due": self.steps_due,
+            "gradient_steps": self.gradient_steps,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
@@ -354,5 +395,4 @@ class OffPolicy:
         self.steps_due, self.gradient_steps = float(state["steps_due"]), int(state["gradient_steps"])
 
 
-__all__ = ["LagrangeFields", "OffPolicy", "OffPolicyConfig", "TargetCritics",
-           "discounted_budget", "td_target"]
+__all__ = ["LagrangeFields", "OffPolicy", "OffPolicyConfig", "TargetCritics", "discounted_budget", "td_target"]

@@ -30,7 +30,10 @@ import torch
 from cmdp_rl.algos.base import check_finite, single_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.natural_gradient import (
-    NaturalGradient, NaturalGradientConfig, assign, per_step_constraint,
+    NaturalGradient,
+    NaturalGradientConfig,
+    assign,
+    per_step_constraint,
 )
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -49,8 +52,14 @@ class PCPOConfig(NaturalGradientConfig):
     reads_raw_cost: ClassVar[bool] = True
 
 
-def projected_step(g: torch.Tensor, b: torch.Tensor, c: float, delta: float,
-                   h_solve: Callable[[torch.Tensor], torch.Tensor], projection: str) -> tuple[torch.Tensor, float]:
+def projected_step(
+    g: torch.Tensor,
+    b: torch.Tensor,
+    c: float,
+    delta: float,
+    h_solve: Callable[[torch.Tensor], torch.Tensor],
+    projection: str,
+) -> tuple[torch.Tensor, float]:
     """PCPO's step ``x`` and the projection's coefficient (0: the reward step was feasible).
 
     ``h_solve(v)`` approximates ``H^-1 v`` (conjugate gradient on Fisher-vector products)."""
@@ -73,23 +82,32 @@ class PCPO(NaturalGradient):
     stats = ("loss_v", "loss_vc", "entropy", "kl", "projection_coef", "surr_reward_change", "surr_cost_change")
 
     def __init__(self, cfg: PCPOConfig, agent: Agent) -> None:
-        self.cost_limit = single_constraint(cfg.cost_limit, agent, "pcpo",
-                                            "pcpo projects onto one linearised constraint")
+        self.cost_limit = single_constraint(
+            cfg.cost_limit, agent, "pcpo", "pcpo projects onto one linearised constraint"
+        )
         super().__init__(cfg, agent)
 
-    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float) -> dict[str, float]:
+    def policy_step(
+        self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
+    ) -> dict[str, float]:
         cfg, params = self.cfg, self.policy_params
         surrogates, surr_values, g, b, fvp = self.linearise(units)
         c = per_step_constraint(episode_cost, self.cost_limit, episode_length)
         check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), c=c)
-        step, coef = projected_step(g, b, c, cfg.target_kl, lambda v: conjugate_gradient(fvp, v, cfg.cg_iters),
-                                    cfg.projection)
+        step, coef = projected_step(
+            g, b, c, cfg.target_kl, lambda v: conjugate_gradient(fvp, v, cfg.cg_iters), cfg.projection
+        )
         with torch.no_grad():
             assign(params, torch.nn.utils.parameters_to_vector(params) + step)
             new_reward, new_cost, new_kl = (t.item() for t in surrogates())
         check_finite(kl=new_kl)
-        return {"kl": new_kl, "projection_coef": coef, "surr_reward_change": new_reward - surr_values[0],
-                "surr_cost_change": new_cost - surr_values[1], "entropy": self.entropy(units)}
+        return {
+            "kl": new_kl,
+            "projection_coef": coef,
+            "surr_reward_change": new_reward - surr_values[0],
+            "surr_cost_change": new_cost - surr_values[1],
+            "entropy": self.entropy(units),
+        }
 
 
 register("algo", "pcpo", PCPOConfig, PCPO)

@@ -43,7 +43,17 @@ from cmdp_rl.algos.minibatch import minibatches
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import (
-    AUTO, AutoInt, Bool, Field, NonNegativeFloat, PositiveFloat, PositiveInt, UnitOpen, finite, options, require,
+    AUTO,
+    AutoInt,
+    Bool,
+    Field,
+    NonNegativeFloat,
+    PositiveFloat,
+    PositiveInt,
+    UnitOpen,
+    finite,
+    options,
+    require,
 )
 
 if TYPE_CHECKING:
@@ -95,8 +105,12 @@ class PPOConfig(AlgoConfig):
 
     def check(self, run: RunConfig) -> None:
         batch = run.rollout_steps * run.env.num_envs
-        require(batch >= self.num_minibatches, "algo.num_minibatches",
-                f"at most rollout_steps * env.num_envs = {batch}", self.num_minibatches)
+        require(
+            batch >= self.num_minibatches,
+            "algo.num_minibatches",
+            f"at most rollout_steps * env.num_envs = {batch}",
+            self.num_minibatches,
+        )
 
 
 @options
@@ -140,15 +154,20 @@ class PIDLagConfig(PPOConfig):
         super().check(run)
         gains = self.kp + self.ki + self.kd
         require(gains > 0, "algo.kp + algo.ki + algo.kd", "> 0 (some gain must act)", gains)
-        require(self.lambda_init <= self.lambda_max, "algo.lambda_init", "a number in [0, algo.lambda_max]",
-                self.lambda_init)
+        require(
+            self.lambda_init <= self.lambda_max,
+            "algo.lambda_init",
+            "a number in [0, algo.lambda_max]",
+            self.lambda_init,
+        )
 
 
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
 
 
-def clipped_gain(log_prob: torch.Tensor, old_log_prob: torch.Tensor, adv: torch.Tensor,
-                 log_clip: tuple[float, float]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def clipped_gain(
+    log_prob: torch.Tensor, old_log_prob: torch.Tensor, adv: torch.Tensor, log_clip: tuple[float, float]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The clipped surrogate's per-sample gain ``min(r A, clip(r) A)`` (Schulman et al. 2017,
     eq. 7), clipping the log-ratio to ``log_clip = (log(1 - eps), log(1 + eps))``; also returns the
     log-ratio and its clipped value (for the KL and clip-fraction statistics). Elementwise, so a
@@ -156,6 +175,7 @@ def clipped_gain(log_prob: torch.Tensor, old_log_prob: torch.Tensor, adv: torch.
     log_ratio = (log_prob - old_log_prob).reshape(adv.shape)
     log_ratio_clip = log_ratio.clamp(*log_clip)
     return torch.minimum(log_ratio.exp() * adv, log_ratio_clip.exp() * adv), log_ratio, log_ratio_clip
+
 
 class PPO:
     name = "ppo"
@@ -294,7 +314,7 @@ def penalised(batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float]
     """``A_r - sum_k lambda_k A_c,k`` (with K = 1 exactly ``A_r - lambda A_c``)."""
     adv, cost_adv = batch.get(keys.ADVANTAGE), batch.get(keys.COST_ADVANTAGE)
     for k, lam in enumerate(lams):
-        adv = adv - lam * cost_adv[..., k:k + 1]
+        adv = adv - lam * cost_adv[..., k : k + 1]
     return adv
 
 
@@ -367,8 +387,14 @@ class PIDLagrangianPPO(PPOLagrangian):
     @staticmethod
     def make_multiplier(cfg: PIDLagConfig, cost_limit: float) -> MultiplierController:
         return PIDLagrangian(
-            cost_limit, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init,
-            p_ema_alpha=cfg.p_ema_alpha, d_ema_alpha=cfg.d_ema_alpha, d_delay=cfg.d_delay,
+            cost_limit,
+            kp=cfg.kp,
+            ki=cfg.ki,
+            kd=cfg.kd,
+            init=cfg.lambda_init,
+            p_ema_alpha=cfg.p_ema_alpha,
+            d_ema_alpha=cfg.d_ema_alpha,
+            d_delay=cfg.d_delay,
             lambda_max=cfg.lambda_max,
         )
 

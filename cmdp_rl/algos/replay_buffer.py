@@ -11,8 +11,14 @@ from cmdp_rl import keys
 
 # What a transition keeps in the buffer: reward and cost are twins, as in the batch. A truncated
 # step keeps its final observation under "next" and bootstraps from it (only termination masks).
-STORED = (keys.OBS, keys.ACTION, (keys.NEXT, keys.OBS), (keys.NEXT, keys.REWARD), (keys.NEXT, keys.COST),
-          (keys.NEXT, keys.TERMINATED))
+STORED = (
+    keys.OBS,
+    keys.ACTION,
+    (keys.NEXT, keys.OBS),
+    (keys.NEXT, keys.REWARD),
+    (keys.NEXT, keys.COST),
+    (keys.NEXT, keys.TERMINATED),
+)
 
 
 class Replay:
@@ -20,7 +26,9 @@ class Replay:
     from torch's generator (seeded by the run; restored on resume)."""
 
     def __init__(self, size: int, batch_size: int, storage: str, device: torch.device | str = "cpu") -> None:
-        store = LazyMemmapStorage(size, device=device) if storage == "memmap" else LazyTensorStorage(size, device=device)
+        store = (
+            LazyMemmapStorage(size, device=device) if storage == "memmap" else LazyTensorStorage(size, device=device)
+        )
         self.buffer = TensorDictReplayBuffer(storage=store, batch_size=batch_size)
 
     def __len__(self) -> int:

@@ -40,8 +40,9 @@ class SACConfig(OffPolicyConfig):
     alpha_lr: PositiveFloat = 3e-4
     autotune: Bool = True  # false: alpha stays alpha_init
     # "auto": -dim(A), in the squashed action's units (module docstring)
-    target_entropy: Annotated[Union[Annotated[float, finite()], Literal["auto"]], Field(
-        description="a number or 'auto'")] = AUTO
+    target_entropy: Annotated[
+        Union[Annotated[float, finite()], Literal["auto"]], Field(description="a number or 'auto'")
+    ] = AUTO
 
 
 @options
@@ -74,7 +75,9 @@ class SAC(OffPolicy):
         eps = torch.randn_like(mu)
         u = mu + std * eps
         # log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)), exact and finite for large |u|
-        log_pi = (-0.5 * eps.pow(2) - std.log() - HALF_LOG_2PI - 2.0 * (LOG_2 - u - F.softplus(-2.0 * u))).sum(-1, keepdim=True)
+        log_pi = (-0.5 * eps.pow(2) - std.log() - HALF_LOG_2PI - 2.0 * (LOG_2 - u - F.softplus(-2.0 * u))).sum(
+            -1, keepdim=True
+        )
         return torch.tanh(u), log_pi
 
     def policy_action(self, x: torch.Tensor) -> torch.Tensor:
@@ -97,12 +100,19 @@ class SAC(OffPolicy):
             self.alpha_opt.zero_grad(set_to_none=True)
             loss_alpha.backward()
             self.alpha_opt.step()
-        return {"loss_pi": loss_pi.detach(), "alpha": alpha, "entropy": -log_pi.detach().mean(),
-                "q_cost_k": q_c.detach().mean(0)}
+        return {
+            "loss_pi": loss_pi.detach(),
+            "alpha": alpha,
+            "entropy": -log_pi.detach().mean(),
+            "q_cost_k": q_c.detach().mean(0),
+        }
 
     def state_dict(self) -> dict:
-        return {**super().state_dict(), "log_alpha": self.log_alpha.detach().clone(),
-                "alpha_opt": self.alpha_opt.state_dict()}
+        return {
+            **super().state_dict(),
+            "log_alpha": self.log_alpha.detach().clone(),
+            "alpha_opt": self.alpha_opt.state_dict(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         super().load_state_dict(state)

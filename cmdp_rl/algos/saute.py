@@ -46,8 +46,12 @@ class SauteConfig(PPOConfig):
     def check(self, run: RunConfig) -> None:
         super().check(run)
         limits = self.cost_limit if isinstance(self.cost_limit, list) else [self.cost_limit]
-        require(all(d > 0 for d in limits), "algo.cost_limit",
-                "> 0 with algo=saute (the budget state is the remaining fraction of it)", self.cost_limit)
+        require(
+            all(d > 0 for d in limits),
+            "algo.cost_limit",
+            "> 0 with algo=saute (the budget state is the remaining fraction of it)",
+            self.cost_limit,
+        )
 
     def wrap_env(self, env: VecEnv, evaluation: bool = False) -> VecEnv:
         """The safety augmented env: one budget state per cost; the reward reshaped for training."""

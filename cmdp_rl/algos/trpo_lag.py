@@ -30,7 +30,14 @@ from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.cpo import CPOConfig
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers
-from cmdp_rl.algos.natural_gradient import NO_STEP, NaturalGradient, Surrogates, fisher_vector_product, flat, line_search
+from cmdp_rl.algos.natural_gradient import (
+    NO_STEP,
+    NaturalGradient,
+    Surrogates,
+    fisher_vector_product,
+    flat,
+    line_search,
+)
 from cmdp_rl.algos.ppo import logged_multiplier, penalised
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -64,8 +71,9 @@ class TRPOLagrangian(NaturalGradient):
     def lagrange_multiplier(self) -> float | list[float]:
         return logged_multiplier(self.multiplier.values)
 
-    def policy_step(self, units: dict[str, torch.Tensor], episode_cost: float | Sequence[float],
-                    episode_length: float) -> dict[str, float]:
+    def policy_step(
+        self, units: dict[str, torch.Tensor], episode_cost: float | Sequence[float], episode_length: float
+    ) -> dict[str, float]:
         """``episode_cost``: J_c, or K numbers with K constraints."""
         cfg, params = self.cfg, self.policy_params
         lams = self.multiplier.update([episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost)
@@ -83,8 +91,16 @@ class TRPOLagrangian(NaturalGradient):
         if q <= 0.0:  # no gradient (e.g. all advantages equal): nothing to follow
             return {**NO_STEP, "entropy": self.entropy(units)}
         step = math.sqrt(2 * cfg.target_kl / q) * h_inv_g  # the trust region's boundary along H^-1 g (App. C)
-        accepted = line_search(params, step, surrogates, (surr.item(), cost_surr.item()), cfg.target_kl,
-                               cfg.line_search_steps, cfg.backtrack_coef, lambda d_reward, d_cost: d_reward > 0)
+        accepted = line_search(
+            params,
+            step,
+            surrogates,
+            (surr.item(), cost_surr.item()),
+            cfg.target_kl,
+            cfg.line_search_steps,
+            cfg.backtrack_coef,
+            lambda d_reward, d_cost: d_reward > 0,
+        )
         return {"entropy": self.entropy(units), **accepted}
 
     def state_dict(self) -> dict:

@@ -25,8 +25,16 @@ def dodge(i: int, n: int, span: float) -> float:
     return (i - (n - 1) / 2) * 0.015 * span
 
 
-def seeds_and_means(ax: Any, xs: Sequence[float], ys: Sequence[float], means: Sequence[tuple[float, float]],
-                    x_shift: float, color: str, label: str, marker: str = "o") -> None:
+def seeds_and_means(
+    ax: Any,
+    xs: Sequence[float],
+    ys: Sequence[float],
+    means: Sequence[tuple[float, float]],
+    x_shift: float,
+    color: str,
+    label: str,
+    marker: str = "o",
+) -> None:
     """Every seed's ``(x, y)`` as a small dot, the ``(x, mean)`` pairs as large markers (labelled)."""
     ax.plot([x + x_shift for x in xs], ys, ".", color=color, alpha=0.45, ms=5)
     if means:
@@ -34,20 +42,23 @@ def seeds_and_means(ax: Any, xs: Sequence[float], ys: Sequence[float], means: Se
         ax.plot(x + x_shift, y, marker, color=color, ms=7, label=label)
 
 
-def _runs_series(ax: Any, mine: list[Run], means: list[tuple[float, float]], x_shift: float, color: str,
-                 label: str) -> None:
+def _runs_series(
+    ax: Any, mine: list[Run], means: list[tuple[float, float]], x_shift: float, color: str, label: str
+) -> None:
     seeds_and_means(ax, [r.key.value for r in mine], [r.eval_cost for r in mine], means, x_shift, color, label)
 
 
-def penalty_constraint_figure(path: Path, rows: list[dict[str, Any]], runs: list[Run],
-                              reference: Reference | None) -> None:
+def penalty_constraint_figure(
+    path: Path, rows: list[dict[str, Any]], runs: list[Run], reference: Reference | None
+) -> None:
     """Draw the figure (see the module docstring) from the table's ``rows`` and the ``runs``."""
     plt = pyplot()
 
     starts = sorted({r["start"] for r in rows})
     con_starts = sorted({r["start"] for r in rows if r["knob"] == "d"})
-    fig, axes = plt.subplots(1, 1 + max(1, len(con_starts)), figsize=(5.6 * (1 + max(1, len(con_starts))), 4.8),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        1, 1 + max(1, len(con_starts)), figsize=(5.6 * (1 + max(1, len(con_starts))), 4.8), squeeze=False
+    )
     ax_p, con_axes = axes[0][0], axes[0][1:]
     done = [r for r in runs if r.status == OK and r.key is not None]
     budgets = sorted({r["value"] for r in rows if r["knob"] == "d"})
@@ -58,14 +69,21 @@ def penalty_constraint_figure(path: Path, rows: list[dict[str, Any]], runs: list
     for i, s in enumerate(starts):
         shift = dodge(i, len(starts), lam_max)
         mine = [r for r in done if r.key.knob == "lambda" and r.key.start == s]
-        means = sorted((r["value"], r["cost_mean"]) for r in rows
-                       if r["knob"] == "lambda" and r["start"] == s and r["runs_ok"])
+        means = sorted(
+            (r["value"], r["cost_mean"]) for r in rows if r["knob"] == "lambda" and r["start"] == s and r["runs_ok"]
+        )
         if mine:
             _runs_series(ax_p, mine, means, shift, f"C{i}", f"runs: mean (dots: seeds), {s}")
         if reference is not None and s in reference.starts:
             grid = np.linspace(0.0, lam_max, 600)
-            ax_p.plot(grid, reference.cost_curve(s, grid), "--",
-                      color=f"C{i}", alpha=0.8, label=f"penalty-optimal plan (DP), {s}")
+            ax_p.plot(
+                grid,
+                reference.cost_curve(s, grid),
+                "--",
+                color=f"C{i}",
+                alpha=0.8,
+                label=f"penalty-optimal plan (DP), {s}",
+            )
     marker = reference.penalty_marker() if reference is not None else None
     if marker is not None:
         ax_p.axvline(marker[0], color="0.3", lw=0.8)
@@ -73,8 +91,12 @@ def penalty_constraint_figure(path: Path, rows: list[dict[str, Any]], runs: list
     for d in budgets:
         ax_p.axhline(d, color="0.6", lw=0.8, ls=":")
         ax_p.annotate(f"d={d:g}", (lam_max, d), fontsize=7, color="0.4", ha="right", va="bottom")
-    ax_p.set(xlabel="fixed penalty λ", ylabel="episode cost (crossings), final eval", ylim=(-0.05, 1.15),
-             title="Penalty r − λc: cost against λ (dotted: budgets d)")
+    ax_p.set(
+        xlabel="fixed penalty λ",
+        ylabel="episode cost (crossings), final eval",
+        ylim=(-0.05, 1.15),
+        title="Penalty r − λc: cost against λ (dotted: budgets d)",
+    )
     if not any(r.key.knob == "lambda" for r in done):
         ax_p.text(0.5, 0.5, "no finished penalty runs", transform=ax_p.transAxes, ha="center")
     if ax_p.get_legend_handles_labels()[0]:
@@ -95,13 +117,28 @@ def penalty_constraint_figure(path: Path, rows: list[dict[str, Any]], runs: list
             mine = [r for r in done if r.key.knob == "d" and r.key.start == s and r.key.algo == algo]
             mine_rows = [r for r in rows if r["knob"] == "d" and r["start"] == s and r["algo"] == algo and r["runs_ok"]]
             if mine:
-                _runs_series(ax, mine, sorted((r["value"], r["cost_mean"]) for r in mine_rows), shift, color,
-                             f"{algo}: eval mean (dots: seeds)")
+                _runs_series(
+                    ax,
+                    mine,
+                    sorted((r["value"], r["cost_mean"]) for r in mine_rows),
+                    shift,
+                    color,
+                    f"{algo}: eval mean (dots: seeds)",
+                )
                 tc = sorted((r["value"], r["train_cost_mean"]) for r in mine_rows)
-                ax.plot([v + shift for v, _ in tc], [c for _, c in tc], "x", color=color, ms=7,
-                        label=f"{algo}: training cost, last 25%")
-        ax.set(xlabel="budget d (expected crossings per episode)", ylabel="episode cost (crossings)",
-               title=f"Constraint J_c ≤ d, {s}")
+                ax.plot(
+                    [v + shift for v, _ in tc],
+                    [c for _, c in tc],
+                    "x",
+                    color=color,
+                    ms=7,
+                    label=f"{algo}: training cost, last 25%",
+                )
+        ax.set(
+            xlabel="budget d (expected crossings per episode)",
+            ylabel="episode cost (crossings)",
+            title=f"Constraint J_c ≤ d, {s}",
+        )
         if not any(r.key.knob == "d" and r.key.start == s for r in done):
             ax.text(0.5, 0.5, "no finished constrained runs", transform=ax.transAxes, ha="center")
         ax.legend(fontsize=7, loc="upper left")

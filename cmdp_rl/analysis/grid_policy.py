@@ -24,8 +24,10 @@ from cmdp_rl.policies.agent import Agent
 def policy_table(agent: Agent, cmdp: GridCMDP) -> np.ndarray:
     """``pi[s, a]``: the agent's action probabilities on the one-hot observation of each state."""
     if agent.recurrent or set(agent.in_keys) - {keys.OBS, keys.IS_INIT}:
-        raise ValueError(f"policy_table: the policy reads {agent.in_keys}, not the observation alone; "
-                         "only a memoryless policy is a table")
+        raise ValueError(
+            f"policy_table: the policy reads {agent.in_keys}, not the observation alone; "
+            "only a memoryless policy is a table"
+        )
     obs = torch.zeros(cmdp.num_states, cmdp.layout.num_cells)
     obs[torch.arange(cmdp.num_states), torch.as_tensor(cmdp.state_cells)] = 1.0
     with torch.no_grad():
@@ -55,5 +57,6 @@ class Gap:
 
 def exact_gap(agent: Agent, cmdp: GridCMDP, best: ConstrainedOptimum) -> Gap:
     value: PolicyValue = evaluate(cmdp, policy_table(agent, cmdp))
-    return Gap(float(value.ret), tuple(float(c) for c in value.costs), float(best.ret),
-               tuple(float(d) for d in best.budgets))
+    return Gap(
+        float(value.ret), tuple(float(c) for c in value.costs), float(best.ret), tuple(float(d) for d in best.budgets)
+    )

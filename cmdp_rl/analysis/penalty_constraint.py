@@ -21,7 +21,15 @@ import numpy as np
 from cmdp_rl.analysis.stats import sample_mean_std, tail_mean
 from cmdp_rl.analysis.tables import markdown_table, pm
 from cmdp_rl.run.sweeps import (
-    MISSING, OK, SUPERSEDED, MissingJob, RunRecord, job_values, read_sweeps, rerun_command, sweep_dir_of,
+    MISSING,
+    OK,
+    SUPERSEDED,
+    MissingJob,
+    RunRecord,
+    job_values,
+    read_sweeps,
+    rerun_command,
+    sweep_dir_of,
 )
 
 PENALTY_ALGOS = ("penalty", "ppo")  # a fixed lambda (ppo: lambda = 0)
@@ -140,11 +148,21 @@ def table_rows(runs: list[Run], reference: Reference | None) -> list[dict[str, A
         tc_m, tc_s = sample_mean_std([r.train_cost for r in ok])
         lam_m, _ = sample_mean_std([r.final_lambda for r in ok])
         row: dict[str, Any] = {
-            "algo": key.algo, "knob": key.knob, "value": key.value, "start": key.start,
-            "runs_ok": len(ok), "runs": len(members),
-            "return_mean": ret_m, "return_std": ret_s, "cost_mean": cost_m, "cost_std": cost_s,
-            "train_cost_mean": tc_m, "train_cost_std": tc_s, "final_lambda_mean": lam_m,
-            "predicted_cost": math.nan, "check": "",
+            "algo": key.algo,
+            "knob": key.knob,
+            "value": key.value,
+            "start": key.start,
+            "runs_ok": len(ok),
+            "runs": len(members),
+            "return_mean": ret_m,
+            "return_std": ret_s,
+            "cost_mean": cost_m,
+            "cost_std": cost_s,
+            "train_cost_mean": tc_m,
+            "train_cost_std": tc_s,
+            "final_lambda_mean": lam_m,
+            "predicted_cost": math.nan,
+            "check": "",
         }
         if reference is not None and key.start in reference.starts and ok:
             if key.knob == "lambda":
@@ -163,14 +181,33 @@ def _number(value: float, spec: str = ".2f") -> str:
 
 
 def table_markdown(rows: list[dict[str, Any]]) -> str:
-    header = ["algo", "λ or d", "start", "runs ok", "eval return", "eval cost", "train cost (last 25%)",
-              "final λ", "predicted cost", "check"]
-    cells = [[
-        r["algo"], f"λ={r['value']:g}" if r["knob"] == "lambda" else f"d={r['value']:g}", r["start"],
-        f"{r['runs_ok']}/{r['runs']}", pm(r["return_mean"], r["return_std"]), pm(r["cost_mean"], r["cost_std"]),
-        pm(r["train_cost_mean"], r["train_cost_std"]), _number(r["final_lambda_mean"]),
-        _number(r["predicted_cost"]), r["check"],
-    ] for r in rows]
+    header = [
+        "algo",
+        "λ or d",
+        "start",
+        "runs ok",
+        "eval return",
+        "eval cost",
+        "train cost (last 25%)",
+        "final λ",
+        "predicted cost",
+        "check",
+    ]
+    cells = [
+        [
+            r["algo"],
+            f"λ={r['value']:g}" if r["knob"] == "lambda" else f"d={r['value']:g}",
+            r["start"],
+            f"{r['runs_ok']}/{r['runs']}",
+            pm(r["return_mean"], r["return_std"]),
+            pm(r["cost_mean"], r["cost_std"]),
+            pm(r["train_cost_mean"], r["train_cost_std"]),
+            _number(r["final_lambda_mean"]),
+            _number(r["predicted_cost"]),
+            r["check"],
+        ]
+        for r in rows
+    ]
     return markdown_table(header, cells, align="lrlrrrrrrl") + "\n"
 
 
@@ -179,10 +216,15 @@ def penalty_markdown(rows: list[dict[str, Any]]) -> list[str]:
     pen = [r for r in rows if r["knob"] == "lambda" and r["runs_ok"]]
     if not pen:
         return []
-    cells = [[r["start"], f"{r['value']:g}", f"{r['predicted_cost']:.2f}", pm(r["cost_mean"], r["cost_std"]),
-              r["check"]] for r in pen]
-    return ["Against the runs (mean eval cost over seeds; predicted: the penalty-optimal plan):\n",
-            markdown_table(["start", "λ", "predicted cost", "runs: eval cost", "check"], cells, "lrrrl"), ""]
+    cells = [
+        [r["start"], f"{r['value']:g}", f"{r['predicted_cost']:.2f}", pm(r["cost_mean"], r["cost_std"]), r["check"]]
+        for r in pen
+    ]
+    return [
+        "Against the runs (mean eval cost over seeds; predicted: the penalty-optimal plan):\n",
+        markdown_table(["start", "λ", "predicted cost", "runs: eval cost", "check"], cells, "lrrrl"),
+        "",
+    ]
 
 
 def budget_markdown(rows: list[dict[str, Any]]) -> list[str]:
@@ -190,23 +232,46 @@ def budget_markdown(rows: list[dict[str, Any]]) -> list[str]:
     con = [r for r in rows if r["knob"] == "d" and r["runs_ok"]]
     if not con:
         return []
-    cells = [[r["algo"], r["start"], f"{r['value']:g}", f"{r['predicted_cost']:.2f}", pm(r["cost_mean"], r["cost_std"]),
-              pm(r["train_cost_mean"], r["train_cost_std"]), _number(r["final_lambda_mean"]), r["check"]]
-             for r in con]
+    cells = [
+        [
+            r["algo"],
+            r["start"],
+            f"{r['value']:g}",
+            f"{r['predicted_cost']:.2f}",
+            pm(r["cost_mean"], r["cost_std"]),
+            pm(r["train_cost_mean"], r["train_cost_std"]),
+            _number(r["final_lambda_mean"]),
+            r["check"],
+        ]
+        for r in con
+    ]
     header = ["algo", "start", "d", "ideal cost", "eval cost", "train cost (last 25%)", "final λ", "check"]
-    return ["\nConstrained runs (ideal cost = min(d, expected crossings of the unconstrained optimum)):\n",
-            markdown_table(header, cells, "llrrrrrl")]
+    return [
+        "\nConstrained runs (ideal cost = min(d, expected crossings of the unconstrained optimum)):\n",
+        markdown_table(header, cells, "llrrrrrl"),
+    ]
 
 
 def status_rows(runs: list[Run]) -> list[dict[str, Any]]:
     """Every run and missing job with its status, the unfinished ones first."""
-    return [{
-        "status": r.status, "algo": r.key.algo if r.key else "", "knob": r.key.knob if r.key else "",
-        "value": r.key.value if r.key else "", "start": r.key.start if r.key else "", "seed": r.seed,
-        "eval_return": r.eval_return, "eval_cost": r.eval_cost, "train_cost": r.train_cost,
-        "final_lambda": r.final_lambda, "error": r.error or "", "path": r.path,
-        "overrides": " ".join(r.overrides),
-    } for r in sorted(runs, key=lambda r: (r.status == OK, r.path, r.overrides))]
+    return [
+        {
+            "status": r.status,
+            "algo": r.key.algo if r.key else "",
+            "knob": r.key.knob if r.key else "",
+            "value": r.key.value if r.key else "",
+            "start": r.key.start if r.key else "",
+            "seed": r.seed,
+            "eval_return": r.eval_return,
+            "eval_cost": r.eval_cost,
+            "train_cost": r.train_cost,
+            "final_lambda": r.final_lambda,
+            "error": r.error or "",
+            "path": r.path,
+            "overrides": " ".join(r.overrides),
+        }
+        for r in sorted(runs, key=lambda r: (r.status == OK, r.path, r.overrides))
+    ]
 
 
 def unfinished(runs: Sequence[Run]) -> list[Run]:
@@ -217,6 +282,8 @@ def unfinished(runs: Sequence[Run]) -> list[Run]:
 def rerun_script(runs: Sequence[Run]) -> str:
     """A shell script running every unfinished job again, each into ``<its sweep>/rerun``."""
     redo = [r for r in unfinished(runs) if r.overrides]
-    return ("# Runs that did not finish, each run again into <its sweep>/rerun;\n"
-            "# the report then uses the rerun in place of the original.\n"
-            + "".join(rerun_command(r.overrides, r.sweep_dir()) + "\n" for r in redo))
+    return (
+        "# Runs that did not finish, each run again into <its sweep>/rerun;\n"
+        "# the report then uses the rerun in place of the original.\n"
+        + "".join(rerun_command(r.overrides, r.sweep_dir()) + "\n" for r in redo)
+    )

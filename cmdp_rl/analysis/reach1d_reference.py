@@ -66,7 +66,8 @@ def reach1d_reference(records: list[RunRecord]) -> Reach1DReference | None:
         start = r.config["env"].get("start")
         reference.starts.setdefault(start_label(start), start)
         if {k: v for k, v in r.config["env"].items() if k != "start"} != {
-                k: v for k, v in first.config["env"].items() if k != "start"}:
+            k: v for k, v in first.config["env"].items() if k != "start"
+        }:
             reference.mixed_envs.append(str(r.path))
     return reference
 
@@ -84,14 +85,20 @@ def answers_markdown(reference: Reach1DReference | None, rows: list[dict[str, An
         "(no sensor noise), positions on a 0.001 grid (`cmdp_rl/envs/reach1d/optimum.py`).\n"
     )
     if reference.mixed_envs:
-        out.append(f"Warning: {len(reference.mixed_envs)} runs used other env parameters than the first "
-                   f"(e.g. {reference.mixed_envs[0]}); the analysis below is for the first run's env.\n")
+        out.append(
+            f"Warning: {len(reference.mixed_envs)} runs used other env parameters than the first "
+            f"(e.g. {reference.mixed_envs[0]}); the analysis below is for the first run's env.\n"
+        )
     if e.wall != "pass":
-        out.append("With wall=block a crossing move is cancelled: crossing never pays, for any "
-                   "lambda >= 0, so there is no threshold to find.\n")
+        out.append(
+            "With wall=block a crossing move is cancelled: crossing never pays, for any "
+            "lambda >= 0, so there is no threshold to find.\n"
+        )
     out.append("## (a) A penalty under which the optimal policy still collides\n")
-    text = (f"From the seed's start x0 = {SEED_START} the penalty-optimal policy crosses the wall for every "
-            f"lambda < lambda* = {th.at(SEED_START):.4f} (DP)")
+    text = (
+        f"From the seed's start x0 = {SEED_START} the penalty-optimal policy crosses the wall for every "
+        f"lambda < lambda* = {th.at(SEED_START):.4f} (DP)"
+    )
     if e.wall == "pass" and reference.cost_gamma == g:
         text += (
             f"; by hand, lambda* = 0.1 (1 + γ + γ² + γ³) + γ³ = {closed_form_threshold(e, g):.4f} for γ = {g}: "
@@ -114,14 +121,17 @@ def answers_markdown(reference: Reach1DReference | None, rows: list[dict[str, An
     for lbl, start in reference.starts.items():
         jumps = th.jumps(start)
         desc = ", ".join(f"a drop of {p:.3f} at λ = {lam:.4f}" for lam, p in jumps) or "no jump (never crosses)"
-        out.append(f"- {lbl}: expected crossings of the penalty-optimal policy = "
-                   f"{reference.unconstrained_cost(lbl):.3f} for small λ; {desc}; 0 beyond.")
+        out.append(
+            f"- {lbl}: expected crossings of the penalty-optimal policy = "
+            f"{reference.unconstrained_cost(lbl):.3f} for small λ; {desc}; 0 beyond."
+        )
     out.append("")
     left = th.threshold[th.x < e.wall_x]
     if left.size and e.wall == "pass":
         out.append(
             f"Per-start thresholds: every start left of the wall has the same λ*(x0) = "
-            f"{left.min():.4f}" + (f" to {left.max():.4f}" if left.max() - left.min() > 1e-9 else "")
+            f"{left.min():.4f}"
+            + (f" to {left.max():.4f}" if left.max() - left.min() > 1e-9 else "")
             + "; starts at or beyond the wall never cross (λ* = 0). "
             "For a fixed λ the penalized problem is an ordinary MDP whose optimal policy is "
             "deterministic: from each start it crosses or it does not. Its expected cost is "

@@ -40,6 +40,6 @@ def tail_mean(values: Sequence[float], fraction: float) -> float:
     none is finite."""
     if not len(values):
         return math.nan
-    tail = np.array(values[-max(1, int(round(len(values) * fraction))):], dtype=float)
+    tail = np.array(values[-max(1, int(round(len(values) * fraction))) :], dtype=float)
     tail = tail[np.isfinite(tail)]
     return float(tail.mean()) if tail.size else math.nan

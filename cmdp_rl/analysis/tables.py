@@ -8,8 +8,9 @@ from pathlib import Path
 from typing import Any, Sequence
 
 
-def pm(mean: float | None, std: float | None = None, spec: str = ".3f", std_spec: str | None = None,
-       missing: str = "n/a") -> str:
+def pm(
+    mean: float | None, std: float | None = None, spec: str = ".3f", std_spec: str | None = None, missing: str = "n/a"
+) -> str:
     """``"mean ± std"`` formatted with ``spec`` (the std with ``std_spec``, default ``spec``);
     ``missing`` where there is no mean (None or nan), the mean alone where there is no std."""
     if mean is None or not math.isfinite(mean):

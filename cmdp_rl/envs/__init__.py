@@ -10,9 +10,9 @@ from cmdp_rl.envs.contract import EnvContractError, check_env
 from cmdp_rl.envs.grid.env import GRID_ID, GridWorld
 from cmdp_rl.envs.grid.task import GridEnvConfig
 from cmdp_rl.envs.gym_cost import make_cost_env
+from cmdp_rl.envs.reach1d.batched import NoiseSource, TorchNoise, TorchReach1D
 from cmdp_rl.envs.reach1d.env import Reach1D
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
-from cmdp_rl.envs.reach1d.batched import NoiseSource, TorchNoise, TorchReach1D
 from cmdp_rl.envs.vector import GymVecEnv, Step, VecEnv
 from cmdp_rl.envs.velocity import make_velocity_env
 from cmdp_rl.registry import component
@@ -25,8 +25,9 @@ def reach1d_kwargs(cfg: Reach1DConfig) -> dict:
     return cfg.env_kwargs()
 
 
-def make_env(cfg: Any, num_envs: int | None = None, device: str = "cpu", algo: Any = None,
-             evaluation: bool = False) -> VecEnv:
+def make_env(
+    cfg: Any, num_envs: int | None = None, device: str = "cpu", algo: Any = None, evaluation: bool = False
+) -> VecEnv:
     """Build the batched env a config names (``num_envs`` overrides ``cfg.num_envs``).
 
     ``device`` is where the env's tensors live: a torch backend steps there; a gymnasium backend
@@ -47,7 +48,23 @@ def make_eval_env(cfg: Any, num_envs: int | None = None, device: str = "cpu", al
 
 
 __all__ = [
-    "GRID_ID", "REACH1D_ID", "EnvContractError", "GridEnvConfig", "GridWorld", "GymVecEnv", "NoiseSource", "Reach1D", "Reach1DConfig",
-    "Step", "TorchNoise", "TorchReach1D",
-    "VecEnv", "check_env", "make_cost_env", "make_env", "make_eval_env", "make_velocity_env", "reach1d_kwargs",
+    "GRID_ID",
+    "REACH1D_ID",
+    "EnvContractError",
+    "GridEnvConfig",
+    "GridWorld",
+    "GymVecEnv",
+    "NoiseSource",
+    "Reach1D",
+    "Reach1DConfig",
+    "Step",
+    "TorchNoise",
+    "TorchReach1D",
+    "VecEnv",
+    "check_env",
+    "make_cost_env",
+    "make_env",
+    "make_eval_env",
+    "make_velocity_env",
+    "reach1d_kwargs",
 ]

@@ -96,14 +96,19 @@ class _Checker:
         if not isinstance(action_space, ACTION_SPACES):
             self.fail(None, "action_space", f"{action_space} is not supported; supported: Box, Discrete, MultiDiscrete")
         if not isinstance(observation_space, OBSERVATION_SPACES):
-            self.fail(None, "observation_space",
-                      f"{observation_space} is not supported; supported: Box, Discrete, MultiDiscrete, MultiBinary")
+            self.fail(
+                None,
+                "observation_space",
+                f"{observation_space} is not supported; supported: Box, Discrete, MultiDiscrete, MultiBinary",
+            )
 
     # --- one env's values ---
     def observation(self, where: tuple[int, int], obs: Any, space: gym.Space, field: str = "observation") -> None:
         if isinstance(space, spaces.Box):
             if not isinstance(obs, np.ndarray):
-                self.fail(where, field, f"must be a numpy array (observation_space is {space}), got {type(obs).__name__}")
+                self.fail(
+                    where, field, f"must be a numpy array (observation_space is {space}), got {type(obs).__name__}"
+                )
             if obs.shape != space.shape:
                 self.fail(where, field, f"has shape {obs.shape}, observation_space has {space.shape}")
             if not np.can_cast(obs.dtype, space.dtype):
@@ -127,7 +132,9 @@ class _Checker:
         if not isinstance(info, dict):
             self.fail(where, "info", f"must be a dict, got {type(info).__name__}")
         if "cost" not in info:
-            self.fail(where, COST, f"is missing (info keys: {sorted(map(str, info))}); a CMDP env reports its cost there")
+            self.fail(
+                where, COST, f"is missing (info keys: {sorted(map(str, info))}); a CMDP env reports its cost there"
+            )
         value = info["cost"]
         if isinstance(value, (bool, np.bool_)):
             self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {value!r}")
@@ -142,8 +149,9 @@ class _Checker:
             if cost.ndim != 1 or cost.size == 0:
                 self.fail(where, COST, f"must be a number or a 1-D array of numbers, got shape {cost.shape}")
         else:
-            self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {_short(value)} "
-                                   f"({type(value).__name__})")
+            self.fail(
+                where, COST, f"must be a number or a 1-D array of numbers, got {_short(value)} ({type(value).__name__})"
+            )
         self.cost_vector(where, cost)
 
     def cost_vector(self, where: tuple[int, int], cost: np.ndarray) -> None:
@@ -151,16 +159,22 @@ class _Checker:
         if self.num_costs is None:
             self.num_costs = k
             if self.cost_names is not None and len(self.cost_names) != k:
-                self.fail(where, "cost_names", f"has {len(self.cost_names)} names {_short(self.cost_names)}, "
-                                               f"but {COST} has {k} entries")
+                self.fail(
+                    where,
+                    "cost_names",
+                    f"has {len(self.cost_names)} names {_short(self.cost_names)}, but {COST} has {k} entries",
+                )
         elif k != self.num_costs:
             self.fail(where, COST, f"has {k} entries, earlier steps had {self.num_costs}")
         shown = _short(cost) if k > 1 else repr(float(cost[0]))
         if not np.isfinite(cost).all():
             self.fail(where, COST, f"is {shown}; costs must be finite")
         if not self.allow_negative_cost and (cost < 0).any():
-            self.fail(where, COST, f"is {shown}; costs must be >= 0 in a CMDP "
-                                   "(env.allow_negative_cost=true accepts signed costs)")
+            self.fail(
+                where,
+                COST,
+                f"is {shown}; costs must be >= 0 in a CMDP (env.allow_negative_cost=true accepts signed costs)",
+            )
 
     def result(self) -> EnvContract:
         k = self.num_costs or 1
@@ -178,8 +192,9 @@ def _cost_names(env: gym.Env) -> Any:
         return None
 
 
-def _check_gym_envs(envs: Sequence[gym.Env], steps: int, seed: int, allow_negative_cost: bool,
-                    env_id: str | None) -> EnvContract:
+def _check_gym_envs(
+    envs: Sequence[gym.Env], steps: int, seed: int, allow_negative_cost: bool, env_id: str | None
+) -> EnvContract:
     """Each gymnasium env in turn: reset, ``steps`` random actions, a reset after every episode end."""
     first = envs[0]
     check = _Checker(env_id or _env_id(first), _cost_names(first), allow_negative_cost)
@@ -194,8 +209,11 @@ def _check_gym_envs(envs: Sequence[gym.Env], steps: int, seed: int, allow_negati
             out = env.step(env.action_space.sample())
             if not (isinstance(out, tuple) and len(out) == 5):
                 n = len(out) if isinstance(out, tuple) else type(out).__name__
-                check.fail((index, t), "step()", f"must return (observation, reward, terminated, truncated, info), "
-                                                 f"got {n} values")
+                check.fail(
+                    (index, t),
+                    "step()",
+                    f"must return (observation, reward, terminated, truncated, info), got {n} values",
+                )
             obs, reward, terminated, truncated, info = out
             check.observation((index, t), obs, env.observation_space)
             check.reward((index, t), reward)
@@ -222,8 +240,14 @@ def _check_tensor_env(env: Any, steps: int, seed: int, allow_negative_cost: bool
     def first_bad(bad: torch.Tensor) -> int:
         return int(torch.nonzero(bad.reshape(n, -1).any(-1))[0, 0])
 
-    def batch(t: int, field: str, value: torch.Tensor, shape: tuple[int, ...], finite: bool = True,
-              dtype_check: Callable[[torch.dtype], bool] | None = None) -> None:
+    def batch(
+        t: int,
+        field: str,
+        value: torch.Tensor,
+        shape: tuple[int, ...],
+        finite: bool = True,
+        dtype_check: Callable[[torch.dtype], bool] | None = None,
+    ) -> None:
         if tuple(value.shape) != shape:
             check.fail((0, t), field, f"has shape {tuple(value.shape)} over the batch, expected {shape}")
         if dtype_check is not None and not dtype_check(value.dtype):
@@ -283,10 +307,12 @@ def check_rollout(batch: Any, env_id: str, allow_negative_cost: bool = False, fi
     # (t offset of the env step the entry came from, entry, breach mask); root observations at t
     # were returned by step t - 1 (by the reset at step 0).
     found = []
-    for offset, name, value, bad in ((-1, "observation", obs, ~torch.isfinite(obs)),
-                                     (0, "observation", next_obs, ~torch.isfinite(next_obs)),
-                                     (0, "reward", reward, ~torch.isfinite(reward)),
-                                     (0, COST, cost, bad_cost)):
+    for offset, name, value, bad in (
+        (-1, "observation", obs, ~torch.isfinite(obs)),
+        (0, "observation", next_obs, ~torch.isfinite(next_obs)),
+        (0, "reward", reward, ~torch.isfinite(reward)),
+        (0, COST, cost, bad_cost),
+    ):
         hit = first(bad)
         if hit is not None:
             found.append((first_step + hit[0] + offset, hit[1], name, value[hit[1], hit[0]]))
@@ -301,8 +327,9 @@ def check_rollout(batch: Any, env_id: str, allow_negative_cost: bool = False, fi
     check.fail(where, name, f"is not finite: {_short(value.detach().cpu())}")
 
 
-def check_env(env: Any, steps: int = 100, seed: int = 0, allow_negative_cost: bool = False,
-              env_id: str | None = None) -> EnvContract:
+def check_env(
+    env: Any, steps: int = 100, seed: int = 0, allow_negative_cost: bool = False, env_id: str | None = None
+) -> EnvContract:
     """Step ``env`` (a gymnasium env, a gymnasium ``SyncVectorEnv``, or a ``cmdp_rl.envs.VecEnv``)
     ``steps`` times per env with random actions and raise :class:`EnvContractError` at the first
     breach of the CMDP contract (module docstring); return K and the cost names found.

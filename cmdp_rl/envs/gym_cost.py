@@ -115,15 +115,21 @@ class GymEnvConfig(EnvOptions):
         creator = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
         modes = list(getattr(creator, "metadata", {}).get("render_modes", []))
         if "rgb_array" not in modes:
-            raise ConfigError(f"video: env=gym env.id={self.id} cannot render rgb_array frames (its render modes: {modes})")
+            raise ConfigError(
+                f"video: env=gym env.id={self.id} cannot render rgb_array frames (its render modes: {modes})"
+            )
         return make_cost_env(self.id, self.step_api, self.max_steps, **{"render_mode": "rgb_array", **self.kwargs})
 
 
 def make_gym_vec_env(cfg: GymEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
     from cmdp_rl.envs.vector import GymVecEnv
 
-    return GymVecEnv(partial(make_cost_env, cfg.id, cfg.step_api, cfg.max_steps, **cfg.kwargs), num_envs, device=device,
-                     env_id=cfg.id)
+    return GymVecEnv(
+        partial(make_cost_env, cfg.id, cfg.step_api, cfg.max_steps, **cfg.kwargs),
+        num_envs,
+        device=device,
+        env_id=cfg.id,
+    )
 
 
 register("env", "gym", GymEnvConfig, make_gym_vec_env)

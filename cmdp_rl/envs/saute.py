@@ -31,8 +31,9 @@ class BudgetState:
     """The K normalised remaining budgets ``z`` of ``num_envs`` episodes (module docstring): the
     training env's and the video's (``video.py``) one count, so the policy sees the same state in both."""
 
-    def __init__(self, budgets: Sequence[float], discount: float, num_envs: int,
-                 device: torch.device | str = "cpu") -> None:
+    def __init__(
+        self, budgets: Sequence[float], discount: float, num_envs: int, device: torch.device | str = "cpu"
+    ) -> None:
         if min(budgets) <= 0:
             raise ValueError(f"budget state: one budget > 0 per cost needed, got {list(budgets)}")
         if not 0 < discount <= 1:
@@ -71,8 +72,14 @@ class BudgetStateEnv(VecEnv):
     end (terminated or truncated) restores the full budget, ``z = 1``, in the observation the agent
     acts on next."""
 
-    def __init__(self, env: VecEnv, budgets: Sequence[float], discount: float = 1.0, unsafe_reward: float = 0.0,
-                 reshape_reward: bool = True) -> None:
+    def __init__(
+        self,
+        env: VecEnv,
+        budgets: Sequence[float],
+        discount: float = 1.0,
+        unsafe_reward: float = 0.0,
+        reshape_reward: bool = True,
+    ) -> None:
         if len(budgets) != env.num_costs:
             raise ValueError(f"budget state: one budget > 0 per cost ({env.num_costs}) needed, got {list(budgets)}")
         self.state = BudgetState(budgets, discount, env.num_envs, env.device)
@@ -112,8 +119,14 @@ class BudgetStateEnv(VecEnv):
             reward = torch.where(spent, torch.full_like(reward, self.unsafe_reward), reward)
         done = s.terminated | s.truncated
         self.state.z = torch.where(done, self.state.full(), z_next)  # a new episode starts with the whole budget
-        return Step(next_obs=self.state.augment(s.next_obs, z_next), reward=reward, cost=s.cost,
-                    terminated=s.terminated, truncated=s.truncated, obs=self.state.observation(s.obs))
+        return Step(
+            next_obs=self.state.augment(s.next_obs, z_next),
+            reward=reward,
+            cost=s.cost,
+            terminated=s.terminated,
+            truncated=s.truncated,
+            obs=self.state.observation(s.obs),
+        )
 
     def state_dict(self) -> dict[str, Any]:
         return {"env": self.env.state_dict(), "z": self.z.clone()}

@@ -128,8 +128,14 @@ class GymVecEnv(VecEnv):
     so :meth:`state_dict` is left to subclasses that know how to fetch their envs' state.
     """
 
-    def __init__(self, make_one: Callable[[], gym.Env], num_envs: int, device: str | torch.device = "cpu",
-                 asynchronous: bool = False, env_id: str = "env") -> None:
+    def __init__(
+        self,
+        make_one: Callable[[], gym.Env],
+        num_envs: int,
+        device: str | torch.device = "cpu",
+        asynchronous: bool = False,
+        env_id: str = "env",
+    ) -> None:
         vector = AsyncVectorEnv if asynchronous else SyncVectorEnv
         self.envs = vector([make_one for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
         self.num_envs = num_envs

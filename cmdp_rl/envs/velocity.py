@@ -106,7 +106,9 @@ def require_mujoco() -> None:
         ) from exc
 
 
-def make_velocity_env(task: str, velocity_threshold: float | None = None, max_steps: int = 1000, **kwargs: Any) -> gym.Env:
+def make_velocity_env(
+    task: str, velocity_threshold: float | None = None, max_steps: int = 1000, **kwargs: Any
+) -> gym.Env:
     """Gymnasium's ``<task>-v5`` with its velocity cost; ``velocity_threshold=None`` takes the task's."""
     if task not in VELOCITY_TASKS:
         raise ValueError(f"env.task must be one of {sorted(VELOCITY_TASKS)}, got {task!r}")
@@ -135,8 +137,9 @@ class VelocityEnvConfig(EnvOptions):
     def render_env(self) -> gym.Env:
         """One env of this task rendering ``rgb_array`` frames of RENDER_SIZE (for video)."""
         w, h = RENDER_SIZE
-        return make_velocity_env(self.task, self.velocity_threshold, self.max_steps, render_mode="rgb_array",
-                                 width=w, height=h)
+        return make_velocity_env(
+            self.task, self.velocity_threshold, self.max_steps, render_mode="rgb_array", width=w, height=h
+        )
 
 
 RENDER_SIZE = (320, 240)  # video frames (width, height): multiples of 16, as video encoders like
@@ -145,7 +148,9 @@ RENDER_SIZE = (320, 240)  # video frames (width, height): multiples of 16, as vi
 def make_velocity_vec_env(cfg: VelocityEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
     from cmdp_rl.envs.vector import GymVecEnv
 
-    return GymVecEnv(partial(make_velocity_env, cfg.task, cfg.velocity_threshold, cfg.max_steps), num_envs, device=device)
+    return GymVecEnv(
+        partial(make_velocity_env, cfg.task, cfg.velocity_threshold, cfg.max_steps), num_envs, device=device
+    )
 
 
 register("env", "velocity", VelocityEnvConfig, make_velocity_vec_env)

@@ -121,8 +121,14 @@ class Agent(nn.Module):
     a recurrent agent (0, or not shorter than the rollout: the whole rollout row). ``cost_names``:
     the env's K costs, which the cost critic's K outputs value in that order."""
 
-    def __init__(self, actor: Actor, critics: Mapping[str, Critic], normalizers: Normalizers | None = None,
-                 segment_length: int = 0, cost_names: tuple[str, ...] = ("cost_0",)) -> None:
+    def __init__(
+        self,
+        actor: Actor,
+        critics: Mapping[str, Critic],
+        normalizers: Normalizers | None = None,
+        segment_length: int = 0,
+        cost_names: tuple[str, ...] = ("cost_0",),
+    ) -> None:
         super().__init__()
         self.cost_names = tuple(cost_names)
         self.actor = actor
@@ -240,8 +246,9 @@ class Agent(nn.Module):
         next_values[:, :-1] = values[:, 1:]
         # The inputs one step on, at the fresh steps: the next observation, this step's action and
         # cost as "previous", the state after this step.
-        nxt = {k: (after[k] if k in after else batch.get((keys.NEXT, k)))[fresh]
-               for k in body.in_keys if k != keys.IS_INIT}
+        nxt = {
+            k: (after[k] if k in after else batch.get((keys.NEXT, k)))[fresh] for k in body.in_keys if k != keys.IS_INIT
+        }
         if keys.IS_INIT in body.in_keys:
             nxt[keys.IS_INIT] = torch.zeros(int(fresh.sum()), 1, dtype=torch.bool, device=batch.device)
         next_values[fresh] = critic.step(nxt) if body.recurrent else _chunked(critic, nxt)
@@ -257,7 +264,7 @@ def _chunked(critic: Critic, flat: dict) -> torch.Tensor:
     rows = next(iter(flat.values())).shape[0]
     if rows <= CHUNK_ROWS:
         return critic(flat)
-    parts = [{k: v[i:i + CHUNK_ROWS] for k, v in flat.items()} for i in range(0, rows, CHUNK_ROWS)]
+    parts = [{k: v[i : i + CHUNK_ROWS] for k, v in flat.items()} for i in range(0, rows, CHUNK_ROWS)]
     return torch.cat([critic(p) for p in parts])
 
 

@@ -157,5 +157,12 @@ def sample(dist: D.Distribution, deterministic: bool) -> torch.Tensor:
     return dist.rsample() if dist.has_rsample else dist.sample()
 
 
-__all__ = ["Categorical", "CategoricalHead", "GaussianHead", "MultiCategorical", "action_outputs", "make_action_head",
-           "sample"]
+__all__ = [
+    "Categorical",
+    "CategoricalHead",
+    "GaussianHead",
+    "MultiCategorical",
+    "action_outputs",
+    "make_action_head",
+    "sample",
+]

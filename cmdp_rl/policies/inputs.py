@@ -22,7 +22,11 @@ from cmdp_rl.actions import action_dim, categories, is_discrete
 
 def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
     """The root entries a network reads, in the order :class:`InputEncoder` takes them."""
-    return [keys.OBS] + ([keys.PREV_ACTION] if include_prev_action else []) + ([keys.PREV_COST] if include_prev_cost else [])
+    return (
+        [keys.OBS]
+        + ([keys.PREV_ACTION] if include_prev_action else [])
+        + ([keys.PREV_COST] if include_prev_cost else [])
+    )
 
 
 class InputEncoder(nn.Module):
@@ -66,8 +70,9 @@ class InputEncoder(nn.Module):
             return ((action - self.center) / self.half_width).clamp(-1.0, 1.0)
         # index + 1 over n + 1 classes, the first ("none") dropped: -1 encodes as all zeros.
         idx = action.long() + 1
-        return torch.cat([F.one_hot(i, n + 1)[..., 1:] for i, n in zip(idx.unbind(-1), self.categories)],
-                         dim=-1).float()
+        return torch.cat(
+            [F.one_hot(i, n + 1)[..., 1:] for i, n in zip(idx.unbind(-1), self.categories)], dim=-1
+        ).float()
 
     def forward(self, obs: torch.Tensor, *prev: torch.Tensor) -> torch.Tensor:
         parts = [obs if self.obs_norm is None else self.obs_norm(obs)]

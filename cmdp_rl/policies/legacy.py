@@ -62,12 +62,14 @@ def convert_networks(networks: dict[str, torch.Tensor], agent: nn.Module) -> dic
         old.sort(key=lambda k: 0 if ".module.net.encoder." in k else 1)
         new = [k for k in target if k.startswith(new_prefix) and k not in out]
         if len(old) != len(new):
-            raise KeyError(f"old checkpoint has {len(old)} entries under {old_prefix!r}, the agent "
-                           f"{len(new)} under {new_prefix!r}")
+            raise KeyError(
+                f"old checkpoint has {len(old)} entries under {old_prefix!r}, the agent {len(new)} under {new_prefix!r}"
+            )
         for o, n in zip(old, new):
             if o.rsplit(".", 1)[-1] != n.rsplit(".", 1)[-1] or networks[o].shape != target[n].shape:
-                raise KeyError(f"old checkpoint entry {o!r} {tuple(networks[o].shape)} does not fit "
-                               f"{n!r} {tuple(target[n].shape)}")
+                raise KeyError(
+                    f"old checkpoint entry {o!r} {tuple(networks[o].shape)} does not fit {n!r} {tuple(target[n].shape)}"
+                )
             out[n] = networks[o]
     missing = target.keys() - out.keys()
     if missing:

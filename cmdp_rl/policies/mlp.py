@@ -30,8 +30,9 @@ class PolicyConfig:
     the previous step's action and cost (zero on an episode's first step)."""
 
     name: str = "mlp"
-    hidden_sizes: Annotated[list[Annotated[int, Field(ge=1)]], Field(
-        min_length=1, description="a non-empty list of positive integers")] = field(default_factory=lambda: [64, 64])
+    hidden_sizes: Annotated[
+        list[Annotated[int, Field(ge=1)]], Field(min_length=1, description="a non-empty list of positive integers")
+    ] = field(default_factory=lambda: [64, 64])
     activation: Activation = "tanh"
     init_log_std: LogStd = -0.5
     include_prev_action: Bool = False
@@ -99,16 +100,18 @@ class MLPBody(Body):
     def __init__(self, obs_norm: nn.Module | None, encoder: InputEncoder | None) -> None:
         super().__init__()
         self.prep = encoder if encoder is not None else obs_norm
-        self.in_keys = (input_keys(encoder.include_prev_action, encoder.include_prev_cost) if encoder is not None
-                        else [keys.OBS])
+        self.in_keys = (
+            input_keys(encoder.include_prev_action, encoder.include_prev_cost) if encoder is not None else [keys.OBS]
+        )
 
     def forward(self, d: Mapping) -> tuple[torch.Tensor]:
         inputs = [d[k] for k in self.in_keys]
         return (inputs[0] if self.prep is None else self.prep(*inputs),)
 
 
-def make_encoder(cfg: PolicyConfig, obs_dim: int, action_space: gym.Space,
-                 obs_norm: nn.Module | None, num_costs: int = 1) -> InputEncoder | None:
+def make_encoder(
+    cfg: PolicyConfig, obs_dim: int, action_space: gym.Space, obs_norm: nn.Module | None, num_costs: int = 1
+) -> InputEncoder | None:
     """The input encoder if the policy reads more than the observation, else None."""
     if not (cfg.include_prev_action or cfg.include_prev_cost):
         return None
@@ -126,8 +129,10 @@ def make_mlp_agent(cfg: PolicyConfig, env: VecEnv, normalizers: Normalizers) -> 
 
     head = make_action_head(env.action_space, net(action_outputs(env.action_space), 0.01), cfg.init_log_std)
     actor = Actor(MLPBody(obs_norm, encoder), head)
-    critics = {signal: Critic(MLPBody(obs_norm, encoder), net(critic_outputs(signal, env), 1.0))
-               for signal in ("reward", "cost")}
+    critics = {
+        signal: Critic(MLPBody(obs_norm, encoder), net(critic_outputs(signal, env), 1.0))
+        for signal in ("reward", "cost")
+    }
     return Agent(actor, critics, normalizers, cost_names=env.cost_names)
 
 

@@ -44,7 +44,9 @@ if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
     from cmdp_rl.envs import VecEnv
 
-HeadSizes = Annotated[list[Annotated[int, Field(ge=1)]], Field(description="a list of positive integers (may be empty)")]
+HeadSizes = Annotated[
+    list[Annotated[int, Field(ge=1)]], Field(description="a list of positive integers (may be empty)")
+]
 
 
 @options
@@ -52,8 +54,8 @@ class RecurrentPolicyConfig:
     """``policy=lstm`` or ``policy=gru``: LSTM or GRU memory in the actor and in both critics."""
 
     name: Literal["lstm", "gru"] = "lstm"
-    hidden_size: PositiveInt = 64       # recurrent units
-    num_layers: PositiveInt = 1         # stacked recurrent layers
+    hidden_size: PositiveInt = 64  # recurrent units
+    num_layers: PositiveInt = 1  # stacked recurrent layers
     head_sizes: HeadSizes = field(default_factory=lambda: [64])  # MLP after the memory ([]: linear)
     activation: Activation = "tanh"
     init_log_std: LogStd = -0.5
@@ -65,15 +67,23 @@ class RecurrentPolicyConfig:
 
     def check(self, run: RunConfig) -> None:
         L, T = self.segment_length, run.rollout_steps
-        require(L == 0 or L >= T or T % L == 0, "policy.segment_length",
-                f"0 or >= rollout_steps (whole rollouts), or a divisor of rollout_steps={T}", L)
+        require(
+            L == 0 or L >= T or T % L == 0,
+            "policy.segment_length",
+            f"0 or >= rollout_steps (whole rollouts), or a divisor of rollout_steps={T}",
+            L,
+        )
         segments = run.env.num_envs * (T // L if 0 < L < T else 1)
         for name in ("num_minibatches", "critic_minibatches"):  # PPO family, CPO's critic fit
             if hasattr(run.algo, name):
-                require(getattr(run.algo, name) <= segments, f"algo.{name}",
-                        f"at most the number of training segments, env.num_envs * rollout_steps / "
-                        f"policy.segment_length = {segments} (recurrent policies train on whole segments)",
-                        getattr(run.algo, name))
+                require(
+                    getattr(run.algo, name) <= segments,
+                    f"algo.{name}",
+                    f"at most the number of training segments, env.num_envs * rollout_steps / "
+                    f"policy.segment_length = {segments} (recurrent policies train on whole segments)",
+                    getattr(run.algo, name),
+                )
+
 
 STATE_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
     "lstm": {
@@ -94,7 +104,9 @@ def memory_module(cfg: RecurrentPolicyConfig, input_size: int, state: tuple[str,
     out_state = [(keys.NEXT, k) for k in state]
     common = dict(input_size=input_size, hidden_size=cfg.hidden_size, num_layers=cfg.num_layers)
     if cfg.name == "lstm":
-        return LSTMModule(**common, in_keys=[keys.NET_INPUT, *state, keys.IS_INIT], out_keys=[keys.FEATURES, *out_state])
+        return LSTMModule(
+            **common, in_keys=[keys.NET_INPUT, *state, keys.IS_INIT], out_keys=[keys.FEATURES, *out_state]
+        )
     return GRUModule(**common, in_keys=[keys.NET_INPUT, *state, keys.IS_INIT], out_keys=[keys.FEATURES, *out_state])
 
 
@@ -125,8 +137,10 @@ class RecurrentBody(Body):
 
     def forward_with_state(self, d: Mapping) -> tuple[tuple[torch.Tensor], dict]:
         x = self.encoder(*(d[k] for k in self.inputs))
-        td = TensorDict({keys.NET_INPUT: x, keys.IS_INIT: d[keys.IS_INIT], **{k: d[k] for k in self.state_keys}},
-                        batch_size=x.shape[:-1])
+        td = TensorDict(
+            {keys.NET_INPUT: x, keys.IS_INIT: d[keys.IS_INIT], **{k: d[k] for k in self.state_keys}},
+            batch_size=x.shape[:-1],
+        )
         with set_recurrent_mode(True):
             out = self.memory(td)
         return (out.get(keys.FEATURES),), {k: out.get((keys.NEXT, k)) for k in self.state_keys}
@@ -136,7 +150,9 @@ class RecurrentBody(Body):
         rnn = self.memory.lstm if isinstance(self.memory, LSTMModule) else self.memory.gru
         fresh = d[keys.IS_INIT].view(-1, 1, 1)
         # torchrl's state layout is [batch, layers, hidden]; nn.LSTM's [layers, batch, hidden].
-        states = [torch.where(fresh, torch.zeros_like(d[k]), d[k]).transpose(0, 1).contiguous() for k in self.state_keys]
+        states = [
+            torch.where(fresh, torch.zeros_like(d[k]), d[k]).transpose(0, 1).contiguous() for k in self.state_keys
+        ]
         y, new = rnn(x.unsqueeze(1), tuple(states) if len(states) == 2 else states[0])
         new = new if isinstance(new, tuple) else (new,)
         return (y.squeeze(1),), {k: h.transpose(0, 1) for k, h in zip(self.state_keys, new)}
@@ -150,8 +166,14 @@ def make_recurrent_agent(cfg: RecurrentPolicyConfig, env: VecEnv, normalizers: N
     states = STATE_KEYS[cfg.name]
 
     def body(net: str) -> RecurrentBody:
-        encoder = InputEncoder(env.obs_dim, env.action_space, cfg.include_prev_action,
-                               cfg.include_prev_cost, normalizers.obs, env.num_costs)
+        encoder = InputEncoder(
+            env.obs_dim,
+            env.action_space,
+            cfg.include_prev_action,
+            cfg.include_prev_cost,
+            normalizers.obs,
+            env.num_costs,
+        )
         return RecurrentBody(cfg, encoder, states[net])
 
     def head_mlp(out_dim: int, out_gain: float = 1.0) -> nn.Sequential:

@@ -129,13 +129,17 @@ def check_off_policy_agent(agent: Agent, algo: str) -> None:
     """One-line config errors for the agents an off-policy algorithm cannot train."""
     body = agent.actor.body
     if not isinstance(body, MLPBody) or agent.recurrent:
-        raise ConfigError(f"policy.name must be mlp for algo={algo} (a replay buffer of single steps; "
-                          f"recurrent and transformer policies are not supported), got {type(body).__name__}")
+        raise ConfigError(
+            f"policy.name must be mlp for algo={algo} (a replay buffer of single steps; "
+            f"recurrent and transformer policies are not supported), got {type(body).__name__}"
+        )
     if keys.PREV_ACTION in body.in_keys or keys.PREV_COST in body.in_keys:
         raise ConfigError(f"policy.include_prev_action and policy.include_prev_cost must be false for algo={algo}")
     if not isinstance(agent.actor.head, GaussianHead):
-        raise ConfigError(f"algo must be an on-policy algorithm (ppo, ppo_lag, ...) for a discrete action space: "
-                          f"{algo} needs a Box action space")
+        raise ConfigError(
+            f"algo must be an on-policy algorithm (ppo, ppo_lag, ...) for a discrete action space: "
+            f"{algo} needs a Box action space"
+        )
     if not torch.isfinite(agent.actor.head.half_width).all():
         raise ConfigError(f"algo={algo} needs a Box action space with finite bounds (its actions are squashed into it)")
 
@@ -169,5 +173,13 @@ def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> None:
             m.inplace = True
 
 
-__all__ = ["ClippedNormal", "DeterministicHead", "QBody", "Q_COST", "Q_REWARD", "TanhGaussianHead",
-           "check_off_policy_agent", "to_off_policy"]
+__all__ = [
+    "ClippedNormal",
+    "DeterministicHead",
+    "QBody",
+    "Q_COST",
+    "Q_REWARD",
+    "TanhGaussianHead",
+    "check_off_policy_agent",
+    "to_off_policy",
+]

@@ -51,11 +51,13 @@ class TransformerPolicyConfig:
     """``policy=transformer``: causal self-attention over the last ``window`` steps."""
 
     name: str = "transformer"
-    window: Annotated[int, Field(ge=1, description="a positive integer (steps attended to)")] = 16  # K, this step included
+    window: Annotated[int, Field(ge=1, description="a positive integer (steps attended to)")] = (
+        16  # K, this step included
+    )
     layers: PositiveInt = 1
     heads: PositiveInt = 2
-    width: PositiveInt = 32             # model width d (divisible by heads)
-    feedforward: PositiveInt = 64       # hidden width of each layer's feed-forward block
+    width: PositiveInt = 32  # model width d (divisible by heads)
+    feedforward: PositiveInt = 64  # hidden width of each layer's feed-forward block
     positions: Literal["learned", "sinusoidal"] = "learned"
     head_sizes: HeadSizes = field(default_factory=lambda: [64])
     activation: Activation = "tanh"
@@ -64,8 +66,12 @@ class TransformerPolicyConfig:
     include_prev_cost: Bool = True
 
     def check(self, run: RunConfig) -> None:
-        require(self.width % self.heads == 0, "policy.width", f"a positive multiple of policy.heads={self.heads}",
-                self.width)
+        require(
+            self.width % self.heads == 0,
+            "policy.width",
+            f"a positive multiple of policy.heads={self.heads}",
+            self.width,
+        )
 
 
 class HistoryWindow(nn.Module):
@@ -127,7 +133,12 @@ class WindowTransformer(nn.Module):
 
         def layer() -> nn.TransformerEncoderLayer:
             return nn.TransformerEncoderLayer(
-                cfg.width, cfg.heads, dim_feedforward=cfg.feedforward, dropout=0.0, batch_first=True, norm_first=True,
+                cfg.width,
+                cfg.heads,
+                dim_feedforward=cfg.feedforward,
+                dropout=0.0,
+                batch_first=True,
+                norm_first=True,
             )
 
         self.context = nn.ModuleList(layer() for _ in range(cfg.layers - 1))
@@ -138,7 +149,7 @@ class WindowTransformer(nn.Module):
 
     def _split(self, tokens: torch.Tensor) -> torch.Tensor:
         """Raw tokens -> encoded inputs (normalized observation, action in box units, cost)."""
-        obs, prev = tokens[..., : self.obs_dim], tokens[..., self.obs_dim:]
+        obs, prev = tokens[..., : self.obs_dim], tokens[..., self.obs_dim :]
         sizes = []
         if self.encoder.include_prev_action:
             sizes.append(prev.shape[-1] - (self.encoder.num_costs if self.encoder.include_prev_cost else 0))
@@ -210,8 +221,10 @@ class TransformerBody(Body):
     def initial_state(self, num_envs: int, device: torch.device) -> dict:
         """An empty history: no token of the window belongs to the episode yet."""
         K, dim = self.window.window, self.window.token_dim
-        return {keys.HISTORY: torch.zeros(num_envs, K - 1, dim, device=device),
-                keys.HISTORY_MASK: torch.zeros(num_envs, K - 1, dtype=torch.bool, device=device)}
+        return {
+            keys.HISTORY: torch.zeros(num_envs, K - 1, dim, device=device),
+            keys.HISTORY_MASK: torch.zeros(num_envs, K - 1, dtype=torch.bool, device=device),
+        }
 
 
 def make_transformer_agent(cfg: TransformerPolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
@@ -219,18 +232,28 @@ def make_transformer_agent(cfg: TransformerPolicyConfig, env: VecEnv, normalizer
     carries it)."""
 
     def encoder() -> InputEncoder:
-        return InputEncoder(env.obs_dim, env.action_space, cfg.include_prev_action,
-                            cfg.include_prev_cost, normalizers.obs, env.num_costs)
+        return InputEncoder(
+            env.obs_dim,
+            env.action_space,
+            cfg.include_prev_action,
+            cfg.include_prev_cost,
+            normalizers.obs,
+            env.num_costs,
+        )
 
     def network(out_dim: int, out_gain: float) -> _Trunk:
-        return _Trunk(WindowTransformer(cfg, encoder(), env.obs_dim),
-                      mlp(cfg.width, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain))
+        return _Trunk(
+            WindowTransformer(cfg, encoder(), env.obs_dim),
+            mlp(cfg.width, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain),
+        )
 
     token_dim = encoder().in_dim  # raw tokens: a discrete action is stored as its index
     head = make_action_head(env.action_space, network(action_outputs(env.action_space), 0.01), cfg.init_log_std)
     actor = Actor(TransformerBody(cfg, token_dim), head)
-    critics = {signal: Critic(TransformerBody(cfg, token_dim), network(critic_outputs(signal, env), 1.0))
-               for signal in ("reward", "cost")}
+    critics = {
+        signal: Critic(TransformerBody(cfg, token_dim), network(critic_outputs(signal, env), 1.0))
+        for signal in ("reward", "cost")
+    }
     return Agent(actor, critics, normalizers, cost_names=env.cost_names)
 
 

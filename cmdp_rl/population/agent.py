@@ -48,10 +48,18 @@ class PopulationAgent:
         # Tanh MLPs: the fused pass as one autograd node with a hand-written backward (population/fused.py).
         linears = [i for i, m in enumerate(self.actor_net) if isinstance(m, nn.Linear)]
         self.layout = None
-        if self.fused and all(isinstance(m, (nn.Linear, Tanh)) for m in self.actor_net) \
-                and all(isinstance(self.actor_net[i + 1], Tanh) for i in linears[:-1]):
-            self.layout = layout(self.actor, self.critics, [(0, "head.net"), (1, "reward.net"), (1, "cost.net")],
-                                 linears, [tuple(self.actor_net[i].weight.shape) for i in linears])
+        if (
+            self.fused
+            and all(isinstance(m, (nn.Linear, Tanh)) for m in self.actor_net)
+            and all(isinstance(self.actor_net[i + 1], Tanh) for i in linears[:-1])
+        ):
+            self.layout = layout(
+                self.actor,
+                self.critics,
+                [(0, "head.net"), (1, "reward.net"), (1, "cost.net")],
+                linears,
+                [tuple(self.actor_net[i].weight.shape) for i in linears],
+            )
 
     # --- the networks on [P, rows, ...] ------------------------------------------------------------
     def params(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -74,10 +82,20 @@ class PopulationAgent:
             x = FusedTanhMLP.apply(x, self.actor.flat, self.critics.flat, self.layout)
         for i, module in enumerate(self.actor_net if self.layout is None else ()):
             if isinstance(module, nn.Linear):
-                w = torch.cat([self.actor.view(f"head.net.{i}.weight"), self.critics.view(f"reward.net.{i}.weight"),
-                               self.critics.view(f"cost.net.{i}.weight")])
-                b = torch.cat([self.actor.view(f"head.net.{i}.bias"), self.critics.view(f"reward.net.{i}.bias"),
-                               self.critics.view(f"cost.net.{i}.bias")])
+                w = torch.cat(
+                    [
+                        self.actor.view(f"head.net.{i}.weight"),
+                        self.critics.view(f"reward.net.{i}.weight"),
+                        self.critics.view(f"cost.net.{i}.weight"),
+                    ]
+                )
+                b = torch.cat(
+                    [
+                        self.actor.view(f"head.net.{i}.bias"),
+                        self.critics.view(f"reward.net.{i}.bias"),
+                        self.critics.view(f"cost.net.{i}.bias"),
+                    ]
+                )
                 x = linear(x, w, b)
             else:
                 x = module(x)
@@ -112,8 +130,12 @@ class PopulationAgent:
             action = loc + eps * scale
         log_prob = IndependentNormal(loc, scale).log_prob(action)
         flat = self.num_agents * loc.shape[1]
-        return {keys.LOC: loc.reshape(flat, -1), keys.SCALE: scale.reshape(flat, -1),
-                keys.ACTION: action.reshape(flat, -1), keys.LOG_PROB: log_prob.reshape(flat)}
+        return {
+            keys.LOC: loc.reshape(flat, -1),
+            keys.SCALE: scale.reshape(flat, -1),
+            keys.ACTION: action.reshape(flat, -1),
+            keys.LOG_PROB: log_prob.reshape(flat),
+        }
 
     # --- what GAE asks ---------------------------------------------------------------------------
     @torch.no_grad()

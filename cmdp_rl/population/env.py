@@ -56,15 +56,26 @@ class PopulationReach1D(TorchReach1D):
     """P agents' Reach1D envs, N each, in one batched env. ``env_cfgs``: each agent's
     ``Reach1DConfig`` (shared options taken from the first; per-agent ones from each)."""
 
-    def __init__(self, env_cfgs: Sequence[Any], envs_per_agent: int, stagger: bool,
-                 device: str | torch.device = "cpu") -> None:
+    def __init__(
+        self, env_cfgs: Sequence[Any], envs_per_agent: int, stagger: bool, device: str | torch.device = "cpu"
+    ) -> None:
         first = env_cfgs[0]
         p, n = len(env_cfgs), envs_per_agent
         dev = torch.device(device)
         noise = PopulationNoise(p, n, dev)
-        super().__init__(p * n, obs_noise=first.obs_noise, wall_x=first.wall_x, max_steps=first.max_steps,
-                         goal=first.goal, wall=first.wall, start=first.start, probe=False, stagger=stagger,
-                         device=dev, noise=noise)
+        super().__init__(
+            p * n,
+            obs_noise=first.obs_noise,
+            wall_x=first.wall_x,
+            max_steps=first.max_steps,
+            goal=first.goal,
+            wall=first.wall,
+            start=first.start,
+            probe=False,
+            stagger=stagger,
+            device=dev,
+            noise=noise,
+        )
         self.num_agents, self.envs_per_agent = p, n
 
         def per_env(values: list[float]) -> torch.Tensor:

@@ -22,8 +22,9 @@ from cmdp_rl.population.env import PopulationReach1D
 CHUNK = 128  # steps per collect, as evaluation.py
 
 
-def evaluate_population(agent: PopulationAgent, cfgs: Sequence[RunConfig],
-                        device: torch.device) -> list[dict[str, Any]]:
+def evaluate_population(
+    agent: PopulationAgent, cfgs: Sequence[RunConfig], device: torch.device
+) -> list[dict[str, Any]]:
     cfg = cfgs[0]
     n = min(cfg.eval_episodes, cfg.env.num_envs)
     env = PopulationReach1D([c.env for c in cfgs], n, stagger=False, device=device)
@@ -43,14 +44,27 @@ def evaluate_population(agent: PopulationAgent, cfgs: Sequence[RunConfig],
             term, cost = nxt.get(keys.TERMINATED), nxt.get(keys.EPISODE_COST)
             for e, t in done.nonzero().tolist():
                 if len(rows[e]) < quota[e % n]:
-                    rows[e].append((ret[e, t, 0].item(), float(length[e, t, 0].item()),
-                                    float(term[e, t, 0].item()), *cost[e, t].tolist()))
+                    rows[e].append(
+                        (
+                            ret[e, t, 0].item(),
+                            float(length[e, t, 0].item()),
+                            float(term[e, t, 0].item()),
+                            *cost[e, t].tolist(),
+                        )
+                    )
     finally:
         agent.generators = training
     metric = getattr(cfg.env, "termination_metric", None)
-    return [summarize_episodes([row for r in rows[i * n:(i + 1) * n] for row in r], env.cost_names,
-                               c.eval_deterministic, metric, c.algo.cost_limit)
-            for i, c in enumerate(cfgs)]
+    return [
+        summarize_episodes(
+            [row for r in rows[i * n : (i + 1) * n] for row in r],
+            env.cost_names,
+            c.eval_deterministic,
+            metric,
+            c.algo.cost_limit,
+        )
+        for i, c in enumerate(cfgs)
+    ]
 
 
 __all__ = ["evaluate_population"]

@@ -32,7 +32,7 @@ def _tanh(z: torch.Tensor) -> torch.Tensor:
 class FusedTanhMLP(torch.autograd.Function):
     """``x [3P, B, in]`` through ``L`` linear layers with tanh between them; layer ``l``'s weight
     and bias of network group ``s`` (actor, reward, cost: P networks each) are
-    ``flats[s][:, slices[s][l]]``. Returns ``[3P, B, out]``."""
+    ``flats[s][:, slices[s][layer]]``. Returns ``[3P, B, out]``."""
 
     @staticmethod
     def forward(ctx, x: torch.Tensor, actor: torch.Tensor, critics: torch.Tensor, layout: tuple) -> torch.Tensor:
@@ -41,13 +41,13 @@ class FusedTanhMLP(torch.autograd.Function):
         flats = (actor, critics)
         weights, hs = [], [x]
         h = x
-        for l, (groups, (out, inp)) in enumerate(layout):
+        for layer, (groups, (out, inp)) in enumerate(layout):
             p = actor.shape[0]
             w = torch.cat([flats[f][:, wa:wb].view(p, out, inp) for f, wa, wb, _, _ in groups])
             b = torch.cat([flats[f][:, ba:bb] for f, _, _, ba, bb in groups])
             h = torch.baddbmm(b.unsqueeze(1), h, w.transpose(1, 2))
             weights.append(w)
-            if l < len(layout) - 1:
+            if layer < len(layout) - 1:
                 h = _tanh(h)
                 hs.append(h)
         ctx.layout = layout
@@ -64,25 +64,30 @@ class FusedTanhMLP(torch.autograd.Function):
         grads = (g.new_zeros(ctx.shapes[0]), g.new_zeros(ctx.shapes[1]))
         p = ctx.shapes[0][0]
         g = g.contiguous()
-        for l in range(n - 1, -1, -1):
-            groups, (out, inp) = layout[l]
-            h = hs[l]
+        for layer in range(n - 1, -1, -1):
+            groups, (out, inp) = layout[layer]
+            h = hs[layer]
             # dW = g^T h, computed as (h^T g)^T: the faster layout when ``in`` is small.
             gw = torch.bmm(h.transpose(1, 2), g).transpose(1, 2)
             gb = g.sum(1)
             for s, (f, wa, wb, ba, bb) in enumerate(groups):
-                grads[f][:, wa:wb].view(p, out, inp).copy_(gw[s * p:(s + 1) * p])
-                grads[f][:, ba:bb].copy_(gb[s * p:(s + 1) * p])
-            if l > 0:
+                grads[f][:, wa:wb].view(p, out, inp).copy_(gw[s * p : (s + 1) * p])
+                grads[f][:, ba:bb].copy_(gb[s * p : (s + 1) * p])
+            if layer > 0:
                 # fresh either way: tanh's backward may overwrite it. One output: an outer product,
                 # the same single products as bmm's, at a quarter of its time.
-                g = g * weights[l] if out == 1 else torch.bmm(g, weights[l])
-                g = torch.ops.aten.tanh_backward.grad_input(g, hs[l], grad_input=g)
+                g = g * weights[layer] if out == 1 else torch.bmm(g, weights[layer])
+                g = torch.ops.aten.tanh_backward.grad_input(g, hs[layer], grad_input=g)
         return None, grads[0], grads[1], None
 
 
-def layout(actor, critics, prefixes: Sequence[tuple[int, str]], linear_indices: Sequence[int],
-           shapes: Sequence[tuple[int, int]]) -> tuple:
+def layout(
+    actor,
+    critics,
+    prefixes: Sequence[tuple[int, str]],
+    linear_indices: Sequence[int],
+    shapes: Sequence[tuple[int, int]],
+) -> tuple:
     """The :class:`FusedTanhMLP` layout of layers ``linear_indices`` (their ``nn.Sequential``
     indices) for the groups ``prefixes`` (flat index 0 = ``actor``, 1 = ``critics``; parameter
     name prefix)."""

@@ -79,8 +79,9 @@ class StackedAdam:
     agent's row of a stacked tensor cannot be a group of its own.
     """
 
-    def __init__(self, params: torch.Tensor, lr: Sequence[float], betas: tuple[float, float] = (0.9, 0.999),
-                 eps: float = 1e-8) -> None:
+    def __init__(
+        self, params: torch.Tensor, lr: Sequence[float], betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8
+    ) -> None:
         self.params = params
         self.lr = torch.tensor(list(lr), dtype=torch.float64)
         self.beta1, self.beta2 = betas
@@ -96,8 +97,8 @@ class StackedAdam:
         t = self.step_count
         self.exp_avg.lerp_(g, 1 - self.beta1)
         self.exp_avg_sq.mul_(self.beta2).addcmul_(g, g, value=1 - self.beta2)
-        bias1 = 1 - self.beta1 ** t
-        bias2_sqrt = (1 - self.beta2 ** t) ** 0.5
+        bias1 = 1 - self.beta1**t
+        bias2_sqrt = (1 - self.beta2**t) ** 0.5
         step_size = (self.lr / bias1).to(self.params.dtype).to(self.params.device).unsqueeze(1)
         denom = (self.exp_avg_sq.sqrt() / bias2_sqrt).add_(self.eps)
         self.params.sub_(step_size * self.exp_avg / denom)
@@ -111,13 +112,19 @@ class StackedAdam:
         for n in stacked.names:
             a, b = stacked.offsets[n]
             shape = stacked.shapes[n]
-            out[n] = {"exp_avg": self.exp_avg[i, a:b].reshape(shape).clone(),
-                      "exp_avg_sq": self.exp_avg_sq[i, a:b].reshape(shape).clone()}
+            out[n] = {
+                "exp_avg": self.exp_avg[i, a:b].reshape(shape).clone(),
+                "exp_avg_sq": self.exp_avg_sq[i, a:b].reshape(shape).clone(),
+            }
         return out
 
     def state_dict(self) -> dict:
-        return {"step": self.step_count, "exp_avg": self.exp_avg.clone(), "exp_avg_sq": self.exp_avg_sq.clone(),
-                "lr": self.lr.clone()}
+        return {
+            "step": self.step_count,
+            "exp_avg": self.exp_avg.clone(),
+            "exp_avg_sq": self.exp_avg_sq.clone(),
+            "lr": self.lr.clone(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.step_count = int(state["step"])

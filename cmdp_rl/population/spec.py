@@ -21,10 +21,24 @@ from cmdp_rl.validation import ConfigError, PositiveInt, options, require
 # The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed.
 PER_AGENT_FIELDS = (
     "seed",
-    "algo.penalty", "algo.cost_limit", "algo.lambda_init", "algo.lr", "algo.critic_lr", "algo.entropy_coef",
-    "algo.lambda_lr", "algo.kp", "algo.ki", "algo.kd", "algo.p_ema_alpha", "algo.d_ema_alpha", "algo.d_delay",
+    "algo.penalty",
+    "algo.cost_limit",
+    "algo.lambda_init",
+    "algo.lr",
+    "algo.critic_lr",
+    "algo.entropy_coef",
+    "algo.lambda_lr",
+    "algo.kp",
+    "algo.ki",
+    "algo.kd",
+    "algo.p_ema_alpha",
+    "algo.d_ema_alpha",
+    "algo.d_delay",
     "algo.lambda_max",
-    "env.obs_noise", "env.wall_x", "env.goal", "env.start",
+    "env.obs_noise",
+    "env.wall_x",
+    "env.goal",
+    "env.start",
 )
 SUPPORTED_ALGOS = ("ppo", "penalty", "ppo_lag", "pid_lag")
 RUN_AS_SWEEP = "run it as separate runs (python train.py -m ...)"
@@ -49,13 +63,18 @@ def population_spec(raw: Mapping[str, Any] | None) -> PopulationConfig:
     try:
         spec = PopulationConfig(**data)
     except TypeError as exc:
-        raise ConfigError(f"population: unknown option(s) {sorted(set(data) - {'seeds', 'grid'})}; "
-                          f"allowed: ['grid', 'seeds']") from exc
+        raise ConfigError(
+            f"population: unknown option(s) {sorted(set(data) - {'seeds', 'grid'})}; allowed: ['grid', 'seeds']"
+        ) from exc
     except ValueError as exc:
         raise ConfigError(f"population.seeds must be a positive integer, got {data.get('seeds')!r}") from exc
     for name, values in spec.fields().items():
-        require(name in PER_AGENT_FIELDS, f"population.grid.{name}",
-                f"one of the per-agent fields {list(PER_AGENT_FIELDS)}", values)
+        require(
+            name in PER_AGENT_FIELDS,
+            f"population.grid.{name}",
+            f"one of the per-agent fields {list(PER_AGENT_FIELDS)}",
+            values,
+        )
         require(isinstance(values, list) and len(values) > 0, f"population.grid.{name}", "a non-empty list", values)
     return spec
 
@@ -84,14 +103,14 @@ def agent_overrides(spec: PopulationConfig, base_seed: int) -> list[dict[str, An
         point = dict(zip(grid, combo))
         seeds = [point.pop("seed")] if "seed" in point else [base_seed + j for j in range(spec.seeds)]
         if "seed" in grid and spec.seeds > 1:
-            raise ConfigError("population.seeds must be 1 when population.grid.seed lists the seeds, "
-                              f"got {spec.seeds}")
+            raise ConfigError(f"population.seeds must be 1 when population.grid.seed lists the seeds, got {spec.seeds}")
         out += [{**point, "seed": s} for s in seeds]
     return out
 
 
 def label(overrides: Mapping[str, Any]) -> str:
     """An agent's directory label: its values, e.g. ``algo.penalty=0.5,seed=1``."""
+
     def fmt(v: Any) -> str:
         return "[" + ",".join(fmt(x) for x in v) + "]" if isinstance(v, list) else str(v)
 
@@ -124,17 +143,22 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
 def check_supported(cfg: RunConfig) -> None:
     """The batched program covers the PPO family with the MLP on the batched Reach1D; anything
     else is refused in one line before anything is built."""
+
     def refuse(what: str, allowed: str) -> None:
         raise ConfigError(f"population: {what} is not batched ({allowed}); {RUN_AS_SWEEP}")
 
     if cfg.algo.name not in SUPPORTED_ALGOS:
         refuse(f"algo={cfg.algo.name}", f"algo must be one of {', '.join(SUPPORTED_ALGOS)}")
     if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
-        refuse(f"policy={cfg.policy.name}" + (" with include_prev_*" if cfg.policy.name == "mlp" else ""),
-               "policy must be mlp on the observation alone")
+        refuse(
+            f"policy={cfg.policy.name}" + (" with include_prev_*" if cfg.policy.name == "mlp" else ""),
+            "policy must be mlp on the observation alone",
+        )
     if cfg.env.name != "reach1d" or getattr(cfg.env, "backend", None) != "torch":
-        refuse(f"env={cfg.env.name} (backend {getattr(cfg.env, 'backend', None)})",
-               "env must be reach1d with env.backend=torch, e.g. env=reach1d_torch")
+        refuse(
+            f"env={cfg.env.name} (backend {getattr(cfg.env, 'backend', None)})",
+            "env must be reach1d with env.backend=torch, e.g. env=reach1d_torch",
+        )
     if cfg.env.probe:
         refuse("env.probe=true", "the probe action is not batched")
     if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:
@@ -151,5 +175,14 @@ def check_supported(cfg: RunConfig) -> None:
         refuse("a list algo.penalty", "one number")
 
 
-__all__ = ["PER_AGENT_FIELDS", "PopulationConfig", "SUPPORTED_ALGOS", "agent_configs", "agent_overrides",
-           "check_supported", "label", "population_active", "population_spec"]
+__all__ = [
+    "PER_AGENT_FIELDS",
+    "PopulationConfig",
+    "SUPPORTED_ALGOS",
+    "agent_configs",
+    "agent_overrides",
+    "check_supported",
+    "label",
+    "population_active",
+    "population_spec",
+]

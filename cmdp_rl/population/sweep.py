@@ -44,8 +44,10 @@ class SweepPart:
         """One override list per job (the grid's product), for the parts that run job by job."""
         base = [f"+experiment={experiment}", *([f"algo={self.choice}"] if self.choice else []), *extra]
         keys = list(self.grid)
-        return [base + [f"{k}={_hydra_value(v)}" for k, v in zip(keys, combo)]
-                for combo in itertools.product(*self.grid.values())]
+        return [
+            base + [f"{k}={_hydra_value(v)}" for k, v in zip(keys, combo)]
+            for combo in itertools.product(*self.grid.values())
+        ]
 
 
 def _hydra_value(v: Any) -> str:
@@ -72,8 +74,10 @@ def sweep_parts(experiment: str) -> list[SweepPart]:
             choices = [str(v) for v in values]
             continue
         if key not in PER_AGENT_FIELDS:
-            raise ConfigError(f"population: the sweep of {experiment} varies {key}, which is not a per-agent field "
-                              f"(allowed: {list(PER_AGENT_FIELDS)})")
+            raise ConfigError(
+                f"population: the sweep of {experiment} varies {key}, which is not a per-agent field "
+                f"(allowed: {list(PER_AGENT_FIELDS)})"
+            )
         grid[key] = [_plain(v) for v in values]
     parts = []
     for choice in choices:  # no algo entry: the experiment's own algorithm (checked when composed)

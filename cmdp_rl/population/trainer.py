@@ -36,7 +36,6 @@ from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.envs import make_env
 from cmdp_rl.envs.contract import check_rollout
-from cmdp_rl.report.metrics import MetricsLogger, columns, spread
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
@@ -44,13 +43,21 @@ from cmdp_rl.population.env import PopulationReach1D
 from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
+from cmdp_rl.report.metrics import MetricsLogger, columns, spread
+from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
 from cmdp_rl.rng import seed_everything
 from cmdp_rl.run.rundir import (
-    CHECKPOINT, CONFIG, EVAL, METRICS, POPULATION_CHECKPOINT, POPULATION_CONFIG, POPULATION_SUMMARY, RUN_INFO,
+    CHECKPOINT,
+    CONFIG,
+    EVAL,
+    METRICS,
+    POPULATION_CHECKPOINT,
+    POPULATION_CONFIG,
+    POPULATION_SUMMARY,
+    RUN_INFO,
     ensure_writable,
     write_run_info,
 )
-from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
 from cmdp_rl.threads import apply_threads
 from cmdp_rl.trainer import check_env_contract, contract_options
 
@@ -69,8 +76,13 @@ def is_population_dir(path: str | Path) -> bool:
     return (Path(path) / POPULATION_CONFIG).is_file()
 
 
-def train_population(raw: Mapping[str, Any] | None, out_dir: str | Path, echo: Callable[[str], None] = print,
-                     resume: bool = False, total_steps: int | None = None) -> dict[str, Any]:
+def train_population(
+    raw: Mapping[str, Any] | None,
+    out_dir: str | Path,
+    echo: Callable[[str], None] = print,
+    resume: bool = False,
+    total_steps: int | None = None,
+) -> dict[str, Any]:
     """Train the population that ``raw`` (a composed config with a ``population`` node) describes
     into ``out_dir``; with ``resume``, continue the population in ``out_dir`` from its checkpoint
     (``raw`` is then read from its ``population.yaml``; ``total_steps`` may extend it).
@@ -124,8 +136,15 @@ def train_population(raw: Mapping[str, Any] | None, out_dir: str | Path, echo: C
     loggers = []
     for d, c in zip(dirs, cfgs):
         ensure_writable(d)
-        loggers.append(MetricsLogger(d / METRICS, columns(update.algos[0].stats, names), c.log_interval,
-                                     lambda s: None, resume_iteration=None if state is None else state["iteration"]))
+        loggers.append(
+            MetricsLogger(
+                d / METRICS,
+                columns(update.algos[0].stats, names),
+                c.log_interval,
+                lambda s: None,
+                resume_iteration=None if state is None else state["iteration"],
+            )
+        )
         run_cfg = dataclasses.asdict(dataclasses.replace(c, resume=None))
         (d / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
         if state is None and d != dirs[0]:  # the same provenance (git calls) for every agent: copy it
@@ -146,8 +165,10 @@ def train_population(raw: Mapping[str, Any] | None, out_dir: str | Path, echo: C
             g.set_state(s)
         first, elapsed, steps, costs = state["iteration"] + 1, state["time_s"], state["step"], list(state["costs"])
         echo(f"resuming population {out} from iteration {state['iteration']}")
-    echo(f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} (torch, {N} envs each): "
-         f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}")
+    echo(
+        f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} (torch, {N} envs each): "
+        f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
+    )
     env_id, allow_negative_cost = contract_options(cfg.env)
     start = time.perf_counter() - elapsed
     limits = [c.algo.cost_limit for c in cfgs]
@@ -155,12 +176,23 @@ def train_population(raw: Mapping[str, Any] | None, out_dir: str | Path, echo: C
     def checkpoint(it: int) -> None:
         for lg in loggers:
             lg.sync()
-        save_checkpoint(out / POPULATION_CHECKPOINT, {
-            "algo": cfg.algo.name, "policy": cfg.policy.name, "population": P, "iteration": it, "step": steps,
-            "time_s": time.perf_counter() - start, "actor": pop.actor.flat.detach().clone(),
-            "critics": pop.critics.flat.detach().clone(), "update": update.state_dict(),
-            "collector": collector.state_dict(), "generators": [g.get_state() for g in generators], "costs": costs,
-        })
+        save_checkpoint(
+            out / POPULATION_CHECKPOINT,
+            {
+                "algo": cfg.algo.name,
+                "policy": cfg.policy.name,
+                "population": P,
+                "iteration": it,
+                "step": steps,
+                "time_s": time.perf_counter() - start,
+                "actor": pop.actor.flat.detach().clone(),
+                "critics": pop.critics.flat.detach().clone(),
+                "update": update.state_dict(),
+                "collector": collector.state_dict(),
+                "generators": [g.get_state() for g in generators],
+                "costs": costs,
+            },
+        )
 
     try:
         for it in range(first, iterations + 1):
@@ -175,21 +207,31 @@ def train_population(raw: Mapping[str, Any] | None, out_dir: str | Path, echo: C
             now = time.perf_counter() - start
             returns, ep_costs = [], []
             for i in range(P):
-                eps = finished_episodes(batch[i * N:(i + 1) * N])
+                eps = finished_episodes(batch[i * N : (i + 1) * N])
                 row = {
-                    "iteration": it, "step": steps, "episode_return": _mean(eps["return"]),
-                    "episode_cost": [_mean(eps["cost"][:, 0])], "episode_length": _mean(eps["length"]),
-                    "episodes": int(eps["length"].numel()), "cost_limit": limits[i], "sps": per_iter / dt,
-                    "time_s": now, **stats[i], "cost_rate": [cost_rate(costs[i], steps)],
+                    "iteration": it,
+                    "step": steps,
+                    "episode_return": _mean(eps["return"]),
+                    "episode_cost": [_mean(eps["cost"][:, 0])],
+                    "episode_length": _mean(eps["length"]),
+                    "episodes": int(eps["length"].numel()),
+                    "cost_limit": limits[i],
+                    "sps": per_iter / dt,
+                    "time_s": now,
+                    **stats[i],
+                    "cost_rate": [cost_rate(costs[i], steps)],
                 }
-                row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"],
-                                             [limits[i]], None))
+                row.update(
+                    normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"], [limits[i]], None)
+                )
                 loggers[i].log(spread(row, names))
                 returns.append(row["episode_return"])
                 ep_costs.append(row["episode_cost"][0])
             if it % cfg.log_interval == 0 or it == first or it == iterations:
-                echo(f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
-                     f"mean episode return {_nanmean(returns):.3f}, cost {_nanmean(ep_costs):.3f}")
+                echo(
+                    f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
+                    f"mean episode return {_nanmean(returns):.3f}, cost {_nanmean(ep_costs):.3f}"
+                )
             if it % cfg.checkpoint_every == 0 or it == iterations:
                 checkpoint(it)
     finally:
@@ -202,25 +244,49 @@ def train_population(raw: Mapping[str, Any] | None, out_dir: str | Path, echo: C
     summary_agents = []
     for i, (d, c, result) in enumerate(zip(dirs, cfgs, results)):
         rate = [cost_rate(costs[i], steps)]
-        result.update({"cost_limit": c.algo.cost_limit, "steps": steps, "train_time_s": train_time,
-                       "torch_threads": torch.get_num_threads()})
-        per_cost = {"cost_rate": rate, **normalized_scores(result["episode_return"], [result["episode_cost"]], rate,
-                                                           [c.algo.cost_limit], None)}
+        result.update(
+            {
+                "cost_limit": c.algo.cost_limit,
+                "steps": steps,
+                "train_time_s": train_time,
+                "torch_threads": torch.get_num_threads(),
+            }
+        )
+        per_cost = {
+            "cost_rate": rate,
+            **normalized_scores(result["episode_return"], [result["episode_cost"]], rate, [c.algo.cost_limit], None),
+        }
         result.update(spread(per_cost, names))
         result["reference"] = None
         _write_agent_checkpoint(d, c, pop, update, i, iterations, steps, train_time)
         (d / EVAL).write_text(json.dumps(result, indent=2))
-        summary_agents.append({"dir": str(d.relative_to(out)), "values": overrides[i],
-                               "episode_return": result["episode_return"], "episode_cost": result["episode_cost"]})
+        summary_agents.append(
+            {
+                "dir": str(d.relative_to(out)),
+                "values": overrides[i],
+                "episode_return": result["episode_return"],
+                "episode_cost": result["episode_cost"],
+            }
+        )
     summary = {
-        "agents": P, "algo": cfg.algo.name, "envs_per_agent": N, "iterations": iterations, "steps_per_agent": steps,
-        "steps_summed": steps * P, "train_time_s": train_time, "summed_steps_per_s": steps * P / train_time,
-        "wall_time_s": time.perf_counter() - start, "device": str(device), "torch_threads": torch.get_num_threads(),
+        "agents": P,
+        "algo": cfg.algo.name,
+        "envs_per_agent": N,
+        "iterations": iterations,
+        "steps_per_agent": steps,
+        "steps_summed": steps * P,
+        "train_time_s": train_time,
+        "summed_steps_per_s": steps * P / train_time,
+        "wall_time_s": time.perf_counter() - start,
+        "device": str(device),
+        "torch_threads": torch.get_num_threads(),
         "runs": summary_agents,
     }
     (out / POPULATION_SUMMARY).write_text(json.dumps(summary, indent=2))
-    echo(f"done: {P} agents x {steps:,} steps in {train_time:.1f}s ({summary['summed_steps_per_s']:,.0f} steps/s "
-         f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}")
+    echo(
+        f"done: {P} agents x {steps:,} steps in {train_time:.1f}s ({summary['summed_steps_per_s']:,.0f} steps/s "
+        f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}"
+    )
     return summary
 
 
@@ -229,25 +295,50 @@ def _nanmean(values: list[float]) -> float:
     return sum(finite) / len(finite) if finite else float("nan")
 
 
-def _write_agent_checkpoint(d: Path, cfg: Any, pop: PopulationAgent, update: PopulationPPO, i: int,
-                            iteration: int, steps: int, train_time: float) -> None:
+def _write_agent_checkpoint(
+    d: Path,
+    cfg: Any,
+    pop: PopulationAgent,
+    update: PopulationPPO,
+    i: int,
+    iteration: int,
+    steps: int,
+    train_time: float,
+) -> None:
     """Agent ``i``'s ``checkpoint.pt`` in its single run's layout (its algorithm's ``state_dict``
     with the trained networks and Adam moments), for ``evaluate.py``; not resumable on its own
     (the population resumes from ``population.pt``)."""
     algo = update.algos[i]
     agent = algo.agent
     pop.load_into(i, agent)
-    for opt, module, stacked_opt, stacked in ((algo.actor_opt, agent.actor, update.actor_opt, pop.actor),
-                                              (algo.critic_opt, agent.critics, update.critic_opt, pop.critics)):
+    for opt, module, stacked_opt, stacked in (
+        (algo.actor_opt, agent.actor, update.actor_opt, pop.actor),
+        (algo.critic_opt, agent.critics, update.critic_opt, pop.critics),
+    ):
         moments = stacked_opt.agent_state(i, stacked)
         for name, p in module.named_parameters():
             opt.state[p] = {"step": torch.tensor(float(stacked_opt.step_count)), **moments[name]}
-    save_checkpoint(d / CHECKPOINT, {
-        "algo": cfg.algo.name, "policy": cfg.policy.name,
-        "config": dataclasses.asdict(dataclasses.replace(cfg, resume=None)), "iteration": iteration, "step": steps,
-        "time_s": train_time, "algo_state": algo.state_dict(), "collector": None, "rng": None,
-    })
+    save_checkpoint(
+        d / CHECKPOINT,
+        {
+            "algo": cfg.algo.name,
+            "policy": cfg.policy.name,
+            "config": dataclasses.asdict(dataclasses.replace(cfg, resume=None)),
+            "iteration": iteration,
+            "step": steps,
+            "time_s": train_time,
+            "algo_state": algo.state_dict(),
+            "collector": None,
+            "rng": None,
+        },
+    )
 
 
-__all__ = ["AGENTS_DIR", "POPULATION_CHECKPOINT", "POPULATION_CONFIG", "POPULATION_SUMMARY", "is_population_dir",
-           "train_population"]
+__all__ = [
+    "AGENTS_DIR",
+    "POPULATION_CHECKPOINT",
+    "POPULATION_CONFIG",
+    "POPULATION_SUMMARY",
+    "is_population_dir",
+    "train_population",
+]

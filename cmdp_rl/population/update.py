@@ -34,8 +34,9 @@ class PopulationPPO:
     """``algos`` are the agents' single-run algorithm objects: they keep each agent's J_c window
     and multiplier (and give the single-run checkpoint its layout); the networks' arithmetic is here."""
 
-    def __init__(self, cfgs: Sequence[RunConfig], algos: Sequence[Any], agent: PopulationAgent,
-                 envs_per_agent: int) -> None:
+    def __init__(
+        self, cfgs: Sequence[RunConfig], algos: Sequence[Any], agent: PopulationAgent, envs_per_agent: int
+    ) -> None:
         first = cfgs[0].algo
         self.name = first.name
         self.cfg = first  # shared options: discounts, epochs, minibatches, clip, max_grad_norm
@@ -44,8 +45,9 @@ class PopulationPPO:
         self.n = envs_per_agent
         self.gae = TwinGAE(first.gamma, first.cost_gamma, first.gae_lambda)
         self.log_clip = (math.log1p(-first.clip_epsilon), math.log1p(first.clip_epsilon))
-        self.entropy_coef = torch.tensor([c.algo.entropy_coef for c in cfgs], dtype=torch.float32,
-                                         device=agent.actor.flat.device)
+        self.entropy_coef = torch.tensor(
+            [c.algo.entropy_coef for c in cfgs], dtype=torch.float32, device=agent.actor.flat.device
+        )
         self.actor_opt = StackedAdam(agent.actor.flat, [c.algo.lr for c in cfgs])
         self.critic_opt = StackedAdam(agent.critics.flat, [c.algo.critic_lr for c in cfgs])
 
@@ -76,7 +78,7 @@ class PopulationPPO:
         cfg, P, agent = self.cfg, self.agent.num_agents, self.agent
         self.gae(batch, agent)
         for i, algo in enumerate(self.algos):  # J_c and the multiplier, before the policy update
-            algo.update_multiplier(algo.episode_cost.update(batch[i * self.n:(i + 1) * self.n]))
+            algo.update_multiplier(algo.episode_cost.update(batch[i * self.n : (i + 1) * self.n]))
         adv = self._policy_advantage(batch)
         if cfg.normalize_advantage:
             a = adv.reshape(P, -1)
@@ -94,7 +96,7 @@ class PopulationPPO:
             perm = torch.stack([torch.randperm(total, generator=g, device=g.device) for g in agent.generators])
             shuffled = {k: v[rows, perm] for k, v in data.items()}
             for j in range(cfg.num_minibatches):
-                mb = {k: v[:, j * size:(j + 1) * size] for k, v in shuffled.items()}
+                mb = {k: v[:, j * size : (j + 1) * size] for k, v in shuffled.items()}
                 stats = self._step(mb)
                 sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
                 steps += 1
@@ -137,14 +139,27 @@ class PopulationPPO:
         agent.critics.clip_grad_norm_(self.cfg.max_grad_norm)
         self.actor_opt.step()
         self.critic_opt.step()
-        return {"loss_pi": loss_pi.detach(), "loss_v": loss_v.detach(), "loss_vc": loss_vc.detach(),
-                "entropy": entropy.detach(), "kl": kl, "clip_fraction": clip_fraction}
+        return {
+            "loss_pi": loss_pi.detach(),
+            "loss_v": loss_v.detach(),
+            "loss_vc": loss_vc.detach(),
+            "entropy": entropy.detach(),
+            "kl": kl,
+            "clip_fraction": clip_fraction,
+        }
 
     def state_dict(self) -> dict:
-        return {"actor_opt": self.actor_opt.state_dict(), "critic_opt": self.critic_opt.state_dict(),
-                "algos": [{"episode_cost": a.episode_cost.state_dict(),
-                           **({"multiplier": a.multiplier.state_dict()} if hasattr(a, "multiplier") else {})}
-                          for a in self.algos]}
+        return {
+            "actor_opt": self.actor_opt.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+            "algos": [
+                {
+                    "episode_cost": a.episode_cost.state_dict(),
+                    **({"multiplier": a.multiplier.state_dict()} if hasattr(a, "multiplier") else {}),
+                }
+                for a in self.algos
+            ],
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.actor_opt.load_state_dict(state["actor_opt"])

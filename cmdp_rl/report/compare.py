@@ -36,8 +36,11 @@ from cmdp_rl.report.plot import IGNORED, pyplot, save_figure, smooth
 from cmdp_rl.run.sweeps import OK, RunRecord, find_runs, mark_superseded
 
 # (eval.json key, table name, number format)
-METRICS = (("episode_return", "return", ".3f"), ("episode_cost", "cost", ".3f"),
-           ("violation_rate", "violation rate", ".1%"))
+METRICS = (
+    ("episode_return", "return", ".3f"),
+    ("episode_cost", "cost", ".3f"),
+    ("violation_rate", "violation rate", ".1%"),
+)
 CURVES = (("episode_return", "episode return"), ("episode_cost", "episode cost"))
 WITHIN = "within budget with 95% confidence"
 VIOLATES = "violates the budget with 95% confidence"
@@ -83,8 +86,9 @@ def _quietly(fn: Callable[[], Any]) -> Any:
         return fn()
 
 
-def _bootstrap(scores: dict[str, np.ndarray], func: Callable[[np.ndarray], np.ndarray], resamples: int,
-               seed: int) -> dict[str, np.ndarray]:
+def _bootstrap(
+    scores: dict[str, np.ndarray], func: Callable[[np.ndarray], np.ndarray], resamples: int, seed: int
+) -> dict[str, np.ndarray]:
     """rliable's stratified-bootstrap intervals, reproducible: rliable 1.2's StratifiedBootstrap
     draws its resamples from numpy's global generator (``np.random.choice``), not from the
     ``random_state`` it is given, so the global one is seeded for the call and then put back."""
@@ -93,9 +97,11 @@ def _bootstrap(scores: dict[str, np.ndarray], func: Callable[[np.ndarray], np.nd
     state = np.random.get_state()
     np.random.seed(seed)
     try:
-        _, ci = _quietly(lambda: rly.get_interval_estimates(
-            scores, func, reps=resamples, confidence_interval_size=LEVEL,
-            random_state=np.random.RandomState(seed)))
+        _, ci = _quietly(
+            lambda: rly.get_interval_estimates(
+                scores, func, reps=resamples, confidence_interval_size=LEVEL, random_state=np.random.RandomState(seed)
+            )
+        )
     finally:
         np.random.set_state(state)
     return ci
@@ -116,8 +122,15 @@ def interval_estimates(scores: np.ndarray, resamples: int = RESAMPLES, seed: int
         return out | {k: None for k in ("mean_low", "mean_high", "iqm_low", "iqm_high")}
     agg = lambda s: np.array([metrics.aggregate_mean(s), metrics.aggregate_iqm(s)])  # noqa: E731
     (mean_low, iqm_low), (mean_high, iqm_high) = _bootstrap({"g": x}, agg, resamples, seed)["g"]
-    return {"n": out["n"], "mean": out["mean"], "mean_low": float(mean_low), "mean_high": float(mean_high),
-            "iqm": out["iqm"], "iqm_low": float(iqm_low), "iqm_high": float(iqm_high)}
+    return {
+        "n": out["n"],
+        "mean": out["mean"],
+        "mean_low": float(mean_low),
+        "mean_high": float(mean_high),
+        "iqm": out["iqm"],
+        "iqm_low": float(iqm_low),
+        "iqm_high": float(iqm_high),
+    }
 
 
 def load_runs(paths: Sequence[str | Path]) -> tuple[list[RunRecord], list[RunRecord]]:
@@ -149,8 +162,7 @@ def group_runs(runs: Sequence[RunRecord], by: Sequence[str] = ()) -> list[Group]
         keys = [tuple(_value(f.get(b, "?")) for b in by) for f in flat]
         labels = {k: ", ".join(f"{b}={v}" for b, v in zip(by, k)) for k in keys}
     else:
-        keys = [json.dumps({k: v for k, v in f.items() if k not in IGNORED}, sort_keys=True, default=str)
-                for f in flat]
+        keys = [json.dumps({k: v for k, v in f.items() if k not in IGNORED}, sort_keys=True, default=str) for f in flat]
         firsts = {k: f for k, f in zip(keys, flat)}
         shared = set.intersection(*(set(f) for f in firsts.values())) - set(IGNORED) if firsts else set()
         varying = sorted(k for k in shared if len({_value(f[k]) for f in firsts.values()}) > 1)
@@ -166,8 +178,9 @@ def _budget(run: RunRecord) -> float | None:
     return None if d is None else float(d)
 
 
-def compare(paths: Sequence[str | Path], by: Sequence[str] = (), resamples: int = RESAMPLES,
-            seed: int = 0) -> tuple[list[Group], list[RunRecord]]:
+def compare(
+    paths: Sequence[str | Path], by: Sequence[str] = (), resamples: int = RESAMPLES, seed: int = 0
+) -> tuple[list[Group], list[RunRecord]]:
     """Groups of the finished runs under ``paths`` with their figures and verdicts, and the runs
     that did not finish."""
     done, unfinished = load_runs(paths)
@@ -195,8 +208,12 @@ def format_table(groups: Sequence[Group]) -> str:
     for g in groups:
         for i, (name, title, fmt) in enumerate(METRICS):
             s = g.stats[name]
-            cell = lambda p: (f"{_fmt(s[p], fmt)} [{_fmt(s[p + '_low'], fmt)}, {_fmt(s[p + '_high'], fmt)}]"  # noqa: E731
-                              if s["n"] else "n/a")
+
+            def cell(p: str, s: dict = s, fmt: str = fmt) -> str:
+                return (
+                    f"{_fmt(s[p], fmt)} [{_fmt(s[p + '_low'], fmt)}, {_fmt(s[p + '_high'], fmt)}]" if s["n"] else "n/a"
+                )
+
             rows.append((g.label if i == 0 else "", str(s["n"]), title, cell("mean"), cell("iqm")))
         budget = "n/a (budgets differ)" if g.cost_limit is None else f"{g.cost_limit:g}"
         rows.append(("", "", "budget d", budget, g.verdict))
@@ -228,8 +245,9 @@ def write_csv(groups: Sequence[Group], path: str | Path) -> Path:
     return path
 
 
-def curve_band(runs: Sequence[RunRecord], name: str, k: int = 5, resamples: int = RESAMPLES,
-               seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def curve_band(
+    runs: Sequence[RunRecord], name: str, k: int = 5, resamples: int = RESAMPLES, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(step, mean, low, high)`` of metric ``name`` over ``runs``' metrics.csv: each run smoothed
     (trailing mean over ``k`` iterations), cut to the iterations every run reached, thinned to
     :data:`CURVE_POINTS`; the band is the 95% stratified bootstrap over runs (none for one run)."""
@@ -244,8 +262,9 @@ def curve_band(runs: Sequence[RunRecord], name: str, k: int = 5, resamples: int 
     return step, mean, ci["g"][0], ci["g"][1]
 
 
-def plot_groups(groups: Sequence[Group], out: str | Path, k: int = 5, resamples: int = RESAMPLES,
-                seed: int = 0) -> Path:
+def plot_groups(
+    groups: Sequence[Group], out: str | Path, k: int = 5, resamples: int = RESAMPLES, seed: int = 0
+) -> Path:
     """Learning curves of each group with their 95% bands into the PNG ``out``."""
     plt = pyplot()
     fig, axes = plt.subplots(1, len(CURVES), figsize=(5.5 * len(CURVES), 3.8))
@@ -273,16 +292,22 @@ def plot_groups(groups: Sequence[Group], out: str | Path, k: int = 5, resamples:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m cmdp_rl.report.compare", description=__doc__.split("\n\n")[1],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m cmdp_rl.report.compare",
+        description=__doc__.split("\n\n")[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("paths", nargs="+", help="run directories or sweep directories (searched for runs)")
-    parser.add_argument("--by", action="append", default=[],
-                        help="config field to group by, dotted (repeat or comma-separate for several); "
-                             "default: every field but the seed")
+    parser.add_argument(
+        "--by",
+        action="append",
+        default=[],
+        help="config field to group by, dotted (repeat or comma-separate for several); "
+        "default: every field but the seed",
+    )
     parser.add_argument("--csv", help="also write the table as CSV, one row per group")
     parser.add_argument("--figure", help="write learning curves with 95%% bands to this PNG")
-    parser.add_argument("--resamples", type=int, default=RESAMPLES,
-                        help=f"bootstrap resamples (default {RESAMPLES})")
+    parser.add_argument("--resamples", type=int, default=RESAMPLES, help=f"bootstrap resamples (default {RESAMPLES})")
     parser.add_argument("--seed", type=int, default=0, help="the bootstrap's seed (default 0)")
     parser.add_argument("--smooth", type=int, default=5, help="curves: trailing mean over this many iterations")
     args = parser.parse_args(argv)
@@ -301,8 +326,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     print(format_table(groups))
     if any(len(g.runs) < 5 for g in groups):
-        print("note: with fewer than 5 runs a bootstrap interval over runs cannot be wider than the runs'"
-              " own range; treat its verdict as weak (docs/evaluation.md)")
+        print(
+            "note: with fewer than 5 runs a bootstrap interval over runs cannot be wider than the runs'"
+            " own range; treat its verdict as weak (docs/evaluation.md)"
+        )
     for r in unfinished:
         print(f"skipped {r.path} ({r.status}{': ' + r.error if r.error else ''})")
     if args.csv:

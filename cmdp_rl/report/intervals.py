@@ -39,8 +39,9 @@ BINOMIAL_METHOD = "exact binomial, Clopper-Pearson (scipy.stats.binomtest)"
 VIOLATION_TOLERANCE = 1e-9
 
 
-def mean_interval(values: Sequence[float], level: float = LEVEL, resamples: int = RESAMPLES,
-                  seed: int = SEED) -> dict[str, Any]:
+def mean_interval(
+    values: Sequence[float], level: float = LEVEL, resamples: int = RESAMPLES, seed: int = SEED
+) -> dict[str, Any]:
     """Mean of ``values`` with a two-sided BCa bootstrap interval at ``level`` (``low``, ``high``)
     and the one-sided upper bound at ``level`` (``upper``).
 
@@ -51,8 +52,14 @@ def mean_interval(values: Sequence[float], level: float = LEVEL, resamples: int 
     if x.ndim != 1 or x.size == 0:
         raise ValueError(f"mean_interval: need a non-empty 1-D sample, got shape {x.shape}")
     mean = float(x.mean())
-    out: dict[str, Any] = {"mean": mean, "n": int(x.size), "low": None, "high": None, "upper": None,
-                           "no_spread": bool(np.ptp(x) == 0)}
+    out: dict[str, Any] = {
+        "mean": mean,
+        "n": int(x.size),
+        "low": None,
+        "high": None,
+        "upper": None,
+        "no_spread": bool(np.ptp(x) == 0),
+    }
     if x.size < 2:
         return out
     if out["no_spread"]:
@@ -86,12 +93,19 @@ def violation_interval(costs: Sequence[float], cost_limit: float, level: float =
     k = int(np.sum(c > cost_limit + VIOLATION_TOLERANCE * max(1.0, abs(cost_limit))))
     two = stats.binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
     one = stats.binomtest(k, n, alternative="less").proportion_ci(confidence_level=level, method="exact")
-    return {"rate": k / n, "violations": k, "n": n, "low": float(two.low), "high": float(two.high),
-            "upper": float(one.high)}
+    return {
+        "rate": k / n,
+        "violations": k,
+        "n": n,
+        "low": float(two.low),
+        "high": float(two.high),
+        "upper": float(one.high),
+    }
 
 
-def summarize(returns: Sequence[float], costs: Sequence[float], cost_limit: float,
-              resamples: int = RESAMPLES, seed: int = SEED) -> dict[str, Any]:
+def summarize(
+    returns: Sequence[float], costs: Sequence[float], cost_limit: float, resamples: int = RESAMPLES, seed: int = SEED
+) -> dict[str, Any]:
     """The interval keys eval.json carries, for one run's evaluation episodes (JSON-ready:
     intervals are ``[low, high]`` lists, unknown bounds are None)."""
     ret = mean_interval(returns, LEVEL, resamples, seed)
@@ -111,8 +125,12 @@ def summarize(returns: Sequence[float], costs: Sequence[float], cost_limit: floa
         "violation_rate_ci95": [viol["low"], viol["high"]],
         "violation_rate_ucb95": viol["upper"],
         "intervals": {
-            "level": LEVEL, "method": BOOTSTRAP_METHOD, "resamples": resamples, "seed": seed,
-            "violation_method": BINOMIAL_METHOD, "violation": f"episode cost > {cost_limit:g}",
+            "level": LEVEL,
+            "method": BOOTSTRAP_METHOD,
+            "resamples": resamples,
+            "seed": seed,
+            "violation_method": BINOMIAL_METHOD,
+            "violation": f"episode cost > {cost_limit:g}",
             "no_spread": [name for name, r in (("episode_return", ret), ("episode_cost", cost)) if r["no_spread"]],
             **({"percentile_fallback": percentile} if percentile else {}),
         },
@@ -134,17 +152,24 @@ def summary_lines(result: dict[str, Any], cost_limit: float) -> list[str]:
     n = result["episodes"]
     flat = result["intervals"]["no_spread"]
     ucb = result["episode_cost_ucb95"]
-    lines = [f"return {result['episode_return']:.3f}, {_ci(result['episode_return_ci95'], '.3f')}"
-             + ("; no spread over the episodes" if "episode_return" in flat and n > 1 else ""),
-             f"cost   {result['episode_cost']:.2f}, {_ci(result['episode_cost_ci95'], '.2f')}"
-             + ("" if ucb is None else f", 95% upper bound {ucb:.2f}") + f" (limit {cost_limit:g})"]
+    lines = [
+        f"return {result['episode_return']:.3f}, {_ci(result['episode_return_ci95'], '.3f')}"
+        + ("; no spread over the episodes" if "episode_return" in flat and n > 1 else ""),
+        f"cost   {result['episode_cost']:.2f}, {_ci(result['episode_cost_ci95'], '.2f')}"
+        + ("" if ucb is None else f", 95% upper bound {ucb:.2f}")
+        + f" (limit {cost_limit:g})",
+    ]
     if "episode_cost" in flat and n > 1:
-        lines[-1] += (f"; every episode had cost {result['episode_cost']:.2f}, so the bootstrap shows no"
-                      " spread: rest a safety claim on the violation bound")
+        lines[-1] += (
+            f"; every episode had cost {result['episode_cost']:.2f}, so the bootstrap shows no"
+            " spread: rest a safety claim on the violation bound"
+        )
     lo, hi = result["violation_rate_ci95"]
-    lines.append(f"violations {result['violations']}/{n} episodes (cost > {cost_limit:g}): rate "
-                 f"{result['violation_rate']:.0%}, 95% CI [{lo:.0%}, {hi:.0%}], "
-                 f"95% upper bound {result['violation_rate_ucb95']:.0%}")
+    lines.append(
+        f"violations {result['violations']}/{n} episodes (cost > {cost_limit:g}): rate "
+        f"{result['violation_rate']:.0%}, 95% CI [{lo:.0%}, {hi:.0%}], "
+        f"95% upper bound {result['violation_rate_ucb95']:.0%}"
+    )
     return lines
 
 

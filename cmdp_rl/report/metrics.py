@@ -30,16 +30,30 @@ _SINGLE = ("cost_0",)  # the cost names of an env with one cost (its columns kee
 # What the loop measures every iteration, for every algorithm. lagrange_multiplier is the lambda in
 # force (0 for unconstrained PPO); every algorithm reports it.
 RUN_COLUMNS = [
-    "iteration", "step", "episode_return", "episode_cost", "episode_length", "episodes",
-    "lagrange_multiplier", "cost_limit", "sps", "time_s",
+    "iteration",
+    "step",
+    "episode_return",
+    "episode_cost",
+    "episode_length",
+    "episodes",
+    "lagrange_multiplier",
+    "cost_limit",
+    "sps",
+    "time_s",
 ]
 # The field's metrics (safety_metrics.py): blank where no reference is given.
 SAFETY_COLUMNS = ["cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate"]
 
 
 # Quantities with one value per constraint.
-PER_CONSTRAINT = ("episode_cost", "lagrange_multiplier", "cost_limit", "cost_rate", "normalized_violation",
-                  "normalized_cost_rate")
+PER_CONSTRAINT = (
+    "episode_cost",
+    "lagrange_multiplier",
+    "cost_limit",
+    "cost_rate",
+    "normalized_violation",
+    "normalized_cost_rate",
+)
 
 
 def constraint_name(name: str, cost_name: str, num_costs: int) -> str:
@@ -97,7 +111,7 @@ def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
     if not lines:
         raise ValueError(f"{path} has no header")
     header = next(csv.reader([lines[0]]))
-    rows = lines[1:iteration + 1]
+    rows = lines[1 : iteration + 1]
     found = [next(csv.reader([r]))[0] for r in rows]
     if found != [str(i) for i in range(1, iteration + 1)]:
         raise ValueError(
@@ -124,9 +138,15 @@ class MetricsLogger:
     """
 
     def __init__(
-        self, path: str | Path, fieldnames: Sequence[str], log_interval: int = 1, echo: Callable[[str], None] = print,
-        resume_iteration: int | None = None, tensorboard_dir: str | Path | None = None,
-        resume_step: int | None = None, wandb: WandbRun | None = None,
+        self,
+        path: str | Path,
+        fieldnames: Sequence[str],
+        log_interval: int = 1,
+        echo: Callable[[str], None] = print,
+        resume_iteration: int | None = None,
+        tensorboard_dir: str | Path | None = None,
+        resume_step: int | None = None,
+        wandb: WandbRun | None = None,
     ) -> None:
         self.path = Path(path)
         self.log_interval = log_interval
@@ -161,8 +181,10 @@ class MetricsLogger:
     def log(self, row: dict[str, Any], force_echo: bool = False) -> None:
         unknown = [k for k in row if k not in self.columns]
         if unknown:
-            raise ValueError(f"metrics: {unknown} are not columns of {self.path}; an algorithm must declare "
-                             f"every statistic it returns (its `stats`)")
+            raise ValueError(
+                f"metrics: {unknown} are not columns of {self.path}; an algorithm must declare "
+                f"every statistic it returns (its `stats`)"
+            )
         self._writer.writerow(row)
         self._file.flush()
         if self._tb is not None:
@@ -219,8 +241,14 @@ class WandbRun:
             id_file.write_text(run_id + "\n")
         self.run = wandb.init(
             # dir: wandb writes its files to <dir>/wandb (WANDB_DIR)
-            project=self.project, entity=self.entity, mode=self.mode, dir=str(self.run_dir), id=run_id,
-            resume="allow", name=self.run_dir.name, config=self.config,
+            project=self.project,
+            entity=self.entity,
+            mode=self.mode,
+            dir=str(self.run_dir),
+            id=run_id,
+            resume="allow",
+            name=self.run_dir.name,
+            config=self.config,
             reinit="finish_previous",  # a train() that failed in this process left its run open
             settings=wandb.Settings(console="off", silent=True),
         )
@@ -262,14 +290,13 @@ def _per_constraint(row: dict[str, Any], name: str) -> list:
 def format_row(row: dict[str, Any]) -> str:
     """The progress line. A row without a multiplier (an algorithm that reports none) has no
     ``lambda`` part, rather than a KeyError halfway through a run."""
-    cost = "/".join(_fmt(c, '.2f') for c in _per_constraint(row, "episode_cost"))
+    cost = "/".join(_fmt(c, ".2f") for c in _per_constraint(row, "episode_cost"))
     lams = _per_constraint(row, "lagrange_multiplier")
-    lam = "/".join(_fmt(x, '.3f') for x in lams)
+    lam = "/".join(_fmt(x, ".3f") for x in lams)
     if "episode_cost" in row:  # one constraint: the fixed-width line it always had
-        cost = _fmt(row["episode_cost"], '6.2f')
-        lam = _fmt(row["lagrange_multiplier"], '6.3f') if "lagrange_multiplier" in row else ""
+        cost = _fmt(row["episode_cost"], "6.2f")
+        lam = _fmt(row["lagrange_multiplier"], "6.3f") if "lagrange_multiplier" in row else ""
     return (
         f"iter {row['iteration']:4d} | step {row['step']:>9,d} | {row['sps']:>8,.0f} steps/s"
-        f" | return {_fmt(row['episode_return'], '7.3f')} | cost {cost}"
-        + (f" | lambda {lam}" if lams else "")
+        f" | return {_fmt(row['episode_return'], '7.3f')} | cost {cost}" + (f" | lambda {lam}" if lams else "")
     )

@@ -28,8 +28,11 @@ import yaml
 from cmdp_rl.config import flatten_dict
 from cmdp_rl.run.rundir import CONFIG, METRICS
 
-PANELS = (("episode_return", "episode return"), ("episode_cost", "episode cost"),
-          ("lagrange_multiplier", "Lagrange multiplier λ"))  # with one cost
+PANELS = (
+    ("episode_return", "episode return"),
+    ("episode_cost", "episode cost"),
+    ("lagrange_multiplier", "Lagrange multiplier λ"),
+)  # with one cost
 
 
 def panels(columns: Sequence[str]) -> list[tuple[str, str]]:
@@ -46,7 +49,9 @@ def panels(columns: Sequence[str]) -> list[tuple[str, str]]:
 
 def _limit_column(panel: str) -> str:
     """The budget column of an episode-cost panel: ``cost_limit`` or ``cost_limit/<cost>``."""
-    return "cost_limit" + panel[len("episode_cost"):]
+    return "cost_limit" + panel[len("episode_cost") :]
+
+
 IGNORED = ("seed", "resume", "total_steps", "log_interval", "checkpoint_every", "threads", "logger")
 
 
@@ -84,7 +89,7 @@ def smooth(x: np.ndarray, k: int) -> np.ndarray:
         return x
     out = np.full_like(x, np.nan)
     for i in range(len(x)):
-        w = x[max(0, i - k + 1):i + 1]
+        w = x[max(0, i - k + 1) : i + 1]
         w = w[np.isfinite(w)]
         if w.size:
             out[i] = w.mean()
@@ -128,11 +133,22 @@ def group_runs(run_dirs: Sequence[str | Path], k: int = 1) -> list[Curve]:
         for name, _ in shown:
             if name.startswith("episode_cost"):
                 given = cfg.get("algo.cost_limit", np.nan)
-                limits[name] = float(cols.get(_limit_column(name), np.array([
-                    given if not isinstance(given, list) else np.nan]))[0])
+                limits[name] = float(
+                    cols.get(_limit_column(name), np.array([given if not isinstance(given, list) else np.nan]))[0]
+                )
         first = next(iter(limits.values()), float("nan"))
-        curves.append(Curve(f"{label}, {len(members)} seed{'s' if len(members) > 1 else ''}",
-                            step, mean, std, len(members), first, limits, shown))
+        curves.append(
+            Curve(
+                f"{label}, {len(members)} seed{'s' if len(members) > 1 else ''}",
+                step,
+                mean,
+                std,
+                len(members),
+                first,
+                limits,
+                shown,
+            )
+        )
     return curves
 
 
@@ -153,8 +169,9 @@ def plot_runs(run_dirs: Sequence[str | Path], out: str | Path, k: int = 5) -> Pa
                 continue
             ax.plot(c.step, c.mean[name], color=color, lw=1.6, label=c.label)
             if c.seeds > 1:
-                ax.fill_between(c.step, c.mean[name] - c.std[name], c.mean[name] + c.std[name],
-                                color=color, alpha=0.2, lw=0)
+                ax.fill_between(
+                    c.step, c.mean[name] - c.std[name], c.mean[name] + c.std[name], color=color, alpha=0.2, lw=0
+                )
             limit = c.cost_limits.get(name, np.nan)
             if np.isfinite(limit) and (name, limit) not in limits_drawn:
                 limits_drawn.add((name, limit))
@@ -192,12 +209,16 @@ def save_figure(fig: Any, path: str | Path, dpi: int = 100) -> Path:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m cmdp_rl.report.plot", description=__doc__.split("\n\n")[1],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m cmdp_rl.report.plot",
+        description=__doc__.split("\n\n")[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("runs", nargs="+", help="run directories (each with metrics.csv and config.yaml)")
     parser.add_argument("-o", "--out", default="curves.png", help="PNG to write (default: curves.png)")
-    parser.add_argument("--smooth", type=int, default=5,
-                        help="trailing mean over this many iterations (default 5; 1: none)")
+    parser.add_argument(
+        "--smooth", type=int, default=5, help="trailing mean over this many iterations (default 5; 1: none)"
+    )
     args = parser.parse_args(argv)
     if args.smooth < 1:
         parser.error(f"--smooth must be a positive integer, got {args.smooth}")

@@ -17,9 +17,9 @@ import torch
 
 from cmdp_rl import keys
 from cmdp_rl.collector import PolicyMemory
-from cmdp_rl.policies.agent import Agent
-from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.envs import Reach1D, reach1d_kwargs
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
+from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.plot import pyplot, save_figure
 
 
@@ -60,8 +60,10 @@ def record_reach1d(
             ep = Reach1DEpisode(true_x=[info["true_x"]], reading=[float(obs[0])])
             is_init, carried = True, memory.start()
             while True:
-                wrote = agent.act({**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0),
-                                   keys.IS_INIT: torch.tensor([[is_init]])}, deterministic)
+                wrote = agent.act(
+                    {**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0), keys.IS_INIT: torch.tensor([[is_init]])},
+                    deterministic,
+                )
                 action = wrote[keys.ACTION][0].numpy().astype(env.action_space.dtype)
                 obs, reward, terminated, truncated, info = env.step(action)
                 # as in the collector: the policy's next state, previous action and cost
@@ -96,11 +98,12 @@ def plot_reach1d(episodes: list[Reach1DEpisode], env_cfg: Reach1DConfig, path: s
         ax.plot(t, ep.true_x, "-", color="tab:blue", lw=1.5, label="true x")
         hits = [s + 1 for s, c in enumerate(ep.cost) if c > 0]
         if hits:
-            ax.plot(hits, [ep.true_x[s] for s in hits], "x", color="red", ms=8, mew=2,
-                    label=f"collision ({len(hits)})")
+            ax.plot(hits, [ep.true_x[s] for s in hits], "x", color="red", ms=8, mew=2, label=f"collision ({len(hits)})")
         end = "goal reached" if ep.terminated else "time limit"
-        ax.set_title(f"episode {i + 1}: return {ep.episode_return:.3f}, cost {ep.episode_cost:.0f}, "
-                     f"{len(ep.cost)} steps, {end}", fontsize=9)
+        ax.set_title(
+            f"episode {i + 1}: return {ep.episode_return:.3f}, cost {ep.episode_cost:.0f}, {len(ep.cost)} steps, {end}",
+            fontsize=9,
+        )
         ax.set_ylabel("position")
         ax.set_ylim(-0.02, 1.02)
         if i == 0:

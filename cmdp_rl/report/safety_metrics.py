@@ -58,19 +58,38 @@ class ReferenceConfig:
     cost_rate: FiniteOrNull = None
 
     def check(self, run: RunConfig) -> None:
-        numbers = {"episode_return": self.episode_return, "episode_cost": self.episode_cost,
-                   "cost_rate": self.cost_rate}
+        numbers = {
+            "episode_return": self.episode_return,
+            "episode_cost": self.episode_cost,
+            "cost_rate": self.cost_rate,
+        }
         if self.run is not None:
-            require(all(v is None for v in numbers.values()), "reference",
-                    "either reference.run or the reference numbers, not both", {"run": self.run, **numbers})
-            require((Path(self.run) / "eval.json").is_file() and (Path(self.run) / "config.yaml").is_file(),
-                    "reference.run", "a finished run's directory (holding eval.json and config.yaml)", self.run)
+            require(
+                all(v is None for v in numbers.values()),
+                "reference",
+                "either reference.run or the reference numbers, not both",
+                {"run": self.run, **numbers},
+            )
+            require(
+                (Path(self.run) / "eval.json").is_file() and (Path(self.run) / "config.yaml").is_file(),
+                "reference.run",
+                "a finished run's directory (holding eval.json and config.yaml)",
+                self.run,
+            )
             problem = reference_run_problem(self.run, run)
             require(problem is None, "reference.run", f"a usable reference run, but {problem}", self.run)
-        require(self.episode_return is None or self.episode_return != 0, "reference.episode_return",
-                "null or a nonzero number (it divides the return)", self.episode_return)
-        require(self.cost_rate is None or self.cost_rate > 0, "reference.cost_rate",
-                "null or a positive number (it divides the cost rate)", self.cost_rate)
+        require(
+            self.episode_return is None or self.episode_return != 0,
+            "reference.episode_return",
+            "null or a nonzero number (it divides the return)",
+            self.episode_return,
+        )
+        require(
+            self.cost_rate is None or self.cost_rate > 0,
+            "reference.cost_rate",
+            "null or a positive number (it divides the cost rate)",
+            self.cost_rate,
+        )
 
 
 def cost_rate(total_cost: float, total_steps: int) -> float:
@@ -89,8 +108,11 @@ def _reference_values(x: Any, k: int) -> list:
 
 
 def normalized_scores(
-    episode_return: float, episode_cost: float | list[float], rate: float | list[float],
-    cost_limit: float | list[float], ref: Reference | None,
+    episode_return: float,
+    episode_cost: float | list[float],
+    rate: float | list[float],
+    cost_limit: float | list[float],
+    ref: Reference | None,
 ) -> dict[str, Any]:
     """The three normalized metrics; None where the reference lacks the number (or it is 0 where it
     divides: a reference return of 0, a reference that never incurred a cost). With lists of K
@@ -102,8 +124,9 @@ def normalized_scores(
     k = len(costs)
     rates, limits = _listed(rate, k), _listed(cost_limit, k)
     ref_costs, ref_rates = _reference_values(ref.episode_cost, k), _reference_values(ref.cost_rate, k)
-    violation = [None if rc is None else max(0.0, c - d) / max(EPSILON, rc - d)
-                 for c, d, rc in zip(costs, limits, ref_costs)]
+    violation = [
+        None if rc is None else max(0.0, c - d) / max(EPSILON, rc - d) for c, d, rc in zip(costs, limits, ref_costs)
+    ]
     cost_rates = [r / rr if rr else None for r, rr in zip(rates, ref_rates)]
     return {
         "normalized_return": episode_return / ref.episode_return if ref.episode_return else None,
@@ -156,8 +179,14 @@ def load_reference(cfg: RunConfig) -> tuple[Reference | None, list[str]]:
     if ref_algo != "ppo":
         warnings.append(f"reference run {r.run} is algo={ref_algo}, not the unconstrained ppo Safety Gym normalizes by")
     if ref_cfg.get("total_steps") != cfg.total_steps:
-        warnings.append(f"reference run {r.run} trained for {ref_cfg.get('total_steps')} steps, this run for "
-                        f"{cfg.total_steps}: Safety Gym compares at the same step budget")
-    ref = Reference(result["episode_return"], _per_constraint_result(result, "episode_cost"),
-                    _per_constraint_result(result, "cost_rate"), str(r.run))
+        warnings.append(
+            f"reference run {r.run} trained for {ref_cfg.get('total_steps')} steps, this run for "
+            f"{cfg.total_steps}: Safety Gym compares at the same step budget"
+        )
+    ref = Reference(
+        result["episode_return"],
+        _per_constraint_result(result, "episode_cost"),
+        _per_constraint_result(result, "cost_rate"),
+        str(r.run),
+    )
     return ref, warnings

@@ -41,23 +41,26 @@ def budgets(cost_limit: float | Sequence[float], k: int) -> list[float]:
     return [float(d) for d in cost_limit]
 
 
-def constraints_of(result: Mapping[str, Any], cost_limit: float | Sequence[float],
-                   cost_names: Sequence[str] | None = None) -> list[Constraint]:
+def constraints_of(
+    result: Mapping[str, Any], cost_limit: float | Sequence[float], cost_names: Sequence[str] | None = None
+) -> list[Constraint]:
     """The run's constraints as ``eval.json`` reports them: with one cost, ``cost`` from
     ``episode_cost``; with ``cost_names`` of K > 1 costs, each by its name from
     ``episode_cost/<name>`` against its own budget."""
     if cost_names is None or len(cost_names) == 1:
         (d,) = budgets(cost_limit, 1)
         return [Constraint("cost", result["episode_cost"], result["episode_cost_std"], d)]
-    return [Constraint(name, result[f"episode_cost/{name}"], result[f"episode_cost_std/{name}"], d)
-            for name, d in zip(cost_names, budgets(cost_limit, len(cost_names)))]
+    return [
+        Constraint(name, result[f"episode_cost/{name}"], result[f"episode_cost_std/{name}"], d)
+        for name, d in zip(cost_names, budgets(cost_limit, len(cost_names)))
+    ]
 
 
 def constraint_view(result: Mapping[str, Any], cost_name: str) -> dict[str, Any]:
     """``result`` with constraint ``cost_name``'s keys (``<key>/<cost_name>``) under their plain
     names: what the one-constraint readers (``intervals.summary_lines``) take."""
     suffix = "/" + cost_name
-    return {**result, **{k[:-len(suffix)]: v for k, v in result.items() if k.endswith(suffix)}}
+    return {**result, **{k[: -len(suffix)]: v for k, v in result.items() if k.endswith(suffix)}}
 
 
 def optimum_of(env_cfg: Any, cost_limit: float) -> float | None:
@@ -91,8 +94,9 @@ def termination_line(result: Mapping[str, Any], env_cfg: Any) -> str | None:
     return f"{metric.replace('_', ' ')} in {result[metric]:.0%} of episodes"
 
 
-def interval_summary(result: Mapping[str, Any], cost_limit: float | Sequence[float],
-                     cost_names: Sequence[str] | None = None) -> list[str]:
+def interval_summary(
+    result: Mapping[str, Any], cost_limit: float | Sequence[float], cost_names: Sequence[str] | None = None
+) -> list[str]:
     """The interval estimates' lines (``intervals.summary_lines``) where ``result`` has them (evaluate()
     adds them given a budget): the return's once, then each constraint's cost and violation lines,
     prefixed by its name for K > 1 costs."""
@@ -100,8 +104,10 @@ def interval_summary(result: Mapping[str, Any], cost_limit: float | Sequence[flo
         return interval_lines(result, budgets(cost_limit, 1)[0])
     if cost_names is None or len(cost_names) < 2 or f"violation_rate_ucb95/{cost_names[0]}" not in result:
         return []
-    per = [interval_lines(constraint_view(result, name), d)
-           for name, d in zip(cost_names, budgets(cost_limit, len(cost_names)))]
+    per = [
+        interval_lines(constraint_view(result, name), d)
+        for name, d in zip(cost_names, budgets(cost_limit, len(cost_names)))
+    ]
     lines = [per[0][0]]  # the return's interval: the same for every constraint
     for name, own in zip(cost_names, per):
         lines += [f"{name}: " + line for line in own[1:]]
@@ -109,8 +115,13 @@ def interval_summary(result: Mapping[str, Any], cost_limit: float | Sequence[flo
 
 
 def summary_lines(
-    result: Mapping[str, Any], env_cfg: Any, cost_limit: float | Sequence[float], *, header: str,
-    constraints: Sequence[Constraint] | None = None, optimum: float | None = None,
+    result: Mapping[str, Any],
+    env_cfg: Any,
+    cost_limit: float | Sequence[float],
+    *,
+    header: str,
+    constraints: Sequence[Constraint] | None = None,
+    optimum: float | None = None,
     cost_names: Sequence[str] | None = None,
 ) -> list[str]:
     """The summary: ``header`` and the episode count, then return (against the optimum where the
@@ -121,8 +132,10 @@ def summary_lines(
     if optimum is None and not multi:  # the exact solvers are for one constraint
         optimum = optimum_of(env_cfg, budgets(cost_limit, 1)[0])
     constraints = constraints_of(result, cost_limit, cost_names) if constraints is None else constraints
-    lines = [f"{header} | eval over {result['episodes']} episodes:",
-             "  " + return_line(result["episode_return"], result["episode_return_std"], optimum)]
+    lines = [
+        f"{header} | eval over {result['episodes']} episodes:",
+        "  " + return_line(result["episode_return"], result["episode_return_std"], optimum),
+    ]
     lines += ["  " + constraint_line(c) for c in constraints]
     lines += ["  " + line for line in interval_summary(result, cost_limit, cost_names)]
     term = termination_line(result, env_cfg)

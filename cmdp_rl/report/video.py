@@ -41,8 +41,10 @@ from cmdp_rl.policies.agent import Agent
 from cmdp_rl.validation import ConfigError
 
 VIDEO_MISSING = "video=true needs moviepy (gymnasium's RecordVideo writes with it): pip install 'cmdp_rl[video]'"
-HEADLESS_GL = ("headless MuJoCo rendering needs EGL (Debian: apt-get install libegl1 libopengl0 "
-               "libgl1-mesa-dri) or MUJOCO_GL=osmesa (libosmesa6)")
+HEADLESS_GL = (
+    "headless MuJoCo rendering needs EGL (Debian: apt-get install libegl1 libopengl0 "
+    "libgl1-mesa-dri) or MUJOCO_GL=osmesa (libosmesa6)"
+)
 
 
 class VideoError(RuntimeError):
@@ -70,8 +72,10 @@ def make_render_env(env_cfg: Any) -> gym.Env:
         raise ConfigError(f"video: {VIDEO_MISSING}")
     make = getattr(env_cfg, "render_env", None)
     if make is None:
-        raise ConfigError(f"video: env={env_cfg.name} cannot render (its options declare no render_env); "
-                          "videos are made for env=reach1d, env=velocity, env=safety_gym and env=gym envs with an rgb_array mode")
+        raise ConfigError(
+            f"video: env={env_cfg.name} cannot render (its options declare no render_env); "
+            "videos are made for env=reach1d, env=velocity, env=safety_gym and env=gym envs with an rgb_array mode"
+        )
     _headless_gl()
     try:
         env = make()
@@ -79,8 +83,10 @@ def make_render_env(env_cfg: Any) -> gym.Env:
         raise ConfigError(f"video: env={env_cfg.name} cannot render ({exc})") from exc
     if env.render_mode != "rgb_array" or "rgb_array" not in env.metadata.get("render_modes", ()):
         env.close()
-        raise ConfigError(f"video: env={env_cfg.name} cannot render rgb_array frames "
-                          f"(its render modes: {env.metadata.get('render_modes', [])})")
+        raise ConfigError(
+            f"video: env={env_cfg.name} cannot render rgb_array frames "
+            f"(its render modes: {env.metadata.get('render_modes', [])})"
+        )
     env.reset(seed=0)  # re-seeded by the recording; rendering draws no random numbers
     failure = None
     with _unraisable_ignored():  # gymnasium's half-built MuJoCo viewer raises in __del__ when collected
@@ -139,8 +145,9 @@ class _PolicyOnOneEnv:
         obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))
         if self.extra is not None:  # what the algorithm's env transform adds (Sauté's remaining budget)
             obs_t = self.extra.observation(obs_t)
-        self.wrote = self.agent.act({**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])},
-                                    self.deterministic)
+        self.wrote = self.agent.act(
+            {**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])}, self.deterministic
+        )
         return self.wrote[keys.ACTION][0]
 
     def observe(self, cost: np.ndarray) -> None:
@@ -154,8 +161,15 @@ class _PolicyOnOneEnv:
 
 @torch.no_grad()
 def record_video(
-    agent: Agent, env_cfg: Any, video_dir: str | Path, episodes: int = 1, deterministic: bool = True,
-    seed: int = 0, max_steps: int | None = None, name_prefix: str = "policy", algo: Any = None,
+    agent: Agent,
+    env_cfg: Any,
+    video_dir: str | Path,
+    episodes: int = 1,
+    deterministic: bool = True,
+    seed: int = 0,
+    max_steps: int | None = None,
+    name_prefix: str = "policy",
+    algo: Any = None,
 ) -> list[VideoEpisode]:
     """Record ``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with
     ``seed`` once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
@@ -166,11 +180,17 @@ def record_video(
     from gymnasium.wrappers import RecordVideo
 
     env = make_render_env(env_cfg)
-    env = RecordVideo(env, str(video_dir), episode_trigger=lambda i: i < episodes, name_prefix=name_prefix,
-                      fps=exact_fps(env.metadata.get("render_fps", 30)))
+    env = RecordVideo(
+        env,
+        str(video_dir),
+        episode_trigger=lambda i: i < episodes,
+        name_prefix=name_prefix,
+        fps=exact_fps(env.metadata.get("render_fps", 30)),
+    )
     make_extra = getattr(algo, "observation_state", None)
-    policy = _PolicyOnOneEnv(agent, env.action_space, deterministic,
-                             None if make_extra is None else make_extra(agent.cost_names))
+    policy = _PolicyOnOneEnv(
+        agent, env.action_space, deterministic, None if make_extra is None else make_extra(agent.cost_names)
+    )
     out: list[VideoEpisode] = []
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)

@@ -15,15 +15,23 @@ from tqdm import tqdm
 class Progress:
     """``total_steps`` env steps in all, ``done_steps`` of them before this process (a resume)."""
 
-    def __init__(self, total_steps: int, done_steps: int, echo: Callable[[str], None],
-                 stream: TextIO | None = None) -> None:
+    def __init__(
+        self, total_steps: int, done_steps: int, echo: Callable[[str], None], stream: TextIO | None = None
+    ) -> None:
         self.stream = sys.stdout if stream is None else stream
         self.echo = echo
         self.live = echo is builtins.print and self.stream.isatty()
         self._bar = None
         if self.live:
-            self._bar = tqdm(total=total_steps, initial=done_steps, unit="step", unit_scale=True,
-                             file=self.stream, dynamic_ncols=True, smoothing=0.1)
+            self._bar = tqdm(
+                total=total_steps,
+                initial=done_steps,
+                unit="step",
+                unit_scale=True,
+                file=self.stream,
+                dynamic_ncols=True,
+                smoothing=0.1,
+            )
 
     @property
     def row_echo(self) -> Callable[[str], None]:
@@ -35,13 +43,16 @@ class Progress:
         """One iteration's row (``metrics.csv``'s): advance the bar, show its latest numbers."""
         if self._bar is None:
             return
+
         def each(name: str, fmt: str) -> str:  # one value, or K joined by '/' (episode_cost/<cost> columns)
             return "/".join(format(v, fmt) for k, v in row.items() if k == name or k.startswith(name + "/"))
 
-        lam = each('lagrange_multiplier', '.3f')  # absent for an algorithm that reports no multiplier
+        lam = each("lagrange_multiplier", ".3f")  # absent for an algorithm that reports no multiplier
         self._bar.set_postfix_str(
             f"return {row['episode_return']:.3f}, cost {each('episode_cost', '.2f')}"
-            + (f", lambda {lam}" if lam else ""), refresh=False)
+            + (f", lambda {lam}" if lam else ""),
+            refresh=False,
+        )
         self._bar.update(row["step"] - self._bar.n)
 
     def write(self, line: str) -> None:

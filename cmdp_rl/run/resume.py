@@ -27,8 +27,17 @@ from cmdp_rl.run.rundir import checkpoint_path, saved_config
 # Fields a resume command line may change: none of them alters what the run has done so far or the
 # shape of anything saved. Prefixes: every field under ``logger.``.
 # algo.anneal_iterations: "auto" follows total_steps, so extending a run stretches its lr schedule.
-RESUMABLE = ("total_steps", "checkpoint_every", "log_interval", "eval_episodes", "eval_deterministic",
-             "threads", "resume", "logger.", "algo.anneal_iterations")
+RESUMABLE = (
+    "total_steps",
+    "checkpoint_every",
+    "log_interval",
+    "eval_episodes",
+    "eval_deterministic",
+    "threads",
+    "resume",
+    "logger.",
+    "algo.anneal_iterations",
+)
 # Config groups selected by name on a command line (``algo=ppo``); they set ``<group>.name``.
 GROUPS = ("algo", "env", "policy", "logger")
 

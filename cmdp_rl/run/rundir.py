@@ -32,8 +32,8 @@ from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, load_config
 from cmdp_rl.envs import VecEnv, make_eval_env
 from cmdp_rl.normalization import Normalizers
-from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl.policies import Agent, make_agent
+from cmdp_rl.policies.legacy import upgrade_algo_state
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.yaml"
@@ -62,8 +62,9 @@ def ensure_writable(run_dir: str | Path) -> Path:
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as exc:
-        raise RunDirError(f"run directory {path} cannot be created or written: "
-                          f"{exc.strerror or type(exc).__name__}") from None
+        raise RunDirError(
+            f"run directory {path} cannot be created or written: {exc.strerror or type(exc).__name__}"
+        ) from None
     return path
 
 
@@ -72,8 +73,9 @@ LIBRARIES = ("torch", "torchrl", "tensordict", "gymnasium", "numpy", "hydra-core
 
 def _git(*args: str) -> str | None:
     try:
-        out = subprocess.run(["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True,
-                             text=True, timeout=10)
+        out = subprocess.run(
+            ["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=10
+        )
     except (OSError, subprocess.TimeoutExpired):
         return None
     return out.stdout.strip() if out.returncode == 0 else None

@@ -106,8 +106,9 @@ def load_run(path: str | Path) -> RunRecord:
     # The validated config (written when training starts) is the truth; Hydra's composed one is
     # there from the job's start, also for runs that failed validation.
     config = _read_yaml(path / CONFIG_FILE) or _read_yaml(path / HYDRA_DIR / "config.yaml") or {}
-    record = RunRecord(path, INCOMPLETE, [str(o) for o in overrides], config,
-                       metrics=_read_metrics(path / METRICS_FILE))
+    record = RunRecord(
+        path, INCOMPLETE, [str(o) for o in overrides], config, metrics=_read_metrics(path / METRICS_FILE)
+    )
     if (path / EVAL_FILE).is_file():
         try:
             record.eval = json.loads((path / EVAL_FILE).read_text())
@@ -118,7 +119,9 @@ def load_run(path: str | Path) -> RunRecord:
             return record
     if (path / ERROR_FILE).is_file():
         record.status = FAILED
-        record.error = (path / ERROR_FILE).read_text().splitlines()[0] if (path / ERROR_FILE).stat().st_size else "error"
+        record.error = (
+            (path / ERROR_FILE).read_text().splitlines()[0] if (path / ERROR_FILE).stat().st_size else "error"
+        )
     return record
 
 
@@ -266,8 +269,9 @@ def experiment_arg_parser(doc: str | None) -> argparse.ArgumentParser:
     return parser
 
 
-def experiment_sweep_dir(parser: argparse.ArgumentParser, args: argparse.Namespace, experiment: str,
-                         root: str | Path) -> Path:
+def experiment_sweep_dir(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, experiment: str, root: str | Path
+) -> Path:
     """The sweep directory a report reads: with ``--run``, after running
     ``train.py -m +experiment=<experiment> [overrides]`` from ``root`` (into
     ``multirun/<experiment>/<time>`` unless ``hydra.sweep.dir=`` is among the overrides). The sweep

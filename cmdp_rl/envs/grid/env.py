@@ -110,9 +110,14 @@ class GridWorld(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
     cost_names = COST_NAMES
 
-    def __init__(self, layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP,
-                 end_prob: float = DEFAULT_END_PROB, costs: Sequence[str] = COST_NAMES,
-                 render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        layout: Sequence[str] = DEFAULT_LAYOUT,
+        slip: float = DEFAULT_SLIP,
+        end_prob: float = DEFAULT_END_PROB,
+        costs: Sequence[str] = COST_NAMES,
+        render_mode: str | None = None,
+    ) -> None:
         super().__init__()
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"grid render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -175,8 +180,14 @@ class GridWorld(gym.Env):
 
 
 CELL_PX = 32  # a multiple of 16: video encoders want even sizes, macroblocks of 16
-GRID_COLOURS = {".": (245, 245, 245), "#": (60, 60, 60), "S": (200, 220, 250), "G": (60, 170, 60),
-                "a": (240, 150, 40), "b": (150, 90, 200)}
+GRID_COLOURS = {
+    ".": (245, 245, 245),
+    "#": (60, 60, 60),
+    "S": (200, 220, 250),
+    "G": (60, 170, 60),
+    "a": (240, 150, 40),
+    "b": (150, 90, 200),
+}
 AGENT_COLOUR = (30, 90, 200)
 
 
@@ -193,10 +204,10 @@ def render_grid(layout: Layout, cell: int, cost: np.ndarray) -> np.ndarray:
     for k, ch in enumerate(HAZARD_CHARS):
         kinds.update({int(n): ch for n in np.flatnonzero(layout.hazards[k])})
     for n, (r, c) in enumerate(layout.cells):
-        img[r * CELL_PX:(r + 1) * CELL_PX, c * CELL_PX:(c + 1) * CELL_PX] = GRID_COLOURS[kinds[n]]
+        img[r * CELL_PX : (r + 1) * CELL_PX, c * CELL_PX : (c + 1) * CELL_PX] = GRID_COLOURS[kinds[n]]
     img[::CELL_PX], img[:, ::CELL_PX] = 180, 180  # grid lines
     r, c = layout.cells[cell]
-    yy, xx = np.ogrid[:img.shape[0], :img.shape[1]]
+    yy, xx = np.ogrid[: img.shape[0], : img.shape[1]]
     centre = (r * CELL_PX + CELL_PX // 2, c * CELL_PX + CELL_PX // 2)
     img[(yy - centre[0]) ** 2 + (xx - centre[1]) ** 2 <= (CELL_PX // 3) ** 2] = AGENT_COLOUR
     paid = [ch for k, ch in enumerate(HAZARD_CHARS) if cost[k] > 0]
@@ -210,6 +221,16 @@ if GRID_ID not in gym.registry:
     gym.register(id=GRID_ID, entry_point="cmdp_rl.envs.grid.env:GridWorld")
 
 __all__ = [
-    "ACTION_NAMES", "COST_NAMES", "DEFAULT_BUDGETS", "DEFAULT_END_PROB", "DEFAULT_LAYOUT", "DEFAULT_SLIP", "GRID_ID",
-    "GridWorld", "Layout", "MOVES", "parse_layout", "render_grid",
+    "ACTION_NAMES",
+    "COST_NAMES",
+    "DEFAULT_BUDGETS",
+    "DEFAULT_END_PROB",
+    "DEFAULT_LAYOUT",
+    "DEFAULT_SLIP",
+    "GRID_ID",
+    "GridWorld",
+    "Layout",
+    "MOVES",
+    "parse_layout",
+    "render_grid",
 ]

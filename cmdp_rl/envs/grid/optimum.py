@@ -59,7 +59,10 @@ def solve_constrained(cmdp: TabularCMDP, budgets: float | Sequence[float]) -> Co
         c=-cmdp.r.reshape(-1),
         A_ub=cmdp.c.reshape(num_k, -1)[rows] if rows.size else None,
         b_ub=d[rows] if rows.size else None,
-        A_eq=a_eq, b_eq=cmdp.mu0, bounds=(0, None), method="highs-ds",
+        A_eq=a_eq,
+        b_eq=cmdp.mu0,
+        bounds=(0, None),
+        method="highs-ds",
     )
     if res.status == 2:
         raise InfeasibleBudgets(f"no policy meets the budgets {d.tolist()}")

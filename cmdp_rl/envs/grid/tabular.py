@@ -19,7 +19,15 @@ from typing import Sequence
 
 import numpy as np
 
-from cmdp_rl.envs.grid.env import COST_NAMES, DEFAULT_END_PROB, DEFAULT_LAYOUT, DEFAULT_SLIP, MOVES, Layout, parse_layout
+from cmdp_rl.envs.grid.env import (
+    COST_NAMES,
+    DEFAULT_END_PROB,
+    DEFAULT_LAYOUT,
+    DEFAULT_SLIP,
+    MOVES,
+    Layout,
+    parse_layout,
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,14 +72,19 @@ def evaluate(cmdp: TabularCMDP, policy: np.ndarray) -> PolicyValue:
     if pi.shape[-2:] != (cmdp.num_states, cmdp.num_actions):
         raise ValueError(f"policy: expected shape [..., {cmdp.num_states}, {cmdp.num_actions}], got {pi.shape}")
     p_pi = np.einsum("...sa,sat->...st", pi, cmdp.P)
-    rhs = np.concatenate([np.einsum("...sa,sa->...s", pi, cmdp.r)[..., None],
-                          np.einsum("...sa,ksa->...sk", pi, cmdp.c)], axis=-1)  # [..., S, 1 + K]
+    rhs = np.concatenate(
+        [np.einsum("...sa,sa->...s", pi, cmdp.r)[..., None], np.einsum("...sa,ksa->...sk", pi, cmdp.c)], axis=-1
+    )  # [..., S, 1 + K]
     lhs = np.eye(cmdp.num_states) - cmdp.gamma * p_pi
     values = np.linalg.solve(lhs, rhs)  # [..., S, 1 + K]
     totals = np.einsum("s,...sk->...k", cmdp.mu0, values)
     ret = totals[..., 0]
-    return PolicyValue(ret=float(ret) if ret.ndim == 0 else ret, costs=totals[..., 1:],
-                       value=values[..., 0], cost_value=np.moveaxis(values[..., 1:], -1, -2))
+    return PolicyValue(
+        ret=float(ret) if ret.ndim == 0 else ret,
+        costs=totals[..., 1:],
+        value=values[..., 0],
+        cost_value=np.moveaxis(values[..., 1:], -1, -2),
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,8 +96,9 @@ class Optimum:
     of_policy: PolicyValue  # the policy's return and costs on the CMDP's own r and c
 
 
-def value_iteration(cmdp: TabularCMDP, reward: np.ndarray | None = None, tol: float = 1e-12,
-                    max_iterations: int = 1_000_000) -> Optimum:
+def value_iteration(
+    cmdp: TabularCMDP, reward: np.ndarray | None = None, tol: float = 1e-12, max_iterations: int = 1_000_000
+) -> Optimum:
     """The optimum of the unconstrained MDP with ``reward`` (default ``cmdp.r``; pass e.g.
     ``-cmdp.c.sum(0)`` for the least-cost policy, or ``r - lambda . c`` for a Lagrangian) by value
     iteration to ``max |V_{n+1} - V_n| < tol``; the greedy policy is returned with its exact values."""
@@ -117,8 +131,9 @@ class GridCMDP(TabularCMDP):
         return int(np.flatnonzero(self.state_cells == cell)[0])
 
 
-def grid_cmdp(layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP,
-              end_prob: float = DEFAULT_END_PROB) -> GridCMDP:
+def grid_cmdp(
+    layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP, end_prob: float = DEFAULT_END_PROB
+) -> GridCMDP:
     """The gridworld of ``grid.py`` with these options, as arrays (``gamma = 1 - end_prob``)."""
     lay = parse_layout(layout)
     state_cells = np.array([n for n in range(lay.num_cells) if n != lay.goal])

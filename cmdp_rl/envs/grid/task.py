@@ -10,7 +10,15 @@ from dataclasses import field
 from functools import partial
 from typing import TYPE_CHECKING, Annotated, Literal
 
-from cmdp_rl.envs.grid.env import COST_NAMES, DEFAULT_END_PROB, DEFAULT_LAYOUT, DEFAULT_SLIP, GRID_ID, GridWorld, parse_layout
+from cmdp_rl.envs.grid.env import (
+    COST_NAMES,
+    DEFAULT_END_PROB,
+    DEFAULT_LAYOUT,
+    DEFAULT_SLIP,
+    GRID_ID,
+    GridWorld,
+    parse_layout,
+)
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 from cmdp_rl.registry import register
@@ -31,15 +39,19 @@ class GridEnvConfig(EnvOptions):
     slip: Annotated[float, finite(ge=0, le=1)] = DEFAULT_SLIP
     end_prob: Annotated[float, finite(gt=0, le=1)] = DEFAULT_END_PROB
     layout: Annotated[list[str], Field(description="a list of equal-length rows of S G # a b .")] = field(
-        default_factory=lambda: list(DEFAULT_LAYOUT))
+        default_factory=lambda: list(DEFAULT_LAYOUT)
+    )
     # The costs the env reports, in order: both (K = 2), or one for the algorithms that take K = 1.
-    costs: Annotated[list[Literal["hazard_a", "hazard_b"]], Field(
-        min_length=1, max_length=2, description="a non-empty list of distinct names from hazard_a, hazard_b")] = field(
-        default_factory=lambda: list(COST_NAMES))
+    costs: Annotated[
+        list[Literal["hazard_a", "hazard_b"]],
+        Field(min_length=1, max_length=2, description="a non-empty list of distinct names from hazard_a, hazard_b"),
+    ] = field(default_factory=lambda: list(COST_NAMES))
 
     def check(self, run: RunConfig) -> None:
         if len(set(self.costs)) != len(self.costs):
-            raise ConfigError(f"env.costs must be a non-empty list of distinct names from hazard_a, hazard_b, got {self.costs!r}")
+            raise ConfigError(
+                f"env.costs must be a non-empty list of distinct names from hazard_a, hazard_b, got {self.costs!r}"
+            )
         try:
             parse_layout(self.layout)
         except ValueError as exc:  # the layout's own words: which row or character is wrong

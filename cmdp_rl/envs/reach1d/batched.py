@@ -127,8 +127,12 @@ class TorchReach1D(VecEnv):
         if not hasattr(self.noise, "state_dict"):
             raise NotImplementedError(f"{type(self.noise).__name__} (the noise source) cannot save its state")
         return {
-            "num_envs": self.num_envs, "x": self.x.clone(), "final_x": self.final_x.clone(),
-            "steps": self.steps.clone(), "last_probe": self.last_probe.clone(), "noise": self.noise.state_dict(),
+            "num_envs": self.num_envs,
+            "x": self.x.clone(),
+            "final_x": self.final_x.clone(),
+            "steps": self.steps.clone(),
+            "last_probe": self.last_probe.clone(),
+            "noise": self.noise.state_dict(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:

@@ -82,9 +82,7 @@ class Reach1D(gym.Env):
             )
         low = [0.0, 0.0] + ([-1.0] if probe else [])
         high = [1.0, 1.0] + ([1.0] if probe else [])
-        self.observation_space = spaces.Box(
-            low=np.array(low, dtype=np.float32), high=np.array(high, dtype=np.float32)
-        )
+        self.observation_space = spaces.Box(low=np.array(low, dtype=np.float32), high=np.array(high, dtype=np.float32))
 
     def _reading(self, noise_std: float) -> float:
         return float(np.clip(self.x + self.np_random.normal(0.0, noise_std), 0.0, 1.0))
@@ -153,13 +151,17 @@ class Reach1D(gym.Env):
         self.x, self.steps, self.last_probe = state["x"], state["steps"], state["last_probe"]
 
 
-
 FRAME_H, FRAME_W = 128, 512  # multiples of 16: video encoders want even sizes, macroblocks of 16
 _MARGIN = 16
 
 
 def render_reach1d(
-    x: float, reading: float, collided: bool, elapsed: float, wall_x: float, goal: float,
+    x: float,
+    reading: float,
+    collided: bool,
+    elapsed: float,
+    wall_x: float,
+    goal: float,
 ) -> np.ndarray:
     """A ``FRAME_H x FRAME_W`` RGB frame of Reach1D drawn with numpy: the track [0, 1] left to right,
     the wall (dark bar), the goal (green line in its reach band), the true position (blue disc),
@@ -171,15 +173,15 @@ def render_reach1d(
     def px(pos: float) -> int:
         return _MARGIN + int(round(float(np.clip(pos, 0.0, 1.0)) * (FRAME_W - 2 * _MARGIN - 1)))
 
-    img[mid - 1:mid + 2, px(0):px(1) + 1] = 190  # track
-    img[24:FRAME_H - 24, px(goal - GOAL_TOLERANCE):px(goal + GOAL_TOLERANCE) + 1] = (200, 235, 200)
-    img[24:FRAME_H - 24, px(goal) - 1:px(goal) + 2] = (40, 150, 40)
-    img[16:FRAME_H - 16, px(wall_x) - 3:px(wall_x) + 3] = (70, 70, 70)
+    img[mid - 1 : mid + 2, px(0) : px(1) + 1] = 190  # track
+    img[24 : FRAME_H - 24, px(goal - GOAL_TOLERANCE) : px(goal + GOAL_TOLERANCE) + 1] = (200, 235, 200)
+    img[24 : FRAME_H - 24, px(goal) - 1 : px(goal) + 2] = (40, 150, 40)
+    img[16 : FRAME_H - 16, px(wall_x) - 3 : px(wall_x) + 3] = (70, 70, 70)
     r = px(reading)
-    img[mid - 26:mid - 12, max(r - 2, 0):r + 3] = (240, 140, 20)
+    img[mid - 26 : mid - 12, max(r - 2, 0) : r + 3] = (240, 140, 20)
     yy, xx = np.ogrid[:FRAME_H, :FRAME_W]
     img[(yy - mid) ** 2 + (xx - px(x)) ** 2 <= 81] = (30, 90, 200)
-    img[FRAME_H - 8:FRAME_H - 4, _MARGIN:px(elapsed) + 1] = 150
+    img[FRAME_H - 8 : FRAME_H - 4, _MARGIN : px(elapsed) + 1] = 150
     if collided:
         img[:4], img[-4:], img[:, :4], img[:, -4:] = (220, 30, 30), (220, 30, 30), (220, 30, 30), (220, 30, 30)
     return img

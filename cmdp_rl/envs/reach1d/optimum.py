@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
 from typing import Protocol, Union
 
 import numpy as np
@@ -136,9 +135,7 @@ def crossing_thresholds(
     return CrossingThresholds(x, threshold, never, gamma, cost_gamma)
 
 
-def penalized_crosses(
-    env: Reach1DConfig, penalty: float, gamma: float, resolution: float = 1e-3
-) -> np.ndarray:
+def penalized_crosses(env: Reach1DConfig, penalty: float, gamma: float, resolution: float = 1e-3) -> np.ndarray:
     """Brute force for checking: full value iteration on ``r - penalty * c`` (with
     ``cost_gamma == gamma``); True where the optimal value beats every never-crossing path."""
     x, crossed, nxt, terminal, reward = _grid(env, resolution)

@@ -8,9 +8,9 @@ from functools import partial
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
 
 from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.reach1d.batched import TorchReach1D
 from cmdp_rl.envs.reach1d.env import GOAL_TOLERANCE, Reach1D
 from cmdp_rl.envs.reach1d.optimum import constrained_optimum
-from cmdp_rl.envs.reach1d.batched import TorchReach1D
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 from cmdp_rl.registry import register
 from cmdp_rl.validation import Bool, Field, NonNegativeFloat, PositiveInt, finite, is_finite, options, require
@@ -45,8 +45,15 @@ class Reach1DConfig(EnvOptions):
 
     def env_kwargs(self) -> dict[str, Any]:
         """The :class:`Reach1D` constructor arguments these options ask for."""
-        return dict(obs_noise=self.obs_noise, wall_x=self.wall_x, max_steps=self.max_steps, goal=self.goal,
-                    wall=self.wall, start=self.start, probe=self.probe)
+        return dict(
+            obs_noise=self.obs_noise,
+            wall_x=self.wall_x,
+            max_steps=self.max_steps,
+            goal=self.goal,
+            wall=self.wall,
+            start=self.start,
+            probe=self.probe,
+        )
 
     def render_env(self) -> Reach1D:
         """One gymnasium Reach1D of these options drawing ``rgb_array`` frames (for video; the torch
@@ -67,17 +74,25 @@ class Reach1DConfig(EnvOptions):
         starts_opposite = hi < self.wall_x if goal_right else lo > self.wall_x
         # Within GOAL_TOLERANCE of the wall the goal would be reachable from the near side.
         if self.wall == "block" and starts_opposite and abs(self.goal - self.wall_x) >= GOAL_TOLERANCE:
-            return ("goal out of reach by design: env.wall=block makes the wall impassable, "
-                    "the best a policy can do is approach it")
+            return (
+                "goal out of reach by design: env.wall=block makes the wall impassable, "
+                "the best a policy can do is approach it"
+            )
         return None
 
     def check(self, run: RunConfig) -> None:
         if isinstance(self.start, list):
-            ok = len(self.start) == 2 and all(is_finite(s) for s in self.start) and 0 <= self.start[0] <= self.start[1] <= 1
+            ok = (
+                len(self.start) == 2
+                and all(is_finite(s) for s in self.start)
+                and 0 <= self.start[0] <= self.start[1] <= 1
+            )
         else:
             ok = 0.0 <= self.start <= 1.0
         require(ok, "env.start", ALLOWED_START, self.start)
-        require(not self.stagger or self.backend == "torch", "env.stagger", "false unless env.backend=torch", self.stagger)
+        require(
+            not self.stagger or self.backend == "torch", "env.stagger", "false unless env.backend=torch", self.stagger
+        )
 
 
 def make_reach1d(cfg: Reach1DConfig, num_envs: int, device: str = "cpu") -> VecEnv:

@@ -108,8 +108,12 @@ class ButtonTask:
         return reward, cost, np.zeros(len(dist), dtype=bool)
 
     def state_dict(self) -> dict[str, Any]:
-        return {"goal": self.goal.copy(), "last_dist": self.last_dist.copy(),
-                "goal_button": self.goal_button.copy(), "timer": self.timer.copy()}
+        return {
+            "goal": self.goal.copy(),
+            "last_dist": self.last_dist.copy(),
+            "goal_button": self.goal_button.copy(),
+            "timer": self.timer.copy(),
+        }
 
     def load_state_dict(self, state: dict[str, Any], layouts: list[dict[str, Any]]) -> None:
         for i, layout in enumerate(layouts):

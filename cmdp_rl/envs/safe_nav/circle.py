@@ -59,7 +59,7 @@ class CircleTask:
         u, v = vel[:, 0], vel[:, 1]
         # numpy's scalar ``y ** 2`` (what the reference computes) is not always ``y * y`` (it
         # differed in the last bit at about one step in 300): the radius is computed as it is there.
-        radius = np.array([np.sqrt(a ** 2 + b ** 2) for a, b in zip(x, y)])
+        radius = np.array([np.sqrt(a**2 + b**2) for a, b in zip(x, y)])
         reward = ((-u * y + v * x) / radius) / (1 + np.abs(radius - CIRCLE_RADIUS)) * REWARD_FACTOR
         reward = np.clip(reward, -REWARD_CLIP, REWARD_CLIP)
         cost = np.zeros(len(x), dtype=bool)

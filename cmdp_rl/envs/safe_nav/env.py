@@ -52,8 +52,10 @@ def task_problem(task: str) -> str | None:
     if plain in TASKS:
         return f"env.task: safe_nav names tasks without prefix and version: use env.task={plain}"
     if any(f in plain for f in _NOT_YET) or any(plain.startswith(r) for r in _OTHER_ROBOTS):
-        return (f"env.task: {plain!r} is not implemented in safe_nav yet (offered: {', '.join(TASKS)}); "
-                f"env=safety_gym runs it (slowly) as Safety{plain}-v0")
+        return (
+            f"env.task: {plain!r} is not implemented in safe_nav yet (offered: {', '.join(TASKS)}); "
+            f"env=safety_gym runs it (slowly) as Safety{plain}-v0"
+        )
     return f"env.task must be one of {', '.join(TASKS)}, got {task!r}"
 
 
@@ -78,17 +80,29 @@ def _sensor_plan(model) -> list[tuple[str, int, int]]:
 def _quat_mat(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``[N, 9]`` (row-major) of unit quaternions ``[N, 4]`` (w, x, y, z)."""
     w, x, y, z = q.T
-    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+    return np.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        axis=-1,
+    )
 
 
 class SafeNavVecEnv(VecEnv):
     """N instances of one navigation task (module docstring), stepped as one batch on the CPU;
     tensors handed out live on ``device``."""
 
-    def __init__(self, task: str, num_envs: int, max_steps: int = 0, device: str | torch.device = "cpu",
-                 threads: int = 1) -> None:
+    def __init__(
+        self, task: str, num_envs: int, max_steps: int = 0, device: str | torch.device = "cpu", threads: int = 1
+    ) -> None:
         problem = task_problem(task)
         if problem:
             raise ConfigError(problem)
@@ -124,19 +138,23 @@ class SafeNavVecEnv(VecEnv):
         datas = [w.datas[i] for i in envs]
         xpos = np.stack([d.xpos for d in datas])
         mat = np.stack([d.xmat[w.agent] for d in datas]).reshape(-1, 3, 3)
-        return {"sensordata": np.stack([d.sensordata for d in datas]), "xpos": xpos,
-                "agent_pos": xpos[:, w.agent], "agent_mat": mat}
+        return {
+            "sensordata": np.stack([d.sensordata for d in datas]),
+            "xpos": xpos,
+            "agent_pos": xpos[:, w.agent],
+            "agent_mat": mat,
+        }
 
     def _obs(self, envs, world: dict[str, np.ndarray]) -> np.ndarray:
         sd = world["sensordata"]
         cols = []
         for how, adr, dim in self.sensors:
             if how == "raw":
-                cols.append(sd[:, adr:adr + dim])
+                cols.append(sd[:, adr : adr + dim])
             elif how == "sincos":
-                cols += [np.sin(sd[:, adr:adr + 1]), np.cos(sd[:, adr:adr + 1])]
+                cols += [np.sin(sd[:, adr : adr + 1]), np.cos(sd[:, adr : adr + 1])]
             else:
-                cols.append(_quat_mat(sd[:, adr:adr + 4]))
+                cols.append(_quat_mat(sd[:, adr : adr + 4]))
         cols += self.logic.lidars(envs, world)
         return np.concatenate(cols, axis=1)
 
@@ -160,8 +178,11 @@ class SafeNavVecEnv(VecEnv):
         return self._tensor(self._start([i], [layout]))[0]
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
-        seeds = ([seed + i for i in range(self.num_envs)] if seed is not None
-                 else [int(s) for s in np.random.randint(2**32, size=self.num_envs, dtype=np.int64)])
+        seeds = (
+            [seed + i for i in range(self.num_envs)]
+            if seed is not None
+            else [int(s) for s in np.random.randint(2**32, size=self.num_envs, dtype=np.int64)]
+        )
         self.sampler.seed(seeds)
         return self._tensor(self._start(list(range(self.num_envs))))
 
@@ -184,9 +205,14 @@ class SafeNavVecEnv(VecEnv):
             obs = next_obs.copy()
             obs[done] = self._start(list(done))
         self.last = {"next_obs": next_obs, "reward": reward, "obs": obs}  # float64, for fidelity checks
-        return Step(next_obs=self._tensor(next_obs), reward=self._tensor(reward).view(n, 1),
-                    cost=self._tensor(cost).view(n, 1), terminated=self._tensor(terminated, torch.bool).view(n, 1),
-                    truncated=self._tensor(truncated, torch.bool).view(n, 1), obs=self._tensor(obs))
+        return Step(
+            next_obs=self._tensor(next_obs),
+            reward=self._tensor(reward).view(n, 1),
+            cost=self._tensor(cost).view(n, 1),
+            terminated=self._tensor(terminated, torch.bool).view(n, 1),
+            truncated=self._tensor(truncated, torch.bool).view(n, 1),
+            obs=self._tensor(obs),
+        )
 
     # --- resume --------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
@@ -199,13 +225,22 @@ class SafeNavVecEnv(VecEnv):
             state = np.empty(mj.mj_stateSize(m, spec))
             mj.mj_getState(m, d, state, spec)
             states.append(state)
-        return {"num_envs": self.num_envs, "task": self.task, "layouts": self.layouts, "steps": self.steps.copy(),
-                "mujoco": states, "sampler": self.sampler.state_dict(), **self.logic.state_dict()}
+        return {
+            "num_envs": self.num_envs,
+            "task": self.task,
+            "layouts": self.layouts,
+            "steps": self.steps.copy(),
+            "mujoco": states,
+            "sampler": self.sampler.state_dict(),
+            **self.logic.state_dict(),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state["num_envs"] != self.num_envs or state["task"] != self.task:
-            raise ValueError(f"env: saved state is for {state['num_envs']} envs of {state['task']}, "
-                             f"this one has {self.num_envs} of {self.task}")
+            raise ValueError(
+                f"env: saved state is for {state['num_envs']} envs of {state['task']}, "
+                f"this one has {self.num_envs} of {self.task}"
+            )
         mj = self.worlds.mj
         for i, layout in enumerate(state["layouts"]):
             self.layouts[i] = layout
@@ -240,8 +275,9 @@ class SafeNavEnvConfig(EnvOptions):
         import importlib.util
 
         if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
-            raise ConfigError("env.name: env=safe_nav reads the robots' models from Safety-Gymnasium: "
-                              "run `make setup-safety-gym`")
+            raise ConfigError(
+                "env.name: env=safe_nav reads the robots' models from Safety-Gymnasium: run `make setup-safety-gym`"
+            )
 
     def render_env(self):
         """The reference task drawing ``rgb_array`` frames (for video): its layouts and trajectories

@@ -26,9 +26,22 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav.world import (AGENT_KEEPOUT, BUTTON_GOAL_KEEPOUT, BUTTON_HAZARD_KEEPOUT, BUTTON_KEEPOUT,
-                                         GOAL_KEEPOUT, GREMLIN_KEEPOUT, HAZARD_KEEPOUT, PILLAR_KEEPOUT, PUSH_BOX,
-                                         PUSH_GOAL_KEEPOUT, PUSH_HAZARD_KEEPOUT, SIGWALL_AT, VASE_KEEPOUT, NavSpec)
+from cmdp_rl.envs.safe_nav.world import (
+    AGENT_KEEPOUT,
+    BUTTON_GOAL_KEEPOUT,
+    BUTTON_HAZARD_KEEPOUT,
+    BUTTON_KEEPOUT,
+    GOAL_KEEPOUT,
+    GREMLIN_KEEPOUT,
+    HAZARD_KEEPOUT,
+    PILLAR_KEEPOUT,
+    PUSH_BOX,
+    PUSH_GOAL_KEEPOUT,
+    PUSH_HAZARD_KEEPOUT,
+    SIGWALL_AT,
+    VASE_KEEPOUT,
+    NavSpec,
+)
 
 LAYOUT_TRIES = 10_000  # whole layouts, and goal places mid-episode
 OBJECT_TRIES = 100  # places per object within one layout
@@ -47,19 +60,29 @@ def placements(spec: NavSpec) -> list[tuple[str, float, Box | None]]:
     drawn in, or None for the task's square)."""
     if spec.family == "Circle":
         walls = [(SIGWALL_AT, 0.0), (-SIGWALL_AT, 0.0), (0.0, SIGWALL_AT), (0.0, -SIGWALL_AT)]
-        return ([("agent", 0.0, (-0.8, -0.8, 0.8, 0.8)), ("circle", 0.0, _fixed(0.0, 0.0, 0.0))]
-                + [("sigwalls", 0.0, _fixed(*walls[k], 0.0)) for k in range(spec.sigwalls)])
+        return [("agent", 0.0, (-0.8, -0.8, 0.8, 0.8)), ("circle", 0.0, _fixed(0.0, 0.0, 0.0))] + [
+            ("sigwalls", 0.0, _fixed(*walls[k], 0.0)) for k in range(spec.sigwalls)
+        ]
     if spec.family == "Button":
-        return ([("agent", AGENT_KEEPOUT, None)] + [("buttons", BUTTON_KEEPOUT, None)] * spec.buttons
-                + [("goal", BUTTON_GOAL_KEEPOUT, None)] + [("hazards", BUTTON_HAZARD_KEEPOUT, None)] * spec.hazards
-                + [("gremlins", GREMLIN_KEEPOUT, None)] * spec.gremlins)
+        return (
+            [("agent", AGENT_KEEPOUT, None)]
+            + [("buttons", BUTTON_KEEPOUT, None)] * spec.buttons
+            + [("goal", BUTTON_GOAL_KEEPOUT, None)]
+            + [("hazards", BUTTON_HAZARD_KEEPOUT, None)] * spec.hazards
+            + [("gremlins", GREMLIN_KEEPOUT, None)] * spec.gremlins
+        )
     if spec.family == "Push":
-        return ([("agent", AGENT_KEEPOUT, None), ("goal", PUSH_GOAL_KEEPOUT, None)]
-                + [("hazards", PUSH_HAZARD_KEEPOUT, None)] * spec.hazards
-                + [("pillars", PILLAR_KEEPOUT, None)] * spec.pillars
-                + [("push_box", PUSH_BOX[spec.robot][0], None)])
-    return ([("agent", AGENT_KEEPOUT, None), ("goal", GOAL_KEEPOUT, None)]
-            + [("hazards", HAZARD_KEEPOUT, None)] * spec.hazards + [("vases", VASE_KEEPOUT, None)] * spec.vases)
+        return (
+            [("agent", AGENT_KEEPOUT, None), ("goal", PUSH_GOAL_KEEPOUT, None)]
+            + [("hazards", PUSH_HAZARD_KEEPOUT, None)] * spec.hazards
+            + [("pillars", PILLAR_KEEPOUT, None)] * spec.pillars
+            + [("push_box", PUSH_BOX[spec.robot][0], None)]
+        )
+    return (
+        [("agent", AGENT_KEEPOUT, None), ("goal", GOAL_KEEPOUT, None)]
+        + [("hazards", HAZARD_KEEPOUT, None)] * spec.hazards
+        + [("vases", VASE_KEEPOUT, None)] * spec.vases
+    )
 
 
 class LayoutError(RuntimeError):
@@ -147,8 +170,9 @@ class LayoutSampler:
         """One ``RandomState.choice(n)`` from env ``i``'s stream (the Button tasks' goal button)."""
         return int(self._rng(i).choice(n))
 
-    def goal(self, i: int, others: list[tuple[float, float, float]],
-             keepout: float = GOAL_KEEPOUT) -> np.ndarray | None:
+    def goal(
+        self, i: int, others: list[tuple[float, float, float]], keepout: float = GOAL_KEEPOUT
+    ) -> np.ndarray | None:
         """A goal place for env ``i`` clear of ``others`` (x, y, keep-out), or None if none was
         found (the reference then ends the episode)."""
         rng = self._rng(i)

@@ -12,8 +12,9 @@ import numpy as np
 LIDAR_BINS, LIDAR_MAX = 16, 3.0
 
 
-def pseudo_lidar(objects_xy: np.ndarray, agent_pos: np.ndarray, agent_mat: np.ndarray,
-                 max_dist: float = LIDAR_MAX) -> np.ndarray:
+def pseudo_lidar(
+    objects_xy: np.ndarray, agent_pos: np.ndarray, agent_mat: np.ndarray, max_dist: float = LIDAR_MAX
+) -> np.ndarray:
     """Safety-Gymnasium's pseudo-lidar of M objects per env: ``objects_xy`` ``[N, M, 2]``,
     the robot's position ``[N, 3]`` and frame ``[N, 3, 3]`` -> ``[N, 16]``."""
     n, m = objects_xy.shape[:2]

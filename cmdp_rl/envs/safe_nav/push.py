@@ -73,8 +73,9 @@ class PushTask:
         for i, d in enumerate(w.datas):
             if d.ncon:
                 g1, g2 = d.contact.geom1, d.contact.geom2
-                hit[i] = bool(np.any((w.geom_is_pillar[g1] & w.geom_is_robot[g2])
-                                     | (w.geom_is_robot[g1] & w.geom_is_pillar[g2])))
+                hit[i] = bool(
+                    np.any((w.geom_is_pillar[g1] & w.geom_is_robot[g2]) | (w.geom_is_robot[g1] & w.geom_is_pillar[g2]))
+                )
         return hit
 
     def _new_goal(self, i: int, world: dict[str, np.ndarray]) -> bool:
@@ -115,8 +116,11 @@ class PushTask:
         return reward, cost, terminated
 
     def state_dict(self) -> dict[str, Any]:
-        return {"goal": self.goal.copy(), "last_dist_box": self.last_dist_box.copy(),
-                "last_box_goal": self.last_box_goal.copy()}
+        return {
+            "goal": self.goal.copy(),
+            "last_dist_box": self.last_dist_box.copy(),
+            "last_box_goal": self.last_box_goal.copy(),
+        }
 
     def load_state_dict(self, state: dict[str, Any], layouts: list[dict[str, Any]]) -> None:
         for i, layout in enumerate(layouts):

@@ -80,7 +80,8 @@ def nav_spec(task: str) -> NavSpec:
     """``PointGoal1`` -> its :class:`NavSpec` (KeyError for a task not offered here)."""
     for robot in ROBOTS:
         for level, (extent, hazards, vases, constrained) in enumerate(
-                ((1.0, 0, 0, False), (1.5, 8, 1, False), (2.0, 10, 10, True))):
+            ((1.0, 0, 0, False), (1.5, 8, 1, False), (2.0, 10, 10, True))
+        ):
             if task == f"{robot}Goal{level}":
                 return NavSpec(ROBOTS[robot], level, extent, hazards, vases, constrained)
         for level, sigwalls in enumerate((0, 2, 4)):
@@ -88,12 +89,33 @@ def nav_spec(task: str) -> NavSpec:
                 return NavSpec(ROBOTS[robot], level, 2.0, 0, 0, False, "Circle", sigwalls)
         for level, (extent, hazards, gremlins) in enumerate(((1.0, 0, 0), (1.5, 4, 4), (1.8, 8, 6))):
             if task == f"{robot}Button{level}":
-                return NavSpec(ROBOTS[robot], level, extent, hazards, 0, False, "Button", buttons=4,
-                               gremlins=gremlins, goal_size=BUTTON_GOAL_SIZE)
+                return NavSpec(
+                    ROBOTS[robot],
+                    level,
+                    extent,
+                    hazards,
+                    0,
+                    False,
+                    "Button",
+                    buttons=4,
+                    gremlins=gremlins,
+                    goal_size=BUTTON_GOAL_SIZE,
+                )
         for level, (extent, hazards, pillars) in enumerate(((1.0, 0, 0), (1.5, 2, 1), (2.0, 4, 4))):
             if task == f"{robot}Push{level}":
-                return NavSpec(ROBOTS[robot], level, extent, hazards, 0, False, "Push", hazard_size=PUSH_HAZARD_SIZE,
-                               pillars=pillars, pillars_constrained=level == 2, push_box=True)
+                return NavSpec(
+                    ROBOTS[robot],
+                    level,
+                    extent,
+                    hazards,
+                    0,
+                    False,
+                    "Push",
+                    hazard_size=PUSH_HAZARD_SIZE,
+                    pillars=pillars,
+                    pillars_constrained=level == 2,
+                    push_box=True,
+                )
     raise KeyError(task)
 
 
@@ -124,11 +146,20 @@ def world_xml(spec: NavSpec) -> str:
         size, density = PUSH_BOX[spec.robot]
         body = ET.SubElement(worldbody, "body", name="push_box", pos="0 0 0", quat="1 0 0 0")
         ET.SubElement(body, "freejoint", name="push_box")
-        ET.SubElement(body, "geom", name="push_box", type="box", size=_fmt([size] * 3), density=repr(density),
-                      group="1")
+        ET.SubElement(
+            body, "geom", name="push_box", type="box", size=_fmt([size] * 3), density=repr(density), group="1"
+        )
         for k, (sx, sy) in enumerate(((1, 1), (-1, 1), (1, -1), (-1, -1))):
-            ET.SubElement(body, "geom", name=f"col{k + 1}", type="box", size=_fmt([size / 2, size / 2, size]),
-                          density=repr(density), group="1", pos=_fmt([sx * size, sy * size, 0.0]))
+            ET.SubElement(
+                body,
+                "geom",
+                name=f"col{k + 1}",
+                type="box",
+                size=_fmt([size / 2, size / 2, size]),
+                density=repr(density),
+                group="1",
+                pos=_fmt([sx * size, sy * size, 0.0]),
+            )
     frees = [(f"vase{i}", VASE_SIZE, VASE_DENSITY, "4") for i in range(spec.vases)]
     frees += [(f"gremlin{i}obj", GREMLIN_SIZE, GREMLIN_DENSITY, "5") for i in range(spec.gremlins)]
     for name, size, density, group in frees:
@@ -142,10 +173,26 @@ def world_xml(spec: NavSpec) -> str:
         # The mocap body stays at the origin; its geom sits at the gremlin's place (placeholder
         # pose off the body frame, so that the compiler does not mark the two frames as one).
         body = ET.SubElement(worldbody, "body", name=f"gremlin{i}mocap", mocap="true")
-        ET.SubElement(body, "geom", name=f"gremlin{i}mocap", type="box", size=_fmt([GREMLIN_SIZE] * 3),
-                      pos="0.5 0.5 0.1", quat=_fmt(rot_quat(1.0)), contype="0", conaffinity="0", group="5")
-        ET.SubElement(equality, "weld", name=f"gremlin{i}mocap", body1=f"gremlin{i}mocap", body2=f"gremlin{i}obj",
-                      solref=".02 1.5")
+        ET.SubElement(
+            body,
+            "geom",
+            name=f"gremlin{i}mocap",
+            type="box",
+            size=_fmt([GREMLIN_SIZE] * 3),
+            pos="0.5 0.5 0.1",
+            quat=_fmt(rot_quat(1.0)),
+            contype="0",
+            conaffinity="0",
+            group="5",
+        )
+        ET.SubElement(
+            equality,
+            "weld",
+            name=f"gremlin{i}mocap",
+            body1=f"gremlin{i}mocap",
+            body2=f"gremlin{i}obj",
+            solref=".02 1.5",
+        )
     # (name, type, size, group, has contacts)
     if spec.family == "Circle":
         statics = [("circle", "cylinder", [CIRCLE_RADIUS, 1e-2], "6", False)]
@@ -157,8 +204,16 @@ def world_xml(spec: NavSpec) -> str:
         statics += [(f"pillar{i}", "cylinder", [PILLAR_SIZE, PILLAR_HEIGHT], "2", True) for i in range(spec.pillars)]
     for name, kind, size, group, touch in statics:
         body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
-        ET.SubElement(body, "geom", name=name, type=kind, size=_fmt(size), group=group,
-                      contype="1" if touch else "0", conaffinity="1" if touch else "0")
+        ET.SubElement(
+            body,
+            "geom",
+            name=name,
+            type=kind,
+            size=_fmt(size),
+            group=group,
+            contype="1" if touch else "0",
+            conaffinity="1" if touch else "0",
+        )
     return ET.tostring(root, encoding="unicode")
 
 
@@ -215,8 +270,9 @@ class NavWorlds:
         # Geoms that make a vase contact count (a vase with one of the robot's own geoms).
         names = [mujoco.mj_id2name(base, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(base.ngeom)]
         robot_bodies = {self.agent} | {b for b in range(base.nbody) if base.body_rootid[b] == self.agent}
-        self.geom_is_robot = np.array([base.geom_bodyid[g] in robot_bodies and names[g] != "floor"
-                                       for g in range(base.ngeom)])
+        self.geom_is_robot = np.array(
+            [base.geom_bodyid[g] in robot_bodies and names[g] != "floor" for g in range(base.ngeom)]
+        )
         self.geom_is_vase = np.array([n.startswith("vase") for n in names])
         self.geom_button = np.array([int(n[6:]) if n.startswith("button") else -1 for n in names])
         self.geom_is_gremlin = np.array([n.startswith("gremlin") for n in names])
@@ -240,8 +296,8 @@ class NavWorlds:
         m.body_quat[self.agent] = agent_quat
         if self.agent_free:
             a = self.agent_qpos
-            m.qpos0[a:a + 3] = m.qpos_spring[a:a + 3] = agent_pos
-            m.qpos0[a + 3:a + 7] = m.qpos_spring[a + 3:a + 7] = agent_quat
+            m.qpos0[a : a + 3] = m.qpos_spring[a : a + 3] = agent_pos
+            m.qpos0[a + 3 : a + 7] = m.qpos_spring[a + 3 : a + 7] = agent_quat
         if self.goal >= 0:
             m.body_pos[self.goal] = [*layout["goal"], self.goal_z]
             m.body_quat[self.goal] = rot_quat(layout["goal_rot"])
@@ -280,8 +336,8 @@ class NavWorlds:
         pos, quat = np.array([*xy, z]), rot_quat(rot)
         m.body_pos[body], m.body_quat[body] = pos, quat
         a = m.jnt_qposadr[m.body_jntadr[body]]
-        m.qpos0[a:a + 3] = m.qpos_spring[a:a + 3] = pos
-        m.qpos0[a + 3:a + 7] = m.qpos_spring[a + 3:a + 7] = quat
+        m.qpos0[a : a + 3] = m.qpos_spring[a : a + 3] = pos
+        m.qpos0[a + 3 : a + 7] = m.qpos_spring[a + 3 : a + 7] = quat
         return pos, quat
 
     def move_goal(self, i: int, xy: np.ndarray) -> None:

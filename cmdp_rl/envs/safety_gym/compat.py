@@ -101,15 +101,21 @@ def _gymnasium_stand_ins() -> dict[str, types.ModuleType]:
     return {
         "gymnasium.wrappers.compatibility": _stub_module("gymnasium.wrappers.compatibility", EnvCompatibility=compat),
         # AutoResetWrapper was renamed Autoreset in gymnasium 1.0.
-        "gymnasium.wrappers.autoreset": _stub_module("gymnasium.wrappers.autoreset", AutoResetWrapper=wrappers.Autoreset),
+        "gymnasium.wrappers.autoreset": _stub_module(
+            "gymnasium.wrappers.autoreset", AutoResetWrapper=wrappers.Autoreset
+        ),
         # 1.0 folded time_limit, env_checker and normalize into gymnasium.wrappers.common / stateful_*;
         # RunningMeanStd moved to gymnasium.wrappers.utils.
         "gymnasium.wrappers.time_limit": _stub_module("gymnasium.wrappers.time_limit", TimeLimit=wrappers.TimeLimit),
         "gymnasium.wrappers.env_checker": _stub_module(
-            "gymnasium.wrappers.env_checker", PassiveEnvChecker=wrappers.PassiveEnvChecker),
+            "gymnasium.wrappers.env_checker", PassiveEnvChecker=wrappers.PassiveEnvChecker
+        ),
         "gymnasium.wrappers.normalize": _stub_module(
-            "gymnasium.wrappers.normalize", NormalizeObservation=wrappers.NormalizeObservation,
-            NormalizeReward=wrappers.NormalizeReward, RunningMeanStd=RunningMeanStd),
+            "gymnasium.wrappers.normalize",
+            NormalizeObservation=wrappers.NormalizeObservation,
+            NormalizeReward=wrappers.NormalizeReward,
+            RunningMeanStd=RunningMeanStd,
+        ),
     }
 
 
@@ -121,7 +127,8 @@ def _robotics_stand_ins() -> dict[str, types.ModuleType]:
     names = ["gymnasium_robotics", "gymnasium_robotics.envs", "gymnasium_robotics.envs.multiagent_mujoco"]
     mods = {n: _stub_module(n, __path__=[]) for n in names}
     mods["gymnasium_robotics.envs.multiagent_mujoco.mujoco_multi"] = _stub_module(
-        "gymnasium_robotics.envs.multiagent_mujoco.mujoco_multi", MultiAgentMujocoEnv=env)
+        "gymnasium_robotics.envs.multiagent_mujoco.mujoco_multi", MultiAgentMujocoEnv=env
+    )
     return mods
 
 
@@ -197,8 +204,10 @@ def import_safety_gymnasium() -> types.ModuleType:
     if "safety_gymnasium" in sys.modules:
         return sys.modules["safety_gymnasium"]
     if importlib.util.find_spec("safety_gymnasium") is None:
-        raise ImportError("env=safety_gym needs Safety-Gymnasium: run `make setup-safety-gym` "
-                          "(installs safety-gymnasium==1.0.0 with --no-deps and the extra `safety_gym`)")
+        raise ImportError(
+            "env=safety_gym needs Safety-Gymnasium: run `make setup-safety-gym` "
+            "(installs safety-gymnasium==1.0.0 with --no-deps and the extra `safety_gym`)"
+        )
     with _lock:
         if "safety_gymnasium" in sys.modules:
             return sys.modules["safety_gymnasium"]

@@ -49,8 +49,7 @@ class SafetyGymTask(gym.Env):
     # count them (a world build is about 0.5 s: a probe env cost each make_env that much).
     cost_names = default_cost_names(1)
 
-    def __init__(self, task: str, max_steps: int = 0, render_mode: str | None = None,
-                 **render_kwargs: Any) -> None:
+    def __init__(self, task: str, max_steps: int = 0, render_mode: str | None = None, **render_kwargs: Any) -> None:
         import_safety_gymnasium()
         from gymnasium.envs.registration import load_env_creator
 
@@ -246,8 +245,12 @@ class SafetyGymEnvConfig(EnvOptions):
         if problem:
             raise ConfigError(problem)
         limit = TASKS[self.task]
-        require(self.max_steps <= limit, "env.max_steps", f"in [0, {limit}] for {self.task} (0: its limit, {limit})",
-                self.max_steps)
+        require(
+            self.max_steps <= limit,
+            "env.max_steps",
+            f"in [0, {limit}] for {self.task} (0: its limit, {limit})",
+            self.max_steps,
+        )
         if importlib.util.find_spec("safety_gymnasium") is None:
             raise ConfigError(f"env.name: {INSTALL}")
 
@@ -266,8 +269,9 @@ class SafetyGymVecEnv(GymVecEnv):
 
 
 def make_safety_gym_vec_env(cfg: SafetyGymEnvConfig, num_envs: int, device: str = "cpu") -> SafetyGymVecEnv:
-    return SafetyGymVecEnv(partial(make_task, cfg.task, cfg.max_steps), num_envs, device=device,
-                           asynchronous=cfg.vector == "async")
+    return SafetyGymVecEnv(
+        partial(make_task, cfg.task, cfg.max_steps), num_envs, device=device, asynchronous=cfg.vector == "async"
+    )
 
 
 register("env", "safety_gym", SafetyGymEnvConfig, make_safety_gym_vec_env)

@@ -38,15 +38,27 @@ ALLOWED = (
 
 # Registered ids we refuse, with the reason (first match wins).
 _REFUSED = (
-    (re.compile(r"^Safety\w+Vision-v\d+$"), "observes camera images (our policies take flat vectors)",
-     lambda t: t.replace("Vision-", "-")),
-    (re.compile(r"^Safety\w+Debug-v\d+$"), "is Safety-Gymnasium's keyboard-controlled debug variant",
-     lambda t: t.replace("Debug-", "-")),
+    (
+        re.compile(r"^Safety\w+Vision-v\d+$"),
+        "observes camera images (our policies take flat vectors)",
+        lambda t: t.replace("Vision-", "-"),
+    ),
+    (
+        re.compile(r"^Safety\w+Debug-v\d+$"),
+        "is Safety-Gymnasium's keyboard-controlled debug variant",
+        lambda t: t.replace("Debug-", "-"),
+    ),
     (re.compile(r"^Safety\w+(Race|FadingEasy|FadingHard)\d-v\d+$"), "is a vision-only task (camera images)", None),
-    (re.compile(r"^Safety\w+Gymnasium-v\d+$"), "is Safety-Gymnasium's gymnasium-API copy of a task",
-     lambda t: t.replace("Gymnasium-", "-")),
-    (re.compile(r"^Safety\w+MultiGoal\d-v\d+$|^Safety\w+\d+x\d+\w*Velocity-v\d+$|^Safety\w*Multi\w*"),
-     "is a multi-agent task (needs gymnasium_robotics; not offered)", None),
+    (
+        re.compile(r"^Safety\w+Gymnasium-v\d+$"),
+        "is Safety-Gymnasium's gymnasium-API copy of a task",
+        lambda t: t.replace("Gymnasium-", "-"),
+    ),
+    (
+        re.compile(r"^Safety\w+MultiGoal\d-v\d+$|^Safety\w+\d+x\d+\w*Velocity-v\d+$|^Safety\w*Multi\w*"),
+        "is a multi-agent task (needs gymnasium_robotics; not offered)",
+        None,
+    ),
 )
 
 
