@@ -3,7 +3,8 @@
 Generic over tasks; what it knows of a task comes from the env's options class, each piece optional:
 
 - ``optimum(cost_limit) -> float``: the best expected eval return any policy meeting the budget can
-  get (an exact solver's answer); the summary prints it and the gap to it;
+  get (an exact solver's answer); the summary prints it and the gap to it. With K > 1 costs it is
+  given the list of K budgets (env=fork), with one cost the number;
 - ``termination_metric``: the ``eval.json`` key of the fraction of episodes that terminated (a goal
   reached); printed only where the task has one;
 - ``termination_note() -> str | None``: why no episode can terminate with these options (printed
@@ -63,8 +64,9 @@ def constraint_view(result: Mapping[str, Any], cost_name: str) -> dict[str, Any]
     return {**result, **{k[: -len(suffix)]: v for k, v in result.items() if k.endswith(suffix)}}
 
 
-def optimum_of(env_cfg: Any, cost_limit: float) -> float | None:
-    """The env's constrained optimum at this budget, where its options class offers one."""
+def optimum_of(env_cfg: Any, cost_limit: float | Sequence[float]) -> float | None:
+    """The env's constrained optimum at this budget (K budgets for K > 1 costs), where its options
+    class offers one."""
     solver = getattr(env_cfg, "optimum", None)
     return None if solver is None else float(solver(cost_limit))
 
@@ -129,8 +131,9 @@ def summary_lines(
     with a verdict (``cost_names``: the env's K > 1 costs, each its own line), the interval
     estimates (per constraint), and the termination metric where the task has one."""
     multi = cost_names is not None and len(cost_names) > 1
-    if optimum is None and not multi:  # the exact solvers are for one constraint
-        optimum = optimum_of(env_cfg, budgets(cost_limit, 1)[0])
+    if optimum is None:
+        k = len(cost_names) if multi else 1
+        optimum = optimum_of(env_cfg, budgets(cost_limit, k) if multi else budgets(cost_limit, 1)[0])
     constraints = constraints_of(result, cost_limit, cost_names) if constraints is None else constraints
     lines = [
         f"{header} | eval over {result['episodes']} episodes:",

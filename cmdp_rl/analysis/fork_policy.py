@@ -1,0 +1,45 @@
+"""A trained policy on the fork (env=fork), valued exactly: each actor's action probabilities in
+every state, read off the network, then one linear solve (:func:`cmdp_rl.envs.grid.tabular.evaluate`).
+A mixture of actors drawn once per episode (``final_policy=average``, ``policies/mixture.py``) has
+the mean of its members' values: values are linear in the occupancy measure. No episodes, so no
+sampling noise: a learning test can hold a policy to the budget itself."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from cmdp_rl import keys
+from cmdp_rl.analysis.grid_policy import Gap
+from cmdp_rl.envs.fork.model import ForkCMDP
+from cmdp_rl.envs.grid.optimum import ConstrainedOptimum
+from cmdp_rl.envs.grid.tabular import evaluate
+from cmdp_rl.policies.agent import Actor
+
+
+@torch.no_grad()
+def action_table(actor: Actor, model: ForkCMDP) -> np.ndarray:
+    """``pi[s, a]`` of a memoryless actor: its action probabilities on each state's one-hot observation."""
+    obs = torch.eye(model.obs_dim)[: model.num_states]
+    return (
+        actor.dist({keys.OBS: obs, keys.IS_INIT: torch.ones(model.num_states, 1, dtype=torch.bool)})
+        .probs.double()
+        .numpy()
+    )
+
+
+def mixture_gap(actors: Sequence[Actor], model: ForkCMDP, best: ConstrainedOptimum) -> Gap:
+    """The exact return and costs of the policy that draws one of ``actors`` uniformly per episode
+    and follows it (one actor: that actor's own policy), against the optimum ``best``."""
+    each = evaluate(model, np.stack([action_table(a, model) for a in actors]))
+    return Gap(
+        float(np.mean(each.ret)),
+        tuple(float(c) for c in each.costs.mean(0)),
+        float(best.ret),
+        tuple(float(d) for d in best.budgets),
+    )
+
+
+__all__ = ["action_table", "mixture_gap"]
