@@ -21,14 +21,14 @@ setup: .venv/.installed
 	$(PY) -m pip install -q -e '.[mujoco]'
 	touch $@
 
-# The velocity benchmark (experiments/velocity_benchmark.py): ppo, ppo_lag and cpo on HalfCheetah,
+# The velocity benchmark (experiments/benchmarks/velocity_benchmark.py): ppo, ppo_lag and cpo on HalfCheetah,
 # 3 seeds, about an hour on 2 cores; then the table and the PNG. The smoke version runs in minutes.
 bench-velocity: .venv/.mujoco
-	$(PY) experiments/velocity_speed.py
-	$(PY) experiments/velocity_benchmark.py --run $(VELOCITY_ARGS)
+	$(PY) experiments/speed/velocity_speed.py
+	$(PY) experiments/benchmarks/velocity_benchmark.py --run $(VELOCITY_ARGS)
 
 bench-velocity-smoke: .venv/.mujoco
-	$(PY) experiments/velocity_benchmark.py --run total_steps=8192 rollout_steps=256 env.num_envs=4 \
+	$(PY) experiments/benchmarks/velocity_benchmark.py --run total_steps=8192 rollout_steps=256 env.num_envs=4 \
 		eval_episodes=2 env.max_steps=200 hydra.sweep.dir=multirun/velocity_benchmark_smoke
 
 # Safety-Gymnasium (env=safety_gym, docs/safety_gym.md). Its only release, 1.0.0, pins gymnasium 0.28,
@@ -43,18 +43,18 @@ SAFETY_GYM_VERSION := 1.0.0
 
 setup-safety-gym: .venv/.safety_gym
 
-# The Safety-Gymnasium benchmark (experiments/safety_gym_benchmark.py): ppo, ppo_lag, pid_lag and cpo on
+# The Safety-Gymnasium benchmark (experiments/benchmarks/safety_gym_benchmark.py): ppo, ppo_lag, pid_lag and cpo on
 # SafetyPointGoal1-v0 and SafetyCarGoal1-v0, 3 seeds, 500k steps each (hours on 2 cores), then the report.
 # The smoke version runs the same pipeline on tiny budgets, seed 0 only.
 bench-safety-gym: .venv/.safety_gym
-	$(PY) experiments/safety_gym_benchmark.py --run $(SAFETY_GYM_ARGS)
+	$(PY) experiments/benchmarks/safety_gym_benchmark.py --run $(SAFETY_GYM_ARGS)
 
 bench-safety-gym-smoke: .venv/.safety_gym
-	$(PY) experiments/safety_gym_benchmark.py --run total_steps=1024 env.num_envs=2 rollout_steps=256 \
+	$(PY) experiments/benchmarks/safety_gym_benchmark.py --run total_steps=1024 env.num_envs=2 rollout_steps=256 \
 		env.max_steps=256 eval_episodes=1 seed=0 hydra.sweep.dir=multirun/safety_gym_benchmark_smoke
 
 # The first run: the batched Reach1D preset (configs/env/reach1d_torch.yaml, tuned in configs/tuning/)
-# for 3M steps, 96 iterations; experiments/first_run.py runs this recipe over seeds (README figures).
+# for 3M steps, 96 iterations; experiments/benchmarks/first_run.py runs this recipe over seeds (README figures).
 train: setup
 	$(PY) train.py algo=ppo_lag env=reach1d_torch total_steps=3145728
 
@@ -65,8 +65,8 @@ test: setup setup-safety-gym
 # Throughput table (env, rollout, training steps/s, peak memory); writes outputs/benchmark_throughput.json.
 # Takes a few minutes; pass options with BENCH_ARGS, e.g. `make bench BENCH_ARGS="--device cuda"`.
 bench: setup
-	$(PY) experiments/benchmark_throughput.py $(BENCH_ARGS)
-	$(PY) experiments/population_benchmark.py $(POPULATION_BENCH_ARGS)  # docs/population.md
+	$(PY) experiments/speed/benchmark_throughput.py $(BENCH_ARGS)
+	$(PY) experiments/speed/population_benchmark.py $(POPULATION_BENCH_ARGS)  # docs/population.md
 
 # The penalty-versus-constraint study (docs/penalty_vs_constraint.md): both Hydra sweeps into one
 # directory, then the report from their outputs. `make sweep SWEEP_ARGS="hydra/launcher=..."` scales
@@ -78,12 +78,12 @@ endif
 sweep: setup
 	-$(PY) train.py -m +experiment=penalty_sweep hydra.sweep.dir=$(SWEEP_DIR)/penalty $(SWEEP_ARGS)
 	-$(PY) train.py -m +experiment=constraint_sweep hydra.sweep.dir=$(SWEEP_DIR)/constraint $(SWEEP_ARGS)
-	$(PY) experiments/penalty_vs_constraint.py $(SWEEP_DIR)
+	$(PY) experiments/studies/penalty_vs_constraint.py $(SWEEP_DIR)
 
 # The probe exercise (docs/probe_belief.md): {mlp, lstm, transformer} x {probe, no probe} x 3 seeds,
 # about 20 minutes on 2 cores, then the table and the PNG. Overrides: PROBE_ARGS="total_steps=..."
 probe-belief: setup
-	$(PY) experiments/probe_belief.py --run $(PROBE_ARGS)
+	$(PY) experiments/studies/probe_belief.py --run $(PROBE_ARGS)
 
 clean:
 	rm -rf .venv outputs multirun

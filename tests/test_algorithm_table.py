@@ -1,4 +1,4 @@
-"""experiments/algorithm_table.py's report on hand-made run directories (seconds): the LP gap and
+"""experiments/benchmarks/algorithm_table.py's report on hand-made run directories (seconds): the LP gap and
 each constraint's violation per algorithm, mean ± sample std over seeds."""
 
 import csv
@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("algorithm_table", ROOT / "experiments" / "algorithm_table.py")
+    spec = importlib.util.spec_from_file_location("algorithm_table", ROOT / "experiments" / "benchmarks" / "algorithm_table.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

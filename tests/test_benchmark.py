@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_quick_benchmark_writes_every_row(tmp_path):
     out = tmp_path / "bench.json"
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "experiments" / "benchmark_throughput.py"), "--quick", "--out", str(out)],
+        [sys.executable, str(ROOT / "experiments" / "speed" / "benchmark_throughput.py"), "--quick", "--out", str(out)],
         capture_output=True,
         text=True,
         timeout=300,

@@ -1,4 +1,4 @@
-"""experiments/penalty_vs_constraint.py on a fixture of run directories built here: finished,
+"""experiments/studies/penalty_vs_constraint.py on a fixture of run directories built here: finished,
 failed, interrupted and never-started runs, as a sweep leaves them."""
 
 import csv
@@ -16,7 +16,7 @@ from cmdp_rl.config import RunConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location(
-    "penalty_vs_constraint", ROOT / "experiments" / "penalty_vs_constraint.py"
+    "penalty_vs_constraint", ROOT / "experiments" / "studies" / "penalty_vs_constraint.py"
 )
 pvc = importlib.util.module_from_spec(spec)
 sys.modules[spec.name] = pvc  # dataclasses look their module up there

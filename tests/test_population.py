@@ -159,7 +159,7 @@ def test_train_cli_refuses_in_one_line(tmp_path):
 
 
 def test_the_exercise_grid_as_populations():
-    """experiments/penalty_vs_constraint.py --population: each algorithm of a sweep is one
+    """experiments/studies/penalty_vs_constraint.py --population: each algorithm of a sweep is one
     population whose agents are the sweep's jobs; cpo is left to run job by job."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf

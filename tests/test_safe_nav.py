@@ -23,7 +23,7 @@ from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
 from cmdp_rl.envs.safe_nav.world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
 from cmdp_rl.envs.safety_gym.env import make_task  # noqa: E402
 
-sys.path.insert(0, str(ROOT / "experiments"))
+sys.path.insert(0, str(ROOT / "experiments" / "fidelity"))
 from safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the steering the fidelity table uses)
 
 

@@ -11,7 +11,7 @@ import yaml
 
 from cmdp_rl.config import compose_config
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"))
 import safety_gym_benchmark  # noqa: E402
 
 # task, algo, seed -> final eval return, eval cost, training cost rate

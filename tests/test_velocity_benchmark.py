@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"))
 import velocity_benchmark  # noqa: E402
 from conftest import run_script  # noqa: E402
 
@@ -71,7 +71,7 @@ def test_run_launches_the_experiment_through_train_py_and_reports(tmp_path):
     pytest.importorskip("mujoco")
     sweep = tmp_path / "sweep"
     proc = run_script(
-        "experiments/velocity_benchmark.py",
+        "experiments/benchmarks/velocity_benchmark.py",
         "--run",
         "seed=0",
         "total_steps=256",

@@ -1,5 +1,5 @@
 """A Hydra sweep as populations: the jobs of ``python train.py -m +experiment=<name>`` grouped into
-one population per algorithm, each job an agent (``experiments/penalty_vs_constraint.py
+one population per algorithm, each job an agent (``experiments/studies/penalty_vs_constraint.py
 --population``).
 
 The experiment's ``hydra.sweeper.params`` are read with Hydra's own override parser; the ``algo``

@@ -1,6 +1,6 @@
 """Where a population iteration's time goes: ms of process CPU time per part, per iteration.
 
-    python experiments/population_profile.py [--agents 64] [--envs 64] [--iterations 4]
+    python experiments/speed/population_profile.py [--agents 64] [--envs 64] [--iterations 4]
 
 Trains the population of ``population_benchmark.py`` (ppo_lag, ``env=reach1d_torch``) with the
 named functions wrapped in ``time.process_time`` and prints the mean of iterations 2.. per part:
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "experiments"))
+sys.path.insert(0, str(ROOT / "experiments" / "speed"))
 
 from population_benchmark import base, composed  # noqa: E402
 

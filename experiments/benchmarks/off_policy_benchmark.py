@@ -1,10 +1,10 @@
 """The off-policy benchmark: sac_lag and ppo_lag on HalfCheetah velocity (d = 25), 3 seeds each, at
 equal env steps; a table and a figure of return, cost and cost rate against env steps and wall time.
 
-    python experiments/off_policy_benchmark.py --run [overrides]  # the sweep (train.py -m +experiment=off_policy_benchmark), then the report
-    python experiments/off_policy_benchmark.py SWEEP_DIR          # the report again, from finished runs
-    python experiments/off_policy_benchmark.py --smoke            # a few thousand steps per run, to check the pipeline
-    python experiments/off_policy_benchmark.py --throughput [N]   # sac_lag's training steps/s on the task, N iterations
+    python experiments/benchmarks/off_policy_benchmark.py --run [overrides]  # the sweep (train.py -m +experiment=off_policy_benchmark), then the report
+    python experiments/benchmarks/off_policy_benchmark.py SWEEP_DIR          # the report again, from finished runs
+    python experiments/benchmarks/off_policy_benchmark.py --smoke            # a few thousand steps per run, to check the pipeline
+    python experiments/benchmarks/off_policy_benchmark.py --throughput [N]   # sac_lag's training steps/s on the task, N iterations
 
 The sweep is ``configs/experiment/off_policy_benchmark.yaml``; sac_lag's network and checkpoint
 interval on this task are ``configs/tuning/algo/velocity_sac_lag.yaml``. The report, beside the runs:
@@ -31,7 +31,7 @@ from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.run import sweeps
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SMOKE = ["total_steps=6144", "env.max_steps=200"]  # sac_lag: 5,000 warm-up steps, then 1,144 trained
 
 

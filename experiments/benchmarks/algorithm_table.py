@@ -1,7 +1,7 @@
 """The algorithm table (docs/algorithms.md): every algorithm, 3 seeds, on three tasks.
 
-    python experiments/algorithm_table.py --run [--task grid|reach1d|velocity ...] [overrides]
-    python experiments/algorithm_table.py ROOT [--task grid] [--out DIR]
+    python experiments/benchmarks/algorithm_table.py --run [--task grid|reach1d|velocity ...] [overrides]
+    python experiments/benchmarks/algorithm_table.py ROOT [--task grid] [--out DIR]
 
 ``--run`` runs each task's Hydra multirun (``configs/experiment/algorithm_table_<sweep>.yaml``,
 joblib, 2 jobs) into ``multirun/algorithm_table/<time>/<sweep>/`` and then reports; without it the
@@ -43,7 +43,7 @@ from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.report.safety_metrics import Reference, normalized_scores
 from cmdp_rl.run.sweeps import RunRecord, experiment_sweep_dir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ALGOS = ("ppo", "penalty", "ppo_lag", "pid_lag", "cpo", "trpo_lag", "pcpo", "crpo", "focops", "cup", "saute")
 # task -> its sweeps (configs/experiment/algorithm_table_<sweep>.yaml), run in this order
 TASKS = {"grid": ("grid", "grid_k1"), "reach1d": ("reach1d",), "velocity": ("velocity",)}
@@ -432,7 +432,7 @@ TITLES = {
 HEADER = """# The on-policy family on three tasks
 
 Every algorithm of the toolkit, 3 seeds (0, 1, 2), with its default options (and the batched Reach1D
-preset's tuning files where it has one): `experiments/algorithm_table.py`, which runs the Hydra sweeps
+preset's tuning files where it has one): `experiments/benchmarks/algorithm_table.py`, which runs the Hydra sweeps
 `configs/experiment/algorithm_table_*.yaml` (joblib launcher, 2 jobs side by side, one torch thread
 each) and writes this page. Numbers are mean ± sample std over seeds; return and cost are the final
 stochastic policy's (`eval.json`, `eval_deterministic=false`: the policy the constraint was enforced
@@ -460,8 +460,8 @@ def _grid_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str, st
             "over some budget can have. The hazard-free route's return is 0.528; the unconstrained optimum 0.736."
         ),
         "after": (
-            "Reproduce: `python experiments/algorithm_table.py --run --task grid` (the two grid sweeps, then this "
-            "table); `python experiments/algorithm_table.py <root> --task grid` prints it again from the runs."
+            "Reproduce: `python experiments/benchmarks/algorithm_table.py --run --task grid` (the two grid sweeps, then this "
+            "table); `python experiments/benchmarks/algorithm_table.py <root> --task grid` prints it again from the runs."
         ),
     }
 
@@ -478,7 +478,7 @@ def _reach1d_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str,
             "expectation (a negative gap: over the budget). An almost surely safe policy (Sauté) cannot cross at all "
             "at d < 1: its optimum is walking up to the wall."
         ),
-        "after": "Reproduce: `python experiments/algorithm_table.py --run --task reach1d`.",
+        "after": "Reproduce: `python experiments/benchmarks/algorithm_table.py --run --task reach1d`.",
     }
 
 
@@ -511,8 +511,8 @@ def _velocity_text(rows: Sequence[dict[str, Any]], first: RunRecord) -> dict[str
             "crpo or saute in those tables."
         ),
         "after": (
-            "Run it: `python experiments/algorithm_table.py --run --task velocity` (the full sweep); the "
-            "smoke run: `python experiments/algorithm_table.py --run --task velocity total_steps=4096 "
+            "Run it: `python experiments/benchmarks/algorithm_table.py --run --task velocity` (the full sweep); the "
+            "smoke run: `python experiments/benchmarks/algorithm_table.py --run --task velocity total_steps=4096 "
             "env.num_envs=2 env.max_steps=100 seed=0 eval_episodes=2`."
         ),
     }

@@ -1,6 +1,6 @@
 """Training throughput of two commits, measured in alternation so that both see the same load.
 
-    python experiments/speed_between_commits.py BASE [NEW] [--rounds 4] [--iterations 6]
+    python experiments/speed/speed_between_commits.py BASE [NEW] [--rounds 4] [--iterations 6]
 
 Each commit is exported (``git archive``) to a temporary directory and measured in its own Python
 process, importing that tree's ``cmdp_rl`` (``PYTHONPATH``), with ``experiments/benchmark_throughput``'s
@@ -21,7 +21,7 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SETTINGS = {  # label -> train.py overrides (ppo_lag + MLP, as the throughput table)
     "train, gym Reach1D N=8": ["env=reach1d"],
     "train, torch Reach1D N=1024 (preset)": ["env=reach1d_torch"],

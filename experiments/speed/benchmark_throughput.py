@@ -1,6 +1,6 @@
 """Throughput of the toolkit on Reach1D: env, rollout and end-to-end training steps per second.
 
-    python experiments/benchmark_throughput.py [--quick] [--device cpu|cuda] [--threads 1]
+    python experiments/speed/benchmark_throughput.py [--quick] [--device cpu|cuda] [--threads 1]
                                                [--out outputs/benchmark_throughput.json]
 
 For each setting (the gymnasium Reach1D alone and in gymnasium's SyncVectorEnv of 8; the batched
@@ -47,7 +47,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 import cmdp_rl  # noqa: E402

@@ -1,6 +1,6 @@
 """Profile end-to-end training with cProfile on CPU time: where does a training step go?
 
-    python experiments/profile_training.py env=reach1d_torch total_steps=131072 [--top 30]
+    python experiments/speed/profile_training.py env=reach1d_torch total_steps=131072 [--top 30]
 
 Takes ``train.py``'s overrides, runs :func:`cmdp_rl.train` under cProfile (timer: this process's
 CPU time, so other processes on the machine do not inflate the figures) and prints the functions

@@ -1,7 +1,7 @@
 """Where a navigation step's time goes in our pipeline: cProfile over one collector rollout of a
 (freshly initialised) ppo_lag agent on a Safety-Gymnasium task, grouped by who spends it.
 
-    python experiments/safety_gym_profile.py [--task SafetyPointGoal1-v0] [--num-envs 8] [--steps-per-env 1000] [--top 0]
+    python experiments/speed/safety_gym_profile.py [--task SafetyPointGoal1-v0] [--num-envs 8] [--steps-per-env 1000] [--top 0]
 
 The rollout is what training does between updates: ``Collector.collect`` over ``--num-envs`` envs
 (gymnasium's SyncVectorEnv, the default ``env.vector=sync``) for ``--steps-per-env`` steps each.

@@ -1,7 +1,7 @@
 """What the per-rollout env-contract check (``envs/contract.py: check_rollout``) costs in training
 throughput, measured with ``benchmark_throughput.train_rate`` on the batched Reach1D settings.
 
-    python experiments/contract_overhead.py [--pairs 6] [--iterations 10]
+    python experiments/speed/contract_overhead.py [--pairs 6] [--iterations 10]
 
 Runs with the check off (``trainer.check_rollout`` replaced by a no-op) and on alternate in one
 process, the order flipped every pair so that drift in the machine's load falls on both; reports
@@ -21,9 +21,9 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "experiments"))
+sys.path.insert(0, str(ROOT / "experiments" / "speed"))
 
 from benchmark_throughput import train_rate  # noqa: E402
 

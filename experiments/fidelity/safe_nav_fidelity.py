@@ -1,6 +1,6 @@
 """env=safe_nav against the real Safety-Gymnasium tasks, step for step, over whole episodes.
 
-    python experiments/safe_nav_fidelity.py [--tasks PointGoal0 ... CarGoal2] [--num-envs 2]
+    python experiments/fidelity/safe_nav_fidelity.py [--tasks PointGoal0 ... CarGoal2] [--num-envs 2]
                                             [--steps 2100] [--seed 11]
 
 For each task: ``--num-envs`` reference envs (``SafetyGymTask``: Safety-Gymnasium 1.0.0's own task

@@ -1,7 +1,7 @@
 """What one PPO update costs as its minibatches grow: is the update bound by per-op overhead or by
 arithmetic?
 
-    python experiments/update_cost.py [train.py overrides] [--sizes 512 1024 2048 4096 8192]
+    python experiments/speed/update_cost.py [train.py overrides] [--sizes 512 1024 2048 4096 8192]
 
 Composes the config ``python train.py <overrides>`` runs (default: ``env=reach1d_torch``, ppo_lag),
 collects one batch, then times ``algo.update`` on that same batch with one pass in minibatches of

@@ -1,7 +1,7 @@
 """The velocity benchmark: ppo, ppo_lag and cpo on HalfCheetah with budget 25, 3 seeds; a table and a PNG.
 
-    python experiments/velocity_benchmark.py --run [overrides]  # the sweep (train.py -m +experiment=velocity_benchmark), then the report
-    python experiments/velocity_benchmark.py SWEEP_DIR          # the report again, from finished runs
+    python experiments/benchmarks/velocity_benchmark.py --run [overrides]  # the sweep (train.py -m +experiment=velocity_benchmark), then the report
+    python experiments/benchmarks/velocity_benchmark.py SWEEP_DIR          # the report again, from finished runs
 
 The sweep is ``configs/experiment/velocity_benchmark.yaml`` (algorithms, seeds, steps); every
 train.py option can be overridden. Each run writes its usual outputs under
@@ -30,7 +30,7 @@ from cmdp_rl.report.safety_metrics import Reference, normalized_scores
 from cmdp_rl.run import sweeps
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 REFERENCE_ALGO = "ppo"
 
 

@@ -1,6 +1,6 @@
 """Population training against the same agents trained one after another, in one process.
 
-    python experiments/population_benchmark.py [--agents 64] [--envs 64] [--iterations 3]
+    python experiments/speed/population_benchmark.py [--agents 64] [--envs 64] [--iterations 3]
         [--scan 1,4,16,64,128] [--device cpu|cuda] [--threads 1] [--out outputs/population_benchmark.json]
 
 - together: ``--agents`` ppo_lag agents (the ``env=reach1d_torch`` preset with ``--envs`` envs each,
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from cmdp_rl import train  # noqa: E402

@@ -1,7 +1,7 @@
 """The README's first command (`make train`) for several seeds: the figures the README quotes.
 
-    python experiments/first_run.py               # seeds 0-4
-    python experiments/first_run.py --seeds 0 1 --out outputs/first_run
+    python experiments/benchmarks/first_run.py               # seeds 0-4
+    python experiments/benchmarks/first_run.py --seeds 0 1 --out outputs/first_run
 
 Runs the Makefile's `train` recipe with `seed=S` appended, one run after another, and prints per
 seed the training time (eval.json's train_time_s), the eval return, the constrained optimum (the
@@ -20,7 +20,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))  # this checkout's cmdp_rl
 
 from cmdp_rl.config import compose_config  # noqa: E402

@@ -2,8 +2,8 @@
 would (the env=grid tuning presets included), and set each final policy against the LP optimum:
 its sampled evaluation (eval.json) and its exact return and costs (cmdp_rl/analysis/grid_policy.py).
 
-    python experiments/grid_seeds.py --seeds 0 1 2 3 4 -- algo=ppo_lag
-    python experiments/grid_seeds.py --seeds 0 1 --jobs 2 -- algo=ppo_lag total_steps=60000
+    python experiments/studies/grid_seeds.py --seeds 0 1 2 3 4 -- algo=ppo_lag
+    python experiments/studies/grid_seeds.py --seeds 0 1 --jobs 2 -- algo=ppo_lag total_steps=60000
 
 Prints one row per seed and the count of seeds within 10% of the optimum and within every budget
 (exactly). Runs go under --out (a fresh temporary directory by default).
@@ -19,7 +19,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.analysis.grid_policy import exact_gap  # noqa: E402

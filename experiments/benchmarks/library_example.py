@@ -1,7 +1,7 @@
 """Run the README's "Using it as a library" example exactly as written and print its wall time.
 
-    python experiments/library_example.py                 # as written (load_config applies threads=1)
-    python experiments/library_example.py --compare       # also: torch's default thread count, and
+    python experiments/benchmarks/library_example.py                 # as written (load_config applies threads=1)
+    python experiments/benchmarks/library_example.py --compare       # also: torch's default thread count, and
                                                           # each with one other busy process beside it
 
 The example builds its pieces itself, not through ``train``; ``load_config`` sets torch's thread
@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def readme_example(readme: Path = ROOT / "README.md") -> str:

@@ -1,7 +1,7 @@
 """env=safe_nav against the reference (env=safety_gym): env steps/s and ppo_lag training steps/s,
 all in one run so that the figures share the machine's load.
 
-    python experiments/safe_nav_speed.py [--tasks PointGoal1 CarGoal1] [--num-envs 1 16 64 256]
+    python experiments/speed/safe_nav_speed.py [--tasks PointGoal1 CarGoal1] [--num-envs 1 16 64 256]
                                          [--reference-async 2 16] [--train-steps 32768] [--quick]
 
 Rows (random uniform actions, torch threads = 1):

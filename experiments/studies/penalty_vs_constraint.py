@@ -1,7 +1,7 @@
 """Penalty versus constraint on Reach1D (the seed's second exercise), from a sweep's outputs.
 
-    python experiments/penalty_vs_constraint.py multirun/penalty_vs_constraint/<time> [...] [--out DIR]
-    python experiments/penalty_vs_constraint.py --population DIR [--skip-unbatched] [--compare TABLE.md] [override ...]
+    python experiments/studies/penalty_vs_constraint.py multirun/penalty_vs_constraint/<time> [...] [--out DIR]
+    python experiments/studies/penalty_vs_constraint.py --population DIR [--skip-unbatched] [--compare TABLE.md] [override ...]
 
 Reads every run directory under the given sweep directories (``make sweep`` writes them; nothing
 is re-trained) and writes, into ``--out`` (default ``<first dir>/report``):

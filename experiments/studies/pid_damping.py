@@ -18,8 +18,8 @@ Reads the runs of a ``+experiment=pid_damping`` sweep (each run's ``config.yaml`
 
 Usage::
 
-    python experiments/pid_damping.py --run [hydra overrides...]   # run the sweep, then analyse it
-    python experiments/pid_damping.py multirun/pid_damping/<date>  # analyse an existing sweep
+    python experiments/studies/pid_damping.py --run [hydra overrides...]   # run the sweep, then analyse it
+    python experiments/studies/pid_damping.py multirun/pid_damping/<date>  # analyse an existing sweep
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.run import sweeps
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 METRICS = ("first_crossing", "overshoot", "overshoot_smooth", "violation", "oscillation", "eval_return", "eval_cost")
 SMOOTH = 5  # iterations in the moving average of overshoot_smooth
 

@@ -3,7 +3,7 @@ benchmark's settings (configs/experiment/off_policy_benchmark.yaml and
 configs/tuning/algo/velocity_sac_lag.yaml: 256 x 256 ReLU networks, batch 256, utd_ratio 1, 8 envs
 x 8 steps per iteration), one torch thread.
 
-    python experiments/off_policy_speed.py [--iterations 15] [--algos sac_lag td3_lag] [--lambda-init 0.5] [--profile]
+    python experiments/speed/off_policy_speed.py [--iterations 15] [--algos sac_lag td3_lag] [--lambda-init 0.5] [--profile]
 
 Per algorithm: the buffer is filled by the warm-up (random actions), then ``iterations`` iterations
 of collect + update run through the trainer's pieces. It prints this process's CPU time

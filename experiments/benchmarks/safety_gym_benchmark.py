@@ -2,21 +2,21 @@
 SafetyCarGoal1-v0, budget 25, 3 seeds; per task a table and learning curves, OmniSafe's published
 numbers beside them, and env steps/s of our collector against Safety-Gymnasium's own loop.
 
-    python experiments/safety_gym_benchmark.py --run [overrides] [--speed-episodes N]  # the sweep, then the report
-    python experiments/safety_gym_benchmark.py SWEEP_DIR [--speed-episodes N]         # the report again
+    python experiments/benchmarks/safety_gym_benchmark.py --run [overrides] [--speed-episodes N]  # the sweep, then the report
+    python experiments/benchmarks/safety_gym_benchmark.py SWEEP_DIR [--speed-episodes N]         # the report again
 
 The sweep is ``configs/experiment/safety_gym_benchmark.yaml`` (tasks, algorithms, seeds, steps);
 every train.py option can be overridden. Each run writes its usual outputs under
 ``multirun/safety_gym_benchmark/<time>/<task>_<algo>_s<seed>/``; the report lands beside them:
 
 - ``<task>/table.md``, ``<task>/table.csv``, ``<task>/curves.png``: per algorithm, as the velocity
-  benchmark's (``experiments/velocity_benchmark.py``, whose functions make them): mean ± std over
+  benchmark's (``experiments/benchmarks/velocity_benchmark.py``, whose functions make them): mean ± std over
   seeds of the final policy's return and cost, the training cost rate, and the normalized metrics
   relative to this sweep's own ppo runs on the same task;
 - ``report.md``: both tables, each with OmniSafe's published return and cost of the same algorithms
   on the same task after 1e7 steps (for orientation: 20x our budget, other hyperparameters), and the
   speed rows: env steps/s of each task in Safety-Gymnasium's own loop (one env) and in our collector
-  (``env.num_envs`` envs, the training path; ``experiments/safety_gym_speed.py`` measures both),
+  (``env.num_envs`` envs, the training path; ``experiments/speed/safety_gym_speed.py`` measures both),
   on this machine, with its load average. ``--speed-episodes 0`` leaves the speed rows out.
 """
 
@@ -30,11 +30,11 @@ from typing import Any
 from cmdp_rl.analysis.tables import markdown_table
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "speed"))
 import safety_gym_speed  # noqa: E402
-import velocity_benchmark  # noqa: E402
+import velocity_benchmark  # noqa: E402  (same folder)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TASKS = ("SafetyPointGoal1-v0", "SafetyCarGoal1-v0")
 
 # OmniSafe's on-policy benchmark, Table 2 (1e7 steps, cost_limit 25; reward and cost, mean ± std over

@@ -1,6 +1,6 @@
 """How env=safety_gym on our stack relates to Safety-Gymnasium on the stack it was released for.
 
-    python experiments/safety_gym_fidelity.py [--python python3.10] [--episodes 2] [--tasks ...]
+    python experiments/fidelity/safety_gym_fidelity.py [--python python3.10] [--episodes 2] [--tasks ...]
 
 A one-off measurement, not a test (it builds a second virtual environment, ``.venv-sg-pinned``,
 with pip downloads). Steps:
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PINNED = ["safety-gymnasium==1.0.0", "gymnasium==0.28.1", "mujoco==2.3.3", "numpy<2"]
 DEFAULT_TASKS = [
     "SafetyPointGoal1-v0",

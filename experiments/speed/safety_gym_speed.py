@@ -1,7 +1,7 @@
 """Env steps per second on a Safety-Gymnasium task: the package's own loop against our collector,
 with gymnasium's synchronous and asynchronous vector envs.
 
-    python experiments/safety_gym_speed.py [--task SafetyPointGoal1-v0] [--episodes 1] [--num-envs 2 8]
+    python experiments/speed/safety_gym_speed.py [--task SafetyPointGoal1-v0] [--episodes 1] [--num-envs 2 8]
 
 Rows (env transitions per second, random uniform actions, ``torch`` threads = 1):
 

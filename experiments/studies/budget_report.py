@@ -11,7 +11,7 @@ Example (CPO against PPO-Lagrangian at one budget, three seeds)::
 
     python train.py -m algo=cpo,ppo_lag env=reach1d env.wall=pass algo.cost_limit=0.5 \\
         seed=0,1,2 total_steps=150000 hydra.sweep.dir=multirun/cpo_vs_ppo_lag
-    python experiments/budget_report.py multirun/cpo_vs_ppo_lag
+    python experiments/studies/budget_report.py multirun/cpo_vs_ppo_lag
 """
 
 from __future__ import annotations

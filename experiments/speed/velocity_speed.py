@@ -1,6 +1,6 @@
 """Steps per second on a velocity task: gymnasium's raw stepping against our collection and training.
 
-    python experiments/velocity_speed.py [--task HalfCheetah] [--steps 20000] [--num-envs 8]
+    python experiments/speed/velocity_speed.py [--task HalfCheetah] [--steps 20000] [--num-envs 8]
 
 Rows (env transitions per second, one process, ``threads=1``):
 

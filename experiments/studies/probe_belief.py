@@ -1,7 +1,7 @@
 """The seed's probe exercise: memoryless and history-dependent policies, with and without a probe.
 
-    python experiments/probe_belief.py --run [overrides]   # the sweep (train.py -m +experiment=probe_belief), then the report
-    python experiments/probe_belief.py SWEEP_DIR           # the report from a finished sweep's runs
+    python experiments/studies/probe_belief.py --run [overrides]   # the sweep (train.py -m +experiment=probe_belief), then the report
+    python experiments/studies/probe_belief.py SWEEP_DIR           # the report from a finished sweep's runs
 
 The sweep is ``configs/experiment/probe_belief.yaml`` ({mlp, lstm, transformer} x {probe, no probe}
 x 3 seeds, the same steps each, PPO-Lagrangian on a noisy Reach1D with a passable wall; the file
@@ -38,7 +38,7 @@ from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.run import sweeps
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 POLICY_ORDER = ("mlp", "lstm", "gru", "transformer")
 EARLY_STEPS = 5  # "early" = the first steps of an episode, where a belief-building agent probes
 PROBE_STEPS = 64  # steps per env of the trained stochastic policy in which its probes are counted
