@@ -88,7 +88,7 @@ class RunConfig:
 
 @options
 class EvalConfig:
-    """Options of ``evaluate.py`` (``python evaluate.py run=<run dir> [key=value ...]``)."""
+    """Options of ``cmdp-evaluate`` (``cmdp-evaluate run=<run dir> [key=value ...]``)."""
 
     run: Optional[str] = None  # the run directory (required)
     checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
@@ -104,17 +104,28 @@ class EvalConfig:
     video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps
 
 
-# The repository's Hydra configs (train.py's config_path), beside the package in a source checkout.
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+# The Hydra configs. The checkout keeps them at its root (configs/, beside cmdp_rl/); the wheel ships that
+# folder as the package cmdp_rl.configs (setup.py). Whichever this module sits beside is the one read, so a
+# checkout run from its root never picks up another install's configs.
+_PACKAGED_CONFIGS = Path(__file__).resolve().parent / "configs"
+_IN_WHEEL = (_PACKAGED_CONFIGS / "config.yaml").is_file()
+CONFIG_DIR = _PACKAGED_CONFIGS if _IN_WHEEL else Path(__file__).resolve().parents[1] / "configs"
+# Where Hydra's search path finds them (the command's config_path): the package's resources in a wheel.
+CONFIG_SOURCE = "pkg://cmdp_rl.configs" if _IN_WHEEL else str(CONFIG_DIR)
 
 
-def compose_config(overrides: Sequence[str] = (), config_dir: str | Path = CONFIG_DIR) -> RunConfig:
-    """The validated config ``python train.py <overrides>`` runs: Hydra's compose over
-    ``config_dir`` (groups, presets and tuning files included), then :func:`load_config`."""
-    from hydra import compose, initialize_config_dir  # here: the rest of this module needs no Hydra
+def compose_config(overrides: Sequence[str] = (), config_dir: str | Path | None = None) -> RunConfig:
+    """The validated config ``cmdp-train <overrides>`` runs: Hydra's compose over the shipped configs
+    (:data:`CONFIG_SOURCE`) or over ``config_dir`` (groups, presets and tuning files included), then
+    :func:`load_config`."""
+    from hydra import compose, initialize_config_dir, initialize_config_module  # the rest needs no Hydra
     from omegaconf import OmegaConf
 
-    with initialize_config_dir(config_dir=str(config_dir), version_base="1.3"):
+    if config_dir is None and _IN_WHEEL:
+        context = initialize_config_module(config_module="cmdp_rl.configs", version_base="1.3")
+    else:
+        context = initialize_config_dir(config_dir=str(config_dir or CONFIG_DIR), version_base="1.3")
+    with context:
         raw = compose("config", overrides=list(overrides))
     return load_config(OmegaConf.to_container(raw, resolve=True))
 
@@ -221,6 +232,7 @@ def _validate_normalize(cfg: RunConfig) -> None:
 __all__ = [
     "AUTO",
     "CONFIG_DIR",
+    "CONFIG_SOURCE",
     "ConfigError",
     "EvalConfig",
     "LoggerConfig",

@@ -12,7 +12,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("algorithm_table", ROOT / "experiments" / "benchmarks" / "algorithm_table.py")
+    spec = importlib.util.spec_from_file_location(
+        "algorithm_table", ROOT / "experiments" / "benchmarks" / "algorithm_table.py"
+    )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -5,7 +5,6 @@ The env is a toy of this file (registered with gymnasium here, used through ``en
 number below can be worked out by hand."""
 
 import csv
-import importlib.util
 import json
 import os
 import subprocess
@@ -362,9 +361,8 @@ def test_plots_draw_a_panel_per_constraint(tmp_path, quiet):
 
 def test_evaluate_script_prints_a_cost_line_per_constraint(tmp_path, quiet, capsys):
     train(load_config(run_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
-    spec = importlib.util.spec_from_file_location("evaluate_script", ROOT / "evaluate.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    from cmdp_rl.cli import evaluate as script
+
     assert script.main([f"run={tmp_path / 'run'}", "episodes=2", f"output={tmp_path / 'e.json'}"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert any(line.strip().startswith("cost/hazard_a") and line.endswith("(limit 0.5)") for line in lines)

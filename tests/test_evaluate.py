@@ -1,20 +1,16 @@
 """evaluate.py: loads a run, repeats its evaluation, draws Reach1D episodes, refuses bad input."""
 
-import importlib.util
 import json
 
 import pytest
 import torch
-from conftest import ROOT, eval_result, run_script, tiny
+from conftest import eval_result, run_script, tiny
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
+from cmdp_rl.cli import evaluate as evaluate_cli
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
-
-_spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
-evaluate_cli = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(evaluate_cli)
 
 
 @pytest.fixture(scope="module")

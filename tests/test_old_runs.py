@@ -15,7 +15,6 @@ resume continues a run exactly on one machine is ``tests/test_resume.py``'s bit-
 """
 
 import csv
-import importlib.util
 import json
 import math
 import shutil
@@ -28,6 +27,7 @@ import torch
 
 from cmdp_rl import Collector, keys, train
 from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main in-process: no interpreter per fixture
 from cmdp_rl.policies.legacy import is_legacy
 from cmdp_rl.run.resume import resume_config
 from cmdp_rl.run.rundir import load_trained
@@ -46,12 +46,6 @@ TIMING = {"sps", "time_s"}
 # state or generator draws other minibatches: percents). ABS covers numbers that are exactly 0 on one
 # machine and 1e-12 on another.
 CROSS_CPU_REL, CROSS_CPU_ABS = 1e-4, 1e-9
-
-# evaluate.py's main, called in this process: the same argument parsing and code as the command,
-# without a new interpreter per fixture (each one imports torch again: most of this file's time).
-_spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
-evaluate_cli = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(evaluate_cli)
 
 
 def _copy(name: str, tmp_path: Path) -> Path:

@@ -20,7 +20,7 @@ import torch
 if importlib.util.find_spec("safety_gymnasium") is None:
     pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
 
-from conftest import ROOT, ForwardPolicy, eval_result, metrics_rows  # noqa: E402
+from conftest import ForwardPolicy, eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import Collector, finished_episodes, keys, make_env, train  # noqa: E402
 from cmdp_rl.checkpoint import load_checkpoint  # noqa: E402
@@ -206,9 +206,8 @@ RUN = [
 
 
 def _evaluate_cli():
-    spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    from cmdp_rl.cli import evaluate as module
+
     return module
 
 

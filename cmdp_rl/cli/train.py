@@ -1,0 +1,116 @@
+"""Train a constrained-RL agent: ``cmdp-train algo=ppo_lag env=reach1d [overrides]``.
+
+The same command is ``python -m cmdp_rl.train`` and, in a checkout, ``python train.py``.
+Options are documented in ``configs/`` (shipped in the package, see :data:`cmdp_rl.config.CONFIG_SOURCE`);
+outputs go to Hydra's run directory. ``resume=<run dir> [total_steps=...]`` continues that run from its
+last checkpoint, in that directory, with the run's own config (see ``cmdp_rl/run/resume.py`` for what may
+change). Sweeps are Hydra multiruns (``-m``), e.g. ``cmdp-train -m +experiment=penalty_sweep``; see
+``configs/experiment/``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.types import RunMode
+from omegaconf import DictConfig, OmegaConf
+
+from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
+from cmdp_rl.checkpoint import CheckpointError
+from cmdp_rl.config import CONFIG_SOURCE
+from cmdp_rl.population.spec import population_active
+from cmdp_rl.run.resume import resume_config
+from cmdp_rl.run.rundir import CHECKPOINT, POPULATION_CHECKPOINT, RunDirError
+from cmdp_rl.run.sweeps import clear_outputs, record_failure
+
+# How a single run ends on each error (inside a sweep the command raises instead: see _fail).
+EXIT_CODES = (
+    (RunDirError, 2, "cannot write outputs"),
+    (ConfigError, 2, "config error"),
+    (CheckpointError, 2, "cannot resume"),
+    (TrainingDiverged, 3, "training stopped"),
+)
+
+
+def _if_resumable(resume: str | None, then: str, otherwise: str) -> str:
+    """For `hydra.run.dir` and `hydra.output_subdir` in configs/config.yaml: a resumed run writes
+    into its own directory, and Hydra's record of the resume command goes beside the original one.
+    Only a directory with a checkpoint counts, so a mistyped path is reported, not created."""
+    saved = resume and any((Path(resume) / name).is_file() for name in (CHECKPOINT, POPULATION_CHECKPOINT))
+    return then if saved else otherwise
+
+
+OmegaConf.register_new_resolver("cmdp.if_resumable", _if_resumable)
+
+
+def _fail(exc: Exception, run_dir: str | None) -> None:
+    if run_dir is not None:
+        try:
+            record_failure(run_dir, exc)
+        except OSError:  # a run directory that cannot be written: the message below says so
+            pass
+    if HydraConfig.get().mode == RunMode.MULTIRUN:
+        # Raise, never sys.exit, inside a sweep: Hydra then marks only this job failed, lets the
+        # others finish (each writes its own directory) and raises once all are done. SystemExit
+        # would bypass Hydra's per-job handling and stop the whole sweep.
+        raise exc
+    for kind, code, what in EXIT_CODES:
+        if isinstance(exc, kind):
+            print(f"{what}: {exc}", file=sys.stderr)
+            sys.exit(code)
+    raise exc
+
+
+@hydra.main(config_path=CONFIG_SOURCE, config_name="config", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    raw = OmegaConf.to_container(cfg, resolve=True)
+    # A new run's directory records why it failed (error.txt); a resume leaves the run it names as
+    # the resume machinery does (a refused resume must not touch a finished run).
+    new_dir = None if raw.get("resume") else HydraConfig.get().runtime.output_dir
+    try:
+        if raw.get("resume") and (Path(raw["resume"]) / POPULATION_CHECKPOINT).is_file():
+            return _population(raw, resume=True)
+        if not raw.get("resume") and population_active(raw.get("population")):
+            return _population(raw, new_dir)
+        if raw.get("resume"):
+            overrides = OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
+            run_cfg = resume_config(raw["resume"], raw, [o.key_or_group for o in overrides])
+        else:
+            run_cfg = load_config(raw)
+    except (ConfigError, CheckpointError) as exc:
+        _fail(exc, new_dir)
+    try:
+        if new_dir is not None:
+            clear_outputs(new_dir)  # a rerun into this directory must not pass for a finished one
+        # A resumed run writes into its own directory, whatever hydra.run.dir says.
+        train(run_cfg, new_dir)
+    except Exception as exc:  # noqa: BLE001 - every failure is recorded, then handled by _fail
+        _fail(exc, new_dir)
+
+
+def _population(raw: dict, new_dir: str | None = None, resume: bool = False) -> None:
+    """Several agents in one process (cmdp_rl/population/); a resume continues the population in
+    its directory, where only total_steps may be changed."""
+    from cmdp_rl.population import train_population
+
+    try:
+        if resume:
+            explicit = [
+                o.key_or_group for o in OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
+            ]
+            train_population(
+                None, raw["resume"], resume=True, total_steps=raw["total_steps"] if "total_steps" in explicit else None
+            )
+        else:
+            clear_outputs(new_dir)
+            train_population(raw, new_dir)
+    except Exception as exc:  # noqa: BLE001 - recorded and reported as a single run's failure is
+        _fail(exc, new_dir)
+
+
+if __name__ == "__main__":
+    main()

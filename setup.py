@@ -1,0 +1,15 @@
+"""What pyproject.toml cannot say: the checkout's configs/ folder ships inside the wheel as the package
+``cmdp_rl.configs``, where Hydra finds it (``pkg://cmdp_rl.configs``, see cmdp_rl/config.py). The folder
+stays at the root in the checkout, beside cmdp_rl/, where a user looks for it."""
+
+from setuptools import find_namespace_packages, find_packages, setup
+
+# Its groups (algo/, env/, ...) are listed as packages too, or setuptools warns that data sits in folders
+# that are not packages.
+CONFIGS = ["cmdp_rl.configs"] + [f"cmdp_rl.configs.{name}" for name in find_namespace_packages(where="configs")]
+
+setup(
+    packages=find_packages(include=["cmdp_rl", "cmdp_rl.*"]) + CONFIGS,
+    package_dir={"cmdp_rl.configs": "configs"},
+    package_data={name: ["*.yaml"] for name in CONFIGS},
+)
