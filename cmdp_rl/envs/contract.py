@@ -7,7 +7,8 @@ line naming the env, the env index, the step and the field.
 
 What is checked:
 
-- the action space is a ``Box``, ``Discrete`` or ``MultiDiscrete`` (what the policy heads know);
+- the action space is a ``Box``, ``Discrete``, ``MultiDiscrete``, or a hybrid ``Tuple``/``Dict`` of
+  one ``Discrete`` and one ``Box`` (what the policy heads know);
   the observation space is a ``Box``, ``Discrete``, ``MultiDiscrete`` or ``MultiBinary`` (the
   collector flattens observations into one float vector);
 - every observation (after reset, after each step) is finite and inside the observation space:
@@ -39,6 +40,7 @@ import torch
 from gymnasium import spaces
 
 from cmdp_rl import keys
+from cmdp_rl.actions import SUPPORTED, hybrid
 from cmdp_rl.validation import ConfigError
 
 ACTION_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete)
@@ -93,8 +95,8 @@ class _Checker:
 
     # --- the spaces ---
     def spaces(self, action_space: Any, observation_space: Any) -> None:
-        if not isinstance(action_space, ACTION_SPACES):
-            self.fail(None, "action_space", f"{action_space} is not supported; supported: Box, Discrete, MultiDiscrete")
+        if not isinstance(action_space, ACTION_SPACES) and hybrid(action_space) is None:
+            self.fail(None, "action_space", f"{action_space} is not supported; supported: {SUPPORTED}")
         if not isinstance(observation_space, OBSERVATION_SPACES):
             self.fail(
                 None,

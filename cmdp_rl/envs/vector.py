@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
-from cmdp_rl.actions import action_dim, categories, check_action_space, is_discrete, to_env
+from cmdp_rl.actions import action_bounds, action_dim, check_action_space, to_env
 from cmdp_rl.envs.env_state import env_state, load_env_state
 
 
@@ -152,12 +152,9 @@ class GymVecEnv(VecEnv):
         self.action_dim = action_dim(act_space)
         # Gymnasium steps on the CPU; tensors handed out live on ``device``.
         self.device = torch.device(device)
-        if is_discrete(act_space):  # the range of each stored index
-            self.action_low = torch.zeros(self.action_dim, device=self.device)
-            self.action_high = torch.tensor(categories(act_space), dtype=torch.float32, device=self.device) - 1
-        else:
-            self.action_low = torch.as_tensor(act_space.low, dtype=torch.float32, device=self.device).reshape(-1)
-            self.action_high = torch.as_tensor(act_space.high, dtype=torch.float32, device=self.device).reshape(-1)
+        # the range of each stored entry: a box's bounds, a discrete index's [0, n - 1]
+        low, high = action_bounds(act_space)
+        self.action_low, self.action_high = low.to(self.device), high.to(self.device)
         # an async vector env keeps its envs in worker processes: ask a local probe copy instead
         local = getattr(self.envs, "envs", None)
         names = _declared_cost_names(local[0]) if local else None

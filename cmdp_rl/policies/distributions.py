@@ -17,6 +17,10 @@ distribution from them:
   and the entropy are the components' sums, the KL between two of them the sum of the components'
   KLs (so CPO's Fisher-vector product needs nothing else). Actions are ``[..., m]`` indices.
 
+- a hybrid ``Tuple``/``Dict`` of one ``Discrete`` and one ``Box`` (a skill and its parameters):
+  :class:`~cmdp_rl.policies.hybrid.HybridHead`, a categorical over the skills times a Gaussian over
+  the parameters conditioned on the skill (``policies/hybrid.py``).
+
 Every head samples by ``rsample`` where the distribution has one, else ``sample``, and its
 deterministic action is the mode (the Gaussian's mean, the categorical's most likely action).
 """
@@ -31,7 +35,8 @@ from torch.distributions import constraints, kl_divergence, register_kl
 from torchrl.modules import IndependentNormal
 
 from cmdp_rl import keys
-from cmdp_rl.actions import categories, check_action_space
+from cmdp_rl.actions import categories, check_action_space, hybrid
+from cmdp_rl.policies.hybrid import HybridHead
 
 
 class GaussianHead(nn.Module):
@@ -130,17 +135,24 @@ class CategoricalHead(nn.Module):
 
 def action_outputs(space: gym.Space) -> int:
     """How many outputs the actor's network needs for ``space``: the box's dimension (the mean), or
-    one logit per action (per choice of each component of a ``MultiDiscrete``)."""
+    one logit per action (per choice of each component of a ``MultiDiscrete``), or a hybrid
+    space's logits and per-skill means."""
     check_action_space(space)
+    if hybrid(space) is not None:
+        return HybridHead.outputs(hybrid(space))
     if isinstance(space, gym.spaces.Box):
         return int(space.low.size)
     return sum(categories(space))
 
 
-def make_action_head(space: gym.Space, net: nn.Module, init_log_std: float = -0.5) -> GaussianHead | CategoricalHead:
+def make_action_head(
+    space: gym.Space, net: nn.Module, init_log_std: float = -0.5
+) -> GaussianHead | CategoricalHead | HybridHead:
     """The distribution head for ``space`` around the output network ``net`` (``init_log_std``: the
     Gaussian's initial log-std, in units of the box's half-width)."""
     check_action_space(space)
+    if hybrid(space) is not None:
+        return HybridHead(net, hybrid(space), init_log_std)
     if isinstance(space, gym.spaces.Box):
         low = torch.as_tensor(space.low, dtype=torch.float32).reshape(-1)
         high = torch.as_tensor(space.high, dtype=torch.float32).reshape(-1)

@@ -17,7 +17,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from cmdp_rl import keys
-from cmdp_rl.actions import action_dim, categories, is_discrete
+from cmdp_rl.actions import action_bounds, action_dim, categories, is_discrete
 
 
 def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
@@ -56,8 +56,7 @@ class InputEncoder(nn.Module):
         self.num_costs = num_costs  # the previous cost is the vector of the env's K costs
         self.categories = categories(action_space) if is_discrete(action_space) else None
         if self.categories is None:
-            low = torch.as_tensor(action_space.low, dtype=torch.float32).reshape(-1)
-            high = torch.as_tensor(action_space.high, dtype=torch.float32).reshape(-1)
+            low, high = action_bounds(action_space)  # a hybrid action's skill index too
             self.register_buffer("center", (high + low) / 2)
             self.register_buffer("half_width", (high - low) / 2)
         encoded = action_dim(action_space) if self.categories is None else sum(self.categories)

@@ -137,7 +137,7 @@ def check_off_policy_agent(agent: Agent, algo: str) -> None:
         raise ConfigError(f"policy.include_prev_action and policy.include_prev_cost must be false for algo={algo}")
     if not isinstance(agent.actor.head, GaussianHead):
         raise ConfigError(
-            f"algo must be an on-policy algorithm (ppo, ppo_lag, ...) for a discrete action space: "
+            f"algo must be an on-policy algorithm (ppo, ppo_lag, ...) for a discrete or hybrid action space: "
             f"{algo} needs a Box action space"
         )
     if not torch.isfinite(agent.actor.head.half_width).all():
