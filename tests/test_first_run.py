@@ -1,14 +1,7 @@
 """The scripts behind the README's first-run figures read the README and the Makefile themselves."""
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"))
-
-import first_run  # noqa: E402
-import library_example  # noqa: E402
-
-from cmdp_rl.config import compose_config  # noqa: E402
+from cmdp_rl.bench import first_run, library_example
+from cmdp_rl.config import compose_config
 
 
 def test_first_run_script_runs_the_makefiles_train_recipe():
