@@ -3,8 +3,8 @@
 
 - ``algorithm_table`` (the page) and ``algorithm_rows`` (its per-task rows, tables and figures):
   every algorithm on the grid, Reach1D and HalfCheetah velocity (docs/algorithms.md);
-- ``first_run``: the Makefile's ``make train`` recipe over seeds (the README's first-run figures);
-- ``library_example``: the README's library example, timed with and without the thread setting;
+- ``first_run``: the Makefile's ``make train`` recipe over seeds (docs/guide/first_run.md's figures);
+- ``library_example``: the library guide's example (docs/guide/library.md), timed with and without the thread setting;
 - ``velocity_benchmark``, ``safety_gym_benchmark``: those benchmarks' sweeps and reports
   (docs/benchmarks.md, docs/safety_gym.md); ``safety_gym_speed``: Safety-Gymnasium's own loop against
   our collector;

@@ -1,4 +1,4 @@
-"""The README's first command (`make train`) for several seeds: the figures the README quotes.
+"""The README's first command (`make train`) for several seeds: the figures docs/guide/first_run.md quotes.
 
     python experiments/benchmarks/first_run.py               # seeds 0-4
     python experiments/benchmarks/first_run.py --seeds 0 1 --out outputs/first_run
@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]  # the checkout: its train.py, Makefi
 from cmdp_rl.config import compose_config  # noqa: E402
 from cmdp_rl.report.summary import optimum_of  # noqa: E402
 
-WITHIN = 0.05  # the README's claim: eval return within 5% of the optimum, cost within budget
+WITHIN = 0.05  # the first-run page's claim (docs/guide/first_run.md): eval return within 5% of the optimum, cost within budget
 
 
 def make_train_overrides(makefile: Path = ROOT / "Makefile") -> list[str]:

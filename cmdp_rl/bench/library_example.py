@@ -1,4 +1,5 @@
-"""Run the README's "Using it as a library" example exactly as written and print its wall time.
+"""Run the library guide's example (docs/guide/library.md, "Using it as a library") exactly as written and print
+its wall time.
 
     python experiments/benchmarks/library_example.py                 # as written (load_config applies threads=1)
     python experiments/benchmarks/library_example.py --compare       # also: torch's default thread count, and
@@ -23,8 +24,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: its train.py, Makefile, docs/ and multirun/
 
 
-def readme_example(readme: Path = ROOT / "README.md") -> str:
-    """The first python block under the README's "Using it as a library" heading."""
+def readme_example(readme: Path = ROOT / "docs" / "guide" / "library.md") -> str:
+    """The first python block under the "Using it as a library" heading of the guide's library page."""
     text = readme.read_text()
     section = text[text.index("## Using it as a library") :]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
@@ -40,7 +41,7 @@ def _child(default_threads: bool) -> None:
         cmdp_rl.config.apply_threads = cmdp_rl.threads.apply_threads
     code = readme_example()
     t0 = time.perf_counter()
-    exec(compile(code, "README.md (Using it as a library)", "exec"), {"__name__": "__example__"})
+    exec(compile(code, "docs/guide/library.md", "exec"), {"__name__": "__example__"})
     import torch
 
     print(f"WALL {time.perf_counter() - t0:.2f} THREADS {torch.get_num_threads()}", flush=True)

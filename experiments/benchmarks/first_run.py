@@ -1,4 +1,4 @@
-"""The README's first command (`make train`) for several seeds: the figures the README quotes.
+"""The README's first command (`make train`) for several seeds: the figures docs/guide/first_run.md quotes.
 
 The command line over :mod:`cmdp_rl.bench.first_run`, where the code and its documentation live.
 """

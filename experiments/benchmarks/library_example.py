@@ -1,4 +1,4 @@
-"""Run the README's "Using it as a library" example exactly as written and print its wall time.
+"""Run the library guide's example exactly as written and print its wall time.
 
 The command line over :mod:`cmdp_rl.bench.library_example`, where the code and its documentation live.
 """
