@@ -54,7 +54,8 @@ bench-safety-gym-smoke: .venv/.safety_gym
 		env.max_steps=256 eval_episodes=1 seed=0 hydra.sweep.dir=multirun/safety_gym_benchmark_smoke
 
 # The first run: the batched Reach1D preset (configs/env/reach1d_torch.yaml, tuned in configs/tuning/)
-# for 3M steps, 96 iterations; experiments/benchmarks/first_run.py runs this recipe over seeds (README figures).
+# for 3M steps, 96 iterations; experiments/benchmarks/first_run.py runs this recipe over seeds
+# (the figures in docs/guide/first_run.md).
 train: setup
 	$(PY) train.py algo=ppo_lag env=reach1d_torch total_steps=3145728
 

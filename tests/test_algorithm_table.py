@@ -1,8 +1,8 @@
-"""experiments/benchmarks/algorithm_table.py's report on hand-made run directories (seconds): the LP gap and
+"""The algorithm table's report (cmdp_rl.bench.algorithm_table, behind experiments/benchmarks/algorithm_table.py)
+on hand-made run directories (seconds): the LP gap and
 each constraint's violation per algorithm, mean ± sample std over seeds."""
 
 import csv
-import importlib.util
 import json
 from pathlib import Path
 
@@ -12,12 +12,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location(
-        "algorithm_table", ROOT / "experiments" / "benchmarks" / "algorithm_table.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    from cmdp_rl.bench import algorithm_table
+
+    return algorithm_table
 
 
 def _run(path: Path, algo: str, seed: int, costs: list[str], limit, ret: float, cost_values: list[float]) -> None:

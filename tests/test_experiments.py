@@ -1,6 +1,6 @@
 """The analysis the experiment scripts apply to a run's metrics, on hand-made sequences."""
 
-import importlib.util
+import importlib
 import math
 from pathlib import Path
 
@@ -11,11 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _load(name):
-    (path,) = (ROOT / "experiments").glob(f"*/{name}.py")
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return importlib.import_module(f"cmdp_rl.analysis.{name}")
 
 
 def test_damping_metrics_measure_after_the_first_crossing_of_the_budget():

@@ -1,14 +1,8 @@
-"""The scripts behind the README's first-run figures read the README and the Makefile themselves."""
+"""The scripts behind the first-run figures and the library example read the Makefile and the library guide
+(docs/guide/library.md) themselves."""
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"))
-
-import first_run  # noqa: E402
-import library_example  # noqa: E402
-
-from cmdp_rl.config import compose_config  # noqa: E402
+from cmdp_rl.bench import first_run, library_example
+from cmdp_rl.config import compose_config
 
 
 def test_first_run_script_runs_the_makefiles_train_recipe():
@@ -22,4 +16,4 @@ def test_first_run_script_runs_the_makefiles_train_recipe():
 def test_library_example_is_the_readmes_code():
     code = library_example.readme_example()
     assert code.startswith("import cmdp_rl\n") and "cmdp_rl.load_config(" in code and "collector.collect()" in code
-    compile(code, "README", "exec")
+    compile(code, "docs/guide/library.md", "exec")

@@ -1,26 +1,20 @@
-"""experiments/studies/penalty_vs_constraint.py on a fixture of run directories built here: finished,
+"""The penalty-versus-constraint study's report (cmdp_rl.analysis.penalty_vs_constraint, the code of
+experiments/studies/penalty_vs_constraint.py) on a fixture of run directories built here: finished,
 failed, interrupted and never-started runs, as a sweep leaves them."""
 
 import csv
 import dataclasses
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
 from cmdp_rl.algos.ppo import PenaltyConfig, PPOLagConfig
+from cmdp_rl.analysis import penalty_vs_constraint as pvc
 from cmdp_rl.config import RunConfig
 
 ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location(
-    "penalty_vs_constraint", ROOT / "experiments" / "studies" / "penalty_vs_constraint.py"
-)
-pvc = importlib.util.module_from_spec(spec)
-sys.modules[spec.name] = pvc  # dataclasses look their module up there
-spec.loader.exec_module(pvc)
 
 PENALTY_PARAMS = {"algo": "sweep/penalty", "algo.penalty": "0.0,2.0", "env.start": "0.1", "seed": "0,1,2"}
 CONSTRAINT_PARAMS = {"algo": "sweep/ppo_lag", "algo.cost_limit": "0.5", "env.start": "[0.0,1.0]", "seed": "0,1"}

@@ -2,17 +2,14 @@
 
 import csv
 import json
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "studies"))
-import probe_belief  # noqa: E402
-
 from cmdp_rl import load_config, make_agent, make_env  # noqa: E402
+from cmdp_rl.analysis import probe_belief  # noqa: E402
 from cmdp_rl.checkpoint import save_checkpoint  # noqa: E402
 
 

@@ -6,7 +6,6 @@ episode, goals reached, hazards entered and the automatic reset included.
 """
 
 import importlib.util
-import sys
 
 import numpy as np
 import pytest
@@ -15,16 +14,14 @@ import torch
 if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
     pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
 
-from conftest import ROOT, eval_result, metrics_rows  # noqa: E402
+from conftest import eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import train  # noqa: E402
+from cmdp_rl.bench.safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the fidelity table's steering)
 from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
 from cmdp_rl.envs.safe_nav.world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
 from cmdp_rl.envs.safety_gym.env import make_task  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "experiments" / "fidelity"))
-from safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the steering the fidelity table uses)
 
 
 def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int = 0) -> dict:

@@ -3,16 +3,13 @@ sweep itself is smoke-run by hand: see configs/experiment/safety_gym_benchmark.y
 
 import csv
 import json
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
+from cmdp_rl.bench import safety_gym_benchmark
 from cmdp_rl.config import compose_config
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"))
-import safety_gym_benchmark  # noqa: E402
 
 # task, algo, seed -> final eval return, eval cost, training cost rate
 RUNS = {

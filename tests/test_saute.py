@@ -130,13 +130,10 @@ def test_saute_learns_reach1d_within_budget(tmp_path):
 def test_evaluate_py_rebuilds_the_augmented_env_and_repeats_eval_json(tmp_path):
     """evaluate.py builds its env through make_eval_env with the run's algo options, so a Sauté
     policy (observation + budget) evaluates as it did in training."""
-    import importlib.util
+    from conftest import eval_result, tiny
 
-    from conftest import ROOT, eval_result, tiny
+    from cmdp_rl.cli import evaluate as evaluate_cli
 
-    spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
-    evaluate_cli = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(evaluate_cli)
     cfg = tiny(total_steps=64, algo={"name": "saute", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.5})
     del cfg["algo"]["lambda_lr"]
     train(load_config(cfg), tmp_path, echo=lambda s: None)

@@ -1,4 +1,4 @@
-"""The library path applies the config's thread count as train.py does (README: Using it as a library)."""
+"""The library path applies the config's thread count as train.py does (docs/guide/library.md)."""
 
 import pytest
 import torch
@@ -16,7 +16,7 @@ def restore_threads():
 
 def test_load_config_sets_torchs_thread_count(restore_threads):
     torch.set_num_threads(2)
-    cfg = cmdp_rl.load_config({"algo": {"name": "ppo_lag"}})  # the README's example, threads=1 by default
+    cfg = cmdp_rl.load_config({"algo": {"name": "ppo_lag"}})  # the library guide's example, threads=1 by default
     assert cfg.threads == 1 and torch.get_num_threads() == 1
     cmdp_rl.load_config({"threads": 2})
     assert torch.get_num_threads() == 2

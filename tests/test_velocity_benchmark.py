@@ -2,15 +2,13 @@
 
 import csv
 import json
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
+from conftest import run_script
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"))
-import velocity_benchmark  # noqa: E402
-from conftest import run_script  # noqa: E402
+from cmdp_rl.bench import velocity_benchmark
 
 # algo, seed -> final eval return, eval cost, training cost rate
 RUNS = {

@@ -10,9 +10,10 @@ import importlib.util
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import ROOT, tiny
+from conftest import tiny
 
 from cmdp_rl import load_config, train
+from cmdp_rl.cli import evaluate as evaluate_cli
 from cmdp_rl.config import ConfigError, compose_config
 from cmdp_rl.envs.reach1d.env import FRAME_H, FRAME_W, Reach1D, render_reach1d
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
@@ -22,10 +23,6 @@ from cmdp_rl.run.rundir import load_trained
 
 pytest.importorskip("moviepy")  # the test extra installs it (pip install -e '.[test]')
 imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")  # moviepy's ffmpeg
-
-_spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
-evaluate_cli = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(evaluate_cli)
 
 
 def frames_in(path) -> int:

@@ -1,6 +1,6 @@
 """Constraint-Rectified Policy Optimization (Xu, Liang, Lan, 2021, "CRPO: A New Approach for Safe
-Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1). Equation and line numbers
-are not cited: the paper's text could not be read past its opening here (issue 18).
+Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1). Its steps are cited by name,
+without equation or line numbers (docs/references.md).
 
 Each iteration looks at the constraint's slack: if the estimate ``J_c`` is within the budget plus a
 tolerance, ``J_c <= d + eta``, the policy takes a step that improves the reward (here: PPO's clipped

@@ -1,6 +1,6 @@
 """Constrained Update Projection (Yang, Ji, Dai, Zhang, Zhou, Li, Yang, Pan, 2022, "Constrained
-Update Projection Approach to Safe Policy Optimization", NeurIPS; its Algorithm 1). Equation and
-section numbers are not cited: the paper's text could not be read past its opening here (issue 18).
+Update Projection Approach to Safe Policy Optimization", NeurIPS; its Algorithm 1). Its stages are
+cited by name, without equation or section numbers (docs/references.md).
 
 Two stages per iteration:
 

@@ -1,7 +1,6 @@
 """First Order Constrained Optimization in Policy Space (Zhang, Vuong, Ross, 2020, NeurIPS;
-Theorem 1 and Algorithm 1). Equation numbers are not cited: the paper's text could not be read
-past its opening here (issue 18); its steps are cited by name, its theorem and algorithm by the
-numbers remembered for them, unchecked.
+Theorem 1 and Algorithm 1). Its steps are cited by name, without equation numbers; the theorem and
+algorithm numbers are unchecked (docs/references.md).
 
 Two steps per iteration, both first order:
 

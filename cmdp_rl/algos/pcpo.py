@@ -12,8 +12,7 @@ surrogate's per-step units: natural_gradient.per_step_constraint) and ``delta`` 
    ``L = H`` for the KL projection and ``L = I`` for the L2 projection (``algo.projection``; the
    paper's closed form of the two steps, in its notation ``a`` for ``b`` and ``b`` for ``c``).
 
-Numbers are not cited: the paper's text could not be read past its opening here (issue 18), so
-the eq. 3 and eq. 4 once written from memory stay out and the steps are cited by name.
+The steps are cited by name, without equation numbers (docs/references.md).
 
 A step already inside the linearised constraint set is not moved by the projection; an infeasible
 iterate is projected back onto its boundary (no separate recovery rule, unlike CPO). The paper

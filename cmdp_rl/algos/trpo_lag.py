@@ -1,6 +1,6 @@
 """TRPO-Lagrangian (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep Reinforcement
-Learning", Section 5: the Lagrangian baselines; that section number is from memory, unchecked:
-the paper's text could not be read here, issue 18. TRPO's numbers below are checked).
+Learning", Section 5: the Lagrangian baselines; that section number is unchecked, see
+docs/references.md. TRPO's numbers below are checked).
 
 TRPO's update (Schulman et al. 2015, "Trust Region Policy Optimization", eq. 14 and Appendix C) on
 the Lagrangian's advantage ``A = (A_r - lambda A_c) / (1 + lambda)``, the same policy advantage as

@@ -6,7 +6,12 @@
   penalty λ or budget d, and start distribution; its table, run status and rerun script;
 - ``figures``: that study's figure (cost against λ, cost against d per start distribution);
 - ``reach1d_reference``: the exact (dynamic-programming) reference for that study on Reach1D, and
-  the seed exercise's answers derived from it.
+  the seed exercise's answers derived from it;
+- ``penalty_vs_constraint``: that study's command (the sweeps' report, the batched grid);
+- ``pid_damping``, ``probe_belief``: those studies' reports (docs/pid_and_cpo.md, docs/probe_belief.md);
+- ``grid_policy``, ``fork_policy``: a trained policy's exact value on the tabular tasks.
 
-Reading run directories is ``cmdp_rl.run.sweeps``; nothing here trains.
+``experiments/studies/`` holds the thin command lines over these.
+
+Reading run directories is ``cmdp_rl.run.sweeps``; the study commands start sweeps through ``train.py``.
 """

@@ -1,8 +1,7 @@
 """Sauté's env transform: the remaining safety budget joins the state and the reward is replaced once
 the budget is spent (Sootla, Cowen-Rivers, Jafferjee, Wang, Mguni, Wang, Bou-Ammar, 2022, "Sauté RL:
 Almost Surely Safe Reinforcement Learning Using State Augmentation", ICML: its safety augmented
-MDP, cited by name: its equation numbers are not cited, the paper's text could not be read past
-its opening here, issue 18).
+MDP, cited by name; docs/references.md says why without equation numbers).
 
 The paper's safety state starts at the budget, ``z_0 = d``, and moves by ``z_{t+1} = (z_t - c_t) /
 gamma_c`` (dividing by the safety discount keeps ``z_t >= 0`` equivalent to

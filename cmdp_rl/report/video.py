@@ -10,9 +10,8 @@ and ``env=gym`` offers its env's own frames when it has an ``rgb_array`` mode.
 Headless MuJoCo: with no ``DISPLAY`` and no ``MUJOCO_GL`` set, this module sets ``MUJOCO_GL=egl``
 (gymnasium would otherwise try GLFW first, which needs a display). Without a GPU, EGL renders in
 software through Mesa (llvmpipe): Debian's ``libegl1`` (which brings ``libegl-mesa0``),
-``libopengl0`` and ``libgl1-mesa-dri``. In software a frame takes about 0.1 s (measured here: 80 ms
-at 256x192 on a quiet 2-core machine, 156 ms at 320x240 at load 5), so a whole 1000-step episode
-takes a few minutes; ``video_steps`` cuts it short. Without them the video fails with
+``libopengl0`` and ``libgl1-mesa-dri``. In software a frame takes about 0.1 s (docs/evaluation.md
+gives the measurements), so a whole 1000-step episode takes a few minutes; ``video_steps`` cuts it short. Without them the video fails with
 one line that names them. ``MUJOCO_GL=osmesa`` needs ``libosmesa6`` instead; note that MuJoCo reads
 ``MUJOCO_GL`` when it is imported (torchrl imports it), so a ``MUJOCO_GL`` naming a missing library
 breaks ``import cmdp_rl`` itself, before this module can say anything.
