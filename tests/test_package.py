@@ -4,6 +4,7 @@ entry points)."""
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -12,7 +13,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 COMPOSE = (
+    "import cmdp_rl\n"
     "from cmdp_rl.config import CONFIG_SOURCE, compose_config\n"
+    "print(cmdp_rl.__file__)\n"
     "print(CONFIG_SOURCE)\n"
     "print(repr(compose_config(['env=grid', 'algo=cpo', 'seed=3'])))\n"
 )
@@ -23,9 +26,17 @@ def installed(tmp_path_factory) -> Path:
     """The wheel, installed without dependencies (the test's own environment has them) into a folder
     that only PYTHONPATH points at."""
     tmp = tmp_path_factory.mktemp("package")
+    # Built from a copy of what the build reads, so that setuptools' build/ and egg-info stay out of the checkout
+    # (a stale build/lib would otherwise leak deleted modules into later wheels).
+    source = tmp / "source"
+    junk = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for name in ("cmdp_rl", "configs"):
+        shutil.copytree(ROOT / name, source / name, ignore=junk)
+    for name in ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md"):
+        shutil.copy2(ROOT / name, source / name)
     build = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp / "dist"), "."],
-        cwd=ROOT,
+        cwd=source,
         capture_output=True,
         text=True,
         timeout=300,
@@ -49,15 +60,14 @@ def _run(site: Path, cwd: Path, *cmd: str) -> subprocess.CompletedProcess:
 
 
 def test_the_wheel_ships_configs_and_composes_them_as_the_checkout_does(installed, tmp_path):
-    where = _run(installed, tmp_path, sys.executable, "-c", "import cmdp_rl; print(cmdp_rl.__file__)")
-    assert where.returncode == 0, where.stderr[-3000:]
-    assert Path(where.stdout.strip()).is_relative_to(installed)  # the wheel's copy, not the checkout's
     assert (installed / "cmdp_rl" / "configs" / "config.yaml").is_file()
     from_wheel = _run(installed, tmp_path, sys.executable, "-c", COMPOSE)
     from_checkout = subprocess.run([sys.executable, "-c", COMPOSE], cwd=ROOT, capture_output=True, text=True)
     assert from_wheel.returncode == 0 and from_checkout.returncode == 0, from_wheel.stderr + from_checkout.stderr
-    wheel_source, wheel_cfg = from_wheel.stdout.splitlines()
-    checkout_source, checkout_cfg = from_checkout.stdout.splitlines()
+    wheel_module, wheel_source, wheel_cfg = from_wheel.stdout.splitlines()
+    checkout_module, checkout_source, checkout_cfg = from_checkout.stdout.splitlines()
+    assert Path(wheel_module).is_relative_to(installed)  # the wheel's copy, not the checkout's
+    assert Path(checkout_module).is_relative_to(ROOT)
     assert wheel_source == "pkg://cmdp_rl.configs" and Path(checkout_source) == ROOT / "configs"
     assert wheel_cfg == checkout_cfg and "GridEnvConfig" in wheel_cfg
 
