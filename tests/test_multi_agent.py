@@ -181,3 +181,29 @@ def test_mappo_lag_resume_is_exact(tmp_path, quiet):
         torch.equal(a["algo_state"]["networks"][k], b["algo_state"]["networks"][k]) for k in a["algo_state"]["networks"]
     )
     assert a["algo_state"]["multiplier"] == b["algo_state"]["multiplier"]
+
+
+def test_safety_mamujoco_2x3_halfcheetah_steps_with_each_agents_cost():
+    """Safety-Gymnasium's multi-agent velocity task through compat.py and the adapter: the contract
+    holds, each agent's velocity cost reaches the rows, the time limit truncates, and the state
+    restores exactly."""
+    from cmdp_rl.envs.safety_gym.multi_agent import SafetyMaMuJoCo
+
+    env = PettingZooVecEnv(lambda: SafetyMaMuJoCo("HalfCheetah", "2x3", max_steps=12), num_envs=2)
+    assert env.agents == ["agent_0", "agent_1"] and env.action_dim == 3 and env.actor_obs_dim == 12 + 2
+    assert check_env(env, steps=15).cost_names == ("velocity",)
+    env.constraint = "per_agent"
+    env.reset(seed=0)
+    torch.manual_seed(0)
+    for _ in range(4):
+        env.step(torch.rand(4, 3) * 2 - 1)
+    saved = env.state_dict()
+    first = [env.step(torch.full((4, 3), 0.7)) for _ in range(3)]
+    env.load_state_dict(saved)
+    again = [env.step(torch.full((4, 3), 0.7)) for _ in range(3)]
+    for a, b in zip(first, again):
+        assert torch.equal(a.next_obs, b.next_obs) and torch.equal(a.reward, b.reward)
+    assert first[0].cost.shape == (4, 2) and torch.equal(first[0].reward[0], first[0].reward[1])  # team reward
+    for _ in range(5):  # steps 8..12: the time limit ends every team's episode at step 12
+        step = env.step(torch.zeros(4, 3))
+    assert step.truncated.all() and not step.terminated.any()
