@@ -68,7 +68,11 @@ def _evaluate(
     cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, float]:
     n = env.num_envs
-    quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
+    # A multi-agent env's M rows of a team end their episodes together (envs/multi_agent.py): an
+    # episode is the team's, counted once, its return the mean of the agents' returns.
+    m = getattr(env, "agents_per_env", 1)
+    teams = n // m
+    quota = [episodes // teams + (1 if i // m < episodes % teams else 0) for i in range(n)]
     chunk = 128
     collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
     # (return, length, terminated, cost_0, ..., cost_{K-1}) per episode
@@ -87,6 +91,11 @@ def _evaluate(
                         *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
                     )
                 )
+    if m > 1:  # the j-th episode of a team: its agents' mean return, its first row's cost and length
+        rows = [
+            [(sum(rows[i + a][j][0] for a in range(m)) / m, *rows[i][j][1:]) for j in range(quota[i])]
+            for i in range(0, n, m)
+        ]
     flat = [row for r in rows for row in r]
     return summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit)
 

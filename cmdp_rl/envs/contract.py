@@ -342,6 +342,9 @@ def check_env(
     """
     if isinstance(env, gym.Env):
         return _check_gym_envs([env], steps, seed, allow_negative_cost, env_id)
+    own = getattr(env, "check_contract", None)  # an env that checks its own raw steps (multi_agent.py)
+    if own is not None:
+        return own(steps, seed, allow_negative_cost, env_id)
     # cmdp_rl's GymVecEnv keeps its SyncVectorEnv as .envs
     vector = env if isinstance(env, gym.vector.VectorEnv) else getattr(env, "envs", env)
     if isinstance(vector, gym.vector.SyncVectorEnv):
@@ -351,4 +354,16 @@ def check_env(
     return _check_tensor_env(env, steps, seed, allow_negative_cost, env_id)
 
 
-__all__ = ["ACTION_SPACES", "OBSERVATION_SPACES", "EnvContract", "EnvContractError", "check_env", "check_rollout"]
+# The per-value checks, for an env that checks its own raw steps (``check_contract``: a multi-agent
+# env checks each agent's values and names the agent).
+Checker = _Checker
+
+__all__ = [
+    "ACTION_SPACES",
+    "OBSERVATION_SPACES",
+    "Checker",
+    "EnvContract",
+    "EnvContractError",
+    "check_env",
+    "check_rollout",
+]

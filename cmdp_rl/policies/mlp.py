@@ -15,7 +15,7 @@ from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
 from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.registry import register
-from cmdp_rl.validation import Bool, Field, finite, options
+from cmdp_rl.validation import Bool, ConfigError, Field, finite, options
 
 if TYPE_CHECKING:
     from cmdp_rl.envs import VecEnv
@@ -97,8 +97,9 @@ class MLPBody(Body):
     concatenation of observation, previous action and cost. No state, no parameters: the MLP is the
     output network after it."""
 
-    def __init__(self, obs_norm: nn.Module | None, encoder: InputEncoder | None) -> None:
+    def __init__(self, obs_norm: nn.Module | None, encoder: InputEncoder | None, take: int | None = None) -> None:
         super().__init__()
+        self.take = take  # read only the first `take` inputs (a multi-agent row's own part)
         self.prep = encoder if encoder is not None else obs_norm
         self.in_keys = (
             input_keys(encoder.include_prev_action, encoder.include_prev_cost) if encoder is not None else [keys.OBS]
@@ -106,7 +107,8 @@ class MLPBody(Body):
 
     def forward(self, d: Mapping) -> tuple[torch.Tensor]:
         inputs = [d[k] for k in self.in_keys]
-        return (inputs[0] if self.prep is None else self.prep(*inputs),)
+        x = inputs[0] if self.prep is None else self.prep(*inputs)
+        return (x if self.take is None else x[..., : self.take],)
 
 
 def make_encoder(
@@ -127,8 +129,15 @@ def make_mlp_agent(cfg: PolicyConfig, env: VecEnv, normalizers: Normalizers) -> 
     def net(out_dim: int, out_gain: float) -> nn.Sequential:
         return mlp(in_dim, cfg.hidden_sizes, out_dim, cfg.activation, out_gain=out_gain)
 
-    head = make_action_head(env.action_space, net(action_outputs(env.action_space), 0.01), cfg.init_log_std)
-    actor = Actor(MLPBody(obs_norm, encoder), head)
+    # A multi-agent env (envs/multi_agent.py): the shared actor reads its agent's own observation
+    # and id, the critics every agent's (MAPPO's decentralised actor and centralised critic).
+    local = getattr(env, "actor_obs_dim", None)
+    if local is not None and encoder is not None:
+        raise ConfigError("policy.include_prev_action and policy.include_prev_cost must be false on a multi-agent env")
+    actor_net = mlp(local or in_dim, cfg.hidden_sizes, action_outputs(env.action_space), cfg.activation, 0.01)
+    actor = Actor(
+        MLPBody(obs_norm, encoder, take=local), make_action_head(env.action_space, actor_net, cfg.init_log_std)
+    )
     critics = {
         signal: Critic(MLPBody(obs_norm, encoder), net(critic_outputs(signal, env), 1.0))
         for signal in ("reward", "cost")

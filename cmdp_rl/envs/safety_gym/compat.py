@@ -9,8 +9,9 @@ the import work with the fixes below, each applied only as far as needed:
    sit in ``sys.modules`` only while it imports, and are taken out afterwards.
 2. gymnasium 1.0 removed two private helpers of ``gymnasium.envs.registration`` that its
    ``registration`` module imports by name; set there only while it imports, then deleted again.
-3. Its multi-agent tasks import ``gymnasium_robotics`` (not installed, not offered): a stand-in
-   module while it imports, unless the real package is installed.
+3. Its multi-agent tasks import ``gymnasium_robotics``: a stand-in module while it imports, unless
+   the real package is installed (the ``safety_gym`` extra installs it; ``multi_agent.py`` builds
+   those tasks).
 4. Python 3.11's dataclasses refuse unhashable defaults, and its colour defaults are numpy arrays:
    an import hook makes those arrays hashable right after ``safety_gymnasium.assets.color`` runs.
 5. mujoco 3 made ``MjModel.jnt`` accept only an int or a name; its Car, Racecar and Doggo robots
