@@ -7,7 +7,7 @@ TORCH_VERSION := 2.13.0
 .PHONY: setup setup-safety-gym train test bench bench-velocity bench-velocity-smoke bench-safety-gym \
 	bench-safety-gym-smoke sweep probe-belief clean
 
-.venv/.installed: pyproject.toml
+.venv/.installed: pyproject.toml setup.py
 	test -x $(PY) || python3 -m venv .venv
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q torch==$(TORCH_VERSION)

@@ -9,6 +9,8 @@
   the seed exercise's answers derived from it;
 - ``penalty_vs_constraint``: that study's command (the sweeps' report, the batched grid);
 - ``pid_damping``, ``probe_belief``: those studies' reports (docs/pid_and_cpo.md, docs/probe_belief.md);
+- ``budget_report``: CPO against PPO-Lagrangian at one budget (docs/pid_and_cpo.md);
+- ``grid_seeds``: the gridworld over seeds against its exact optimum (docs/grid.md);
 - ``grid_policy``, ``fork_policy``: a trained policy's exact value on the tabular tasks.
 
 ``experiments/studies/`` holds the thin command lines over these.
