@@ -79,11 +79,12 @@ class GoalTask:
                 hit[i] = bool(np.any(speed >= VASE_SPEED))
         return hit
 
-    def _new_goal(self, i: int, world: dict[str, np.ndarray]) -> bool:
-        """Env ``i`` reached its goal: a new one, clear of where everything is now (False: none)."""
-        others = [(*to_host(world["agent_pos"][i, :2]), AGENT_KEEPOUT)]
-        others += [(*xy, HAZARD_KEEPOUT) for xy in to_host(self.hazards[i])]
-        others += [(*xy, VASE_KEEPOUT) for xy in to_host(world["xpos"][i, self.worlds.vases, :2])]
+    def _new_goal(self, i: int, agent_xy: np.ndarray, hazards: np.ndarray, vases: np.ndarray) -> bool:
+        """Env ``i`` reached its goal: a new one, clear of where everything is now (host arrays of
+        env ``i``), or False if none is found."""
+        others = [(*agent_xy, AGENT_KEEPOUT)]
+        others += [(*xy, HAZARD_KEEPOUT) for xy in hazards]
+        others += [(*xy, VASE_KEEPOUT) for xy in vases]
         goal = self.sampler.goal(i, others)
         if goal is None:
             return False
@@ -104,9 +105,14 @@ class GoalTask:
             cost |= self._vase_cost()
         terminated = zeros(dist, (len(dist),), "bool")
         self.last_dist = dist
-        for i in np.flatnonzero(to_host(reached)):
-            if self._new_goal(i, world):
-                offset = to_host(self.goal[i]) - to_host(world["agent_pos"][i, :2])
+        hit = np.flatnonzero(to_host(reached))
+        if len(hit):  # the sampler runs on the host: what it needs comes over once per step
+            agent = to_host(world["agent_pos"][hit, :2])
+            hazards = to_host(self.hazards[hit])
+            vases = to_host(world["xpos"][hit][:, self.worlds.vases, :2])
+        for k, i in enumerate(hit):
+            if self._new_goal(i, agent[k], hazards[k], vases[k]):
+                offset = to_host(self.goal[i]) - agent[k]
                 self.last_dist[i] = math.sqrt(float(np.sum(np.square(offset))))
             else:
                 terminated[i] = True

@@ -141,14 +141,21 @@ class WarpWorlds:
 
     def _replay(self, name: str, launches) -> None:
         """Run ``launches`` (always on the same arrays) as a graph: recorded on the first call
-        (recording runs nothing), replayed on every call."""
+        (recording runs nothing), replayed on every call. On a GPU, Warp's stream first waits for
+        torch's (which wrote the controls and states) and torch's then waits for Warp's (which
+        wrote what torch reads next): events on the device, no host synchronisation."""
         wp = self.wp
+        cuda = self.device.type == "cuda"
         with wp.ScopedDevice(self.wp_device):
+            if cuda:
+                wp.get_stream().wait_stream(wp.stream_from_torch(self.device))
             if name not in self._graphs:
                 with wp.ScopedCapture() as capture:
                     launches()
                 self._graphs[name] = capture.graph
             wp.capture_launch(self._graphs[name])
+            if cuda:
+                wp.stream_from_torch(self.device).wait_stream(wp.get_stream())
 
     def _physics(self) -> None:
         for _ in range(FRAMESKIP):
@@ -181,8 +188,9 @@ class WarpWorlds:
         """Every world's MuJoCo integration state ``[N, size]`` (float32 on Warp)."""
         self._flush()
         self.active.fill_(True)
-        with self.wp.ScopedDevice(self.wp_device):
-            self.mjw.get_state(self.model, self.data, self._states, int(self.state_kind), self._active)
+        self._replay(
+            "get", lambda: self.mjw.get_state(self.model, self.data, self._states, int(self.state_kind), self._active)
+        )
         return self.states.cpu().numpy().copy()
 
     def set_states(self, states: np.ndarray) -> None:
