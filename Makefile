@@ -4,7 +4,7 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup setup-safety-gym train test bench bench-velocity bench-velocity-smoke bench-safety-gym \
+.PHONY: setup setup-safety-gym setup-mjwarp train test bench bench-velocity bench-velocity-smoke bench-safety-gym \
 	bench-safety-gym-smoke sweep probe-belief clean
 
 .venv/.installed: pyproject.toml setup.py
@@ -42,6 +42,14 @@ SAFETY_GYM_VERSION := 1.0.0
 	touch $@
 
 setup-safety-gym: .venv/.safety_gym
+
+# MuJoCo Warp for env=safe_nav env.physics=mjwarp (docs/safe_nav.md): the `mjwarp` extra, 149 MB.
+# Optional: tests/test_safe_nav_warp.py skips without it.
+.venv/.mjwarp: .venv/.safety_gym
+	$(PY) -m pip install -q -e '.[mjwarp]'
+	touch $@
+
+setup-mjwarp: .venv/.mjwarp
 
 # The Safety-Gymnasium benchmark (experiments/benchmarks/safety_gym_benchmark.py): ppo, ppo_lag, pid_lag and cpo on
 # SafetyPointGoal1-v0 and SafetyCarGoal1-v0, 3 seeds, 500k steps each (hours on 2 cores), then the report.

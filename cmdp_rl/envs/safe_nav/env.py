@@ -13,6 +13,9 @@ reset recompiles the MuJoCo model; physics is a tenth of it. Here:
   the N envs: one module per family (``safe_nav_goal.py``, ``safe_nav_circle.py``,
   ``safe_nav_button.py``, ``safe_nav_push.py``), in ``FAMILIES``.
 
+``env.physics=mjwarp`` steps the same world on MuJoCo Warp instead (``warp_world.py``: Warp's CPU
+device or a GPU), with the same layouts and the same task logic run in torch on that device.
+
 This module: the batch itself (physics step, the robot's sensors, which every family observes
 first: accelerometer, velocimeter, gyro and magnetometer, Car's rear ball joint's angular velocity
 and rotation matrix), the time limit, per-env automatic reset, and resume.
@@ -20,18 +23,20 @@ and rotation matrix), the time limit, per-env automatic reset, and resume.
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import torch
 
 from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.safe_nav.arrays import namespace, to_host
 from cmdp_rl.envs.safe_nav.button import ButtonTask
 from cmdp_rl.envs.safe_nav.circle import CircleTask
 from cmdp_rl.envs.safe_nav.goal import GoalTask
 from cmdp_rl.envs.safe_nav.layout import LayoutSampler
 from cmdp_rl.envs.safe_nav.lidar import LIDAR_BINS, pseudo_lidar
 from cmdp_rl.envs.safe_nav.push import PushTask
+from cmdp_rl.envs.safe_nav.warp_world import WARP_TASKS, WarpWorlds, warp_problem
 from cmdp_rl.envs.safe_nav.world import ROBOTS, NavWorlds, nav_spec
 from cmdp_rl.envs.vector import Step, VecEnv
 from cmdp_rl.registry import register
@@ -59,6 +64,15 @@ def task_problem(task: str) -> str | None:
     return f"env.task must be one of {', '.join(TASKS)}, got {task!r}"
 
 
+def physics_problem(physics: str, task: str) -> str | None:
+    """None if ``env.physics`` can run ``task`` here, else the one-line config error saying why not."""
+    if physics != "mjwarp":
+        return None
+    if task not in WARP_TASKS:
+        return f"env.physics: mjwarp offers {', '.join(WARP_TASKS)}, not {task} (env.physics=mujoco runs it)"
+    return warp_problem()
+
+
 def _sensor_plan(model) -> list[tuple[str, int, int]]:
     """(how, address, size) of each observed sensor, in the reference's observation order: the four
     named sensors, hinge velocities, ball angular velocities, then hinge angles (as sin, cos) and
@@ -77,10 +91,10 @@ def _sensor_plan(model) -> list[tuple[str, int, int]]:
     return [(how, int(model.sensor_adr[i]), int(model.sensor_dim[i])) for how, i in plan]
 
 
-def _quat_mat(q: np.ndarray) -> np.ndarray:
+def _quat_mat(q):
     """Rotation matrices ``[N, 9]`` (row-major) of unit quaternions ``[N, 4]`` (w, x, y, z)."""
     w, x, y, z = q.T
-    return np.stack(
+    return namespace(q).stack(
         [
             1 - 2 * (y * y + z * z),
             2 * (x * y - w * z),
@@ -97,20 +111,31 @@ def _quat_mat(q: np.ndarray) -> np.ndarray:
 
 
 class SafeNavVecEnv(VecEnv):
-    """N instances of one navigation task (module docstring), stepped as one batch on the CPU;
-    tensors handed out live on ``device``."""
+    """N instances of one navigation task (module docstring), stepped as one batch: on the CPU
+    (``physics="mujoco"``) or on MuJoCo Warp on ``device`` (``physics="mjwarp"``); tensors handed
+    out live on ``device``."""
 
     def __init__(
-        self, task: str, num_envs: int, max_steps: int = 0, device: str | torch.device = "cpu", threads: int = 1
+        self,
+        task: str,
+        num_envs: int,
+        max_steps: int = 0,
+        device: str | torch.device = "cpu",
+        threads: int = 1,
+        physics: str = "mujoco",
     ) -> None:
-        problem = task_problem(task)
+        problem = task_problem(task) or physics_problem(physics, task)
         if problem:
             raise ConfigError(problem)
         self.task = task
+        self.physics = physics
         self.spec = nav_spec(task)
         self.num_envs = num_envs
         self.device = torch.device(device)
-        self.worlds = NavWorlds(self.spec, num_envs, threads)
+        if physics == "mjwarp":
+            self.worlds = WarpWorlds(self.spec, num_envs, self.device)
+        else:
+            self.worlds = NavWorlds(self.spec, num_envs, threads)
         self.sampler = LayoutSampler(self.spec, num_envs)
         self.logic = FAMILIES[self.spec.family](self.worlds, self.sampler)
         self.max_steps = max_steps or self.logic.episode
@@ -133,8 +158,10 @@ class SafeNavVecEnv(VecEnv):
         self.worlds.close()
 
     # --- reading the worlds -------------------------------------------------------------------
-    def _gather(self, envs) -> dict[str, np.ndarray]:
+    def _gather(self, envs) -> dict:
         w = self.worlds
+        if self.physics == "mjwarp":
+            return w.gather(envs)
         datas = [w.datas[i] for i in envs]
         xpos = np.stack([d.xpos for d in datas])
         mat = np.stack([d.xmat[w.agent] for d in datas]).reshape(-1, 3, 3)
@@ -145,21 +172,22 @@ class SafeNavVecEnv(VecEnv):
             "agent_mat": mat,
         }
 
-    def _obs(self, envs, world: dict[str, np.ndarray]) -> np.ndarray:
+    def _obs(self, envs, world: dict):
         sd = world["sensordata"]
+        xp = namespace(sd)
         cols = []
         for how, adr, dim in self.sensors:
             if how == "raw":
                 cols.append(sd[:, adr : adr + dim])
             elif how == "sincos":
-                cols += [np.sin(sd[:, adr : adr + 1]), np.cos(sd[:, adr : adr + 1])]
+                cols += [xp.sin(sd[:, adr : adr + 1]), xp.cos(sd[:, adr : adr + 1])]
             else:
                 cols.append(_quat_mat(sd[:, adr : adr + 4]))
         cols += self.logic.lidars(envs, world)
-        return np.concatenate(cols, axis=1)
+        return xp.concatenate(cols, axis=1)
 
     # --- episodes ------------------------------------------------------------------------------
-    def _start(self, envs: list[int], layouts: list[dict[str, Any]] | None = None) -> np.ndarray:
+    def _start(self, envs: list[int], layouts: list[dict[str, Any]] | None = None):
         """New episodes for ``envs`` (from new layouts, or the ones given); their first observations."""
         if layouts is None:
             layouts = [self.sampler.layout(i) for i in envs]
@@ -186,23 +214,26 @@ class SafeNavVecEnv(VecEnv):
         self.sampler.seed(seeds)
         return self._tensor(self._start(list(range(self.num_envs))))
 
-    def _tensor(self, x: np.ndarray, dtype=torch.float32) -> torch.Tensor:
+    def _tensor(self, x, dtype=torch.float32) -> torch.Tensor:
+        if isinstance(x, torch.Tensor):  # mjwarp: already on the device
+            return x.to(dtype=dtype, device=self.device)
         return torch.from_numpy(np.ascontiguousarray(x)).to(dtype=dtype, device=self.device)
 
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
         n, every = self.num_envs, slice(None)
-        self.worlds.step(action.detach().cpu().numpy().astype(np.float64))
+        warp = self.physics == "mjwarp"
+        self.worlds.step(action.detach() if warp else action.detach().cpu().numpy().astype(np.float64))
         self.sampler.pending += 1  # the reference's per-step draw
-        world = self._gather(range(n))
+        world = self._gather(every if warp else range(n))
         reward, cost, terminated = self.logic.step(world)
         self.steps += 1
         truncated = self.steps >= self.max_steps
         next_obs = self._obs(every, world)
         obs = next_obs
-        done = np.flatnonzero(terminated | truncated)
+        done = np.flatnonzero(to_host(terminated) | truncated)
         if len(done):
-            obs = next_obs.copy()
+            obs = next_obs.clone() if warp else next_obs.copy()
             obs[done] = self._start(list(done))
         self.last = {"next_obs": next_obs, "reward": reward, "obs": obs}  # float64, for fidelity checks
         return Step(
@@ -218,16 +249,20 @@ class SafeNavVecEnv(VecEnv):
     def state_dict(self) -> dict[str, Any]:
         """Each env's layout, task state (e.g. its goal) and MuJoCo integration state, the step
         counters and the random streams: a fresh env restored from it continues bit for bit."""
-        mj = self.worlds.mj
-        spec = mj.mjtState.mjSTATE_INTEGRATION
-        states = []
-        for m, d in zip(self.worlds.models, self.worlds.datas):
-            state = np.empty(mj.mj_stateSize(m, spec))
-            mj.mj_getState(m, d, state, spec)
-            states.append(state)
+        if self.physics == "mjwarp":
+            states = list(self.worlds.get_states())
+        else:
+            mj = self.worlds.mj
+            spec = mj.mjtState.mjSTATE_INTEGRATION
+            states = []
+            for m, d in zip(self.worlds.models, self.worlds.datas):
+                state = np.empty(mj.mj_stateSize(m, spec))
+                mj.mj_getState(m, d, state, spec)
+                states.append(state)
         return {
             "num_envs": self.num_envs,
             "task": self.task,
+            "physics": self.physics,
             "layouts": self.layouts,
             "steps": self.steps.copy(),
             "mujoco": states,
@@ -236,16 +271,22 @@ class SafeNavVecEnv(VecEnv):
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["num_envs"] != self.num_envs or state["task"] != self.task:
+        saved_physics = state.get("physics", "mujoco")
+        if state["num_envs"] != self.num_envs or state["task"] != self.task or saved_physics != self.physics:
             raise ValueError(
-                f"env: saved state is for {state['num_envs']} envs of {state['task']}, "
-                f"this one has {self.num_envs} of {self.task}"
+                f"env: saved state is for {state['num_envs']} envs of {state['task']} on {saved_physics}, "
+                f"this one has {self.num_envs} of {self.task} on {self.physics}"
             )
         mj = self.worlds.mj
         for i, layout in enumerate(state["layouts"]):
             self.layouts[i] = layout
             self.worlds.place(i, layout)
         self.logic.load_state_dict(state, self.layouts)
+        if self.physics == "mjwarp":
+            self.worlds.set_states(np.stack(state["mujoco"]))
+            self.steps[:] = state["steps"]
+            self.sampler.load_state_dict(state["sampler"])
+            return
         for m, d, saved in zip(self.worlds.models, self.worlds.datas, state["mujoco"]):
             mj.mj_setState(m, d, saved, mj.mjtState.mjSTATE_INTEGRATION)
             mj.mj_forward(m, d)
@@ -262,12 +303,13 @@ class SafeNavEnvConfig(EnvOptions):
     task: Annotated[str, Field(pattern=r"\S", description="a navigation task, e.g. PointGoal1")] = "PointGoal1"
     max_steps: Annotated[int, Field(ge=0, description="an integer >= 0 (0: the task's limit)")] = 0
     threads: PositiveInt = 1
+    physics: Literal["mujoco", "mjwarp"] = "mujoco"
 
     def env_id(self) -> str:
         return f"safe_nav/{self.task}"
 
     def check(self, run: Any) -> None:
-        problem = task_problem(self.task)
+        problem = task_problem(self.task) or physics_problem(self.physics, self.task)
         if problem:
             raise ConfigError(problem)
         episode = FAMILIES[nav_spec(self.task).family].episode
@@ -288,7 +330,7 @@ class SafeNavEnvConfig(EnvOptions):
 
 
 def make_safe_nav_vec_env(cfg: SafeNavEnvConfig, num_envs: int, device: str = "cpu") -> SafeNavVecEnv:
-    return SafeNavVecEnv(cfg.task, num_envs, cfg.max_steps, device=device, threads=cfg.threads)
+    return SafeNavVecEnv(cfg.task, num_envs, cfg.max_steps, device=device, threads=cfg.threads, physics=cfg.physics)
 
 
 register("env", "safe_nav", SafeNavEnvConfig, make_safe_nav_vec_env)

@@ -238,6 +238,8 @@ class NavWorlds:
     world.
     """
 
+    proto = np.zeros(0)  # the task logic's arrays are numpy float64 (``arrays.py``)
+
     def __init__(self, spec: NavSpec, num_envs: int, threads: int = 1) -> None:
         import mujoco
 

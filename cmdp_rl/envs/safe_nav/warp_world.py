@@ -1,0 +1,207 @@
+"""The MuJoCo Warp side of ``env=safe_nav`` (``env.physics=mjwarp``): the same world, N at once.
+
+The world is ``world.py``'s: the same MJCF compiled once by MuJoCo, with the reference's body order
+and geoms, then put on MuJoCo Warp (``mujoco_warp.put_model``) with one world per env, on the env's
+device (Warp's CPU device, or a CUDA GPU). A layout is placed exactly as on ``env.physics=mujoco``:
+by :class:`NavWorlds`' ``place`` on one host copy of the model (bodies moved, ``mj_setConst``,
+``mj_resetData``, ``mj_forward``), whose per-world fields (the ones placing changes: body poses,
+initial joint poses, what ``mj_setConst`` derives from them) and integration state are then copied
+into that env's world. An env step is ten ``mujoco_warp.step`` and one ``mujoco_warp.forward`` over
+every world, recorded once as a graph and replayed (a CUDA graph on a GPU; on the CPU, Warp's own
+graph replayed in C++): launched from Python one by one, the step's thousand-odd kernel launches
+cost about 15 times more than the physics on the CPU device.
+
+Observations are read from Warp's arrays as torch tensors without a copy (``warp.to_torch``), so
+the task logic (``goal.py``, ``lidar.py``: the same functions as on ``mujoco``) runs in torch on
+the same device. MuJoCo Warp computes in float32, with its own solver implementation: trajectories
+are close to ``mujoco``'s, not equal (docs/safe_nav.md gives the measured differences).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import torch
+
+from cmdp_rl.envs.safe_nav.world import FRAMESKIP, NavSpec, NavWorlds
+
+# What env.physics=mjwarp offers: the Goal tasks without vase costs (a level-2 vase cost reads
+# MuJoCo's contact list, which MuJoCo Warp lays out differently), Point and Car.
+WARP_TASKS = ("PointGoal0", "PointGoal1", "CarGoal0", "CarGoal1")
+
+# Model fields that placing a layout changes (checked against every MjModel field in
+# tests/test_safe_nav_warp.py), one row per world; the rest are shared by all worlds.
+PER_WORLD = (
+    "body_pos",
+    "body_quat",
+    "qpos0",
+    "qpos_spring",
+    "body_invweight0",
+    "dof_invweight0",
+    "actuator_acc0",
+)
+# Constraint capacity per world: contacts, and constraint rows (condim 6 in a pyramidal cone is 10
+# rows per contact; a robot, a vase and the floor stay well below).
+NCONMAX, NJMAX = 48, 256
+
+
+def warp_problem() -> str | None:
+    """None if MuJoCo Warp can be imported, else the one-line config error saying how to get it."""
+    if importlib.util.find_spec("mujoco_warp") is None or importlib.util.find_spec("warp") is None:
+        return "env.physics: mjwarp needs MuJoCo Warp: pip install -e '.[mjwarp]' (or env.physics=mujoco)"
+    return None
+
+
+def warp_device(device: torch.device) -> str:
+    """Warp's name for a torch device: ``cpu`` or ``cuda:<index>``."""
+    return "cpu" if device.type == "cpu" else f"cuda:{device.index or 0}"
+
+
+class WarpWorlds:
+    """N worlds of one navigation task on MuJoCo Warp (module docstring); the same interface as
+    :class:`NavWorlds` where the env and the task logic use it (``place``, ``step``, ``move_goal``,
+    the body indices), plus :meth:`gather` (the arrays the task logic reads, as torch tensors)."""
+
+    def __init__(self, spec: NavSpec, num_envs: int, device: torch.device) -> None:
+        import mujoco
+        import mujoco_warp as mjw
+        import warp as wp
+
+        self.mj, self.mjw, self.wp = mujoco, mjw, wp
+        wp.config.quiet = True
+        self.host = NavWorlds(spec, 1)  # places layouts with MuJoCo's own compiler steps
+        h = self.host
+        self.spec, self.agent, self.goal, self.hazards, self.vases = h.spec, h.agent, h.goal, h.hazards, h.vases
+        self.ctrl_low, self.ctrl_high, self.goal_z = h.ctrl_low, h.ctrl_high, h.goal_z
+        self.models = h.models  # the host model: names and sizes (one, not N)
+        self.device = torch.device(device)
+        self.wp_device = warp_device(self.device)
+        self._n = num_envs
+        m, d = h.models[0], h.datas[0]
+        self.state_kind = mujoco.mjtState.mjSTATE_INTEGRATION
+        self.state_size = mujoco.mj_stateSize(m, self.state_kind)
+        with wp.ScopedDevice(self.wp_device):
+            self.model = mjw.put_model(m, batch_sizes={f: num_envs for f in PER_WORLD})
+            self.data = mjw.put_data(m, d, nworld=num_envs, nconmax=NCONMAX, njmax=NJMAX)
+            self._states = wp.zeros((num_envs, self.state_size), dtype=float)
+            self._active = wp.zeros(num_envs, dtype=bool)
+        view = wp.to_torch
+        self.fields = {f: view(getattr(self.model, f)) for f in PER_WORLD}
+        self.states, self.active = view(self._states), view(self._active)
+        self.ctrl = view(self.data.ctrl)
+        self.sensordata, self.xpos, self.xmat = view(self.data.sensordata), view(self.data.xpos), view(self.data.xmat)
+        self.proto = self.xpos.new_zeros(0)  # the task logic's arrays: this library, device, dtype
+        self.low = torch.as_tensor(self.ctrl_low, dtype=self.ctrl.dtype, device=self.device)
+        self.high = torch.as_tensor(self.ctrl_high, dtype=self.ctrl.dtype, device=self.device)
+        self._staged: dict[int, tuple[dict[str, np.ndarray], np.ndarray]] = {}
+        self._graphs: dict[str, object] = {}
+
+    @property
+    def num_envs(self) -> int:
+        return self._n
+
+    # --- layouts -------------------------------------------------------------------------------
+    def place(self, i: int, layout: dict) -> None:
+        """Env ``i`` starts over from ``layout``; written to the device at the next read or step."""
+        h, mj = self.host, self.mj
+        h.place(0, layout)
+        m, d = h.models[0], h.datas[0]
+        state = np.empty(self.state_size)
+        mj.mj_getState(m, d, state, self.state_kind)
+        self._staged[i] = ({f: getattr(m, f).copy() for f in PER_WORLD}, state)
+
+    def _flush(self) -> None:
+        """Write the staged layouts' fields and fresh states to their worlds, then recompute what
+        follows from a state (positions, sensors) for every world (idempotent for the others)."""
+        if not self._staged:
+            return
+        envs = sorted(self._staged)
+        rows = [self._staged[i] for i in envs]
+        idx = torch.as_tensor(envs, device=self.device)
+        for f, view in self.fields.items():
+            values = np.stack([r[0][f] for r in rows]).reshape((len(envs),) + tuple(view.shape[1:]))
+            view[idx] = torch.as_tensor(values, dtype=view.dtype, device=self.device)
+        self.states[idx] = torch.as_tensor(np.stack([r[1] for r in rows]), dtype=self.states.dtype, device=self.device)
+        self.active.zero_()
+        self.active[idx] = True
+        self._staged.clear()
+        self._replay("start", self._set_states)
+
+    def move_goal(self, i: int, xy: np.ndarray) -> None:
+        """A new goal mid-episode: the goal has no contacts, so only its position changes."""
+        self.fields["body_pos"][i, self.goal, :2] = torch.as_tensor(xy, dtype=self.xpos.dtype, device=self.device)
+
+    # --- stepping ------------------------------------------------------------------------------
+    def step(self, ctrl: torch.Tensor) -> None:
+        """One env step of every world: ``ctrl`` ``[N, nu]`` (clipped to the actuators' range)."""
+        self._flush()
+        self.ctrl.copy_(torch.clamp(ctrl.to(self.ctrl.dtype), self.low, self.high))
+        self._replay("step", self._physics)
+
+    def _replay(self, name: str, launches) -> None:
+        """Run ``launches`` (always on the same arrays) as a graph: recorded on the first call
+        (recording runs nothing), replayed on every call. On a GPU, Warp's stream first waits for
+        torch's (which wrote the controls and states) and torch's then waits for Warp's (which
+        wrote what torch reads next): events on the device, no host synchronisation."""
+        wp = self.wp
+        cuda = self.device.type == "cuda"
+        with wp.ScopedDevice(self.wp_device):
+            if cuda:
+                wp.get_stream().wait_stream(wp.stream_from_torch(self.device))
+            if name not in self._graphs:
+                with wp.ScopedCapture() as capture:
+                    launches()
+                self._graphs[name] = capture.graph
+            wp.capture_launch(self._graphs[name])
+            if cuda:
+                wp.stream_from_torch(self.device).wait_stream(wp.get_stream())
+
+    def _physics(self) -> None:
+        for _ in range(FRAMESKIP):
+            self.mjw.step(self.model, self.data)
+        self.mjw.forward(self.model, self.data)
+
+    def _set_states(self) -> None:
+        """The worlds marked in ``active`` take the states in ``states``; positions and sensors follow."""
+        self.mjw.set_state(self.model, self.data, self._states, int(self.state_kind), self._active)
+        self.mjw.forward(self.model, self.data)
+
+    def gather(self, envs) -> dict[str, torch.Tensor]:
+        """What the task logic reads of ``envs`` (``slice(None)``: all), as torch tensors on the
+        device, read from Warp's arrays without a host copy."""
+        self._flush()
+        xpos = self.xpos[envs]
+        return {
+            "sensordata": self.sensordata[envs],
+            "xpos": xpos,
+            "agent_pos": xpos[:, self.agent],
+            "agent_mat": self.xmat[envs][:, self.agent],
+        }
+
+    def overflow(self) -> np.ndarray:
+        """Each world's overflow bits (contacts or constraint rows beyond capacity; 0: none)."""
+        return self.data.overflow.numpy()
+
+    # --- resume --------------------------------------------------------------------------------
+    def get_states(self) -> np.ndarray:
+        """Every world's MuJoCo integration state ``[N, size]`` (float32 on Warp)."""
+        self._flush()
+        self.active.fill_(True)
+        self._replay(
+            "get", lambda: self.mjw.get_state(self.model, self.data, self._states, int(self.state_kind), self._active)
+        )
+        return self.states.cpu().numpy().copy()
+
+    def set_states(self, states: np.ndarray) -> None:
+        """Every world continues from ``states`` (after its layout was placed)."""
+        self._flush()
+        self.states.copy_(torch.as_tensor(np.asarray(states), dtype=self.states.dtype))
+        self.active.fill_(True)
+        self._replay("start", self._set_states)
+
+    def close(self) -> None:
+        self.host.close()
+
+
+__all__ = ["NCONMAX", "NJMAX", "PER_WORLD", "WARP_TASKS", "WarpWorlds", "warp_device", "warp_problem"]
