@@ -11,7 +11,6 @@ The four tasks with two envs each are ``slow`` (minutes): ``pytest -m slow tests
 """
 
 import importlib.util
-import sys
 
 import numpy as np
 import pytest
@@ -22,17 +21,15 @@ if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_s
 if importlib.util.find_spec("mujoco_warp") is None:
     pytest.skip("MuJoCo Warp is installed by `make setup-mjwarp` (the mjwarp extra)", allow_module_level=True)
 
-from conftest import ROOT, eval_result, metrics_rows  # noqa: E402
+from conftest import eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import train  # noqa: E402
+from cmdp_rl.bench.safe_nav_fidelity import steer  # noqa: E402  (the steering the fidelity table uses)
 from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
 from cmdp_rl.envs.safe_nav.physics_compare import compare_physics  # noqa: E402
 from cmdp_rl.envs.safe_nav.warp_world import PER_WORLD, WARP_TASKS  # noqa: E402
 from cmdp_rl.envs.safe_nav.world import NavWorlds, nav_spec  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "experiments" / "fidelity"))
-from safe_nav_fidelity import steer  # noqa: E402  (the steering the fidelity table uses)
 
 RENDER_ONLY = ("cam_", "light_")  # camera and light fields: no physics reads them
 # One for all worlds in MuJoCo Warp, and read only when sleeping is enabled (it is not here).
