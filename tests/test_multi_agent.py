@@ -207,3 +207,36 @@ def test_safety_mamujoco_2x3_halfcheetah_steps_with_each_agents_cost():
     for _ in range(5):  # steps 8..12: the time limit ends every team's episode at step 12
         step = env.step(torch.zeros(4, 3))
     assert step.truncated.all() and not step.terminated.any()
+
+
+class TwoCostTeam(TeamWork):
+    """Each agent reports K = 2 costs: its strain and a flag for sprinting."""
+
+    cost_names = None  # found from the info, named cost_0, cost_1
+
+    def step(self, actions):
+        out = super().step(actions)
+        for a, info in out[4].items():
+            info["cost"] = np.array([info["cost"], float(int(actions[a]) == SPRINT)])
+        return out
+
+
+class MismatchedTeam(TeamWork):
+    """worker_1 reports two costs, worker_0 one."""
+
+    def step(self, actions):
+        out = super().step(actions)
+        out[4]["worker_1"]["cost"] = [1.0, 0.0]
+        return out
+
+
+def test_k_costs_per_agent_sum_for_the_team_or_stay_per_agent():
+    env = PettingZooVecEnv(TwoCostTeam, num_envs=1)
+    assert env.cost_names == ("cost_0", "cost_1") and check_env(env).num_costs == 2
+    env.reset(seed=0)
+    assert env.step(torch.tensor([[SPRINT], [WORK]])).cost.tolist() == [[2.0, 1.0], [2.0, 1.0]]
+    env.constraint = "per_agent"
+    assert env.cost_names == ("worker_0/cost_0", "worker_0/cost_1", "worker_1/cost_0", "worker_1/cost_1")
+    assert env.step(torch.tensor([[SPRINT], [WORK]])).cost[0].tolist() == [1.5, 1.0, 0.5, 0.0]
+    with pytest.raises(EnvContractError, match="agents report different numbers of costs"):
+        check_env(PettingZooVecEnv(MismatchedTeam, num_envs=1))

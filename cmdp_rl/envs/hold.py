@@ -4,8 +4,8 @@
 ``cmdp_rl.actions.hybrid``). On a decision step (an episode's first step, then every ``k``-th) the
 skill the policy emits is taken and held; on the ``k - 1`` steps after it the env steps with the
 held skill whatever the policy emits, and the policy's parameters every step. The observation
-gains what the low-level policy needs to know: a one-hot of the held skill (zeros before the first
-decision) and the hold's phase ``j / k`` (0 on a decision step).
+gains what the low-level policy needs to know: a one-hot of the held skill (zeros on a decision
+step, where a new one is chosen) and the hold's phase ``j / k`` (0 on a decision step).
 
 Credit (docs/multi_agent_and_hybrid.md): the batch stays one row per env step, so GAE runs as for
 any env. The skill chosen at a decision step t is credited through that step's advantage
