@@ -10,7 +10,7 @@ from conftest import eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.population import train_population
-from cmdp_rl.population.spec import agent_configs
+from cmdp_rl.population.spec import agent_configs, batched_algos
 from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
@@ -80,6 +80,62 @@ def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
         assert_close(eval_result(dirs[i]), eval_result(single), f"agent {i} eval")
 
 
+# Options that make an algorithm's own arithmetic act in a tiny run: FOCOPS's multiplier and its
+# KL mask, CRPO's switch (a budget it overspends), Sauté's budget state.
+ALGO_OPTIONS = {
+    "focops": {"nu_lr": 0.5, "target_kl": 0.005},
+    "crpo": {"tolerance": 0.0},
+    "saute": {"unsafe_reward": -0.5},
+}
+
+
+@pytest.mark.parametrize("name", batched_algos())
+def test_every_batched_algorithm_trains_as_its_single_runs(tmp_path, name):
+    """Enumerated from the registry: each algorithm a population accepts, two agents with their own
+    budget and seed, each equal to ``train()`` on its own config.yaml."""
+    algo = {"name": name, "update_epochs": 2, "num_minibatches": 2, **ALGO_OPTIONS.get(name, {})}
+    raw = torch_tiny(algo=algo)
+    if name != "ppo_lag":
+        del raw["algo"]["lambda_lr"]
+    raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}
+    pop = _population(tmp_path, raw)
+    for i, d in enumerate(sorted((pop / "agents").iterdir())):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        rows, expected = metrics_rows(d), metrics_rows(single)
+        assert len(rows) == len(expected) == 4
+        assert_close(rows, expected, f"{name} agent {i} metrics")
+        assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
+
+
+def test_the_ppo_family_is_batched():
+    assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "saute"} <= set(batched_algos())
+
+
+@pytest.mark.parametrize(
+    "algo",
+    [
+        # KL early stopping as a per-agent mask: a limit some agents reach in some iterations.
+        {"name": "ppo", "target_kl": 0.002, "update_epochs": 4},
+        # Annealed rates (and lambda's step size) per agent, on each agent's own clock.
+        {"name": "ppo_lag", "anneal_lr": True, "anneal_lambda_lr": True},
+    ],
+)
+def test_per_agent_schedules_match_single_runs(tmp_path, algo):
+    raw = torch_tiny(algo=algo)
+    if algo["name"] != "ppo_lag":
+        del raw["algo"]["lambda_lr"]
+    raw["population"] = {"seeds": 2, "grid": {"algo": {"lr": [3e-4, 3e-3]}}}
+    pop = _population(tmp_path, raw)
+    for i, d in enumerate(sorted((pop / "agents").iterdir())):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        assert_close(metrics_rows(d), metrics_rows(single), f"agent {i} metrics")
+        assert_close(eval_result(d), eval_result(single), f"agent {i} eval")
+
+
 def test_population_outputs_are_runs(tmp_path):
     raw = torch_tiny()
     raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2, 0.5]}}}
@@ -137,7 +193,6 @@ def test_bad_population_config_is_one_line(population, message):
         ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
         ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
         ({"normalize": {"obs": True}}, "population: normalize is not batched"),
-        ({"algo": {"anneal_lr": True}}, "population: algo.anneal_lr / anneal_lambda_lr is not batched"),
     ],
 )
 def test_unsupported_population_is_refused(change, refused):

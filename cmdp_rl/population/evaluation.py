@@ -17,7 +17,7 @@ from cmdp_rl.collector import Collector
 from cmdp_rl.config import RunConfig
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, summarize_episodes
 from cmdp_rl.population.agent import PopulationAgent
-from cmdp_rl.population.env import PopulationReach1D
+from cmdp_rl.population.env import population_env
 
 CHUNK = 128  # steps per collect, as evaluation.py
 
@@ -27,9 +27,8 @@ def evaluate_population(
 ) -> list[dict[str, Any]]:
     cfg = cfgs[0]
     n = min(cfg.eval_episodes, cfg.env.num_envs)
-    env = PopulationReach1D([c.env for c in cfgs], n, stagger=False, device=device)
     seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
-    env.seed_agents(seeds)
+    env = population_env(cfgs, n, seeds, stagger=False, device=device, evaluation=True)
     training = agent.generators
     agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
     try:

@@ -39,7 +39,7 @@ from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
-from cmdp_rl.population.env import PopulationReach1D
+from cmdp_rl.population.env import population_env
 from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
@@ -115,15 +115,14 @@ def train_population(
     agents, algos, generators = [], [], []
     for c in cfgs:
         seed_everything(c.seed)
-        probe = make_env(c.env, device=c.device)
+        probe = make_env(c.env, device=c.device, algo=c.algo)
         agent = make_agent(c.policy, probe, make_normalizers(c, probe))
         agents.append(agent)
         algos.append(make_algo(c.algo, agent))
         g = torch.Generator(device=device)
         g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
         generators.append(g)
-    env = PopulationReach1D([c.env for c in cfgs], N, stagger=cfg.env.stagger, device=device)
-    env.seed_agents([c.seed for c in cfgs])
+    env = population_env(cfgs, N, [c.seed for c in cfgs], stagger=cfg.env.stagger, device=device)
     pop = PopulationAgent(agents, generators, device)
     update = PopulationPPO(cfgs, algos, pop, N)
     collector = Collector(env, pop, T, seed=None)
@@ -317,7 +316,7 @@ def _write_agent_checkpoint(
     ):
         moments = stacked_opt.agent_state(i, stacked)
         for name, p in module.named_parameters():
-            opt.state[p] = {"step": torch.tensor(float(stacked_opt.step_count)), **moments[name]}
+            opt.state[p] = {"step": stacked_opt.steps[i].to(torch.float32), **moments[name]}
     save_checkpoint(
         d / CHECKPOINT,
         {
