@@ -81,10 +81,11 @@ def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
 
 
 # Options that make an algorithm's own arithmetic act in a tiny run: FOCOPS's multiplier and its
-# KL mask, CRPO's switch (a budget it overspends), Sauté's budget state.
+# KL mask, CRPO's switch (a budget it overspends), CUP's nu in its projection, Sauté's budget state.
 ALGO_OPTIONS = {
     "focops": {"nu_lr": 0.5, "target_kl": 0.005},
     "crpo": {"tolerance": 0.0},
+    "cup": {"nu_lr": 0.5},
     "saute": {"unsafe_reward": -0.5},
 }
 
@@ -110,7 +111,7 @@ def test_every_batched_algorithm_trains_as_its_single_runs(tmp_path, name):
 
 
 def test_the_ppo_family_is_batched():
-    assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "saute"} <= set(batched_algos())
+    assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "cup", "saute"} <= set(batched_algos())
 
 
 @pytest.mark.parametrize(

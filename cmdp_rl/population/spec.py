@@ -47,13 +47,14 @@ RUN_AS_SWEEP = "run it as separate runs (python train.py -m ...)"
 
 def batched(algo: str) -> bool:
     """Whether the population trains ``algo``: a PPO whose update is ``PPO.update`` (the variant
-    lives in the hooks the population calls per agent: multiplier, advantage, surrogate), or a
-    composition on such a base (Sauté's ``algo.base``)."""
+    lives in the hooks the population calls per agent: multiplier, advantage, surrogate) or that
+    adds CUP's projection, or a composition on such a base (Sauté's ``algo.base``)."""
     comp = component("algo", algo)
     if not isinstance(comp.build, type):
         base = getattr(comp.options, "base", None)
         return isinstance(base, str) and base != algo and batched(base)
-    return issubclass(comp.build, PPO) and comp.build.update is PPO.update
+    # CUP's second stage is the one stage beyond PPO's that the population runs (update.py).
+    return issubclass(comp.build, PPO) and (comp.build.update is PPO.update or hasattr(comp.build, "projection_loss"))
 
 
 def batched_algos() -> list[str]:

@@ -18,7 +18,7 @@ before one backward pass: agents share no parameter, so each agent's gradient is
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -26,6 +26,7 @@ from tensordict import TensorDictBase
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import TrainingDiverged
+from cmdp_rl.algos.cup import HALF
 from cmdp_rl.config import RunConfig
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.params import StackedAdam
@@ -80,38 +81,16 @@ class PopulationPPO:
         batch.set(keys.POLICY_ADVANTAGE, adv)
         # Training units per agent: [P, N T, ...].
         data = {k: batch.get(k).reshape(P, -1, *batch.get(k).shape[2:]) for k in self.algos[0]._update_keys(batch)}
-        total = next(iter(data.values())).shape[1]
-        size = total // cfg.num_minibatches
-        rows = torch.arange(P, device=adv.device).unsqueeze(1)
-        active = torch.ones(P, dtype=torch.bool, device=adv.device)
-        sums: dict[str, torch.Tensor] = {}
-        counts = torch.zeros(P, device=adv.device)
-        for _ in range(cfg.update_epochs):
-            running = active.tolist()
-            if not any(running):
-                break
-            # One permutation per agent per epoch, from its own generator (algos/minibatch.py's order);
-            # an agent stopped early draws none, as its single run.
-            perm = torch.stack(
-                [
-                    torch.randperm(total, generator=g, device=g.device) if on else torch.arange(total, device=g.device)
-                    for g, on in zip(agent.generators, running)
-                ]
-            )
-            shuffled = {k: v[rows, perm] for k, v in data.items()}
-            for j in range(cfg.num_minibatches):
-                mb = {k: v[:, j * size : (j + 1) * size] for k, v in shuffled.items()}
-                stats, active = self._step(mb, active)
-                sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
-                counts += stats.pop("evaluated")
-                sums.pop("evaluated")
-                if self.kl_limit is not None and not active.any().item():
-                    break
-        names = [k for k in sums if k in self.algos[0].stats]
-        means = (torch.stack([sums[k] for k in names]) / counts).tolist()  # [stats, P]: one host sync
+        sums, counts = self._epochs(data, cfg.update_epochs, self._step)
+        means = {k: v / counts for k, v in sums.items()}  # each agent's mean over its minibatches
+        if hasattr(self.algos[0], "projection_loss"):  # CUP's second stage (algos/cup.py)
+            sums, counts = self._project(batch)
+            means.update({k: v / counts for k, v in sums.items()})
+        names = [k for k in means if k in self.algos[0].stats]
+        values = torch.stack([means[k] for k in names]).tolist()  # [stats, P]: one host sync
         out = []
         for i, algo in enumerate(self.algos):
-            stats = {k: means[s][i] for s, k in enumerate(names)}
+            stats = {k: values[s][i] for s, k in enumerate(names)}
             for k, v in stats.items():
                 if not math.isfinite(v):
                     raise TrainingDiverged(f"agent {i}: {k} is {v}: training diverged")
@@ -125,12 +104,52 @@ class PopulationPPO:
                 raise TrainingDiverged(f"agent {bad[0]}: a parameter of the {name} is not finite after the update")
         return out
 
+    def _epochs(self, data: dict, epochs: int, step: Callable) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """``algos/minibatch.py``'s loop per agent: ``epochs`` passes over ``data`` ``[P, units, ...]``,
+        each in a fresh order from every still active agent's generator (an agent stopped early draws
+        none, as its single run), ``step(minibatch, active) -> (stats, active)`` on each minibatch.
+        Returns the statistics summed over the minibatches each agent evaluated, and their counts."""
+        P = self.agent.num_agents
+        total = next(iter(data.values())).shape[1]
+        size = total // self.cfg.num_minibatches
+        device = self.agent.actor.flat.device
+        rows = torch.arange(P, device=device).unsqueeze(1)
+        active = torch.ones(P, dtype=torch.bool, device=device)
+        sums: dict[str, torch.Tensor] = {}
+        counts = torch.zeros(P, device=device)
+        for _ in range(epochs):
+            running = active.tolist()
+            if not any(running):
+                break
+            perm = torch.stack(
+                [
+                    torch.randperm(total, generator=g, device=g.device) if on else torch.arange(total, device=g.device)
+                    for g, on in zip(self.agent.generators, running)
+                ]
+            )
+            shuffled = {k: v[rows, perm] for k, v in data.items()}
+            for j in range(self.cfg.num_minibatches):
+                evaluated = active.to(counts.dtype)
+                stats, active = step({k: v[:, j * size : (j + 1) * size] for k, v in shuffled.items()}, active)
+                sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
+                counts += evaluated
+                if self.kl_limit is not None and not active.any().item():
+                    break
+        return sums, counts
+
+    def _stop(self, kl: torch.Tensor, active: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """KL early stopping per agent: the agents still active after this minibatch's check, and
+        those that step on it (``None``: every agent, no limit)."""
+        if self.kl_limit is None:
+            return active, None
+        active = active & ~(kl > self.kl_limit)
+        return active, active
+
     def _step(self, mb: dict[str, torch.Tensor], active: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """One minibatch step of the ``active`` agents: the algorithm's surrogate and the critics'
         regression per agent, one backward, per-agent clipping, Adam. Returns each statistic as
-        ``[P]`` (zero for agents not evaluated; ``evaluated``: 1 where evaluated) and the agents
-        still active after KL early stopping (``PPO.update``: a minibatch past the limit is
-        evaluated, not stepped)."""
+        ``[P]`` (zero where not evaluated) and the agents still active (``PPO.update``: a minibatch
+        past the KL limit is evaluated, not stepped)."""
         agent = self.agent
         dist, value, cost_value = agent.training_pass(mb[keys.OBS])
         loss_pi, stats = self.algos[0].surrogate(dist, mb, self._mean)
@@ -138,10 +157,7 @@ class PopulationPPO:
         loss_v = self._mean((value - mb[keys.VALUE_TARGET]).pow(2))
         loss_vc = self._mean((cost_value - mb[keys.COST_VALUE_TARGET]).pow(2))
         evaluated = active
-        stepping = None
-        if self.kl_limit is not None:
-            active = active & ~(stats["kl_stop"] > self.kl_limit)
-            stepping = active
+        active, stepping = self._stop(stats["kl_stop"], active)
         self.actor_opt.zero_grad()
         self.critic_opt.zero_grad()
         (loss_pi.sum() + loss_v.sum() + loss_vc.sum()).backward()
@@ -150,8 +166,39 @@ class PopulationPPO:
         self.actor_opt.step(stepping)
         self.critic_opt.step(stepping)
         stats = {"loss_pi": loss_pi, "loss_v": loss_v, "loss_vc": loss_vc, **stats}
-        stats = {k: torch.where(evaluated, v.detach(), 0.0) for k, v in stats.items()}
-        return {**stats, "evaluated": evaluated.to(loss_pi.dtype)}, active
+        return {k: torch.where(evaluated, v.detach(), 0.0) for k, v in stats.items()}, active
+
+    def _project(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """CUP's stage 2 (``CUP.project``) per agent: the cost advantage standardised per agent,
+        ``pi_{k+1/2}`` as stage 1 left each actor, a fresh Adam at each agent's stage-1 rate,
+        ``projection_loss`` with each agent's ``nu`` weight; statistics summed as ``_epochs``."""
+        P, agent, algo = self.agent.num_agents, self.agent, self.algos[0]
+        units = {
+            k: batch.get(k).reshape(P, -1, *batch.get(k).shape[2:]) for k in (keys.ACTION, keys.LOG_PROB, keys.OBS)
+        }
+        cost_adv = batch.get(keys.COST_ADVANTAGE).reshape(P, -1, 1)
+        if self.cfg.normalize_advantage:
+            cost_adv = (cost_adv - cost_adv.mean((1, 2), keepdim=True)) / (cost_adv.std((1, 2), keepdim=True) + 1e-8)
+        units[keys.COST_ADVANTAGE] = cost_adv
+        with torch.no_grad():
+            loc, scale = agent.params(units[keys.OBS])
+        units.update({(HALF, keys.LOC): loc, (HALF, keys.SCALE): scale})
+        coef = [a.projection_coef() for a in self.algos]
+        nu_coef = torch.tensor(coef, dtype=torch.float32, device=loc.device).view(-1, 1, 1)
+        opt = StackedAdam(agent.actor.flat, self.actor_opt.lr.tolist())
+
+        def step(mb: dict, active: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+            loss, kl = algo.projection_loss(agent.dist(mb[keys.OBS]), mb, nu_coef, self._mean)
+            evaluated = active
+            active, stepping = self._stop(kl.detach(), active)
+            opt.zero_grad()
+            loss.sum().backward()
+            agent.actor.clip_grad_norm_(self.cfg.max_grad_norm)
+            opt.step(stepping)
+            stats = {"loss_projection": loss, "kl_projection": kl}
+            return {k: torch.where(evaluated, v.detach(), 0.0) for k, v in stats.items()}, active
+
+        return self._epochs(units, self.cfg.projection_epochs, step)
 
     def state_dict(self) -> dict:
         """The optimisers' moments and each agent's algorithm state but its networks and torch
