@@ -5,6 +5,7 @@ import math
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 from conftest import eval_result, metrics_rows, run_script, tiny
 
@@ -148,8 +149,11 @@ def test_population_outputs_are_runs(tmp_path):
     assert summary["agents"] == 4 and summary["steps_per_agent"] == 256 and summary["summed_steps_per_s"] > 0
 
 
-def test_population_resumes_after_a_kill(tmp_path):
-    raw = torch_tiny()
+@pytest.mark.parametrize("algo", ["ppo_lag", "cup"])
+def test_population_resumes_after_a_kill(tmp_path, algo):
+    raw = torch_tiny(algo={"name": algo})
+    if algo != "ppo_lag":
+        del raw["algo"]["lambda_lr"]
     raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2]}}}
     whole = _population(tmp_path, raw, "whole")
 
@@ -161,6 +165,7 @@ def test_population_resumes_after_a_kill(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         train_population(raw, killed, echo=kill_at_3)
     assert not list(killed.glob("agents/*/eval.json"))
+    torch.load(killed / "population.pt", weights_only=True)  # plain tensors, numbers and strings
     train_population(None, killed, echo=lambda s: None, resume=True)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(a) == metrics_rows(b)  # same process, same code: bit for bit
