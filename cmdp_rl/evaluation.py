@@ -71,8 +71,14 @@ def _evaluate(
     quota = [episodes // n + (1 if i < episodes % n else 0) for i in range(n)]
     chunk = 128
     collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
-    # (return, length, terminated, cost_0, ..., cost_{K-1}) per episode
-    rows: list[list[tuple[float, ...]]] = [[] for _ in range(n)]
+    flat = [row for r in episode_rows(collector, quota) for row in r]
+    return summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit)
+
+
+def episode_rows(collector: Collector, quota: Sequence[int]) -> list[list[tuple[float, ...]]]:
+    """Env i's first ``quota[i]`` whole episodes from ``collector``, each as (return, length,
+    terminated, cost_0, ..., cost_{K-1}); a population's evaluation reads its P N envs so."""
+    rows: list[list[tuple[float, ...]]] = [[] for _ in quota]
     while any(len(r) < q for r, q in zip(rows, quota)):
         batch = collector.collect()
         nxt = batch.get(keys.NEXT)
@@ -87,8 +93,7 @@ def _evaluate(
                         *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
                     )
                 )
-    flat = [row for r in rows for row in r]
-    return summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit)
+    return rows
 
 
 def summarize_episodes(

@@ -63,6 +63,9 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
         ({"name": "ppo_lag"}, {"algo": {"cost_limit": [0.2, 0.5]}, "env": {"start": [[0.3, 0.48], 0.1]}}, [0, 3]),
         ({"name": "penalty", "penalty": 1.0}, {"algo": {"penalty": [0.5, 2.0], "lr": [3e-4, 1e-3]}}, [3]),
         ({"name": "pid_lag", "kp": 1.0, "ki": 0.2}, {"algo": {"kp": [0.5, 2.0]}, "env": {"obs_noise": [0.05]}}, [1]),
+        # Options of the newly batched algorithms per agent: each agent's own algorithm object reads them.
+        ({"name": "focops"}, {"algo": {"nu_lr": [0.1, 0.5], "nu_max": [0.5]}}, [1]),
+        ({"name": "crpo"}, {"algo": {"tolerance": [0.0, 1.0]}}, [0, 1]),
     ],
 )
 def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):

@@ -12,10 +12,9 @@ from typing import Any, Sequence
 
 import torch
 
-from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.config import RunConfig
-from cmdp_rl.evaluation import EVAL_SEED_OFFSET, summarize_episodes
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET, episode_rows, summarize_episodes
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
 
@@ -34,23 +33,7 @@ def evaluate_population(
     try:
         collector = Collector(env, agent, CHUNK, seed=None, deterministic=cfg.eval_deterministic)
         quota = [cfg.eval_episodes // n + (1 if j < cfg.eval_episodes % n else 0) for j in range(n)]
-        rows: list[list[tuple[float, ...]]] = [[] for _ in range(env.num_envs)]
-        while any(len(r) < quota[e % n] for e, r in enumerate(rows)):
-            batch = collector.collect()
-            nxt = batch.get(keys.NEXT)
-            done = nxt.get(keys.DONE).squeeze(-1)
-            ret, length = nxt.get(keys.EPISODE_RETURN), nxt.get(keys.EPISODE_LENGTH)
-            term, cost = nxt.get(keys.TERMINATED), nxt.get(keys.EPISODE_COST)
-            for e, t in done.nonzero().tolist():
-                if len(rows[e]) < quota[e % n]:
-                    rows[e].append(
-                        (
-                            ret[e, t, 0].item(),
-                            float(length[e, t, 0].item()),
-                            float(term[e, t, 0].item()),
-                            *cost[e, t].tolist(),
-                        )
-                    )
+        rows = episode_rows(collector, quota * len(cfgs))
     finally:
         agent.generators = training
     metric = getattr(cfg.env, "termination_metric", None)

@@ -9,12 +9,9 @@ and ``[P, n_critic]``: every weight is a view of one of them with a leading agen
   operations whatever P is.
 - Gradient-norm clipping, which is not elementwise, reduces over dimension 1: one norm per agent.
 - A layer is one ``baddbmm`` over the agents, bit for bit ``F.linear`` per agent on the shapes
-  tried. Against ``torch.func.functional_call`` + ``vmap`` over the same stacked parameters
-  (``experiments/speed/population_benchmark.py``'s layers table: one forward + backward of a 32 x 32 MLP
-  per agent on 256 rows, the fastest of many repetitions, one thread, 2026-11-24 with the machine's
-  load average at 30): baddbmm 0.33 / 1.9 / 53 / 100 ms against vmap 0.86 / 3.0 / 54 / 105 ms at
-  P = 1 / 16 / 64 / 128 (64 x 64 at P = 64: 106 against 137 ms). vmap lowers ``F.linear`` to the
-  same batched matmul plus its own dispatch, so the layers are written as ``baddbmm`` directly.
+  tried, and faster than ``torch.func.functional_call`` under ``vmap`` over the same parameters,
+  which lowers ``F.linear`` to the same batched matmul plus its own dispatch (measured by
+  ``experiments/speed/population_benchmark.py``'s layers table, figures in docs/population.md).
 """
 
 from __future__ import annotations
@@ -137,7 +134,10 @@ class StackedAdam:
         }
 
     def load_state_dict(self, state: dict) -> None:
-        self.steps.copy_(state["steps"])
+        if "steps" in state:
+            self.steps.copy_(state["steps"])
+        else:  # a checkpoint from before the per-agent counts: one count for all
+            self.steps.fill_(float(state["step"]))
         self.exp_avg.copy_(state["exp_avg"])
         self.exp_avg_sq.copy_(state["exp_avg_sq"])
 

@@ -15,33 +15,16 @@ import itertools
 from dataclasses import field
 from typing import Any, Mapping
 
+import yaml
+
 from cmdp_rl.algos.ppo import PPO
-from cmdp_rl.config import RunConfig, flatten_dict, load_config
+from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
 from cmdp_rl.registry import component, names
 from cmdp_rl.validation import ConfigError, PositiveInt, options, require
 
-# The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed.
-PER_AGENT_FIELDS = (
-    "seed",
-    "algo.penalty",
-    "algo.cost_limit",
-    "algo.lambda_init",
-    "algo.lr",
-    "algo.critic_lr",
-    "algo.entropy_coef",
-    "algo.lambda_lr",
-    "algo.kp",
-    "algo.ki",
-    "algo.kd",
-    "algo.p_ema_alpha",
-    "algo.d_ema_alpha",
-    "algo.d_delay",
-    "algo.lambda_max",
-    "env.obs_noise",
-    "env.wall_x",
-    "env.goal",
-    "env.start",
-)
+# The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed: the
+# grid that configs/population/none.yaml declares (each a number some agent's own object reads).
+PER_AGENT_FIELDS = tuple(flatten_dict(yaml.safe_load((CONFIG_DIR / "population" / "none.yaml").read_text())["grid"]))
 RUN_AS_SWEEP = "run it as separate runs (python train.py -m ...)"
 
 

@@ -149,6 +149,7 @@ def train_population(
         for g, s in zip(generators, state["generators"]):
             g.set_state(s)
         first, elapsed, steps, costs = state["iteration"] + 1, state["time_s"], state["step"], state["costs"]
+        costs = torch.as_tensor(costs, dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
     echo(
         f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} (torch, {N} envs each): "
