@@ -145,6 +145,12 @@ class PopulationPPO:
         active = active & ~(kl > self.kl_limit)
         return active, active
 
+    def _kept(self, stats: dict[str, torch.Tensor], evaluated: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The statistics detached, zero for the agents that did not evaluate this minibatch."""
+        if self.kl_limit is None:  # every agent evaluates every minibatch
+            return {k: v.detach() for k, v in stats.items()}
+        return {k: torch.where(evaluated, v.detach(), 0.0) for k, v in stats.items()}
+
     def _step(self, mb: dict[str, torch.Tensor], active: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """One minibatch step of the ``active`` agents: the algorithm's surrogate and the critics'
         regression per agent, one backward, per-agent clipping, Adam. Returns each statistic as
@@ -166,7 +172,7 @@ class PopulationPPO:
         self.actor_opt.step(stepping)
         self.critic_opt.step(stepping)
         stats = {"loss_pi": loss_pi, "loss_v": loss_v, "loss_vc": loss_vc, **stats}
-        return {k: torch.where(evaluated, v.detach(), 0.0) for k, v in stats.items()}, active
+        return self._kept(stats, evaluated), active
 
     def _project(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """CUP's stage 2 (``CUP.project``) per agent: the cost advantage standardised per agent,
@@ -196,7 +202,7 @@ class PopulationPPO:
             agent.actor.clip_grad_norm_(self.cfg.max_grad_norm)
             opt.step(stepping)
             stats = {"loss_projection": loss, "kl_projection": kl}
-            return {k: torch.where(evaluated, v.detach(), 0.0) for k, v in stats.items()}, active
+            return self._kept(stats, evaluated), active
 
         return self._epochs(units, self.cfg.projection_epochs, step)
 
