@@ -75,8 +75,20 @@ def _evaluate(
     quota = [episodes // teams + (1 if i // m < episodes % teams else 0) for i in range(n)]
     chunk = 128
     collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
-    # (return, length, terminated, cost_0, ..., cost_{K-1}) per episode
-    rows: list[list[tuple[float, ...]]] = [[] for _ in range(n)]
+    rows = episode_rows(collector, quota)
+    if m > 1:  # the j-th episode of a team: its agents' mean return, its first row's cost and length
+        rows = [
+            [(sum(rows[i + a][j][0] for a in range(m)) / m, *rows[i][j][1:]) for j in range(quota[i])]
+            for i in range(0, n, m)
+        ]
+    flat = [row for r in rows for row in r]
+    return summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit)
+
+
+def episode_rows(collector: Collector, quota: Sequence[int]) -> list[list[tuple[float, ...]]]:
+    """Env i's first ``quota[i]`` whole episodes from ``collector``, each as (return, length,
+    terminated, cost_0, ..., cost_{K-1}); a population's evaluation reads its P N envs so."""
+    rows: list[list[tuple[float, ...]]] = [[] for _ in quota]
     while any(len(r) < q for r, q in zip(rows, quota)):
         batch = collector.collect()
         nxt = batch.get(keys.NEXT)
@@ -91,13 +103,7 @@ def _evaluate(
                         *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
                     )
                 )
-    if m > 1:  # the j-th episode of a team: its agents' mean return, its first row's cost and length
-        rows = [
-            [(sum(rows[i + a][j][0] for a in range(m)) / m, *rows[i][j][1:]) for j in range(quota[i])]
-            for i in range(0, n, m)
-        ]
-    flat = [row for r in rows for row in r]
-    return summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit)
+    return rows
 
 
 def summarize_episodes(

@@ -79,6 +79,68 @@ def check_env_contract(cfg: RunConfig) -> None:
         probe.close()
 
 
+def metrics_row(
+    iteration: int,
+    step: int,
+    batch: Any,
+    stats: dict[str, Any],
+    timing: dict[str, float],
+    cost_limit: Any,
+    cost_totals: list[float],
+    names: tuple[str, ...],
+    reference: Any,
+) -> dict[str, Any]:
+    """One ``metrics.csv`` row: the episodes that ended in ``batch`` (one agent's ``[N, T]``), the
+    update's ``stats``, the costs collected so far; per-constraint values spread over columns."""
+    eps = finished_episodes(batch)
+    row = {
+        "iteration": iteration,
+        "step": step,
+        "episode_return": _mean(eps["return"]),
+        "episode_cost": [_mean(eps["cost"][:, k]) for k in range(len(names))],
+        "episode_length": _mean(eps["length"]),
+        "episodes": int(eps["length"].numel()),
+        "cost_limit": cost_limit,
+        **timing,
+        **stats,
+        "cost_rate": [cost_rate(total, step) for total in cost_totals],
+    }
+    limits = per_constraint(cost_limit, "algo.cost_limit", names)
+    row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"], limits, reference))
+    return spread(row, names)
+
+
+def complete_result(
+    result: dict[str, Any],
+    cfg: RunConfig,
+    steps: int,
+    train_time: float,
+    cost_totals: list[float],
+    names: tuple[str, ...],
+    reference: Any,
+) -> None:
+    """Add to an evaluation's ``result`` what ``eval.json`` records of the run: budget, steps, train
+    time, threads, cost rates and normalised scores per constraint, the reference."""
+    result.update(
+        {
+            "cost_limit": cfg.algo.cost_limit,
+            "steps": steps,
+            "train_time_s": train_time,
+            "torch_threads": torch.get_num_threads(),
+        }
+    )
+    k = len(names)
+    limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
+    eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
+    rates = [cost_rate(total, steps) for total in cost_totals]
+    per_cost = {"cost_rate": rates, **normalized_scores(result["episode_return"], eval_costs, rates, limits, reference)}
+    if k > 1:  # one budget per constraint, as cost_limit/<cost>
+        del result["cost_limit"]
+        per_cost = {"cost_limit": limits, **per_cost}
+    result.update(spread(per_cost, names))
+    result["reference"] = None if reference is None else dataclasses.asdict(reference)
+
+
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/run/rundir.py``). Returns the
@@ -100,7 +162,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     algo = make_algo(cfg.algo, agent)
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
     names = env.cost_names
-    limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
+    per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     # After the resume and config checks (a mistyped resume path or a wrong-length budget is
     # reported, no directory created), before any training.
     ensure_writable(out)
@@ -202,25 +264,18 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
                 )
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
             agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
-            eps = finished_episodes(batch)
-            # Per-constraint values are lists of K here; spread() gives each its own column.
-            row = {
-                "iteration": it,
-                "step": collector.total_steps,
-                "episode_return": _mean(eps["return"]),
-                "episode_cost": [_mean(eps["cost"][:, k]) for k in range(len(names))],
-                "episode_length": _mean(eps["length"]),
-                "episodes": int(eps["length"].numel()),
-                "cost_limit": cfg.algo.cost_limit,
-                "sps": per_iter / (time.perf_counter() - t0),
-                "time_s": time.perf_counter() - start,
-                **stats,
-                "cost_rate": [cost_rate(total, collector.total_steps) for total in collector.total_costs],
-            }
-            row.update(
-                normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"], limits, reference)
+            timing = {"sps": per_iter / (time.perf_counter() - t0), "time_s": time.perf_counter() - start}
+            row = metrics_row(
+                it,
+                collector.total_steps,
+                batch,
+                stats,
+                timing,
+                cfg.algo.cost_limit,
+                collector.total_costs,
+                names,
+                reference,
             )
-            row = spread(row, names)
             logger.log(row, force_echo=it == iterations)
             progress.update(row)
             if it % cfg.checkpoint_every == 0 or it == iterations:
@@ -247,23 +302,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         cost_limit=cfg.algo.cost_limit,
     )
     eval_env.close()
-    result.update(
-        {
-            "cost_limit": cfg.algo.cost_limit,
-            "steps": collector.total_steps,
-            "train_time_s": train_time,
-            "torch_threads": torch.get_num_threads(),
-        }
-    )
-    k = len(names)
-    eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
-    rates = [cost_rate(total, collector.total_steps) for total in collector.total_costs]
-    per_cost = {"cost_rate": rates, **normalized_scores(result["episode_return"], eval_costs, rates, limits, reference)}
-    if k > 1:  # one budget per constraint, as cost_limit/<cost>
-        del result["cost_limit"]
-        per_cost = {"cost_limit": limits, **per_cost}
-    result.update(spread(per_cost, names))
-    result["reference"] = None if reference is None else dataclasses.asdict(reference)
+    complete_result(result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
     header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s"

@@ -5,12 +5,13 @@ import math
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 from conftest import eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.population import train_population
-from cmdp_rl.population.spec import agent_configs
+from cmdp_rl.population.spec import agent_configs, batched_algos
 from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
@@ -62,6 +63,9 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
         ({"name": "ppo_lag"}, {"algo": {"cost_limit": [0.2, 0.5]}, "env": {"start": [[0.3, 0.48], 0.1]}}, [0, 3]),
         ({"name": "penalty", "penalty": 1.0}, {"algo": {"penalty": [0.5, 2.0], "lr": [3e-4, 1e-3]}}, [3]),
         ({"name": "pid_lag", "kp": 1.0, "ki": 0.2}, {"algo": {"kp": [0.5, 2.0]}, "env": {"obs_noise": [0.05]}}, [1]),
+        # Options of the newly batched algorithms per agent: each agent's own algorithm object reads them.
+        ({"name": "focops"}, {"algo": {"nu_lr": [0.1, 0.5], "nu_max": [0.5]}}, [1]),
+        ({"name": "crpo"}, {"algo": {"tolerance": [0.0, 1.0]}}, [0, 1]),
     ],
 )
 def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
@@ -80,6 +84,63 @@ def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
         assert_close(eval_result(dirs[i]), eval_result(single), f"agent {i} eval")
 
 
+# Options that make an algorithm's own arithmetic act in a tiny run: FOCOPS's multiplier and its
+# KL mask, CRPO's switch (a budget it overspends), CUP's nu in its projection, Sauté's budget state.
+ALGO_OPTIONS = {
+    "focops": {"nu_lr": 0.5, "target_kl": 0.005},
+    "crpo": {"tolerance": 0.0},
+    "cup": {"nu_lr": 0.5},
+    "saute": {"unsafe_reward": -0.5},
+}
+
+
+@pytest.mark.parametrize("name", batched_algos())
+def test_every_batched_algorithm_trains_as_its_single_runs(tmp_path, name):
+    """Enumerated from the registry: each algorithm a population accepts, two agents with their own
+    budget and seed, each equal to ``train()`` on its own config.yaml."""
+    algo = {"name": name, "update_epochs": 2, "num_minibatches": 2, **ALGO_OPTIONS.get(name, {})}
+    raw = torch_tiny(algo=algo)
+    if name != "ppo_lag":
+        del raw["algo"]["lambda_lr"]
+    raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}
+    pop = _population(tmp_path, raw)
+    for i, d in enumerate(sorted((pop / "agents").iterdir())):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        rows, expected = metrics_rows(d), metrics_rows(single)
+        assert len(rows) == len(expected) == 4
+        assert_close(rows, expected, f"{name} agent {i} metrics")
+        assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
+
+
+def test_the_ppo_family_is_batched():
+    assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "cup", "saute"} <= set(batched_algos())
+
+
+@pytest.mark.parametrize(
+    "algo",
+    [
+        # KL early stopping as a per-agent mask: a limit some agents reach in some iterations.
+        {"name": "ppo", "target_kl": 0.002, "update_epochs": 4},
+        # Annealed rates (and lambda's step size) per agent, on each agent's own clock.
+        {"name": "ppo_lag", "anneal_lr": True, "anneal_lambda_lr": True},
+    ],
+)
+def test_per_agent_schedules_match_single_runs(tmp_path, algo):
+    raw = torch_tiny(algo=algo)
+    if algo["name"] != "ppo_lag":
+        del raw["algo"]["lambda_lr"]
+    raw["population"] = {"seeds": 2, "grid": {"algo": {"lr": [3e-4, 3e-3]}}}
+    pop = _population(tmp_path, raw)
+    for i, d in enumerate(sorted((pop / "agents").iterdir())):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        assert_close(metrics_rows(d), metrics_rows(single), f"agent {i} metrics")
+        assert_close(eval_result(d), eval_result(single), f"agent {i} eval")
+
+
 def test_population_outputs_are_runs(tmp_path):
     raw = torch_tiny()
     raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2, 0.5]}}}
@@ -91,8 +152,11 @@ def test_population_outputs_are_runs(tmp_path):
     assert summary["agents"] == 4 and summary["steps_per_agent"] == 256 and summary["summed_steps_per_s"] > 0
 
 
-def test_population_resumes_after_a_kill(tmp_path):
-    raw = torch_tiny()
+@pytest.mark.parametrize("algo", ["ppo_lag", "cup"])
+def test_population_resumes_after_a_kill(tmp_path, algo):
+    raw = torch_tiny(algo={"name": algo})
+    if algo != "ppo_lag":
+        del raw["algo"]["lambda_lr"]
     raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2]}}}
     whole = _population(tmp_path, raw, "whole")
 
@@ -104,6 +168,7 @@ def test_population_resumes_after_a_kill(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         train_population(raw, killed, echo=kill_at_3)
     assert not list(killed.glob("agents/*/eval.json"))
+    torch.load(killed / "population.pt", weights_only=True)  # plain tensors, numbers and strings
     train_population(None, killed, echo=lambda s: None, resume=True)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(a) == metrics_rows(b)  # same process, same code: bit for bit
@@ -137,7 +202,6 @@ def test_bad_population_config_is_one_line(population, message):
         ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
         ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
         ({"normalize": {"obs": True}}, "population: normalize is not batched"),
-        ({"algo": {"anneal_lr": True}}, "population: algo.anneal_lr / anneal_lambda_lr is not batched"),
     ],
 )
 def test_unsupported_population_is_refused(change, refused):

@@ -55,10 +55,8 @@ class CRPO(PPO):
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return -batch.get(keys.COST_ADVANTAGE) if self.cost_step else batch.get(keys.ADVANTAGE)
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        stats = super().update(batch)
-        stats["cost_step"] = float(self.cost_step)
-        return stats
+    def iteration_stats(self) -> dict[str, float]:
+        return {"cost_step": float(self.cost_step)}
 
 
 register("algo", "crpo", CRPOConfig, CRPO)

@@ -30,14 +30,14 @@ from typing import TYPE_CHECKING
 import torch
 from tensordict import TensorDictBase
 from torch import nn
-from torch.distributions import kl_divergence
+from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl import keys
 from cmdp_rl.algos.base import check_finite, check_parameters_finite, single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import DualAscent
 from cmdp_rl.algos.minibatch import minibatches
-from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
+from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig, Reduce
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options
@@ -89,7 +89,7 @@ class CUP(PPO):
 
     def project(self, batch: TensorDictBase) -> dict[str, float]:
         """Stage 2 on a batch whose GAE stage 1 computed: returns its mean loss and KL."""
-        cfg, head = self.cfg, self.agent.actor.head
+        cfg = self.cfg
         cost_adv = batch.get(keys.COST_ADVANTAGE)
         if cfg.normalize_advantage:
             cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
@@ -105,20 +105,15 @@ class CUP(PPO):
         )
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
             units.update({(HALF, k): v for k, v in self.agent.actor.params(units).items()})
-        nu_coef = self.multiplier.value * self.cost_coef
+        nu_coef = self.projection_coef()
         # fresh: see the docstring; at stage 1's rate (lr, or its annealed value with anneal_lr)
         opt = torch.optim.Adam(self.actor_params, lr=self.actor_opt.param_groups[0]["lr"], fused=True)
         sums, steps = torch.zeros(2), 0
         for _, mb in minibatches(units, cfg.num_minibatches, cfg.projection_epochs):
-            dist = self.agent.dist(mb)
-            half = head.dist({k: mb[(HALF, k)] for k in head.param_keys})
-            adv = mb[keys.COST_ADVANTAGE]
-            kl = kl_divergence(dist, half).reshape(adv.shape)
-            ratio = (dist.log_prob(mb[keys.ACTION]) - mb[keys.LOG_PROB]).reshape(adv.shape).exp()
-            loss = (kl + nu_coef * ratio * adv).mean()
-            sums += torch.stack([loss.detach(), kl.detach().mean()])
+            loss, kl = self.projection_loss(self.agent.dist(mb), mb, nu_coef, torch.mean)
+            sums += torch.stack([loss.detach(), kl.detach()])
             steps += 1
-            if self.kl_limit is not None and kl.mean().item() > self.kl_limit:
+            if self.kl_limit is not None and kl.item() > self.kl_limit:
                 break  # as PPO's stage: this step would leave the trust region
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -127,6 +122,22 @@ class CUP(PPO):
         loss_projection, kl_projection = (sums / steps).tolist()
         check_finite(loss_projection=loss_projection)
         return {"loss_projection": loss_projection, "kl_projection": kl_projection}
+
+    def projection_coef(self) -> float:
+        """The cost surrogate's weight in stage 2: ``nu (1 - gamma_c gae_lambda) / (1 - gamma_c)``."""
+        return self.multiplier.value * self.cost_coef
+
+    def projection_loss(
+        self, dist: Distribution, mb: dict[str, torch.Tensor], nu_coef: float | torch.Tensor, mean: Reduce
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Stage 2's loss and ``KL(pi_theta || pi_{k+1/2})``, each reduced by ``mean`` (over the
+        minibatch, or per agent in a population, ``nu_coef`` then one per agent)."""
+        head = self.agent.actor.head
+        half = head.dist({k: mb[(HALF, k)] for k in head.param_keys})
+        adv = mb[keys.COST_ADVANTAGE]
+        kl = kl_divergence(dist, half).reshape(adv.shape)
+        ratio = (dist.log_prob(mb[keys.ACTION]) - mb[keys.LOG_PROB]).reshape(adv.shape).exp()
+        return mean(kl + nu_coef * ratio * adv), mean(kl)
 
     def state_dict(self) -> dict:
         return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}

@@ -29,7 +29,7 @@ before each minibatch's step). Everything else (critics, GAE, minibatches) is PP
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import torch
 from tensordict import TensorDictBase
@@ -76,10 +76,24 @@ def focops_loss(
     """The projection step's loss on a minibatch: per state ``KL(pi_theta || pi_k)[s] -
     ratio * adv / temperature``, kept where ``KL <= delta`` (Algorithm 1), averaged over all states.
     ``adv`` is ``A_r - nu A_c``, shaped ``[..., 1]``. Returns the loss and the per-state KL."""
+    terms, kl = focops_terms(dist, old_dist, action, old_log_prob, adv, temperature, delta)
+    return terms.mean(), kl
+
+
+def focops_terms(
+    dist: Distribution,
+    old_dist: Distribution,
+    action: torch.Tensor,
+    old_log_prob: torch.Tensor,
+    adv: torch.Tensor,
+    temperature: float,
+    delta: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`focops_loss` per state, before the average (a population averages per agent)."""
     kl = kl_divergence(dist, old_dist).reshape(adv.shape)
     ratio = (dist.log_prob(action) - old_log_prob).reshape(adv.shape).exp()
     inside = (kl.detach() <= delta).to(adv.dtype)
-    return ((kl - ratio * adv / temperature) * inside).mean(), kl
+    return (kl - ratio * adv / temperature) * inside, kl
 
 
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "outside_fraction")
@@ -108,11 +122,12 @@ class FOCOPS(PPO):
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return batch.get(keys.ADVANTAGE) - self.multiplier.value * batch.get(keys.COST_ADVANTAGE)
 
-    def policy_loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def surrogate(
+        self, dist: Distribution, mb: dict[str, torch.Tensor], mean: Callable[[torch.Tensor], torch.Tensor]
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         head = self.agent.actor.head
-        dist = self.agent.dist(mb)
         old_dist = head.dist({k: mb[k] for k in head.param_keys})  # pi_k, as it acted
-        loss, kl = focops_loss(
+        terms, kl = focops_terms(
             dist,
             old_dist,
             mb[keys.ACTION],
@@ -121,12 +136,11 @@ class FOCOPS(PPO):
             self.cfg.temperature,
             self.cfg.target_kl,
         )
-        entropy = dist.entropy().mean()
-        loss = loss - self.cfg.entropy_coef * entropy
+        entropy = mean(dist.entropy())
         with torch.no_grad():
-            mean_kl = kl.mean()
-            outside = (kl > self.cfg.target_kl).float().mean()
-        return loss, {"entropy": entropy.detach(), "kl": mean_kl, "kl_stop": mean_kl, "outside_fraction": outside}
+            mean_kl = mean(kl)
+            outside = mean((kl > self.cfg.target_kl).float())
+        return mean(terms), {"entropy": entropy, "kl": mean_kl, "kl_stop": mean_kl, "outside_fraction": outside}
 
     def _update_keys(self, batch: TensorDictBase) -> list:
         return [*super()._update_keys(batch), *self.agent.actor.head.param_keys]

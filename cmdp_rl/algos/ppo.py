@@ -27,10 +27,11 @@ default gymnasium run's training (measured with cProfile, see ``experiments/``).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, ClassVar, Optional
+from typing import TYPE_CHECKING, Annotated, Callable, ClassVar, Optional
 
 import torch
 from tensordict import TensorDictBase
+from torch import distributions as D
 from torch import nn
 
 from cmdp_rl import keys
@@ -64,6 +65,8 @@ if TYPE_CHECKING:
 # before that minibatch's step; the logged statistics average the minibatches evaluated. The
 # factor 1.5 is the one Spinning Up's PPO and Stable-Baselines3's PPO use with their target_kl.
 KL_STOP = 1.5
+Units = dict[str, torch.Tensor]
+Reduce = Callable[[torch.Tensor], torch.Tensor]  # torch.mean, or a population's mean per agent
 
 
 @options
@@ -262,28 +265,36 @@ class PPO:
         check_finite(**stats)
         check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
+        stats.update(self.iteration_stats())
         self.iteration += 1
         return stats
 
-    def policy_loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """Clipped surrogate (Schulman et al. 2017, eq. 7) on the policy advantage, minus the
-        entropy bonus; returns the loss and its statistics (entropy, the approximate KL
-        ``E[log pi_old - log pi]``, the fraction of clipped ratios), detached. The same arithmetic
-        as torchrl's ``ClipPPOLoss`` (clip on the log-ratio)."""
-        dist = self.agent.dist(mb)
+    def policy_loss(self, mb: Units) -> tuple[torch.Tensor, Units]:
+        """:meth:`surrogate` minus the entropy bonus, and its statistics, detached."""
+        loss, stats = self.surrogate(self.agent.dist(mb), mb, torch.mean)
+        loss = loss - self.cfg.entropy_coef * stats["entropy"]
+        return loss, {**stats, "entropy": stats["entropy"].detach()}
+
+    def surrogate(self, dist: D.Distribution, mb: Units, mean: Reduce) -> tuple[torch.Tensor, Units]:
+        """Clipped surrogate (Schulman et al. 2017, eq. 7; clip on the log-ratio, as ClipPPOLoss) and
+        its statistics (entropy with its graph, KL ``E[log pi_old - log pi]``, clip fraction,
+        ``kl_stop``), reduced by ``mean``: over the minibatch, or per agent on a population's ``[P, B]``."""
         log_prob = dist.log_prob(mb[keys.ACTION])
         old_log_prob = mb[keys.LOG_PROB]
         adv = mb[keys.POLICY_ADVANTAGE]
         gain, log_ratio, log_ratio_clip = clipped_gain(log_prob, old_log_prob, adv, self.log_clip)
-        entropy = dist.entropy().mean()
-        loss = -gain.mean() - self.cfg.entropy_coef * entropy
+        entropy = mean(dist.entropy())
         with torch.no_grad():
-            kl = (old_log_prob - log_prob).mean()
+            kl = mean(old_log_prob - log_prob)
             # Non-negative estimate for early stopping: E[(r - 1) - log r] (Schulman, 2020,
             # "Approximating KL Divergence"; the one Stable-Baselines3 stops on).
-            kl_stop = (log_ratio.exp() - 1 - log_ratio).mean()
-            clip_fraction = (log_ratio_clip != log_ratio).float().mean()
-        return loss, {"entropy": entropy.detach(), "kl": kl, "clip_fraction": clip_fraction, "kl_stop": kl_stop}
+            kl_stop = mean(log_ratio.exp() - 1 - log_ratio)
+            clip_fraction = mean((log_ratio_clip != log_ratio).float())
+        return -mean(gain), {"entropy": entropy, "kl": kl, "clip_fraction": clip_fraction, "kl_stop": kl_stop}
+
+    def iteration_stats(self) -> dict[str, float]:
+        """A variant's ``stats`` beyond the minibatch loop's (CRPO's ``cost_step``)."""
+        return {}
 
     def _update_keys(self, batch: TensorDictBase) -> list:
         """The batch entries the minibatch loop reads: the networks' inputs, the action and its

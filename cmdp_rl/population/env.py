@@ -7,6 +7,8 @@ step exactly as a single run's ``TorchReach1D`` with its options does. Noise com
 :class:`PopulationNoise`: one generator per agent, seeded with the agent's seed and drawing the
 agent's N values per call in the single run's order, so each agent's envs see the single run's
 draws. An agent with a fixed start draws no uniform at a reset, as in its single run.
+:func:`population_env` adds what the algorithm's options ask of every env (Sauté's budget state,
+``algos/saute.py``), with each agent's own budgets.
 """
 
 from __future__ import annotations
@@ -15,7 +17,10 @@ from typing import Any, Sequence
 
 import torch
 
+from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.envs.reach1d.batched import TorchReach1D
+from cmdp_rl.envs.saute import BudgetState
+from cmdp_rl.envs.vector import VecEnv
 
 
 class PopulationNoise:
@@ -105,4 +110,22 @@ class PopulationReach1D(TorchReach1D):
         return torch.where(self.start_is_range, drawn, fixed)
 
 
-__all__ = ["PopulationNoise", "PopulationReach1D"]
+def population_env(
+    cfgs: Sequence[Any], n: int, seeds: Sequence[int], stagger: bool, device: torch.device, evaluation: bool = False
+) -> VecEnv:
+    """The agents' envs, ``n`` each, seeded per agent, as ``envs.make_env`` builds one agent's: wrapped
+    by ``algo.wrap_env`` where the options declare it, with each agent's budgets in the budget state."""
+    env = PopulationReach1D([c.env for c in cfgs], n, stagger=stagger, device=device)
+    env.seed_agents(seeds)
+    wrap = getattr(cfgs[0].algo, "wrap_env", None)
+    if wrap is None:
+        return env
+    wrapped = wrap(env, evaluation=evaluation)
+    state = getattr(wrapped, "state", None)
+    if isinstance(state, BudgetState):  # one row of budgets per env: its agent's
+        budgets = [per_constraint(c.algo.cost_limit, "algo.cost_limit", env.cost_names) for c in cfgs]
+        state.budgets = torch.tensor(budgets, dtype=state.budgets.dtype, device=device).repeat_interleave(n, 0)
+    return wrapped
+
+
+__all__ = ["PopulationNoise", "PopulationReach1D", "population_env"]

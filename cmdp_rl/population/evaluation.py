@@ -12,12 +12,11 @@ from typing import Any, Sequence
 
 import torch
 
-from cmdp_rl import keys
 from cmdp_rl.collector import Collector
 from cmdp_rl.config import RunConfig
-from cmdp_rl.evaluation import EVAL_SEED_OFFSET, summarize_episodes
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET, episode_rows, summarize_episodes
 from cmdp_rl.population.agent import PopulationAgent
-from cmdp_rl.population.env import PopulationReach1D
+from cmdp_rl.population.env import population_env
 
 CHUNK = 128  # steps per collect, as evaluation.py
 
@@ -27,31 +26,14 @@ def evaluate_population(
 ) -> list[dict[str, Any]]:
     cfg = cfgs[0]
     n = min(cfg.eval_episodes, cfg.env.num_envs)
-    env = PopulationReach1D([c.env for c in cfgs], n, stagger=False, device=device)
     seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
-    env.seed_agents(seeds)
+    env = population_env(cfgs, n, seeds, stagger=False, device=device, evaluation=True)
     training = agent.generators
     agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
     try:
         collector = Collector(env, agent, CHUNK, seed=None, deterministic=cfg.eval_deterministic)
         quota = [cfg.eval_episodes // n + (1 if j < cfg.eval_episodes % n else 0) for j in range(n)]
-        rows: list[list[tuple[float, ...]]] = [[] for _ in range(env.num_envs)]
-        while any(len(r) < quota[e % n] for e, r in enumerate(rows)):
-            batch = collector.collect()
-            nxt = batch.get(keys.NEXT)
-            done = nxt.get(keys.DONE).squeeze(-1)
-            ret, length = nxt.get(keys.EPISODE_RETURN), nxt.get(keys.EPISODE_LENGTH)
-            term, cost = nxt.get(keys.TERMINATED), nxt.get(keys.EPISODE_COST)
-            for e, t in done.nonzero().tolist():
-                if len(rows[e]) < quota[e % n]:
-                    rows[e].append(
-                        (
-                            ret[e, t, 0].item(),
-                            float(length[e, t, 0].item()),
-                            float(term[e, t, 0].item()),
-                            *cost[e, t].tolist(),
-                        )
-                    )
+        rows = episode_rows(collector, quota * len(cfgs))
     finally:
         agent.generators = training
     metric = getattr(cfg.env, "termination_metric", None)

@@ -83,22 +83,32 @@ class StackedAdam:
         self.lr = torch.tensor(list(lr), dtype=torch.float64)
         self.beta1, self.beta2 = betas
         self.eps = eps
-        self.step_count = 0
+        # Steps taken per agent: an agent stopped by KL early stopping takes none (torch's Adam
+        # keeps one count per parameter; here one per row).
+        self.steps = torch.zeros(params.shape[0], dtype=torch.float64)
         self.exp_avg = torch.zeros_like(params)
         self.exp_avg_sq = torch.zeros_like(params)
 
     @torch.no_grad()
-    def step(self) -> None:
+    def step(self, active: torch.Tensor | None = None) -> None:
+        """One Adam step of every agent, or of the agents where ``active`` (``[P]`` bool) holds:
+        the others' parameters and moments stay as they are."""
         g = self.params.grad
-        self.step_count += 1
-        t = self.step_count
+        if active is not None:
+            keep = ~active.unsqueeze(1).to(g.device)
+            old = (self.params.clone(), self.exp_avg.clone(), self.exp_avg_sq.clone())
+        self.steps += 1 if active is None else active.to(torch.float64).cpu()
         self.exp_avg.lerp_(g, 1 - self.beta1)
         self.exp_avg_sq.mul_(self.beta2).addcmul_(g, g, value=1 - self.beta2)
-        bias1 = 1 - self.beta1**t
-        bias2_sqrt = (1 - self.beta2**t) ** 0.5
+        # The bias corrections in float64 on the host, as torch's fused CPU kernel computes them.
+        bias1 = 1 - self.beta1**self.steps
+        bias2_sqrt = (1 - self.beta2**self.steps).sqrt()
         step_size = (self.lr / bias1).to(self.params.dtype).to(self.params.device).unsqueeze(1)
-        denom = (self.exp_avg_sq.sqrt() / bias2_sqrt).add_(self.eps)
+        denom = (self.exp_avg_sq.sqrt() / bias2_sqrt.to(self.params.dtype).to(g.device).unsqueeze(1)).add_(self.eps)
         self.params.sub_(step_size * self.exp_avg / denom)
+        if active is not None:
+            for now, before in zip((self.params, self.exp_avg, self.exp_avg_sq), old):
+                now.copy_(torch.where(keep, before, now))
 
     def zero_grad(self) -> None:
         self.params.grad = None
@@ -117,14 +127,17 @@ class StackedAdam:
 
     def state_dict(self) -> dict:
         return {
-            "step": self.step_count,
+            "steps": self.steps.clone(),
             "exp_avg": self.exp_avg.clone(),
             "exp_avg_sq": self.exp_avg_sq.clone(),
             "lr": self.lr.clone(),
         }
 
     def load_state_dict(self, state: dict) -> None:
-        self.step_count = int(state["step"])
+        if "steps" in state:
+            self.steps.copy_(state["steps"])
+        else:  # a checkpoint from before the per-agent counts: one count for all
+            self.steps.fill_(float(state["step"]))
         self.exp_avg.copy_(state["exp_avg"])
         self.exp_avg_sq.copy_(state["exp_avg_sq"])
 

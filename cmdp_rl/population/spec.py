@@ -15,33 +15,34 @@ import itertools
 from dataclasses import field
 from typing import Any, Mapping
 
-from cmdp_rl.config import RunConfig, flatten_dict, load_config
+import yaml
+
+from cmdp_rl.algos.ppo import PPO
+from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
+from cmdp_rl.registry import component, names
 from cmdp_rl.validation import ConfigError, PositiveInt, options, require
 
-# The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed.
-PER_AGENT_FIELDS = (
-    "seed",
-    "algo.penalty",
-    "algo.cost_limit",
-    "algo.lambda_init",
-    "algo.lr",
-    "algo.critic_lr",
-    "algo.entropy_coef",
-    "algo.lambda_lr",
-    "algo.kp",
-    "algo.ki",
-    "algo.kd",
-    "algo.p_ema_alpha",
-    "algo.d_ema_alpha",
-    "algo.d_delay",
-    "algo.lambda_max",
-    "env.obs_noise",
-    "env.wall_x",
-    "env.goal",
-    "env.start",
-)
-SUPPORTED_ALGOS = ("ppo", "penalty", "ppo_lag", "pid_lag")
+# The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed: the
+# grid that configs/population/none.yaml declares (each a number some agent's own object reads).
+PER_AGENT_FIELDS = tuple(flatten_dict(yaml.safe_load((CONFIG_DIR / "population" / "none.yaml").read_text())["grid"]))
 RUN_AS_SWEEP = "run it as separate runs (python train.py -m ...)"
+
+
+def batched(algo: str) -> bool:
+    """Whether the population trains ``algo``: a PPO whose update is ``PPO.update`` (the variant
+    lives in the hooks the population calls per agent: multiplier, advantage, surrogate) or that
+    adds CUP's projection, or a composition on such a base (Sauté's ``algo.base``)."""
+    comp = component("algo", algo)
+    if not isinstance(comp.build, type):
+        base = getattr(comp.options, "base", None)
+        return isinstance(base, str) and base != algo and batched(base)
+    # CUP's second stage is the one stage beyond PPO's that the population runs (update.py).
+    return issubclass(comp.build, PPO) and (comp.build.update is PPO.update or hasattr(comp.build, "projection_loss"))
+
+
+def batched_algos() -> list[str]:
+    """Every registered algorithm a population accepts."""
+    return [n for n in names("algo") if batched(n)]
 
 
 @options
@@ -147,8 +148,8 @@ def check_supported(cfg: RunConfig) -> None:
     def refuse(what: str, allowed: str) -> None:
         raise ConfigError(f"population: {what} is not batched ({allowed}); {RUN_AS_SWEEP}")
 
-    if cfg.algo.name not in SUPPORTED_ALGOS:
-        refuse(f"algo={cfg.algo.name}", f"algo must be one of {', '.join(SUPPORTED_ALGOS)}")
+    if not batched(cfg.algo.name):
+        refuse(f"algo={cfg.algo.name}", f"algo must be one of {', '.join(batched_algos())}")
     if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
         refuse(
             f"policy={cfg.policy.name}" + (" with include_prev_*" if cfg.policy.name == "mlp" else ""),
@@ -163,10 +164,6 @@ def check_supported(cfg: RunConfig) -> None:
         refuse("env.probe=true", "the probe action is not batched")
     if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:
         refuse("normalize", "normalize.obs, .reward and .cost must be false")
-    if cfg.algo.target_kl is not None:
-        refuse(f"algo.target_kl={cfg.algo.target_kl}", "algo.target_kl must be null")
-    if getattr(cfg.algo, "anneal_lr", False) or getattr(cfg.algo, "anneal_lambda_lr", False):
-        refuse("algo.anneal_lr / anneal_lambda_lr", "the learning rates are constant per agent")
     if cfg.logger.name != "csv":
         refuse(f"logger={cfg.logger.name}", "logger must be csv")
     if cfg.reference.run is not None or cfg.reference.episode_return is not None:
@@ -178,7 +175,8 @@ def check_supported(cfg: RunConfig) -> None:
 __all__ = [
     "PER_AGENT_FIELDS",
     "PopulationConfig",
-    "SUPPORTED_ALGOS",
+    "batched",
+    "batched_algos",
     "agent_configs",
     "agent_overrides",
     "check_supported",

@@ -19,7 +19,7 @@ import yaml
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
 from cmdp_rl.config import CONFIG_DIR
-from cmdp_rl.population.spec import PER_AGENT_FIELDS, SUPPORTED_ALGOS
+from cmdp_rl.population.spec import PER_AGENT_FIELDS, batched
 from cmdp_rl.validation import ConfigError
 
 
@@ -82,7 +82,7 @@ def sweep_parts(experiment: str) -> list[SweepPart]:
     parts = []
     for choice in choices:  # no algo entry: the experiment's own algorithm (checked when composed)
         name = (choice or "default").rsplit("/", 1)[-1]
-        parts.append(SweepPart(name, choice, dict(grid), batched=choice is None or name in SUPPORTED_ALGOS))
+        parts.append(SweepPart(name, choice, dict(grid), batched=choice is None or batched(name)))
     return parts
 
 

@@ -1,20 +1,9 @@
-"""The population's training loop: one process, P agents, one batched tensor program.
-
-Per iteration, as ``trainer.train`` for one agent: collect (the single-run ``Collector`` on the
-population's env and agent), check the rollout, update (``update.PopulationPPO``), log one
-``metrics.csv`` row per agent. Outputs, under the population's directory:
-
-- ``agents/<k>_<values>/``: one run directory per agent, as a single run writes it
-  (``config.yaml`` with the agent's own config, ``run_info.json``, ``metrics.csv``, ``eval.json``,
-  ``checkpoint.pt`` loadable by ``evaluate.py``), so ``cmdp_rl.report.plot``, ``cmdp_rl.run.sweeps`` and the
-  penalty-versus-constraint report read them unchanged;
-- ``population.yaml``: the composed config the population was started with (its ``population``
-  node included), which a resume rebuilds it from;
-- ``population.pt``: the population's checkpoint (every agent's parameters, Adam moments, J_c
-  window, multiplier, env state and random streams), written every ``checkpoint_every``
-  iterations; ``python train.py resume=<dir>`` continues from it;
-- ``population.json``: the summary: agents, their values and final evaluation, wall time, summed
-  training steps per second.
+"""The population's training loop: as ``trainer.train`` for each agent (collect with the single-run
+``Collector``, check the rollout, update, one ``metrics.csv`` row per agent from
+``trainer.metrics_row``, ``eval.json`` from ``trainer.complete_result``), one process for all.
+Outputs (docs/population.md): ``agents/<k>_<values>/`` (one single run's directory per agent),
+``population.yaml`` (what a resume rebuilds from), ``population.pt`` (the checkpoint: plain tensors,
+numbers and strings), ``population.json`` (the summary).
 """
 
 from __future__ import annotations
@@ -31,20 +20,20 @@ from typing import Any, Callable, Mapping
 import torch
 import yaml
 
+from cmdp_rl import keys
 from cmdp_rl.algos import make_algo
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from cmdp_rl.collector import Collector, finished_episodes
+from cmdp_rl.collector import Collector
 from cmdp_rl.envs import make_env
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
-from cmdp_rl.population.env import PopulationReach1D
+from cmdp_rl.population.env import population_env
 from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
-from cmdp_rl.report.metrics import MetricsLogger, columns, spread
-from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
+from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name
 from cmdp_rl.rng import seed_everything
 from cmdp_rl.run.rundir import (
     CHECKPOINT,
@@ -59,13 +48,9 @@ from cmdp_rl.run.rundir import (
     write_run_info,
 )
 from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import check_env_contract, contract_options
+from cmdp_rl.trainer import check_env_contract, complete_result, contract_options, metrics_row
 
 AGENTS_DIR = "agents"
-
-
-def _mean(t: torch.Tensor) -> float:
-    return t.mean().item() if t.numel() else float("nan")
 
 
 def agent_dir_name(k: int, overrides: Mapping[str, Any]) -> str:
@@ -115,15 +100,14 @@ def train_population(
     agents, algos, generators = [], [], []
     for c in cfgs:
         seed_everything(c.seed)
-        probe = make_env(c.env, device=c.device)
+        probe = make_env(c.env, device=c.device, algo=c.algo)
         agent = make_agent(c.policy, probe, make_normalizers(c, probe))
         agents.append(agent)
         algos.append(make_algo(c.algo, agent))
         g = torch.Generator(device=device)
         g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
         generators.append(g)
-    env = PopulationReach1D([c.env for c in cfgs], N, stagger=cfg.env.stagger, device=device)
-    env.seed_agents([c.seed for c in cfgs])
+    env = population_env(cfgs, N, [c.seed for c in cfgs], stagger=cfg.env.stagger, device=device)
     pop = PopulationAgent(agents, generators, device)
     update = PopulationPPO(cfgs, algos, pop, N)
     collector = Collector(env, pop, T, seed=None)
@@ -154,7 +138,8 @@ def train_population(
 
     per_iter = T * N  # steps per agent per iteration
     iterations = math.ceil(cfg.total_steps / per_iter)
-    first, elapsed, steps, costs = 1, 0.0, 0, [0.0] * P
+    first, elapsed, steps = 1, 0.0, 0
+    costs = torch.zeros(P, len(names), dtype=torch.float64)  # every cost each agent collected so far
     if state is not None:
         with torch.no_grad():
             pop.actor.flat.copy_(state["actor"])
@@ -163,7 +148,8 @@ def train_population(
         collector.load_state_dict(state["collector"])
         for g, s in zip(generators, state["generators"]):
             g.set_state(s)
-        first, elapsed, steps, costs = state["iteration"] + 1, state["time_s"], state["step"], list(state["costs"])
+        first, elapsed, steps, costs = state["iteration"] + 1, state["time_s"], state["step"], state["costs"]
+        costs = torch.as_tensor(costs, dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
     echo(
         f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} (torch, {N} envs each): "
@@ -171,7 +157,6 @@ def train_population(
     )
     env_id, allow_negative_cost = contract_options(cfg.env)
     start = time.perf_counter() - elapsed
-    limits = [c.algo.cost_limit for c in cfgs]
 
     def checkpoint(it: int) -> None:
         for lg in loggers:
@@ -201,32 +186,19 @@ def train_population(
             steps += per_iter
             check_rollout(batch, env_id, allow_negative_cost, first_step=steps // N - T + 1)
             stats = update.update(batch)
-            batch_costs = batch.get(("next", "cost")).reshape(P, -1).sum(1).tolist()
-            costs = [a + b for a, b in zip(costs, batch_costs)]
+            costs = costs + batch.get((keys.NEXT, keys.COST)).reshape(P, -1, len(names)).sum(1).to(costs)
             dt = time.perf_counter() - t0
-            now = time.perf_counter() - start
-            returns, ep_costs = [], []
-            for i in range(P):
-                eps = finished_episodes(batch[i * N : (i + 1) * N])
-                row = {
-                    "iteration": it,
-                    "step": steps,
-                    "episode_return": _mean(eps["return"]),
-                    "episode_cost": [_mean(eps["cost"][:, 0])],
-                    "episode_length": _mean(eps["length"]),
-                    "episodes": int(eps["length"].numel()),
-                    "cost_limit": limits[i],
-                    "sps": per_iter / dt,
-                    "time_s": now,
-                    **stats[i],
-                    "cost_rate": [cost_rate(costs[i], steps)],
-                }
-                row.update(
-                    normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"], [limits[i]], None)
+            timing = {"sps": per_iter / dt, "time_s": time.perf_counter() - start}
+            rows = [
+                metrics_row(
+                    it, steps, batch[i * N : (i + 1) * N], stats[i], timing, c.algo.cost_limit, total, names, None
                 )
-                loggers[i].log(spread(row, names))
-                returns.append(row["episode_return"])
-                ep_costs.append(row["episode_cost"][0])
+                for i, (c, total) in enumerate(zip(cfgs, costs.tolist()))
+            ]
+            for logger, row in zip(loggers, rows):
+                logger.log(row)
+            returns = [r["episode_return"] for r in rows]
+            ep_costs = [r[constraint_name("episode_cost", names[0], len(names))] for r in rows]
             if it % cfg.log_interval == 0 or it == first or it == iterations:
                 echo(
                     f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
@@ -243,21 +215,7 @@ def train_population(
     results = evaluate_population(pop, cfgs, device)
     summary_agents = []
     for i, (d, c, result) in enumerate(zip(dirs, cfgs, results)):
-        rate = [cost_rate(costs[i], steps)]
-        result.update(
-            {
-                "cost_limit": c.algo.cost_limit,
-                "steps": steps,
-                "train_time_s": train_time,
-                "torch_threads": torch.get_num_threads(),
-            }
-        )
-        per_cost = {
-            "cost_rate": rate,
-            **normalized_scores(result["episode_return"], [result["episode_cost"]], rate, [c.algo.cost_limit], None),
-        }
-        result.update(spread(per_cost, names))
-        result["reference"] = None
+        complete_result(result, c, steps, train_time, costs[i].tolist(), names, None)
         _write_agent_checkpoint(d, c, pop, update, i, iterations, steps, train_time)
         (d / EVAL).write_text(json.dumps(result, indent=2))
         summary_agents.append(
@@ -265,7 +223,7 @@ def train_population(
                 "dir": str(d.relative_to(out)),
                 "values": overrides[i],
                 "episode_return": result["episode_return"],
-                "episode_cost": result["episode_cost"],
+                "episode_cost": result.get("episode_cost"),
             }
         )
     summary = {
@@ -317,7 +275,7 @@ def _write_agent_checkpoint(
     ):
         moments = stacked_opt.agent_state(i, stacked)
         for name, p in module.named_parameters():
-            opt.state[p] = {"step": torch.tensor(float(stacked_opt.step_count)), **moments[name]}
+            opt.state[p] = {"step": stacked_opt.steps[i].to(torch.float32), **moments[name]}
     save_checkpoint(
         d / CHECKPOINT,
         {

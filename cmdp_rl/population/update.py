@@ -1,20 +1,24 @@
-"""The PPO-family update of every agent at once (ppo, penalty, ppo_lag, pid_lag).
+"""The PPO-family update of every agent at once, each agent's algorithm arithmetic from its own
+single-run algorithm object.
 
-The arithmetic is ``algos/ppo.py``'s, per agent, on ``[P, rows, ...]`` tensors: torchrl's GAE
-(``advantages.TwinGAE``) on the whole ``[P N, T]`` batch (its recursion runs along time, row by
-row), each agent's J_c estimate and multiplier from its own single-run algorithm object
-(``EpisodeCostEstimate``, ``lagrange.DualAscent`` / ``PIDLagrangian``: a few Python numbers per
-agent and iteration), the clipped surrogate (Schulman et al., 2017, eq. 7) and the critics' MSE per
-agent. Everything that is not elementwise is per agent: advantage normalisation (moments over
-each agent's rows), the minibatch permutations (each agent's generator, in its single run's order),
-gradient-norm clipping (``StackedParams.clip_grad_norm_``). The per-agent losses are summed before
-one backward pass: agents share no parameter, so each agent's gradient is its own loss's.
+Per iteration, as ``algos/ppo.py``'s ``PPO.update``: torchrl's GAE (``advantages.TwinGAE``) on the
+whole ``[P N, T]`` batch (its recursion runs along time, row by row); then each agent's own
+algorithm object, on its own rows, estimates J_c and moves its multiplier (``update_multiplier``)
+and gives the policy advantage (``policy_advantage``), so whatever an algorithm does there (a
+penalty, dual ascent, PID, CRPO's switch, a multiplier of #28's kinds) is its single run's code.
+The minibatch step's policy loss is the algorithm's ``surrogate`` with per-agent reductions on
+``[P, B, ...]`` (clipped PPO, FOCOPS's projection loss), and the critics' MSE per agent.
+Everything that is not elementwise is per agent: advantage normalisation, the minibatch
+permutations (each agent's generator, in its single run's order), gradient-norm clipping and Adam
+(``params``), KL early stopping (a mask: an agent that stops takes no further step and draws no
+further permutation, as its single run breaks out of its loop). The per-agent losses are summed
+before one backward pass: agents share no parameter, so each agent's gradient is its own loss's.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -22,93 +26,77 @@ from tensordict import TensorDictBase
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import TrainingDiverged
-from cmdp_rl.algos.ppo import STATS, clipped_gain, logged_multiplier
+from cmdp_rl.algos.cup import HALF
 from cmdp_rl.config import RunConfig
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.params import StackedAdam
 
-UNIT_KEYS = (keys.OBS, keys.ACTION, keys.LOG_PROB, keys.POLICY_ADVANTAGE, keys.VALUE_TARGET, keys.COST_VALUE_TARGET)
+# What a single run's algorithm state holds that the population keeps stacked instead.
+STACKED_STATE = ("networks", "actor_opt", "critic_opt")
 
 
 class PopulationPPO:
-    """``algos`` are the agents' single-run algorithm objects: they keep each agent's J_c window
-    and multiplier (and give the single-run checkpoint its layout); the networks' arithmetic is here."""
+    """``algos`` are the agents' single-run algorithm objects (PPO or a subclass that keeps
+    ``PPO.update``): each keeps its agent's J_c window, multiplier and schedule clock; the networks'
+    arithmetic and the optimisers are here."""
 
     def __init__(
         self, cfgs: Sequence[RunConfig], algos: Sequence[Any], agent: PopulationAgent, envs_per_agent: int
     ) -> None:
         first = cfgs[0].algo
-        self.name = first.name
         self.cfg = first  # shared options: discounts, epochs, minibatches, clip, max_grad_norm
         self.algos = list(algos)
         self.agent = agent
         self.n = envs_per_agent
         self.gae = TwinGAE(first.gamma, first.cost_gamma, first.gae_lambda)
-        self.log_clip = (math.log1p(-first.clip_epsilon), math.log1p(first.clip_epsilon))
-        self.entropy_coef = torch.tensor(
-            [c.algo.entropy_coef for c in cfgs], dtype=torch.float32, device=agent.actor.flat.device
-        )
-        self.actor_opt = StackedAdam(agent.actor.flat, [c.algo.lr for c in cfgs])
-        self.critic_opt = StackedAdam(agent.critics.flat, [c.algo.critic_lr for c in cfgs])
+        device = agent.actor.flat.device
+        self.entropy_coef = torch.tensor([c.algo.entropy_coef for c in cfgs], dtype=torch.float32, device=device)
+        limits = [a.kl_limit for a in self.algos]
+        self.kl_limit = None if limits[0] is None else torch.tensor(limits, dtype=torch.float32, device=device)
+        self.lrs = [(c.algo.lr, c.algo.critic_lr) for c in cfgs]
+        self.actor_opt = StackedAdam(agent.actor.flat, [lr for lr, _ in self.lrs])
+        self.critic_opt = StackedAdam(agent.critics.flat, [lr for _, lr in self.lrs])
 
-    def multipliers(self) -> list[list[float]]:
-        """Each agent's lambda in force, one per constraint (0 for PPO)."""
-        if self.name == "penalty":
-            return [a.penalties for a in self.algos]
-        if self.name in ("ppo_lag", "pid_lag"):
-            return [a.multiplier.values for a in self.algos]
-        return [[0.0] for _ in self.algos]
-
-    def _policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
-        """``PPO.policy_advantage`` of each agent's rows (K = 1: the env has one cost)."""
-        adv = batch.get(keys.ADVANTAGE)
-        if self.name == "ppo":
-            return adv
-        lams = [m[0] for m in self.multipliers()]
-        per_row = torch.tensor(lams, dtype=torch.float32, device=adv.device).repeat_interleave(self.n).view(-1, 1, 1)
-        adv = adv - per_row * batch.get(keys.COST_ADVANTAGE)
-        if self.name == "penalty":
-            return adv
-        # (A_r - lambda A_c) / (1 + lambda), the sum taken in float64 as the single run's Python float.
-        scale = torch.tensor([1.0 + lam for lam in lams], dtype=torch.float64).to(torch.float32)
-        return adv / scale.to(adv.device).repeat_interleave(self.n).view(-1, 1, 1)
+    def _mean(self, x: torch.Tensor) -> torch.Tensor:
+        """The mean over each agent's rows: ``[P, B, ...]`` -> ``[P]``."""
+        return x.reshape(self.agent.num_agents, -1).mean(1)
 
     def update(self, batch: TensorDictBase) -> list[dict[str, Any]]:
         """One iteration for every agent on the ``[P N, T]`` batch; each agent's logged statistics."""
         cfg, P, agent = self.cfg, self.agent.num_agents, self.agent
+        if cfg.anneal_lr:  # PPO.update's schedule, per agent
+            fracs = [a.anneal_fraction() for a in self.algos]
+            self.actor_opt.lr = torch.tensor([f * lr for f, (lr, _) in zip(fracs, self.lrs)], dtype=torch.float64)
+            self.critic_opt.lr = torch.tensor([f * lr for f, (_, lr) in zip(fracs, self.lrs)], dtype=torch.float64)
         self.gae(batch, agent)
-        for i, algo in enumerate(self.algos):  # J_c and the multiplier, before the policy update
-            algo.update_multiplier(algo.episode_cost.update(batch[i * self.n : (i + 1) * self.n]))
-        adv = self._policy_advantage(batch)
+        advs = []
+        for i, algo in enumerate(self.algos):  # J_c, the multiplier and the advantage: the agent's own code
+            rows = batch[i * self.n : (i + 1) * self.n]
+            algo.update_multiplier(algo.episode_cost.update(rows))
+            advs.append(algo.policy_advantage(rows))
+        adv = torch.cat(advs)
         if cfg.normalize_advantage:
             a = adv.reshape(P, -1)
             adv = ((a - a.mean(1, keepdim=True)) / (a.std(1, keepdim=True) + 1e-8)).reshape(adv.shape)
         batch.set(keys.POLICY_ADVANTAGE, adv)
         # Training units per agent: [P, N T, ...].
-        data = {k: batch.get(k).reshape(P, -1, *batch.get(k).shape[2:]) for k in UNIT_KEYS}
-        total = next(iter(data.values())).shape[1]
-        size = total // cfg.num_minibatches
-        rows = torch.arange(P, device=adv.device).unsqueeze(1)
-        sums: dict[str, torch.Tensor] = {}
-        steps = 0
-        for _ in range(cfg.update_epochs):
-            # One permutation per agent per epoch, from its own generator (algos/minibatch.py's order).
-            perm = torch.stack([torch.randperm(total, generator=g, device=g.device) for g in agent.generators])
-            shuffled = {k: v[rows, perm] for k, v in data.items()}
-            for j in range(cfg.num_minibatches):
-                mb = {k: v[:, j * size : (j + 1) * size] for k, v in shuffled.items()}
-                stats = self._step(mb)
-                sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
-                steps += 1
-        means = (torch.stack([sums[k] for k in STATS]) / steps).tolist()  # [stats, P]: one host sync
-        lams = self.multipliers()
+        data = {k: batch.get(k).reshape(P, -1, *batch.get(k).shape[2:]) for k in self.algos[0]._update_keys(batch)}
+        sums, counts = self._epochs(data, cfg.update_epochs, self._step)
+        means = {k: v / counts for k, v in sums.items()}  # each agent's mean over its minibatches
+        if hasattr(self.algos[0], "projection_loss"):  # CUP's second stage (algos/cup.py)
+            sums, counts = self._project(batch)
+            means.update({k: v / counts for k, v in sums.items()})
+        names = [k for k in means if k in self.algos[0].stats]
+        values = torch.stack([means[k] for k in names]).tolist()  # [stats, P]: one host sync
         out = []
-        for i in range(P):
-            stats = {k: means[s][i] for s, k in enumerate(STATS)}
+        for i, algo in enumerate(self.algos):
+            stats = {k: values[s][i] for s, k in enumerate(names)}
             for k, v in stats.items():
                 if not math.isfinite(v):
                     raise TrainingDiverged(f"agent {i}: {k} is {v}: training diverged")
-            stats["lagrange_multiplier"] = logged_multiplier(lams[i])
+            stats["lagrange_multiplier"] = algo.lagrange_multiplier
+            stats.update(algo.iteration_stats())
+            algo.iteration += 1
             out.append(stats)
         for name, stacked in (("actor", agent.actor), ("critics", agent.critics)):
             bad = (~torch.isfinite(stacked.flat).all(1)).nonzero().flatten().tolist()
@@ -116,58 +104,122 @@ class PopulationPPO:
                 raise TrainingDiverged(f"agent {bad[0]}: a parameter of the {name} is not finite after the update")
         return out
 
-    def _step(self, mb: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """One minibatch step of every agent: ``PPO.policy_loss`` and the critics' regression per
-        agent, one backward, per-agent clipping, Adam. Returns each statistic as ``[P]``, detached."""
+    def _epochs(self, data: dict, epochs: int, step: Callable) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """``algos/minibatch.py``'s loop per agent: ``epochs`` passes over ``data`` ``[P, units, ...]``,
+        each in a fresh order from every still active agent's generator (an agent stopped early draws
+        none, as its single run), ``step(minibatch, active) -> (stats, active)`` on each minibatch.
+        Returns the statistics summed over the minibatches each agent evaluated, and their counts."""
+        P = self.agent.num_agents
+        total = next(iter(data.values())).shape[1]
+        size = total // self.cfg.num_minibatches
+        device = self.agent.actor.flat.device
+        rows = torch.arange(P, device=device).unsqueeze(1)
+        active = torch.ones(P, dtype=torch.bool, device=device)
+        sums: dict[str, torch.Tensor] = {}
+        counts = torch.zeros(P, device=device)
+        for _ in range(epochs):
+            running = active.tolist()
+            if not any(running):
+                break
+            perm = torch.stack(
+                [
+                    torch.randperm(total, generator=g, device=g.device) if on else torch.arange(total, device=g.device)
+                    for g, on in zip(self.agent.generators, running)
+                ]
+            )
+            shuffled = {k: v[rows, perm] for k, v in data.items()}
+            for j in range(self.cfg.num_minibatches):
+                evaluated = active.to(counts.dtype)
+                stats, active = step({k: v[:, j * size : (j + 1) * size] for k, v in shuffled.items()}, active)
+                sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
+                counts += evaluated
+                if self.kl_limit is not None and not active.any().item():
+                    break
+        return sums, counts
+
+    def _stop(self, kl: torch.Tensor, active: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """KL early stopping per agent: the agents still active after this minibatch's check, and
+        those that step on it (``None``: every agent, no limit)."""
+        if self.kl_limit is None:
+            return active, None
+        active = active & ~(kl > self.kl_limit)
+        return active, active
+
+    def _kept(self, stats: dict[str, torch.Tensor], evaluated: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The statistics detached, zero for the agents that did not evaluate this minibatch."""
+        if self.kl_limit is None:  # every agent evaluates every minibatch
+            return {k: v.detach() for k, v in stats.items()}
+        return {k: torch.where(evaluated, v.detach(), 0.0) for k, v in stats.items()}
+
+    def _step(self, mb: dict[str, torch.Tensor], active: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """One minibatch step of the ``active`` agents: the algorithm's surrogate and the critics'
+        regression per agent, one backward, per-agent clipping, Adam. Returns each statistic as
+        ``[P]`` (zero where not evaluated) and the agents still active (``PPO.update``: a minibatch
+        past the KL limit is evaluated, not stepped)."""
         agent = self.agent
         dist, value, cost_value = agent.training_pass(mb[keys.OBS])
-        log_prob = dist.log_prob(mb[keys.ACTION])
-        old_log_prob = mb[keys.LOG_PROB]
-        adv = mb[keys.POLICY_ADVANTAGE]
-        gain, log_ratio, log_ratio_clip = clipped_gain(log_prob, old_log_prob, adv, self.log_clip)
-        entropy = dist.entropy().mean(1)
-        loss_pi = -gain.mean((1, 2)) - self.entropy_coef * entropy
-        loss_v = (value - mb[keys.VALUE_TARGET]).pow(2).mean((1, 2))
-        loss_vc = (cost_value - mb[keys.COST_VALUE_TARGET]).pow(2).mean((1, 2))
-        with torch.no_grad():
-            kl = (old_log_prob - log_prob).mean(1)
-            clip_fraction = (log_ratio_clip != log_ratio).float().mean((1, 2))
+        loss_pi, stats = self.algos[0].surrogate(dist, mb, self._mean)
+        loss_pi = loss_pi - self.entropy_coef * stats["entropy"]
+        loss_v = self._mean((value - mb[keys.VALUE_TARGET]).pow(2))
+        loss_vc = self._mean((cost_value - mb[keys.COST_VALUE_TARGET]).pow(2))
+        evaluated = active
+        active, stepping = self._stop(stats["kl_stop"], active)
         self.actor_opt.zero_grad()
         self.critic_opt.zero_grad()
         (loss_pi.sum() + loss_v.sum() + loss_vc.sum()).backward()
         agent.actor.clip_grad_norm_(self.cfg.max_grad_norm)
         agent.critics.clip_grad_norm_(self.cfg.max_grad_norm)
-        self.actor_opt.step()
-        self.critic_opt.step()
-        return {
-            "loss_pi": loss_pi.detach(),
-            "loss_v": loss_v.detach(),
-            "loss_vc": loss_vc.detach(),
-            "entropy": entropy.detach(),
-            "kl": kl,
-            "clip_fraction": clip_fraction,
+        self.actor_opt.step(stepping)
+        self.critic_opt.step(stepping)
+        stats = {"loss_pi": loss_pi, "loss_v": loss_v, "loss_vc": loss_vc, **stats}
+        return self._kept(stats, evaluated), active
+
+    def _project(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """CUP's stage 2 (``CUP.project``) per agent: the cost advantage standardised per agent,
+        ``pi_{k+1/2}`` as stage 1 left each actor, a fresh Adam at each agent's stage-1 rate,
+        ``projection_loss`` with each agent's ``nu`` weight; statistics summed as ``_epochs``."""
+        P, agent, algo = self.agent.num_agents, self.agent, self.algos[0]
+        units = {
+            k: batch.get(k).reshape(P, -1, *batch.get(k).shape[2:]) for k in (keys.ACTION, keys.LOG_PROB, keys.OBS)
         }
+        cost_adv = batch.get(keys.COST_ADVANTAGE).reshape(P, -1, 1)
+        if self.cfg.normalize_advantage:
+            cost_adv = (cost_adv - cost_adv.mean((1, 2), keepdim=True)) / (cost_adv.std((1, 2), keepdim=True) + 1e-8)
+        units[keys.COST_ADVANTAGE] = cost_adv
+        with torch.no_grad():
+            loc, scale = agent.params(units[keys.OBS])
+        units.update({(HALF, keys.LOC): loc, (HALF, keys.SCALE): scale})
+        coef = [a.projection_coef() for a in self.algos]
+        nu_coef = torch.tensor(coef, dtype=torch.float32, device=loc.device).view(-1, 1, 1)
+        opt = StackedAdam(agent.actor.flat, self.actor_opt.lr.tolist())
+
+        def step(mb: dict, active: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+            loss, kl = algo.projection_loss(agent.dist(mb[keys.OBS]), mb, nu_coef, self._mean)
+            evaluated = active
+            active, stepping = self._stop(kl.detach(), active)
+            opt.zero_grad()
+            loss.sum().backward()
+            agent.actor.clip_grad_norm_(self.cfg.max_grad_norm)
+            opt.step(stepping)
+            stats = {"loss_projection": loss, "kl_projection": kl}
+            return self._kept(stats, evaluated), active
+
+        return self._epochs(units, self.cfg.projection_epochs, step)
 
     def state_dict(self) -> dict:
+        """The optimisers' moments and each agent's algorithm state but its networks and torch
+        optimisers (stacked here): plain tensors, numbers and strings."""
         return {
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
-            "algos": [
-                {
-                    "episode_cost": a.episode_cost.state_dict(),
-                    **({"multiplier": a.multiplier.state_dict()} if hasattr(a, "multiplier") else {}),
-                }
-                for a in self.algos
-            ],
+            "algos": [{k: v for k, v in a.state_dict().items() if k not in STACKED_STATE} for a in self.algos],
         }
 
     def load_state_dict(self, state: dict) -> None:
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         for a, s in zip(self.algos, state["algos"]):
-            a.episode_cost.load_state_dict(s["episode_cost"])
-            if "multiplier" in s:
-                a.multiplier.load_state_dict(s["multiplier"])
+            a.load_state_dict({**a.state_dict(), **s})
 
 
 __all__ = ["PopulationPPO"]
