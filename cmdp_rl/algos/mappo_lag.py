@@ -21,7 +21,7 @@ observation). What this module adds is the constraint's scope:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 from cmdp_rl.algos.ppo import PPOLagConfig, PPOLagrangian
 from cmdp_rl.registry import register
@@ -38,6 +38,8 @@ class MAPPOLagConfig(PPOLagConfig):
 
     name: str = "mappo_lag"
     constraint: Literal["team", "per_agent"] = "team"
+    # Its agents are rows of a multi-agent env's batch; a population's agents are runs on one batched env.
+    multi_agent_only: ClassVar[bool] = True
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
