@@ -19,7 +19,7 @@ from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
-from cmdp_rl.config import RunConfig, validate
+from cmdp_rl.config import RunConfig, budget_source, validate
 from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
@@ -176,7 +176,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     where = f"{backend}, " if backend else ""
     echo(
         f"training {cfg.algo.name} on {cfg.env.name} ({where}{env.num_envs} envs): "
-        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}"
+        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit} ({budget_source(cfg)}), outputs in {out}"
     )
     progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
     logger.echo = progress.row_echo

@@ -27,6 +27,7 @@ from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import AlgoConfig, check_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -63,7 +64,7 @@ class TargetEnv(gym.Env):
 
 
 @options
-class TargetEnvConfig:
+class TargetEnvConfig(EnvOptions):
     """``env=toy_target``: options checked before anything is built."""
 
     name: str = "toy_target"

@@ -31,13 +31,13 @@ def test_tuning_files_reach_only_their_own_pair():
     assert (gym.algo.lr, gym.algo.lambda_init, gym.policy.hidden_sizes) == (3e-4, 0.0, [64, 64])
 
 
-def test_the_grid_preset_evaluates_the_stochastic_policy_and_sets_ppo_lags_budgets():
+def test_the_grid_preset_evaluates_the_stochastic_policy_and_every_algorithm_gets_its_budgets():
     lag = compose_config(["env=grid", "algo=ppo_lag"])  # env/grid.yaml, then tuning/algo/grid_ppo_lag.yaml
     assert lag.algo.cost_limit == [0.3, 0.15] and (lag.algo.lr, lag.algo.entropy_coef) == (1e-3, 0.01)
     assert (lag.eval_deterministic, lag.eval_episodes, lag.total_steps) == (False, 1000, 150000)
-    for algo in ("ppo", "trpo_lag"):  # the evaluation is the env's; the rates stay ppo_lag's
+    for algo in ("ppo", "trpo_lag"):  # the evaluation and the budgets are the task's; the rates ppo_lag's
         other = compose_config(["env=grid", f"algo={algo}", "eval_episodes=50"])
-        assert (other.eval_deterministic, other.eval_episodes, other.algo.cost_limit) == (False, 50, 1.0)
+        assert (other.eval_deterministic, other.eval_episodes, other.algo.cost_limit) == (False, 50, [0.3, 0.15])
     assert compose_config(["env=grid", "env.slip=0.2"]).env.slip == 0.2
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Any, Protocol, Sequence, Union, runtime_checkable
+from typing import TYPE_CHECKING, Annotated, Any, Optional, Protocol, Sequence, Union, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
@@ -71,11 +71,12 @@ class AlgoConfig:
     normalize_advantage: Bool = True
     # The budget d on expected undiscounted episode cost. Only constrained algorithms act on it;
     # every run reports against it. With K costs: one number for every constraint, or a list of K
-    # budgets in the env's cost order (per_constraint).
+    # budgets in the env's cost order (per_constraint). None: the task's budget (the env options'
+    # budget()), filled in by config.validate before anything is built.
     cost_limit: Annotated[
-        Union[Budget, list[Budget]],
-        Field(description="a number >= 0 (the budget d) or a list of such numbers, one per cost"),
-    ] = 1.0
+        Optional[Union[Budget, list[Budget]]],
+        Field(description="a number >= 0 (the budget d), a list of such numbers (one per cost) or null (the task's)"),
+    ] = None
 
     def check(self, run: RunConfig) -> None:
         """Rules that relate this algorithm's options to the rest of the run (none here)."""

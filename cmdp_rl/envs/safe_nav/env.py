@@ -25,7 +25,7 @@ from typing import Annotated, Any
 import numpy as np
 import torch
 
-from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.options import SAFETY_GYM_BUDGET, EnvOptions
 from cmdp_rl.envs.safe_nav.button import ButtonTask
 from cmdp_rl.envs.safe_nav.circle import CircleTask
 from cmdp_rl.envs.safe_nav.goal import GoalTask
@@ -262,6 +262,10 @@ class SafeNavEnvConfig(EnvOptions):
     task: Annotated[str, Field(pattern=r"\S", description="a navigation task, e.g. PointGoal1")] = "PointGoal1"
     max_steps: Annotated[int, Field(ge=0, description="an integer >= 0 (0: the task's limit)")] = 0
     threads: PositiveInt = 1
+
+    def budget(self) -> float:
+        """d = 25 cost per episode, the field's budget for these tasks (``SAFETY_GYM_BUDGET``)."""
+        return SAFETY_GYM_BUDGET
 
     def env_id(self) -> str:
         return f"safe_nav/{self.task}"
