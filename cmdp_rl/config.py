@@ -82,6 +82,9 @@ class RunConfig:
     log_interval: PositiveInt = 5
     # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
     resume: Annotated[Optional[str], Field(pattern=r"\S", description="null or a run directory")] = None
+    # A new run into a directory that already holds a run: replace that run's outputs (false: refuse;
+    # cmdp_rl/run/ownership.py).
+    overwrite: Bool = False
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
 

@@ -30,9 +30,10 @@ from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spre
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
+from cmdp_rl.run.ownership import acquire, release
 from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.resume import load_resume_state
-from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
+from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, RunDirError, write_run_info
 from cmdp_rl.threads import apply_threads
 
 
@@ -102,8 +103,31 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     names = env.cost_names
     limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     # After the resume and config checks (a mistyped resume path or a wrong-length budget is
-    # reported, no directory created), before any training.
-    ensure_writable(out)
+    # reported, no directory created), before any training: the directory is this run's alone
+    # (a new run refuses one that holds a run, unless overwrite) for as long as it trains.
+    try:
+        acquire(out, new_run=state is None, overwrite=cfg.overwrite)
+    except RunDirError:
+        env.close()
+        raise
+    try:
+        return _train(cfg, out, state, env, agent, algo, limits, echo)
+    finally:
+        release(out)
+
+
+def _train(
+    cfg: RunConfig,
+    out: Path,
+    state: dict | None,
+    env: Any,
+    agent: Any,
+    algo: Any,
+    limits: list[float],
+    echo: Callable[[str], None],
+) -> dict[str, Any]:
+    """The rest of :func:`train`, in a run directory this process holds."""
+    names = env.cost_names
     # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
     collector = Collector(
         env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=getattr(cfg.algo, "uniform_action_steps", 0)
@@ -123,7 +147,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     except ValueError as exc:
         env.close()
         raise CheckpointError(f"resume: {exc}") from exc
-    run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None))  # the run's own config
+    run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None, overwrite=False))  # the run's own config
     (out / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
     write_run_info(out, resumed_from=None if state is None else state["iteration"])
 
