@@ -178,10 +178,9 @@ def resolve_auto(cfg: RunConfig) -> None:
     Numbers given in the config are kept. Works in place; called by :func:`validate`.
     """
     if cfg.rollout_steps == AUTO:
-        auto = getattr(cfg.algo, "auto_rollout_steps", None)  # an off-policy algorithm's few steps
-        cfg.rollout_steps = auto(cfg) if auto else min(256, max(32, 2048 // cfg.env.num_envs))
-    if hasattr(cfg.algo, "resolve_auto"):
-        cfg.algo.resolve_auto(cfg)
+        auto = cfg.algo.auto_rollout_steps(cfg)  # an off-policy algorithm's few steps
+        cfg.rollout_steps = auto if auto is not None else min(256, max(32, 2048 // cfg.env.num_envs))
+    cfg.algo.resolve_auto(cfg)
 
 
 def resolve_budget(cfg: RunConfig) -> None:
@@ -248,7 +247,7 @@ def _declared_base(kind: str) -> type | None:
 
 def _validate_normalize(cfg: RunConfig) -> None:
     require(
-        not (cfg.normalize.cost and getattr(cfg.algo, "reads_raw_cost", False)),
+        not (cfg.normalize.cost and cfg.algo.reads_raw_cost),
         "normalize.cost",
         f"false with algo={cfg.algo.name} (it reads costs in their own units)",
         cfg.normalize.cost,

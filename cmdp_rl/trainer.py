@@ -58,10 +58,8 @@ CONTRACT_ENVS = 2
 
 
 def contract_options(env_cfg: Any) -> tuple[str, bool]:
-    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``;
-    an env's own options class without them, as tests/test_components.py's toy: its name, False)."""
-    env_id = env_cfg.env_id() if hasattr(env_cfg, "env_id") else getattr(env_cfg, "name", "env")
-    return env_id, bool(getattr(env_cfg, "allow_negative_cost", False))
+    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``)."""
+    return env_cfg.env_id(), bool(env_cfg.allow_negative_cost)
 
 
 def check_env_contract(cfg: RunConfig) -> None:
@@ -129,9 +127,7 @@ def _train(
     """The rest of :func:`train`, in a run directory this process holds."""
     names = env.cost_names
     # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
-    collector = Collector(
-        env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=getattr(cfg.algo, "uniform_action_steps", 0)
-    )
+    collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=cfg.algo.uniform_action_steps)
     env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
@@ -194,8 +190,9 @@ def _train(
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
     shape = f"{per_iter} steps ({cfg.rollout_steps} per env"
-    if hasattr(cfg.algo, "describe_update"):
-        shape += f"; {cfg.algo.describe_update()}"
+    described = cfg.algo.describe_update()
+    if described:
+        shape += f"; {described}"
     backend = getattr(cfg.env, "backend", None)  # only envs with several implementations have one
     where = f"{backend}, " if backend else ""
     echo(
@@ -257,7 +254,7 @@ def _train(
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
-    metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
+    metric = cfg.env.termination_metric  # what the env says termination means (EnvOptions)
     eval_env = make_eval_env(
         cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
     )

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Any, Optional, Protocol, Sequence, Union, runtime_checkable
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Optional, Protocol, Sequence, Union, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
@@ -13,6 +13,7 @@ from cmdp_rl.validation import Bool, Discount, Field, PositiveFloat, finite, opt
 
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
+    from cmdp_rl.envs.vector import VecEnv
 
 
 Budget = Annotated[float, finite(ge=0)]
@@ -39,19 +40,24 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
     return [float(v) for v in values]
 
 
-# The algorithms that take an env with K > 1 costs (one multiplier or penalty per constraint).
-MULTI_CONSTRAINT = ("ppo", "penalty", "ppo_lag", "pid_lag", "trpo_lag", "saute", "sac", "sac_lag", "td3", "td3_lag")
+def multi_constraint_algorithms() -> list[str]:
+    """The toolkit's algorithms that take an env with K > 1 costs (their options declare
+    ``constraints = None``), by name; a user's own registrations are not listed."""
+    from cmdp_rl.registry import component, names
+
+    found = [(component("algo", n).options, n) for n in names("algo")]
+    return [n for cls, n in found if cls.constraints is None and cls.__module__.startswith("cmdp_rl.")]
 
 
 def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str, reason: str) -> float:
     """The budget d of an algorithm that handles one constraint (``agent.num_costs`` must be 1);
     an env with K > 1 costs is a config error naming the algorithms that take it and ``reason``."""
     k = agent.num_costs
+    multi = multi_constraint_algorithms()
     require(
         k == 1,
         "algo",
-        f"{', '.join(MULTI_CONSTRAINT[:-1])} or {MULTI_CONSTRAINT[-1]} for an env with {k} "
-        f"costs ({', '.join(agent.cost_names)}): {reason}",
+        f"{', '.join(multi[:-1])} or {multi[-1]} for an env with {k} costs ({', '.join(agent.cost_names)}): {reason}",
         algo,
     )
     (d,) = per_constraint(cost_limit, "algo.cost_limit", agent.cost_names)
@@ -78,8 +84,49 @@ class AlgoConfig:
         Field(description="a number >= 0 (the budget d), a list of such numbers (one per cost) or null (the task's)"),
     ] = None
 
+    # The hooks below are all the toolkit asks of an algorithm's options besides its fields; each
+    # has the default an algorithm that needs nothing special gets (docs/architecture.md lists them).
+
+    # How many constraints the algorithm takes: None, any number K of costs (one multiplier or
+    # penalty per constraint); 1, one (an env with K > 1 costs is refused, single_constraint).
+    constraints: ClassVar[Optional[int]] = None
+    # True: the algorithm compares costs in their own units with the budget (a constraint's
+    # linearisation, a multiplier's error), so normalize.cost=true is refused (config.validate).
+    reads_raw_cost: ClassVar[bool] = False
+
     def check(self, run: RunConfig) -> None:
         """Rules that relate this algorithm's options to the rest of the run (none here)."""
+
+    def resolve_auto(self, run: RunConfig) -> None:
+        """Replace this algorithm's ``"auto"`` options by numbers from the run's batch shape
+        (``run.rollout_steps`` is already a number here); called by ``config.resolve_auto``."""
+
+    def auto_rollout_steps(self, run: RunConfig) -> Optional[int]:
+        """``rollout_steps: auto`` for this algorithm: None, the run's rule (2048 / num_envs within
+        [32, 256]); an off-policy algorithm asks for a few steps per iteration."""
+        return None
+
+    @property
+    def uniform_action_steps(self) -> int:
+        """Env steps at the start of the run on which the collector acts uniformly at random
+        (an off-policy algorithm's warm-up); 0: the policy acts from the first step."""
+        return 0
+
+    def describe_update(self) -> Optional[str]:
+        """A few words on the update's shape for the line a run starts with (e.g. "10 x 8
+        minibatches"); None: nothing to add."""
+        return None
+
+    def wrap_env(self, env: VecEnv, evaluation: bool = False) -> VecEnv:
+        """The env this algorithm trains (``evaluation=False``) or is evaluated on: ``env`` itself
+        unless the algorithm changes the MDP (Sauté's budget state, algos/saute.py)."""
+        return env
+
+    def observation_state(self, cost_names: tuple[str, ...]) -> Any:
+        """For paths that step one plain gymnasium env (video.py): a state carried along the
+        episode beside the env's observation, as :meth:`wrap_env`'s env would (Sauté's remaining
+        budget), or None if the observation is the env's alone."""
+        return None
 
 
 class TrainingDiverged(RuntimeError):

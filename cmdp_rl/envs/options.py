@@ -4,7 +4,7 @@ options (docs/architecture.md lists these hooks)."""
 
 from __future__ import annotations
 
-from typing import ClassVar, Optional
+from typing import Any, ClassVar, Optional
 
 from cmdp_rl.validation import Bool, options
 
@@ -25,6 +25,9 @@ class EnvOptions:
     # Evaluation reports the fraction of episodes that terminated under this name (e.g. a goal
     # reached); None: the env's termination means nothing worth reporting.
     termination_metric: ClassVar[Optional[str]] = None
+
+    def check(self, run: Any) -> None:
+        """Rules that relate this env's options to the rest of the run (none here)."""
 
     def env_id(self) -> str:
         """How the env contract's messages name this env."""

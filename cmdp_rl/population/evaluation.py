@@ -54,7 +54,7 @@ def evaluate_population(
                     )
     finally:
         agent.generators = training
-    metric = getattr(cfg.env, "termination_metric", None)
+    metric = cfg.env.termination_metric
     return [
         summarize_episodes(
             [row for r in rows[i * n : (i + 1) * n] for row in r],
