@@ -278,6 +278,7 @@ def test_checkpoint_reloads_and_evaluates_greedily_and_sampled(tmp_path, quiet):
         (cost_envs.MULTI_MATCH_ID, 10 / 3, 6.5),  # 8 * (1/3 + 1/2) / 2
     ],
 )
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_discrete_ppo_learns_the_contextual_bandit(tmp_path, quiet, env_id, random_return, min_return):
     """PPO, seed 0, 2048 steps (about 2 s): the greedy policy matches nearly every context (best: 8
     per episode) where a uniform policy earns ``random_return``."""

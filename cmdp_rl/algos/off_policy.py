@@ -28,7 +28,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Literal, Union
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, Union
 
 import torch
 from tensordict import TensorDictBase
@@ -90,6 +90,8 @@ class OffPolicyConfig(AlgoConfig):
     are not read)."""
 
     name: str = "sac"
+    # AlgoConfig.tiny: a short warm-up and small batches, so a few iterations of 32 steps update
+    tiny: ClassVar[dict] = {"warmup_steps": 16, "batch_size": 16, "buffer_size": 1000, "utd_ratio": 0.25}
     lr: PositiveFloat = 3e-4  # actor
     critic_lr: PositiveFloat = 3e-4
     utd_ratio: Annotated[float, finite(gt=0, le=64)] = 1.0  # gradient steps per collected transition
