@@ -95,7 +95,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
-    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
     algo = make_algo(cfg.algo, agent)
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
     names = env.cost_names

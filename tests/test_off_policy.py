@@ -26,7 +26,7 @@ def build(algo: dict, **run):
         {"algo": {"buffer_size": 1000, **algo}, "env": {"num_envs": 2}, "policy": {"hidden_sizes": [8]}, **run}
     )
     env = make_env(cfg.env)
-    agent = make_agent(cfg.policy, env)
+    agent = make_agent(cfg.policy, env, algo=cfg.algo)
     return make_algo(cfg.algo, agent), env
 
 

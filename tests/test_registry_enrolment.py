@@ -1,5 +1,6 @@
 """Every registered algorithm in every cross-cutting check: a short run, a crash and resume equal to
-the uninterrupted run, golden numbers, K > 1 costs, Discrete and MultiDiscrete actions.
+the uninterrupted run, golden numbers, evaluation without the algorithm, K > 1 costs, Discrete and
+MultiDiscrete actions.
 
 The algorithms are the registry's when this file is collected: the built-in ones, and any a test
 file collected before this one registers (tests/test_components.py's toy_reinforce), so a new
@@ -9,17 +10,20 @@ declares beside it (``AlgoConfig.tiny``) on conftest's TINY Reach1D run.
 
 import json
 import re
+from dataclasses import replace
 
 import pytest
+import torch
 from conftest import eval_result, metrics_rows, tiny
 from cost_envs import MATCH_ID, MULTI_MATCH_ID
 from test_cost_vector import ENV_ID as TWO_COST_ID
 from test_golden import GOLDEN, WRITE, _mismatch, _outputs, machine
 from test_resume import assert_same_run, crash_then_resume
 
-from cmdp_rl import load_config, train
+from cmdp_rl import evaluate, load_config, registry, train
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.registry import component, names
+from cmdp_rl.run.rundir import load_trained
 from cmdp_rl.validation import ConfigError
 
 ALGOS = names("algo")
@@ -32,6 +36,24 @@ def enrolled(algo: str, env: dict | None = None, **top) -> dict:
         cfg["env"] = env
     cfg["algo"] = {"name": algo, **component("algo", algo).options.tiny, "cost_limit": cfg["algo"]["cost_limit"]}
     return cfg
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_evaluation_loads_the_policy_without_building_the_algorithm(algo, tmp_path, monkeypatch, quiet):
+    cfg = enrolled(algo, total_steps=64)
+    train(load_config(cfg), tmp_path, echo=quiet)
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("evaluation built the algorithm")
+
+    monkeypatch.setitem(registry._REGISTRY["algo"], algo, replace(component("algo", algo), build=forbidden))
+    trained = load_trained(tmp_path, num_envs=2)
+    saved = load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"]["networks"]
+    loaded = trained.agent.state_dict()
+    assert saved.keys() == loaded.keys() and all(torch.equal(saved[k], loaded[k]) for k in saved)
+    result = evaluate(trained.agent, trained.env, 2, seed=1)
+    assert result["episodes"] == 2
+    trained.env.close()
 
 
 @pytest.mark.parametrize("algo", ALGOS)

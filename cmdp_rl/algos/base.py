@@ -14,6 +14,7 @@ from cmdp_rl.validation import Bool, Discount, Field, PositiveFloat, finite, opt
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
     from cmdp_rl.envs.vector import VecEnv
+    from cmdp_rl.policies.agent import Agent
 
 
 Budget = Annotated[float, finite(ge=0)]
@@ -125,6 +126,14 @@ class AlgoConfig:
         """The env this algorithm trains (``evaluation=False``) or is evaluated on: ``env`` itself
         unless the algorithm changes the MDP (Sauté's budget state, algos/saute.py)."""
         return env
+
+    def shape_agent(self, agent: Agent) -> Agent:
+        """The networks this algorithm trains, made from the agent ``policy=`` builds (an actor
+        over the env's action space, a reward and a cost critic); ``policies.make_agent(...,
+        algo=...)`` calls it, so that training and evaluation get the same networks without
+        building the algorithm. The default: that agent itself. Off-policy: a squashed actor and
+        Q-critics on the policy's MLP body (algos/off_policy.py)."""
+        return agent
 
     def observation_state(self, cost_names: tuple[str, ...]) -> Any:
         """For paths that step one plain gymnasium env (video.py): a state carried along the
