@@ -88,6 +88,9 @@ class RunConfig:
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
 
+    def __post_init__(self) -> None:
+        resolve_budget(self)  # a config built directly, as a script may, has its task's budget too
+
 
 @options
 class EvalConfig:

@@ -29,6 +29,8 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
     list of another length is a config error naming ``field`` and K. Only the env tells K, so this
     runs when the algorithm is built on the agent, before the run writes anything."""
     k = len(cost_names)
+    # None is "the task's budget", which config.validate fills in before anything is built.
+    require(value is not None, field, "a number or a list of numbers (config.validate fills in the task's)", value)
     if isinstance(value, (int, float)):
         return [float(value)] * k
     values = list(value)
