@@ -5,7 +5,7 @@
 
     cfg = cmdp_rl.RunConfig()                  # or cmdp_rl.load_config({...})
     env = cmdp_rl.make_env(cfg.env)
-    agent = cmdp_rl.make_agent(cfg.policy, env)
+    agent = cmdp_rl.make_agent(cfg.policy, env, algo=cfg.algo)  # the agent the algorithm trains
     algo = cmdp_rl.make_algo(cfg.algo, agent)
     collector = cmdp_rl.Collector(env, agent, cfg.rollout_steps, seed=0)
     stats = algo.update(collector.collect())

@@ -82,8 +82,14 @@ class RunConfig:
     log_interval: PositiveInt = 5
     # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
     resume: Annotated[Optional[str], Field(pattern=r"\S", description="null or a run directory")] = None
+    # A new run into a directory that already holds a run: replace that run's outputs (false: refuse;
+    # cmdp_rl/run/ownership.py).
+    overwrite: Bool = False
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+
+    def __post_init__(self) -> None:
+        resolve_budget(self)  # a config built directly, as a script may, has its task's budget too
 
 
 @options
@@ -186,25 +192,45 @@ def resolve_auto(cfg: RunConfig) -> None:
     Numbers given in the config are kept. Works in place; called by :func:`validate`.
     """
     if cfg.rollout_steps == AUTO:
-        auto = getattr(cfg.algo, "auto_rollout_steps", None)  # an off-policy algorithm's few steps
-        cfg.rollout_steps = auto(cfg) if auto else min(256, max(32, 2048 // cfg.env.num_envs))
-    if hasattr(cfg.algo, "resolve_auto"):
-        cfg.algo.resolve_auto(cfg)
+        auto = cfg.algo.auto_rollout_steps(cfg)  # an off-policy algorithm's few steps
+        cfg.rollout_steps = auto if auto is not None else min(256, max(32, 2048 // cfg.env.num_envs))
+    cfg.algo.resolve_auto(cfg)
+
+
+def resolve_budget(cfg: RunConfig) -> None:
+    """``algo.cost_limit`` left unset (None) becomes the task's budget, ``env.budget()``
+    (``envs/options.py``): d = 25 on the Safety-Gymnasium tasks, 1 on Reach1D. A value given in the
+    config wins. Works in place, so ``config.yaml`` records the budget in force."""
+    if cfg.algo.cost_limit is None:
+        cfg.algo.cost_limit = cfg.env.budget()
+
+
+def budget_source(cfg: RunConfig) -> str:
+    """Where the budget in force came from, for the line a run starts with."""
+    return "the task's" if cfg.algo.cost_limit == cfg.env.budget() else "algo.cost_limit"
 
 
 def validate(cfg: RunConfig) -> None:
     """Check every field against its declared range (again: a script may have assigned fields),
-    fill the ``"auto"`` options (:func:`resolve_auto`), then run the rules each component declares
-    across fields (its ``check(run)``) and the run's own; raise :class:`ConfigError` on the first
-    violation."""
+    fill the task's budget (:func:`resolve_budget`) and the ``"auto"`` options (:func:`resolve_auto`),
+    then run the rules each component declares across fields (its ``check(run)``) and the run's own;
+    raise :class:`ConfigError` on the first violation."""
     for kind in KINDS:
         part = getattr(cfg, kind)
         expected = component(kind, getattr(part, "name", None)).options
         require(type(part) is expected, kind, f"a {expected.__name__} for {kind}.name={part.name}", type(part).__name__)
+        base = _declared_base(kind)
+        require(
+            base is None or isinstance(part, base),
+            kind,
+            f"options deriving from {base.__module__}.{base.__qualname__} (the hooks it declares)" if base else "",
+            type(part).__name__,
+        )
         recheck(part, kind)
     for name in ("logger", "normalize", "reference"):
         recheck(getattr(cfg, name), name)
     recheck(cfg, "")
+    resolve_budget(cfg)
     resolve_auto(cfg)
     for kind in KINDS:
         getattr(cfg, kind).check(cfg) if hasattr(getattr(cfg, kind), "check") else None
@@ -220,9 +246,22 @@ def validate(cfg: RunConfig) -> None:
     cfg.reference.check(cfg)
 
 
+def _declared_base(kind: str) -> type | None:
+    """The base class whose hooks the toolkit calls on a component's options (docs/architecture.md)."""
+    if kind == "env":
+        from cmdp_rl.envs.options import EnvOptions
+
+        return EnvOptions
+    if kind == "algo":
+        from cmdp_rl.algos.base import AlgoConfig
+
+        return AlgoConfig
+    return None
+
+
 def _validate_normalize(cfg: RunConfig) -> None:
     require(
-        not (cfg.normalize.cost and getattr(cfg.algo, "reads_raw_cost", False)),
+        not (cfg.normalize.cost and cfg.algo.reads_raw_cost),
         "normalize.cost",
         f"false with algo={cfg.algo.name} (it reads costs in their own units)",
         cfg.normalize.cost,
@@ -239,10 +278,12 @@ __all__ = [
     "NormalizeConfig",
     "ReferenceConfig",
     "RunConfig",
+    "budget_source",
     "compose_config",
     "flatten_dict",
     "load_config",
     "load_eval_config",
     "resolve_auto",
+    "resolve_budget",
     "validate",
 ]

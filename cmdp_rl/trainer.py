@@ -19,7 +19,7 @@ from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
-from cmdp_rl.config import RunConfig, validate
+from cmdp_rl.config import RunConfig, budget_source, validate
 from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
@@ -30,9 +30,10 @@ from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spre
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
+from cmdp_rl.run.ownership import acquire, release
 from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.resume import load_resume_state
-from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, ensure_writable, write_run_info
+from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, RunDirError, write_run_info
 from cmdp_rl.threads import apply_threads
 
 
@@ -57,10 +58,8 @@ CONTRACT_ENVS = 2
 
 
 def contract_options(env_cfg: Any) -> tuple[str, bool]:
-    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``;
-    an env's own options class without them, as tests/test_components.py's toy: its name, False)."""
-    env_id = env_cfg.env_id() if hasattr(env_cfg, "env_id") else getattr(env_cfg, "name", "env")
-    return env_id, bool(getattr(env_cfg, "allow_negative_cost", False))
+    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``)."""
+    return env_cfg.env_id(), bool(env_cfg.allow_negative_cost)
 
 
 def check_env_contract(cfg: RunConfig) -> None:
@@ -158,18 +157,39 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
     seed_everything(cfg.seed)
     env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
-    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
     algo = make_algo(cfg.algo, agent)
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
     names = env.cost_names
     per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     # After the resume and config checks (a mistyped resume path or a wrong-length budget is
-    # reported, no directory created), before any training.
-    ensure_writable(out)
+    # reported, no directory created), before any training: the directory is this run's alone
+    # (a new run refuses one that holds a run, unless overwrite) for as long as it trains.
+    try:
+        acquire(out, new_run=state is None, overwrite=cfg.overwrite)
+    except RunDirError:
+        env.close()
+        raise
+    try:
+        return _train(cfg, out, state, env, agent, algo, limits, echo)
+    finally:
+        release(out)
+
+
+def _train(
+    cfg: RunConfig,
+    out: Path,
+    state: dict | None,
+    env: Any,
+    agent: Any,
+    algo: Any,
+    limits: list[float],
+    echo: Callable[[str], None],
+) -> dict[str, Any]:
+    """The rest of :func:`train`, in a run directory this process holds."""
+    names = env.cost_names
     # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
-    collector = Collector(
-        env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=getattr(cfg.algo, "uniform_action_steps", 0)
-    )
+    collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=cfg.algo.uniform_action_steps)
     env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
         logger = MetricsLogger(
@@ -185,7 +205,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     except ValueError as exc:
         env.close()
         raise CheckpointError(f"resume: {exc}") from exc
-    run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None))  # the run's own config
+    run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None, overwrite=False))  # the run's own config
     (out / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
     write_run_info(out, resumed_from=None if state is None else state["iteration"])
 
@@ -232,13 +252,14 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
     shape = f"{per_iter} steps ({cfg.rollout_steps} per env"
-    if hasattr(cfg.algo, "describe_update"):
-        shape += f"; {cfg.algo.describe_update()}"
+    described = cfg.algo.describe_update()
+    if described:
+        shape += f"; {described}"
     backend = getattr(cfg.env, "backend", None)  # only envs with several implementations have one
     where = f"{backend}, " if backend else ""
     echo(
         f"training {cfg.algo.name} on {cfg.env.name} ({where}{env.num_envs} envs): "
-        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit}, outputs in {out}"
+        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit} ({budget_source(cfg)}), outputs in {out}"
     )
     progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
     logger.echo = progress.row_echo
@@ -288,7 +309,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
-    metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
+    metric = cfg.env.termination_metric  # what the env says termination means (EnvOptions)
     eval_env = make_eval_env(
         cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
     )

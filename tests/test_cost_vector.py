@@ -222,13 +222,13 @@ def test_one_multiplier_keeps_the_single_constraint_state_format():
         ({"name": "penalty", "penalty": [1.0, 2.0, 3.0]}, "algo.penalty must be a number or a list of 2 numbers"),
         (
             {"name": "cpo", "cost_limit": 1.0},
-            "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs "
+            "algo must be penalty, pid_lag, ppo, ppo_lag, sac, sac_lag, saute, td3, td3_lag or trpo_lag for an env with 2 costs "
             "(hazard_a, hazard_b): cpo's closed-form dual handles one constraint",
         ),
         *(
             (
                 {"name": name},
-                f"algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs "
+                f"algo must be penalty, pid_lag, ppo, ppo_lag, sac, sac_lag, saute, td3, td3_lag or trpo_lag for an env with 2 costs "
                 f"(hazard_a, hazard_b): {reason}, got '{name}'",
             )
             for name, reason in (

@@ -68,6 +68,7 @@ def test_negative_tolerance_is_a_config_error():
         load_config({"algo": {"name": "crpo", "tolerance": -0.1}})
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_crpo_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5 crossings per episode. Measured on seed 0: the initial
     policy's training return is 0.00 (iteration 1); CRPO's last 10 iterations average return 0.56 at

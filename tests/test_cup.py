@@ -2,6 +2,7 @@
 
 import csv
 
+import pytest
 import torch
 from conftest import tail_means
 from torch.distributions import kl_divergence
@@ -84,6 +85,7 @@ def test_nu_by_dual_ascent_on_the_budget():
     assert algo.update(batch)["lagrange_multiplier"] == 0.0  # 0.1 + 0.5 (J_c - 5) < 0: projected to 0
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_cup_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5. The initial policy's training return is 0.00 (iteration 1,
     seed 0). Measured on seed 0 with nu_init = 0.5, nu_lr = 0.05: after a burst of wall crossings

@@ -179,7 +179,7 @@ HEADS = {
     "transformer": {"name": "transformer", "window": 4, "width": 8, "heads": 2, "feedforward": 8, "head_sizes": [8]},
 }
 NATURAL_GRADIENT = ("cpo", "trpo_lag", "pcpo")  # critic_epochs/critic_minibatches; the rest: PPO's options
-MULTI = ("ppo", "penalty", "ppo_lag", "pid_lag", "trpo_lag")  # take K > 1 costs (algos/base.MULTI_CONSTRAINT)
+MULTI = ("ppo", "penalty", "ppo_lag", "pid_lag", "trpo_lag")  # take K > 1 costs (their options: constraints = None)
 SINGLE = ("cpo", "pcpo", "crpo", "focops", "cup")  # one constraint: refuse K > 1 with one line
 ALGOS = MULTI + SINGLE
 # A 3 x 3 grid with both hazards (tests/test_grid.py's) and short episodes: 2 iterations of 2 x 8 steps.
@@ -255,7 +255,7 @@ def test_single_constraint_algorithms_refuse_the_grid_in_one_line(tmp_path, quie
         train(load_config(cfg), tmp_path / "run", echo=quiet)
     msg = str(err.value)
     assert "\n" not in msg and msg.startswith(
-        "algo must be ppo, penalty, ppo_lag, pid_lag, trpo_lag, saute, sac, sac_lag, td3 or td3_lag for an env with 2 costs (hazard_a, hazard_b): "
+        "algo must be penalty, pid_lag, ppo, ppo_lag, sac, sac_lag, saute, td3, td3_lag or trpo_lag for an env with 2 costs (hazard_a, hazard_b): "
     )
     assert not (tmp_path / "run").exists()
 
@@ -278,6 +278,7 @@ def test_checkpoint_reloads_and_evaluates_greedily_and_sampled(tmp_path, quiet):
         (cost_envs.MULTI_MATCH_ID, 10 / 3, 6.5),  # 8 * (1/3 + 1/2) / 2
     ],
 )
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_discrete_ppo_learns_the_contextual_bandit(tmp_path, quiet, env_id, random_return, min_return):
     """PPO, seed 0, 2048 steps (about 2 s): the greedy policy matches nearly every context (best: 8
     per episode) where a uniform policy earns ``random_return``."""

@@ -105,6 +105,7 @@ def test_the_epochs_stop_at_the_first_minibatch_past_delta():
     assert len(calls) == 2  # the first minibatch is at pi_k (KL 0); after its step KL > delta: stop
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_focops_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5. The initial policy's training return is 0.00 (iteration 1,
     seed 0). With the paper's nu_lr = 0.01 and nu_max = 2, nu is too slow and too small here (cost 1.0

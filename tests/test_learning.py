@@ -7,9 +7,12 @@ policy gets return near 0. PPO-Lagrangian with budget 1 must get most of the rea
 
 import json
 
+import pytest
+
 from cmdp_rl import load_config, train
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_ppo_lagrangian_learns_to_approach_the_wall_within_budget(tmp_path):
     cfg = load_config({"algo": {"name": "ppo_lag", "cost_limit": 1.0}, "seed": 0, "total_steps": 120_000})
     result = train(cfg, tmp_path, echo=lambda s: None)

@@ -26,7 +26,7 @@ def build(algo: dict, **run):
         {"algo": {"buffer_size": 1000, **algo}, "env": {"num_envs": 2}, "policy": {"hidden_sizes": [8]}, **run}
     )
     env = make_env(cfg.env)
-    agent = make_agent(cfg.policy, env)
+    agent = make_agent(cfg.policy, env, algo=cfg.algo)
     return make_algo(cfg.algo, agent), env
 
 
@@ -278,6 +278,7 @@ REACH = {
 }
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_sac_lag_learns_reach1d_within_budget(tmp_path, quiet):
     """3,000 steps (about 30 s): the eval policy (tanh of the mean, through the usual evaluation)
     stays within budget d = 1 and gets most of the DP optimum's return (0.399: the wall caps it);
@@ -301,6 +302,7 @@ REACH_PASS = {**REACH, "env": {"wall": "pass", "max_steps": 15}, "total_steps": 
 TD3_OPTIONS = ("alpha_init", "alpha_lr")  # SAC's entropy options: td3_lag refuses them
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 @pytest.mark.parametrize("name", ["sac_lag", "td3_lag"])
 def test_off_policy_lag_reaches_the_goal_through_the_wall_within_budget(tmp_path, quiet, name):
     """6,000 steps (sac_lag 9.5 s, td3_lag 7 s at load 3): the eval policy reaches the goal in

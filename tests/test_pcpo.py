@@ -64,6 +64,7 @@ def test_projection_leaves_a_feasible_reward_step_alone(projection):
         assert coef == 0.0 and torch.allclose(x, x_r, rtol=0, atol=1e-15)
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_pcpo_learns_reach1d_then_returns_within_budget(tmp_path):
     """Reach1D with the passable wall, budget 0.5 (see test_trpo_lag: RANDOM_RETURN)."""
     cfg = compose_config(

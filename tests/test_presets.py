@@ -4,10 +4,27 @@ policy, and that the batched Reach1D preset reaches the foundation issue's quali
 import pytest
 
 from cmdp_rl import train
-from cmdp_rl.config import compose_config
+from cmdp_rl.config import CONFIG_DIR, compose_config
+from cmdp_rl.registry import names
+from cmdp_rl.validation import ConfigError
 
 ALGOS = ["ppo", "penalty", "ppo_lag", "pid_lag", "cpo"]
 POLICIES = ["mlp", "lstm", "gru", "transformer"]
+
+
+# Every registered algorithm with a yaml of its own (a test file's registered toy has none).
+REGISTERED = [a for a in names("algo") if (CONFIG_DIR / "algo" / f"{a}.yaml").is_file()]
+
+
+@pytest.mark.parametrize("env", ["reach1d", "reach1d_torch", "grid", "fork", "safe_nav", "safety_gym", "velocity"])
+@pytest.mark.parametrize("algo", REGISTERED)
+def test_every_registered_algorithm_composes_with_every_env_preset(algo, env):
+    try:
+        cfg = compose_config([f"env={env}", f"algo={algo}"])
+    except ConfigError as exc:  # a pairing the algorithm cannot take says so in one line, naming a field
+        assert "\n" not in str(exc) and str(exc).startswith(("algo", "env", "policy")), exc
+        return
+    assert cfg.algo.name == algo and cfg.algo.cost_limit is not None
 
 
 @pytest.mark.parametrize("algo", ALGOS)
@@ -31,13 +48,13 @@ def test_tuning_files_reach_only_their_own_pair():
     assert (gym.algo.lr, gym.algo.lambda_init, gym.policy.hidden_sizes) == (3e-4, 0.0, [64, 64])
 
 
-def test_the_grid_preset_evaluates_the_stochastic_policy_and_sets_ppo_lags_budgets():
+def test_the_grid_preset_evaluates_the_stochastic_policy_and_every_algorithm_gets_its_budgets():
     lag = compose_config(["env=grid", "algo=ppo_lag"])  # env/grid.yaml, then tuning/algo/grid_ppo_lag.yaml
     assert lag.algo.cost_limit == [0.3, 0.15] and (lag.algo.lr, lag.algo.entropy_coef) == (1e-3, 0.01)
     assert (lag.eval_deterministic, lag.eval_episodes, lag.total_steps) == (False, 1000, 150000)
-    for algo in ("ppo", "trpo_lag"):  # the evaluation is the env's; the rates stay ppo_lag's
+    for algo in ("ppo", "trpo_lag"):  # the evaluation and the budgets are the task's; the rates ppo_lag's
         other = compose_config(["env=grid", f"algo={algo}", "eval_episodes=50"])
-        assert (other.eval_deterministic, other.eval_episodes, other.algo.cost_limit) == (False, 50, 1.0)
+        assert (other.eval_deterministic, other.eval_episodes, other.algo.cost_limit) == (False, 50, [0.3, 0.15])
     assert compose_config(["env=grid", "env.slip=0.2"]).env.slip == 0.2
 
 
@@ -46,6 +63,7 @@ def test_the_command_line_wins_over_tuning():
     assert (cfg.algo.lr, cfg.algo.lambda_init, cfg.policy.hidden_sizes) == (5e-4, 0.0, [16])
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_the_batched_preset_reaches_the_gym_runs_quality_on_its_budget(tmp_path):
     # The foundation issue's criterion: eval cost <= 1.5 and eval return within 0.05 of PPO's 0.385.
     # The preset's budget is 1M steps (32 iterations, about 5 s); 8 seeds met it (docs/throughput.md).

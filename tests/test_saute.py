@@ -106,6 +106,7 @@ def test_bad_options_are_one_line_config_errors():
         load_config({"algo": {"name": "saute", "budget_discount": 0.0}})
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_saute_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5: any crossing (cost 1) spends the budget, so the almost
     surely safe policy walks up to the wall and stops short of it. Measured on seed 0: the first

@@ -88,6 +88,7 @@ def test_lambda_rises_by_dual_ascent_when_the_cost_exceeds_the_budget():
 RANDOM_RETURN = 0.556
 
 
+@pytest.mark.slow  # a learning run (pyproject: markers)
 def test_trpo_lag_learns_reach1d_then_returns_within_budget(tmp_path):
     cfg = compose_config(
         [

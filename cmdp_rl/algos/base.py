@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Any, Protocol, Sequence, Union, runtime_checkable
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Optional, Protocol, Sequence, Union, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
@@ -13,6 +13,8 @@ from cmdp_rl.validation import Bool, Discount, Field, PositiveFloat, finite, opt
 
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
+    from cmdp_rl.envs.vector import VecEnv
+    from cmdp_rl.policies.agent import Agent
 
 
 Budget = Annotated[float, finite(ge=0)]
@@ -27,6 +29,8 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
     list of another length is a config error naming ``field`` and K. Only the env tells K, so this
     runs when the algorithm is built on the agent, before the run writes anything."""
     k = len(cost_names)
+    # None is "the task's budget", which config.validate fills in before anything is built.
+    require(value is not None, field, "a number or a list of numbers (config.validate fills in the task's)", value)
     if isinstance(value, (int, float)):
         return [float(value)] * k
     values = list(value)
@@ -39,19 +43,24 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
     return [float(v) for v in values]
 
 
-# The algorithms that take an env with K > 1 costs (one multiplier or penalty per constraint).
-MULTI_CONSTRAINT = ("ppo", "penalty", "ppo_lag", "pid_lag", "trpo_lag", "saute", "sac", "sac_lag", "td3", "td3_lag")
+def multi_constraint_algorithms() -> list[str]:
+    """The toolkit's algorithms that take an env with K > 1 costs (their options declare
+    ``constraints = None``), by name; a user's own registrations are not listed."""
+    from cmdp_rl.registry import component, names
+
+    found = [(component("algo", n).options, n) for n in names("algo")]
+    return [n for cls, n in found if cls.constraints is None and cls.__module__.startswith("cmdp_rl.")]
 
 
 def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str, reason: str) -> float:
     """The budget d of an algorithm that handles one constraint (``agent.num_costs`` must be 1);
     an env with K > 1 costs is a config error naming the algorithms that take it and ``reason``."""
     k = agent.num_costs
+    multi = multi_constraint_algorithms()
     require(
         k == 1,
         "algo",
-        f"{', '.join(MULTI_CONSTRAINT[:-1])} or {MULTI_CONSTRAINT[-1]} for an env with {k} "
-        f"costs ({', '.join(agent.cost_names)}): {reason}",
+        f"{', '.join(multi[:-1])} or {multi[-1]} for an env with {k} costs ({', '.join(agent.cost_names)}): {reason}",
         algo,
     )
     (d,) = per_constraint(cost_limit, "algo.cost_limit", agent.cost_names)
@@ -71,14 +80,68 @@ class AlgoConfig:
     normalize_advantage: Bool = True
     # The budget d on expected undiscounted episode cost. Only constrained algorithms act on it;
     # every run reports against it. With K costs: one number for every constraint, or a list of K
-    # budgets in the env's cost order (per_constraint).
+    # budgets in the env's cost order (per_constraint). None: the task's budget (the env options'
+    # budget()), filled in by config.validate before anything is built.
     cost_limit: Annotated[
-        Union[Budget, list[Budget]],
-        Field(description="a number >= 0 (the budget d) or a list of such numbers, one per cost"),
-    ] = 1.0
+        Optional[Union[Budget, list[Budget]]],
+        Field(description="a number >= 0 (the budget d), a list of such numbers (one per cost) or null (the task's)"),
+    ] = None
+
+    # The hooks below are all the toolkit asks of an algorithm's options besides its fields; each
+    # has the default an algorithm that needs nothing special gets (docs/architecture.md lists them).
+
+    # How many constraints the algorithm takes: None, any number K of costs (one multiplier or
+    # penalty per constraint); 1, one (an env with K > 1 costs is refused, single_constraint).
+    constraints: ClassVar[Optional[int]] = None
+    # True: the algorithm compares costs in their own units with the budget (a constraint's
+    # linearisation, a multiplier's error), so normalize.cost=true is refused (config.validate).
+    reads_raw_cost: ClassVar[bool] = False
+    # Options that make a run of seconds on the tests' tiny Reach1D (tests/conftest.py TINY): the
+    # tests that every algorithm passes (tests/test_registry_enrolment.py) train each registered
+    # algorithm with these, so a new algorithm joins them by registering.
+    tiny: ClassVar[dict[str, Any]] = {}
 
     def check(self, run: RunConfig) -> None:
         """Rules that relate this algorithm's options to the rest of the run (none here)."""
+
+    def resolve_auto(self, run: RunConfig) -> None:
+        """Replace this algorithm's ``"auto"`` options by numbers from the run's batch shape
+        (``run.rollout_steps`` is already a number here); called by ``config.resolve_auto``."""
+
+    def auto_rollout_steps(self, run: RunConfig) -> Optional[int]:
+        """``rollout_steps: auto`` for this algorithm: None, the run's rule (2048 / num_envs within
+        [32, 256]); an off-policy algorithm asks for a few steps per iteration."""
+        return None
+
+    @property
+    def uniform_action_steps(self) -> int:
+        """Env steps at the start of the run on which the collector acts uniformly at random
+        (an off-policy algorithm's warm-up); 0: the policy acts from the first step."""
+        return 0
+
+    def describe_update(self) -> Optional[str]:
+        """A few words on the update's shape for the line a run starts with (e.g. "10 x 8
+        minibatches"); None: nothing to add."""
+        return None
+
+    def wrap_env(self, env: VecEnv, evaluation: bool = False) -> VecEnv:
+        """The env this algorithm trains (``evaluation=False``) or is evaluated on: ``env`` itself
+        unless the algorithm changes the MDP (Sauté's budget state, algos/saute.py)."""
+        return env
+
+    def shape_agent(self, agent: Agent) -> Agent:
+        """The networks this algorithm trains, made from the agent ``policy=`` builds (an actor
+        over the env's action space, a reward and a cost critic); ``policies.make_agent(...,
+        algo=...)`` calls it, so that training and evaluation get the same networks without
+        building the algorithm. The default: that agent itself. Off-policy: a squashed actor and
+        Q-critics on the policy's MLP body (algos/off_policy.py)."""
+        return agent
+
+    def observation_state(self, cost_names: tuple[str, ...]) -> Any:
+        """For paths that step one plain gymnasium env (video.py): a state carried along the
+        episode beside the env's observation, as :meth:`wrap_env`'s env would (Sauté's remaining
+        budget), or None if the observation is the env's alone."""
+        return None
 
 
 class TrainingDiverged(RuntimeError):

@@ -64,6 +64,7 @@ class CPOConfig(NaturalGradientConfig):
     """Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel 2017)."""
 
     name: str = "cpo"
+    constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     line_search_steps: PositiveInt = 10
     backtrack_coef: UnitOpen = 0.8
     # The constraint step compares the cost surrogate with J_c - d in raw units: no cost scaling.

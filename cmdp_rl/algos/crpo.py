@@ -15,6 +15,8 @@ one cost signal, so the switch reads that one.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
 from tensordict import TensorDictBase
 
@@ -32,6 +34,7 @@ class CRPOConfig(PPOConfig):
     """CRPO (Xu, Liang, Lan 2021): reward step while J_c <= cost_limit + tolerance, else cost step."""
 
     name: str = "crpo"
+    constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     tolerance: NonNegativeFloat = 0.0  # eta of Algorithm 1
 
 

@@ -25,7 +25,7 @@ Two stages per iteration:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import torch
 from tensordict import TensorDictBase
@@ -53,6 +53,7 @@ class CUPConfig(PPOConfig):
     """CUP (Yang et al. 2022): PPO on A_r, then a projection that trades KL for cost."""
 
     name: str = "cup"
+    constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     nu_init: NonNegativeFloat = 0.0
     nu_lr: PositiveFloat = 0.05
     projection_epochs: AutoInt = AUTO  # auto: update_epochs

@@ -29,7 +29,7 @@ before each minibatch's step). Everything else (critics, GAE, minibatches) is PP
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, ClassVar
 
 import torch
 from tensordict import TensorDictBase
@@ -53,6 +53,7 @@ class FOCOPSConfig(PPOConfig):
     """FOCOPS (Zhang, Vuong, Ross 2020). ``clip_epsilon`` is not read: the KL term bounds the step."""
 
     name: str = "focops"
+    constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     temperature: PositiveFloat = 1.5  # lambda of Theorem 1
     target_kl: PositiveFloat = 0.02  # delta: the per-state indicator's bound and the early stop
     nu_init: NonNegativeFloat = 0.0

@@ -12,7 +12,7 @@ search: Schulman et al. 2015, "Trust Region Policy Optimization", Appendix C.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Callable
+from typing import TYPE_CHECKING, Annotated, Callable, ClassVar
 
 import torch
 from tensordict import TensorDictBase
@@ -35,6 +35,8 @@ if TYPE_CHECKING:
 @options
 class NaturalGradientConfig(AlgoConfig):
     """The trust region, the conjugate gradient, and the critics' regression."""
+
+    tiny: ClassVar[dict] = {"critic_epochs": 2, "critic_minibatches": 2}  # AlgoConfig.tiny
 
     target_kl: Annotated[
         float, Field(gt=0, allow_inf_nan=False, description="a positive number (the KL radius delta)")

@@ -28,7 +28,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Literal, Union
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, Union
 
 import torch
 from tensordict import TensorDictBase
@@ -40,7 +40,7 @@ from cmdp_rl.algos.lagrange import DualAscent, Multipliers, PIDLagrangian
 from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.algos.replay_buffer import Replay
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, to_off_policy
+from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, check_shaped, to_off_policy
 from cmdp_rl.validation import (
     AUTO,
     Field,
@@ -90,6 +90,8 @@ class OffPolicyConfig(AlgoConfig):
     are not read)."""
 
     name: str = "sac"
+    tiny: ClassVar[dict] = {"warmup_steps": 16, "batch_size": 16, "buffer_size": 1000, "utd_ratio": 0.25}
+    actor_head: ClassVar[str] = "tanh_gaussian"  # the actor it trains (policies/squashed.py); TD3: deterministic
     lr: PositiveFloat = 3e-4  # actor
     critic_lr: PositiveFloat = 3e-4
     utd_ratio: Annotated[float, finite(gt=0, le=64)] = 1.0  # gradient steps per collected transition
@@ -101,8 +103,11 @@ class OffPolicyConfig(AlgoConfig):
 
     @property
     def uniform_action_steps(self) -> int:
-        """Read by the trainer: the collector's first steps act uniformly at random."""
-        return self.warmup_steps
+        return self.warmup_steps  # its warm-up
+
+    def shape_agent(self, agent: Agent) -> Agent:
+        check_off_policy_agent(agent, self.name)  # a squashed actor and Q-critics on the policy's MLP body
+        return to_off_policy(agent, self.actor_head, getattr(self, "exploration_noise", 0.1))
 
     def auto_rollout_steps(self, run: RunConfig) -> int:
         """``rollout_steps: auto``: about 64 transitions per iteration (8 steps of 8 envs)."""
@@ -221,14 +226,11 @@ class OffPolicy:
     """The update loop, replay, critics' targets and checkpointing; an algorithm adds its actor
     head, its TD target's next action (:meth:`next_action`) and its actor step (:meth:`actor_step`)."""
 
-    name = "off_policy"
-    actor_head = "tanh_gaussian"
     stats = STATS
 
     def __init__(self, cfg: OffPolicyConfig, agent: Agent) -> None:
-        check_off_policy_agent(agent, cfg.name)
+        check_shaped(agent, cfg.name)
         self.cfg, self.agent = cfg, agent
-        to_off_policy(agent, self.actor_head, getattr(cfg, "exploration_noise", 0.1))
         device = agent.actor.head.low.device
         self.replay = Replay(cfg.buffer_size, cfg.batch_size, cfg.storage, device)
         self.lagrange = LagrangeTerm(cfg, agent)

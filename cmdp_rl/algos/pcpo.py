@@ -46,6 +46,7 @@ class PCPOConfig(NaturalGradientConfig):
     """PCPO (Yang et al. 2020): a TRPO reward step, then a projection onto the linearised constraint."""
 
     name: str = "pcpo"
+    constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     projection: Literal["kl", "l2"] = "kl"
     # The projection compares the cost surrogate with J_c - d in raw units: no cost scaling.
     reads_raw_cost: ClassVar[bool] = True

@@ -74,6 +74,7 @@ class PPOConfig(AlgoConfig):
     """Clipped PPO (Schulman et al., 2017). Shared by every PPO-family algorithm."""
 
     name: str = "ppo"
+    tiny: ClassVar[dict] = {"update_epochs": 2, "num_minibatches": 2}  # AlgoConfig.tiny
     lr: PositiveFloat = 3e-4
     clip_epsilon: UnitOpen = 0.2
     # "auto": about 80 minibatch steps per iteration (resolve_auto), 10 x 8 for a batch of 2048.

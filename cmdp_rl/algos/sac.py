@@ -54,7 +54,6 @@ class SACLagConfig(SACConfig, LagrangeFields):
 
 class SAC(OffPolicy):
     name = "sac"
-    actor_head = "tanh_gaussian"
     stats = (*STATS, "alpha", "entropy")
 
     def __init__(self, cfg: SACConfig, agent: Agent) -> None:

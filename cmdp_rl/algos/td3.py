@@ -10,6 +10,8 @@ Noise is in units of the box's half-width.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
 
 from cmdp_rl.algos.off_policy import STATS, LagrangeFields, OffPolicy, OffPolicyConfig, TargetCritics
@@ -28,6 +30,7 @@ class TD3Config(OffPolicyConfig):
     target_noise: NonNegativeFloat = 0.2  # std of the target action's smoothing noise
     noise_clip: NonNegativeFloat = 0.5  # the smoothing noise is clipped to +- this
     exploration_noise: NonNegativeFloat = 0.1  # std of the behaviour policy's Gaussian noise
+    actor_head: ClassVar[str] = "deterministic"  # OffPolicyConfig.shape_agent
 
 
 @options
@@ -39,7 +42,6 @@ class TD3LagConfig(TD3Config, LagrangeFields):
 
 class TD3(OffPolicy):
     name = "td3"
-    actor_head = "deterministic"
     stats = STATS
 
     def __init__(self, cfg: TD3Config, agent: Agent) -> None:

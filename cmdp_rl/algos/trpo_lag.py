@@ -21,7 +21,7 @@ and the advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)`` (K = 1
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Sequence
+from typing import ClassVar, Optional, Sequence
 
 import torch
 
@@ -53,6 +53,7 @@ class TRPOLagConfig(CPOConfig):
     lambda_lr: PositiveFloat = 0.05
     # lambda reads J_c from the episodes' raw cost sums; the policy advantage may be scaled.
     reads_raw_cost: ClassVar[bool] = False
+    constraints: ClassVar[Optional[int]] = None  # one multiplier per cost: any K
 
 
 class TRPOLagrangian(NaturalGradient):

@@ -179,7 +179,7 @@ def throughput(iterations: int) -> None:
 
     cfg = compose_config(["+experiment=off_policy_benchmark", "algo=sac_lag"])
     env = make_env(cfg.env)
-    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
     algo = make_algo(cfg.algo, agent)
     collector = Collector(env, agent, cfg.rollout_steps, seed=0, uniform_steps=cfg.algo.warmup_steps)
     while collector.total_steps < cfg.algo.warmup_steps:  # warm-up: random actions, no updates

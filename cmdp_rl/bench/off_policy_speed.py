@@ -47,7 +47,7 @@ def measure(algo_name: str, iterations: int, profile: bool, lambda_init: float) 
     )
     torch.manual_seed(0)
     env = make_env(cfg.env)
-    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env))
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
     algo = make_algo(cfg.algo, agent)
     collector = Collector(env, agent, cfg.rollout_steps, seed=0, uniform_steps=cfg.algo.warmup_steps)
 

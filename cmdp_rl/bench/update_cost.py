@@ -33,7 +33,7 @@ def main() -> None:
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     env = make_env(cfg.env, device=cfg.device)
-    ac = make_agent(cfg.policy, env)
+    ac = make_agent(cfg.policy, env, algo=cfg.algo)
     collector = Collector(env, ac, cfg.rollout_steps, seed=cfg.seed)
     batch = collector.collect()
     steps = batch.numel()

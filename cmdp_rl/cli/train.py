@@ -23,8 +23,9 @@ from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.config import CONFIG_SOURCE
 from cmdp_rl.population.spec import population_active
+from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, resumable
 from cmdp_rl.run.resume import resume_config
-from cmdp_rl.run.rundir import CHECKPOINT, POPULATION_CHECKPOINT, RunDirError
+from cmdp_rl.run.rundir import POPULATION_CHECKPOINT, RunDirError
 from cmdp_rl.run.sweeps import clear_outputs, record_failure
 
 # How a single run ends on each error (inside a sweep the command raises instead: see _fail).
@@ -37,18 +38,26 @@ EXIT_CODES = (
 
 
 def _if_resumable(resume: str | None, then: str, otherwise: str) -> str:
-    """For `hydra.run.dir` and `hydra.output_subdir` in configs/config.yaml: a resumed run writes
-    into its own directory, and Hydra's record of the resume command goes beside the original one.
+    """For `hydra.run.dir` in configs/config.yaml: a resumed run writes into its own directory.
     Only a directory with a checkpoint counts, so a mistyped path is reported, not created."""
-    saved = resume and any((Path(resume) / name).is_file() for name in (CHECKPOINT, POPULATION_CHECKPOINT))
-    return then if saved else otherwise
+    return then if resumable(resume) else otherwise
+
+
+def _record_subdir(resume: str | None, overwrite: bool, output_dir: str, resume_subdir: str) -> str | None:
+    """For `hydra.output_subdir`: Hydra's record of a resume goes beside the original one; into a
+    directory that holds another run (a sweep's job whose directory is taken: train() refuses it),
+    Hydra writes no record at all, so that the run there keeps its files as they were."""
+    if resumable(resume):
+        return resume_subdir
+    return None if holds_run(output_dir) and not overwrite else ".hydra"
 
 
 OmegaConf.register_new_resolver("cmdp.if_resumable", _if_resumable)
+OmegaConf.register_new_resolver("cmdp.record_subdir", _record_subdir)
 
 
 def _fail(exc: Exception, run_dir: str | None) -> None:
-    if run_dir is not None:
+    if run_dir is not None and not isinstance(exc, RunDirTaken):  # a taken directory is another run's
         try:
             record_failure(run_dir, exc)
         except OSError:  # a run directory that cannot be written: the message below says so
@@ -71,6 +80,19 @@ def main(cfg: DictConfig) -> None:
     # A new run's directory records why it failed (error.txt); a resume leaves the run it names as
     # the resume machinery does (a refused resume must not touch a finished run).
     new_dir = None if raw.get("resume") else HydraConfig.get().runtime.output_dir
+    if new_dir is not None:
+        try:  # first: a directory another run holds is refused before anything is written into it
+            acquire(new_dir, new_run=True, overwrite=bool(raw.get("overwrite")))
+        except RunDirError as exc:
+            _fail(exc, None if isinstance(exc, RunDirTaken) else new_dir)
+    try:
+        _main(raw, new_dir)
+    finally:
+        if new_dir is not None:
+            release(new_dir)
+
+
+def _main(raw: dict, new_dir: str | None) -> None:
     try:
         if raw.get("resume") and (Path(raw["resume"]) / POPULATION_CHECKPOINT).is_file():
             return _population(raw, resume=True)
@@ -85,7 +107,7 @@ def main(cfg: DictConfig) -> None:
         _fail(exc, new_dir)
     try:
         if new_dir is not None:
-            clear_outputs(new_dir)  # a rerun into this directory must not pass for a finished one
+            clear_outputs(new_dir)  # an earlier failure's error.txt must not outlive this run
         # A resumed run writes into its own directory, whatever hydra.run.dir says.
         train(run_cfg, new_dir)
     except Exception as exc:  # noqa: BLE001 - every failure is recorded, then handled by _fail

@@ -31,13 +31,12 @@ def make_env(
     """Build the batched env a config names (``num_envs`` overrides ``cfg.num_envs``).
 
     ``device`` is where the env's tensors live: a torch backend steps there; a gymnasium backend
-    steps on the CPU and moves its tensors there. ``algo``: the algorithm's options; if they
-    declare ``wrap_env(env, evaluation)``, the env it returns (Sauté's budget state, algos/saute.py).
+    steps on the CPU and moves its tensors there. ``algo``: the algorithm's options; the env their
+    ``wrap_env(env, evaluation)`` returns (``AlgoConfig``'s: the env itself; Sauté's budget state).
     """
     n = cfg.num_envs if num_envs is None else num_envs
     env = component("env", cfg.name).build(cfg, n, device)
-    wrap = getattr(algo, "wrap_env", None)
-    return env if wrap is None else wrap(env, evaluation=evaluation)
+    return env if algo is None else algo.wrap_env(env, evaluation=evaluation)
 
 
 def make_eval_env(cfg: Any, num_envs: int | None = None, device: str = "cpu", algo: Any = None) -> VecEnv:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import importlib
 from dataclasses import field
 from functools import partial
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
 
 import gymnasium as gym
 import numpy as np
@@ -108,6 +108,17 @@ class GymEnvConfig(EnvOptions):
     step_api: Literal["five", "six"] = "five"
     max_steps: Annotated[NonNegativeInt, Field(description="an integer >= 0 (0: the registered limit)")] = 0
     kwargs: Annotated[dict, Field(description="a mapping of constructor arguments")] = field(default_factory=dict)
+    # The names of the env's K costs, in info["cost"]'s order (metrics.csv's and eval.json's
+    # per-cost columns); None: the names the env declares, else cost_0 ... cost_{K-1}.
+    cost_names: Annotated[
+        Optional[list[Annotated[str, Field(pattern=r"^[^/\s]+$")]]],
+        Field(description="null or a list of distinct names without '/' or spaces, one per cost"),
+    ] = None
+
+    def check(self, run: Any) -> None:
+        names = self.cost_names
+        if names is not None and (not names or len(set(names)) != len(names)):
+            raise ConfigError(f"env.cost_names must be a non-empty list of distinct names, got {names!r}")
 
     def render_env(self) -> gym.Env:
         """One env of this id drawing ``rgb_array`` frames (for video), if its class offers them."""
@@ -129,6 +140,7 @@ def make_gym_vec_env(cfg: GymEnvConfig, num_envs: int, device: str = "cpu") -> V
         num_envs,
         device=device,
         env_id=cfg.id,
+        cost_names=cfg.cost_names,
     )
 
 

@@ -1,9 +1,18 @@
 """Options every env shares, whatever its backend; each env's options class extends
-:class:`EnvOptions`."""
+:class:`EnvOptions`, and what it declares here is all the rest of the toolkit asks of an env's
+options (docs/architecture.md lists these hooks)."""
 
 from __future__ import annotations
 
+from typing import Any, ClassVar, Optional
+
 from cmdp_rl.validation import Bool, options
+
+# The budget d of a task that states none (Reach1D's: one crossing of the wall per episode).
+DEFAULT_BUDGET = 1.0
+# Safety-Gymnasium's tasks, and the velocity tasks built like them, are reported with d = 25 cost per
+# 1000-step episode (Ray, Achiam, Amodei 2019; Ji et al. 2023, "Safety-Gymnasium"; OmniSafe).
+SAFETY_GYM_BUDGET = 25.0
 
 
 @options
@@ -13,7 +22,19 @@ class EnvOptions:
     mean)."""
 
     allow_negative_cost: Bool = False
+    # Evaluation reports the fraction of episodes that terminated under this name (e.g. a goal
+    # reached); None: the env's termination means nothing worth reporting.
+    termination_metric: ClassVar[Optional[str]] = None
+
+    def check(self, run: Any) -> None:
+        """Rules that relate this env's options to the rest of the run (none here)."""
 
     def env_id(self) -> str:
         """How the env contract's messages name this env."""
         return getattr(self, "id", "") or getattr(self, "name", "env")
+
+    def budget(self) -> float | list[float]:
+        """The task's budget d on expected undiscounted episode cost: one number for every
+        constraint, or one per cost in the env's cost order. ``algo.cost_limit`` defaults to it
+        (``config.resolve_budget``); a value given for ``algo.cost_limit`` wins."""
+        return DEFAULT_BUDGET

@@ -8,7 +8,7 @@ costs about 1.3 ms per step (specs, step_mdp, info readers), several times the c
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, NamedTuple, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -17,6 +17,7 @@ from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
 from cmdp_rl.actions import action_bounds, action_dim, check_action_space, to_env
 from cmdp_rl.envs.env_state import env_state, load_env_state
+from cmdp_rl.validation import ConfigError
 
 
 class Step(NamedTuple):
@@ -135,6 +136,7 @@ class GymVecEnv(VecEnv):
         device: str | torch.device = "cpu",
         asynchronous: bool = False,
         env_id: str = "env",
+        cost_names: Sequence[str] | None = None,
     ) -> None:
         vector = AsyncVectorEnv if asynchronous else SyncVectorEnv
         self.envs = vector([make_one for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
@@ -160,6 +162,14 @@ class GymVecEnv(VecEnv):
         names = _declared_cost_names(local[0]) if local else None
         self.num_costs = len(names) if names is not None else _probe_num_costs(make_one)
         self._cost_names = names if names is not None else default_cost_names(self.num_costs)
+        if cost_names is not None:  # the user's names (env.cost_names), one per cost the env reports
+            if len(cost_names) != self.num_costs:
+                self.envs.close()
+                raise ConfigError(
+                    f"env.cost_names must name the {self.num_costs} cost(s) {env_id} reports, "
+                    f"got {len(cost_names)}: {list(cost_names)}"
+                )
+            self._cost_names = tuple(cost_names)
         self._zeros = np.zeros((num_envs, self.num_costs), dtype=np.float32)
 
     @property

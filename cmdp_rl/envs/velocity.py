@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any, Literal, Optional
 import gymnasium as gym
 import numpy as np
 
-from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.options import SAFETY_GYM_BUDGET, EnvOptions
 from cmdp_rl.registry import register
 from cmdp_rl.validation import NonNegativeFloat, PositiveInt, options
 
@@ -130,6 +130,10 @@ class VelocityEnvConfig(EnvOptions):
     # None: the task's Safety-Gymnasium v1 threshold (VELOCITY_TASKS); a number overrides it.
     velocity_threshold: Optional[NonNegativeFloat] = None
     max_steps: PositiveInt = 1000
+
+    def budget(self) -> float:
+        """d = 25 cost per episode, the field's budget for these tasks (``SAFETY_GYM_BUDGET``)."""
+        return SAFETY_GYM_BUDGET
 
     def env_id(self) -> str:
         return f"{self.task}-v5"

@@ -268,13 +268,15 @@ def _chunked(critic: Critic, flat: dict) -> torch.Tensor:
     return torch.cat([critic(p) for p in parts])
 
 
-def make_agent(cfg: Any, env: Any, normalizers: Normalizers | None = None) -> Agent:
+def make_agent(cfg: Any, env: Any, normalizers: Normalizers | None = None, algo: Any = None) -> Agent:
     """The agent ``policy=<cfg.name>`` builds for ``env`` (its observation and action spaces);
-    ``normalizers``' observation normalizer, if any, goes in front of every network."""
+    ``normalizers``' observation normalizer, if any, goes in front of every network. ``algo``: the
+    algorithm's options; the agent is then the one it trains (``AlgoConfig.shape_agent``)."""
     from cmdp_rl.registry import component  # the registry imports the policy modules, which import this one
 
     agent = component("policy", cfg.name).build(cfg, env, normalizers if normalizers is not None else Normalizers())
-    return agent.to(env.device)
+    agent = agent.to(env.device)
+    return agent if algo is None else algo.shape_agent(agent)
 
 
 __all__ = ["Actor", "Agent", "Body", "CHUNK_ROWS", "Critic", "critic_outputs", "make_agent"]

@@ -144,10 +144,17 @@ def check_off_policy_agent(agent: Agent, algo: str) -> None:
         raise ConfigError(f"algo={algo} needs a Box action space with finite bounds (its actions are squashed into it)")
 
 
-def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> None:
+def check_shaped(agent: Agent, algo: str) -> None:
+    """An off-policy algorithm trains the agent :func:`to_off_policy` made (its options'
+    ``shape_agent``, called by ``make_agent(..., algo=...)``), not the policy's own."""
+    if Q_COST not in agent.critics:
+        raise ValueError(f"algo={algo}: build its agent with make_agent(..., algo=<its options>)")
+
+
+def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> Agent:
     """Give ``agent`` (an MLP agent, :func:`check_off_policy_agent`) the off-policy actor head
     (``actor``: ``"tanh_gaussian"`` or ``"deterministic"``) and the Q-critics, in place. The MLP's
-    widths and activation are the policy's (``policy.hidden_sizes``, ``policy.activation``)."""
+    widths and activation are the policy's (``policy.hidden_sizes``, ``policy.activation``). Returns it."""
     head = agent.actor.head
     low, high = head.center - head.half_width, head.center + head.half_width
     in_dim, hidden, activation = _mlp_shape(head.net)
@@ -171,6 +178,7 @@ def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> None:
     for m in (*agent.actor.modules(), *agent.critics.modules()):
         if isinstance(m, nn.ReLU):
             m.inplace = True
+    return agent
 
 
 __all__ = [
@@ -181,5 +189,6 @@ __all__ = [
     "Q_REWARD",
     "TanhGaussianHead",
     "check_off_policy_agent",
+    "check_shaped",
     "to_off_policy",
 ]

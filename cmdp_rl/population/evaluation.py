@@ -36,7 +36,7 @@ def evaluate_population(
         rows = episode_rows(collector, quota * len(cfgs))
     finally:
         agent.generators = training
-    metric = getattr(cfg.env, "termination_metric", None)
+    metric = cfg.env.termination_metric
     return [
         summarize_episodes(
             [row for r in rows[i * n : (i + 1) * n] for row in r],

@@ -101,7 +101,7 @@ def train_population(
     for c in cfgs:
         seed_everything(c.seed)
         probe = make_env(c.env, device=c.device, algo=c.algo)
-        agent = make_agent(c.policy, probe, make_normalizers(c, probe))
+        agent = make_agent(c.policy, probe, make_normalizers(c, probe), algo=c.algo)
         agents.append(agent)
         algos.append(make_algo(c.algo, agent))
         g = torch.Generator(device=device)

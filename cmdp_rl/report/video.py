@@ -174,8 +174,9 @@ def record_video(
     ``seed`` once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
     (``<name_prefix>-episode-<i>.mp4``: the reset frame and one per step). ``max_steps`` cuts each
     episode short (MuJoCo renders about 10 frames a second in software). ``algo``: the run's
-    algorithm options; if they declare ``observation_state(cost_names)`` (an env transform's state
-    the policy sees beside the env's observation: Sauté's budget), it is carried along the episode."""
+    algorithm options; the state their ``observation_state(cost_names)`` gives (an env transform's
+    state the policy sees beside the env's observation: Sauté's budget), if any, is carried along
+    the episode."""
     from gymnasium.wrappers import RecordVideo
 
     env = make_render_env(env_cfg)
@@ -186,9 +187,8 @@ def record_video(
         name_prefix=name_prefix,
         fps=exact_fps(env.metadata.get("render_fps", 30)),
     )
-    make_extra = getattr(algo, "observation_state", None)
     policy = _PolicyOnOneEnv(
-        agent, env.action_space, deterministic, None if make_extra is None else make_extra(agent.cost_names)
+        agent, env.action_space, deterministic, None if algo is None else algo.observation_state(agent.cost_names)
     )
     out: list[VideoEpisode] = []
     with torch.random.fork_rng(devices=[]):

@@ -4,6 +4,10 @@ Hydra creates the run (or sweep) directory itself, before ``train.py``'s code ru
 uncreatable one (``hydra.run.dir=/proc/x``) ends in a pathlib traceback there. This callback runs
 just before that, on the same resolved directory (Hydra's ``now`` resolver caches its value in the
 config, so the directory checked is the one Hydra then uses), and stops with one line, exit 2.
+
+A single run also claims its directory there (``run/ownership.py``), before Hydra writes its
+``.hydra/`` record and log into it: a directory holding another run, or one a live run holds, is
+refused with its files untouched. The claim is kept for the life of the process.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from cmdp_rl.run.ownership import acquire, resumable
 from cmdp_rl.run.rundir import RunDirError, ensure_writable
 
 EXIT_STATUS = 2
@@ -32,6 +37,18 @@ class CheckOutputDir(Callback):
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         _check(config, "hydra.run.dir")
+        resume = OmegaConf.select(config, "resume")
+        new_run = not resumable(resume)
+        try:  # a resume runs in its own directory (configs/config.yaml's hydra.run.dir says so too)
+            acquire(
+                str(OmegaConf.select(config, "hydra.run.dir")) if new_run else resume,
+                new_run=new_run,
+                overwrite=bool(OmegaConf.select(config, "overwrite", default=False)),
+                hydra_record=True,  # Hydra writes its record and log after this
+            )
+        except RunDirError as exc:
+            print(f"cannot write outputs: {exc}", file=sys.stderr)
+            sys.exit(EXIT_STATUS)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         _check(config, "hydra.sweep.dir")

@@ -27,7 +27,6 @@ from typing import Any, NamedTuple
 
 import yaml
 
-from cmdp_rl.algos import make_algo
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, load_config
 from cmdp_rl.envs import VecEnv, make_eval_env
@@ -174,9 +173,9 @@ def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_
     env = make_eval_env(cfg.env, num_envs=num_envs, algo=cfg.algo)
     # Normalizer buffers are shaped by the training envs (running discounted sums per env).
     norm = Normalizers.from_config(cfg.normalize, env.obs_dim, cfg.env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
-    agent = make_agent(cfg.policy, env, norm)
-    try:  # the algorithm restores its own networks, whatever else it keeps
-        make_algo(cfg.algo, agent).load_state_dict(upgrade_algo_state(state["algo_state"], agent))
+    agent = make_agent(cfg.policy, env, norm, algo=cfg.algo)  # the algorithm's networks, no algorithm
+    try:  # every algorithm keeps its agent's state under "networks" (docs/architecture.md)
+        agent.load_state_dict(upgrade_algo_state(state["algo_state"], agent)["networks"])
     except (KeyError, RuntimeError) as exc:
         env.close()
         raise CheckpointError(f"evaluate: {ckpt} does not fit the config of {run_dir} ({exc})") from exc

@@ -1,8 +1,8 @@
 """The slippery two-hazard gridworld as a component (``env=grid``): its options, checked before
 anything is built, and its vector env (gymnasium's, one :class:`~cmdp_rl.envs.grid.env.GridWorld` per
 env). Discrete actions (4 directions) and K = 2 costs (``hazard_a``, ``hazard_b``): train it with an
-algorithm that takes several constraints and one budget per cost, e.g.
-``python train.py env=grid algo=ppo_lag 'algo.cost_limit=[0.3,0.15]'`` (``grid.DEFAULT_BUDGETS``)."""
+algorithm that takes several constraints; the budgets default to ``grid.env.DEFAULT_BUDGETS``
+(hazard_a 0.3, hazard_b 0.15), e.g. ``python train.py env=grid algo=ppo_lag``."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 from cmdp_rl.envs.grid.env import (
     COST_NAMES,
+    DEFAULT_BUDGETS,
     DEFAULT_END_PROB,
     DEFAULT_LAYOUT,
     DEFAULT_SLIP,
@@ -59,6 +60,11 @@ class GridEnvConfig(EnvOptions):
 
     def env_id(self) -> str:
         return GRID_ID
+
+    def budget(self) -> list[float]:
+        """Each reported cost's budget from ``DEFAULT_BUDGETS`` (in ``COST_NAMES`` order), in ``costs`` order."""
+        budgets = dict(zip(COST_NAMES, DEFAULT_BUDGETS))
+        return [budgets[name] for name in self.costs]
 
     def render_env(self) -> GridWorld:
         """One grid of these options drawing ``rgb_array`` frames (for ``evaluate.py video=true``)."""

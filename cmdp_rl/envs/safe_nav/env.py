@@ -28,7 +28,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import torch
 
-from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.options import SAFETY_GYM_BUDGET, EnvOptions
 from cmdp_rl.envs.safe_nav.arrays import namespace, to_host
 from cmdp_rl.envs.safe_nav.button import ButtonTask
 from cmdp_rl.envs.safe_nav.circle import CircleTask
@@ -304,6 +304,10 @@ class SafeNavEnvConfig(EnvOptions):
     max_steps: Annotated[int, Field(ge=0, description="an integer >= 0 (0: the task's limit)")] = 0
     threads: PositiveInt = 1
     physics: Literal["mujoco", "mjwarp"] = "mujoco"
+
+    def budget(self) -> float:
+        """d = 25 cost per episode, the field's budget for these tasks (``SAFETY_GYM_BUDGET``)."""
+        return SAFETY_GYM_BUDGET
 
     def env_id(self) -> str:
         return f"safe_nav/{self.task}"

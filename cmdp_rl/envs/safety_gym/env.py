@@ -27,7 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 from cmdp_rl.envs.env_state import env_state, load_env_state
-from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.options import SAFETY_GYM_BUDGET, EnvOptions
 from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium
 from cmdp_rl.envs.safety_gym.tasks import TASKS, task_problem
 from cmdp_rl.envs.vector import GymVecEnv, default_cost_names
@@ -230,6 +230,10 @@ class SafetyGymEnvConfig(EnvOptions):
     task: Annotated[str, Field(pattern=r"\S", description="a Safety-Gymnasium task id")] = "SafetyPointGoal1-v0"
     max_steps: Annotated[NonNegativeInt, Field(description="an integer >= 0 (0: the task's limit)")] = 0
     vector: Literal["sync", "async"] = "sync"
+
+    def budget(self) -> float:
+        """d = 25 cost per episode, the field's budget for these tasks (``SAFETY_GYM_BUDGET``)."""
+        return SAFETY_GYM_BUDGET
 
     def env_id(self) -> str:
         return self.task

@@ -1,0 +1,131 @@
+"""Every registered algorithm in every cross-cutting check: a short run, a crash and resume equal to
+the uninterrupted run, golden numbers, evaluation without the algorithm, K > 1 costs, Discrete and
+MultiDiscrete actions.
+
+The algorithms are the registry's when this file is collected: the built-in ones, and any a test
+file collected before this one registers (tests/test_components.py's toy_reinforce), so a new
+algorithm joins every check by registering. Each trains with the tiny options its options class
+declares beside it (``AlgoConfig.tiny``) on conftest's TINY Reach1D run.
+"""
+
+import json
+import re
+from dataclasses import replace
+
+import pytest
+import torch
+from conftest import eval_result, metrics_rows, tiny
+from cost_envs import MATCH_ID, MULTI_MATCH_ID
+from test_cost_vector import ENV_ID as TWO_COST_ID
+from test_golden import GOLDEN, WRITE, _mismatch, _outputs, machine
+from test_resume import assert_same_run, crash_then_resume
+
+from cmdp_rl import evaluate, load_config, registry, train
+from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.registry import component, names
+from cmdp_rl.run.rundir import load_trained
+from cmdp_rl.validation import ConfigError
+
+ALGOS = names("algo")
+
+
+def enrolled(algo: str, env: dict | None = None, **top) -> dict:
+    """conftest's TINY run with ``algo`` and the tiny options it declares (``env``: another env)."""
+    cfg = tiny(**top)
+    if env is not None:
+        cfg["env"] = env
+    cfg["algo"] = {"name": algo, **component("algo", algo).options.tiny, "cost_limit": cfg["algo"]["cost_limit"]}
+    return cfg
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_evaluation_loads_the_policy_without_building_the_algorithm(algo, tmp_path, monkeypatch, quiet):
+    cfg = enrolled(algo, total_steps=64)
+    train(load_config(cfg), tmp_path, echo=quiet)
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("evaluation built the algorithm")
+
+    monkeypatch.setitem(registry._REGISTRY["algo"], algo, replace(component("algo", algo), build=forbidden))
+    trained = load_trained(tmp_path, num_envs=2)
+    saved = load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"]["networks"]
+    loaded = trained.agent.state_dict()
+    assert saved.keys() == loaded.keys() and all(torch.equal(saved[k], loaded[k]) for k in saved)
+    result = evaluate(trained.agent, trained.env, 2, seed=1)
+    assert result["episodes"] == 2
+    trained.env.close()
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_crash_then_resume_equals_the_uninterrupted_run(algo, tmp_path, monkeypatch, quiet):
+    def crashed_past_the_last_checkpoint(broken) -> None:  # checkpoints at 2 and 4, then row 5
+        assert len(metrics_rows(broken)) == 5 and load_checkpoint(broken / "checkpoint.pt")["iteration"] == 4
+
+    cfg = enrolled(algo)
+    assert_same_run(*crash_then_resume(cfg, tmp_path, monkeypatch, quiet, checked=crashed_past_the_last_checkpoint))
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_a_short_run_gives_its_golden_numbers(algo, tmp_path, quiet):
+    """A short run writes a row per iteration and a result, and the numbers recorded for
+    ``registry_<algo>`` (as test_golden.py: exactly a recording of this or another machine, else the
+    first recording within its cross-machine tolerance). An algorithm with no recording is checked
+    for the first part and then skipped with how to record one."""
+    name = f"registry_{algo}"
+    result = train(load_config(enrolled(algo)), tmp_path, echo=quiet)
+    rows = metrics_rows(tmp_path)
+    assert [r["iteration"] for r in rows] == [str(i) for i in range(1, 8)]
+    assert result["episodes"] == 4 and eval_result(tmp_path)["episodes"] == 4
+    assert all(r["cost_limit"] == "0.2" and r["lagrange_multiplier"] != "" for r in rows)
+    got = _outputs(tmp_path)
+    first = GOLDEN / f"{name}.json"
+    if WRITE:
+        path = first if not first.exists() else GOLDEN / "machines" / machine() / f"{name}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(got, indent=1, sort_keys=True))
+        pytest.skip(f"wrote {path}")
+    if not first.exists():
+        pytest.skip(
+            f"no golden numbers for {algo}: CMDP_RL_WRITE_GOLDEN=1 python -m pytest tests/test_registry_enrolment.py -k {algo}"
+        )
+    recorded = [first, *sorted(GOLDEN.glob(f"machines/*/{name}.json"))]
+    if any(_mismatch(got, json.loads(p.read_text()), close=False) is None for p in recorded):
+        return
+    own = GOLDEN / "machines" / machine() / f"{name}.json"
+    assert own not in recorded, f"{name}: differs from this machine's own recording"
+    problem = _mismatch(got, json.loads(first.read_text()), close=True)
+    assert problem is None, f"{name}: {problem}"
+
+
+def _takes(algo: str) -> int | None:
+    return component("algo", algo).options.constraints
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_two_costs_train_with_a_budget_each_or_stop_in_one_line(algo, tmp_path, quiet):
+    two_costs = {"name": "gym", "id": TWO_COST_ID, "num_envs": 2, "max_steps": 8, "kwargs": {"length": 4}}
+    cfg = enrolled(algo, env=two_costs)
+    cfg.update(total_steps=64, checkpoint_every=100)
+    cfg["algo"]["cost_limit"] = [2.0, 5.0]
+    if _takes(algo) is None:
+        train(load_config(cfg), tmp_path, echo=quiet)
+        header = (tmp_path / "metrics.csv").read_text().splitlines()[0].split(",")
+        assert {"episode_cost/hazard_a", "episode_cost/hazard_b", "cost_limit/hazard_b"} <= set(header)
+    else:
+        with pytest.raises(ConfigError, match=rf"for an env with 2 costs \(hazard_a, hazard_b\).*got '{algo}'"):
+            train(load_config(cfg), tmp_path / "run", echo=quiet)
+        assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("env_id", [MATCH_ID, MULTI_MATCH_ID])
+@pytest.mark.parametrize("algo", ALGOS)
+def test_discrete_actions_train_or_stop_in_one_line(algo, env_id, tmp_path, quiet):
+    cfg = enrolled(algo, env={"name": "gym", "id": env_id, "num_envs": 2, "max_steps": 8})
+    cfg.update(total_steps=64, checkpoint_every=100, eval_episodes=2)
+    try:
+        result = train(load_config(cfg), tmp_path / "run", echo=quiet)
+    except ConfigError as exc:  # an algorithm that cannot act on categories says so, naming a field
+        assert re.fullmatch(r"(algo|env|policy)[\w.]* must [^\n]+", str(exc)), exc
+        assert not (tmp_path / "run" / "metrics.csv").exists()
+        return
+    assert result["episodes"] == 2 and len(metrics_rows(tmp_path / "run")) == 2
