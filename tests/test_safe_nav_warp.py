@@ -92,7 +92,7 @@ def test_a_whole_episode_stays_within_tolerance_of_mujoco(task):
     check_whole_episode(task, 1)
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 @pytest.mark.parametrize("task", WARP_TASKS)
 def test_every_offered_task_over_whole_episodes_of_two_envs(task):
     check_whole_episode(task, 2)
