@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cmdp_rl.algos.ppo import PenaltyConfig, PPOLagConfig
+from cmdp_rl.algos.ppo_lag import PenaltyConfig, PPOLagConfig
 from cmdp_rl.config import RunConfig
 
 ROOT = Path(__file__).resolve().parents[1]
