@@ -26,6 +26,7 @@ from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.legacy import upgrade_algo_state
+from cmdp_rl.policy_average import ParameterAverage, deployed, first_averaged_iteration
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
@@ -137,6 +138,12 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
+    # final_policy=average: the actor's parameters averaged from this iteration on (policy_average.py).
+    average = ParameterAverage() if cfg.final_policy == "average" else None
+    average_from = first_averaged_iteration(iterations, cfg.average_last)
+    saved = None if state is None else state.get("policy_average")
+    if average is not None and saved is not None and saved["first_iteration"] == average_from:
+        average.load_state_dict(saved)  # (a resume that moved the window, e.g. more total_steps, restarts it)
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
@@ -152,9 +159,11 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             if not cannot_resume:
                 cannot_resume.append(str(exc))
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
+        extra = {} if average is None else {"policy_average": {"first_iteration": average_from, **average.state_dict()}}
         save_checkpoint(
             ckpt_path,
             {
+                **extra,
                 "algo": cfg.algo.name,
                 "policy": cfg.policy.name,
                 "config": run_cfg,
@@ -202,6 +211,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
                 )
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
             agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
+            if average is not None and it >= average_from:
+                average.update(agent.actor)
             eps = finished_episodes(batch)
             # Per-constraint values are lists of K here; spread() gives each its own column.
             row = {
@@ -233,6 +244,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
+    if average is not None:  # deploy the average (the checkpoint keeps the last iterate to resume from)
+        average.apply(agent.actor)
     metric = getattr(cfg.env, "termination_metric", None)  # what the env says termination means
     eval_env = make_eval_env(
         cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
@@ -253,6 +266,8 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
             "steps": collector.total_steps,
             "train_time_s": train_time,
             "torch_threads": torch.get_num_threads(),
+            "final_policy": cfg.final_policy,
+            "averaged_iterations": None if average is None else average.count,
         }
     )
     k = len(names)
@@ -266,7 +281,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
     (out / EVAL).write_text(json.dumps(result, indent=2))
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
-    header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s"
+    header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s; {deployed(result)}"
     for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header, cost_names=names):
         echo(line)
     return result
