@@ -79,3 +79,42 @@ def test_options_build_the_named_controller_with_the_budget_scale(kind, cls):
     m = make_controller(cfg, 0.25, 0.1, 0.0)
     assert isinstance(m, cls) and m.scale == 0.25
     assert make_controller(MultiplierFields(multiplier="augmented"), 0.25, 0.1, 0.0).scale == 1.0
+
+
+def _controllers(algo: dict):
+    from cmdp_rl import load_config
+    from cmdp_rl.algos import make_algo
+    from cmdp_rl.envs import make_env
+    from cmdp_rl.policies import make_agent
+
+    cfg = load_config({"algo": algo, "env": {"num_envs": 2}, "policy": {"hidden_sizes": [8]}})
+    env = make_env(cfg.env)
+    built = make_algo(cfg.algo, make_agent(cfg.policy, env))
+    env.close()
+    return built
+
+
+@pytest.mark.parametrize(
+    "algo, cls",
+    [
+        ({"name": "ppo_lag", "multiplier": "optimistic"}, OptimisticDual),
+        ({"name": "trpo_lag", "multiplier": "augmented"}, AugmentedLagrangian),
+        ({"name": "sac_lag", "multiplier": "regularized", "buffer_size": 1000}, RegularizedDual),
+        ({"name": "td3_lag", "multiplier": "optimistic", "buffer_size": 1000}, OptimisticDual),
+    ],
+)
+def test_every_lagrangian_algorithm_builds_the_chosen_update_on_the_relative_violation(algo, cls):
+    built = _controllers({**algo, "cost_limit": 0.5, "lambda_scale": "budget"})
+    multipliers = built.lagrange.multipliers if hasattr(built, "lagrange") else built.multiplier
+    (c,) = multipliers.controllers
+    assert isinstance(c, cls) and c.scale == pytest.approx(c.cost_limit)  # sac/td3: the discounted budget
+
+
+def test_regularized_ppo_lag_adds_tau_to_the_entropy_bonus_and_nu_scale_reaches_focops_and_cup():
+    ppo = _controllers({"name": "ppo_lag", "multiplier": "regularized", "lambda_tau": 0.3, "entropy_coef": 0.01})
+    assert ppo.entropy_coef == pytest.approx(0.31)
+    for name in ("focops", "cup", "pid_lag"):
+        field = "lambda_scale" if name == "pid_lag" else "nu_scale"
+        m = _controllers({"name": name, "cost_limit": 0.25, field: "budget"}).multiplier
+        m = m.controllers[0] if hasattr(m, "controllers") else m
+        assert m.scale == 0.25
