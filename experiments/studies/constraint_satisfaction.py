@@ -3,6 +3,7 @@
 
     python experiments/studies/constraint_satisfaction.py --cases reach1d_pass fork --methods ppo_lag ppo_lag/optimistic
     python experiments/studies/constraint_satisfaction.py --cases fork --seeds 0 1 2 -- total_steps=100000
+    python experiments/studies/constraint_satisfaction.py ... --figure docs/figures/constraint_satisfaction_lambda.png
 
 One run after another (no parallel jobs), each as `python train.py <case> <method> seed=S <extra>`
 would train it; a run whose eval.json exists under --out is read, not retrained. Prints the table
@@ -21,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from cmdp_rl.analysis.constraint_satisfaction import CASES, METHODS, run_one, table  # noqa: E402
+from cmdp_rl.analysis.constraint_satisfaction import CASES, METHODS, plot_lambdas, run_one, table  # noqa: E402
 
 
 def main() -> None:
@@ -30,6 +31,8 @@ def main() -> None:
     ap.add_argument("--methods", nargs="+", default=["ppo_lag"], choices=list(METHODS))
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--out", default="outputs/constraint_satisfaction")
+    ap.add_argument("--existing", action="store_true", help="train nothing: tabulate the runs already under --out")
+    ap.add_argument("--figure", help="also draw each case's lambda against steps, first seed, to this PNG")
     ap.add_argument("extra", nargs="*", help="train.py overrides for every run (after --)")
     args = ap.parse_args()
     out = Path(args.out)
@@ -40,6 +43,8 @@ def main() -> None:
         for method in args.methods:
             for seed in args.seeds:
                 run_dir = out / case / method.replace("/", "+") / f"s{seed}"
+                if args.existing and not (run_dir / "eval.json").exists():
+                    continue
                 o = run_one(case, method, seed, run_dir, args.extra)
                 outcomes.append(o)
                 row = {**dataclasses.asdict(o), "gap": o.gap, "violation": o.violation}
@@ -54,6 +59,17 @@ def main() -> None:
     print(text)
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     (out / "table.md").write_text(text + "\n")
+    if args.figure:
+        first = args.seeds[0]
+        panels = {
+            case: {
+                m: out / case / m.replace("/", "+") / f"s{first}"
+                for m in args.methods
+                if (out / case / m.replace("/", "+") / f"s{first}" / "metrics.csv").exists()
+            }
+            for case in args.cases
+        }
+        print(f"wrote {plot_lambdas(panels, Path(args.figure))}")
 
 
 if __name__ == "__main__":
