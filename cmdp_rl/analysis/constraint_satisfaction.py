@@ -55,6 +55,14 @@ METHODS: dict[str, list[str]] = {
         "algo.lambda_lr=0.2",
     ],
     "ppo_lag/average-0.2": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.lambda_lr=0.2", "final_policy=average"],
+    # The average over the last half of the iterations instead of the last quarter.
+    "ppo_lag/average-0.2-half": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.lambda_lr=0.2",
+        "final_policy=average",
+        "average_last=0.5",
+    ],
     "pid_lag": ["algo=pid_lag"],
     "trpo_lag": ["algo=trpo_lag"],
     "sac_lag": ["algo=sac_lag"],
