@@ -8,7 +8,7 @@ cost (hand-checkable, nothing to warm up, the same fixed points: lambda still st
 at ``J_c = d``), and it is the scale the constraint itself declares. Adam's normalised step
 (about lr per iteration whatever the violation's size) also discards how far over budget the
 policy is, and its momentum adds to the very orbit the last-iterate methods damp
-(Sohrabi et al. 2024, section 4). docs/constraint_satisfaction.md has the measurements.
+(Sohrabi et al. 2024 show why momentum cannot remove it). docs/constraint_satisfaction.md has the measurements.
 """
 
 from __future__ import annotations
