@@ -24,7 +24,7 @@ from cmdp_rl.algos.lagrange import MultiplierController
 class RegularizedDual(MultiplierController):
     """Regularised primal-dual (Ding, Wei, Zhang, Ribeiro, "Last-Iterate Convergent Policy
     Gradient Primal-Dual Methods for Constrained MDPs", NeurIPS 2023, arXiv 2306.11700, the dual
-    step of their RPG-PD, Algorithm 1)::
+    step of their RPG-PD)::
 
         lambda <- Pi[(1 - lr * tau) lambda + lr * g]
 
@@ -51,7 +51,7 @@ class RegularizedDual(MultiplierController):
 
 class OptimisticDual(MultiplierController):
     """nuPI (Sohrabi, Ramirez, Zhang, Lacoste-Julien, Gallego-Posada, "On PI Controllers for
-    Updating Lagrange Multipliers in Constrained Optimization", ICML 2024, Algorithm 1) with
+    Updating Lagrange Multipliers in Constrained Optimization", ICML 2024) with
     ``kappa_p = kappa_i = lr``::
 
         xi     = nu * xi_prev + (1 - nu) * g
