@@ -15,7 +15,8 @@ import gymnasium as _gym
 
 from cmdp_rl import keys
 from cmdp_rl.algos import TrainingDiverged, make_algo
-from cmdp_rl.algos.ppo import PPO, PenaltyPPO, PIDLagrangianPPO, PPOLagrangian
+from cmdp_rl.algos.ppo import PPO
+from cmdp_rl.algos.ppo_lag import PenaltyPPO, PIDLagrangianPPO, PPOLagrangian
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.config import ConfigError, RunConfig, load_config, validate
 from cmdp_rl.envs import REACH1D_ID, GymVecEnv, Reach1D, VecEnv, make_env

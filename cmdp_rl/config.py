@@ -26,6 +26,7 @@ from cmdp_rl.validation import (
     PositiveFloat,
     PositiveInt,
     build,
+    finite,
     options,
     recheck,
     require,
@@ -78,6 +79,11 @@ class RunConfig:
     threads: PositiveInt = 1
     eval_episodes: PositiveInt = 20
     eval_deterministic: Bool = True
+    # The policy deployed at the end (evaluated, in eval.json, in evaluate.py and its video): the
+    # last iterate, or the average of the actor's parameters over the last average_last fraction of
+    # the iterations (cmdp_rl/policy_average.py).
+    final_policy: Literal["last", "average"] = "last"
+    average_last: Annotated[float, finite(gt=0, le=1)] = 0.25
     checkpoint_every: PositiveInt = 10
     log_interval: PositiveInt = 5
     # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.

@@ -26,6 +26,7 @@ from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.legacy import upgrade_algo_state
+from cmdp_rl.policy_average import ParameterAverage, deployed, first_averaged_iteration
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
@@ -117,15 +118,19 @@ def complete_result(
     cost_totals: list[float],
     names: tuple[str, ...],
     reference: Any,
+    average: ParameterAverage | None = None,
 ) -> None:
     """Add to an evaluation's ``result`` what ``eval.json`` records of the run: budget, steps, train
-    time, threads, cost rates and normalised scores per constraint, the reference."""
+    time, threads, the deployed policy (``final_policy``, and how many iterations ``average`` holds),
+    cost rates and normalised scores per constraint, the reference."""
     result.update(
         {
             "cost_limit": cfg.algo.cost_limit,
             "steps": steps,
             "train_time_s": train_time,
             "torch_threads": torch.get_num_threads(),
+            "final_policy": cfg.final_policy,
+            "averaged_iterations": None if average is None else average.count,
         }
     )
     k = len(names)
@@ -160,8 +165,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
     algo = make_algo(cfg.algo, agent)
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
-    names = env.cost_names
-    per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
+    per_constraint(cfg.algo.cost_limit, "algo.cost_limit", env.cost_names)
     # After the resume and config checks (a mistyped resume path or a wrong-length budget is
     # reported, no directory created), before any training: the directory is this run's alone
     # (a new run refuses one that holds a run, unless overwrite) for as long as it trains.
@@ -171,7 +175,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
         env.close()
         raise
     try:
-        return _train(cfg, out, state, env, agent, algo, limits, echo)
+        return _train(cfg, out, state, env, agent, algo, echo)
     finally:
         release(out)
 
@@ -183,7 +187,6 @@ def _train(
     env: Any,
     agent: Any,
     algo: Any,
-    limits: list[float],
     echo: Callable[[str], None],
 ) -> dict[str, Any]:
     """The rest of :func:`train`, in a run directory this process holds."""
@@ -219,6 +222,12 @@ def _train(
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
+    # final_policy=average: the actor's parameters averaged from this iteration on (policy_average.py).
+    average = ParameterAverage() if cfg.final_policy == "average" else None
+    average_from = first_averaged_iteration(iterations, cfg.average_last)
+    saved = None if state is None else state.get("policy_average")
+    if average is not None and saved is not None and saved["first_iteration"] == average_from:
+        average.load_state_dict(saved)  # (a resume that moved the window, e.g. more total_steps, restarts it)
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
@@ -234,9 +243,11 @@ def _train(
             if not cannot_resume:
                 cannot_resume.append(str(exc))
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
+        extra = {} if average is None else {"policy_average": {"first_iteration": average_from, **average.state_dict()}}
         save_checkpoint(
             ckpt_path,
             {
+                **extra,
                 "algo": cfg.algo.name,
                 "policy": cfg.policy.name,
                 "config": run_cfg,
@@ -285,6 +296,8 @@ def _train(
                 )
                 raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
             agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
+            if average is not None and it >= average_from:
+                average.update(agent.actor)
             timing = {"sps": per_iter / (time.perf_counter() - t0), "time_s": time.perf_counter() - start}
             row = metrics_row(
                 it,
@@ -309,6 +322,8 @@ def _train(
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
+    if average is not None:  # deploy the average (the checkpoint keeps the last iterate to resume from)
+        average.apply(agent.actor)
     metric = cfg.env.termination_metric  # what the env says termination means (EnvOptions)
     eval_env = make_eval_env(
         cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
@@ -323,10 +338,10 @@ def _train(
         cost_limit=cfg.algo.cost_limit,
     )
     eval_env.close()
-    complete_result(result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference)
+    complete_result(result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference, average)
     (out / EVAL).write_text(json.dumps(result, indent=2))
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
-    header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s"
+    header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s; {deployed(result)}"
     for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header, cost_names=names):
         echo(line)
     return result

@@ -240,7 +240,10 @@ def test_sac_lag_resumes_exactly_with_its_buffer(tmp_path, monkeypatch, quiet):
             "algo.buffer_size must be >= algo.batch_size",
         ),
         ({"algo": {"name": "sac_lag", "utd_ratio": 0}}, "algo.utd_ratio must be in (0, 64]"),
-        ({"algo": {"name": "td3_lag", "multiplier": "adam"}}, "algo.multiplier must be one of ('dual', 'pid')"),
+        (
+            {"algo": {"name": "td3_lag", "multiplier": "adam"}},
+            "algo.multiplier must be one of ('dual', 'pid', 'regularized', 'optimistic', 'augmented')",
+        ),
     ],
 )
 def test_refusals_are_one_line(tmp_path, quiet, override, message):

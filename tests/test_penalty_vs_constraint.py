@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cmdp_rl.algos.ppo import PenaltyConfig, PPOLagConfig
+from cmdp_rl.algos.ppo_lag import PenaltyConfig, PPOLagConfig
 from cmdp_rl.analysis import penalty_vs_constraint as pvc
 from cmdp_rl.config import RunConfig
 

@@ -37,6 +37,7 @@ from cmdp_rl.algos.base import check_finite, check_parameters_finite, single_con
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import DualAscent
 from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.algos.multiplier_options import Scale, check_scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig, Reduce
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -56,7 +57,12 @@ class CUPConfig(PPOConfig):
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     nu_init: NonNegativeFloat = 0.0
     nu_lr: PositiveFloat = 0.05
+    nu_scale: Scale = "none"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
     projection_epochs: AutoInt = AUTO  # auto: update_epochs
+
+    def check(self, run: RunConfig) -> None:
+        super().check(run)
+        check_scale(self.cost_limit, self.nu_scale, "algo.nu_scale")
 
     def resolve_auto(self, run: RunConfig) -> None:
         super().resolve_auto(run)
@@ -72,7 +78,7 @@ class CUP(PPO):
     def __init__(self, cfg: CUPConfig, agent: Agent) -> None:
         cost_limit = single_constraint(cfg.cost_limit, agent, "cup", "cup has one cost multiplier nu")
         super().__init__(cfg, agent)
-        self.multiplier = DualAscent(cost_limit, cfg.nu_lr, cfg.nu_init)
+        self.multiplier = DualAscent(cost_limit, cfg.nu_lr, cfg.nu_init, violation_scale(cost_limit, cfg.nu_scale))
         self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
 
     @property

@@ -39,6 +39,7 @@ from cmdp_rl import keys
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import PIDLagrangian
+from cmdp_rl.algos.multiplier_options import Scale, check_scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -59,9 +60,11 @@ class FOCOPSConfig(PPOConfig):
     nu_init: NonNegativeFloat = 0.0
     nu_lr: PositiveFloat = 0.01
     nu_max: PositiveFloat = 2.0
+    nu_scale: Scale = "none"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
+        check_scale(self.cost_limit, self.nu_scale, "algo.nu_scale")
         require(self.nu_init <= self.nu_max, "algo.nu_init", "a number in [0, algo.nu_max]", self.nu_init)
 
 
@@ -110,7 +113,13 @@ class FOCOPS(PPO):
         super().__init__(cfg, agent)
         self.kl_limit = cfg.target_kl  # Algorithm 1 stops at delta itself, not PPO's 1.5 delta
         self.multiplier = PIDLagrangian(
-            cost_limit, kp=0.0, ki=cfg.nu_lr, kd=0.0, init=cfg.nu_init, lambda_max=cfg.nu_max
+            cost_limit,
+            kp=0.0,
+            ki=cfg.nu_lr,
+            kd=0.0,
+            init=cfg.nu_init,
+            lambda_max=cfg.nu_max,
+            scale=violation_scale(cost_limit, cfg.nu_scale),
         )
 
     @property

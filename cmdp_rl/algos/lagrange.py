@@ -4,6 +4,11 @@ The Lagrangian of ``max J_r  s.t.  J_c <= d`` is ``J_r - lambda (J_c - d)``; its
 ``J_c - d``. Every controller takes the batch's measured episode cost explicitly, keeps
 lambda >= 0, and saves its state with ``state_dict``: :class:`MultiplierController` is the
 interface the Lagrangian algorithms program against.
+
+Every controller reads the violation ``(J_c - d) / scale``. ``scale = 1`` is the classical update
+in the cost's units; ``scale = d`` (``lambda_scale: budget``, algos/multiplier_options.py) makes it
+the relative violation, so that one step size means the same on a budget of 0.15 as on one of 25
+(docs/constraint_satisfaction.md). The last-iterate controllers live in algos/last_iterate.py.
 """
 
 from __future__ import annotations
@@ -18,11 +23,18 @@ class MultiplierController(ABC):
     """Sets lambda >= 0 from one measurement of the mean undiscounted episode cost ``J_c`` per
     iteration. ``value`` is the lambda in force."""
 
-    def __init__(self, cost_limit: float, init: float = 0.0) -> None:
+    def __init__(self, cost_limit: float, init: float = 0.0, scale: float = 1.0) -> None:
         if init < 0:
             raise ValueError(f"lambda_init must be >= 0, got {init}")
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"the violation's scale must be a positive number, got {scale}")
         self.cost_limit = cost_limit
+        self.scale = float(scale)
         self.value = float(init)
+
+    def violation(self, episode_cost: float) -> float:
+        """``(J_c - d) / scale``: the dual gradient the controllers step on."""
+        return (episode_cost - self.cost_limit) / self.scale
 
     def update(self, episode_cost: float) -> float:
         """Take in ``J_c`` (finite), update and return the new lambda."""
@@ -50,12 +62,12 @@ class DualAscent(MultiplierController):
     the primal-dual (PDO) update of Achiam et al. 2017, "Constrained Policy Optimization", eq. 16.
     """
 
-    def __init__(self, cost_limit: float, lr: float, init: float = 0.0) -> None:
-        super().__init__(cost_limit, init)
+    def __init__(self, cost_limit: float, lr: float, init: float = 0.0, scale: float = 1.0) -> None:
+        super().__init__(cost_limit, init, scale)
         self.lr = lr
 
     def _next_value(self, episode_cost: float) -> float:
-        return max(0.0, self.value + self.lr * (episode_cost - self.cost_limit))
+        return max(0.0, self.value + self.lr * self.violation(episode_cost))
 
     def state_dict(self) -> dict:
         return {"value": self.value}
@@ -96,8 +108,9 @@ class PIDLagrangian(MultiplierController):
         d_ema_alpha: float = 0.0,
         d_delay: int = 1,
         lambda_max: float = math.inf,
+        scale: float = 1.0,
     ) -> None:
-        super().__init__(cost_limit, init)
+        super().__init__(cost_limit, init, scale)
         if min(kp, ki, kd) < 0:
             raise ValueError(f"PID gains must be >= 0, got kp={kp}, ki={ki}, kd={kd}")
         if not (0.0 <= p_ema_alpha < 1.0 and 0.0 <= d_ema_alpha < 1.0):
@@ -116,10 +129,11 @@ class PIDLagrangian(MultiplierController):
         self.terms = {"p": 0.0, "i": self.integral, "d": 0.0}  # the last update's contributions
 
     def _next_value(self, episode_cost: float) -> float:
-        delta = episode_cost - self.cost_limit
+        delta = self.violation(episode_cost)
         self.integral = min(self.lambda_max, max(0.0, self.integral + self.ki * delta))
         self.delta_p = delta if self.delta_p is None else _ema(self.delta_p, delta, self.p_ema_alpha)
-        self.cost_d = episode_cost if self.cost_d is None else _ema(self.cost_d, episode_cost, self.d_ema_alpha)
+        cost = episode_cost / self.scale  # the derivative's cost, in the violation's units
+        self.cost_d = cost if self.cost_d is None else _ema(self.cost_d, cost, self.d_ema_alpha)
         if not self.history:
             self.history.extend([self.cost_d] * self.d_delay)
         derivative = max(0.0, self.cost_d - self.history[0])

@@ -36,7 +36,8 @@ from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
-from cmdp_rl.algos.lagrange import DualAscent, Multipliers, PIDLagrangian
+from cmdp_rl.algos.lagrange import Multipliers, PIDLagrangian
+from cmdp_rl.algos.multiplier_options import Scale, check_multiplier, check_scale, make_controller, violation_scale
 from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.algos.replay_buffer import Replay
 from cmdp_rl.policies.agent import Agent
@@ -68,7 +69,12 @@ def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
 class LagrangeFields:
     """The multiplier of the ``_lag`` variants (mixed into their options)."""
 
-    multiplier: Literal["dual", "pid"] = "dual"
+    # dual: projected dual ascent; pid: lagrange.PIDLagrangian; regularized, optimistic, augmented:
+    # the last-iterate updates of last_iterate.py (multiplier_options.py)
+    multiplier: Literal["dual", "pid", "regularized", "optimistic", "augmented"] = "dual"
+    lambda_scale: Scale = "none"  # the violation's units: none: Q_c - d_Q; budget: (Q_c - d_Q) / d_Q
+    lambda_tau: NonNegativeFloat = 0.1  # regularized: tau of the dual's regulariser (SAC's alpha is the entropy)
+    lambda_nu: Annotated[float, finite(ge=0, lt=1)] = 0.0  # optimistic: EMA of the violation
     lambda_init: NonNegativeFloat = 0.0
     lambda_lr: PositiveFloat = 0.01  # dual: lambda <- max(0, lambda + lambda_lr (Q_c - d_Q)) per iteration
     kp: NonNegativeFloat = 0.0  # pid gains (lagrange.PIDLagrangian); ki is the integral's step
@@ -143,6 +149,11 @@ class OffPolicyConfig(AlgoConfig):
             f">= algo.batch_size ({self.batch_size})",
             self.buffer_size,
         )
+        if isinstance(self, LagrangeFields):
+            if self.multiplier == "pid":
+                check_scale(self.cost_limit, self.lambda_scale)
+            else:
+                check_multiplier(self, self.lambda_lr)
 
 
 class TargetCritics:
@@ -190,10 +201,11 @@ class LagrangeTerm:
 
             def make(d: float):
                 if cfg.multiplier == "pid":
+                    scale = violation_scale(d, cfg.lambda_scale)
                     return PIDLagrangian(
-                        d, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init, lambda_max=cfg.lambda_max
+                        d, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init, lambda_max=cfg.lambda_max, scale=scale
                     )
-                return DualAscent(d, cfg.lambda_lr, cfg.lambda_init)
+                return make_controller(cfg, d, cfg.lambda_lr, cfg.lambda_init)
 
             self.multipliers = Multipliers(make, self.budgets)
 

@@ -1,19 +1,7 @@
-"""PPO, reward-penalty PPO and PPO-Lagrangian (dual ascent or PID): one clipped-PPO update, three
-policy advantages.
-
-- PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms"): ``A = A_r``.
-- Penalty: PPO on the reward ``r - lambda c`` with a fixed lambda. GAE is linear in the reward, so
-  with ``V = V_r - lambda V_c`` its advantage is exactly ``A_r - lambda A_c``; the two critics stay
-  separate and their targets are the same as for every other algorithm.
-- PPO-Lagrangian (Ray, Achiam, Amodei, 2019, "Benchmarking Safe Exploration in Deep RL"):
-  ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by projected dual ascent on ``J_c - d``, or by
-  a PID controller on it (Stooke, Achiam, Abbeel, 2020): see ``lagrange.py``.
-
-K constraints (an env reporting K costs): one multiplier per constraint, each moved by its own
-``J_c,k - d_k`` (``lagrange.Multipliers``), and the advantage is
-``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``: the same normalisation as K = 1, which it
-is exactly (the penalised advantage's scale stays that of ``A_r`` however many multipliers grow).
-Penalty takes one lambda for every cost or a list of K: ``A_r - sum_k lambda_k A_c,k``.
+"""PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms"): one clipped-PPO update
+on a policy advantage, ``A = A_r`` here. Reward-penalty PPO and PPO-Lagrangian (Ray, Achiam,
+Amodei, 2019, "Benchmarking Safe Exploration in Deep RL") change only that advantage and the
+multiplier behind it: ppo_lag.py.
 
 The clipped surrogate (eq. 7 of Schulman et al.) reads the combined advantage; both critics regress
 on their GAE value targets. The surrogate is written out here rather than torchrl's
@@ -27,7 +15,7 @@ default gymnasium run's training (measured with cProfile, see ``experiments/``).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Callable, ClassVar, Optional
+from typing import TYPE_CHECKING, Callable, ClassVar, Optional
 
 import torch
 from tensordict import TensorDictBase
@@ -36,10 +24,9 @@ from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.base import AlgoConfig, PerConstraint, check_finite, check_parameters_finite, per_constraint
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.episode_cost import EpisodeCost, EpisodeCostEstimate
-from cmdp_rl.algos.lagrange import DualAscent, MultiplierController, Multipliers, PIDLagrangian
 from cmdp_rl.algos.minibatch import minibatches
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -47,12 +34,9 @@ from cmdp_rl.validation import (
     AUTO,
     AutoInt,
     Bool,
-    Field,
     NonNegativeFloat,
     PositiveFloat,
-    PositiveInt,
     UnitOpen,
-    finite,
     options,
     require,
 )
@@ -117,55 +101,6 @@ class PPOConfig(AlgoConfig):
         )
 
 
-@options
-class PenaltyConfig(PPOConfig):
-    """PPO on r - penalty * c with a fixed exchange rate."""
-
-    name: str = "penalty"
-    penalty: PerConstraint = 1.0  # one lambda for every cost, or a list of K
-    # Its fixed lambda prices raw cost: cost scaling would change what the number means.
-    reads_raw_cost: ClassVar[bool] = True
-
-
-@options
-class PPOLagConfig(PPOConfig):
-    """PPO-Lagrangian (Ray, Achiam, Amodei 2019): lambda adapted by projected dual ascent."""
-
-    name: str = "ppo_lag"
-    lambda_init: NonNegativeFloat = 0.0
-    lambda_lr: PositiveFloat = 0.05
-    # With anneal_lr, also anneal lambda's step size linearly to 0 (the same schedule): the dual
-    # iterate then settles instead of swinging, as diminishing dual steps do in the convergence
-    # results for primal-dual methods; false: lambda_lr throughout.
-    anneal_lambda_lr: Bool = False
-
-
-@options
-class PIDLagConfig(PPOConfig):
-    """PPO with lambda set by a PID controller (Stooke, Achiam, Abbeel 2020)."""
-
-    name: str = "pid_lag"
-    lambda_init: NonNegativeFloat = 0.0
-    kp: NonNegativeFloat = 2.0
-    ki: NonNegativeFloat = 0.1
-    kd: NonNegativeFloat = 0.0
-    p_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
-    d_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
-    d_delay: PositiveInt = 1
-    lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
-
-    def check(self, run: RunConfig) -> None:
-        super().check(run)
-        gains = self.kp + self.ki + self.kd
-        require(gains > 0, "algo.kp + algo.ki + algo.kd", "> 0 (some gain must act)", gains)
-        require(
-            self.lambda_init <= self.lambda_max,
-            "algo.lambda_init",
-            "a number in [0, algo.lambda_max]",
-            self.lambda_init,
-        )
-
-
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
 
 
@@ -201,6 +136,7 @@ class PPO:
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, fused=True)
         self.iteration = 0  # updates done: the learning-rate schedule's clock (anneal_lr)
+        self.entropy_coef = cfg.entropy_coef
 
     def anneal_fraction(self) -> float:
         """The annealed rates' fraction of their initial values this iteration (``anneal_lr``,
@@ -273,7 +209,7 @@ class PPO:
     def policy_loss(self, mb: Units) -> tuple[torch.Tensor, Units]:
         """:meth:`surrogate` minus the entropy bonus, and its statistics, detached."""
         loss, stats = self.surrogate(self.agent.dist(mb), mb, torch.mean)
-        loss = loss - self.cfg.entropy_coef * stats["entropy"]
+        loss = loss - self.entropy_coef * stats["entropy"]
         return loss, {**stats, "entropy": stats["entropy"].detach()}
 
     def surrogate(self, dist: D.Distribution, mb: Units, mean: Reduce) -> tuple[torch.Tensor, Units]:
@@ -335,83 +271,4 @@ def logged_multiplier(values: list[float]) -> float | list[float]:
     return values[0] if len(values) == 1 else list(values)
 
 
-class PenaltyPPO(PPO):
-    name = "penalty"
-
-    def __init__(self, cfg: PenaltyConfig, agent: Agent) -> None:
-        super().__init__(cfg, agent)
-        self.penalties = per_constraint(cfg.penalty, "algo.penalty", agent.cost_names)
-
-    @property
-    def lagrange_multiplier(self) -> float | list[float]:
-        return logged_multiplier(self.penalties)
-
-    def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
-        return penalised(batch, self.penalties)
-
-
-class PPOLagrangian(PPO):
-    """Lambda from a :class:`MultiplierController`: projected dual ascent here, PID in
-    :class:`PIDLagrangianPPO`; the policy update is the same."""
-
-    name = "ppo_lag"
-
-    def __init__(self, cfg: PPOLagConfig, agent: Agent) -> None:
-        super().__init__(cfg, agent)
-        limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
-        # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
-        self.multiplier = Multipliers(lambda d: self.make_multiplier(cfg, d), limits)
-
-    @staticmethod
-    def make_multiplier(cfg: PPOLagConfig, cost_limit: float) -> MultiplierController:
-        return DualAscent(cost_limit, cfg.lambda_lr, cfg.lambda_init)
-
-    @property
-    def lagrange_multiplier(self) -> float | list[float]:
-        return logged_multiplier(self.multiplier.values)
-
-    def update_multiplier(self, estimate: EpisodeCost) -> None:
-        if getattr(self.cfg, "anneal_lambda_lr", False):
-            frac = self.anneal_fraction()
-            for c in self.multiplier.controllers:
-                c.lr = frac * self.cfg.lambda_lr
-        self.multiplier.update(estimate.costs)  # every iteration (algos/episode_cost.py)
-
-    def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
-        lams = self.multiplier.values
-        return penalised(batch, lams) / (1.0 + sum(lams))
-
-    def state_dict(self) -> dict:
-        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        super().load_state_dict(state)
-        self.multiplier.load_state_dict(state["multiplier"])
-
-
-class PIDLagrangianPPO(PPOLagrangian):
-    """PPO-Lagrangian with lambda from a PID controller on ``J_c - d`` (Stooke, Achiam, Abbeel,
-    2020, "Responsive Safety in RL by PID Lagrangian Methods"): the proportional and derivative
-    terms damp the overshoot and oscillation of the integral-only dual ascent."""
-
-    name = "pid_lag"
-
-    @staticmethod
-    def make_multiplier(cfg: PIDLagConfig, cost_limit: float) -> MultiplierController:
-        return PIDLagrangian(
-            cost_limit,
-            kp=cfg.kp,
-            ki=cfg.ki,
-            kd=cfg.kd,
-            init=cfg.lambda_init,
-            p_ema_alpha=cfg.p_ema_alpha,
-            d_ema_alpha=cfg.d_ema_alpha,
-            d_delay=cfg.d_delay,
-            lambda_max=cfg.lambda_max,
-        )
-
-
 register("algo", "ppo", PPOConfig, PPO)
-register("algo", "penalty", PenaltyConfig, PenaltyPPO)
-register("algo", "ppo_lag", PPOLagConfig, PPOLagrangian)
-register("algo", "pid_lag", PIDLagConfig, PIDLagrangianPPO)

@@ -21,7 +21,7 @@ and the advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)`` (K = 1
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Optional, Sequence
+from typing import TYPE_CHECKING, ClassVar, Optional, Sequence
 
 import torch
 
@@ -29,7 +29,8 @@ from cmdp_rl import keys
 from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.cpo import CPOConfig
-from cmdp_rl.algos.lagrange import DualAscent, Multipliers
+from cmdp_rl.algos.lagrange import Multipliers
+from cmdp_rl.algos.multiplier_options import MultiplierFields, check_multiplier, make_controller
 from cmdp_rl.algos.natural_gradient import (
     NO_STEP,
     NaturalGradient,
@@ -43,10 +44,14 @@ from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import NonNegativeFloat, PositiveFloat, options
 
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
 
 @options
-class TRPOLagConfig(CPOConfig):
-    """TRPO-Lagrangian: CPO's trust region and line search, ppo_lag's multiplier."""
+class TRPOLagConfig(CPOConfig, MultiplierFields):
+    """TRPO-Lagrangian: CPO's trust region and line search, ppo_lag's multiplier (its
+    ``multiplier: regularized`` regularises the dual only: TRPO's surrogate has no entropy term)."""
 
     name: str = "trpo_lag"
     lambda_init: NonNegativeFloat = 0.0
@@ -54,6 +59,10 @@ class TRPOLagConfig(CPOConfig):
     # lambda reads J_c from the episodes' raw cost sums; the policy advantage may be scaled.
     reads_raw_cost: ClassVar[bool] = False
     constraints: ClassVar[Optional[int]] = None  # one multiplier per cost: any K
+
+    def check(self, run: RunConfig) -> None:
+        super().check(run)
+        check_multiplier(self, self.lambda_lr)
 
 
 class TRPOLagrangian(NaturalGradient):
@@ -66,7 +75,7 @@ class TRPOLagrangian(NaturalGradient):
         super().__init__(cfg, agent)
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
         # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
-        self.multiplier = Multipliers(lambda d: DualAscent(d, cfg.lambda_lr, cfg.lambda_init), limits)
+        self.multiplier = Multipliers(lambda d: make_controller(cfg, d, cfg.lambda_lr, cfg.lambda_init), limits)
 
     @property
     def lagrange_multiplier(self) -> float | list[float]:

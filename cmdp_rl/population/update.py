@@ -50,7 +50,8 @@ class PopulationPPO:
         self.n = envs_per_agent
         self.gae = TwinGAE(first.gamma, first.cost_gamma, first.gae_lambda)
         device = agent.actor.flat.device
-        self.entropy_coef = torch.tensor([c.algo.entropy_coef for c in cfgs], dtype=torch.float32, device=device)
+        # each algorithm's own coefficient: a regularised multiplier adds its tau to the configured one
+        self.entropy_coef = torch.tensor([a.entropy_coef for a in self.algos], dtype=torch.float32, device=device)
         limits = [a.kl_limit for a in self.algos]
         self.kl_limit = None if limits[0] is None else torch.tensor(limits, dtype=torch.float32, device=device)
         self.lrs = [(c.algo.lr, c.algo.critic_lr) for c in cfgs]

@@ -33,6 +33,7 @@ from cmdp_rl.envs import VecEnv, make_eval_env
 from cmdp_rl.normalization import Normalizers
 from cmdp_rl.policies import Agent, make_agent
 from cmdp_rl.policies.legacy import upgrade_algo_state
+from cmdp_rl.policy_average import ParameterAverage
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.yaml"
@@ -179,4 +180,11 @@ def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_
     except (KeyError, RuntimeError) as exc:
         env.close()
         raise CheckpointError(f"evaluate: {ckpt} does not fit the config of {run_dir} ({exc})") from exc
+    if cfg.final_policy == "average":  # the policy the run deployed (policy_average.py)
+        if "policy_average" not in state:
+            env.close()
+            raise CheckpointError(f"evaluate: {ckpt} has no averaged policy, but {run_dir} has final_policy=average")
+        average = ParameterAverage()
+        average.load_state_dict(state["policy_average"])
+        average.apply(agent.actor)
     return Trained(cfg, env, agent, int(state["iteration"]), int(state["step"]))

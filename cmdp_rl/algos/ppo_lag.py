@@ -1,0 +1,189 @@
+"""Reward-penalty PPO and PPO-Lagrangian (dual ascent, PID, or a last-iterate update): PPO's
+clipped update (ppo.py) on a penalised advantage.
+
+- Penalty: PPO on the reward ``r - lambda c`` with a fixed lambda. GAE is linear in the reward, so
+  with ``V = V_r - lambda V_c`` its advantage is exactly ``A_r - lambda A_c``; the two critics stay
+  separate.
+- Lagrangian: ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by a controller on the measured
+  ``J_c - d`` once per iteration, before the policy update: projected dual ascent, PID (Stooke,
+  Achiam, Abbeel 2020; lagrange.py), or the last-iterate updates of last_iterate.py
+  (``algo.multiplier``, multiplier_options.py).
+
+K constraints (an env reporting K costs): one multiplier per constraint, each moved by its own
+``J_c,k - d_k`` (``lagrange.Multipliers``), and the advantage is
+``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``: the same normalisation as K = 1, which it
+is exactly (the penalised advantage's scale stays that of ``A_r`` however many multipliers grow).
+Penalty takes one lambda for every cost or a list of K: ``A_r - sum_k lambda_k A_c,k``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Annotated, ClassVar
+
+import torch
+from tensordict import TensorDictBase
+
+from cmdp_rl.algos.base import PerConstraint, per_constraint
+from cmdp_rl.algos.episode_cost import EpisodeCost
+from cmdp_rl.algos.lagrange import MultiplierController, Multipliers, PIDLagrangian
+from cmdp_rl.algos.multiplier_options import (
+    MultiplierFields,
+    Scale,
+    check_multiplier,
+    check_scale,
+    make_controller,
+    violation_scale,
+)
+from cmdp_rl.algos.ppo import PPO, PPOConfig, logged_multiplier, penalised
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.registry import register
+from cmdp_rl.validation import Bool, Field, NonNegativeFloat, PositiveFloat, PositiveInt, finite, options, require
+
+if TYPE_CHECKING:
+    from cmdp_rl.config import RunConfig
+
+
+@options
+class PenaltyConfig(PPOConfig):
+    """PPO on r - penalty * c with a fixed exchange rate."""
+
+    name: str = "penalty"
+    penalty: PerConstraint = 1.0  # one lambda for every cost, or a list of K
+    # Its fixed lambda prices raw cost: cost scaling would change what the number means.
+    reads_raw_cost: ClassVar[bool] = True
+
+
+@options
+class PPOLagConfig(PPOConfig, MultiplierFields):
+    """PPO-Lagrangian (Ray, Achiam, Amodei 2019): lambda adapted by projected dual ascent, or by
+    one of the last-iterate updates (multiplier_options.py)."""
+
+    name: str = "ppo_lag"
+    lambda_init: NonNegativeFloat = 0.0
+    lambda_lr: PositiveFloat = 0.05
+    # With anneal_lr, also anneal lambda's step size linearly to 0 (the same schedule): the dual
+    # iterate then settles instead of swinging, as diminishing dual steps do in the convergence
+    # results for primal-dual methods; false: lambda_lr throughout.
+    anneal_lambda_lr: Bool = False
+
+    def check(self, run: RunConfig) -> None:
+        super().check(run)
+        check_multiplier(self, self.lambda_lr)
+
+
+@options
+class PIDLagConfig(PPOConfig):
+    """PPO with lambda set by a PID controller (Stooke, Achiam, Abbeel 2020)."""
+
+    name: str = "pid_lag"
+    lambda_init: NonNegativeFloat = 0.0
+    kp: NonNegativeFloat = 2.0
+    ki: NonNegativeFloat = 0.1
+    kd: NonNegativeFloat = 0.0
+    p_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
+    d_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
+    d_delay: PositiveInt = 1
+    lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
+    lambda_scale: Scale = "none"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+
+    def check(self, run: RunConfig) -> None:
+        super().check(run)
+        check_scale(self.cost_limit, self.lambda_scale)
+        gains = self.kp + self.ki + self.kd
+        require(gains > 0, "algo.kp + algo.ki + algo.kd", "> 0 (some gain must act)", gains)
+        require(
+            self.lambda_init <= self.lambda_max,
+            "algo.lambda_init",
+            "a number in [0, algo.lambda_max]",
+            self.lambda_init,
+        )
+
+
+class PenaltyPPO(PPO):
+    name = "penalty"
+
+    def __init__(self, cfg: PenaltyConfig, agent: Agent) -> None:
+        super().__init__(cfg, agent)
+        self.penalties = per_constraint(cfg.penalty, "algo.penalty", agent.cost_names)
+
+    @property
+    def lagrange_multiplier(self) -> float | list[float]:
+        return logged_multiplier(self.penalties)
+
+    def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
+        return penalised(batch, self.penalties)
+
+
+class PPOLagrangian(PPO):
+    """Lambda from a :class:`MultiplierController`: projected dual ascent here, PID in
+    :class:`PIDLagrangianPPO`; the policy update is the same."""
+
+    name = "ppo_lag"
+
+    def __init__(self, cfg: PPOLagConfig, agent: Agent) -> None:
+        super().__init__(cfg, agent)
+        limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
+        # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
+        self.multiplier = Multipliers(lambda d: self.make_multiplier(cfg, d), limits)
+        if getattr(cfg, "multiplier", "dual") == "regularized":
+            # The policy side of Ding et al.'s regularised Lagrangian: an entropy bonus tau
+            # (on the standardised policy advantage, so tau is in its units).
+            self.entropy_coef = cfg.entropy_coef + cfg.lambda_tau
+
+    @staticmethod
+    def make_multiplier(cfg: PPOLagConfig, cost_limit: float) -> MultiplierController:
+        return make_controller(cfg, cost_limit, cfg.lambda_lr, cfg.lambda_init)
+
+    @property
+    def lagrange_multiplier(self) -> float | list[float]:
+        return logged_multiplier(self.multiplier.values)
+
+    def update_multiplier(self, estimate: EpisodeCost) -> None:
+        if getattr(self.cfg, "anneal_lambda_lr", False):
+            frac = self.anneal_fraction()
+            for c in self.multiplier.controllers:
+                if hasattr(c, "rho"):
+                    c.rho = frac * self.cfg.lambda_lr
+                else:
+                    c.lr = frac * self.cfg.lambda_lr
+        self.multiplier.update(estimate.costs)  # every iteration (algos/episode_cost.py)
+
+    def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
+        lams = self.multiplier.values
+        return penalised(batch, lams) / (1.0 + sum(lams))
+
+    def state_dict(self) -> dict:
+        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.multiplier.load_state_dict(state["multiplier"])
+
+
+class PIDLagrangianPPO(PPOLagrangian):
+    """PPO-Lagrangian with lambda from a PID controller on ``J_c - d`` (Stooke, Achiam, Abbeel,
+    2020, "Responsive Safety in RL by PID Lagrangian Methods"): the proportional and derivative
+    terms damp the overshoot and oscillation of the integral-only dual ascent."""
+
+    name = "pid_lag"
+
+    @staticmethod
+    def make_multiplier(cfg: PIDLagConfig, cost_limit: float) -> MultiplierController:
+        return PIDLagrangian(
+            cost_limit,
+            kp=cfg.kp,
+            ki=cfg.ki,
+            kd=cfg.kd,
+            init=cfg.lambda_init,
+            p_ema_alpha=cfg.p_ema_alpha,
+            d_ema_alpha=cfg.d_ema_alpha,
+            d_delay=cfg.d_delay,
+            lambda_max=cfg.lambda_max,
+            scale=violation_scale(cost_limit, cfg.lambda_scale),
+        )
+
+
+register("algo", "penalty", PenaltyConfig, PenaltyPPO)
+register("algo", "ppo_lag", PPOLagConfig, PPOLagrangian)
+register("algo", "pid_lag", PIDLagConfig, PIDLagrangianPPO)

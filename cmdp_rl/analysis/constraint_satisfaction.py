@@ -1,0 +1,237 @@
+"""Does a Lagrangian method's final policy end within budget and near the optimum? The study of
+docs/constraint_satisfaction.md: each (CMDP, method) pair over a few seeds, the final policy's gap
+to the exact constrained optimum and each constraint's violation, with intervals over the seeds,
+and the multiplier's trajectory from metrics.csv.
+
+``experiments/studies/constraint_satisfaction.py`` is the command line; the pieces are here so that
+a test or a notebook can run one cell."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+# The CMDPs with exact optima, as a user would type them (train.py overrides).
+# Reach1D's optimum at d = 0.5 is randomised (cross in half the episodes): evaluate the sampled
+# policy, over 200 episodes (the mean action of a Gaussian policy either crosses or does not).
+REACH1D_EVAL = ["eval_deterministic=false", "eval_episodes=200"]
+CASES: dict[str, list[str]] = {
+    "reach1d_pass": ["env=reach1d_torch", "env.wall=pass", "algo.cost_limit=0.5", *REACH1D_EVAL],
+    "reach1d_block": ["env=reach1d_torch", "algo.cost_limit=1.0", *REACH1D_EVAL],
+    "fork": ["env=fork"],
+    "fork_k2": ["env=fork", "env.num_costs=2", "algo.cost_limit=[1.0,1.0]"],
+    "grid_k2": ["env=grid"],
+    "grid_k1": ["env=grid", "env.costs=[hazard_b]", "algo.cost_limit=0.15"],
+    "pointgoal1": ["env=safe_nav"],
+}
+
+# The multiplier settings compared (algo overrides; the algorithm first).
+METHODS: dict[str, list[str]] = {
+    "ppo_lag": ["algo=ppo_lag"],
+    "ppo_lag/budget": ["algo=ppo_lag", "algo.lambda_scale=budget"],
+    "ppo_lag/optimistic": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.multiplier=optimistic"],
+    "ppo_lag/regularized": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.multiplier=regularized"],
+    "ppo_lag/augmented": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.multiplier=augmented"],
+    "ppo_lag/average": ["algo=ppo_lag", "algo.lambda_scale=budget", "final_policy=average"],
+    # The same with a 4x larger dual step (relative units): lambda_lr = 0.2.
+    "ppo_lag/budget-0.2": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.lambda_lr=0.2"],
+    "ppo_lag/optimistic-0.2": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.multiplier=optimistic",
+        "algo.lambda_lr=0.2",
+    ],
+    "ppo_lag/augmented-0.2": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.multiplier=augmented",
+        "algo.lambda_lr=0.2",
+    ],
+    "ppo_lag/average-0.2": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.lambda_lr=0.2", "final_policy=average"],
+    # The average over the last half of the iterations instead of the last quarter.
+    "ppo_lag/average-0.2-half": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.lambda_lr=0.2",
+        "final_policy=average",
+        "average_last=0.5",
+    ],
+    "pid_lag": ["algo=pid_lag"],
+    "trpo_lag": ["algo=trpo_lag"],
+    "sac_lag": ["algo=sac_lag"],
+}
+
+
+@dataclass
+class Outcome:
+    """One run's final policy against the optimum: ``gap`` is ``(J* - J) / |J*|`` (0: optimal;
+    negative: above the optimum, which only an over-budget policy can be in expectation);
+    ``violation[k]`` is ``(J_c,k - d_k) / d_k`` (positive: over budget)."""
+
+    case: str
+    method: str
+    seed: int
+    ret: float
+    optimum: float | None
+    costs: list[float]
+    budgets: list[float]
+    train_time_s: float
+
+    @property
+    def gap(self) -> float:
+        return math.nan if self.optimum is None else (self.optimum - self.ret) / abs(self.optimum)
+
+    @property
+    def violation(self) -> list[float]:
+        return [(c - d) / d if d > 0 else c for c, d in zip(self.costs, self.budgets)]
+
+    @property
+    def within(self) -> bool:
+        return all(c <= d for c, d in zip(self.costs, self.budgets))
+
+
+def run_one(case: str, method: str, seed: int, out: Path, extra: Sequence[str] = ()) -> Outcome:
+    """Train ``method`` on ``case`` with ``seed`` into ``out`` (reused when its eval.json exists)."""
+    from cmdp_rl.config import compose_config
+    from cmdp_rl.trainer import train
+
+    overrides = [*CASES[case], *METHODS[method], f"seed={seed}", *extra]
+    cfg = compose_config(overrides)
+    if not (out / "eval.json").exists():
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "overrides.txt").write_text(" ".join(overrides) + "\n")
+        train(cfg, out, echo=lambda line: None)
+    result = json.loads((out / "eval.json").read_text())
+    if (result["deterministic"], result["episodes"]) != (cfg.eval_deterministic, cfg.eval_episodes):
+        result = _reevaluate(out, cfg, result)
+    names = [k.split("/", 1)[1] for k in result if k.startswith("episode_cost/")] or [None]
+    costs = [result["episode_cost" if n is None else f"episode_cost/{n}"] for n in names]
+    limits = cfg.algo.cost_limit if isinstance(cfg.algo.cost_limit, list) else [cfg.algo.cost_limit] * len(costs)
+    return Outcome(
+        case,
+        method,
+        seed,
+        float(result["episode_return"]),
+        exact_optimum(cfg),
+        [float(c) for c in costs],
+        [float(d) for d in limits],
+        float(result["train_time_s"]),
+    )
+
+
+def exact_optimum(cfg) -> float | None:
+    """J* at the run's budgets: the env's own solver (fork, Reach1D), else env=grid's occupancy LP
+    with both hazards (its K = 1 variant has none here)."""
+    from cmdp_rl.report.summary import optimum_of
+
+    found = optimum_of(cfg.env, cfg.algo.cost_limit)
+    if found is None and cfg.env.name == "grid" and list(cfg.env.costs) == ["hazard_a", "hazard_b"]:
+        from cmdp_rl.envs.grid.optimum import solve_constrained
+        from cmdp_rl.envs.grid.tabular import grid_cmdp
+
+        cmdp = grid_cmdp(tuple(cfg.env.layout), cfg.env.slip, cfg.env.end_prob)
+        found = float(solve_constrained(cmdp, cfg.algo.cost_limit).ret)
+    return found
+
+
+def _reevaluate(out: Path, cfg, result: dict) -> dict:
+    """A run trained with other evaluation options: evaluate its deployed policy as ``cfg`` says
+    (as evaluate.py would, same seed), keep the training figures, rewrite eval.json."""
+    from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
+    from cmdp_rl.run.rundir import load_trained
+
+    trained = load_trained(out, num_envs=min(cfg.eval_episodes, cfg.env.num_envs))
+    fresh = evaluate(
+        trained.agent,
+        trained.env,
+        cfg.eval_episodes,
+        cfg.eval_deterministic,
+        seed=cfg.seed + EVAL_SEED_OFFSET,
+        cost_limit=cfg.algo.cost_limit,
+    )
+    trained.env.close()
+    kept = {k: result[k] for k in ("train_time_s", "final_policy", "averaged_iterations", "steps") if k in result}
+    result = {**fresh, **kept}
+    (out / "eval.json").write_text(json.dumps(result, indent=2))
+    return result
+
+
+def lambda_trajectory(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(steps, lambdas [T, K])`` from a run's metrics.csv."""
+    with open(run_dir / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    cols = [c for c in rows[0] if c.startswith("lagrange_multiplier")]
+    steps = np.array([float(r["step"]) for r in rows])
+    return steps, np.array([[float(r[c]) for c in cols] for r in rows])
+
+
+def interval(values: Sequence[float], level: float = 0.95) -> tuple[float, float]:
+    """Mean and the half-width of Student's t interval over the seeds (nan for one seed)."""
+    v = np.asarray([x for x in values if math.isfinite(x)], dtype=float)
+    if v.size == 0:
+        return math.nan, math.nan
+    if v.size == 1:
+        return float(v[0]), math.nan
+    half = stats.t.ppf(0.5 + level / 2, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size)
+    return float(v.mean()), float(half)
+
+
+def _pm(values: Sequence[float], pct: bool = True) -> str:
+    m, h = interval(values)
+    if pct:
+        return f"{m:+.1%} ± {h:.1%}" if math.isfinite(h) else f"{m:+.1%}"
+    return f"{m:.3f} ± {h:.3f}" if math.isfinite(h) else f"{m:.3f}"
+
+
+def table(outcomes: Sequence[Outcome]) -> str:
+    """Markdown: per (case, method), seeds, return, gap and each violation as mean ± 95% t
+    half-width over the seeds, and how many seeds ended within every budget and within 10% of J*."""
+    lines = [
+        "| CMDP | method | seeds | return | J* | gap to J* | violation (J_c - d)/d | within budget | within budget and 10% |",
+        "|---|---|--:|--:|--:|--:|--:|--:|--:|",
+    ]
+    groups: dict[tuple[str, str], list[Outcome]] = {}
+    for o in outcomes:
+        groups.setdefault((o.case, o.method), []).append(o)
+    for (case, method), os_ in groups.items():
+        k = len(os_[0].costs)
+        viol = " / ".join(_pm([o.violation[i] for o in os_]) for i in range(k))
+        opt = os_[0].optimum
+        good = sum(o.within and o.gap <= 0.10 for o in os_)
+        lines.append(
+            f"| {case} | {method} | {len(os_)} | {_pm([o.ret for o in os_], pct=False)} | "
+            f"{'' if opt is None else f'{opt:.3f}'} | {_pm([o.gap for o in os_])} | {viol} | "
+            f"{sum(o.within for o in os_)}/{len(os_)} | {good}/{len(os_)} |"
+        )
+    return "\n".join(lines)
+
+
+def plot_lambdas(panels: dict[str, dict[str, Path]], path: Path) -> Path:
+    """One panel per CMDP (``panels[title][label] = run_dir``): lambda against env steps, every
+    constraint's multiplier of every run, side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.2), squeeze=False)
+    for ax, (title, runs) in zip(axes[0], panels.items()):
+        for label, run_dir in runs.items():
+            steps, lams = lambda_trajectory(run_dir)
+            for k in range(lams.shape[1]):
+                ax.plot(steps, lams[:, k], label=label if lams.shape[1] == 1 else f"{label} λ{k}", lw=1.2)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("λ")
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
