@@ -82,6 +82,9 @@ class RunConfig:
     log_interval: PositiveInt = 5
     # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
     resume: Annotated[Optional[str], Field(pattern=r"\S", description="null or a run directory")] = None
+    # Load the resumed run's checkpoint even if it is of an older format that only Python's full
+    # unpickler reads, which runs code from the file (docs/checkpoints.md). Never saved as true.
+    trust_checkpoint: Bool = False
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
 
@@ -102,6 +105,8 @@ class EvalConfig:
     video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
     video_dir: Optional[str] = None  # default: <run>/videos
     video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps
+    # Load a checkpoint of an older format, which runs code from the file (docs/checkpoints.md).
+    trust_checkpoint: Bool = False
 
 
 # The repository's Hydra configs (train.py's config_path), beside the package in a source checkout.

@@ -36,6 +36,7 @@ from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.envs import make_env
 from cmdp_rl.envs.contract import check_rollout
+from cmdp_rl.migrations import migrate
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
@@ -82,10 +83,12 @@ def train_population(
     echo: Callable[[str], None] = print,
     resume: bool = False,
     total_steps: int | None = None,
+    trust_checkpoint: bool = False,
 ) -> dict[str, Any]:
     """Train the population that ``raw`` (a composed config with a ``population`` node) describes
     into ``out_dir``; with ``resume``, continue the population in ``out_dir`` from its checkpoint
-    (``raw`` is then read from its ``population.yaml``; ``total_steps`` may extend it).
+    (``raw`` is then read from its ``population.yaml``; ``total_steps`` may extend it; an older
+    format's checkpoint only with ``trust_checkpoint``, which runs code from the file).
     Returns the summary written to ``population.json``."""
     out = Path(out_dir)
     state = None
@@ -93,10 +96,11 @@ def train_population(
         if not (out / POPULATION_CHECKPOINT).is_file():
             raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
         raw = yaml.safe_load((out / POPULATION_CONFIG).read_text())
-        state = load_checkpoint(out / POPULATION_CHECKPOINT)
+        state = migrate(load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint))
     raw = copy.deepcopy(dict(raw or {}))
     raw.pop("hydra", None)
     raw["resume"] = None
+    raw["trust_checkpoint"] = False  # one command's word, not the population's
     if total_steps is not None:
         raw["total_steps"] = total_steps
     overrides, cfgs = agent_configs(raw)  # every agent validated and the scope checked: nothing written yet
