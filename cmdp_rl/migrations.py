@@ -23,6 +23,7 @@ What changed from format 2 to 3 (:func:`_from_2`):
 from __future__ import annotations
 
 import argparse
+import io
 import pickle
 import shutil
 import sys
@@ -125,13 +126,46 @@ def _mujoco_from_2(env: dict[str, Any]) -> dict[str, Any]:
     return env
 
 
+def _safety_gym_world_from_2(state: dict[str, Any], task: str) -> dict[str, Any]:
+    """A navigation task's state whose world was pickled whole (with its one model and data saved
+    apart: the MJCF and small arrays, MuJoCo's integration state): restored into a task built from
+    the run's id the way format 2 did, then saved as format 3 saves it."""
+    import mujoco
+
+    from cmdp_rl.envs.safety_gym.env import make_task
+
+    model = None
+    if state["xml"] is not None:
+        model = mujoco.MjModel.from_xml_string(state["xml"])
+        for name, value in state["model_arrays"].items():
+            getattr(model, name)[...] = value
+
+    class Format2Unpickler(pickle.Unpickler):  # trusted: the user's word on a format 2 file
+        data = None
+
+        def persistent_load(self, pid: tuple) -> Any:
+            if pid[0] == "model":
+                return model
+            if self.data is None:
+                self.data = mujoco.MjData(model)
+                mujoco.mj_setState(model, self.data, pid[1], mujoco.mjtState.mjSTATE_INTEGRATION)
+                mujoco.mj_forward(model, self.data)
+            return self.data
+
+    env = make_task(task)
+    try:
+        vars(env.inner).update(Format2Unpickler(io.BytesIO(state["builder"])).load())
+        env.steps = state["steps"]
+        return env.state_dict()
+    finally:
+        env.close()
+
+
 def _envs_from_2(value: Any, config: dict[str, Any]) -> Any:
     """Every env state inside a collector state, in format 3's layout."""
     if isinstance(value, dict):
         if "builder" in value:  # a Safety-Gymnasium navigation task's world, pickled
-            from cmdp_rl.envs.safety_gym.world_state import world_state_from_pickle
-
-            return world_state_from_pickle(value, config["env"]["task"])
+            return _safety_gym_world_from_2(value, config["env"]["task"])
         value = {k: _envs_from_2(v, config) for k, v in value.items()}
         return _mujoco_from_2(value) if "mujoco_data" in value else value
     if isinstance(value, (list, tuple)):
