@@ -57,6 +57,7 @@ from cmdp_rl.run.rundir import (
     POPULATION_SUMMARY,
     RUN_INFO,
     ensure_writable,
+    read_yaml,
     write_run_info,
 )
 from cmdp_rl.threads import apply_threads
@@ -95,7 +96,7 @@ def train_population(
     if resume:
         if not (out / POPULATION_CHECKPOINT).is_file():
             raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
-        raw = yaml.safe_load((out / POPULATION_CONFIG).read_text())
+        raw = read_yaml(out / POPULATION_CONFIG, "resume")
         state = migrate(load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint))
     raw = copy.deepcopy(dict(raw or {}))
     raw.pop("hydra", None)

@@ -136,16 +136,23 @@ def checkpoint_path(run_dir: str | Path, what: str = "run") -> Path:
     return ckpt
 
 
+def read_yaml(path: Path, what: str = "run") -> Any:
+    """A YAML file of a run directory, read with YAML's safe loader (plain values only: a Python
+    tag, which the full loader would run, is refused in one line)."""
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        reason = " ".join(str(exc).split())[:200]
+        raise CheckpointError(f"{what}: {path} is not valid YAML ({reason})") from None
+
+
 def saved_config(run_dir: str | Path, what: str = "run", trust: bool = False) -> dict[str, Any]:
     """The run's own config as a plain mapping: its ``config.yaml`` (read with YAML's safe loader),
     else the one in its checkpoint (``trust``: see :func:`~cmdp_rl.checkpoint.load_checkpoint`)."""
     ckpt = checkpoint_path(run_dir, what)
     cfg_path = Path(run_dir) / CONFIG
     if cfg_path.is_file():
-        try:
-            return yaml.safe_load(cfg_path.read_text())
-        except yaml.YAMLError as exc:
-            raise CheckpointError(f"{what}: {cfg_path} is not valid YAML ({exc})") from exc
+        return read_yaml(cfg_path, what)
     return load_checkpoint(ckpt, trust=trust)["config"]
 
 
