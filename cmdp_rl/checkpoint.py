@@ -42,9 +42,10 @@ NDARRAY = "__ndarray__"
 NUMPY_SCALAR = "__numpy_scalar__"
 DEQUE = "__deque__"
 
-# What the older formats pickled whole (numpy's array and scalar reconstruction, deques): a file whose
-# only non-data globals are these is taken for an old cmdp_rl checkpoint in the refusal's wording.
-_OLD_FORMAT_GLOBALS = re.compile(r"^(numpy\.|collections\.deque$)")
+# What the older formats pickled whole (numpy's array and scalar reconstruction, deques, the bytes of a
+# pickled MuJoCo data or Safety-Gymnasium world): a file whose only non-data globals are these is taken
+# for an old cmdp_rl checkpoint in the refusal's wording.
+_OLD_FORMAT_GLOBALS = re.compile(r"^(numpy\.|collections\.deque$|builtins\.bytes$|_codecs\.encode$)")
 
 
 class CheckpointError(RuntimeError):
