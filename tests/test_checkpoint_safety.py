@@ -32,6 +32,7 @@ from cmdp_rl.checkpoint import (
 from cmdp_rl.migrations import is_legacy
 from cmdp_rl.population import train_population
 from cmdp_rl.registry import component, load_builtins, names
+from cmdp_rl.report.plot import main as plot_main
 
 _spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
 evaluate_cli = importlib.util.module_from_spec(_spec)
@@ -123,7 +124,9 @@ def test_a_config_yaml_with_a_python_tag_is_refused(run_dir, tmp_path, capsys):
     (run / "config.yaml").write_text(f"seed: !!python/object/apply:os.system ['touch {target}']\n")
     assert evaluate_cli.main([f"run={run}"]) == 2
     _one_line_refusal(capsys.readouterr().err, run / "config.yaml", "is not valid YAML")
-    assert not target.exists()
+    assert plot_main([str(run), "-o", str(tmp_path / "curves.png")]) == 2
+    _one_line_refusal(capsys.readouterr().err, run / "config.yaml", "plot:")
+    assert not target.exists() and not (tmp_path / "curves.png").exists()
 
 
 def test_the_population_resume_refuses_a_crafted_checkpoint(tmp_path):
