@@ -91,6 +91,9 @@ class RunConfig:
     # A new run into a directory that already holds a run: replace that run's outputs (false: refuse;
     # cmdp_rl/run/ownership.py).
     overwrite: Bool = False
+    # Load the resumed run's checkpoint even if it is of an older format that only Python's full
+    # unpickler reads, which runs code from the file (docs/checkpoints.md). Never saved as true.
+    trust_checkpoint: Bool = False
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
 
@@ -114,6 +117,8 @@ class EvalConfig:
     video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
     video_dir: Optional[str] = None  # default: <run>/videos
     video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps
+    # Load a checkpoint of an older format, which runs code from the file (docs/checkpoints.md).
+    trust_checkpoint: Bool = False
 
 
 # The Hydra configs. The checkout keeps them at its root (configs/, beside cmdp_rl/); the wheel ships that

@@ -23,9 +23,9 @@ from cmdp_rl.config import RunConfig, budget_source, validate
 from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
+from cmdp_rl.migrations import migrate
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
-from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl.policy_average import ParameterAverage, deployed, first_averaged_iteration
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
@@ -208,13 +208,15 @@ def _train(
     except ValueError as exc:
         env.close()
         raise CheckpointError(f"resume: {exc}") from exc
-    run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None, overwrite=False))  # the run's own config
+    # The run's own config; trusting a checkpoint or replacing a directory is one command's word, not the run's.
+    run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None, overwrite=False, trust_checkpoint=False))
     (out / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
     write_run_info(out, resumed_from=None if state is None else state["iteration"])
 
     first, elapsed = 1, 0.0
     if state is not None:
-        algo.load_state_dict(upgrade_algo_state(state["algo_state"], agent))  # a run from before the agent model too
+        state = migrate(state, agent)  # an older format's layout (a trusted file) in the current one
+        algo.load_state_dict(state["algo_state"])
         collector.load_state_dict(state["collector"])
         load_rng_state(state["rng"])
         first, elapsed = state["iteration"] + 1, state["time_s"]

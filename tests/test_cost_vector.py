@@ -23,6 +23,7 @@ from cmdp_rl.algos import make_algo
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers
 from cmdp_rl.collector import Collector, finished_episodes
 from cmdp_rl.envs import GymVecEnv
+from cmdp_rl.migrations import migrate
 from cmdp_rl.normalization import ReturnScaler
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig
@@ -199,10 +200,16 @@ def test_policy_advantage_sums_over_constraints_with_todays_normalisation():
     assert one.lagrange_multiplier == [3.0, 3.0]
 
 
-def test_one_multiplier_keeps_the_single_constraint_state_format():
+def test_one_multiplier_is_a_list_of_one_and_the_single_constraint_format_migrates():
+    """One state per constraint, K = 1 included; format 2 saved one constraint's as the bare
+    controller state, which cmdp_rl.migrations puts under ``constraints`` (and which then loads)."""
     single = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0])
     single.update([3.0])
-    assert single.state_dict() == {"value": pytest.approx(0.2)}
+    assert single.state_dict() == {"constraints": [{"value": pytest.approx(0.2)}]}
+    old = {"format": 2, "algo": "ppo_lag", "algo_state": {"multiplier": {"value": 0.2}}}
+    restored = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0])
+    restored.load_state_dict(migrate(old)["algo_state"]["multiplier"])
+    assert restored.values == pytest.approx(single.values)
     double = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0, 5.0])
     assert double.update([3.0, 3.0]) == [pytest.approx(0.2), 0.0]
     other = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0, 5.0])

@@ -9,6 +9,10 @@ the old code gave: ``eval.json``, ``reference.pt`` (a deterministic and a sample
 loaded networks with both critics' values) and ``resumed_metrics.csv`` (``metrics.csv`` after
 resuming the run to 192 steps).
 
+Their checkpoints are of format 2, which only Python's full unpickler reads: each test loads them
+the way a user would, after saying they trust them: ``trust_checkpoint=true`` or the converter
+(``python -m cmdp_rl.migrations convert``); by default they are refused.
+
 The fixtures were recorded on an AMD EPYC (AVX2). Another CPU sums floats in another order, so a
 resumed row matches them within :data:`CROSS_CPU_REL` (see there), not bit for bit; whether a
 resume continues a run exactly on one machine is ``tests/test_resume.py``'s bit-exact comparison.
@@ -26,9 +30,9 @@ import pytest
 import torch
 
 from cmdp_rl import Collector, keys, train
-from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.checkpoint import FORMAT_VERSION, UnsafeCheckpointError, load_checkpoint
 from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main in-process: no interpreter per fixture
-from cmdp_rl.policies.legacy import is_legacy
+from cmdp_rl.migrations import convert_run, is_legacy
 from cmdp_rl.run.resume import resume_config
 from cmdp_rl.run.rundir import load_trained
 
@@ -48,9 +52,15 @@ TIMING = {"sps", "time_s"}
 CROSS_CPU_REL, CROSS_CPU_ABS = 1e-4, 1e-9
 
 
-def _copy(name: str, tmp_path: Path) -> Path:
+def _copy(name: str, tmp_path: Path, convert: bool = False) -> Path:
+    """A copy of the fixture ``name``; with ``convert``, its checkpoint converted to the current
+    format by the converter (the old file kept beside it)."""
     run = tmp_path / name
     shutil.copytree(FIXTURES / name, run)
+    if convert:
+        convert_run(run, echo=lambda _: None)
+        assert (run / "checkpoint.pt.format2").is_file()
+        assert load_checkpoint(run / "checkpoint.pt")["format"] == FORMAT_VERSION  # safely, now
     return run
 
 
@@ -75,19 +85,24 @@ def _rows(path: Path) -> list[dict]:
 
 @pytest.mark.parametrize("name", RUNS)
 def test_fixture_is_an_old_checkpoint(name):
-    """The fixtures really hold the old parameter names (else the tests below prove nothing)."""
-    state = load_checkpoint(FIXTURES / name / "checkpoint.pt")
+    """The fixtures really hold the old parameter names (else the tests below prove nothing), in a
+    format the safe load refuses unless trusted."""
+    with pytest.raises(UnsafeCheckpointError, match="older cmdp_rl format.*trust_checkpoint=true"):
+        load_checkpoint(FIXTURES / name / "checkpoint.pt")
+    state = load_checkpoint(FIXTURES / name / "checkpoint.pt", trust=True)
+    assert state["format"] == 2
     assert is_legacy(state["algo_state"]["networks"])
     assert any(k.startswith("actor.module.") for k in state["algo_state"]["networks"])
 
 
 @pytest.mark.parametrize("name", RUNS)
 def test_converted_networks_give_the_old_outputs(name, tmp_path):
-    """The loaded (converted) agent acts and values as the old networks did: same distribution
-    parameters and actions, deterministic and sampled, and the same values of both critics."""
+    """The loaded agent (the run converted by the converter, then loaded safely) acts and values as
+    the old networks did: same distribution parameters and actions, deterministic and sampled, and
+    the same values of both critics."""
     reference = torch.load(FIXTURES / name / "reference.pt")
     for mode, ref in reference.items():
-        trained = load_trained(_copy(name, tmp_path / mode), num_envs=2)
+        trained = load_trained(_copy(name, tmp_path / mode, convert=True), num_envs=2)
         agent = trained.agent
         torch.manual_seed(SEED)
         batch = Collector(trained.env, agent, STEPS, seed=SEED, deterministic=mode == "deterministic").collect()
@@ -104,9 +119,11 @@ def test_converted_networks_give_the_old_outputs(name, tmp_path):
 
 @pytest.mark.parametrize("name", RUNS)
 def test_evaluate_reproduces_the_old_eval_json(name, tmp_path):
+    """Through the trusted path (``trust_checkpoint=true``); refused without it."""
     run = _copy(name, tmp_path)
     out = tmp_path / "again.json"
-    assert evaluate_cli.main([f"run={run}", f"output={out}"]) == 0
+    assert evaluate_cli.main([f"run={run}", f"output={out}"]) == 2 and not out.exists()
+    assert evaluate_cli.main([f"run={run}", f"output={out}", "trust_checkpoint=true"]) == 0
     old, new = json.loads((run / "eval.json").read_text()), json.loads(out.read_text())
     assert new["episodes"] == old["episodes"] == 4
     for k in ("episode_return", "episode_return_std", "episode_return_min", "episode_return_max"):
@@ -121,14 +138,18 @@ def test_resume_continues_the_old_run(name, tmp_path):
     the same way, to the last bits another CPU moves (CROSS_CPU_REL; the J_c estimate is the same
     here: episodes end in every batch):
     networks, optimizer states, multiplier, collector and generators all came back. One fixture
-    resumes through ``train.py``, the others through the same calls in this process."""
-    run = _copy(name, tmp_path)
+    resumes through ``train.py`` (``trust_checkpoint=true``), one after the converter, the others
+    through the trusted path in this process."""
+    run = _copy(name, tmp_path, convert=name == "lstm")
     before = _rows(run / "metrics.csv")
     if name == "mlp":  # the command itself, once
-        proc = _run("train.py", f"resume={run}", "total_steps=192")
+        proc = _run("train.py", f"resume={run}", "total_steps=192", "trust_checkpoint=true")
         assert proc.returncode == 0, proc.stderr[-3000:]
-    else:  # what `train.py resume=<run> total_steps=192` runs, in this process
+    elif name == "lstm":  # converted: a plain resume
         train(resume_config(run, {"total_steps": 192}, ["total_steps"]), echo=lambda _: None)
+    else:  # what `train.py resume=<run> total_steps=192 trust_checkpoint=true` runs, in this process
+        requested = {"total_steps": 192, "trust_checkpoint": True}
+        train(resume_config(run, requested, list(requested)), echo=lambda _: None)
     rows = _rows(run / "metrics.csv")
     assert len(before) == 2 and len(rows) == 3
     assert [r["step"] for r in rows] == ["64", "128", "192"]
@@ -149,8 +170,8 @@ def test_converted_variants_act_as_before():
     encoder, observation normalization, GRU, two-layer LSTM and transformer): the converted
     networks give the old deterministic actions."""
     from cmdp_rl import load_config, make_agent, make_env
+    from cmdp_rl.migrations import convert_networks
     from cmdp_rl.normalization import make_normalizers
-    from cmdp_rl.policies.legacy import convert_networks
 
     variants = torch.load(FIXTURES / "variants.pt")
     assert len(variants) == 5

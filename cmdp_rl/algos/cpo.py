@@ -215,9 +215,6 @@ class CPO(NaturalGradient):
     def load_state_dict(self, state: dict) -> None:
         super().load_state_dict(state)
         self.nu = float(state["nu"])
-        if "episode_cost" not in state and state.get("episode_estimate") is not None:
-            # a checkpoint from before the shared estimate: its last J_c
-            self.episode_cost.load_state_dict({"recent": [tuple(state["episode_estimate"])]})
 
 
 register("algo", "cpo", CPOConfig, CPO)

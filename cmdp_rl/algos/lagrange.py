@@ -163,8 +163,7 @@ class Multipliers:
     (J_c,k - d_k)``; its dual gradient in lambda_k is ``J_c,k - d_k``, so each multiplier ascends
     (or is PID-controlled) on its own constraint's violation, as one would for K = 1.
 
-    ``make(d_k)`` builds constraint k's controller. With K = 1 the state is that one controller's
-    (a checkpoint from before costs became vectors loads unchanged)."""
+    ``make(d_k)`` builds constraint k's controller."""
 
     def __init__(self, make: Callable[[float], MultiplierController], cost_limits: Sequence[float]) -> None:
         self.controllers = [make(d) for d in cost_limits]
@@ -180,12 +179,10 @@ class Multipliers:
         return [c.update(j) for c, j in zip(self.controllers, episode_costs)]
 
     def state_dict(self) -> dict:
-        if len(self.controllers) == 1:
-            return self.controllers[0].state_dict()
         return {"constraints": [c.state_dict() for c in self.controllers]}
 
     def load_state_dict(self, state: dict) -> None:
-        states = state["constraints"] if "constraints" in state else [state]
+        states = state["constraints"]
         if len(states) != len(self.controllers):
             raise ValueError(
                 f"the saved multipliers are for {len(states)} constraints, this run has {len(self.controllers)}"

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, ClassVar, Literal
 
-from cmdp_rl.algos.ppo import PPOLagConfig, PPOLagrangian
+from cmdp_rl.algos.ppo_lag import PPOLagConfig, PPOLagrangian
 from cmdp_rl.registry import register
 from cmdp_rl.validation import options, require
 

@@ -260,5 +260,4 @@ class NaturalGradient:
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
         self.critic_opt.load_state_dict(state["critic_opt"])
-        if "episode_cost" in state:
-            self.episode_cost.load_state_dict(state["episode_cost"])
+        self.episode_cost.load_state_dict(state["episode_cost"])

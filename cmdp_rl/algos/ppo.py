@@ -254,8 +254,8 @@ class PPO:
         self.agent.load_state_dict(state["networks"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
-        self.episode_cost.load_state_dict(state.get("episode_cost", {}))  # absent before it existed
-        self.iteration = int(state.get("iteration", 0))
+        self.episode_cost.load_state_dict(state["episode_cost"])
+        self.iteration = int(state["iteration"])
 
 
 def penalised(batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float]) -> torch.Tensor:

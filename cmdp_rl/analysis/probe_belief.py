@@ -33,7 +33,7 @@ from cmdp_rl.analysis.stats import population_mean_std
 from cmdp_rl.analysis.tables import markdown_table, pm
 from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET
-from cmdp_rl.policies.legacy import upgrade_algo_state
+from cmdp_rl.migrations import migrate
 from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.run import sweeps
 from cmdp_rl.run.sweeps import experiment_arg_parser, experiment_sweep_dir
@@ -53,7 +53,7 @@ def probe_stats(cfg: RunConfig, run_dir: Path, steps: int) -> dict[str, Any]:
     state = load_checkpoint(run_dir / "checkpoint.pt", policy=cfg.policy.name)
     env = make_env(dataclasses.replace(cfg.env, stagger=False), device=cfg.device)
     ac = make_agent(cfg.policy, env)
-    ac.load_state_dict(upgrade_algo_state(state["algo_state"], ac)["networks"])  # runs before the agent model too
+    ac.load_state_dict(migrate(state, ac)["algo_state"]["networks"])  # older formats too
     batch = Collector(env, ac, steps, seed=cfg.seed + EVAL_SEED_OFFSET + 1).collect()
     env.close()
     probing = batch.get(keys.ACTION)[..., 1] > 0

@@ -24,6 +24,10 @@ Options (cmdp_rl.config.EvalConfig):
   video_episodes=N     episodes recorded, one file each (default 1)
   video_dir=<dir>      where the mp4s go (default <run>/videos)
   video_steps=N        cut each recorded episode after N steps (default: whole episodes)
+  trust_checkpoint=true  load a checkpoint of an older cmdp_rl format, which only Python's full
+                       unpickler reads: THIS RUNS CODE FROM THE FILE; only for a run whose author
+                       you trust. `python -m cmdp_rl.migrations convert <run>` converts it once
+                       instead (docs/checkpoints.md)
 
 Video without a display: MuJoCo renders through EGL (MUJOCO_GL=egl is set when no DISPLAY is);
 on Debian that needs libegl1, libegl-mesa0 and libgl1-mesa-dri (see cmdp_rl/report/video.py).
@@ -82,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         except OmegaConfBaseException as exc:
             raise ConfigError(f"evaluate: cannot parse {argv}: {exc}") from exc
         opts = load_eval_config(raw)
-        run_cfg = run_config(opts.run, "evaluate")
+        run_cfg = run_config(opts.run, "evaluate", opts.trust_checkpoint)
         episodes = opts.episodes or run_cfg.eval_episodes
         deterministic = run_cfg.eval_deterministic if opts.deterministic is None else opts.deterministic
         seed = run_cfg.seed + EVAL_SEED_OFFSET if opts.seed is None else opts.seed
@@ -90,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"plot: episode plots are drawn for env=reach1d only, this run is env={run_cfg.env.name}")
         if opts.video:  # one frame now: an env or a machine that cannot render fails before the evaluation
             make_render_env(run_cfg.env).close()
-        cfg, env, agent, iteration, step = load_trained(opts.run, opts.checkpoint, min(episodes, run_cfg.env.num_envs))
+        cfg, env, agent, iteration, step = load_trained(
+            opts.run, opts.checkpoint, min(episodes, run_cfg.env.num_envs), opts.trust_checkpoint
+        )
     except (ConfigError, CheckpointError, VideoError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

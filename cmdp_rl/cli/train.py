@@ -125,7 +125,11 @@ def _population(raw: dict, new_dir: str | None = None, resume: bool = False) -> 
                 o.key_or_group for o in OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
             ]
             train_population(
-                None, raw["resume"], resume=True, total_steps=raw["total_steps"] if "total_steps" in explicit else None
+                None,
+                raw["resume"],
+                resume=True,
+                total_steps=raw["total_steps"] if "total_steps" in explicit else None,
+                trust_checkpoint=bool(raw.get("trust_checkpoint")) and "trust_checkpoint" in explicit,
             )
         else:
             clear_outputs(new_dir)

@@ -5,10 +5,12 @@ constructor arguments only (``EzPickle``) and come back freshly built. So we sav
 future depends on, layer by layer:
 
 - each wrapper's plain attributes (``TimeLimit``'s elapsed steps, statistics wrappers' sums);
-- the base env's own ``state_dict()`` where it has one (Reach1D); otherwise its random generator,
-  its plain attributes (classic-control ``state`` arrays, counters) and, for a MuJoCo env, the whole
-  ``MjData`` (copied back with ``mj_copyData``, so even fields derived from the last step, which
-  the next step reads, come back bit for bit).
+- the base env's own ``state_dict()`` where it has one (Reach1D); otherwise its random generator
+  (numpy's ``bit_generator.state``, a dict of ints), its plain attributes (classic-control ``state``
+  arrays, counters) and, for a MuJoCo env, its ``MjData`` as arrays (:func:`mujoco_data_state`).
+
+Every value saved is a number, a string, an array or a plain container of them: a checkpoint holds
+no pickled object (docs/checkpoints.md).
 
 Attributes that are configuration (spaces, specs, the MuJoCo model, renderers) are skipped. Any
 other attribute is state we do not know how to save (a Box2D world, say): :func:`env_state` raises
@@ -18,7 +20,7 @@ other attribute is state we do not know how to save (a Box2D world, say): :func:
 from __future__ import annotations
 
 import collections
-import pickle
+import copy
 from typing import Any
 
 import gymnasium as gym
@@ -73,12 +75,46 @@ def _attributes(obj: Any, where: str) -> dict[str, Any]:
                 f"{where} holds {name!r} ({type(value).__name__}), which cmdp_rl cannot save, so a run on it "
                 "cannot resume exactly"
             )
-        out[name] = pickle.loads(pickle.dumps(value))  # a deep copy, detached from the live env
+        out[name] = copy.deepcopy(value)  # detached from the live env
     return out
 
 
 def _is_mujoco_data(value: Any) -> bool:
     return type(value).__module__.startswith("mujoco") and type(value).__name__ == "MjData"
+
+
+def mujoco_data_state(model: Any, data: Any) -> dict[str, Any]:
+    """An ``MjData`` as arrays: MuJoCo's integration state (``mj_getState``: time, positions,
+    velocities, activations, warm-start accelerations, controls, applied forces) and every array of
+    the data whose size the model fixes. The second part matters: after ``mj_step`` the derived
+    fields (body positions, contact forces) are those of the last substep's start, and an env reads
+    them before its next step (gymnasium's Ant takes its torso position before stepping), so
+    recomputing them with ``mj_forward`` would not continue the episode bit for bit. Arrays sized by
+    the step's contacts and constraints are left out: the next step recomputes them before use."""
+    import mujoco
+
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    integration = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, integration, spec)
+    fresh = mujoco.MjData(model)  # the sizes the model fixes: those of a new data
+    arrays = {}
+    for name in dir(data):
+        if name.startswith("_"):
+            continue
+        value = getattr(data, name, None)
+        if isinstance(value, np.ndarray) and value.flags.writeable and value.size:
+            if getattr(fresh, name).shape == value.shape:
+                arrays[name] = value.copy()
+    return {"integration": integration, "arrays": arrays}
+
+
+def load_mujoco_data_state(model: Any, data: Any, state: dict[str, Any]) -> None:
+    """Restore :func:`mujoco_data_state`'s ``state`` into ``data`` (of the same model)."""
+    import mujoco
+
+    mujoco.mj_setState(model, data, state["integration"], mujoco.mjtState.mjSTATE_INTEGRATION)
+    for name, value in state["arrays"].items():
+        getattr(data, name)[...] = value
 
 
 def _rng(env: gym.Env) -> dict | None:
@@ -100,7 +136,7 @@ def env_state(env: gym.Env) -> dict[str, Any]:
     state["attributes"] = _attributes(base, type(base).__name__)
     data = getattr(base, "data", None)
     if _is_mujoco_data(data):
-        state["mujoco_data"] = pickle.dumps(data)
+        state["mujoco"] = mujoco_data_state(base.model, data)
     return state
 
 
@@ -114,15 +150,13 @@ def load_env_state(env: gym.Env, state: dict[str, Any]) -> None:
         raise ValueError(f"env: saved state is of {state['base_type']}, this env is {type(base).__name__}")
     for wrapper, attrs in zip(wrappers, state["wrappers"]):
         for name, value in attrs.items():
-            setattr(wrapper, name, pickle.loads(pickle.dumps(value)))
+            setattr(wrapper, name, copy.deepcopy(value))
     if "own" in state:
         base.load_state_dict(state["own"])
         return
     if state["np_random"] is not None:
         base.np_random.bit_generator.state = state["np_random"]  # creates the generator if need be
     for name, value in state["attributes"].items():
-        setattr(base, name, pickle.loads(pickle.dumps(value)))
-    if "mujoco_data" in state:
-        import mujoco
-
-        mujoco.mj_copyData(base.data, base.model, pickle.loads(state["mujoco_data"]))
+        setattr(base, name, copy.deepcopy(value))
+    if "mujoco" in state:
+        load_mujoco_data_state(base.model, base.data, state["mujoco"])

@@ -26,6 +26,7 @@ from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import make_env
 from cmdp_rl.envs.contract import check_rollout
+from cmdp_rl.migrations import migrate
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
@@ -45,6 +46,7 @@ from cmdp_rl.run.rundir import (
     POPULATION_SUMMARY,
     RUN_INFO,
     ensure_writable,
+    read_yaml,
     write_run_info,
 )
 from cmdp_rl.threads import apply_threads
@@ -67,21 +69,24 @@ def train_population(
     echo: Callable[[str], None] = print,
     resume: bool = False,
     total_steps: int | None = None,
+    trust_checkpoint: bool = False,
 ) -> dict[str, Any]:
     """Train the population that ``raw`` (a composed config with a ``population`` node) describes
     into ``out_dir``; with ``resume``, continue the population in ``out_dir`` from its checkpoint
-    (``raw`` is then read from its ``population.yaml``; ``total_steps`` may extend it).
+    (``raw`` is then read from its ``population.yaml``; ``total_steps`` may extend it; an older
+    format's checkpoint only with ``trust_checkpoint``, which runs code from the file).
     Returns the summary written to ``population.json``."""
     out = Path(out_dir)
     state = None
     if resume:
         if not (out / POPULATION_CHECKPOINT).is_file():
             raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
-        raw = yaml.safe_load((out / POPULATION_CONFIG).read_text())
-        state = load_checkpoint(out / POPULATION_CHECKPOINT)
+        raw = read_yaml(out / POPULATION_CONFIG, "resume")
+        state = migrate(load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint))
     raw = copy.deepcopy(dict(raw or {}))
     raw.pop("hydra", None)
     raw["resume"] = None
+    raw["trust_checkpoint"] = False  # one command's word, not the population's
     if total_steps is not None:
         raw["total_steps"] = total_steps
     overrides, cfgs = agent_configs(raw)  # every agent validated and the scope checked: nothing written yet

@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-import yaml
 
+from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.config import flatten_dict
-from cmdp_rl.run.rundir import CONFIG, METRICS
+from cmdp_rl.run.rundir import CONFIG, METRICS, read_yaml
 
 PANELS = (
     ("episode_return", "episode return"),
@@ -74,7 +74,7 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]
     run = Path(run_dir)
     if not (run / METRICS).is_file():
         raise FileNotFoundError(f"plot: no {METRICS} in {run}")
-    cfg = flatten_dict(yaml.safe_load((run / CONFIG).read_text())) if (run / CONFIG).is_file() else {}
+    cfg = flatten_dict(read_yaml(run / CONFIG, "plot")) if (run / CONFIG).is_file() else {}
     with open(run / METRICS) as f:
         rows = list(csv.DictReader(f))
     if not rows:
@@ -224,7 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--smooth must be a positive integer, got {args.smooth}")
     try:
         path = plot_runs(args.runs, args.out, args.smooth)
-    except (FileNotFoundError, ValueError) as exc:
+    except (FileNotFoundError, ValueError, CheckpointError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"wrote {path}")

@@ -35,6 +35,7 @@ RESUMABLE = (
     "eval_deterministic",
     "threads",
     "resume",
+    "trust_checkpoint",
     "logger.",
     "algo.anneal_iterations",
 )
@@ -53,7 +54,8 @@ def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: I
     Selecting another algorithm or policy than the run's raises :class:`CheckpointError`; changing
     a field outside :data:`RESUMABLE` raises :class:`ConfigError` (from :func:`check_resume_config`).
     """
-    merged = copy.deepcopy(saved_config(run_dir, "resume"))
+    trust = bool(requested.get("trust_checkpoint")) and "trust_checkpoint" in explicit
+    merged = copy.deepcopy(saved_config(run_dir, "resume", trust))
     for key in explicit:
         if key == "hydra" or key.startswith("hydra."):  # Hydra's own settings, not the run's
             continue
@@ -81,7 +83,7 @@ def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: I
         cfg = load_config(merged)
     except ConfigError as exc:
         raise ConfigError(f"{exc} (resuming {run_dir})") from exc
-    check_resume_config(load_config({**saved_config(run_dir, "resume"), "resume": None}), cfg)
+    check_resume_config(load_config({**saved_config(run_dir, "resume", trust), "resume": None}), cfg)
     return cfg
 
 
@@ -102,10 +104,11 @@ def check_resume_config(saved: RunConfig, cfg: RunConfig) -> None:
 
 
 def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
-    """The checkpoint ``cfg.resume`` names, checked against ``cfg`` (algorithm, policy, config)."""
+    """The checkpoint ``cfg.resume`` names, checked against ``cfg`` (algorithm, policy, config), as
+    it was written: :func:`cmdp_rl.migrations.migrate` brings an older format's to the current one."""
     assert cfg.resume is not None
     ckpt = checkpoint_path(cfg.resume, "resume")
-    state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
+    state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name, trust=cfg.trust_checkpoint)
     missing = [k for k in ("collector", "rng", "algo_state", "iteration") if state.get(k) is None]
     if missing == ["collector"]:
         raise CheckpointError(

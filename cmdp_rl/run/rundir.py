@@ -30,9 +30,9 @@ import yaml
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, load_config
 from cmdp_rl.envs import VecEnv, make_eval_env
+from cmdp_rl.migrations import migrate
 from cmdp_rl.normalization import Normalizers
 from cmdp_rl.policies import Agent, make_agent
-from cmdp_rl.policies.legacy import upgrade_algo_state
 from cmdp_rl.policy_average import ParameterAverage
 
 CHECKPOINT = "checkpoint.pt"
@@ -136,21 +136,29 @@ def checkpoint_path(run_dir: str | Path, what: str = "run") -> Path:
     return ckpt
 
 
-def saved_config(run_dir: str | Path, what: str = "run") -> dict[str, Any]:
-    """The run's own config as a plain mapping: its ``config.yaml``, else the one in its checkpoint."""
+def read_yaml(path: Path, what: str = "run") -> Any:
+    """A YAML file of a run directory, read with YAML's safe loader (plain values only: a Python
+    tag, which the full loader would run, is refused in one line)."""
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        reason = " ".join(str(exc).split())[:200]
+        raise CheckpointError(f"{what}: {path} is not valid YAML ({reason})") from None
+
+
+def saved_config(run_dir: str | Path, what: str = "run", trust: bool = False) -> dict[str, Any]:
+    """The run's own config as a plain mapping: its ``config.yaml`` (read with YAML's safe loader),
+    else the one in its checkpoint (``trust``: see :func:`~cmdp_rl.checkpoint.load_checkpoint`)."""
     ckpt = checkpoint_path(run_dir, what)
     cfg_path = Path(run_dir) / CONFIG
     if cfg_path.is_file():
-        try:
-            return yaml.safe_load(cfg_path.read_text())
-        except yaml.YAMLError as exc:
-            raise CheckpointError(f"{what}: {cfg_path} is not valid YAML ({exc})") from exc
-    return load_checkpoint(ckpt)["config"]
+        return read_yaml(cfg_path, what)
+    return load_checkpoint(ckpt, trust=trust)["config"]
 
 
-def run_config(run_dir: str | Path, what: str = "run") -> RunConfig:
+def run_config(run_dir: str | Path, what: str = "run", trust: bool = False) -> RunConfig:
     try:
-        return load_config({**saved_config(run_dir, what), "resume": None})
+        return load_config({**saved_config(run_dir, what, trust), "resume": None})
     except ConfigError as exc:
         raise CheckpointError(f"{what}: the config of {run_dir} is not valid here: {exc}") from exc
 
@@ -163,20 +171,23 @@ class Trained(NamedTuple):
     step: int
 
 
-def load_trained(run_dir: str | Path, checkpoint: str | Path | None = None, num_envs: int = 1) -> Trained:
+def load_trained(
+    run_dir: str | Path, checkpoint: str | Path | None = None, num_envs: int = 1, trust: bool = False
+) -> Trained:
     """Rebuild a run's env (``num_envs`` of them) and agent, and load its checkpoint (or
     ``checkpoint``) into them. A checkpoint written by another algorithm or policy than the run's
-    config names, or one whose networks do not fit it, raises :class:`CheckpointError`.
+    config names, or one whose networks do not fit it, raises :class:`CheckpointError`; one of an
+    older format, :class:`~cmdp_rl.checkpoint.UnsafeCheckpointError` unless ``trust``.
     """
-    cfg = run_config(run_dir, "evaluate")
+    cfg = run_config(run_dir, "evaluate", trust)
     ckpt = Path(checkpoint) if checkpoint is not None else checkpoint_path(run_dir, "evaluate")
-    state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name)
+    state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name, trust=trust)
     env = make_eval_env(cfg.env, num_envs=num_envs, algo=cfg.algo)
     # Normalizer buffers are shaped by the training envs (running discounted sums per env).
     norm = Normalizers.from_config(cfg.normalize, env.obs_dim, cfg.env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
     agent = make_agent(cfg.policy, env, norm, algo=cfg.algo)  # the algorithm's networks, no algorithm
     try:  # every algorithm keeps its agent's state under "networks" (docs/architecture.md)
-        agent.load_state_dict(upgrade_algo_state(state["algo_state"], agent)["networks"])
+        agent.load_state_dict(migrate(state, agent)["algo_state"]["networks"])
     except (KeyError, RuntimeError) as exc:
         env.close()
         raise CheckpointError(f"evaluate: {ckpt} does not fit the config of {run_dir} ({exc})") from exc

@@ -17,19 +17,17 @@ gymnasium's MuJoCo v4 envs with the package's cost, terminating as those envs do
 from __future__ import annotations
 
 import importlib.util
-import io
-import pickle
 import warnings
 from functools import partial
 from typing import Annotated, Any, Literal
 
 import gymnasium as gym
-import numpy as np
 
 from cmdp_rl.envs.env_state import env_state, load_env_state
 from cmdp_rl.envs.options import SAFETY_GYM_BUDGET, EnvOptions
 from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium
 from cmdp_rl.envs.safety_gym.tasks import TASKS, task_problem
+from cmdp_rl.envs.safety_gym.world_state import load_world_state, world_state
 from cmdp_rl.envs.vector import GymVecEnv, default_cost_names
 from cmdp_rl.registry import register
 from cmdp_rl.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options, require
@@ -92,10 +90,7 @@ class SafetyGymTask(gym.Env):
         self.inner.close()
 
     # -- saving an episode in progress (resume) -------------------------------------------------
-    # A navigation task's world (a Python object graph around one MuJoCo model and data) pickles,
-    # except that the model carries 190 MB of textures. So the model is saved as what it is built
-    # from (the world's MJCF string) plus its small arrays, which the task edits in place (a goal
-    # moved to a new place is a body_pos change); the data as MuJoCo's integration state. Restored
+    # A navigation task's world is saved as its fields and MuJoCo's arrays (world_state.py): restored
     # runs continue bit for bit (tests/test_safety_gym.py). Velocity tasks are plain gymnasium
     # MuJoCo envs: envs/env_state.py saves them.
 
@@ -104,31 +99,14 @@ class SafetyGymTask(gym.Env):
             return {"steps": self.steps, "velocity": env_state(self.inner)}
         import mujoco
 
-        world = self.inner.task.world
-        model = None if world is None else self.inner.task.model
-        buffer = io.BytesIO()
-        _ModelPickler(buffer, model).dump({k: v for k, v in vars(self.inner).items() if k not in _BUILDER_CONFIG})
-        return {
-            "steps": self.steps,
-            "xml": None if model is None else world.xml_string,
-            "model_arrays": None if model is None else _small_arrays(model),
-            "builder": buffer.getvalue(),
-            "mujoco": mujoco.__version__,
-        }
+        return {"steps": self.steps, "world": world_state(self.inner), "mujoco": mujoco.__version__}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.steps = state["steps"]
         if "velocity" in state:
             load_env_state(self.inner, state["velocity"])
             return
-        import mujoco
-
-        model = None
-        if state["xml"] is not None:
-            model = mujoco.MjModel.from_xml_string(state["xml"])
-            for name, value in state["model_arrays"].items():
-                getattr(model, name)[...] = value
-        vars(self.inner).update(_ModelUnpickler(io.BytesIO(state["builder"]), model).load())
+        load_world_state(self.inner, state["world"])
 
     # gymnasium's vector envs set attributes one value per env (``set_attr``), also across processes.
     @property
@@ -138,69 +116,6 @@ class SafetyGymTask(gym.Env):
     @saved_state.setter
     def saved_state(self, state: dict[str, Any]) -> None:
         self.load_state_dict(state)
-
-
-# Builder attributes that are configuration (rebuilt identically from the task id), not state.
-_BUILDER_CONFIG = {"render_parameters", "_ezpickle_args", "_ezpickle_kwargs", "config", "task_id"}
-_MODEL_ARRAY_LIMIT = 1 << 20  # bytes: every model array but the textures (tex_data, 190 MB)
-
-
-def _small_arrays(model) -> dict[str, np.ndarray]:
-    out = {}
-    for name in dir(model):
-        if name.startswith("_"):
-            continue
-        try:
-            value = getattr(model, name)
-        except Exception:  # noqa: BLE001 - a binding property that cannot be read here is not state
-            continue
-        if isinstance(value, np.ndarray) and value.nbytes <= _MODEL_ARRAY_LIMIT and value.flags.writeable:
-            out[name] = value.copy()
-    return out
-
-
-def _integration_spec():
-    import mujoco
-
-    return mujoco.mjtState.mjSTATE_INTEGRATION
-
-
-class _ModelPickler(pickle.Pickler):
-    """Pickles a task's object graph with its one MjModel and MjData left out (saved apart)."""
-
-    def __init__(self, file, model) -> None:
-        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
-        self.model = model
-
-    def persistent_id(self, obj):
-        import mujoco
-
-        if isinstance(obj, mujoco.MjModel):
-            return ("model",)
-        if isinstance(obj, mujoco.MjData):
-            spec = _integration_spec()
-            state = np.empty(mujoco.mj_stateSize(self.model, spec))
-            mujoco.mj_getState(self.model, obj, state, spec)
-            return ("data", state)
-        return None
-
-
-class _ModelUnpickler(pickle.Unpickler):
-    def __init__(self, file, model) -> None:
-        super().__init__(file)
-        self.model = model
-        self.data = None
-
-    def persistent_load(self, pid):
-        import mujoco
-
-        if pid[0] == "model":
-            return self.model
-        if self.data is None:
-            self.data = mujoco.MjData(self.model)
-            mujoco.mj_setState(self.model, self.data, pid[1], _integration_spec())
-            mujoco.mj_forward(self.model, self.data)  # the derived quantities, as the last step left them
-        return self.data
 
 
 def make_task(task: str, max_steps: int = 0, render_mode: str | None = None, **render_kwargs: Any) -> SafetyGymTask:
