@@ -241,6 +241,13 @@ def validate(cfg: RunConfig) -> None:
     for name in ("logger", "normalize", "reference"):
         recheck(getattr(cfg, name), name)
     recheck(cfg, "")
+    envs = cfg.algo.envs  # an algorithm that trains on some envs only (AlgoConfig.envs)
+    require(
+        envs is None or cfg.env.name in envs,
+        "env",
+        f"{' or '.join(envs or ())} with algo={cfg.algo.name}",
+        cfg.env.name,
+    )
     resolve_budget(cfg)
     resolve_auto(cfg)
     for kind in KINDS:

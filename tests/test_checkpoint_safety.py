@@ -8,7 +8,6 @@ and holds no pickled bytes; the converter turns an old run into that format.
 """
 
 import collections
-import importlib.util
 import shutil
 import subprocess
 import sys
@@ -29,14 +28,11 @@ from cmdp_rl.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
 from cmdp_rl.migrations import is_legacy
 from cmdp_rl.population import train_population
 from cmdp_rl.registry import component, load_builtins, names
 from cmdp_rl.report.plot import main as plot_main
-
-_spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
-evaluate_cli = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(evaluate_cli)
 
 
 class CreatesAFile:
@@ -58,11 +54,13 @@ def craft(checkpoint: Path, target: Path) -> None:
 
 def snapshot(run: Path) -> dict[str, bytes]:
     """Every file of a run directory but Hydra's records of a command, which Hydra writes before
-    train.py runs (a resume's .hydra/resume_*/ and its log, train.log)."""
+    train.py runs (a resume's .hydra/resume_*/ and its log, train.log), and the directory's lock
+    file, which names the last process that held the directory (run/ownership.py: a resume takes
+    the lock before it reads the checkpoint, so that two resumes cannot race)."""
     return {
         str(p.relative_to(run)): p.read_bytes()
         for p in run.rglob("*")
-        if p.is_file() and ".hydra" not in p.parts and p.name != "train.log"
+        if p.is_file() and ".hydra" not in p.parts and p.name not in ("train.log", ".run.lock")
     }
 
 
@@ -144,7 +142,7 @@ def test_the_population_resume_refuses_a_crafted_checkpoint(tmp_path):
 
 
 def _tiny_run_of(algo: str) -> dict:
-    """A two-iteration run of ``algo`` on Reach1D: off-policy algorithms (a warm-up option) update
+    """A two-iteration run of ``algo`` on Reach1D (or the env its options name): off-policy algorithms (a warm-up option) update
     in the second iteration, so their optimizers and buffer hold something."""
     options = component("algo", algo).options
     fields = set(options.__dataclass_fields__)
@@ -154,7 +152,10 @@ def _tiny_run_of(algo: str) -> dict:
     for key in ("update_epochs", "num_minibatches", "critic_minibatches"):
         if key in fields:
             cfg[key] = 2 if key != "update_epochs" else 1
-    return tiny(total_steps=2 * 32) | {"algo": cfg, "checkpoint_every": 1}
+    run = tiny(total_steps=2 * 32) | {"algo": cfg, "checkpoint_every": 1}
+    if options.tiny_env:  # an algorithm for envs of its own kind (AlgoConfig.envs), e.g. a multi-agent one
+        run["env"] = dict(options.tiny_env)
+    return run
 
 
 load_builtins()

@@ -89,7 +89,7 @@ def _controllers(algo: dict):
 
     cfg = load_config({"algo": algo, "env": {"num_envs": 2}, "policy": {"hidden_sizes": [8]}})
     env = make_env(cfg.env)
-    built = make_algo(cfg.algo, make_agent(cfg.policy, env))
+    built = make_algo(cfg.algo, make_agent(cfg.policy, env, algo=cfg.algo))
     env.close()
     return built
 

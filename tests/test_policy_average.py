@@ -1,23 +1,19 @@
 """final_policy=average: the averaged parameters by hand, the window, and the deployed policy used
 alike by the run's evaluation, its checkpoint, eval.json and evaluate.py."""
 
-import importlib.util
 import io
 import json
 
 import pytest
 import torch
-from conftest import ROOT, eval_result, tiny
+from conftest import eval_result, tiny
 from torch import nn
 
 from cmdp_rl import load_config, train
 from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
 from cmdp_rl.policy_average import ParameterAverage, first_averaged_iteration
 from cmdp_rl.run.rundir import load_trained
-
-_spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
-evaluate_cli = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(evaluate_cli)
 
 
 def test_running_mean_of_parameters_by_hand_and_plain_state():

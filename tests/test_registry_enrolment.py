@@ -32,8 +32,9 @@ ALGOS = names("algo")
 def enrolled(algo: str, env: dict | None = None, **top) -> dict:
     """conftest's TINY run with ``algo`` and the tiny options it declares (``env``: another env)."""
     cfg = tiny(**top)
-    if env is not None:
-        cfg["env"] = env
+    own = component("algo", algo).options.tiny_env
+    if env is not None or own:
+        cfg["env"] = dict(env if env is not None else own)
     cfg["algo"] = {"name": algo, **component("algo", algo).options.tiny, "cost_limit": cfg["algo"]["cost_limit"]}
     return cfg
 
@@ -107,7 +108,11 @@ def test_two_costs_train_with_a_budget_each_or_stop_in_one_line(algo, tmp_path, 
     cfg = enrolled(algo, env=two_costs)
     cfg.update(total_steps=64, checkpoint_every=100)
     cfg["algo"]["cost_limit"] = [2.0, 5.0]
-    if _takes(algo) is None:
+    if component("algo", algo).options.envs is not None:  # an algorithm for other envs says so
+        with pytest.raises(ConfigError, match=rf"^env must be .* with algo={algo}, got 'gym'$"):
+            train(load_config(cfg), tmp_path / "run", echo=quiet)
+        assert not (tmp_path / "run").exists()
+    elif _takes(algo) is None:
         train(load_config(cfg), tmp_path, echo=quiet)
         header = (tmp_path / "metrics.csv").read_text().splitlines()[0].split(",")
         assert {"episode_cost/hazard_a", "episode_cost/hazard_b", "cost_limit/hazard_b"} <= set(header)

@@ -44,12 +44,14 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
 
 
 def multi_constraint_algorithms() -> list[str]:
-    """The toolkit's algorithms that take an env with K > 1 costs (their options declare
-    ``constraints = None``), by name; a user's own registrations are not listed."""
+    """The toolkit's algorithms that take any env with K > 1 costs (their options declare
+    ``constraints = None`` and ``envs = None``), by name; a user's own registrations are not listed."""
     from cmdp_rl.registry import component, names
 
     found = [(component("algo", n).options, n) for n in names("algo")]
-    return [n for cls, n in found if cls.constraints is None and cls.__module__.startswith("cmdp_rl.")]
+    return [
+        n for cls, n in found if cls.constraints is None and cls.envs is None and cls.__module__.startswith("cmdp_rl.")
+    ]
 
 
 def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str, reason: str) -> float:
@@ -100,9 +102,15 @@ class AlgoConfig:
     # tests that every algorithm passes (tests/test_registry_enrolment.py) train each registered
     # algorithm with these, so a new algorithm joins them by registering.
     tiny: ClassVar[dict[str, Any]] = {}
+    # The envs the algorithm trains on, by name (None: any); another env is a one-line config error.
+    # A multi-agent algorithm names env=pettingzoo: its agents are the rows of that env's batch.
+    envs: ClassVar[Optional[tuple[str, ...]]] = None
+    # With ``envs``: the env options of its tiny test run, in place of TINY's Reach1D (one env of the
+    # first kind it takes; the cross-cutting tests' iteration counts assume 32 rows x 16 steps).
+    tiny_env: ClassVar[dict[str, Any]] = {}
 
     def check(self, run: RunConfig) -> None:
-        """Rules that relate this algorithm's options to the rest of the run (none here)."""
+        """Rules that relate this algorithm's options to the rest of the run: the envs it takes."""
 
     def resolve_auto(self, run: RunConfig) -> None:
         """Replace this algorithm's ``"auto"`` options by numbers from the run's batch shape

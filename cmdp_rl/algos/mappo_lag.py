@@ -38,12 +38,11 @@ class MAPPOLagConfig(PPOLagConfig):
 
     name: str = "mappo_lag"
     constraint: Literal["team", "per_agent"] = "team"
-    # Its agents are rows of a multi-agent env's batch; a population's agents are runs on one batched env.
-    multi_agent_only: ClassVar[bool] = True
+    envs: ClassVar[tuple[str, ...]] = ("pettingzoo",)  # its agents are the rows of that env's batch
+    tiny_env: ClassVar[dict] = {"name": "pettingzoo", "num_envs": 1}  # two agents: 2 rows, as TINY's 2 envs
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
-        require(run.env.name == "pettingzoo", "env", "pettingzoo with algo=mappo_lag (a multi-agent env)", run.env.name)
         require(
             run.policy.name == "mlp",
             "policy.name",

@@ -33,7 +33,7 @@ def batched(algo: str) -> bool:
     lives in the hooks the population calls per agent: multiplier, advantage, surrogate) or that
     adds CUP's projection, or a composition on such a base (Sauté's ``algo.base``)."""
     comp = component("algo", algo)
-    if getattr(comp.options, "multi_agent_only", False):
+    if comp.options.envs is not None:  # trains on envs of its own kind, not a population's batch
         return False
     if not isinstance(comp.build, type):
         base = getattr(comp.options, "base", None)
