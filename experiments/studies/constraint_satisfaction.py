@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from cmdp_rl.analysis.constraint_satisfaction import CASES, METHODS, plot_lambdas, run_one, table  # noqa: E402
+from cmdp_rl.analysis.constraint_satisfaction import CASES, METHODS, exact, plot_lambdas, run_one, table  # noqa: E402
 
 
 def main() -> None:
@@ -52,10 +52,13 @@ def main() -> None:
                     f.write(json.dumps(row) + "\n")
                 print(
                     f"{case} {method} s{seed}: return {o.ret:.3f} (J* {o.optimum}), costs {o.costs} "
-                    f"(budgets {o.budgets}), gap {o.gap:+.1%}, {o.train_time_s:.0f} s",
+                    f"(budgets {o.budgets}), gap {o.gap:+.1%}, {o.train_time_s:.0f} s"
+                    + ("" if o.exact_ret is None else f"; exact: return {o.exact_ret:.3f}, costs {o.exact_costs}"),
                     flush=True,
                 )
     text = table(outcomes)
+    if any(o.exact_ret is not None for o in outcomes):  # the deployed policies valued exactly
+        text += "\n\nExact values of the deployed policies:\n\n" + table([exact(o) for o in outcomes])
     print(text)
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     (out / "table.md").write_text(text + "\n")
