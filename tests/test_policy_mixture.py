@@ -80,10 +80,15 @@ def test_snapshots_every_stride_ending_at_the_last_and_plain_state():
     assert again.taken == [1, 2] and [float(s["weight"][0, 0]) for s in again.members] == [1.0, 2.0]
 
 
-def test_mixture_is_what_the_run_evaluates_and_evaluate_py_loads(tmp_path):
-    out = tmp_path / "run"
+@pytest.fixture(scope="module")
+def mixture_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("mixture") / "run"
     cfg = tiny(total_steps=256, final_policy="mixture", average_last=0.5, mixture_size=2, eval_deterministic=False)
-    result = train(load_config(cfg), out, echo=lambda s: None)
+    return out, train(load_config(cfg), out, echo=lambda s: None)
+
+
+def test_mixture_is_what_the_run_evaluates_and_evaluate_py_loads(mixture_run, tmp_path):
+    out, result = mixture_run
     # 8 iterations, window 5..8, 2 members: stride 2, iterations 6 and 8.
     assert result["final_policy"] == "mixture" and result["mixture_iterations"] == [6, 8]
     assert result["averaged_iterations"] == 2
@@ -123,3 +128,13 @@ def test_fork_exact_value_of_a_mixture_is_the_mean_of_its_members():
     mixed = mixture_gap(members_of(agent.actor), model, best)
     assert mixed.ret == pytest.approx(np.mean([g.ret for g in each]))
     assert mixed.costs[0] == pytest.approx(np.mean([g.costs[0] for g in each]))
+
+
+def test_evaluate_py_plots_and_films_the_mixture(mixture_run, tmp_path, capsys):
+    pytest.importorskip("moviepy")  # the test extra installs it
+    out, _ = mixture_run
+    argv = [f"run={out}", f"plot={tmp_path / 'p.png'}", "video=true", "video_episodes=2", "video_steps=6"]
+    assert evaluate_cli.main([*argv, f"video_dir={tmp_path / 'v'}", "episodes=2"]) == 0
+    assert "deployed policy: mixture" in capsys.readouterr().out
+    assert (tmp_path / "p.png").stat().st_size > 0
+    assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["policy-episode-0.mp4", "policy-episode-1.mp4"]
