@@ -75,6 +75,16 @@ METHODS: dict[str, list[str]] = {
         "algo.lambda_lr=0.2",
         "final_policy=mixture",
     ],
+    # The mixture over the last half of the iterations, 16 members: a window as long as one orbit
+    # of the dual-policy loop on the fork (about 40 iterations at lambda_lr = 0.2).
+    "ppo_lag/mixture-0.2-half": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.lambda_lr=0.2",
+        "final_policy=mixture",
+        "average_last=0.5",
+        "mixture_size=16",
+    ],
     "pid_lag": ["algo=pid_lag"],
     "trpo_lag": ["algo=trpo_lag"],
     "sac_lag": ["algo=sac_lag"],
