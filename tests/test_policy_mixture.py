@@ -111,6 +111,13 @@ def test_mixture_is_what_the_run_evaluates_and_evaluate_py_loads(mixture_run, tm
     assert {k: got[k] for k in names} == {k: eval_result(out)[k] for k in names}  # same mixture, same episodes
 
 
+def test_the_command_line_sets_the_mixture():
+    from cmdp_rl.config import compose_config
+
+    cfg = compose_config(["final_policy=mixture", "mixture_size=3"])  # as train.py's overrides
+    assert (cfg.final_policy, cfg.mixture_size) == ("mixture", 3)
+
+
 def test_mixture_of_recurrent_actors_is_refused_in_one_line():
     with pytest.raises(ConfigError, match="final_policy must be last or average with policy=lstm"):
         load_config(tiny(final_policy="mixture", policy={"name": "lstm"}))
