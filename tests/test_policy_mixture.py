@@ -145,3 +145,17 @@ def test_evaluate_py_plots_and_films_the_mixture(mixture_run, tmp_path, capsys):
     assert "deployed policy: mixture" in capsys.readouterr().out
     assert (tmp_path / "p.png").stat().st_size > 0
     assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["policy-episode-0.mp4", "policy-episode-1.mp4"]
+
+
+def test_a_resumed_run_deploys_the_same_mixture(tmp_path, monkeypatch, quiet):
+    from test_resume import assert_same_run, crash_then_resume
+
+    # 7 iterations, window 3..7 (5 snapshots, stride 1); checkpoints at 2, 4 and 6, a crash after row 5.
+    cfg = tiny(final_policy="mixture", average_last=0.6, mixture_size=5)
+    whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
+    assert_same_run(whole, broken)
+    assert eval_result(broken)["mixture_iterations"] == [3, 4, 5, 6, 7]
+    a, b = (torch.load(r / "checkpoint.pt", weights_only=True)["policy_mixture"] for r in (whole, broken))
+    assert a["taken"] == b["taken"] and all(
+        torch.equal(x[k], y[k]) for x, y in zip(a["members"], b["members"]) for k in x
+    )
