@@ -80,10 +80,12 @@ class RunConfig:
     eval_episodes: PositiveInt = 20
     eval_deterministic: Bool = True
     # The policy deployed at the end (evaluated, in eval.json, in evaluate.py and its video): the
-    # last iterate, or the average of the actor's parameters over the last average_last fraction of
-    # the iterations (cmdp_rl/policy_average.py).
-    final_policy: Literal["last", "average"] = "last"
+    # last iterate, the average of the actor's parameters over the last average_last fraction of
+    # the iterations (cmdp_rl/policy_average.py), or a uniform mixture of at most mixture_size
+    # snapshots of the actor over that window, one drawn per episode (cmdp_rl/policy_mixture.py).
+    final_policy: Literal["last", "average", "mixture"] = "last"
     average_last: Annotated[float, finite(gt=0, le=1)] = 0.25
+    mixture_size: Annotated[int, Field(ge=1, le=64)] = 8
     checkpoint_every: PositiveInt = 10
     log_interval: PositiveInt = 5
     # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
@@ -261,6 +263,12 @@ def validate(cfg: RunConfig) -> None:
     if cfg.logger.name == "wandb" and importlib.util.find_spec("wandb") is None:
         raise ConfigError(f"logger.name: {WANDB_MISSING}")
     _validate_normalize(cfg)
+    require(
+        cfg.final_policy != "mixture" or cfg.policy.name == "mlp",
+        "final_policy",
+        f"last or average with policy={cfg.policy.name} (a mixture draws among memoryless actors: policy=mlp)",
+        cfg.final_policy,
+    )
     cfg.reference.check(cfg)
 
 

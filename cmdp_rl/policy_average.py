@@ -27,8 +27,13 @@ def first_averaged_iteration(iterations: int, average_last: float) -> int:
 
 
 def deployed(result: dict) -> str:
-    """Which policy an evaluation ran, from its ``final_policy`` and ``averaged_iterations`` keys
-    (a result from before they existed: the last iterate)."""
+    """Which policy an evaluation ran, from its ``final_policy``, ``averaged_iterations`` and
+    ``mixture_iterations`` keys (a result from before they existed: the last iterate)."""
+    if result.get("final_policy") == "mixture":
+        return (
+            f"deployed policy: a uniform mixture of {result.get('averaged_iterations')} iterates' actors "
+            f"(iterations {result.get('mixture_iterations')}), one drawn per episode"
+        )
     if result.get("final_policy", "last") == "average":
         return f"deployed policy: the average of the last {result.get('averaged_iterations')} iterates' parameters"
     return "deployed policy: the last iterate"

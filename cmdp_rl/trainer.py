@@ -27,6 +27,7 @@ from cmdp_rl.migrations import migrate
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policy_average import ParameterAverage, deployed, first_averaged_iteration
+from cmdp_rl.policy_mixture import IterateSnapshots
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
@@ -118,7 +119,7 @@ def complete_result(
     cost_totals: list[float],
     names: tuple[str, ...],
     reference: Any,
-    average: ParameterAverage | None = None,
+    average: ParameterAverage | IterateSnapshots | None = None,
 ) -> None:
     """Add to an evaluation's ``result`` what ``eval.json`` records of the run: budget, steps, train
     time, threads, the deployed policy (``final_policy``, and how many iterations ``average`` holds),
@@ -133,6 +134,8 @@ def complete_result(
             "averaged_iterations": None if average is None else average.count,
         }
     )
+    if isinstance(average, IterateSnapshots):  # the mixture's members: the iterations they were taken at
+        result["mixture_iterations"] = list(average.taken)
     k = len(names)
     limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
@@ -230,6 +233,11 @@ def _train(
     saved = None if state is None else state.get("policy_average")
     if average is not None and saved is not None and saved["first_iteration"] == average_from:
         average.load_state_dict(saved)  # (a resume that moved the window, e.g. more total_steps, restarts it)
+    # final_policy=mixture: snapshots of the actor over the same window (policy_mixture.py).
+    mixture = IterateSnapshots(average_from, iterations, cfg.mixture_size) if cfg.final_policy == "mixture" else None
+    saved = None if state is None else state.get("policy_mixture")
+    if mixture is not None and saved is not None and mixture.matches(saved):
+        mixture.load_state_dict(saved)
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
@@ -246,6 +254,7 @@ def _train(
                 cannot_resume.append(str(exc))
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
         extra = {} if average is None else {"policy_average": {"first_iteration": average_from, **average.state_dict()}}
+        extra.update({} if mixture is None else {"policy_mixture": mixture.state_dict()})
         save_checkpoint(
             ckpt_path,
             {
@@ -300,6 +309,8 @@ def _train(
             agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
             if average is not None and it >= average_from:
                 average.update(agent.actor)
+            if mixture is not None and mixture.wants(it):
+                mixture.update(agent.actor, it)
             timing = {"sps": per_iter / (time.perf_counter() - t0), "time_s": time.perf_counter() - start}
             row = metrics_row(
                 it,
@@ -326,6 +337,8 @@ def _train(
 
     if average is not None:  # deploy the average (the checkpoint keeps the last iterate to resume from)
         average.apply(agent.actor)
+    if mixture is not None:  # deploy the mixture (likewise)
+        mixture.deploy(agent)
     metric = cfg.env.termination_metric  # what the env says termination means (EnvOptions)
     eval_env = make_eval_env(
         cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
@@ -340,7 +353,9 @@ def _train(
         cost_limit=cfg.algo.cost_limit,
     )
     eval_env.close()
-    complete_result(result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference, average)
+    complete_result(
+        result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference, average or mixture
+    )
     (out / EVAL).write_text(json.dumps(result, indent=2))
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
     header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s; {deployed(result)}"

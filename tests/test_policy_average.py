@@ -66,6 +66,6 @@ def test_bad_final_policy_is_one_line():
     from cmdp_rl.config import ConfigError
 
     with pytest.raises(ConfigError, match="final_policy"):
-        load_config(tiny(final_policy="mixture"))
+        load_config(tiny(final_policy="median"))
     with pytest.raises(ConfigError, match="average_last"):
         load_config(tiny(average_last=0.0))

@@ -78,6 +78,27 @@ METHODS: dict[str, list[str]] = {
         "final_policy=average",
         "average_last=0.5",
     ],
+    # final_policy=mixture: the last iterates' actors, one drawn per episode (policy_mixture.py),
+    # on the same training as budget-0.2 and optimistic-0.2 (only the deployed policy differs).
+    "ppo_lag/mixture": ["algo=ppo_lag", "final_policy=mixture"],
+    "ppo_lag/mixture-0.2": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.lambda_lr=0.2", "final_policy=mixture"],
+    "ppo_lag/optimistic-0.2-mixture": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.multiplier=optimistic",
+        "algo.lambda_lr=0.2",
+        "final_policy=mixture",
+    ],
+    # The mixture over the last half of the iterations, 16 members: a window as long as one orbit
+    # of the dual-policy loop on the fork (about 40 iterations at lambda_lr = 0.2).
+    "ppo_lag/mixture-0.2-half": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.lambda_lr=0.2",
+        "final_policy=mixture",
+        "average_last=0.5",
+        "mixture_size=16",
+    ],
     "pid_lag": ["algo=pid_lag"],
     "trpo_lag": ["algo=trpo_lag"],
     "sac_lag": ["algo=sac_lag"],
@@ -98,6 +119,10 @@ class Outcome:
     costs: list[float]
     budgets: list[float]
     train_time_s: float
+    # The deployed policy's exact return and costs (env=fork, env=grid K = 2: no episodes, no
+    # sampling noise; a mixture's are the mean of its members'), or None where none is computed.
+    exact_ret: float | None = None
+    exact_costs: list[float] | None = None
 
     @property
     def gap(self) -> float:
@@ -138,7 +163,45 @@ def run_one(case: str, method: str, seed: int, out: Path, extra: Sequence[str] =
         [float(c) for c in costs],
         [float(d) for d in limits],
         float(result["train_time_s"]),
+        *exact_value(out, cfg),
     )
+
+
+def exact_value(out: Path, cfg) -> tuple[float | None, list[float] | None]:
+    """The exact return and costs of a run's deployed policy (each member's, averaged: a mixture
+    drawn per episode has the mean of its members' values) on env=fork and env=grid K = 2."""
+    from cmdp_rl.policy_mixture import members_of
+    from cmdp_rl.run.rundir import load_trained
+
+    if cfg.env.name == "fork":
+        from cmdp_rl.analysis.fork_policy import mixture_gap
+
+        trained = load_trained(out)
+        trained.env.close()
+        gap = mixture_gap(members_of(trained.agent.actor), cfg.env.model(), cfg.env.solve(cfg.algo.cost_limit))
+        return gap.ret, list(gap.costs)
+    if cfg.env.name == "grid" and list(cfg.env.costs) == ["hazard_a", "hazard_b"]:
+        from cmdp_rl.analysis.grid_policy import exact_gap
+        from cmdp_rl.envs.grid.optimum import solve_constrained
+        from cmdp_rl.envs.grid.tabular import grid_cmdp
+
+        trained = load_trained(out)
+        trained.env.close()
+        cmdp = grid_cmdp(tuple(cfg.env.layout), cfg.env.slip, cfg.env.end_prob)
+        best = solve_constrained(cmdp, cfg.algo.cost_limit)
+        gaps = []
+        for member in members_of(trained.agent.actor):
+            trained.agent.actor = member
+            gaps.append(exact_gap(trained.agent, cmdp, best))
+        return float(np.mean([g.ret for g in gaps])), [float(c) for c in np.mean([g.costs for g in gaps], 0)]
+    return None, None
+
+
+def exact(o: Outcome) -> Outcome:
+    """``o`` with its exact return and costs in place of the evaluation episodes' (as is without them)."""
+    if o.exact_ret is None:
+        return o
+    return dataclasses.replace(o, ret=o.exact_ret, costs=list(o.exact_costs))
 
 
 def exact_optimum(cfg) -> float | None:
@@ -172,7 +235,11 @@ def _reevaluate(out: Path, cfg, result: dict) -> dict:
         cost_limit=cfg.algo.cost_limit,
     )
     trained.env.close()
-    kept = {k: result[k] for k in ("train_time_s", "final_policy", "averaged_iterations", "steps") if k in result}
+    kept = {
+        k: result[k]
+        for k in ("train_time_s", "final_policy", "averaged_iterations", "mixture_iterations", "steps")
+        if k in result
+    }
     result = {**fresh, **kept}
     (out / "eval.json").write_text(json.dumps(result, indent=2))
     return result
@@ -279,10 +346,13 @@ def main() -> None:
                     f.write(json.dumps(row) + "\n")
                 print(
                     f"{case} {method} s{seed}: return {o.ret:.3f} (J* {o.optimum}), costs {o.costs} "
-                    f"(budgets {o.budgets}), gap {o.gap:+.1%}, {o.train_time_s:.0f} s",
+                    f"(budgets {o.budgets}), gap {o.gap:+.1%}, {o.train_time_s:.0f} s"
+                    + ("" if o.exact_ret is None else f"; exact: return {o.exact_ret:.3f}, costs {o.exact_costs}"),
                     flush=True,
                 )
     text = table(outcomes)
+    if any(o.exact_ret is not None for o in outcomes):  # the deployed policies valued exactly
+        text += "\n\nExact values of the deployed policies:\n\n" + table([exact(o) for o in outcomes])
     print(text)
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     (out / "table.md").write_text(text + "\n")

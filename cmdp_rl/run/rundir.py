@@ -34,6 +34,7 @@ from cmdp_rl.migrations import migrate
 from cmdp_rl.normalization import Normalizers
 from cmdp_rl.policies import Agent, make_agent
 from cmdp_rl.policy_average import ParameterAverage
+from cmdp_rl.policy_mixture import IterateSnapshots
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.yaml"
@@ -198,4 +199,11 @@ def load_trained(
         average = ParameterAverage()
         average.load_state_dict(state["policy_average"])
         average.apply(agent.actor)
+    if cfg.final_policy == "mixture":  # the mixture of snapshots the run deployed (policy_mixture.py)
+        if "policy_mixture" not in state:
+            env.close()
+            raise CheckpointError(f"evaluate: {ckpt} has no policy mixture, but {run_dir} has final_policy=mixture")
+        mixture = IterateSnapshots(1, 1, 1)
+        mixture.load_state_dict(state["policy_mixture"])
+        mixture.deploy(agent)
     return Trained(cfg, env, agent, int(state["iteration"]), int(state["step"]))
