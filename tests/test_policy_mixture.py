@@ -3,24 +3,20 @@ snapshot schedule, and the deployed mixture used alike by the run's evaluation, 
 (loaded with weights_only=True), eval.json and evaluate.py."""
 
 import copy
-import importlib.util
 import io
 import json
 
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT, eval_result, tiny
+from conftest import eval_result, tiny
 
 from cmdp_rl import keys, load_config, make_agent, make_env, train
+from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
 from cmdp_rl.collector import Collector
 from cmdp_rl.config import ConfigError
 from cmdp_rl.policy_mixture import IterateSnapshots, members_of, mixture_actor
 from cmdp_rl.run.rundir import load_trained
-
-_spec = importlib.util.spec_from_file_location("evaluate_cli", ROOT / "evaluate.py")
-evaluate_cli = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(evaluate_cli)
 
 
 def _fork_mixture(members: int = 4, num_envs: int = 8):
