@@ -229,7 +229,7 @@ def test_the_exercise_grid_as_populations():
     from omegaconf import OmegaConf
 
     from cmdp_rl.config import CONFIG_DIR
-    from cmdp_rl.population.sweep import sweep_parts
+    from cmdp_rl.run.population_sweep import sweep_parts
 
     parts = sweep_parts("constraint_sweep")
     assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", False)]

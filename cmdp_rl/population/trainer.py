@@ -59,10 +59,6 @@ def agent_dir_name(k: int, overrides: Mapping[str, Any]) -> str:
     return f"{k:03d}_{label(overrides)}".replace("/", "_").replace(" ", "")
 
 
-def is_population_dir(path: str | Path) -> bool:
-    return (Path(path) / POPULATION_CONFIG).is_file()
-
-
 def train_population(
     raw: Mapping[str, Any] | None,
     out_dir: str | Path,
@@ -302,6 +298,5 @@ __all__ = [
     "POPULATION_CHECKPOINT",
     "POPULATION_CONFIG",
     "POPULATION_SUMMARY",
-    "is_population_dir",
     "train_population",
 ]
