@@ -225,12 +225,14 @@ def test_bad_population_config_is_one_line(population, message):
         ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
         ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
         ({"normalize": {"obs": True}}, "population: normalize is not batched"),
+        # else the agents' eval.json would name the average and hold the last iterate's numbers
+        ({"final_policy": "average"}, "population: final_policy=average is not batched"),
     ],
 )
 def test_unsupported_population_is_refused(change, refused):
     raw = torch_tiny()
     for k, v in change.items():
-        raw.setdefault(k, {}).update(v)
+        raw[k] = {**raw.get(k, {}), **v} if isinstance(v, dict) else v
     if raw["algo"]["name"] == "cpo":
         raw["algo"] = {"name": "cpo"}
     raw["population"] = {"seeds": 2}
