@@ -162,9 +162,15 @@ def train_population(
     env_id, allow_negative_cost = contract_options(cfg.env)
     start = time.perf_counter() - elapsed
 
+    written: dict[int, list[dict[str, Any]]] = {}  # the entries of the last checkpoint, by iteration
+
     def entries(it: int, time_s: float) -> list[dict[str, Any]]:
+        if it in written:  # the final one is the last checkpoint's: built once
+            return written[it]
         update.unstack_agents()
-        return [_agent_entry(c, a, it, steps, time_s) for c, a in zip(cfgs, update.algos)]
+        written.clear()
+        written[it] = [_agent_entry(c, a, it, steps, time_s) for c, a in zip(cfgs, update.algos)]
+        return written[it]
 
     def checkpoint(it: int) -> None:
         for lg in loggers:
