@@ -205,6 +205,39 @@ def migrate(state: dict[str, Any], agent: nn.Module | None = None) -> dict[str, 
     return {**state, "format": FORMAT_VERSION}
 
 
+# --- a population's checkpoint of the stacked layout ----------------------------------------------
+def population_from_stacked(
+    state: dict[str, Any], entries: list[dict[str, Any]], modules: dict[str, nn.Module]
+) -> dict[str, Any]:
+    """A population checkpoint of the stacked layout (every agent's networks as rows of ``actor`` and
+    ``critics``, the optimisers' moments as rows under ``update``, as written up to commit 8dc7aaa)
+    with one entry per agent in a single run's layout. ``entries`` are the agents' entries as
+    freshly built (their configs, optimiser settings and algorithm state to fill in); ``modules``
+    names the ``actor`` and ``critics`` of one agent, whose parameter order the rows follow."""
+    update = state["update"]
+    out = []
+    for i, entry in enumerate(entries):
+        algo_state = {**entry["algo_state"], **update["algos"][i]}
+        networks = dict(algo_state["networks"])
+        for name, opt_name in (("actor", "actor_opt"), ("critics", "critic_opt")):
+            saved = update[opt_name]
+            steps = saved["steps"][i] if "steps" in saved else saved["step"]  # one count for all, earlier
+            at, moments = 0, {}
+            for j, (n, p) in enumerate(modules[name].named_parameters()):
+                rows = slice(at, at + p.numel())
+                at += p.numel()
+                networks[f"{name}.{n}"] = state[name][i, rows].reshape(p.shape).clone()
+                moments[j] = {
+                    "step": torch.tensor(float(steps)),
+                    **{k: saved[k][i, rows].reshape(p.shape).clone() for k in ("exp_avg", "exp_avg_sq")},
+                }
+            algo_state[opt_name] = {**entry["algo_state"][opt_name], "state": moments if float(steps) else {}}
+        algo_state["networks"] = networks
+        out.append({**entry, "iteration": state["iteration"], "step": state["step"], "algo_state": algo_state})
+    shared = {k: v for k, v in state.items() if k not in ("actor", "critics", "update")}
+    return {**shared, "agents": out}
+
+
 # --- converting a run directory once ------------------------------------------------------------
 def convert_run(run_dir: str | Path, echo: Callable[[str], None] = print) -> Path:
     """Rewrite the checkpoint of ``run_dir`` (a run's or a population's, and its agents') in the

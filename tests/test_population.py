@@ -2,6 +2,7 @@
 does, the population resumes after a kill, bad or unsupported configs stop in one line."""
 
 import math
+import shutil
 from pathlib import Path
 
 import pytest
@@ -175,6 +176,28 @@ def test_population_resumes_after_a_kill(tmp_path, algo):
         assert eval_result(a) == eval_result(b)
 
 
+OLD_POPULATION = Path(__file__).parent / "fixtures" / "old_population" / "ppo_lag"
+
+
+def test_a_population_of_the_stacked_layout_resumes(tmp_path):
+    """A population killed at iteration 3 by commit 8dc7aaa (the stacked checkpoint layout: every
+    agent's networks and Adam moments as rows of one tensor; ``test_population_resumes_after_a_kill``'s
+    ppo_lag run, recorded with the kill at iteration 3) resumes from its iteration-2 checkpoint into
+    the numbers of an uninterrupted population, and its checkpoint is then one entry per agent."""
+    old = torch.load(OLD_POPULATION / "population.pt", weights_only=True)
+    assert "update" in old and "agents" not in old and old["iteration"] == 2  # else this proves nothing
+    killed = tmp_path / "killed"
+    shutil.copytree(OLD_POPULATION, killed)
+    train_population(None, killed, echo=lambda s: None, resume=True)
+    raw = yaml.safe_load((OLD_POPULATION / "population.yaml").read_text())
+    whole = _population(tmp_path, raw, "whole")
+    for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
+        assert_close(metrics_rows(b), metrics_rows(a), b.name)
+        assert_close(eval_result(b), eval_result(a), b.name)
+    new = torch.load(killed / "population.pt", weights_only=True)
+    assert "update" not in new and [e["algo_state"]["iteration"] for e in new["agents"]] == [4, 4]
+
+
 @pytest.mark.parametrize(
     "population, message",
     [
@@ -202,12 +225,14 @@ def test_bad_population_config_is_one_line(population, message):
         ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
         ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
         ({"normalize": {"obs": True}}, "population: normalize is not batched"),
+        # else the agents' eval.json would name the average and hold the last iterate's numbers
+        ({"final_policy": "average"}, "population: final_policy=average is not batched"),
     ],
 )
 def test_unsupported_population_is_refused(change, refused):
     raw = torch_tiny()
     for k, v in change.items():
-        raw.setdefault(k, {}).update(v)
+        raw[k] = {**raw.get(k, {}), **v} if isinstance(v, dict) else v
     if raw["algo"]["name"] == "cpo":
         raw["algo"] = {"name": "cpo"}
     raw["population"] = {"seeds": 2}
@@ -229,7 +254,7 @@ def test_the_exercise_grid_as_populations():
     from omegaconf import OmegaConf
 
     from cmdp_rl.config import CONFIG_DIR
-    from cmdp_rl.population.sweep import sweep_parts
+    from cmdp_rl.run.population_sweep import sweep_parts
 
     parts = sweep_parts("constraint_sweep")
     assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", False)]

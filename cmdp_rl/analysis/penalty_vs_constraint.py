@@ -87,7 +87,7 @@ def train_grid(out: Path, overrides: list[str], skip_unbatched: bool) -> dict[st
     from cmdp_rl import train
     from cmdp_rl.config import compose_config
     from cmdp_rl.population import train_population
-    from cmdp_rl.population.sweep import sweep_parts
+    from cmdp_rl.run.population_sweep import sweep_parts
 
     timing: dict[str, float] = {}
     start, cpu = time.perf_counter(), time.process_time()

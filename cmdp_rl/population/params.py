@@ -54,6 +54,11 @@ class StackedParams:
         with torch.no_grad():
             return {n: self.view(n)[i].detach().clone() for n in self.names}
 
+    @torch.no_grad()
+    def load_agent(self, i: int, module: nn.Module) -> None:
+        """Agent ``i``'s parameters from a single-run module of the same architecture."""
+        self.flat[i] = torch.cat([p.detach().reshape(-1) for _, p in module.named_parameters()]).to(self.flat)
+
     def grad_norms(self) -> torch.Tensor:
         """Each agent's gradient norm over all of these parameters, ``[P]``."""
         return torch.linalg.vector_norm(self.flat.grad, dim=1)
@@ -125,21 +130,17 @@ class StackedAdam:
             }
         return out
 
-    def state_dict(self) -> dict:
-        return {
-            "steps": self.steps.clone(),
-            "exp_avg": self.exp_avg.clone(),
-            "exp_avg_sq": self.exp_avg_sq.clone(),
-            "lr": self.lr.clone(),
-        }
-
-    def load_state_dict(self, state: dict) -> None:
-        if "steps" in state:
-            self.steps.copy_(state["steps"])
-        else:  # a checkpoint from before the per-agent counts: one count for all
-            self.steps.fill_(float(state["step"]))
-        self.exp_avg.copy_(state["exp_avg"])
-        self.exp_avg_sq.copy_(state["exp_avg_sq"])
+    @torch.no_grad()
+    def load_agent(self, i: int, stacked: StackedParams, moments: dict[str, dict[str, torch.Tensor]]) -> None:
+        """Agent ``i``'s step count and moments from its single-run optimizer's state per parameter
+        name (empty: no step taken yet); the inverse of :meth:`agent_state`."""
+        self.steps[i] = 0.0
+        for n in stacked.names:
+            a, b = stacked.offsets[n]
+            state = moments.get(n) or {}
+            self.steps[i] = float(state.get("step", 0.0))
+            for mine, key in ((self.exp_avg, "exp_avg"), (self.exp_avg_sq, "exp_avg_sq")):
+                mine[i, a:b] = state[key].reshape(-1) if key in state else 0.0
 
 
 def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:

@@ -162,6 +162,8 @@ def check_supported(cfg: RunConfig) -> None:
             f"env={cfg.env.name} (backend {getattr(cfg.env, 'backend', None)})",
             "env must be reach1d with env.backend=torch, e.g. env=reach1d_torch",
         )
+    if cfg.final_policy != "last":  # the deployed average is the single run's loop's (policy_average.py)
+        refuse(f"final_policy={cfg.final_policy}", "final_policy must be last")
     if cfg.env.probe:
         refuse("env.probe=true", "the probe action is not batched")
     if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:

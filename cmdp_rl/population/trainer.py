@@ -2,8 +2,9 @@
 ``Collector``, check the rollout, update, one ``metrics.csv`` row per agent from
 ``trainer.metrics_row``, ``eval.json`` from ``trainer.complete_result``), one process for all.
 Outputs (docs/population.md): ``agents/<k>_<values>/`` (one single run's directory per agent),
-``population.yaml`` (what a resume rebuilds from), ``population.pt`` (the checkpoint: plain tensors,
-numbers and strings), ``population.json`` (the summary).
+``population.yaml`` (what a resume rebuilds from), ``population.pt`` (the checkpoint: one entry per
+agent in a single run's ``checkpoint.pt`` layout, and the shared collector and generators),
+``population.json`` (the summary).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import make_env
 from cmdp_rl.envs.contract import check_rollout
-from cmdp_rl.migrations import migrate
+from cmdp_rl.migrations import migrate, population_from_stacked
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
@@ -57,10 +58,6 @@ AGENTS_DIR = "agents"
 
 def agent_dir_name(k: int, overrides: Mapping[str, Any]) -> str:
     return f"{k:03d}_{label(overrides)}".replace("/", "_").replace(" ", "")
-
-
-def is_population_dir(path: str | Path) -> bool:
-    return (Path(path) / POPULATION_CONFIG).is_file()
 
 
 def train_population(
@@ -146,10 +143,12 @@ def train_population(
     first, elapsed, steps = 1, 0.0, 0
     costs = torch.zeros(P, len(names), dtype=torch.float64)  # every cost each agent collected so far
     if state is not None:
-        with torch.no_grad():
-            pop.actor.flat.copy_(state["actor"])
-            pop.critics.flat.copy_(state["critics"])
-        update.load_state_dict(state["update"])
+        if "agents" not in state:  # the stacked layout of earlier populations
+            fresh = [_agent_entry(c, a, 0, 0, 0.0) for c, a in zip(cfgs, update.algos)]
+            state = population_from_stacked(state, fresh, {"actor": agents[0].actor, "critics": agents[0].critics})
+        for algo, entry in zip(update.algos, state["agents"]):  # each agent as its single run resumes
+            algo.load_state_dict(entry["algo_state"])
+        update.stack_agents()
         collector.load_state_dict(state["collector"])
         for g, s in zip(generators, state["generators"]):
             g.set_state(s)
@@ -163,6 +162,16 @@ def train_population(
     env_id, allow_negative_cost = contract_options(cfg.env)
     start = time.perf_counter() - elapsed
 
+    written: dict[int, list[dict[str, Any]]] = {}  # the entries of the last checkpoint, by iteration
+
+    def entries(it: int, time_s: float) -> list[dict[str, Any]]:
+        if it in written:  # the final one is the last checkpoint's: built once
+            return written[it]
+        update.unstack_agents()
+        written.clear()
+        written[it] = [_agent_entry(c, a, it, steps, time_s) for c, a in zip(cfgs, update.algos)]
+        return written[it]
+
     def checkpoint(it: int) -> None:
         for lg in loggers:
             lg.sync()
@@ -175,9 +184,7 @@ def train_population(
                 "iteration": it,
                 "step": steps,
                 "time_s": time.perf_counter() - start,
-                "actor": pop.actor.flat.detach().clone(),
-                "critics": pop.critics.flat.detach().clone(),
-                "update": update.state_dict(),
+                "agents": entries(it, time.perf_counter() - start),
                 "collector": collector.state_dict(),
                 "generators": [g.get_state() for g in generators],
                 "costs": costs,
@@ -219,9 +226,11 @@ def train_population(
 
     results = evaluate_population(pop, cfgs, device)
     summary_agents = []
-    for i, (d, c, result) in enumerate(zip(dirs, cfgs, results)):
+    for i, (d, c, result, entry) in enumerate(zip(dirs, cfgs, results, entries(iterations, train_time))):
         complete_result(result, c, steps, train_time, costs[i].tolist(), names, None)
-        _write_agent_checkpoint(d, c, pop, update, i, iterations, steps, train_time)
+        # The agent's entry of the population's checkpoint, as its own checkpoint.pt (for evaluate.py;
+        # not resumable on its own: the population resumes from population.pt).
+        save_checkpoint(d / CHECKPOINT, entry)
         (d / EVAL).write_text(json.dumps(result, indent=2))
         summary_agents.append(
             {
@@ -258,43 +267,21 @@ def _nanmean(values: list[float]) -> float:
     return sum(finite) / len(finite) if finite else float("nan")
 
 
-def _write_agent_checkpoint(
-    d: Path,
-    cfg: Any,
-    pop: PopulationAgent,
-    update: PopulationPPO,
-    i: int,
-    iteration: int,
-    steps: int,
-    train_time: float,
-) -> None:
-    """Agent ``i``'s ``checkpoint.pt`` in its single run's layout (its algorithm's ``state_dict``
-    with the trained networks and Adam moments), for ``evaluate.py``; not resumable on its own
-    (the population resumes from ``population.pt``)."""
-    algo = update.algos[i]
-    agent = algo.agent
-    pop.load_into(i, agent)
-    for opt, module, stacked_opt, stacked in (
-        (algo.actor_opt, agent.actor, update.actor_opt, pop.actor),
-        (algo.critic_opt, agent.critics, update.critic_opt, pop.critics),
-    ):
-        moments = stacked_opt.agent_state(i, stacked)
-        for name, p in module.named_parameters():
-            opt.state[p] = {"step": stacked_opt.steps[i].to(torch.float32), **moments[name]}
-    save_checkpoint(
-        d / CHECKPOINT,
-        {
-            "algo": cfg.algo.name,
-            "policy": cfg.policy.name,
-            "config": dataclasses.asdict(dataclasses.replace(cfg, resume=None)),
-            "iteration": iteration,
-            "step": steps,
-            "time_s": train_time,
-            "algo_state": algo.state_dict(),
-            "collector": None,
-            "rng": None,
-        },
-    )
+def _agent_entry(cfg: Any, algo: Any, iteration: int, steps: int, time_s: float) -> dict[str, Any]:
+    """An agent's entry of ``population.pt``: its single run's ``checkpoint.pt`` layout (its
+    algorithm's ``state_dict``, networks and Adam moments included), without the collector and
+    random state (the population's, shared)."""
+    return {
+        "algo": cfg.algo.name,
+        "policy": cfg.policy.name,
+        "config": dataclasses.asdict(dataclasses.replace(cfg, resume=None)),
+        "iteration": iteration,
+        "step": steps,
+        "time_s": time_s,
+        "algo_state": algo.state_dict(),
+        "collector": None,
+        "rng": None,
+    }
 
 
 __all__ = [
@@ -302,6 +289,5 @@ __all__ = [
     "POPULATION_CHECKPOINT",
     "POPULATION_CONFIG",
     "POPULATION_SUMMARY",
-    "is_population_dir",
     "train_population",
 ]

@@ -31,9 +31,6 @@ from cmdp_rl.config import RunConfig
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.params import StackedAdam
 
-# What a single run's algorithm state holds that the population keeps stacked instead.
-STACKED_STATE = ("networks", "actor_opt", "critic_opt")
-
 
 class PopulationPPO:
     """``algos`` are the agents' single-run algorithm objects (PPO or a subclass that keeps
@@ -207,20 +204,31 @@ class PopulationPPO:
 
         return self._epochs(units, self.cfg.projection_epochs, step)
 
-    def state_dict(self) -> dict:
-        """The optimisers' moments and each agent's algorithm state but its networks and torch
-        optimisers (stacked here): plain tensors, numbers and strings."""
-        return {
-            "actor_opt": self.actor_opt.state_dict(),
-            "critic_opt": self.critic_opt.state_dict(),
-            "algos": [{k: v for k, v in a.state_dict().items() if k not in STACKED_STATE} for a in self.algos],
-        }
+    def _pairs(self) -> list[tuple[str, Any, StackedAdam, str]]:
+        return [
+            ("actor", self.agent.actor, self.actor_opt, "actor_opt"),
+            ("critics", self.agent.critics, self.critic_opt, "critic_opt"),
+        ]
 
-    def load_state_dict(self, state: dict) -> None:
-        self.actor_opt.load_state_dict(state["actor_opt"])
-        self.critic_opt.load_state_dict(state["critic_opt"])
-        for a, s in zip(self.algos, state["algos"]):
-            a.load_state_dict({**a.state_dict(), **s})
+    def unstack_agents(self) -> None:
+        """Each agent's networks and Adam moments into its single-run algorithm object, whose
+        ``state_dict`` is then its single run's (what a checkpoint holds per agent)."""
+        for i, algo in enumerate(self.algos):
+            self.agent.load_into(i, algo.agent)
+            for name, stacked, stacked_opt, opt_name in self._pairs():
+                opt, moments = getattr(algo, opt_name), stacked_opt.agent_state(i, stacked)
+                step = stacked_opt.steps[i].to(torch.float32)
+                for n, p in getattr(algo.agent, name).named_parameters():
+                    opt.state[p] = {"step": step.clone(), **moments[n]}
+
+    def stack_agents(self) -> None:
+        """The inverse of :meth:`unstack_agents`: after each agent's algorithm object loaded its
+        state (a resume), its networks and Adam moments into the stacked ones."""
+        for i, algo in enumerate(self.algos):
+            for name, stacked, stacked_opt, opt_name in self._pairs():
+                module, opt = getattr(algo.agent, name), getattr(algo, opt_name)
+                stacked.load_agent(i, module)
+                stacked_opt.load_agent(i, stacked, {n: opt.state.get(p, {}) for n, p in module.named_parameters()})
 
 
 __all__ = ["PopulationPPO"]

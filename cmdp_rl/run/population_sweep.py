@@ -5,7 +5,7 @@ one population per algorithm, each job an agent (``experiments/studies/penalty_v
 The experiment's ``hydra.sweeper.params`` are read with Hydra's own override parser; the ``algo``
 entry (a list of config choices such as ``sweep/ppo_lag``) splits the jobs by algorithm, ``seed``
 becomes ``population.grid.seed`` and every other swept key must be a per-agent field
-(``spec.PER_AGENT_FIELDS``). An algorithm the batched program does not cover (``cpo``) is returned
+(``cmdp_rl.population.spec.PER_AGENT_FIELDS``). An algorithm the batched program does not cover (``cpo``) is returned
 as its jobs' plain configs, to be run one after another.
 """
 
