@@ -138,7 +138,7 @@ def _what_it_holds(path: Path, exc: Exception) -> tuple[list[str], str]:
 def _old_format(path: Path, how: str) -> UnsafeCheckpointError:
     return UnsafeCheckpointError(
         f"checkpoint: {path} is in an older cmdp_rl format ({how}), and reading it runs code from the file; if you "
-        f"trust who wrote it, convert the run once with `python -m cmdp_rl.migrations convert {path.parent}`, or "
+        f"trust who wrote it, convert the run once with `python -m cmdp_rl.run.convert {path.parent}`, or "
         "load it as is with trust_checkpoint=true (docs/checkpoints.md)"
     )
 

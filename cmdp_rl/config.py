@@ -14,7 +14,7 @@ from dataclasses import field
 from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping, Optional, Sequence
 
-from cmdp_rl.registry import KINDS, component
+from cmdp_rl.registry import KINDS, component, declared_base
 from cmdp_rl.report.safety_metrics import ReferenceConfig
 from cmdp_rl.threads import apply_threads
 from cmdp_rl.validation import (
@@ -232,7 +232,7 @@ def validate(cfg: RunConfig) -> None:
         part = getattr(cfg, kind)
         expected = component(kind, getattr(part, "name", None)).options
         require(type(part) is expected, kind, f"a {expected.__name__} for {kind}.name={part.name}", type(part).__name__)
-        base = _declared_base(kind)
+        base = declared_base(kind)
         require(
             base is None or isinstance(part, base),
             kind,
@@ -270,19 +270,6 @@ def validate(cfg: RunConfig) -> None:
         cfg.final_policy,
     )
     cfg.reference.check(cfg)
-
-
-def _declared_base(kind: str) -> type | None:
-    """The base class whose hooks the toolkit calls on a component's options (docs/architecture.md)."""
-    if kind == "env":
-        from cmdp_rl.envs.options import EnvOptions
-
-        return EnvOptions
-    if kind == "algo":
-        from cmdp_rl.algos.base import AlgoConfig
-
-        return AlgoConfig
-    return None
 
 
 def _validate_normalize(cfg: RunConfig) -> None:

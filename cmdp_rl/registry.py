@@ -34,7 +34,23 @@ class Component:
 
 
 _REGISTRY: dict[str, dict[str, Component]] = {k: {} for k in KINDS}
+# The base class whose hooks the toolkit calls on a kind's options (AlgoConfig, EnvOptions), declared
+# by the module that defines it, so that config.validate can check a component against it without
+# importing the algorithms' or envs' packages (they import the config).
+_BASES: dict[str, type] = {}
 _loaded = False
+
+
+def declare_base(kind: str, base: type) -> type:
+    """Record ``base`` as the class every ``kind`` component's options derive from; returns it."""
+    _BASES[kind] = base
+    return base
+
+
+def declared_base(kind: str) -> type | None:
+    """The class :func:`declare_base` recorded for ``kind`` (None: any options class)."""
+    load_builtins()
+    return _BASES.get(kind)
 
 
 def register(kind: str, name: str, options: type, build: Callable[..., Any]) -> Component:

@@ -219,10 +219,10 @@ def test_a_damaged_file_is_corrupt_not_unsafe(tmp_path):
 def test_the_converter_turns_an_old_run_into_the_safe_format(tmp_path):
     run = tmp_path / "mlp"
     shutil.copytree(ROOT / "tests" / "fixtures" / "old_runs" / "mlp", run)
-    with pytest.raises(UnsafeCheckpointError, match="python -m cmdp_rl.migrations convert"):
+    with pytest.raises(UnsafeCheckpointError, match="python -m cmdp_rl.run.convert"):
         load_checkpoint(run / "checkpoint.pt")
     proc = subprocess.run(
-        [sys.executable, "-m", "cmdp_rl.migrations", "convert", str(run)],
+        [sys.executable, "-m", "cmdp_rl.run.convert", str(run)],
         cwd=ROOT,
         capture_output=True,
         text=True,

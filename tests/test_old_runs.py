@@ -11,7 +11,7 @@ resuming the run to 192 steps).
 
 Their checkpoints are of format 2, which only Python's full unpickler reads: each test loads them
 the way a user would, after saying they trust them: ``trust_checkpoint=true`` or the converter
-(``python -m cmdp_rl.migrations convert``); by default they are refused.
+(``python -m cmdp_rl.run.convert``); by default they are refused.
 
 The fixtures were recorded on an AMD EPYC (AVX2). Another CPU sums floats in another order, so a
 resumed row matches them within :data:`CROSS_CPU_REL` (see there), not bit for bit; whether a
@@ -32,7 +32,8 @@ import torch
 from cmdp_rl import Collector, keys, train
 from cmdp_rl.checkpoint import FORMAT_VERSION, UnsafeCheckpointError, load_checkpoint
 from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main in-process: no interpreter per fixture
-from cmdp_rl.migrations import convert_run, is_legacy
+from cmdp_rl.migrations import is_legacy
+from cmdp_rl.run.convert import convert_run
 from cmdp_rl.run.resume import resume_config
 from cmdp_rl.run.rundir import load_trained
 

@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
+from cmdp_rl.registry import declare_base
 from cmdp_rl.validation import Bool, Discount, Field, PositiveFloat, finite, options, require
 
 if TYPE_CHECKING:
@@ -150,6 +151,9 @@ class AlgoConfig:
         episode beside the env's observation, as :meth:`wrap_env`'s env would (Sauté's remaining
         budget), or None if the observation is the env's alone."""
         return None
+
+
+declare_base("algo", AlgoConfig)
 
 
 class TrainingDiverged(RuntimeError):

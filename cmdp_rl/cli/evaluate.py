@@ -26,7 +26,7 @@ Options (cmdp_rl.config.EvalConfig):
   video_steps=N        cut each recorded episode after N steps (default: whole episodes)
   trust_checkpoint=true  load a checkpoint of an older cmdp_rl format, which only Python's full
                        unpickler reads: THIS RUNS CODE FROM THE FILE; only for a run whose author
-                       you trust. `python -m cmdp_rl.migrations convert <run>` converts it once
+                       you trust. `python -m cmdp_rl.run.convert <run>` converts it once
                        instead (docs/checkpoints.md)
 
 Video without a display: MuJoCo renders through EGL (MUJOCO_GL=egl is set when no DISPLAY is);

@@ -19,7 +19,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
+from cmdp_rl import ConfigError, TrainingDiverged, load_config
 from cmdp_rl.checkpoint import CheckpointError
 from cmdp_rl.config import CONFIG_SOURCE
 from cmdp_rl.population.spec import population_active
@@ -27,6 +27,7 @@ from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, resu
 from cmdp_rl.run.resume import resume_config
 from cmdp_rl.run.rundir import POPULATION_CHECKPOINT, RunDirError
 from cmdp_rl.run.sweeps import clear_outputs, record_failure
+from cmdp_rl.trainer import train
 
 # How a single run ends on each error (inside a sweep the command raises instead: see _fail).
 EXIT_CODES = (

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar, Optional
 
+from cmdp_rl.registry import declare_base
 from cmdp_rl.validation import Bool, options
 
 # The budget d of a task that states none (Reach1D's: one crossing of the wall per episode).
@@ -38,3 +39,6 @@ class EnvOptions:
         constraint, or one per cost in the env's cost order. ``algo.cost_limit`` defaults to it
         (``config.resolve_budget``); a value given for ``algo.cost_limit`` wins."""
         return DEFAULT_BUDGET
+
+
+declare_base("env", EnvOptions)
