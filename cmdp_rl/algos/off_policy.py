@@ -25,14 +25,12 @@ down with every seed over budget (docs/off_policy.md, "HalfCheetah velocity: the
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, Union
 
 import torch
 from tensordict import TensorDictBase
-from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
@@ -40,6 +38,7 @@ from cmdp_rl.algos.lagrange import Multipliers, PIDLagrangian
 from cmdp_rl.algos.multiplier_options import Scale, check_multiplier, check_scale, make_controller, violation_scale
 from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.algos.replay_buffer import Replay
+from cmdp_rl.algos.target_networks import TargetCritics, td_target
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, check_shaped, to_off_policy
 from cmdp_rl.validation import (
@@ -154,38 +153,6 @@ class OffPolicyConfig(AlgoConfig):
                 check_scale(self.cost_limit, self.lambda_scale)
             else:
                 check_multiplier(self, self.lambda_lr)
-
-
-class TargetCritics:
-    """Slow copies of critics' output networks (the body is shared: it has no parameters, and the
-    copy reads the live observation statistics), moved by Polyak averaging."""
-
-    def __init__(self, modules: dict[str, nn.Module]) -> None:
-        self.live = modules
-        self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}
-        # Listed once (load_state_dict copies into these tensors): one lerp over all of them a step.
-        self._pairs = (
-            [p for k in modules for p in self.target[k].parameters()],
-            [p for m in modules.values() for p in m.parameters()],
-        )
-
-    @torch.no_grad()
-    def soft_update(self, tau: float) -> None:
-        """``theta' <- tau theta + (1 - tau) theta'`` (Haarnoja et al. 2018b; Fujimoto et al. 2018)."""
-        torch._foreach_lerp_(*self._pairs, tau)
-
-    def state_dict(self) -> dict:
-        return {k: m.state_dict() for k, m in self.target.items()}
-
-    def load_state_dict(self, state: dict) -> None:
-        for k, m in self.target.items():
-            m.load_state_dict(state[k])
-
-
-def td_target(signal: torch.Tensor, terminated: torch.Tensor, gamma: float, next_value: torch.Tensor) -> torch.Tensor:
-    """One-step TD target ``x + gamma (1 - terminated) V'``: a truncated step bootstraps from its
-    final observation; only termination stops the sum."""
-    return signal + gamma * (~terminated).float() * next_value
 
 
 class LagrangeTerm:

@@ -14,7 +14,8 @@ from typing import ClassVar
 
 import torch
 
-from cmdp_rl.algos.off_policy import STATS, LagrangeFields, OffPolicy, OffPolicyConfig, TargetCritics
+from cmdp_rl.algos.off_policy import STATS, LagrangeFields, OffPolicy, OffPolicyConfig
+from cmdp_rl.algos.target_networks import TargetCritics
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.squashed import Q_REWARD
 from cmdp_rl.registry import register
