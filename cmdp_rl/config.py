@@ -23,6 +23,7 @@ from cmdp_rl.validation import (
     Bool,
     ConfigError,
     Field,
+    NonNegativeFloat,
     PositiveFloat,
     PositiveInt,
     build,
@@ -83,9 +84,17 @@ class RunConfig:
     # last iterate, the average of the actor's parameters over the last average_last fraction of
     # the iterations (cmdp_rl/policy_average.py), or a uniform mixture of at most mixture_size
     # snapshots of the actor over that window, one drawn per episode (cmdp_rl/policy_mixture.py).
-    final_policy: Literal["last", "average", "mixture"] = "last"
-    average_last: Annotated[float, finite(gt=0, le=1)] = 0.25
-    mixture_size: Annotated[int, Field(ge=1, le=64)] = 8
+    # auto: the mixture for a primal-dual algorithm (AlgoConfig.deploys) with a memoryless policy on an
+    # env whose episodes are cheap to value (EnvOptions.values_snapshots), else the last iterate.
+    final_policy: Literal["auto", "last", "average", "mixture"] = "auto"
+    average_last: Annotated[float, finite(gt=0, le=1)] = 0.5
+    mixture_size: Annotated[int, Field(ge=1, le=64)] = 16
+    # final_policy=mixture: uniform weights, or feasible: the best mixture of the snapshots within
+    # every budget on their measured values (cmdp_rl/mixture_selection.py), each snapshot valued on
+    # mixture_episodes episodes of its own and its costs taken mixture_margin standard errors high.
+    mixture_weights: Literal["uniform", "feasible"] = "feasible"
+    mixture_episodes: PositiveInt = 100
+    mixture_margin: NonNegativeFloat = 2.0
     checkpoint_every: PositiveInt = 10
     log_interval: PositiveInt = 5
     # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
@@ -202,11 +211,15 @@ def resolve_auto(cfg: RunConfig) -> None:
     The rules keep what the gym default does at N <= 8 exactly and scale from there:
     ``rollout_steps`` = 2048 / N, within [32, 256]: 256 for N <= 8, 32 for N >= 64; the algorithm
     resolves its own ``"auto"`` options from the batch (e.g. ``PPOConfig.resolve_auto``).
-    Numbers given in the config are kept. Works in place; called by :func:`validate`.
+    Numbers given in the config are kept. ``final_policy: auto`` becomes ``mixture`` or ``last``
+    (see the field). Works in place; called by :func:`validate`.
     """
     if cfg.rollout_steps == AUTO:
         auto = cfg.algo.auto_rollout_steps(cfg)  # an off-policy algorithm's few steps
         cfg.rollout_steps = auto if auto is not None else min(256, max(32, 2048 // cfg.env.num_envs))
+    if cfg.final_policy == AUTO:
+        mixture = cfg.algo.deploys == "mixture" and cfg.env.values_snapshots and cfg.policy.name == "mlp"
+        cfg.final_policy = "mixture" if mixture else "last"
     cfg.algo.resolve_auto(cfg)
 
 

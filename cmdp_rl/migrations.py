@@ -235,3 +235,34 @@ def population_from_stacked(
 
 
 __all__ = ["STEPS", "convert_networks", "is_legacy", "migrate"]
+
+
+# Defaults that a run's saved config does not record because it was written before they existed
+# or changed: a config saved before ``mixture_weights`` existed ran with these values wherever it
+# names none (run options, then the algorithm's options where the algorithm has the field).
+_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {
+    "final_policy": "last",
+    "average_last": 0.25,
+    "mixture_size": 8,
+    "mixture_weights": "uniform",
+}
+_ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {"lambda_scale": "none", "nu_scale": "none"}
+
+
+def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
+    """A saved run config with the defaults it ran with made explicit (a run config written since
+    ``mixture_weights`` existed records every option and is returned as is)."""
+    import dataclasses
+
+    from cmdp_rl.registry import component
+
+    if "mixture_weights" in config:
+        return config
+    out = {**_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS, **config}
+    algo = dict(out.get("algo") or {})
+    name = algo.get("name", "ppo_lag")
+    if isinstance(name, str):
+        fields = {f.name for f in dataclasses.fields(component("algo", name).options)}
+        algo = {**{k: v for k, v in _ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS.items() if k in fields}, **algo}
+        out["algo"] = algo
+    return out

@@ -29,6 +29,27 @@ def first_averaged_iteration(iterations: int, average_last: float) -> int:
 def deployed(result: dict) -> str:
     """Which policy an evaluation ran, from its ``final_policy``, ``averaged_iterations`` and
     ``mixture_iterations`` keys (a result from before they existed: the last iterate)."""
+    if result.get("final_policy") == "mixture" and result.get("mixture_deployed"):
+        chosen = ", ".join(f"iteration {int(it)} ({w:.2f})" for it, w in result["mixture_deployed"])
+        within = (
+            "within budget on their values"
+            if result.get("mixture_feasible")
+            else "none within budget: the least violating"
+        )
+        if len(result["mixture_deployed"]) == 1:
+            which = (
+                "the best within budget"
+                if result.get("mixture_feasible")
+                else "none within budget: the least violating"
+            )
+            return (
+                f"deployed policy: iteration {int(result['mixture_deployed'][0][0])}'s actor, of "
+                f"{result.get('averaged_iterations')} snapshots valued ({which} on their values)"
+            )
+        return (
+            f"deployed policy: a weighted mixture of {result.get('averaged_iterations')} iterates' actors "
+            f"({within}): {chosen}, one drawn per episode"
+        )
     if result.get("final_policy") == "mixture":
         return (
             f"deployed policy: a uniform mixture of {result.get('averaged_iterations')} iterates' actors "

@@ -42,6 +42,11 @@ class IterateSnapshots:
         self.stride = math.ceil((iterations - first_iteration + 1) / size)
         self.taken: list[int] = []
         self.members: list[dict[str, torch.Tensor]] = []
+        # mixture_weights=feasible: each member's weight and measured value (mixture_selection.py);
+        # None: a uniform mixture.
+        self.weights: list[float] | None = None
+        self.values: list[dict] | None = None
+        self.feasible: bool | None = None
 
     @property
     def count(self) -> int:
@@ -59,17 +64,38 @@ class IterateSnapshots:
         """Whether a saved state was taken on this window and stride (a resume may have moved them)."""
         return (state["first_iteration"], state["stride"]) == (self.first_iteration, self.stride)
 
+    def adopt(self, state: dict) -> None:
+        """Resume from a saved state: all of it on the same window, else the saved snapshots that
+        this window's schedule also takes (a run extended with more total_steps keeps the ones
+        that still count); weights chosen at the saved run's end are dropped unless nothing moved."""
+        if self.matches(state):
+            self.load_state_dict(state)
+            return
+        kept = [(it, m) for it, m in zip(state["taken"], state["members"]) if self.wants(int(it))]
+        self.taken = [int(it) for it, _ in kept]
+        self.members = [{k: v.clone() for k, v in m.items()} for _, m in kept]
+
     def state_dict(self) -> dict:
         return {
             "first_iteration": self.first_iteration,
             "stride": self.stride,
             "taken": list(self.taken),
             "members": [{k: v.clone() for k, v in m.items()} for m in self.members],
+            "weights": self.weights,
+            "values": self.values,
+            "feasible": self.feasible,
         }
 
     def load_state_dict(self, state: dict) -> None:
         self.taken = [int(i) for i in state["taken"]]
         self.members = [{k: v.clone() for k, v in m.items()} for m in state["members"]]
+        self.weights = None if state.get("weights") is None else [float(w) for w in state["weights"]]
+        self.values, self.feasible = state.get("values"), state.get("feasible")
+
+    def deployed_members(self) -> list[tuple[int, float]]:
+        """(iteration, weight) of each member the deployed mixture draws from."""
+        weights = self.weights or [1.0 / len(self.members)] * len(self.members)
+        return [(it, w) for it, w in zip(self.taken, weights) if w > 0]
 
     def actors(self, template: Actor) -> list[Actor]:
         """One copy of ``template`` per member, holding that member's state."""
@@ -82,8 +108,14 @@ class IterateSnapshots:
 
     def deploy(self, agent: Agent) -> None:
         """Make ``agent`` act with the mixture (nothing when no snapshot was taken)."""
-        if self.members:
-            agent.actor = mixture_actor(self.actors(agent.actor))
+        if not self.members:
+            return
+        actors = self.actors(agent.actor)
+        if self.weights is None:
+            agent.actor = mixture_actor(actors)
+        else:  # only the members with weight: at most K + 1 of them (mixture_selection.py)
+            chosen = [(a, w) for a, w in zip(actors, self.weights) if w > 0]
+            agent.actor = mixture_actor([a for a, _ in chosen], [w for _, w in chosen])
 
 
 class MixtureBody(Body):
@@ -92,27 +124,57 @@ class MixtureBody(Body):
 
     state_keys = (keys.MIXTURE_MEMBER,)
 
-    def __init__(self, members: list[Actor]) -> None:
+    def __init__(
+        self, members: list[Actor], weights: list[float] | None = None, assigned: torch.Tensor | None = None
+    ) -> None:
         super().__init__()
         if any(m.body.recurrent or m.body.state_keys for m in members):
             raise ValueError("a mixture's members must be memoryless actors (policy=mlp)")
         self.members = nn.ModuleList(members)
+        # Not buffers: the mixture is rebuilt from its snapshots, never loaded from a state dict.
+        self.weights = None if weights is None else torch.tensor(weights, dtype=torch.float64)
+        # A fixed member per env row instead of a draw: every member valued in one batch (mixture_selection.py).
+        self.assigned = assigned
         seen = dict.fromkeys(k for m in members for k in m.body.in_keys)
         self.in_keys = list({**seen, keys.IS_INIT: None, keys.MIXTURE_MEMBER: None})
 
     def forward(self, d: Entries) -> tuple:
         member = d[keys.MIXTURE_MEMBER].squeeze(-1)
-        params = [m.params(d) for m in self.members]
-        rows = torch.arange(member.shape[0], device=member.device)
-        return ({k: torch.stack([p[k] for p in params])[member, rows] for k in params[0]},)
+        if member.dim() != 1:  # rows over time as well: every member on every row, then pick
+            params = [m.params(d) for m in self.members]
+            return ({k: torch.stack([p[k] for p in params])[(member, *_grid(member))] for k in params[0]},)
+        # Each member on its own rows only: a valuation runs M members on M x E rows.
+        out: dict[str, torch.Tensor] = {}
+        n = member.shape[0]
+        for i, m in enumerate(self.members):
+            rows = (member == i).nonzero().squeeze(-1)
+            if rows.numel() == 0:
+                continue
+            own = m.params({k: v[rows] if torch.is_tensor(v) and v.shape[:1] == (n,) else v for k, v in d.items()})
+            for k, v in own.items():
+                if k not in out:
+                    out[k] = v.new_empty((n, *v.shape[1:]))
+                out[k][rows] = v
+        return (out,)
 
     def step(self, d: Entries) -> tuple[tuple, dict]:
-        fresh = torch.randint(len(self.members), d[keys.MIXTURE_MEMBER].shape, device=d[keys.MIXTURE_MEMBER].device)
+        shape, device = d[keys.MIXTURE_MEMBER].shape, d[keys.MIXTURE_MEMBER].device
+        if self.assigned is not None:
+            fresh = self.assigned.view(shape).to(device)
+        elif self.weights is None:
+            fresh = torch.randint(len(self.members), shape, device=device)
+        else:
+            fresh = torch.multinomial(self.weights, shape.numel(), replacement=True).view(shape).to(device)
         member = torch.where(d[keys.IS_INIT], fresh, d[keys.MIXTURE_MEMBER])
         return self({**d, keys.MIXTURE_MEMBER: member}), {keys.MIXTURE_MEMBER: member}
 
     def initial_state(self, num_envs: int, device: torch.device) -> dict:
         return {keys.MIXTURE_MEMBER: torch.zeros(num_envs, 1, dtype=torch.long, device=device)}
+
+
+def _grid(member: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Index tensors of every position of ``member``, to pick each position's member's output."""
+    return torch.meshgrid(*[torch.arange(s, device=member.device) for s in member.shape], indexing="ij")
 
 
 class _Chosen(nn.Module):
@@ -130,9 +192,12 @@ class _Chosen(nn.Module):
         return self._dist(params)
 
 
-def mixture_actor(members: list[Actor]) -> Actor:
-    """An actor that draws one of ``members`` per episode (uniformly) and follows it."""
-    return Actor(MixtureBody(members), _Chosen(members[0].head))
+def mixture_actor(
+    members: list[Actor], weights: list[float] | None = None, assigned: torch.Tensor | None = None
+) -> Actor:
+    """An actor that draws one of ``members`` per episode (uniformly, or with ``weights``) and
+    follows it; with ``assigned`` (a member index per env row) each row always acts with its own."""
+    return Actor(MixtureBody(members, weights, assigned), _Chosen(members[0].head))
 
 
 def members_of(actor: Actor) -> list[Actor]:
@@ -140,4 +205,11 @@ def members_of(actor: Actor) -> list[Actor]:
     return list(actor.body.members) if isinstance(actor.body, MixtureBody) else [actor]
 
 
-__all__ = ["IterateSnapshots", "MixtureBody", "members_of", "mixture_actor"]
+def weights_of(actor: Actor) -> list[float]:
+    """The probability of drawing each of :func:`members_of`'s actors."""
+    members = members_of(actor)
+    weights = actor.body.weights if isinstance(actor.body, MixtureBody) else None
+    return [1.0 / len(members)] * len(members) if weights is None else weights.tolist()
+
+
+__all__ = ["IterateSnapshots", "MixtureBody", "members_of", "mixture_actor", "weights_of"]

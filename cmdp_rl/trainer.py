@@ -24,6 +24,7 @@ from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.migrations import migrate
+from cmdp_rl.mixture_selection import choose_weights
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policy_average import ParameterAverage, deployed, first_averaged_iteration
@@ -136,6 +137,12 @@ def complete_result(
     )
     if isinstance(average, IterateSnapshots):  # the mixture's members: the iterations they were taken at
         result["mixture_iterations"] = list(average.taken)
+        result["mixture_weights"] = cfg.mixture_weights
+        if average.weights is not None:  # mixture_weights=feasible: what was chosen, and on what
+            result.update(
+                mixture_deployed=[list(m) for m in average.deployed_members()], mixture_feasible=average.feasible
+            )
+            result["mixture_member_values"] = average.values
     k = len(names)
     limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
@@ -236,8 +243,8 @@ def _train(
     # final_policy=mixture: snapshots of the actor over the same window (policy_mixture.py).
     mixture = IterateSnapshots(average_from, iterations, cfg.mixture_size) if cfg.final_policy == "mixture" else None
     saved = None if state is None else state.get("policy_mixture")
-    if mixture is not None and saved is not None and mixture.matches(saved):
-        mixture.load_state_dict(saved)
+    if mixture is not None and saved is not None:
+        mixture.adopt(saved)
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
@@ -311,6 +318,8 @@ def _train(
                 average.update(agent.actor)
             if mixture is not None and mixture.wants(it):
                 mixture.update(agent.actor, it)
+                if it == iterations and cfg.mixture_weights == "feasible":  # before the last checkpoint holds them
+                    echo(choose_weights(mixture, agent, cfg, names))
             timing = {"sps": per_iter / (time.perf_counter() - t0), "time_s": time.perf_counter() - start}
             row = metrics_row(
                 it,

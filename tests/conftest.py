@@ -22,6 +22,7 @@ TINY = {
     "total_steps": 7 * 32,
     "checkpoint_every": 2,
     "eval_episodes": 4,
+    "mixture_episodes": 8,  # a primal-dual algorithm deploys a valued mixture (final_policy=auto): keep it tiny
     "log_interval": 1,
 }
 

@@ -236,6 +236,7 @@ def test_anneal_lr_scales_the_rates_linearly_to_zero_over_the_run():
         "cost_limit": 0.2,
         "anneal_lr": True,
         "anneal_lambda_lr": True,
+        "lambda_scale": "none",  # the step below in the cost's own units
     }
     cfg = load_config(
         {

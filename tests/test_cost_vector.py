@@ -302,7 +302,8 @@ def test_ppo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_pa
     # hazard_a: paid for every positive action (about half of a random policy's), budget 0.5 per
     # 4-step episode: over budget, its lambda rises. hazard_b: never paid, budget 1: it stays at 0.
     out = tmp_path / "run"
-    result = train(load_config(run_cfg()), out, echo=quiet)
+    # lambda_scale none: each multiplier steps in its cost's own units, as the checks below compute
+    result = train(load_config(run_cfg(algo={"lambda_scale": "none"})), out, echo=quiet)
     rows = read_rows(out / "metrics.csv")
     assert len(rows) == 6 and list(rows[0])[:5] == [
         "iteration",
@@ -410,7 +411,13 @@ def test_trpo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_p
     # batch's J_c,a alone; hazard_b never paid, its lambda stays 0.
     out = tmp_path / "run"
     cfg = run_cfg()
-    cfg["algo"] = {"name": "trpo_lag", "critic_minibatches": 2, "cost_limit": [0.5, 1.0], "lambda_lr": 0.5}
+    cfg["algo"] = {
+        "name": "trpo_lag",
+        "critic_minibatches": 2,
+        "cost_limit": [0.5, 1.0],
+        "lambda_lr": 0.5,
+        "lambda_scale": "none",
+    }
     result = train(load_config(cfg), out, echo=quiet)
     rows = read_rows(out / "metrics.csv")
     lam_a = 0.0

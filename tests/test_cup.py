@@ -100,7 +100,7 @@ def test_cup_learns_reach1d_within_budget(tmp_path):
             "algo=cup",
             "algo.cost_limit=0.5",
             "algo.nu_init=0.5",
-            "algo.nu_lr=0.05",
+            "algo.nu_lr=0.025",  # measured as 0.05 per unit of cost: at d = 0.5, 0.025 on (J_c - d) / d
             "algo.num_minibatches=4",
             "algo.update_epochs=5",
             "total_steps=327680",

@@ -78,7 +78,7 @@ def test_options_build_the_named_controller_with_the_budget_scale(kind, cls):
     cfg = MultiplierFields(multiplier=kind, lambda_scale="budget")
     m = make_controller(cfg, 0.25, 0.1, 0.0)
     assert isinstance(m, cls) and m.scale == 0.25
-    assert make_controller(MultiplierFields(multiplier="augmented"), 0.25, 0.1, 0.0).scale == 1.0
+    assert make_controller(MultiplierFields(multiplier="augmented", lambda_scale="none"), 0.25, 0.1, 0.0).scale == 1.0
 
 
 def _controllers(algo: dict):

@@ -102,6 +102,7 @@ def test_the_multiplier_rises_above_the_budget_and_falls_below(name):
             "warmup_steps": 0,
             "batch_size": 4,
             "critic_lr": 1e-12,
+            "lambda_scale": "none",  # the step in the cost's own units, as the docstring computes it
             "lambda_lr": 0.1,
             "lambda_init": 0.3,
             "policy_delay": 1,
@@ -112,6 +113,7 @@ def test_the_multiplier_rises_above_the_budget_and_falls_below(name):
             "warmup_steps": 0,
             "batch_size": 4,
             "critic_lr": 1e-12,
+            "lambda_scale": "none",
             "lambda_lr": 0.1,
             "lambda_init": 0.3,
         },
@@ -364,6 +366,7 @@ def test_the_pid_multiplier_acts_on_the_cost_critic():
             "batch_size": 4,
             "critic_lr": 1e-12,
             "multiplier": "pid",
+            "lambda_scale": "none",
             "kp": 1.0,
             "ki": 0.1,
             "lambda_init": 0.3,

@@ -79,7 +79,14 @@ def test_snapshots_every_stride_ending_at_the_last_and_plain_state():
 @pytest.fixture(scope="module")
 def mixture_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("mixture") / "run"
-    cfg = tiny(total_steps=256, final_policy="mixture", average_last=0.5, mixture_size=2, eval_deterministic=False)
+    cfg = tiny(
+        total_steps=256,
+        final_policy="mixture",
+        average_last=0.5,
+        mixture_size=2,
+        eval_deterministic=False,
+        mixture_weights="uniform",
+    )
     return out, train(load_config(cfg), out, echo=lambda s: None)
 
 
@@ -147,7 +154,7 @@ def test_a_resumed_run_deploys_the_same_mixture(tmp_path, monkeypatch, quiet):
     from test_resume import assert_same_run, crash_then_resume
 
     # 7 iterations, window 3..7 (5 snapshots, stride 1); checkpoints at 2, 4 and 6, a crash after row 5.
-    cfg = tiny(final_policy="mixture", average_last=0.6, mixture_size=5)
+    cfg = tiny(final_policy="mixture", average_last=0.6, mixture_size=5, mixture_weights="uniform")
     whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
     assert_same_run(whole, broken)
     assert eval_result(broken)["mixture_iterations"] == [3, 4, 5, 6, 7]

@@ -11,6 +11,7 @@ import yaml
 from conftest import eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import ConfigError, load_config, train
+from cmdp_rl.migrations import saved_config_defaults
 from cmdp_rl.population import train_population
 from cmdp_rl.population.spec import agent_configs, batched_algos
 from cmdp_rl.run.sweeps import find_runs
@@ -189,7 +190,8 @@ def test_a_population_of_the_stacked_layout_resumes(tmp_path):
     killed = tmp_path / "killed"
     shutil.copytree(OLD_POPULATION, killed)
     train_population(None, killed, echo=lambda s: None, resume=True)
-    raw = yaml.safe_load((OLD_POPULATION / "population.yaml").read_text())
+    # the recorded population ran with the defaults of its day, which its config does not name
+    raw = saved_config_defaults(yaml.safe_load((OLD_POPULATION / "population.yaml").read_text()))
     whole = _population(tmp_path, raw, "whole")
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert_close(metrics_rows(b), metrics_rows(a), b.name)

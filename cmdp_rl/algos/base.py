@@ -109,6 +109,10 @@ class AlgoConfig:
     # With ``envs``: the env options of its tiny test run, in place of TINY's Reach1D (one env of the
     # first kind it takes; the cross-cutting tests' iteration counts assume 32 rows x 16 steps).
     tiny_env: ClassVar[dict[str, Any]] = {}
+    # The policy ``final_policy: auto`` deploys: "mixture" for a primal-dual method, whose last
+    # iterate orbits the saddle point instead of converging to it (docs/constraint_satisfaction.md);
+    # "last" for the others.
+    deploys: ClassVar[str] = "last"
 
     def check(self, run: RunConfig) -> None:
         """Rules that relate this algorithm's options to the rest of the run: the envs it takes."""

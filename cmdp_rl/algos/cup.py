@@ -37,7 +37,7 @@ from cmdp_rl.algos.base import check_finite, check_parameters_finite, single_con
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import DualAscent
 from cmdp_rl.algos.minibatch import minibatches
-from cmdp_rl.algos.multiplier_options import Scale, check_scale, violation_scale
+from cmdp_rl.algos.multiplier_options import Scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig, Reduce
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -54,15 +54,12 @@ class CUPConfig(PPOConfig):
     """CUP (Yang et al. 2022): PPO on A_r, then a projection that trades KL for cost."""
 
     name: str = "cup"
+    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     nu_init: NonNegativeFloat = 0.0
     nu_lr: PositiveFloat = 0.05
-    nu_scale: Scale = "none"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    nu_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
     projection_epochs: AutoInt = AUTO  # auto: update_epochs
-
-    def check(self, run: RunConfig) -> None:
-        super().check(run)
-        check_scale(self.cost_limit, self.nu_scale, "algo.nu_scale")
 
     def resolve_auto(self, run: RunConfig) -> None:
         super().resolve_auto(run)

@@ -39,7 +39,7 @@ from cmdp_rl import keys
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import PIDLagrangian
-from cmdp_rl.algos.multiplier_options import Scale, check_scale, violation_scale
+from cmdp_rl.algos.multiplier_options import Scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
@@ -54,17 +54,17 @@ class FOCOPSConfig(PPOConfig):
     """FOCOPS (Zhang, Vuong, Ross 2020). ``clip_epsilon`` is not read: the KL term bounds the step."""
 
     name: str = "focops"
+    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     temperature: PositiveFloat = 1.5  # lambda of Theorem 1
     target_kl: PositiveFloat = 0.02  # delta: the per-state indicator's bound and the early stop
     nu_init: NonNegativeFloat = 0.0
     nu_lr: PositiveFloat = 0.01
     nu_max: PositiveFloat = 2.0
-    nu_scale: Scale = "none"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    nu_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
-        check_scale(self.cost_limit, self.nu_scale, "algo.nu_scale")
         require(self.nu_init <= self.nu_max, "algo.nu_init", "a number in [0, algo.nu_max]", self.nu_init)
 
 

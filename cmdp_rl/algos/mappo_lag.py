@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 
 from cmdp_rl.algos.ppo_lag import PPOLagConfig, PPOLagrangian
 from cmdp_rl.registry import register
-from cmdp_rl.validation import options, require
+from cmdp_rl.validation import PositiveFloat, options, require
 
 if TYPE_CHECKING:
     from cmdp_rl.config import RunConfig
@@ -38,6 +38,10 @@ class MAPPOLagConfig(PPOLagConfig):
 
     name: str = "mappo_lag"
     constraint: Literal["team", "per_agent"] = "team"
+    # The team task trains in 40 iterations, not hundreds: lambda must cross
+    # the range a relative violation of about 2 gives in that time (0.5 on relative violations is the
+    # raw step of 0.05 that the task was measured with, at its budget of 10).
+    lambda_lr: PositiveFloat = 0.5
     envs: ClassVar[tuple[str, ...]] = ("pettingzoo",)  # its agents are the rows of that env's batch
     tiny_env: ClassVar[dict] = {"name": "pettingzoo", "num_envs": 1}  # two agents: 2 rows, as TINY's 2 envs
 

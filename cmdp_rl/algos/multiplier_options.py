@@ -14,7 +14,7 @@ policy is, and its momentum adds to the very orbit the last-iterate methods damp
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, Sequence
+from typing import Annotated, Any, Literal
 
 from cmdp_rl.algos.lagrange import DualAscent, MultiplierController
 from cmdp_rl.algos.last_iterate import AugmentedLagrangian, OptimisticDual, RegularizedDual
@@ -31,7 +31,7 @@ class MultiplierFields:
     # dual: projected dual ascent; regularized: Ding et al. 2023 (plus an entropy bonus tau on the
     # policy); optimistic: nuPI / optimistic gradient; augmented: augmented Lagrangian (rho = lambda_lr).
     multiplier: Update = "dual"
-    lambda_scale: Scale = "none"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    lambda_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
     lambda_tau: NonNegativeFloat = 0.1  # regularized: tau, of the dual's regulariser and the entropy bonus
     lambda_nu: Annotated[float, finite(ge=0, lt=1)] = (
         0.0  # optimistic: nu, the EMA of the violation (0: optimistic gradient)
@@ -39,8 +39,9 @@ class MultiplierFields:
 
 
 def violation_scale(cost_limit: float, lambda_scale: str) -> float:
-    """The divisor of ``J_c - d``: 1, or the budget ``d`` itself."""
-    return cost_limit if lambda_scale == "budget" else 1.0
+    """The divisor of ``J_c - d``: 1, or the budget ``d`` itself. A zero budget has no scale of
+    its own, so there the violation stays in the cost's units (the default must serve d = 0 too)."""
+    return cost_limit if lambda_scale == "budget" and cost_limit > 0 else 1.0
 
 
 def make_controller(cfg: Any, cost_limit: float, lr: float, init: float) -> MultiplierController:
@@ -56,20 +57,8 @@ def make_controller(cfg: Any, cost_limit: float, lr: float, init: float) -> Mult
     return DualAscent(cost_limit, lr, init, scale)
 
 
-def check_scale(cost_limit: float | Sequence[float], lambda_scale: str, field: str = "algo.lambda_scale") -> None:
-    """A zero budget has no scale to normalise by."""
-    limits = cost_limit if isinstance(cost_limit, (list, tuple)) else [cost_limit]
-    require(
-        lambda_scale != "budget" or min(limits) > 0,
-        field,
-        "'none' when a budget (algo.cost_limit) is 0 ('budget' divides J_c - d by d)",
-        lambda_scale,
-    )
-
-
 def check_multiplier(cfg: Any, lr: float) -> None:
     """Options that are valid alone but not together (a one-line ConfigError)."""
-    check_scale(cfg.cost_limit, cfg.lambda_scale)
     if cfg.multiplier == "regularized":
         require(
             lr * cfg.lambda_tau < 1.0,

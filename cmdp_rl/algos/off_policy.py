@@ -35,7 +35,7 @@ from tensordict import TensorDictBase
 from cmdp_rl import keys
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.lagrange import Multipliers, PIDLagrangian
-from cmdp_rl.algos.multiplier_options import Scale, check_multiplier, check_scale, make_controller, violation_scale
+from cmdp_rl.algos.multiplier_options import Scale, check_multiplier, make_controller, violation_scale
 from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.algos.replay_buffer import Replay
 from cmdp_rl.algos.target_networks import TargetCritics, td_target
@@ -71,7 +71,7 @@ class LagrangeFields:
     # dual: projected dual ascent; pid: lagrange.PIDLagrangian; regularized, optimistic, augmented:
     # the last-iterate updates of last_iterate.py (multiplier_options.py)
     multiplier: Literal["dual", "pid", "regularized", "optimistic", "augmented"] = "dual"
-    lambda_scale: Scale = "none"  # the violation's units: none: Q_c - d_Q; budget: (Q_c - d_Q) / d_Q
+    lambda_scale: Scale = "budget"  # the violation's units: none: Q_c - d_Q; budget: (Q_c - d_Q) / d_Q
     lambda_tau: NonNegativeFloat = 0.1  # regularized: tau of the dual's regulariser (SAC's alpha is the entropy)
     lambda_nu: Annotated[float, finite(ge=0, lt=1)] = 0.0  # optimistic: EMA of the violation
     lambda_init: NonNegativeFloat = 0.0
@@ -148,11 +148,8 @@ class OffPolicyConfig(AlgoConfig):
             f">= algo.batch_size ({self.batch_size})",
             self.buffer_size,
         )
-        if isinstance(self, LagrangeFields):
-            if self.multiplier == "pid":
-                check_scale(self.cost_limit, self.lambda_scale)
-            else:
-                check_multiplier(self, self.lambda_lr)
+        if isinstance(self, LagrangeFields) and self.multiplier != "pid":
+            check_multiplier(self, self.lambda_lr)
 
 
 class LagrangeTerm:

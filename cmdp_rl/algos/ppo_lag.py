@@ -31,7 +31,6 @@ from cmdp_rl.algos.multiplier_options import (
     MultiplierFields,
     Scale,
     check_multiplier,
-    check_scale,
     make_controller,
     violation_scale,
 )
@@ -60,6 +59,7 @@ class PPOLagConfig(PPOConfig, MultiplierFields):
     one of the last-iterate updates (multiplier_options.py)."""
 
     name: str = "ppo_lag"
+    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
     lambda_init: NonNegativeFloat = 0.0
     lambda_lr: PositiveFloat = 0.05
     # With anneal_lr, also anneal lambda's step size linearly to 0 (the same schedule): the dual
@@ -77,6 +77,7 @@ class PIDLagConfig(PPOConfig):
     """PPO with lambda set by a PID controller (Stooke, Achiam, Abbeel 2020)."""
 
     name: str = "pid_lag"
+    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
     lambda_init: NonNegativeFloat = 0.0
     kp: NonNegativeFloat = 2.0
     ki: NonNegativeFloat = 0.1
@@ -85,11 +86,10 @@ class PIDLagConfig(PPOConfig):
     d_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
     d_delay: PositiveInt = 1
     lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
-    lambda_scale: Scale = "none"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    lambda_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
-        check_scale(self.cost_limit, self.lambda_scale)
         gains = self.kp + self.ki + self.kd
         require(gains > 0, "algo.kp + algo.ki + algo.kd", "> 0 (some gain must act)", gains)
         require(

@@ -17,7 +17,7 @@ any box; the critics read actions in the same units.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal, Union
+from typing import Annotated, ClassVar, Literal, Union
 
 import torch
 from torch.nn import functional as F
@@ -50,6 +50,7 @@ class SACLagConfig(SACConfig, LagrangeFields):
     """SAC-Lagrangian (Ha et al. 2020): lambda on the cost critic against the discounted budget."""
 
     name: str = "sac_lag"
+    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
 
 
 class SAC(OffPolicy):

@@ -99,9 +99,41 @@ METHODS: dict[str, list[str]] = {
         "average_last=0.5",
         "mixture_size=16",
     ],
+    # The best mixture of those snapshots within budget on their measured values (mixture_selection.py).
+    "ppo_lag/feasible-0.2-half": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.lambda_lr=0.2",
+        "final_policy=mixture",
+        "average_last=0.5",
+        "mixture_size=16",
+        "mixture_weights=feasible",
+    ],
+    "ppo_lag/optimistic-0.2-feasible-half": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "algo.multiplier=optimistic",
+        "algo.lambda_lr=0.2",
+        "final_policy=mixture",
+        "average_last=0.5",
+        "mixture_size=16",
+        "mixture_weights=feasible",
+    ],
+    "ppo_lag/feasible-half": [
+        "algo=ppo_lag",
+        "algo.lambda_scale=budget",
+        "final_policy=mixture",
+        "average_last=0.5",
+        "mixture_size=16",
+        "mixture_weights=feasible",
+    ],
     "pid_lag": ["algo=pid_lag"],
     "trpo_lag": ["algo=trpo_lag"],
     "sac_lag": ["algo=sac_lag"],
+    "td3_lag": ["algo=td3_lag"],
+    "focops": ["algo=focops"],
+    "cup": ["algo=cup"],
+    "ppo_lag/0.2": ["algo=ppo_lag", "algo.lambda_lr=0.2"],
 }
 
 
@@ -168,9 +200,9 @@ def run_one(case: str, method: str, seed: int, out: Path, extra: Sequence[str] =
 
 
 def exact_value(out: Path, cfg) -> tuple[float | None, list[float] | None]:
-    """The exact return and costs of a run's deployed policy (each member's, averaged: a mixture
-    drawn per episode has the mean of its members' values) on env=fork and env=grid K = 2."""
-    from cmdp_rl.policy_mixture import members_of
+    """The exact return and costs of a run's deployed policy (its members', weighted: a mixture
+    drawn per episode has the weighted mean of its members' values) on env=fork and env=grid K = 2."""
+    from cmdp_rl.policy_mixture import members_of, weights_of
     from cmdp_rl.run.rundir import load_trained
 
     if cfg.env.name == "fork":
@@ -178,7 +210,8 @@ def exact_value(out: Path, cfg) -> tuple[float | None, list[float] | None]:
 
         trained = load_trained(out)
         trained.env.close()
-        gap = mixture_gap(members_of(trained.agent.actor), cfg.env.model(), cfg.env.solve(cfg.algo.cost_limit))
+        actor = trained.agent.actor
+        gap = mixture_gap(members_of(actor), cfg.env.model(), cfg.env.solve(cfg.algo.cost_limit), weights_of(actor))
         return gap.ret, list(gap.costs)
     if cfg.env.name == "grid" and list(cfg.env.costs) == ["hazard_a", "hazard_b"]:
         from cmdp_rl.analysis.grid_policy import exact_gap
@@ -189,11 +222,12 @@ def exact_value(out: Path, cfg) -> tuple[float | None, list[float] | None]:
         trained.env.close()
         cmdp = grid_cmdp(tuple(cfg.env.layout), cfg.env.slip, cfg.env.end_prob)
         best = solve_constrained(cmdp, cfg.algo.cost_limit)
-        gaps = []
+        gaps, weights = [], weights_of(trained.agent.actor)
         for member in members_of(trained.agent.actor):
             trained.agent.actor = member
             gaps.append(exact_gap(trained.agent, cmdp, best))
-        return float(np.mean([g.ret for g in gaps])), [float(c) for c in np.mean([g.costs for g in gaps], 0)]
+        w = np.asarray(weights)
+        return float(w @ [g.ret for g in gaps]), [float(c) for c in w @ np.array([g.costs for g in gaps])]
     return None, None
 
 

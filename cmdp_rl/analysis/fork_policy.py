@@ -31,13 +31,16 @@ def action_table(actor: Actor, model: ForkCMDP) -> np.ndarray:
     )
 
 
-def mixture_gap(actors: Sequence[Actor], model: ForkCMDP, best: ConstrainedOptimum) -> Gap:
-    """The exact return and costs of the policy that draws one of ``actors`` uniformly per episode
-    and follows it (one actor: that actor's own policy), against the optimum ``best``."""
+def mixture_gap(
+    actors: Sequence[Actor], model: ForkCMDP, best: ConstrainedOptimum, weights: Sequence[float] | None = None
+) -> Gap:
+    """The exact return and costs of the policy that draws one of ``actors`` per episode (uniformly,
+    or with ``weights``) and follows it (one actor: that actor's own policy), against the optimum ``best``."""
     each = evaluate(model, np.stack([action_table(a, model) for a in actors]))
+    w = np.full(len(actors), 1.0 / len(actors)) if weights is None else np.asarray(weights, dtype=float)
     return Gap(
-        float(np.mean(each.ret)),
-        tuple(float(c) for c in each.costs.mean(0)),
+        float(w @ each.ret),
+        tuple(float(c) for c in w @ each.costs),
         float(best.ret),
         tuple(float(d) for d in best.budgets),
     )

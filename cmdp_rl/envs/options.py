@@ -26,6 +26,10 @@ class EnvOptions:
     # Evaluation reports the fraction of episodes that terminated under this name (e.g. a goal
     # reached); None: the env's termination means nothing worth reporting.
     termination_metric: ClassVar[Optional[str]] = None
+    # Whether ``final_policy: auto`` may value a run's snapshots on this env's episodes
+    # (mixture_selection.py plays mixture_size x mixture_episodes of them): True where an episode is
+    # cheap, at most a few hundred steps of a batched env.
+    values_snapshots: ClassVar[bool] = False
 
     def check(self, run: Any) -> None:
         """Rules that relate this env's options to the rest of the run (none here)."""

@@ -125,6 +125,8 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
     A value that the field's own rules refuse stops here, in one line naming the grid field."""
     raw = dict(raw)
     raw.pop("hydra", None)
+    if raw.get("final_policy", "auto") == "auto":  # a population deploys each agent's last iterate
+        raw["final_policy"] = "last"
     spec = population_spec(raw.pop("population", None))
     base_seed = int(raw.get("seed", 0))
     overrides = agent_overrides(spec, base_seed)

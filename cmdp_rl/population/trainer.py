@@ -27,7 +27,7 @@ from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import make_env
 from cmdp_rl.envs.contract import check_rollout
-from cmdp_rl.migrations import migrate, population_from_stacked
+from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
@@ -79,7 +79,10 @@ def train_population(
         if not (out / POPULATION_CHECKPOINT).is_file():
             raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
         raw = read_yaml(out / POPULATION_CONFIG, "resume")
-        state = migrate(load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint))
+        saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint)
+        if "update" in saved:  # the stacked layout predates defaults that its config does not name
+            raw = saved_config_defaults(raw)
+        state = migrate(saved)
     raw = copy.deepcopy(dict(raw or {}))
     raw.pop("hydra", None)
     raw["resume"] = None

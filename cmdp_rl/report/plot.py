@@ -53,6 +53,9 @@ def _limit_column(panel: str) -> str:
 
 
 IGNORED = ("seed", "resume", "total_steps", "log_interval", "checkpoint_every", "threads", "logger")
+# What a run deploys at its end does not change its training curves: a plot of curves groups across it
+# (final_policy: auto gives a primal-dual algorithm the mixture and the others the last iterate).
+DEPLOYMENT = ("final_policy", "average_last", "mixture_size", "mixture_weights", "mixture_episodes", "mixture_margin")
 
 
 @dataclass
@@ -114,12 +117,14 @@ def group_runs(run_dirs: Sequence[str | Path], k: int = 1) -> list[Curve]:
     loaded = [read_run(d) for d in run_dirs]
     groups: dict[str, list[tuple[dict, dict]]] = {}
     for cfg, cols in loaded:
-        key = json.dumps({k_: v for k_, v in cfg.items() if k_ not in IGNORED}, sort_keys=True, default=str)
+        key = json.dumps(
+            {k_: v for k_, v in cfg.items() if k_ not in IGNORED + DEPLOYMENT}, sort_keys=True, default=str
+        )
         groups.setdefault(key, []).append((cfg, cols))
     # Label each group by its algorithm and whatever else tells the groups apart (among options all
     # of them have: one algorithm's own options are implied by its name).
     cfgs = [members[0][0] for members in groups.values()]
-    shared = set.intersection(*(set(c) for c in cfgs)) - set(IGNORED) - {"algo.name"}
+    shared = set.intersection(*(set(c) for c in cfgs)) - set(IGNORED + DEPLOYMENT) - {"algo.name"}
     varying = sorted(k_ for k_ in shared if len({json.dumps(c[k_], default=str) for c in cfgs}) > 1)
     curves = []
     for members in groups.values():

@@ -22,6 +22,7 @@ from typing import Any, Iterable, Mapping
 
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, flatten_dict, load_config
+from cmdp_rl.migrations import saved_config_defaults
 from cmdp_rl.run.rundir import checkpoint_path, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
@@ -118,5 +119,5 @@ def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
         )
     if missing:
         raise CheckpointError(f"resume: {ckpt} lacks {missing}; it cannot continue a run")
-    check_resume_config(load_config({**state["config"], "resume": None}), cfg)
+    check_resume_config(load_config({**saved_config_defaults(state["config"]), "resume": None}), cfg)
     return state

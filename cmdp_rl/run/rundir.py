@@ -30,7 +30,7 @@ import yaml
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.config import ConfigError, RunConfig, load_config
 from cmdp_rl.envs import VecEnv, make_eval_env
-from cmdp_rl.migrations import migrate
+from cmdp_rl.migrations import migrate, saved_config_defaults
 from cmdp_rl.normalization import Normalizers
 from cmdp_rl.policies import Agent, make_agent
 from cmdp_rl.policy_average import ParameterAverage
@@ -153,8 +153,8 @@ def saved_config(run_dir: str | Path, what: str = "run", trust: bool = False) ->
     ckpt = checkpoint_path(run_dir, what)
     cfg_path = Path(run_dir) / CONFIG
     if cfg_path.is_file():
-        return read_yaml(cfg_path, what)
-    return load_checkpoint(ckpt, trust=trust)["config"]
+        return saved_config_defaults(read_yaml(cfg_path, what))
+    return saved_config_defaults(load_checkpoint(ckpt, trust=trust)["config"])
 
 
 def run_config(run_dir: str | Path, what: str = "run", trust: bool = False) -> RunConfig:

@@ -4,7 +4,7 @@ batched env, and the exact constrained optimum the end-of-run summary compares w
 from __future__ import annotations
 
 from dataclasses import field
-from typing import Annotated, Literal, Sequence
+from typing import Annotated, ClassVar, Literal, Sequence
 
 from cmdp_rl.envs.fork.env import TorchFork
 from cmdp_rl.envs.fork.model import DEFAULT_END_PROB, DEFAULT_GOAL_REWARD, DEFAULT_LENGTHS, ForkCMDP, fork_cmdp
@@ -20,6 +20,7 @@ class ForkConfig(EnvOptions):
     """``env=fork``: three routes to a goal, K = 1 or 2 hazard costs (``model.py``)."""
 
     name: str = "fork"
+    values_snapshots: ClassVar[bool] = True  # final_policy=auto (EnvOptions.values_snapshots)
     backend: Literal["torch"] = "torch"  # one tensor program over the envs (env.py), on `device`
     num_envs: PositiveInt = 16
     num_costs: Literal[1, 2] = 1  # 1: one cost, "hazard"; 2: "hazard_a" and "hazard_b", a budget each

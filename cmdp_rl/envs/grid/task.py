@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import field
 from functools import partial
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 from cmdp_rl.envs.grid.env import (
     COST_NAMES,
@@ -35,6 +35,7 @@ class GridEnvConfig(EnvOptions):
     slip probability and the per-step end probability (grid.py says why the episodes end at random)."""
 
     name: str = "grid"
+    values_snapshots: ClassVar[bool] = True  # final_policy=auto (EnvOptions.values_snapshots)
     backend: Literal["gym"] = "gym"
     num_envs: PositiveInt = 8
     slip: Annotated[float, finite(ge=0, le=1)] = DEFAULT_SLIP
