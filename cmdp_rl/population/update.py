@@ -184,11 +184,10 @@ class PopulationPPO:
         if self.cfg.normalize_advantage:
             cost_adv = (cost_adv - cost_adv.mean((1, 2), keepdim=True)) / (cost_adv.std((1, 2), keepdim=True) + 1e-8)
         units[keys.COST_ADVANTAGE] = cost_adv
-        with torch.no_grad():
-            loc, scale = agent.params(units[keys.OBS])
-        units.update({(HALF, keys.LOC): loc, (HALF, keys.SCALE): scale})
+        with torch.no_grad():  # pi_{k+1/2}: each actor as stage 1 left it
+            units.update({(HALF, k): v for k, v in agent.params(units[keys.OBS]).items()})
         coef = [a.projection_coef() for a in self.algos]
-        nu_coef = torch.tensor(coef, dtype=torch.float32, device=loc.device).view(-1, 1, 1)
+        nu_coef = torch.tensor(coef, dtype=torch.float32, device=cost_adv.device).view(-1, 1, 1)
         opt = StackedAdam(agent.actor.flat, self.actor_opt.lr.tolist())
 
         def step(mb: dict, active: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
