@@ -13,6 +13,7 @@ from conftest import eval_result, metrics_rows, run_script, tiny
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.population import train_population
 from cmdp_rl.population.spec import agent_configs, batched_algos
+from cmdp_rl.registry import component
 from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
@@ -111,6 +112,42 @@ def test_every_batched_algorithm_trains_as_its_single_runs(tmp_path, name):
         train(cfg, single, echo=lambda s: None)
         rows, expected = metrics_rows(d), metrics_rows(single)
         assert len(rows) == len(expected) == 4
+        assert_close(rows, expected, f"{name} agent {i} metrics")
+        assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
+
+
+def _fork(name: str) -> dict:
+    """A tiny run on the fork (envs/fork/): Discrete actions, and two costs for an algorithm that
+    takes K > 1 constraints (its options' ``constraints`` is None), else one."""
+    k = 2 if component("algo", name).options.constraints is None else 1
+    algo = {"name": name, "update_epochs": 2, "num_minibatches": 2, **ALGO_OPTIONS.get(name, {})}
+    return {
+        "env": {"name": "fork", "num_envs": 4, "num_costs": k},
+        "algo": algo,
+        "rollout_steps": 16,
+        "total_steps": 4 * 64,
+        "checkpoint_every": 2,
+        "eval_episodes": 4,
+        "log_interval": 1,
+    }
+
+
+@pytest.mark.parametrize("name", batched_algos())
+def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_and_two_costs(tmp_path, name):
+    """Enumerated from the registry, on the fork (a Discrete action; K = 2 costs where the algorithm
+    takes them, each agent's env its single run's, population.env.AgentEnvs): each agent equal to
+    ``train()`` on its own config.yaml."""
+    raw = _fork(name)
+    raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}
+    pop = _population(tmp_path, raw)
+    k = raw["env"]["num_costs"]
+    for i, d in enumerate(sorted((pop / "agents").iterdir())):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        rows, expected = metrics_rows(d), metrics_rows(single)
+        assert len(rows) == len(expected) == 4
+        assert ("episode_cost/hazard_b" in rows[0]) == (k == 2)  # one column per constraint
         assert_close(rows, expected, f"{name} agent {i} metrics")
         assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
 
@@ -239,6 +276,17 @@ def test_unsupported_population_is_refused(change, refused):
     with pytest.raises(ConfigError) as err:
         agent_configs(raw)
     assert str(err.value).startswith(refused) and "\n" not in str(err.value)
+
+
+def test_an_action_space_not_batched_is_refused_before_anything_is_written(tmp_path):
+    """env=skills has a hybrid action (a skill and its parameter): refused in one line when the
+    agents are built, before any output."""
+    raw = {"env": {"name": "skills", "num_envs": 2}, "algo": {"name": "ppo"}, "rollout_steps": 16}
+    raw["population"] = {"seeds": 2}
+    with pytest.raises(ConfigError) as err:
+        train_population(raw, tmp_path / "pop", echo=lambda s: None)
+    assert str(err.value).startswith("population: the action head HybridHead is not batched")
+    assert "\n" not in str(err.value) and not (tmp_path / "pop").exists()
 
 
 def test_train_cli_refuses_in_one_line(tmp_path):

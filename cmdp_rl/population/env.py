@@ -18,9 +18,10 @@ from typing import Any, Sequence
 import torch
 
 from cmdp_rl.algos.base import per_constraint
+from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.envs.reach1d.batched import TorchReach1D
 from cmdp_rl.envs.saute import BudgetState
-from cmdp_rl.envs.vector import VecEnv
+from cmdp_rl.envs.vector import Step, VecEnv
 
 
 class PopulationNoise:
@@ -110,11 +111,57 @@ class PopulationReach1D(TorchReach1D):
         return torch.where(self.start_is_range, drawn, fixed)
 
 
+class AgentEnvs(VecEnv):
+    """Each agent's own env, built from its config as its single run builds it (its options, its
+    algorithm's ``wrap_env``), seeded as its single run's, stepped one after another as one env of
+    ``P N`` rows: any env with a batched backend, whatever its costs and actions (K > 1 costs, a
+    Discrete action), at the price of P steps per step where :class:`PopulationReach1D` takes one."""
+
+    def __init__(self, envs: Sequence[VecEnv], seeds: Sequence[int]) -> None:
+        self.envs, self.seeds = list(envs), [int(s) for s in seeds]
+        first = self.envs[0]
+        self.rows = [e.num_envs for e in self.envs]
+        self.num_envs = sum(self.rows)
+        self.num_costs, self.obs_dim, self.action_dim = first.num_costs, first.obs_dim, first.action_dim
+        self.action_low, self.action_high, self.device = first.action_low, first.action_high, first.device
+
+    @property
+    def cost_names(self) -> tuple[str, ...]:
+        return self.envs[0].cost_names
+
+    @property
+    def action_space(self) -> Any:
+        return self.envs[0].action_space
+
+    def reset(self, seed: int | None = None) -> torch.Tensor:
+        return torch.cat([e.reset(seed=s) for e, s in zip(self.envs, self.seeds)])
+
+    def step(self, action: torch.Tensor) -> Step:
+        steps = [e.step(a) for e, a in zip(self.envs, action.split(self.rows))]
+        return Step(*(torch.cat(field) for field in zip(*steps)))
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"envs": [e.state_dict() for e in self.envs]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for e, s in zip(self.envs, state["envs"]):
+            e.load_state_dict(s)
+
+    def close(self) -> None:
+        for e in self.envs:
+            e.close()
+
+
 def population_env(
-    cfgs: Sequence[Any], n: int, seeds: Sequence[int], stagger: bool, device: torch.device, evaluation: bool = False
+    cfgs: Sequence[Any], n: int, seeds: Sequence[int], device: torch.device, evaluation: bool = False
 ) -> VecEnv:
     """The agents' envs, ``n`` each, seeded per agent, as ``envs.make_env`` builds one agent's: wrapped
-    by ``algo.wrap_env`` where the options declare it, with each agent's budgets in the budget state."""
+    by ``algo.wrap_env`` where the options declare it, with each agent's budgets in the budget state.
+    Reach1D on its batched backend is one :class:`PopulationReach1D`; any other env :class:`AgentEnvs`."""
+    if cfgs[0].env.name != "reach1d":
+        make = make_eval_env if evaluation else make_env
+        return AgentEnvs([make(c.env, n, device=device, algo=c.algo) for c in cfgs], seeds)
+    stagger = cfgs[0].env.stagger and not evaluation  # evaluation: whole episodes (make_eval_env)
     env = PopulationReach1D([c.env for c in cfgs], n, stagger=stagger, device=device)
     env.seed_agents(seeds)
     wrap = getattr(cfgs[0].algo, "wrap_env", None)
@@ -128,4 +175,4 @@ def population_env(
     return wrapped
 
 
-__all__ = ["PopulationNoise", "PopulationReach1D", "population_env"]
+__all__ = ["AgentEnvs", "PopulationNoise", "PopulationReach1D", "population_env"]

@@ -144,8 +144,9 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
 
 
 def check_supported(cfg: RunConfig) -> None:
-    """The batched program covers the PPO family with the MLP on the batched Reach1D; anything
-    else is refused in one line before anything is built."""
+    """The batched program covers the PPO family with the MLP on an env with a batched backend (its
+    action space checked when the agents are built: ``PopulationAgent``); anything else is refused
+    in one line before anything is built."""
 
     def refuse(what: str, allowed: str) -> None:
         raise ConfigError(f"population: {what} is not batched ({allowed}); {RUN_AS_SWEEP}")
@@ -157,14 +158,14 @@ def check_supported(cfg: RunConfig) -> None:
             f"policy={cfg.policy.name}" + (" with include_prev_*" if cfg.policy.name == "mlp" else ""),
             "policy must be mlp on the observation alone",
         )
-    if cfg.env.name != "reach1d" or getattr(cfg.env, "backend", None) != "torch":
+    if getattr(cfg.env, "backend", None) != "torch":  # its envs' state saved and restored in this process
         refuse(
             f"env={cfg.env.name} (backend {getattr(cfg.env, 'backend', None)})",
-            "env must be reach1d with env.backend=torch, e.g. env=reach1d_torch",
+            "env must have env.backend=torch, e.g. env=reach1d_torch or env=fork",
         )
     if cfg.final_policy != "last":  # the deployed average is the single run's loop's (policy_average.py)
         refuse(f"final_policy={cfg.final_policy}", "final_policy must be last")
-    if cfg.env.probe:
+    if getattr(cfg.env, "probe", False):
         refuse("env.probe=true", "the probe action is not batched")
     if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:
         refuse("normalize", "normalize.obs, .reward and .cost must be false")

@@ -111,7 +111,7 @@ def train_population(
         g = torch.Generator(device=device)
         g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
         generators.append(g)
-    env = population_env(cfgs, N, [c.seed for c in cfgs], stagger=cfg.env.stagger, device=device)
+    env = population_env(cfgs, N, [c.seed for c in cfgs], device)
     pop = PopulationAgent(agents, generators, device)
     update = PopulationPPO(cfgs, algos, pop, N)
     collector = Collector(env, pop, T, seed=None)
