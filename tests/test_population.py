@@ -190,6 +190,24 @@ def test_population_outputs_are_runs(tmp_path):
     assert summary["agents"] == 4 and summary["steps_per_agent"] == 256 and summary["summed_steps_per_s"] > 0
 
 
+def test_each_agent_logs_to_its_own_tensorboard_directory(tmp_path):
+    """logger=tensorboard: each agent's directory opens its log as a single run's (trainer.open_run),
+    its scalars those of its metrics.csv."""
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    raw = torch_tiny(logger={"name": "tensorboard"})
+    raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}}}
+    pop = _population(tmp_path, raw)
+    for d in sorted((pop / "agents").iterdir()):
+        acc = EventAccumulator(str(d / "tb"))
+        acc.Reload()
+        logged = [(e.step, e.value) for e in acc.Scalars("lagrange_multiplier")]
+        rows = metrics_rows(d)
+        assert [s for s, _ in logged] == [int(r["step"]) for r in rows]
+        assert [v for _, v in logged] == pytest.approx([float(r["lagrange_multiplier"]) for r in rows])
+
+
 @pytest.mark.parametrize("algo", ["ppo_lag", "cup"])
 def test_population_resumes_after_a_kill(tmp_path, algo):
     raw = torch_tiny(algo={"name": algo})

@@ -169,8 +169,8 @@ def check_supported(cfg: RunConfig) -> None:
         refuse("env.probe=true", "the probe action is not batched")
     if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:
         refuse("normalize", "normalize.obs, .reward and .cost must be false")
-    if cfg.logger.name != "csv":
-        refuse(f"logger={cfg.logger.name}", "logger must be csv")
+    if cfg.logger.name not in ("csv", "tensorboard"):  # W&B: one process would hold P runs
+        refuse(f"logger={cfg.logger.name}", "logger must be csv or tensorboard")
     if cfg.reference.run is not None or cfg.reference.episode_return is not None:
         refuse("reference", "reference.* must be null")
     if isinstance(getattr(cfg.algo, "penalty", 0.0), list):
