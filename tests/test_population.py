@@ -152,6 +152,51 @@ def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_a
         assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
 
 
+def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(tmp_path):
+    """env=safe_nav: P N worlds in one env (its options' population_env), agent i's world j seeded
+    as its single run's: the worlds step bit for bit as each agent's own N-world env under the same
+    actions, resets included, and the population trains into one run directory per agent. Its
+    agents are not compared with their single runs: the batched forward pass (baddbmm) rounds
+    differently from nn.Linear in the last bit on these 60 inputs, and MuJoCo's contacts amplify
+    that within one rollout (docs/population.md, measured there)."""
+    import importlib.util
+
+    if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
+        pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`")  # as tests/test_safe_nav.py
+    from cmdp_rl.envs import make_env
+    from cmdp_rl.population.env import population_env
+
+    raw = {
+        "env": {"name": "safe_nav", "num_envs": 2, "max_steps": 40},
+        "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2},
+        "normalize": {"obs": False},
+        "rollout_steps": 32,
+        "total_steps": 128,
+        "eval_episodes": 1,
+        "log_interval": 1,
+    }
+    raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [5.0, 25.0]}}}
+    _, cfgs = agent_configs(raw)
+    env = population_env(cfgs, 2, [c.seed for c in cfgs], torch.device("cpu"))
+    assert type(env).__name__ == "SafeNavVecEnv" and env.num_envs == 8  # one batch of worlds, not AgentEnvs
+    own = [make_env(c.env) for c in cfgs]
+    assert torch.equal(env.reset(), torch.cat([e.reset(seed=c.seed) for e, c in zip(own, cfgs)]))
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(90):  # past the 40-step episodes' resets
+        actions = [torch.rand(2, 2, generator=gen) * 2 - 1 for _ in own]
+        steps = [e.step(a) for e, a in zip(own, actions)]
+        for joint, *each in zip(env.step(torch.cat(actions)), *steps):
+            assert torch.equal(joint, torch.cat(each))
+    env.close()
+    pop = _population(tmp_path, raw)
+    runs = find_runs(pop)
+    assert len(runs) == 4 and {r.status for r in runs} == {"ok"}
+    for d in sorted((pop / "agents").iterdir()):
+        rows = metrics_rows(d)
+        assert [int(r["step"]) for r in rows] == [64, 128] and all(math.isfinite(float(r["loss_v"])) for r in rows)
+        assert math.isfinite(eval_result(d)["episode_return"])
+
+
 def test_the_ppo_family_is_batched():
     assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "cup", "saute"} <= set(batched_algos())
 

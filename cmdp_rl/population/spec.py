@@ -19,6 +19,7 @@ import yaml
 
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
+from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.registry import component, names
 from cmdp_rl.validation import ConfigError, PositiveInt, options, require
 
@@ -158,10 +159,15 @@ def check_supported(cfg: RunConfig) -> None:
             f"policy={cfg.policy.name}" + (" with include_prev_*" if cfg.policy.name == "mlp" else ""),
             "policy must be mlp on the observation alone",
         )
-    if getattr(cfg.env, "backend", None) != "torch":  # its envs' state saved and restored in this process
+    # Envs in this process whose state a checkpoint holds: a torch backend's (each agent's own env in
+    # turn, population.env.AgentEnvs, unless its options declare a population form), or an env of one
+    # backend whose options declare its population form (safe_nav's P N worlds).
+    backend = getattr(cfg.env, "backend", None)
+    own_form = type(cfg.env).population_env is not EnvOptions.population_env
+    if not (backend == "torch" or (backend is None and own_form)):
         refuse(
-            f"env={cfg.env.name} (backend {getattr(cfg.env, 'backend', None)})",
-            "env must have env.backend=torch, e.g. env=reach1d_torch or env=fork",
+            f"env={cfg.env.name} (backend {backend})",
+            "env must have env.backend=torch, e.g. env=reach1d_torch or env=fork, or be env=safe_nav",
         )
     if cfg.final_policy != "last":  # the deployed average is the single run's loop's (policy_average.py)
         refuse(f"final_policy={cfg.final_policy}", "final_policy must be last")

@@ -149,7 +149,7 @@ def train_population(
         costs = torch.as_tensor(costs, dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
     echo(
-        f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} (torch, {N} envs each): "
+        f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({N} envs each): "
         f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
     )
     env_id, allow_negative_cost = contract_options(cfg.env)
