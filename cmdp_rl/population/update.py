@@ -156,21 +156,22 @@ class PopulationPPO:
         past the KL limit is evaluated, not stepped)."""
         agent = self.agent
         dist, value, cost_value = agent.training_pass(mb[keys.OBS])
-        loss_pi, stats = self.algos[0].surrogate(dist, mb, self._mean)
-        loss_pi = loss_pi - self.entropy_coef * stats["entropy"]
-        loss_v = self._mean((value - mb[keys.VALUE_TARGET]).pow(2))
-        loss_vc = self._mean((cost_value - mb[keys.COST_VALUE_TARGET]).pow(2))
+        # The single run's losses (PPO.policy_loss, CriticRegression.losses) with per-agent means.
+        loss_pi, stats = self.algos[0].policy_loss(mb, dist, self._mean, self.entropy_coef)
+        losses = {
+            "loss_pi": loss_pi,
+            **self.algos[0].critics.losses(mb, {"reward": value, "cost": cost_value}, self._mean),
+        }
         evaluated = active
         active, stepping = self._stop(stats["kl_stop"], active)
         self.actor_opt.zero_grad()
         self.critic_opt.zero_grad()
-        (loss_pi.sum() + loss_v.sum() + loss_vc.sum()).backward()
+        sum(loss.sum() for loss in losses.values()).backward()
         agent.actor.clip_grad_norm_(self.cfg.max_grad_norm)
         agent.critics.clip_grad_norm_(self.cfg.max_grad_norm)
         self.actor_opt.step(stepping)
         self.critic_opt.step(stepping)
-        stats = {"loss_pi": loss_pi, "loss_v": loss_v, "loss_vc": loss_vc, **stats}
-        return self._kept(stats, evaluated), active
+        return self._kept({**losses, **stats}, evaluated), active
 
     def _project(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """CUP's stage 2 (``CUP.project``) per agent: the cost advantage standardised per agent,
