@@ -253,9 +253,10 @@ def test_each_agent_logs_to_its_own_tensorboard_directory(tmp_path):
         assert [v for _, v in logged] == pytest.approx([float(r["lagrange_multiplier"]) for r in rows])
 
 
-@pytest.mark.parametrize("algo", ["ppo_lag", "cup"])
-def test_population_resumes_after_a_kill(tmp_path, algo):
-    raw = torch_tiny(algo={"name": algo})
+# fork: each agent's own env (AgentEnvs), whose state is every agent's env's.
+@pytest.mark.parametrize("algo, env", [("ppo_lag", "reach1d"), ("cup", "reach1d"), ("ppo_lag", "fork")])
+def test_population_resumes_after_a_kill(tmp_path, algo, env):
+    raw = torch_tiny(algo={"name": algo}) if env == "reach1d" else _fork(algo)
     if algo != "ppo_lag":
         del raw["algo"]["lambda_lr"]
     raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2]}}}
