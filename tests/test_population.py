@@ -197,6 +197,23 @@ def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(t
         assert math.isfinite(eval_result(d)["episode_return"])
 
 
+def test_an_agent_s_own_env_takes_its_own_options(tmp_path):
+    """On an env stepped as each agent's own (the fork), the env's grid fields are each agent's:
+    agents with their own end probability and goal reward equal their single runs."""
+    raw = _fork("ppo_lag")
+    raw["population"] = {"seeds": 1, "grid": {"env": {"end_prob": [0.05, 0.2], "goal_reward": [5.0]}}}
+    pop = _population(tmp_path, raw)
+    dirs = sorted((pop / "agents").iterdir())
+    for i, d in enumerate(dirs):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        assert (cfg.env.end_prob, cfg.env.goal_reward) == ([0.05, 0.2][i], 5.0)
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        assert_close(metrics_rows(d), metrics_rows(single), f"agent {i} metrics")
+        assert_close(eval_result(d), eval_result(single), f"agent {i} eval")
+    assert metrics_rows(dirs[0]) != metrics_rows(dirs[1])  # the options acted
+
+
 def test_the_ppo_family_is_batched():
     assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "cup", "saute"} <= set(batched_algos())
 
