@@ -49,6 +49,8 @@ class PopulationAgent:
         self.critics = StackedParams([a.critics for a in agents], device)
         self.generators = list(generators)
         self.num_agents = len(agents)
+        if isinstance(self.head, GaussianHead):  # on the stacked parameters' device
+            self.center, self.half_width = self.head.center.to(device), self.head.half_width.to(device)
         # Tanh MLPs of one shape (one action dimension, one cost: Reach1D): the actor and both
         # critics as one autograd node with a hand-written backward (population/fused.py).
         nets = (self.actor_net, *self.critic_nets.values())
@@ -78,8 +80,8 @@ class PopulationAgent:
     def _head(self, out: torch.Tensor) -> dict[str, torch.Tensor]:
         if isinstance(self.head, CategoricalHead):
             return {keys.LOGITS: out}
-        loc = self.head.center + self.head.half_width * out
-        scale = (self.head.half_width * self.actor.view("head.log_std").unsqueeze(1).exp()).expand_as(loc)
+        loc = self.center + self.half_width * out
+        scale = (self.half_width * self.actor.view("head.log_std").unsqueeze(1).exp()).expand_as(loc)
         return {keys.LOC: loc, keys.SCALE: scale}
 
     def training_pass(self, obs: torch.Tensor) -> tuple[D.Distribution, torch.Tensor, torch.Tensor]:
