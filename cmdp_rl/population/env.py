@@ -41,6 +41,7 @@ class AgentEnvs(VecEnv):
         return self.envs[0].action_space
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
+        """Each agent's envs reset with its own seed (``seed`` is not used: there is no one seed)."""
         return torch.cat([e.reset(seed=s) for e, s in zip(self.envs, self.seeds)])
 
     def step(self, action: torch.Tensor) -> Step:
