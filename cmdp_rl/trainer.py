@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -36,7 +37,7 @@ from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
 from cmdp_rl.run.ownership import acquire, release
 from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.resume import load_resume_state
-from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, TENSORBOARD, RunDirError, write_run_info
+from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, RUN_INFO, TENSORBOARD, RunDirError, write_run_info
 from cmdp_rl.threads import apply_threads
 
 
@@ -155,6 +156,62 @@ def complete_result(
     result["reference"] = None if reference is None else dataclasses.asdict(reference)
 
 
+def run_config(cfg: RunConfig) -> dict[str, Any]:
+    """A run's ``config.yaml``: trusting a checkpoint or replacing a directory is one command's word,
+    not the run's."""
+    return dataclasses.asdict(dataclasses.replace(cfg, resume=None, overwrite=False, trust_checkpoint=False))
+
+
+def open_run(
+    out: Path,
+    cfg: RunConfig,
+    stats: tuple[str, ...],
+    names: tuple[str, ...],
+    state: dict | None,
+    echo: Callable[[str], None],
+    run_info: Path | None = None,
+) -> tuple[MetricsLogger, dict[str, Any]]:
+    """A run directory's files before its first iteration: the metrics logger (continuing
+    ``metrics.csv`` after a resume's checkpoint), ``config.yaml`` and ``run_info.json`` (copied
+    from ``run_info``, another run's of the same process, when given). Returns the logger and the
+    run's config as written. A ``metrics.csv`` that a resume cannot continue is a
+    :class:`CheckpointError`, raised before anything is written."""
+    try:
+        logger = MetricsLogger(
+            out / METRICS,
+            columns(stats, names),
+            cfg.log_interval,
+            echo,
+            resume_iteration=None if state is None else state["iteration"],
+            tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
+            resume_step=None if state is None else state["step"],
+            wandb=wandb_for(cfg, out),
+        )
+    except ValueError as exc:
+        raise CheckpointError(f"resume: {exc}") from exc
+    saved = run_config(cfg)
+    (out / CONFIG).write_text(yaml.safe_dump(saved, sort_keys=False))
+    if run_info is not None and state is None:  # the same provenance (git calls): copied
+        shutil.copyfile(run_info, out / RUN_INFO)
+    else:
+        write_run_info(out, resumed_from=None if state is None else state["iteration"])
+    return logger, saved
+
+
+def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s: float, algo: Any) -> dict[str, Any]:
+    """A ``checkpoint.pt``'s run fields and the algorithm's ``state_dict`` (networks, optimisers,
+    its own state); the caller adds the collector's and the random generators' state."""
+    return {
+        "algo": run_cfg["algo"]["name"],
+        "policy": run_cfg["policy"]["name"],
+        "config": run_cfg,
+        "iteration": iteration,
+        "step": step,
+        "time_s": time_s,
+        "algo_state": algo.state_dict(),
+    }
+
+
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/run/rundir.py``). Returns the
@@ -205,24 +262,10 @@ def _train(
     collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=cfg.algo.uniform_action_steps)
     env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
-        logger = MetricsLogger(
-            out / METRICS,
-            columns(algo.stats, names),
-            cfg.log_interval,
-            echo,
-            resume_iteration=None if state is None else state["iteration"],
-            tensorboard_dir=out / TENSORBOARD if cfg.logger.name == "tensorboard" else None,
-            resume_step=None if state is None else state["step"],
-            wandb=wandb_for(cfg, out),
-        )
-    except ValueError as exc:
+        logger, run_cfg = open_run(out, cfg, algo.stats, names, state, echo)
+    except CheckpointError:
         env.close()
-        raise CheckpointError(f"resume: {exc}") from exc
-    # The run's own config; trusting a checkpoint or replacing a directory is one command's word, not the run's.
-    run_cfg = dataclasses.asdict(dataclasses.replace(cfg, resume=None, overwrite=False, trust_checkpoint=False))
-    (out / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
-    write_run_info(out, resumed_from=None if state is None else state["iteration"])
-
+        raise
     first, elapsed = 1, 0.0
     if state is not None:
         state = migrate(state, agent)  # an older format's layout (a trusted file) in the current one
@@ -262,21 +305,8 @@ def _train(
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
         extra = {} if average is None else {"policy_average": {"first_iteration": average_from, **average.state_dict()}}
         extra.update({} if mixture is None else {"policy_mixture": mixture.state_dict()})
-        save_checkpoint(
-            ckpt_path,
-            {
-                **extra,
-                "algo": cfg.algo.name,
-                "policy": cfg.policy.name,
-                "config": run_cfg,
-                "iteration": iteration,
-                "step": collector.total_steps,
-                "time_s": time.perf_counter() - start,
-                "algo_state": algo.state_dict(),
-                "collector": rollout,
-                "rng": rng_state(),
-            },
-        )
+        entry = checkpoint_entry(run_cfg, iteration, collector.total_steps, time.perf_counter() - start, algo)
+        save_checkpoint(ckpt_path, {**extra, **entry, "collector": rollout, "rng": rng_state()})
 
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")

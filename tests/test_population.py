@@ -14,6 +14,7 @@ from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.migrations import saved_config_defaults
 from cmdp_rl.population import train_population
 from cmdp_rl.population.spec import agent_configs, batched_algos
+from cmdp_rl.registry import component
 from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
@@ -116,6 +117,104 @@ def test_every_batched_algorithm_trains_as_its_single_runs(tmp_path, name):
         assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
 
 
+def _fork(name: str) -> dict:
+    """A tiny run on the fork (envs/fork/): Discrete actions, and two costs for an algorithm that
+    takes K > 1 constraints (its options' ``constraints`` is None), else one."""
+    k = 2 if component("algo", name).options.constraints is None else 1
+    algo = {"name": name, "update_epochs": 2, "num_minibatches": 2, **ALGO_OPTIONS.get(name, {})}
+    return {
+        "env": {"name": "fork", "num_envs": 4, "num_costs": k},
+        "algo": algo,
+        "rollout_steps": 16,
+        "total_steps": 4 * 64,
+        "checkpoint_every": 2,
+        "eval_episodes": 4,
+        "log_interval": 1,
+    }
+
+
+@pytest.mark.parametrize("name", batched_algos())
+def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_and_two_costs(tmp_path, name):
+    """Enumerated from the registry, on the fork (a Discrete action; K = 2 costs where the algorithm
+    takes them, each agent's env its single run's, population.env.AgentEnvs): each agent equal to
+    ``train()`` on its own config.yaml."""
+    raw = _fork(name)
+    raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}
+    pop = _population(tmp_path, raw)
+    k = raw["env"]["num_costs"]
+    for i, d in enumerate(sorted((pop / "agents").iterdir())):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        rows, expected = metrics_rows(d), metrics_rows(single)
+        assert len(rows) == len(expected) == 4
+        assert ("episode_cost/hazard_b" in rows[0]) == (k == 2)  # one column per constraint
+        assert_close(rows, expected, f"{name} agent {i} metrics")
+        assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
+
+
+def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(tmp_path):
+    """env=safe_nav: P N worlds in one env (its options' population_env), agent i's world j seeded
+    as its single run's: the worlds step bit for bit as each agent's own N-world env under the same
+    actions, resets included, and the population trains into one run directory per agent. Its
+    agents are not compared with their single runs: the batched forward pass (baddbmm) rounds
+    differently from nn.Linear in the last bit on these 60 inputs, and MuJoCo's contacts amplify
+    that within one rollout (docs/population.md, measured there)."""
+    import importlib.util
+
+    if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
+        pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`")  # as tests/test_safe_nav.py
+    from cmdp_rl.envs import make_env
+    from cmdp_rl.population.env import population_env
+
+    raw = {
+        "env": {"name": "safe_nav", "num_envs": 2, "max_steps": 40},
+        "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2},
+        "normalize": {"obs": False},
+        "rollout_steps": 32,
+        "total_steps": 128,
+        "eval_episodes": 1,
+        "log_interval": 1,
+    }
+    raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [5.0, 25.0]}}}
+    _, cfgs = agent_configs(raw)
+    env = population_env(cfgs, 2, [c.seed for c in cfgs], torch.device("cpu"))
+    assert type(env).__name__ == "SafeNavVecEnv" and env.num_envs == 8  # one batch of worlds, not AgentEnvs
+    own = [make_env(c.env) for c in cfgs]
+    assert torch.equal(env.reset(), torch.cat([e.reset(seed=c.seed) for e, c in zip(own, cfgs)]))
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(90):  # past the 40-step episodes' resets
+        actions = [torch.rand(2, 2, generator=gen) * 2 - 1 for _ in own]
+        steps = [e.step(a) for e, a in zip(own, actions)]
+        for joint, *each in zip(env.step(torch.cat(actions)), *steps):
+            assert torch.equal(joint, torch.cat(each))
+    env.close()
+    pop = _population(tmp_path, raw)
+    runs = find_runs(pop)
+    assert len(runs) == 4 and {r.status for r in runs} == {"ok"}
+    for d in sorted((pop / "agents").iterdir()):
+        rows = metrics_rows(d)
+        assert [int(r["step"]) for r in rows] == [64, 128] and all(math.isfinite(float(r["loss_v"])) for r in rows)
+        assert math.isfinite(eval_result(d)["episode_return"])
+
+
+def test_an_agent_s_own_env_takes_its_own_options(tmp_path):
+    """On an env stepped as each agent's own (the fork), the env's grid fields are each agent's:
+    agents with their own end probability and goal reward equal their single runs."""
+    raw = _fork("ppo_lag")
+    raw["population"] = {"seeds": 1, "grid": {"env": {"end_prob": [0.05, 0.2], "goal_reward": [5.0]}}}
+    pop = _population(tmp_path, raw)
+    dirs = sorted((pop / "agents").iterdir())
+    for i, d in enumerate(dirs):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        assert (cfg.env.end_prob, cfg.env.goal_reward) == ([0.05, 0.2][i], 5.0)
+        single = tmp_path / f"single{i}"
+        train(cfg, single, echo=lambda s: None)
+        assert_close(metrics_rows(d), metrics_rows(single), f"agent {i} metrics")
+        assert_close(eval_result(d), eval_result(single), f"agent {i} eval")
+    assert metrics_rows(dirs[0]) != metrics_rows(dirs[1])  # the options acted
+
+
 def test_the_ppo_family_is_batched():
     assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "cup", "saute"} <= set(batched_algos())
 
@@ -154,9 +253,28 @@ def test_population_outputs_are_runs(tmp_path):
     assert summary["agents"] == 4 and summary["steps_per_agent"] == 256 and summary["summed_steps_per_s"] > 0
 
 
-@pytest.mark.parametrize("algo", ["ppo_lag", "cup"])
-def test_population_resumes_after_a_kill(tmp_path, algo):
-    raw = torch_tiny(algo={"name": algo})
+def test_each_agent_logs_to_its_own_tensorboard_directory(tmp_path):
+    """logger=tensorboard: each agent's directory opens its log as a single run's (trainer.open_run),
+    its scalars those of its metrics.csv."""
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    raw = torch_tiny(logger={"name": "tensorboard"})
+    raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}}}
+    pop = _population(tmp_path, raw)
+    for d in sorted((pop / "agents").iterdir()):
+        acc = EventAccumulator(str(d / "tb"))
+        acc.Reload()
+        logged = [(e.step, e.value) for e in acc.Scalars("lagrange_multiplier")]
+        rows = metrics_rows(d)
+        assert [s for s, _ in logged] == [int(r["step"]) for r in rows]
+        assert [v for _, v in logged] == pytest.approx([float(r["lagrange_multiplier"]) for r in rows])
+
+
+# fork: each agent's own env (AgentEnvs), whose state is every agent's env's.
+@pytest.mark.parametrize("algo, env", [("ppo_lag", "reach1d"), ("cup", "reach1d"), ("ppo_lag", "fork")])
+def test_population_resumes_after_a_kill(tmp_path, algo, env):
+    raw = torch_tiny(algo={"name": algo}) if env == "reach1d" else _fork(algo)
     if algo != "ppo_lag":
         del raw["algo"]["lambda_lr"]
     raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2]}}}
@@ -241,6 +359,17 @@ def test_unsupported_population_is_refused(change, refused):
     with pytest.raises(ConfigError) as err:
         agent_configs(raw)
     assert str(err.value).startswith(refused) and "\n" not in str(err.value)
+
+
+def test_an_action_space_not_batched_is_refused_before_anything_is_written(tmp_path):
+    """env=skills has a hybrid action (a skill and its parameter): refused in one line when the
+    agents are built, before any output."""
+    raw = {"env": {"name": "skills", "num_envs": 2}, "algo": {"name": "ppo"}, "rollout_steps": 16}
+    raw["population"] = {"seeds": 2}
+    with pytest.raises(ConfigError) as err:
+        train_population(raw, tmp_path / "pop", echo=lambda s: None)
+    assert str(err.value).startswith("population: the action head HybridHead is not batched")
+    assert "\n" not in str(err.value) and not (tmp_path / "pop").exists()
 
 
 def test_train_cli_refuses_in_one_line(tmp_path):

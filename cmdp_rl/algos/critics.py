@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from typing import Callable
+
 import torch
 
 from cmdp_rl import keys
@@ -22,12 +24,19 @@ class CriticRegression:
     def __init__(self, agent: Agent) -> None:
         self.agent = agent
 
-    def losses(self, mb: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """``{"loss_v": ..., "loss_vc": ...}``: one loss per critic."""
+    def losses(
+        self,
+        mb: dict[str, torch.Tensor],
+        values: dict[str, torch.Tensor] | None = None,
+        mean: Callable[[torch.Tensor], torch.Tensor] = torch.mean,
+    ) -> dict[str, torch.Tensor]:
+        """``{"loss_v": ..., "loss_vc": ...}``: one loss per critic. A population passes its agents'
+        ``values`` by signal on ``[P, B, ...]`` and its per-agent ``mean``."""
         out = {}
         for signal in self.agent.critics:
             target = mb[keys.SIGNALS[signal][3]]
-            out[LOSS_NAMES[signal]] = (self.agent.value(signal, mb) - target).pow(2).mean()
+            value = self.agent.value(signal, mb) if values is None else values[signal]
+            out[LOSS_NAMES[signal]] = mean((value - target).pow(2))
         return out
 
     def target_keys(self) -> list[str]:

@@ -206,10 +206,17 @@ class PPO:
         self.iteration += 1
         return stats
 
-    def policy_loss(self, mb: Units) -> tuple[torch.Tensor, Units]:
-        """:meth:`surrogate` minus the entropy bonus, and its statistics, detached."""
-        loss, stats = self.surrogate(self.agent.dist(mb), mb, torch.mean)
-        loss = loss - self.entropy_coef * stats["entropy"]
+    def policy_loss(
+        self,
+        mb: Units,
+        dist: D.Distribution | None = None,
+        mean: Reduce = torch.mean,
+        entropy_coef: float | torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, Units]:
+        """:meth:`surrogate` minus the entropy bonus, and its statistics, detached. A population
+        passes its agents' distribution on ``[P, B, ...]``, its per-agent ``mean`` and coefficients."""
+        loss, stats = self.surrogate(self.agent.dist(mb) if dist is None else dist, mb, mean)
+        loss = loss - (self.entropy_coef if entropy_coef is None else entropy_coef) * stats["entropy"]
         return loss, {**stats, "entropy": stats["entropy"].detach()}
 
     def surrogate(self, dist: D.Distribution, mb: Units, mean: Reduce) -> tuple[torch.Tensor, Units]:

@@ -4,7 +4,7 @@ options (docs/architecture.md lists these hooks)."""
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Optional
+from typing import Any, ClassVar, Optional, Sequence
 
 from cmdp_rl.registry import declare_base
 from cmdp_rl.validation import Bool, options
@@ -43,6 +43,15 @@ class EnvOptions:
         constraint, or one per cost in the env's cost order. ``algo.cost_limit`` defaults to it
         (``config.resolve_budget``); a value given for ``algo.cost_limit`` wins."""
         return DEFAULT_BUDGET
+
+    def population_env(
+        self, env_cfgs: Sequence[Any], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
+    ) -> Any:
+        """The envs of P agents (``env_cfgs``, each agent's options of this env, these first),
+        ``num_envs`` each, agent i's seeded with ``seeds[i]``, as one batched env whose agent i's rows
+        step exactly as its single run's envs (``cmdp_rl/population/``); None: the population steps
+        each agent's own env in turn (``population.env.AgentEnvs``)."""
+        return None
 
 
 declare_base("env", EnvOptions)

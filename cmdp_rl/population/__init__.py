@@ -5,7 +5,8 @@
   and the refusals (what the batched program does not cover);
 - ``params``: the agents' networks as stacked parameters with a leading agent dimension, and Adam
   on them;
-- ``env``: the batched Reach1D of all agents' envs, each agent with its own options and noise;
+- ``env``: all agents' envs as one batched env (the env's own population form, else each agent's
+  own env in turn);
 - ``agent``: acting and valuing for all agents at once (the collector's and GAE's side);
 - ``update``: the PPO-family update of all agents at once;
 - ``trainer``: the loop, one run directory per agent, the population's checkpoint and summary.

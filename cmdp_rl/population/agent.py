@@ -18,38 +18,49 @@ import torch
 from tensordict import TensorDictBase
 from torch import distributions as D
 from torch import nn
-from torchrl.modules import IndependentNormal
 
 from cmdp_rl import keys
 from cmdp_rl.policies.agent import Agent
+from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead
 from cmdp_rl.policies.mlp import Tanh
 from cmdp_rl.population.fused import FusedTanhMLP, layout
-from cmdp_rl.population.params import StackedParams, linear, sequential, template
+from cmdp_rl.population.params import StackedParams, sequential, template
+from cmdp_rl.validation import ConfigError
 
 
 class PopulationAgent:
-    """P MLP agents: ``template`` (agent 0's single-run module) gives the architecture, ``actor``
-    and ``critics`` the stacked parameters, ``generators`` each agent's random stream."""
+    """P MLP agents: ``template`` (agent 0's single-run module) gives the architecture and the
+    distribution head, ``actor`` and ``critics`` the stacked parameters, ``generators`` each
+    agent's random stream."""
 
     in_keys = [keys.OBS]
     recurrent = False
 
     def __init__(self, agents: Sequence[Agent], generators: Sequence[torch.Generator], device: torch.device) -> None:
         self.template = agents[0]
+        self.head = agents[0].actor.head
+        if not isinstance(self.head, (GaussianHead, CategoricalHead)) or getattr(self.head, "sizes", None):
+            raise ConfigError(
+                f"population: the action head {type(self.head).__name__} is not batched (a Box or a Discrete "
+                "action space is); run it as separate runs (python train.py -m ...)"
+            )
         self.actor_net, self.critic_nets = template(agents[0])
         self.actor = StackedParams([a.actor for a in agents], device)
         self.critics = StackedParams([a.critics for a in agents], device)
-        head = agents[0].actor.head
-        self.center, self.half_width = head.center.to(device), head.half_width.to(device)
         self.generators = list(generators)
         self.num_agents = len(agents)
-        shapes = [[tuple(p.shape) for p in net.parameters()] for net in (self.actor_net, *self.critic_nets.values())]
-        self.fused = len(self.critic_nets) == 2 and all(s == shapes[0] for s in shapes)
-        # Tanh MLPs: the fused pass as one autograd node with a hand-written backward (population/fused.py).
+        if isinstance(self.head, GaussianHead):  # on the stacked parameters' device
+            self.center, self.half_width = self.head.center.to(device), self.head.half_width.to(device)
+        # Tanh MLPs of one shape (one action dimension, one cost: Reach1D): the actor and both
+        # critics as one autograd node with a hand-written backward (population/fused.py).
+        nets = (self.actor_net, *self.critic_nets.values())
+        shapes = [[tuple(p.shape) for p in net.parameters()] for net in nets]
         linears = [i for i, m in enumerate(self.actor_net) if isinstance(m, nn.Linear)]
         self.layout = None
         if (
-            self.fused
+            isinstance(self.head, GaussianHead)
+            and len(nets) == 3
+            and all(s == shapes[0] for s in shapes)
             and all(isinstance(m, (nn.Linear, Tanh)) for m in self.actor_net)
             and all(isinstance(self.actor_net[i + 1], Tanh) for i in linears[:-1])
         ):
@@ -62,50 +73,29 @@ class PopulationAgent:
             )
 
     # --- the networks on [P, rows, ...] ------------------------------------------------------------
-    def params(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The Gaussian head's ``(loc, scale)`` as ``GaussianHead`` computes them, per agent."""
-        loc = self.center + self.half_width * sequential(self.actor_net, "head.net", self.actor, obs)
-        log_std = self.actor.view("head.log_std").unsqueeze(1)
-        scale = (self.half_width * log_std.exp()).expand_as(loc)
-        return loc, scale
+    def params(self, obs: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The head's distribution parameters per agent, as its ``forward`` computes them."""
+        return self._head(sequential(self.actor_net, "head.net", self.actor, obs))
+
+    def _head(self, out: torch.Tensor) -> dict[str, torch.Tensor]:
+        if isinstance(self.head, CategoricalHead):
+            return {keys.LOGITS: out}
+        loc = self.center + self.half_width * out
+        scale = (self.half_width * self.actor.view("head.log_std").unsqueeze(1).exp()).expand_as(loc)
+        return {keys.LOC: loc, keys.SCALE: scale}
 
     def training_pass(self, obs: torch.Tensor) -> tuple[D.Distribution, torch.Tensor, torch.Tensor]:
-        """The action distribution and both critics' values on a minibatch ``[P, B, obs]``.
-        Where the three networks have the same shapes (one action dimension, one cost: Reach1D), they
-        run as one batched program over 3P networks: the same arithmetic per network, a third of the
-        operations (the measured effect is in docs/population.md)."""
-        if not self.fused:
+        """The action distribution and both critics' values on a minibatch ``[P, B, obs]``: one
+        batched program over 3P networks where they are fused (the measured effect is in
+        docs/population.md), else each network over the P agents."""
+        if self.layout is None:
             return self.dist(obs), self.value("reward", obs), self.value("cost", obs)
-        p = self.num_agents
-        x = obs.repeat(3, 1, 1)
-        if self.layout is not None:
-            x = FusedTanhMLP.apply(x, self.actor.flat, self.critics.flat, self.layout)
-        for i, module in enumerate(self.actor_net if self.layout is None else ()):
-            if isinstance(module, nn.Linear):
-                w = torch.cat(
-                    [
-                        self.actor.view(f"head.net.{i}.weight"),
-                        self.critics.view(f"reward.net.{i}.weight"),
-                        self.critics.view(f"cost.net.{i}.weight"),
-                    ]
-                )
-                b = torch.cat(
-                    [
-                        self.actor.view(f"head.net.{i}.bias"),
-                        self.critics.view(f"reward.net.{i}.bias"),
-                        self.critics.view(f"cost.net.{i}.bias"),
-                    ]
-                )
-                x = linear(x, w, b)
-            else:
-                x = module(x)
-        net, reward, cost = x.split(p)
-        loc = self.center + self.half_width * net
-        scale = (self.half_width * self.actor.view("head.log_std").unsqueeze(1).exp()).expand_as(loc)
-        return IndependentNormal(loc, scale), reward, cost
+        x = FusedTanhMLP.apply(obs.repeat(3, 1, 1), self.actor.flat, self.critics.flat, self.layout)
+        net, reward, cost = x.split(self.num_agents)
+        return self.head.dist(self._head(net)), reward, cost
 
     def dist(self, obs: torch.Tensor) -> D.Distribution:
-        return IndependentNormal(*self.params(obs))
+        return self.head.dist(self.params(obs))
 
     def value(self, signal: str, obs: torch.Tensor) -> torch.Tensor:
         return sequential(self.critic_nets[signal], f"{signal}.net", self.critics, obs)
@@ -120,22 +110,24 @@ class PopulationAgent:
 
     @torch.no_grad()
     def act(self, d: dict, deterministic: bool = False) -> dict:
-        obs = self._agents(d[keys.OBS])
-        loc, scale = self.params(obs)
+        params = self.params(self._agents(d[keys.OBS]))
+        dist = self.head.dist(params)
         if deterministic:
-            action = loc
-        else:
-            n, a = loc.shape[1:]
-            eps = torch.stack([torch.empty(n, a, device=loc.device).normal_(generator=g) for g in self.generators])
+            action = dist.deterministic_sample
+        elif keys.LOGITS in params:  # Categorical.sample's multinomial, from each agent's generator
+            probs = dist.probs
+            draws = [torch.multinomial(p, 1, True, generator=g).T for p, g in zip(probs, self.generators)]
+            action = torch.stack(draws).reshape(*probs.shape[:-1], 1)
+        else:  # Normal.rsample: loc + eps * scale, eps by normal_ on the action's shape
+            loc, scale = params[keys.LOC], params[keys.SCALE]
+            eps = torch.stack(
+                [torch.empty(loc.shape[1:], device=loc.device).normal_(generator=g) for g in self.generators]
+            )
             action = loc + eps * scale
-        log_prob = IndependentNormal(loc, scale).log_prob(action)
-        flat = self.num_agents * loc.shape[1]
-        return {
-            keys.LOC: loc.reshape(flat, -1),
-            keys.SCALE: scale.reshape(flat, -1),
-            keys.ACTION: action.reshape(flat, -1),
-            keys.LOG_PROB: log_prob.reshape(flat),
-        }
+        log_prob = dist.log_prob(action)
+        flat = self.num_agents * action.shape[1]
+        out = {k: v.reshape(flat, -1) for k, v in params.items()}
+        return {**out, keys.ACTION: action.reshape(flat, -1), keys.LOG_PROB: log_prob.reshape(flat)}
 
     # --- what GAE asks ---------------------------------------------------------------------------
     @torch.no_grad()

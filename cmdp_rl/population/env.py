@@ -1,14 +1,9 @@
-"""All agents' Reach1D envs as one batched env: agent i owns envs ``[i N, (i + 1) N)``.
-
-:class:`PopulationReach1D` is :class:`~cmdp_rl.envs.reach1d.batched.TorchReach1D` on ``P N`` envs
-whose per-agent options (``obs_noise``, ``wall_x``, ``goal``, ``start``) are float64 tensors
-``[P N]`` instead of Python floats: the same float64 arithmetic elementwise, so each agent's envs
-step exactly as a single run's ``TorchReach1D`` with its options does. Noise comes from
-:class:`PopulationNoise`: one generator per agent, seeded with the agent's seed and drawing the
-agent's N values per call in the single run's order, so each agent's envs see the single run's
-draws. An agent with a fixed start draws no uniform at a reset, as in its single run.
-:func:`population_env` adds what the algorithm's options ask of every env (Sauté's budget state,
-``algos/saute.py``), with each agent's own budgets.
+"""The envs of P agents as one batched env of ``P N`` rows, agent i's rows ``[i N, (i + 1) N)``
+stepping as its single run's envs: the env's own population form where its options declare one
+(``EnvOptions.population_env``: Reach1D's one tensor program, ``envs/reach1d/population.py``), else
+:class:`AgentEnvs`, each agent's own env stepped in turn. :func:`population_env` adds what the
+algorithm's options ask of every env (Sauté's budget state, ``algos/saute.py``), with each agent's
+own budgets.
 """
 
 from __future__ import annotations
@@ -18,109 +13,64 @@ from typing import Any, Sequence
 import torch
 
 from cmdp_rl.algos.base import per_constraint
-from cmdp_rl.envs.reach1d.batched import TorchReach1D
+from cmdp_rl.envs import make_env, make_eval_env
 from cmdp_rl.envs.saute import BudgetState
-from cmdp_rl.envs.vector import VecEnv
+from cmdp_rl.envs.vector import Step, VecEnv
 
 
-class PopulationNoise:
-    """A :class:`~cmdp_rl.envs.reach1d.batched.NoiseSource` for P agents of N envs each: agent i's
-    draws come from its own generator, N at every call (as :class:`TorchNoise` draws for all its
-    envs); :meth:`uniform` draws only for the agents in ``agents``."""
+class AgentEnvs(VecEnv):
+    """Each agent's own env, built from its config as its single run builds it (its options, its
+    algorithm's ``wrap_env``), seeded as its single run's, stepped one after another as one env of
+    ``P N`` rows: any env with a batched backend, whatever its costs and actions (K > 1 costs, a
+    Discrete action), at the price of P env steps per step where an env's own population form takes one."""
 
-    def __init__(self, num_agents: int, envs_per_agent: int, device: torch.device) -> None:
-        self.num_agents, self.n, self.device = num_agents, envs_per_agent, device
-        self.generators = [torch.Generator(device=device) for _ in range(num_agents)]
+    def __init__(self, envs: Sequence[VecEnv], seeds: Sequence[int]) -> None:
+        self.envs, self.seeds = list(envs), [int(s) for s in seeds]
+        first = self.envs[0]
+        self.rows = [e.num_envs for e in self.envs]
+        self.num_envs = sum(self.rows)
+        self.num_costs, self.obs_dim, self.action_dim = first.num_costs, first.obs_dim, first.action_dim
+        self.action_low, self.action_high, self.device = first.action_low, first.action_high, first.device
 
-    def seed_agents(self, seeds: Sequence[int]) -> None:
-        for g, s in zip(self.generators, seeds):
-            g.manual_seed(int(s))
+    @property
+    def cost_names(self) -> tuple[str, ...]:
+        return self.envs[0].cost_names
 
-    def seed(self, seed: int) -> None:
-        raise ValueError("PopulationNoise: each agent has its own seed (seed_agents)")
+    @property
+    def action_space(self) -> Any:
+        return self.envs[0].action_space
 
-    def normal(self, where: torch.Tensor | None) -> torch.Tensor:
-        opts = dict(dtype=torch.float64, device=self.device)
-        return torch.cat([torch.randn(self.n, generator=g, **opts) for g in self.generators])
+    def reset(self, seed: int | None = None) -> torch.Tensor:
+        """Each agent's envs reset with its own seed (``seed`` is not used: there is no one seed)."""
+        return torch.cat([e.reset(seed=s) for e, s in zip(self.envs, self.seeds)])
 
-    def uniform(self, where: torch.Tensor | None, agents: Sequence[int] | None = None) -> torch.Tensor:
-        out = torch.zeros(self.num_agents, self.n, dtype=torch.float64, device=self.device)
-        for i in range(self.num_agents) if agents is None else agents:
-            out[i] = torch.rand(self.n, dtype=torch.float64, device=self.device, generator=self.generators[i])
-        return out.reshape(-1)
+    def step(self, action: torch.Tensor) -> Step:
+        steps = [e.step(a) for e, a in zip(self.envs, action.split(self.rows))]
+        return Step(*(torch.cat(field) for field in zip(*steps)))
 
     def state_dict(self) -> dict[str, Any]:
-        return {"generators": [g.get_state() for g in self.generators]}
+        return {"envs": [e.state_dict() for e in self.envs]}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        for g, s in zip(self.generators, state["generators"]):
-            g.set_state(s)
+        for e, s in zip(self.envs, state["envs"]):
+            e.load_state_dict(s)
 
-
-class PopulationReach1D(TorchReach1D):
-    """P agents' Reach1D envs, N each, in one batched env. ``env_cfgs``: each agent's
-    ``Reach1DConfig`` (shared options taken from the first; per-agent ones from each)."""
-
-    def __init__(
-        self, env_cfgs: Sequence[Any], envs_per_agent: int, stagger: bool, device: str | torch.device = "cpu"
-    ) -> None:
-        first = env_cfgs[0]
-        p, n = len(env_cfgs), envs_per_agent
-        dev = torch.device(device)
-        noise = PopulationNoise(p, n, dev)
-        super().__init__(
-            p * n,
-            obs_noise=first.obs_noise,
-            wall_x=first.wall_x,
-            max_steps=first.max_steps,
-            goal=first.goal,
-            wall=first.wall,
-            start=first.start,
-            probe=False,
-            stagger=stagger,
-            device=dev,
-            noise=noise,
-        )
-        self.num_agents, self.envs_per_agent = p, n
-
-        def per_env(values: list[float]) -> torch.Tensor:
-            return torch.tensor(values, dtype=torch.float64, device=dev).repeat_interleave(n)
-
-        self.obs_noise = per_env([float(c.obs_noise) for c in env_cfgs])
-        self.wall_x = per_env([float(c.wall_x) for c in env_cfgs])
-        self.goal = per_env([float(c.goal) for c in env_cfgs])
-        self._goal32 = self.goal.to(torch.float32)
-        starts = [c.start if isinstance(c.start, list) else [c.start, c.start] for c in env_cfgs]
-        self.start_lo = per_env([float(s[0]) for s in starts])
-        self.start_hi = per_env([float(s[1]) for s in starts])
-        self.range_agents = [i for i, c in enumerate(env_cfgs) if isinstance(c.start, list)]
-        is_range = torch.zeros(p, dtype=torch.bool, device=dev)
-        is_range[self.range_agents] = True
-        self.start_is_range = is_range.repeat_interleave(n)
-
-    def seed_agents(self, seeds: Sequence[int]) -> None:
-        self.noise.seed_agents(seeds)
-
-    def _start_x(self, where: torch.Tensor | None) -> torch.Tensor:
-        fixed = self.start_lo
-        if not self.range_agents:
-            return fixed.clone()
-        # numpy's Generator.uniform(lo, hi) is lo + (hi - lo) * u, as the single env computes it.
-        drawn = self.start_lo + (self.start_hi - self.start_lo) * self.noise.uniform(where, self.range_agents)
-        return torch.where(self.start_is_range, drawn, fixed)
+    def close(self) -> None:
+        for e in self.envs:
+            e.close()
 
 
 def population_env(
-    cfgs: Sequence[Any], n: int, seeds: Sequence[int], stagger: bool, device: torch.device, evaluation: bool = False
+    cfgs: Sequence[Any], n: int, seeds: Sequence[int], device: torch.device, evaluation: bool = False
 ) -> VecEnv:
     """The agents' envs, ``n`` each, seeded per agent, as ``envs.make_env`` builds one agent's: wrapped
-    by ``algo.wrap_env`` where the options declare it, with each agent's budgets in the budget state."""
-    env = PopulationReach1D([c.env for c in cfgs], n, stagger=stagger, device=device)
-    env.seed_agents(seeds)
-    wrap = getattr(cfgs[0].algo, "wrap_env", None)
-    if wrap is None:
-        return env
-    wrapped = wrap(env, evaluation=evaluation)
+    by ``algo.wrap_env`` where the options declare it, with each agent's budgets in the budget state.
+    """
+    env = cfgs[0].env.population_env([c.env for c in cfgs], n, seeds, device, evaluation)
+    if env is None:
+        make = make_eval_env if evaluation else make_env
+        return AgentEnvs([make(c.env, n, device=device, algo=c.algo) for c in cfgs], seeds)
+    wrapped = cfgs[0].algo.wrap_env(env, evaluation=evaluation)
     state = getattr(wrapped, "state", None)
     if isinstance(state, BudgetState):  # one row of budgets per env: its agent's
         budgets = [per_constraint(c.algo.cost_limit, "algo.cost_limit", env.cost_names) for c in cfgs]
@@ -128,4 +78,4 @@ def population_env(
     return wrapped
 
 
-__all__ = ["PopulationNoise", "PopulationReach1D", "population_env"]
+__all__ = ["AgentEnvs", "population_env"]

@@ -27,7 +27,7 @@ def evaluate_population(
     cfg = cfgs[0]
     n = min(cfg.eval_episodes, cfg.env.num_envs)
     seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
-    env = population_env(cfgs, n, seeds, stagger=False, device=device, evaluation=True)
+    env = population_env(cfgs, n, seeds, device, evaluation=True)
     training = agent.generators
     agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
     try:

@@ -19,6 +19,7 @@ import yaml
 
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
+from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.registry import component, names
 from cmdp_rl.validation import ConfigError, PositiveInt, options, require
 
@@ -146,8 +147,9 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
 
 
 def check_supported(cfg: RunConfig) -> None:
-    """The batched program covers the PPO family with the MLP on the batched Reach1D; anything
-    else is refused in one line before anything is built."""
+    """The batched program covers the PPO family with the MLP on an env with a batched backend (its
+    action space checked when the agents are built: ``PopulationAgent``); anything else is refused
+    in one line before anything is built."""
 
     def refuse(what: str, allowed: str) -> None:
         raise ConfigError(f"population: {what} is not batched ({allowed}); {RUN_AS_SWEEP}")
@@ -159,19 +161,24 @@ def check_supported(cfg: RunConfig) -> None:
             f"policy={cfg.policy.name}" + (" with include_prev_*" if cfg.policy.name == "mlp" else ""),
             "policy must be mlp on the observation alone",
         )
-    if cfg.env.name != "reach1d" or getattr(cfg.env, "backend", None) != "torch":
+    # Envs in this process whose state a checkpoint holds: a torch backend's (each agent's own env in
+    # turn, population.env.AgentEnvs, unless its options declare a population form), or an env of one
+    # backend whose options declare its population form (safe_nav's P N worlds).
+    backend = getattr(cfg.env, "backend", None)
+    own_form = type(cfg.env).population_env is not EnvOptions.population_env
+    if not (backend == "torch" or (backend is None and own_form)):
         refuse(
-            f"env={cfg.env.name} (backend {getattr(cfg.env, 'backend', None)})",
-            "env must be reach1d with env.backend=torch, e.g. env=reach1d_torch",
+            f"env={cfg.env.name} (backend {backend})",
+            "env must have env.backend=torch, e.g. env=reach1d_torch or env=fork, or be env=safe_nav",
         )
     if cfg.final_policy != "last":  # the deployed average is the single run's loop's (policy_average.py)
         refuse(f"final_policy={cfg.final_policy}", "final_policy must be last")
-    if cfg.env.probe:
+    if getattr(cfg.env, "probe", False):
         refuse("env.probe=true", "the probe action is not batched")
     if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:
         refuse("normalize", "normalize.obs, .reward and .cost must be false")
-    if cfg.logger.name != "csv":
-        refuse(f"logger={cfg.logger.name}", "logger must be csv")
+    if cfg.logger.name not in ("csv", "tensorboard"):  # W&B: one process would hold P runs
+        refuse(f"logger={cfg.logger.name}", "logger must be csv or tensorboard")
     if cfg.reference.run is not None or cfg.reference.episode_return is not None:
         refuse("reference", "reference.* must be null")
     if isinstance(getattr(cfg.algo, "penalty", 0.0), list):

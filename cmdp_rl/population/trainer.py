@@ -10,10 +10,8 @@ agent in a single run's ``checkpoint.pt`` layout, and the shared collector and g
 from __future__ import annotations
 
 import copy
-import dataclasses
 import json
 import math
-import shutil
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -35,23 +33,27 @@ from cmdp_rl.population.env import population_env
 from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
-from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name
+from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.rng import seed_everything
 from cmdp_rl.run.rundir import (
     CHECKPOINT,
-    CONFIG,
     EVAL,
-    METRICS,
     POPULATION_CHECKPOINT,
     POPULATION_CONFIG,
     POPULATION_SUMMARY,
     RUN_INFO,
     ensure_writable,
     read_yaml,
-    write_run_info,
 )
 from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import check_env_contract, complete_result, contract_options, metrics_row
+from cmdp_rl.trainer import (
+    check_env_contract,
+    checkpoint_entry,
+    complete_result,
+    contract_options,
+    metrics_row,
+    open_run,
+)
 
 AGENTS_DIR = "agents"
 
@@ -112,34 +114,25 @@ def train_population(
         g = torch.Generator(device=device)
         g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
         generators.append(g)
-    env = population_env(cfgs, N, [c.seed for c in cfgs], stagger=cfg.env.stagger, device=device)
+    env = population_env(cfgs, N, [c.seed for c in cfgs], device)
     pop = PopulationAgent(agents, generators, device)
     update = PopulationPPO(cfgs, algos, pop, N)
     collector = Collector(env, pop, T, seed=None)
 
     dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(overrides)]
     ensure_writable(out)
-    raw_to_save = {k: v for k, v in raw.items() if k != "resume"}
-    (out / POPULATION_CONFIG).write_text(yaml.safe_dump(raw_to_save, sort_keys=False))
+    (out / POPULATION_CONFIG).write_text(
+        yaml.safe_dump({k: v for k, v in raw.items() if k != "resume"}, sort_keys=False)
+    )
     names = env.cost_names
-    loggers = []
-    for d, c in zip(dirs, cfgs):
+    loggers, run_cfgs = [], []
+    for d, c in zip(dirs, cfgs):  # each agent's directory as its single run opens it
         ensure_writable(d)
-        loggers.append(
-            MetricsLogger(
-                d / METRICS,
-                columns(update.algos[0].stats, names),
-                c.log_interval,
-                lambda s: None,
-                resume_iteration=None if state is None else state["iteration"],
-            )
+        logger, run_cfg = open_run(
+            d, c, algos[0].stats, names, state, lambda s: None, None if d == dirs[0] else dirs[0] / RUN_INFO
         )
-        run_cfg = dataclasses.asdict(dataclasses.replace(c, resume=None))
-        (d / CONFIG).write_text(yaml.safe_dump(run_cfg, sort_keys=False))
-        if state is None and d != dirs[0]:  # the same provenance (git calls) for every agent: copy it
-            shutil.copyfile(dirs[0] / RUN_INFO, d / RUN_INFO)
-        else:
-            write_run_info(d, resumed_from=None if state is None else state["iteration"])
+        loggers.append(logger)
+        run_cfgs.append(run_cfg)
 
     per_iter = T * N  # steps per agent per iteration
     iterations = math.ceil(cfg.total_steps / per_iter)
@@ -147,7 +140,7 @@ def train_population(
     costs = torch.zeros(P, len(names), dtype=torch.float64)  # every cost each agent collected so far
     if state is not None:
         if "agents" not in state:  # the stacked layout of earlier populations
-            fresh = [_agent_entry(c, a, 0, 0, 0.0) for c, a in zip(cfgs, update.algos)]
+            fresh = [checkpoint_entry(r, 0, 0, 0.0, a) for r, a in zip(run_cfgs, algos)]
             state = population_from_stacked(state, fresh, {"actor": agents[0].actor, "critics": agents[0].critics})
         for algo, entry in zip(update.algos, state["agents"]):  # each agent as its single run resumes
             algo.load_state_dict(entry["algo_state"])
@@ -159,7 +152,7 @@ def train_population(
         costs = torch.as_tensor(costs, dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
     echo(
-        f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} (torch, {N} envs each): "
+        f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({N} envs each): "
         f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
     )
     env_id, allow_negative_cost = contract_options(cfg.env)
@@ -172,7 +165,11 @@ def train_population(
             return written[it]
         update.unstack_agents()
         written.clear()
-        written[it] = [_agent_entry(c, a, it, steps, time_s) for c, a in zip(cfgs, update.algos)]
+        # an agent's entry: its single run's checkpoint.pt, the collector and random state left to the population's
+        written[it] = [
+            {**checkpoint_entry(r, it, steps, time_s, a), "collector": None, "rng": None}
+            for r, a in zip(run_cfgs, algos)
+        ]
         return written[it]
 
     def checkpoint(it: int) -> None:
@@ -268,23 +265,6 @@ def train_population(
 def _nanmean(values: list[float]) -> float:
     finite = [v for v in values if not math.isnan(v)]
     return sum(finite) / len(finite) if finite else float("nan")
-
-
-def _agent_entry(cfg: Any, algo: Any, iteration: int, steps: int, time_s: float) -> dict[str, Any]:
-    """An agent's entry of ``population.pt``: its single run's ``checkpoint.pt`` layout (its
-    algorithm's ``state_dict``, networks and Adam moments included), without the collector and
-    random state (the population's, shared)."""
-    return {
-        "algo": cfg.algo.name,
-        "policy": cfg.policy.name,
-        "config": dataclasses.asdict(dataclasses.replace(cfg, resume=None)),
-        "iteration": iteration,
-        "step": steps,
-        "time_s": time_s,
-        "algo_state": algo.state_dict(),
-        "collector": None,
-        "rng": None,
-    }
 
 
 __all__ = [

@@ -156,21 +156,22 @@ class PopulationPPO:
         past the KL limit is evaluated, not stepped)."""
         agent = self.agent
         dist, value, cost_value = agent.training_pass(mb[keys.OBS])
-        loss_pi, stats = self.algos[0].surrogate(dist, mb, self._mean)
-        loss_pi = loss_pi - self.entropy_coef * stats["entropy"]
-        loss_v = self._mean((value - mb[keys.VALUE_TARGET]).pow(2))
-        loss_vc = self._mean((cost_value - mb[keys.COST_VALUE_TARGET]).pow(2))
+        # The single run's losses (PPO.policy_loss, CriticRegression.losses) with per-agent means.
+        loss_pi, stats = self.algos[0].policy_loss(mb, dist, self._mean, self.entropy_coef)
+        losses = {
+            "loss_pi": loss_pi,
+            **self.algos[0].critics.losses(mb, {"reward": value, "cost": cost_value}, self._mean),
+        }
         evaluated = active
         active, stepping = self._stop(stats["kl_stop"], active)
         self.actor_opt.zero_grad()
         self.critic_opt.zero_grad()
-        (loss_pi.sum() + loss_v.sum() + loss_vc.sum()).backward()
+        sum(loss.sum() for loss in losses.values()).backward()
         agent.actor.clip_grad_norm_(self.cfg.max_grad_norm)
         agent.critics.clip_grad_norm_(self.cfg.max_grad_norm)
         self.actor_opt.step(stepping)
         self.critic_opt.step(stepping)
-        stats = {"loss_pi": loss_pi, "loss_v": loss_v, "loss_vc": loss_vc, **stats}
-        return self._kept(stats, evaluated), active
+        return self._kept({**losses, **stats}, evaluated), active
 
     def _project(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """CUP's stage 2 (``CUP.project``) per agent: the cost advantage standardised per agent,
@@ -184,11 +185,10 @@ class PopulationPPO:
         if self.cfg.normalize_advantage:
             cost_adv = (cost_adv - cost_adv.mean((1, 2), keepdim=True)) / (cost_adv.std((1, 2), keepdim=True) + 1e-8)
         units[keys.COST_ADVANTAGE] = cost_adv
-        with torch.no_grad():
-            loc, scale = agent.params(units[keys.OBS])
-        units.update({(HALF, keys.LOC): loc, (HALF, keys.SCALE): scale})
+        with torch.no_grad():  # pi_{k+1/2}: each actor as stage 1 left it
+            units.update({(HALF, k): v for k, v in agent.params(units[keys.OBS]).items()})
         coef = [a.projection_coef() for a in self.algos]
-        nu_coef = torch.tensor(coef, dtype=torch.float32, device=loc.device).view(-1, 1, 1)
+        nu_coef = torch.tensor(coef, dtype=torch.float32, device=cost_adv.device).view(-1, 1, 1)
         opt = StackedAdam(agent.actor.flat, self.actor_opt.lr.tolist())
 
         def step(mb: dict, active: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:

@@ -5,12 +5,13 @@ env, or its batched torch twin (``reach1d_torch.py``)."""
 from __future__ import annotations
 
 from functools import partial
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Sequence, Union
 
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.reach1d.batched import TorchReach1D
 from cmdp_rl.envs.reach1d.env import GOAL_TOLERANCE, Reach1D
 from cmdp_rl.envs.reach1d.optimum import constrained_optimum
+from cmdp_rl.envs.reach1d.population import PopulationReach1D
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 from cmdp_rl.registry import register
 from cmdp_rl.validation import Bool, Field, NonNegativeFloat, PositiveInt, finite, is_finite, options, require
@@ -80,6 +81,17 @@ class Reach1DConfig(EnvOptions):
                 "the best a policy can do is approach it"
             )
         return None
+
+    def population_env(
+        self, env_cfgs: Sequence[Reach1DConfig], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
+    ) -> VecEnv | None:
+        """On the torch backend: one :class:`~cmdp_rl.envs.reach1d.population.PopulationReach1D` of
+        every agent's envs, each agent's options as tensors (evaluation: no staggered start)."""
+        if self.backend != "torch":
+            return None
+        env = PopulationReach1D(env_cfgs, num_envs, stagger=self.stagger and not evaluation, device=device)
+        env.seed_agents(seeds)
+        return env
 
     def check(self, run: RunConfig) -> None:
         if isinstance(self.start, list):

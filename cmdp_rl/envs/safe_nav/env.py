@@ -23,7 +23,7 @@ and rotation matrix), the time limit, per-env automatic reset, and resume.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Sequence
 
 import numpy as np
 import torch
@@ -137,6 +137,7 @@ class SafeNavVecEnv(VecEnv):
         else:
             self.worlds = NavWorlds(self.spec, num_envs, threads)
         self.sampler = LayoutSampler(self.spec, num_envs)
+        self.world_seeds: list[int] | None = None  # reset(None)'s seeds, one per world, if set
         self.logic = FAMILIES[self.spec.family](self.worlds, self.sampler)
         self.max_steps = max_steps or self.logic.episode
         w = self.worlds
@@ -206,11 +207,12 @@ class SafeNavVecEnv(VecEnv):
         return self._tensor(self._start([i], [layout]))[0]
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
-        seeds = (
-            [seed + i for i in range(self.num_envs)]
-            if seed is not None
-            else [int(s) for s in np.random.randint(2**32, size=self.num_envs, dtype=np.int64)]
-        )
+        if seed is not None:
+            seeds = [seed + i for i in range(self.num_envs)]
+        elif self.world_seeds is not None:  # a population's worlds: each agent's seeded as its own run's
+            seeds = list(self.world_seeds)
+        else:
+            seeds = [int(s) for s in np.random.randint(2**32, size=self.num_envs, dtype=np.int64)]
         self.sampler.seed(seeds)
         return self._tensor(self._start(list(range(self.num_envs))))
 
@@ -324,6 +326,16 @@ class SafeNavEnvConfig(EnvOptions):
             raise ConfigError(
                 "env.name: env=safe_nav reads the robots' models from Safety-Gymnasium: run `make setup-safety-gym`"
             )
+
+    def population_env(
+        self, env_cfgs: Sequence[Any], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
+    ) -> SafeNavVecEnv:
+        """P agents' worlds, ``num_envs`` each, as one batch of P N worlds (stepped by the same
+        threads): agent i's world j seeded ``seeds[i] + j``, as ``reset(seeds[i])`` seeds its single
+        run's worlds; every world draws from its own stream, so each agent's worlds are its run's."""
+        env = make_safe_nav_vec_env(self, num_envs * len(env_cfgs), device)
+        env.world_seeds = [int(s) + j for s in seeds for j in range(num_envs)]
+        return env
 
     def render_env(self):
         """The reference task drawing ``rgb_array`` frames (for video): its layouts and trajectories

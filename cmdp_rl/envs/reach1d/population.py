@@ -1,0 +1,109 @@
+"""Reach1D's envs of P agents as one batched env (the ``population_env`` hook of its options, for
+``cmdp_rl/population/``): agent i owns envs ``[i N, (i + 1) N)``.
+
+:class:`PopulationReach1D` is :class:`~cmdp_rl.envs.reach1d.batched.TorchReach1D` on ``P N`` envs
+whose per-agent options (``obs_noise``, ``wall_x``, ``goal``, ``start``) are float64 tensors
+``[P N]`` instead of Python floats: the same float64 arithmetic elementwise, so each agent's envs
+step exactly as a single run's ``TorchReach1D`` with its options does. Noise comes from
+:class:`PopulationNoise`: one generator per agent, seeded with the agent's seed and drawing the
+agent's N values per call in the single run's order, so each agent's envs see the single run's
+draws. An agent with a fixed start draws no uniform at a reset, as in its single run.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import torch
+
+from cmdp_rl.envs.reach1d.batched import TorchReach1D
+
+
+class PopulationNoise:
+    """A :class:`~cmdp_rl.envs.reach1d.batched.NoiseSource` for P agents of N envs each: agent i's
+    draws come from its own generator, N at every call (as :class:`TorchNoise` draws for all its
+    envs); :meth:`uniform` draws only for the agents in ``agents``."""
+
+    def __init__(self, num_agents: int, envs_per_agent: int, device: torch.device) -> None:
+        self.num_agents, self.n, self.device = num_agents, envs_per_agent, device
+        self.generators = [torch.Generator(device=device) for _ in range(num_agents)]
+
+    def seed_agents(self, seeds: Sequence[int]) -> None:
+        for g, s in zip(self.generators, seeds):
+            g.manual_seed(int(s))
+
+    def seed(self, seed: int) -> None:
+        raise ValueError("PopulationNoise: each agent has its own seed (seed_agents)")
+
+    def normal(self, where: torch.Tensor | None) -> torch.Tensor:
+        opts = dict(dtype=torch.float64, device=self.device)
+        return torch.cat([torch.randn(self.n, generator=g, **opts) for g in self.generators])
+
+    def uniform(self, where: torch.Tensor | None, agents: Sequence[int] | None = None) -> torch.Tensor:
+        out = torch.zeros(self.num_agents, self.n, dtype=torch.float64, device=self.device)
+        for i in range(self.num_agents) if agents is None else agents:
+            out[i] = torch.rand(self.n, dtype=torch.float64, device=self.device, generator=self.generators[i])
+        return out.reshape(-1)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"generators": [g.get_state() for g in self.generators]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for g, s in zip(self.generators, state["generators"]):
+            g.set_state(s)
+
+
+class PopulationReach1D(TorchReach1D):
+    """P agents' Reach1D envs, N each, in one batched env. ``env_cfgs``: each agent's
+    ``Reach1DConfig`` (shared options taken from the first; per-agent ones from each)."""
+
+    def __init__(
+        self, env_cfgs: Sequence[Any], envs_per_agent: int, stagger: bool, device: str | torch.device = "cpu"
+    ) -> None:
+        first = env_cfgs[0]
+        p, n = len(env_cfgs), envs_per_agent
+        dev = torch.device(device)
+        noise = PopulationNoise(p, n, dev)
+        super().__init__(
+            p * n,
+            obs_noise=first.obs_noise,
+            wall_x=first.wall_x,
+            max_steps=first.max_steps,
+            goal=first.goal,
+            wall=first.wall,
+            start=first.start,
+            probe=False,
+            stagger=stagger,
+            device=dev,
+            noise=noise,
+        )
+        self.num_agents, self.envs_per_agent = p, n
+
+        def per_env(values: list[float]) -> torch.Tensor:
+            return torch.tensor(values, dtype=torch.float64, device=dev).repeat_interleave(n)
+
+        self.obs_noise = per_env([float(c.obs_noise) for c in env_cfgs])
+        self.wall_x = per_env([float(c.wall_x) for c in env_cfgs])
+        self.goal = per_env([float(c.goal) for c in env_cfgs])
+        self._goal32 = self.goal.to(torch.float32)
+        starts = [c.start if isinstance(c.start, list) else [c.start, c.start] for c in env_cfgs]
+        self.start_lo = per_env([float(s[0]) for s in starts])
+        self.start_hi = per_env([float(s[1]) for s in starts])
+        self.range_agents = [i for i, c in enumerate(env_cfgs) if isinstance(c.start, list)]
+        is_range = torch.zeros(p, dtype=torch.bool, device=dev)
+        is_range[self.range_agents] = True
+        self.start_is_range = is_range.repeat_interleave(n)
+
+    def seed_agents(self, seeds: Sequence[int]) -> None:
+        self.noise.seed_agents(seeds)
+
+    def _start_x(self, where: torch.Tensor | None) -> torch.Tensor:
+        fixed = self.start_lo
+        if not self.range_agents:
+            return fixed.clone()
+        # numpy's Generator.uniform(lo, hi) is lo + (hi - lo) * u, as the single env computes it.
+        drawn = self.start_lo + (self.start_hi - self.start_lo) * self.noise.uniform(where, self.range_agents)
+        return torch.where(self.start_is_range, drawn, fixed)
+
+
+__all__ = ["PopulationNoise", "PopulationReach1D"]
