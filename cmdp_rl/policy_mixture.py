@@ -92,6 +92,18 @@ class IterateSnapshots:
         self.weights = None if state.get("weights") is None else [float(w) for w in state["weights"]]
         self.values, self.feasible = state.get("values"), state.get("feasible")
 
+    def result_keys(self, weighting: str) -> dict:
+        """What ``eval.json`` records of the deployed mixture: the snapshots' iterations, and with
+        chosen weights the deployed (iteration, weight) pairs, feasibility and every snapshot's values."""
+        out = {"mixture_iterations": list(self.taken), "mixture_weights": weighting}
+        if self.weights is not None:
+            out.update(
+                mixture_deployed=[list(m) for m in self.deployed_members()],
+                mixture_feasible=self.feasible,
+                mixture_member_values=self.values,
+            )
+        return out
+
     def deployed_members(self) -> list[tuple[int, float]]:
         """(iteration, weight) of each member the deployed mixture draws from."""
         weights = self.weights or [1.0 / len(self.members)] * len(self.members)

@@ -136,14 +136,8 @@ def complete_result(
             "averaged_iterations": None if average is None else average.count,
         }
     )
-    if isinstance(average, IterateSnapshots):  # the mixture's members: the iterations they were taken at
-        result["mixture_iterations"] = list(average.taken)
-        result["mixture_weights"] = cfg.mixture_weights
-        if average.weights is not None:  # mixture_weights=feasible: what was chosen, and on what
-            result.update(
-                mixture_deployed=[list(m) for m in average.deployed_members()], mixture_feasible=average.feasible
-            )
-            result["mixture_member_values"] = average.values
+    if isinstance(average, IterateSnapshots):  # the mixture's members, and their weights if chosen
+        result.update(average.result_keys(cfg.mixture_weights))
     k = len(names)
     limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
