@@ -22,6 +22,7 @@ from test_resume import assert_same_run, crash_then_resume
 
 from cmdp_rl import evaluate, load_config, registry, train
 from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.policy_mixture import members_of
 from cmdp_rl.registry import component, names
 from cmdp_rl.run.rundir import load_trained
 from cmdp_rl.validation import ConfigError
@@ -49,8 +50,19 @@ def test_evaluation_loads_the_policy_without_building_the_algorithm(algo, tmp_pa
 
     monkeypatch.setitem(registry._REGISTRY["algo"], algo, replace(component("algo", algo), build=forbidden))
     trained = load_trained(tmp_path, num_envs=2)
-    saved = load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"]["networks"]
+    state = load_checkpoint(tmp_path / "checkpoint.pt")
+    saved = state["algo_state"]["networks"]
     loaded = trained.agent.state_dict()
+    if trained.cfg.final_policy == "mixture":  # the deployed actor is the chosen snapshots' mixture
+        snapshots = state["policy_mixture"]
+        weights = snapshots["weights"] or [1.0] * len(snapshots["members"])  # None: uniform, all of them
+        chosen = [m for m, w in zip(snapshots["members"], weights) if w > 0]
+        members = members_of(trained.agent.actor)
+        assert len(members) == len(chosen) and all(
+            all(torch.equal(m.state_dict()[k], s[k]) for k in s) for m, s in zip(members, chosen)
+        )
+        saved = {k: v for k, v in saved.items() if not k.startswith("actor.")}
+        loaded = {k: v for k, v in loaded.items() if not k.startswith("actor.")}
     assert saved.keys() == loaded.keys() and all(torch.equal(saved[k], loaded[k]) for k in saved)
     result = evaluate(trained.agent, trained.env, 2, seed=1)
     assert result["episodes"] == 2
