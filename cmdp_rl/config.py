@@ -94,7 +94,7 @@ class RunConfig:
     # mixture_episodes episodes of its own and its costs taken mixture_margin standard errors high.
     mixture_weights: Literal["uniform", "feasible"] = "feasible"
     mixture_episodes: PositiveInt = 100
-    mixture_margin: NonNegativeFloat = 2.0
+    mixture_margin: NonNegativeFloat = 3.0
     checkpoint_every: PositiveInt = 10
     log_interval: PositiveInt = 5
     # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.

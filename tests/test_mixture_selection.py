@@ -6,6 +6,7 @@ import json
 
 import pytest
 import torch
+import yaml
 from conftest import eval_result, tiny
 from test_policy_mixture import _fork_mixture
 
@@ -86,9 +87,10 @@ def test_the_run_deploys_records_and_reloads_the_chosen_mixture(feasible_run, tm
     assert len(values) == len(result["mixture_iterations"]) == 4 and all(v["episodes"] == 10 for v in values)
     chosen = dict((int(it), w) for it, w in result["mixture_deployed"])
     assert sum(chosen.values()) == pytest.approx(1.0) and set(chosen) <= set(result["mixture_iterations"])
+    margin = yaml.safe_load((out / "config.yaml").read_text())["mixture_margin"]
     if result["mixture_feasible"]:  # the chosen weights hold the budget on the values they were chosen on
         upper = sum(
-            w * (v["episode_cost"][0] + 2.0 * v["cost_se"][0])
+            w * (v["episode_cost"][0] + margin * v["cost_se"][0])
             for it, v in zip(result["mixture_iterations"], values)
             for w in [chosen.get(it, 0.0)]
         )
