@@ -134,6 +134,8 @@ METHODS: dict[str, list[str]] = {
     "focops": ["algo=focops"],
     "cup": ["algo=cup"],
     "ppo_lag/0.2": ["algo=ppo_lag", "algo.lambda_lr=0.2"],
+    # The dual step in the cost's own units (the default before lambda_scale: budget).
+    "ppo_lag/raw": ["algo=ppo_lag", "algo.lambda_scale=none"],
 }
 
 
