@@ -22,6 +22,7 @@ from cmdp_rl.validation import NonNegativeFloat, finite, require
 
 Update = Literal["dual", "regularized", "optimistic", "augmented"]
 Scale = Literal["none", "budget"]
+AdvantageScale = Literal["raw", "standardized"]  # ppo.lagrangian_advantage
 
 
 @dataclass
@@ -32,6 +33,7 @@ class MultiplierFields:
     # policy); optimistic: nuPI / optimistic gradient; augmented: augmented Lagrangian (rho = lambda_lr).
     multiplier: Update = "dual"
     lambda_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
     lambda_tau: NonNegativeFloat = 0.1  # regularized: tau, of the dual's regulariser and the entropy bonus
     lambda_nu: Annotated[float, finite(ge=0, lt=1)] = (
         0.0  # optimistic: nu, the EMA of the violation (0: optimistic gradient)

@@ -273,6 +273,28 @@ def penalised(batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float]
     return adv
 
 
+def lagrangian_advantage(
+    batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float], scale: str = "raw"
+) -> torch.Tensor:
+    """The Lagrangian's policy advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``.
+
+    ``scale``: ``raw`` weighs the advantages in their own units; ``standardized`` first brings
+    ``A_r`` and each ``A_c,k`` to mean 0 and standard deviation 1 over the batch, so that lambda = 1
+    weighs a cost signal as much as the reward's whatever either is measured in. On PointGoal1 the
+    cost advantage's spread is 10-30 times the reward's, so in raw units any lambda above about 0.1
+    already hands the policy's update to the cost (docs/constraint_satisfaction.md). OmniSafe
+    standardises the reward advantage and centres the cost advantage; both are standardised here so
+    that, with the budget-relative dual step, scaling the costs (and the budgets) by any factor
+    leaves the whole run unchanged.
+    """
+    if scale == "standardized":
+        adv, cost_adv = batch.get(keys.ADVANTAGE), batch.get(keys.COST_ADVANTAGE)
+        rows = tuple(range(cost_adv.dim() - 1))
+        cost_adv = (cost_adv - cost_adv.mean(dim=rows)) / (cost_adv.std(dim=rows) + 1e-8)
+        batch = {keys.ADVANTAGE: (adv - adv.mean()) / (adv.std() + 1e-8), keys.COST_ADVANTAGE: cost_adv}
+    return penalised(batch, lams) / (1.0 + sum(lams))
+
+
 def logged_multiplier(values: list[float]) -> float | list[float]:
     """A multiplier as metrics.csv takes it: a number for one constraint, else a list of K."""
     return values[0] if len(values) == 1 else list(values)

@@ -28,13 +28,14 @@ from cmdp_rl.algos.base import PerConstraint, per_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import MultiplierController, Multipliers, PIDLagrangian
 from cmdp_rl.algos.multiplier_options import (
+    AdvantageScale,
     MultiplierFields,
     Scale,
     check_multiplier,
     make_controller,
     violation_scale,
 )
-from cmdp_rl.algos.ppo import PPO, PPOConfig, logged_multiplier, penalised
+from cmdp_rl.algos.ppo import PPO, PPOConfig, lagrangian_advantage, logged_multiplier, penalised
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import Bool, Field, NonNegativeFloat, PositiveFloat, PositiveInt, finite, options, require
@@ -87,6 +88,7 @@ class PIDLagConfig(PPOConfig):
     d_delay: PositiveInt = 1
     lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
     lambda_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
@@ -150,8 +152,7 @@ class PPOLagrangian(PPO):
         self.multiplier.update(estimate.costs)  # every iteration (algos/episode_cost.py)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
-        lams = self.multiplier.values
-        return penalised(batch, lams) / (1.0 + sum(lams))
+        return lagrangian_advantage(batch, self.multiplier.values, self.cfg.advantage_scale)
 
     def state_dict(self) -> dict:
         return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}

@@ -39,7 +39,7 @@ from cmdp_rl.algos.natural_gradient import (
     flat,
     line_search,
 )
-from cmdp_rl.algos.ppo import logged_multiplier, penalised
+from cmdp_rl.algos.ppo import lagrangian_advantage, logged_multiplier
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import NonNegativeFloat, PositiveFloat, options
@@ -88,7 +88,7 @@ class TRPOLagrangian(NaturalGradient):
         """``episode_cost``: J_c, or K numbers with K constraints."""
         cfg, params = self.cfg, self.policy_params
         lams = self.multiplier.update([episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost)
-        adv = penalised(units, lams) / (1.0 + sum(lams))
+        adv = lagrangian_advantage(units, lams, cfg.advantage_scale)
         if cfg.normalize_advantage:
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         # Logged only (with K > 1: the mean over the constraints' cost surrogates).

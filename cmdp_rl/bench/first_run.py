@@ -2,6 +2,7 @@
 
     python experiments/benchmarks/first_run.py               # seeds 0-4
     python experiments/benchmarks/first_run.py --seeds 0 1 --out outputs/first_run
+    python experiments/benchmarks/first_run.py -- algo.lambda_lr=0.1   # the recipe with overrides appended
 
 Runs the Makefile's `train` recipe with `seed=S` appended, one run after another, and prints per
 seed the training time (eval.json's train_time_s), the eval return, the constrained optimum (the
@@ -38,8 +39,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--out", default="outputs/first_run", help="run directories go to OUT/s<seed>")
+    ap.add_argument("extra", nargs="*", help="train.py overrides appended to the recipe's (after --)")
     args = ap.parse_args()
-    overrides = make_train_overrides()
+    overrides = make_train_overrides() + args.extra
     cfg = compose_config(overrides)
     optimum = optimum_of(cfg.env, cfg.algo.cost_limit)
     print(f"python train.py {' '.join(overrides)} seed=S")
