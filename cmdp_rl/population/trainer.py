@@ -24,7 +24,6 @@ from cmdp_rl.algos import make_algo
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
 from cmdp_rl.envs import make_env
-from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
@@ -35,6 +34,8 @@ from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.rng import seed_everything
+from cmdp_rl.run.loop import Members, train_iterations
+from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.rundir import (
     CHECKPOINT,
     EVAL,
@@ -46,14 +47,7 @@ from cmdp_rl.run.rundir import (
     read_yaml,
 )
 from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import (
-    check_env_contract,
-    checkpoint_entry,
-    complete_result,
-    contract_options,
-    metrics_row,
-    open_run,
-)
+from cmdp_rl.trainer import check_env_contract, checkpoint_entry, complete_result, open_run
 
 AGENTS_DIR = "agents"
 
@@ -136,7 +130,7 @@ def train_population(
 
     per_iter = T * N  # steps per agent per iteration
     iterations = math.ceil(cfg.total_steps / per_iter)
-    first, elapsed, steps = 1, 0.0, 0
+    first, elapsed = 1, 0.0
     costs = torch.zeros(P, len(names), dtype=torch.float64)  # every cost each agent collected so far
     if state is not None:
         if "agents" not in state:  # the stacked layout of earlier populations
@@ -148,16 +142,14 @@ def train_population(
         collector.load_state_dict(state["collector"])
         for g, s in zip(generators, state["generators"]):
             g.set_state(s)
-        first, elapsed, steps, costs = state["iteration"] + 1, state["time_s"], state["step"], state["costs"]
-        costs = torch.as_tensor(costs, dtype=torch.float64).view(P, len(names))  # a list of P before K costs
+        first, elapsed = state["iteration"] + 1, state["time_s"]
+        costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
     echo(
         f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({N} envs each): "
         f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
     )
-    env_id, allow_negative_cost = contract_options(cfg.env)
     start = time.perf_counter() - elapsed
-
     written: dict[int, list[dict[str, Any]]] = {}  # the entries of the last checkpoint, by iteration
 
     def entries(it: int, time_s: float) -> list[dict[str, Any]]:
@@ -166,63 +158,60 @@ def train_population(
         update.unstack_agents()
         written.clear()
         # an agent's entry: its single run's checkpoint.pt, the collector and random state left to the population's
+        steps = collector.total_steps // P
         written[it] = [
             {**checkpoint_entry(r, it, steps, time_s, a), "collector": None, "rng": None}
             for r, a in zip(run_cfgs, algos)
         ]
         return written[it]
 
-    def checkpoint(it: int) -> None:
-        for lg in loggers:
-            lg.sync()
+    def checkpoint(it: int, time_s: float) -> None:
+        shared = {"algo": cfg.algo.name, "policy": cfg.policy.name, "population": P, "iteration": it}
         save_checkpoint(
             out / POPULATION_CHECKPOINT,
             {
-                "algo": cfg.algo.name,
-                "policy": cfg.policy.name,
-                "population": P,
-                "iteration": it,
-                "step": steps,
-                "time_s": time.perf_counter() - start,
-                "agents": entries(it, time.perf_counter() - start),
+                **shared,
+                "step": collector.total_steps // P,
+                "time_s": time_s,
+                "agents": entries(it, time_s),
                 "collector": collector.state_dict(),
                 "generators": [g.get_state() for g in generators],
                 "costs": costs,
             },
         )
 
-    try:
-        for it in range(first, iterations + 1):
-            t0 = time.perf_counter()
-            batch = collector.collect()
-            steps += per_iter
-            check_rollout(batch, env_id, allow_negative_cost, first_step=steps // N - T + 1)
-            stats = update.update(batch)
-            costs = costs + batch.get((keys.NEXT, keys.COST)).reshape(P, -1, len(names)).sum(1).to(costs)
-            dt = time.perf_counter() - t0
-            timing = {"sps": per_iter / dt, "time_s": time.perf_counter() - start}
-            rows = [
-                metrics_row(
-                    it, steps, batch[i * N : (i + 1) * N], stats[i], timing, c.algo.cost_limit, total, names, None
-                )
-                for i, (c, total) in enumerate(zip(cfgs, costs.tolist()))
-            ]
-            for logger, row in zip(loggers, rows):
-                logger.log(row)
+    def cost_totals(batch: Any) -> list[list[float]]:
+        nonlocal costs
+        costs = costs + batch.get((keys.NEXT, keys.COST)).reshape(P, -1, len(names)).sum(1).to(costs)
+        return costs.tolist()
+
+    def report(it: int, rows: list[dict[str, Any]], dt: float) -> None:
+        if it % cfg.log_interval == 0 or it == first or it == iterations:
             returns = [r["episode_return"] for r in rows]
             ep_costs = [r[constraint_name("episode_cost", names[0], len(names))] for r in rows]
-            if it % cfg.log_interval == 0 or it == first or it == iterations:
-                echo(
-                    f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
-                    f"mean episode return {_nanmean(returns):.3f}, cost {_nanmean(ep_costs):.3f}"
-                )
-            if it % cfg.checkpoint_every == 0 or it == iterations:
-                checkpoint(it)
+            echo(
+                f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
+                f"mean episode return {_nanmean(returns):.3f}, cost {_nanmean(ep_costs):.3f}"
+            )
+
+    members = Members(
+        cfgs,
+        loggers,
+        collector,
+        lambda batch, it: update.update(batch),
+        cost_totals,
+        checkpoint,
+        out / POPULATION_CHECKPOINT,
+        report=report,
+    )
+    try:
+        train_iterations(members, first, iterations, start, Progress(0, 0, lambda s: None))
     finally:
         for lg in loggers:
             lg.close()
         env.close()
     train_time = time.perf_counter() - start
+    steps = collector.total_steps // P
 
     results = evaluate_population(pop, cfgs, device)
     summary_agents = []
