@@ -14,7 +14,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import torch
 import yaml
@@ -36,6 +36,7 @@ from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.rng import seed_everything
 from cmdp_rl.run.loop import Members, train_iterations
 from cmdp_rl.run.progress import Progress
+from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
     CHECKPOINT,
     EVAL,
@@ -48,8 +49,17 @@ from cmdp_rl.run.rundir import (
 )
 from cmdp_rl.threads import apply_threads
 from cmdp_rl.trainer import check_env_contract, checkpoint_entry, complete_result, open_run
+from cmdp_rl.validation import ConfigError
 
 AGENTS_DIR = "agents"
+
+
+def _own(raw: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The population's config as ``population.yaml`` records it: trusting a checkpoint or resuming
+    is one command's word, not the population's."""
+    raw = copy.deepcopy(dict(raw or {}))
+    raw.pop("hydra", None)
+    return {**raw, "resume": None, "trust_checkpoint": False}
 
 
 def agent_dir_name(k: int, overrides: Mapping[str, Any]) -> str:
@@ -61,30 +71,31 @@ def train_population(
     out_dir: str | Path,
     echo: Callable[[str], None] = print,
     resume: bool = False,
-    total_steps: int | None = None,
+    explicit: Iterable[str] = (),
     trust_checkpoint: bool = False,
 ) -> dict[str, Any]:
     """Train the population that ``raw`` (a composed config with a ``population`` node) describes
-    into ``out_dir``; with ``resume``, continue the population in ``out_dir`` from its checkpoint
-    (``raw`` is then read from its ``population.yaml``; ``total_steps`` may extend it; an older
-    format's checkpoint only with ``trust_checkpoint``, which runs code from the file).
+    into ``out_dir``; with ``resume``, continue the population in ``out_dir`` from its checkpoint,
+    with its own config (``population.yaml``) and, as a run's resume, the options named in
+    ``explicit`` taken from ``raw`` where ``run/resume.py`` allows them (``total_steps`` extends
+    it); an older format's checkpoint only with ``trust_checkpoint``, which runs code from the file.
     Returns the summary written to ``population.json``."""
     out = Path(out_dir)
     state = None
     if resume:
         if not (out / POPULATION_CHECKPOINT).is_file():
             raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
-        raw = read_yaml(out / POPULATION_CONFIG, "resume")
+        saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
         saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint)
         if "update" in saved:  # the stacked layout predates defaults that its config does not name
-            raw = saved_config_defaults(raw)
+            saved_raw = saved_config_defaults(saved_raw)
         state = migrate(saved)
-    raw = copy.deepcopy(dict(raw or {}))
-    raw.pop("hydra", None)
-    raw["resume"] = None
-    raw["trust_checkpoint"] = False  # one command's word, not the population's
-    if total_steps is not None:
-        raw["total_steps"] = total_steps
+        raw = resumed_raw(saved_raw, raw or {}, explicit, out)
+        if raw.get("population") != saved_raw.get("population"):
+            raise ConfigError(f"population cannot change when resuming {out}")
+        for before, after in zip(agent_configs(_own(saved_raw))[1], agent_configs(_own(raw))[1]):
+            check_resume_config(before, after)
+    raw = _own(raw)
     overrides, cfgs = agent_configs(raw)  # every agent validated and the scope checked: nothing written yet
     cfg = cfgs[0]
     apply_threads(cfg)
