@@ -94,19 +94,7 @@ class CUP(PPO):
     def project(self, batch: TensorDictBase) -> dict[str, float]:
         """Stage 2 on a batch whose GAE stage 1 computed: returns its mean loss and KL."""
         cfg = self.cfg
-        cost_adv = batch.get(keys.COST_ADVANTAGE)
-        if cfg.normalize_advantage:
-            cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
-        present = batch.keys(True)
-        inputs = [k for k in self.agent.in_keys if k in present and k not in (keys.ACTION, keys.LOG_PROB)]
-        units = self.agent.training_units(
-            {
-                keys.ACTION: batch.get(keys.ACTION),
-                keys.LOG_PROB: batch.get(keys.LOG_PROB),
-                keys.COST_ADVANTAGE: cost_adv,
-                **{k: batch.get(k) for k in inputs},
-            }
-        )
+        units = self.agent.training_units(self.projection_inputs(batch))
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
             units.update({(HALF, k): v for k, v in self.agent.actor.params(units).items()})
         # fresh: see the docstring; at stage 1's rate (lr, or its annealed value with anneal_lr)
@@ -127,6 +115,21 @@ class CUP(PPO):
         active, stepping = backend.stop(kl.detach(), active)
         backend.step(loss, groups, stepping)
         return backend.kept({"loss_projection": loss, "kl_projection": kl}, evaluated), active
+
+    def projection_inputs(self, batch: TensorDictBase) -> dict:
+        """What stage 2 reads of one agent's batch: the actions, their behaviour log-probs, the cost
+        advantage (standardised if ``normalize_advantage``) and the networks' inputs."""
+        cost_adv = batch.get(keys.COST_ADVANTAGE)
+        if self.cfg.normalize_advantage:
+            cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
+        present = batch.keys(True)
+        inputs = [k for k in self.agent.in_keys if k in present and k not in (keys.ACTION, keys.LOG_PROB)]
+        return {
+            keys.ACTION: batch.get(keys.ACTION),
+            keys.LOG_PROB: batch.get(keys.LOG_PROB),
+            keys.COST_ADVANTAGE: cost_adv,
+            **{k: batch.get(k) for k in inputs},
+        }
 
     def projection_coef(self) -> float:
         """The cost surrogate's weight in stage 2: ``nu (1 - gamma_c gae_lambda) / (1 - gamma_c)``."""

@@ -143,6 +143,11 @@ class PPO:
         ``anneal_lambda_lr``): ``1 - i / anneal_iterations`` for iteration i = 0, 1, ..."""
         return max(0.0, 1.0 - self.iteration / self.cfg.anneal_iterations)
 
+    def learning_rates(self) -> tuple[float, float]:
+        """The actor's and the critics' learning rates this iteration (``anneal_lr``: annealed)."""
+        frac = self.anneal_fraction() if self.cfg.anneal_lr else 1.0
+        return frac * self.cfg.lr, frac * self.cfg.critic_lr
+
     # --- what the variants change -------------------------------------------------------------
     @property
     def lagrange_multiplier(self) -> float:
@@ -159,9 +164,7 @@ class PPO:
         """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         cfg = self.cfg
         if cfg.anneal_lr:
-            frac = self.anneal_fraction()
-            self.actor_opt.param_groups[0]["lr"] = frac * cfg.lr
-            self.critic_opt.param_groups[0]["lr"] = frac * cfg.critic_lr
+            self.actor_opt.param_groups[0]["lr"], self.critic_opt.param_groups[0]["lr"] = self.learning_rates()
         self.gae(batch, self.agent)
         batch.set(keys.POLICY_ADVANTAGE, self.prepare(batch))
         # Only what the minibatch loop reads, as training units: steps [N*T, ...], or for a

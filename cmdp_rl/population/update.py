@@ -115,17 +115,16 @@ class PopulationPPO:
         self.n = envs_per_agent
         self.gae = TwinGAE(first.gamma, first.cost_gamma, first.gae_lambda)
         self.backend = StackedAgents(agent, self.algos, first.max_grad_norm)
-        self.lrs = [(c.algo.lr, c.algo.critic_lr) for c in cfgs]
-        self.actor_opt = StackedAdam(agent.actor.flat, [lr for lr, _ in self.lrs])
-        self.critic_opt = StackedAdam(agent.critics.flat, [lr for _, lr in self.lrs])
+        rates = [a.learning_rates() for a in self.algos]
+        self.actor_opt = StackedAdam(agent.actor.flat, [lr for lr, _ in rates])
+        self.critic_opt = StackedAdam(agent.critics.flat, [lr for _, lr in rates])
 
     def update(self, batch: TensorDictBase) -> list[dict[str, Any]]:
         """One iteration for every agent on the ``[P N, T]`` batch; each agent's logged statistics."""
         cfg, agent, algo = self.cfg, self.agent, self.algos[0]
         if cfg.anneal_lr:  # PPO.update's schedule, per agent
-            fracs = [a.anneal_fraction() for a in self.algos]
-            self.actor_opt.lr = torch.tensor([f * lr for f, (lr, _) in zip(fracs, self.lrs)], dtype=torch.float64)
-            self.critic_opt.lr = torch.tensor([f * lr for f, (_, lr) in zip(fracs, self.lrs)], dtype=torch.float64)
+            rates = torch.tensor([a.learning_rates() for a in self.algos], dtype=torch.float64)
+            self.actor_opt.lr, self.critic_opt.lr = rates[:, 0].clone(), rates[:, 1].clone()
         self.gae(batch, agent)  # along time, row by row: the whole batch at once
         advs = [a.prepare(batch[i * self.n : (i + 1) * self.n]) for i, a in enumerate(self.algos)]
         batch.set(keys.POLICY_ADVANTAGE, torch.cat(advs))
@@ -154,19 +153,16 @@ class PopulationPPO:
         return x.reshape(self.agent.num_agents, -1, *x.shape[2:])
 
     def _project(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-        """CUP's stage 2 (``CUP.project``) per agent: the cost advantage standardised per agent,
+        """CUP's stage 2 (``CUP.project``): each agent's ``projection_inputs`` on its rows,
         ``pi_{k+1/2}`` as stage 1 left each actor, a fresh Adam at each agent's stage-1 rate,
         ``CUP.projection_step`` with each agent's ``nu`` weight."""
-        P, agent, algo = self.agent.num_agents, self.agent, self.algos[0]
-        units = {k: self._units(batch.get(k)) for k in (keys.ACTION, keys.LOG_PROB, keys.OBS)}
-        cost_adv = batch.get(keys.COST_ADVANTAGE).reshape(P, -1, 1)
-        if self.cfg.normalize_advantage:
-            cost_adv = (cost_adv - cost_adv.mean((1, 2), keepdim=True)) / (cost_adv.std((1, 2), keepdim=True) + 1e-8)
-        units[keys.COST_ADVANTAGE] = cost_adv
+        agent, algo = self.agent, self.algos[0]
+        rows = [a.projection_inputs(batch[i * self.n : (i + 1) * self.n]) for i, a in enumerate(self.algos)]
+        units = {k: self._units(torch.cat([r[k] for r in rows])) for k in rows[0]}
         with torch.no_grad():  # pi_{k+1/2}: each actor as stage 1 left it
             units.update({(HALF, k): v for k, v in agent.params(units[keys.OBS]).items()})
         coef = [a.projection_coef() for a in self.algos]
-        nu_coef = torch.tensor(coef, dtype=torch.float32, device=cost_adv.device).view(-1, 1, 1)
+        nu_coef = torch.tensor(coef, dtype=torch.float32, device=self.backend.rows.device).view(-1, 1, 1)
         opt = StackedAdam(agent.actor.flat, self.actor_opt.lr.tolist())
         step = partial(algo.projection_step, self.backend, [(opt, agent.actor)], nu_coef)
         return run_epochs(self.backend, units, self.cfg.num_minibatches, self.cfg.projection_epochs, step)
