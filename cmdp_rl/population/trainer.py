@@ -35,7 +35,6 @@ from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.rng import seed_everything
 from cmdp_rl.run.loop import Members, train_iterations
-from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
     CHECKPOINT,
@@ -216,7 +215,7 @@ def train_population(
         report=report,
     )
     try:
-        train_iterations(members, first, iterations, start, Progress(0, 0, lambda s: None))
+        train_iterations(members, first, iterations, start)
     finally:
         for lg in loggers:
             lg.close()

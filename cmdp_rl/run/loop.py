@@ -101,9 +101,10 @@ class Members:
         return batch if len(self.cfgs) == 1 else batch[i * n : (i + 1) * n]
 
 
-def train_iterations(m: Members, first: int, iterations: int, start: float, progress: Progress) -> None:
+def train_iterations(m: Members, first: int, iterations: int, start: float, progress: Progress | None = None) -> None:
     """Iterations ``first`` to ``iterations`` (a resume starts past its checkpoint's); ``start`` is
-    the ``perf_counter`` at which training time began (earlier by the time a resumed run had)."""
+    the ``perf_counter`` at which training time began (earlier by the time a resumed run had);
+    ``progress`` shows the first member's rows."""
     cfg, n = m.cfgs[0], m.envs_per_member
     names = m.collector.env.cost_names
     per_iter = cfg.rollout_steps * n  # steps per member
@@ -129,7 +130,8 @@ def train_iterations(m: Members, first: int, iterations: int, start: float, prog
         ]
         for logger, row in zip(m.loggers, rows):
             logger.log(row, force_echo=it == iterations)
-        progress.update(rows[0])
+        if progress is not None:
+            progress.update(rows[0])
         if m.report is not None:
             m.report(it, rows, dt)
         if it % cfg.checkpoint_every == 0 or it == iterations:
