@@ -167,6 +167,14 @@ def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s:
     }
 
 
+def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
+    """A run's env, agent and algorithm, under its seed (a population builds each agent so)."""
+    seed_everything(cfg.seed)
+    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
+    return env, agent, make_algo(cfg.algo, agent)
+
+
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/run/rundir.py``). Returns the
@@ -182,10 +190,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     state = load_resume_state(cfg) if cfg.resume is not None else None
     apply_threads(cfg)
     check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
-    seed_everything(cfg.seed)
-    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
-    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
-    algo = make_algo(cfg.algo, agent)
+    env, agent, algo = build_run(cfg)
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
     per_constraint(cfg.algo.cost_limit, "algo.cost_limit", env.cost_names)
     # After the resume and config checks (a mistyped resume path or a wrong-length budget is

@@ -20,20 +20,15 @@ import torch
 import yaml
 
 from cmdp_rl import keys
-from cmdp_rl.algos import make_algo
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
-from cmdp_rl.envs import make_env
 from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
-from cmdp_rl.normalization import make_normalizers
-from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
 from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.report.metrics import constraint_name
-from cmdp_rl.rng import seed_everything
 from cmdp_rl.run.loop import Members, train_iterations
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
@@ -47,7 +42,7 @@ from cmdp_rl.run.rundir import (
     read_yaml,
 )
 from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import check_env_contract, checkpoint_entry, complete_result, open_run
+from cmdp_rl.trainer import build_run, check_env_contract, checkpoint_entry, complete_result, open_run
 from cmdp_rl.validation import ConfigError
 
 AGENTS_DIR = "agents"
@@ -110,11 +105,10 @@ def train_population(
     # generator state after that is where its single run's action samples and permutations start.
     agents, algos, generators = [], [], []
     for c in cfgs:
-        seed_everything(c.seed)
-        probe = make_env(c.env, device=c.device, algo=c.algo)
-        agent = make_agent(c.policy, probe, make_normalizers(c, probe), algo=c.algo)
+        probe, agent, algo = build_run(c)
+        probe.close()
         agents.append(agent)
-        algos.append(make_algo(c.algo, agent))
+        algos.append(algo)
         g = torch.Generator(device=device)
         g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
         generators.append(g)
