@@ -1,4 +1,5 @@
-"""The training loop: env -> collector -> batch -> advantages -> update -> logger.
+"""A run: env -> collector -> batch -> advantages -> update -> logger, through the loop that runs
+and populations share (``run/loop.py``), then the evaluation.
 
 ``train.py`` is a thin Hydra front for :func:`train`; a user's script can call it directly.
 """
@@ -16,13 +17,12 @@ from typing import Any, Callable
 import torch
 import yaml
 
-from cmdp_rl.algos import TrainingDiverged, make_algo
+from cmdp_rl.algos import make_algo
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.checkpoint import CheckpointError, save_checkpoint
-from cmdp_rl.collector import Collector, finished_episodes
+from cmdp_rl.collector import Collector
 from cmdp_rl.config import RunConfig, budget_source, validate
 from cmdp_rl.envs import check_env, make_env, make_eval_env
-from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.migrations import migrate
 from cmdp_rl.mixture_selection import choose_weights
@@ -34,15 +34,12 @@ from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spre
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
 from cmdp_rl.rng import load_rng_state, rng_state, seed_everything
+from cmdp_rl.run.loop import Members, contract_options, train_iterations
 from cmdp_rl.run.ownership import acquire, release
 from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.resume import load_resume_state
 from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, RUN_INFO, TENSORBOARD, RunDirError, write_run_info
 from cmdp_rl.threads import apply_threads
-
-
-def _mean(t: torch.Tensor) -> float:
-    return t.mean().item() if t.numel() else float("nan")
 
 
 def _run_dir(cfg: RunConfig, out_dir: str | Path | None) -> Path:
@@ -61,11 +58,6 @@ CONTRACT_STEPS = 100
 CONTRACT_ENVS = 2
 
 
-def contract_options(env_cfg: Any) -> tuple[str, bool]:
-    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``)."""
-    return env_cfg.env_id(), bool(env_cfg.allow_negative_cost)
-
-
 def check_env_contract(cfg: RunConfig) -> None:
     """Step a small env of the run's env config briefly and stop at the first breach of the CMDP
     contract (:class:`~cmdp_rl.envs.EnvContractError`, one line naming the env, index, step and
@@ -80,37 +72,6 @@ def check_env_contract(cfg: RunConfig) -> None:
         check_env(probe, steps=CONTRACT_STEPS, seed=cfg.seed, allow_negative_cost=allow_negative_cost, env_id=env_id)
     finally:
         probe.close()
-
-
-def metrics_row(
-    iteration: int,
-    step: int,
-    batch: Any,
-    stats: dict[str, Any],
-    timing: dict[str, float],
-    cost_limit: Any,
-    cost_totals: list[float],
-    names: tuple[str, ...],
-    reference: Any,
-) -> dict[str, Any]:
-    """One ``metrics.csv`` row: the episodes that ended in ``batch`` (one agent's ``[N, T]``), the
-    update's ``stats``, the costs collected so far; per-constraint values spread over columns."""
-    eps = finished_episodes(batch)
-    row = {
-        "iteration": iteration,
-        "step": step,
-        "episode_return": _mean(eps["return"]),
-        "episode_cost": [_mean(eps["cost"][:, k]) for k in range(len(names))],
-        "episode_length": _mean(eps["length"]),
-        "episodes": int(eps["length"].numel()),
-        "cost_limit": cost_limit,
-        **timing,
-        **stats,
-        "cost_rate": [cost_rate(total, step) for total in cost_totals],
-    }
-    limits = per_constraint(cost_limit, "algo.cost_limit", names)
-    row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"], limits, reference))
-    return spread(row, names)
 
 
 def complete_result(
@@ -206,6 +167,14 @@ def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s:
     }
 
 
+def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
+    """A run's env, agent and algorithm, under its seed (a population builds each agent so)."""
+    seed_everything(cfg.seed)
+    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
+    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
+    return env, agent, make_algo(cfg.algo, agent)
+
+
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/run/rundir.py``). Returns the
@@ -221,10 +190,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     state = load_resume_state(cfg) if cfg.resume is not None else None
     apply_threads(cfg)
     check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
-    seed_everything(cfg.seed)
-    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
-    agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
-    algo = make_algo(cfg.algo, agent)
+    env, agent, algo = build_run(cfg)
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
     per_constraint(cfg.algo.cost_limit, "algo.cost_limit", env.cost_names)
     # After the resume and config checks (a mistyped resume path or a wrong-length budget is
@@ -254,7 +220,6 @@ def _train(
     names = env.cost_names
     # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
     collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=cfg.algo.uniform_action_steps)
-    env_id, allow_negative_cost = contract_options(cfg.env)
     try:  # the last check a resume can fail: nothing is written before it
         logger, run_cfg = open_run(out, cfg, algo.stats, names, state, echo)
     except CheckpointError:
@@ -288,8 +253,7 @@ def _train(
         echo(f"warning: {warning}")
     cannot_resume: list[str] = []
 
-    def checkpoint(iteration: int) -> None:
-        logger.sync()  # the rows up to this iteration are on disk before the checkpoint names it
+    def checkpoint(iteration: int, time_s: float) -> None:
         try:
             rollout = collector.state_dict()
         except NotImplementedError as exc:  # an env that cannot save itself: evaluable, not resumable
@@ -299,7 +263,7 @@ def _train(
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
         extra = {} if average is None else {"policy_average": {"first_iteration": average_from, **average.state_dict()}}
         extra.update({} if mixture is None else {"policy_mixture": mixture.state_dict()})
-        entry = checkpoint_entry(run_cfg, iteration, collector.total_steps, time.perf_counter() - start, algo)
+        entry = checkpoint_entry(run_cfg, iteration, collector.total_steps, time_s, algo)
         save_checkpoint(ckpt_path, {**extra, **entry, "collector": rollout, "rng": rng_state()})
 
     if state is not None:
@@ -316,50 +280,31 @@ def _train(
     )
     progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
     logger.echo = progress.row_echo
+
+    def update(batch: Any, it: int) -> list[dict[str, Any]]:
+        agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
+        stats = algo.update(batch)
+        agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
+        if average is not None and it >= average_from:
+            average.update(agent.actor)
+        if mixture is not None and mixture.wants(it):
+            mixture.update(agent.actor, it)
+            if it == iterations and cfg.mixture_weights == "feasible":  # before the last checkpoint holds them
+                echo(choose_weights(mixture, agent, cfg, names))
+        return [stats]
+
+    members = Members(
+        [cfg],
+        [logger],
+        collector,
+        update,
+        lambda batch: [collector.total_costs],
+        checkpoint,
+        ckpt_path,
+        reference,
+    )
     try:
-        for it in range(first, iterations + 1):
-            t0 = time.perf_counter()
-            batch = collector.collect()
-            # The contract on what was collected (raw values): finite, costs >= 0; vectorised.
-            check_rollout(
-                batch,
-                env_id,
-                allow_negative_cost,
-                first_step=collector.total_steps // env.num_envs - cfg.rollout_steps + 1,
-            )
-            agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
-            try:
-                stats = algo.update(batch)
-            except TrainingDiverged as exc:
-                last = (
-                    f"the last good checkpoint is {ckpt_path}"
-                    if ckpt_path.exists()
-                    else "no checkpoint was written yet"
-                )
-                raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
-            agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
-            if average is not None and it >= average_from:
-                average.update(agent.actor)
-            if mixture is not None and mixture.wants(it):
-                mixture.update(agent.actor, it)
-                if it == iterations and cfg.mixture_weights == "feasible":  # before the last checkpoint holds them
-                    echo(choose_weights(mixture, agent, cfg, names))
-            timing = {"sps": per_iter / (time.perf_counter() - t0), "time_s": time.perf_counter() - start}
-            row = metrics_row(
-                it,
-                collector.total_steps,
-                batch,
-                stats,
-                timing,
-                cfg.algo.cost_limit,
-                collector.total_costs,
-                names,
-                reference,
-            )
-            logger.log(row, force_echo=it == iterations)
-            progress.update(row)
-            if it % cfg.checkpoint_every == 0 or it == iterations:
-                checkpoint(it)
+        train_iterations(members, first, iterations, start, progress)
     finally:
         progress.close()
         logger.close()

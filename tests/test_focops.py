@@ -100,7 +100,7 @@ def test_the_epochs_stop_at_the_first_minibatch_past_delta():
     algo, batch = setup({"target_kl": 1e-9, "num_minibatches": 4, "update_epochs": 3})
     calls = []
     loss = algo.policy_loss
-    algo.policy_loss = lambda mb: calls.append(1) or loss(mb)
+    algo.policy_loss = lambda mb, *args: calls.append(1) or loss(mb, *args)
     algo.update(batch)
     assert len(calls) == 2  # the first minibatch is at pi_k (KL 0); after its step KL > delta: stop
 

@@ -1,6 +1,7 @@
 """Population training (cmdp_rl/population/): agent i of a population trains as its single run
 does, the population resumes after a kill, bad or unsupported configs stop in one line."""
 
+import copy
 import math
 import shutil
 from pathlib import Path
@@ -293,6 +294,34 @@ def test_population_resumes_after_a_kill(tmp_path, algo, env):
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(a) == metrics_rows(b)  # same process, same code: bit for bit
         assert eval_result(a) == eval_result(b)
+
+
+def test_a_population_resume_changes_what_a_run_s_resume_may(tmp_path):
+    """One resume rule for runs and populations (run/resume.py's RESUMABLE): total_steps extends a
+    finished population, which then equals one trained that long; algo.lr or the population's grid
+    is refused in one line, before anything is written."""
+    raw = torch_tiny(algo={"name": "ppo_lag"})
+    raw["population"] = {"seeds": 2}
+    short = _population(tmp_path, {**raw, "total_steps": 2 * 64}, "short")
+    long = _population(tmp_path, raw, "long")
+    before = {p: p.read_bytes() for p in short.rglob("*") if p.is_file()}
+    for key, value, refused in [
+        ("algo.lr", 1e-3, "algo.lr cannot change when resuming"),
+        ("population.seeds", 3, "population cannot change when resuming"),
+    ]:
+        asked = copy.deepcopy(raw)
+        node = asked
+        for part in key.split(".")[:-1]:
+            node = node[part]
+        node[key.split(".")[-1]] = value
+        with pytest.raises(ConfigError) as err:
+            train_population(asked, short, echo=lambda s: None, resume=True, explicit=[key, "total_steps"])
+        assert str(err.value).startswith(refused) and "\n" not in str(err.value)
+    assert {p: p.read_bytes() for p in short.rglob("*") if p.is_file()} == before
+    train_population(raw, short, echo=lambda s: None, resume=True, explicit=["total_steps"])
+    for a, b in zip(sorted((long / "agents").iterdir()), sorted((short / "agents").iterdir())):
+        assert len(metrics_rows(b)) == 4
+        assert metrics_rows(a) == metrics_rows(b)
 
 
 OLD_POPULATION = Path(__file__).parent / "fixtures" / "old_population" / "ppo_lag"

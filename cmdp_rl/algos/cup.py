@@ -25,20 +25,20 @@ Two stages per iteration:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from functools import partial
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import torch
 from tensordict import TensorDictBase
-from torch import nn
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl import keys
 from cmdp_rl.algos.base import check_finite, check_parameters_finite, single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import DualAscent
-from cmdp_rl.algos.minibatch import minibatches
 from cmdp_rl.algos.multiplier_options import Scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig, Reduce
+from cmdp_rl.algos.update_backend import Backend, OneAgent, run_epochs
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options
@@ -94,38 +94,42 @@ class CUP(PPO):
     def project(self, batch: TensorDictBase) -> dict[str, float]:
         """Stage 2 on a batch whose GAE stage 1 computed: returns its mean loss and KL."""
         cfg = self.cfg
+        units = self.agent.training_units(self.projection_inputs(batch))
+        with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
+            units.update({(HALF, k): v for k, v in self.agent.actor.params(units).items()})
+        # fresh: see the docstring; at stage 1's rate (lr, or its annealed value with anneal_lr)
+        opt = torch.optim.Adam(self.actor_params, lr=self.actor_opt.param_groups[0]["lr"], fused=True)
+        backend = OneAgent(self.agent, cfg.max_grad_norm, self.kl_limit)
+        step = partial(self.projection_step, backend, [(opt, self.actor_params)], self.projection_coef())
+        sums, steps = run_epochs(backend, units, cfg.num_minibatches, cfg.projection_epochs, step)
+        loss_projection, kl_projection = (torch.stack(list(sums.values())) / steps).tolist()
+        check_finite(loss_projection=loss_projection)
+        return {"loss_projection": loss_projection, "kl_projection": kl_projection}
+
+    def projection_step(
+        self, backend: Backend, groups: list, nu_coef: float | torch.Tensor, mb: dict, active: Any
+    ) -> tuple[dict[str, torch.Tensor], Any]:
+        """One minibatch of stage 2 (``nu_coef``: one, or one per agent), stopped as PPO's stage is."""
+        loss, kl = self.projection_loss(backend.dist(mb), mb, nu_coef, backend.mean)
+        evaluated = active
+        active, stepping = backend.stop(kl.detach(), active)
+        backend.step(loss, groups, stepping)
+        return backend.kept({"loss_projection": loss, "kl_projection": kl}, evaluated), active
+
+    def projection_inputs(self, batch: TensorDictBase) -> dict:
+        """What stage 2 reads of one agent's batch: the actions, their behaviour log-probs, the cost
+        advantage (standardised if ``normalize_advantage``) and the networks' inputs."""
         cost_adv = batch.get(keys.COST_ADVANTAGE)
-        if cfg.normalize_advantage:
+        if self.cfg.normalize_advantage:
             cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
         present = batch.keys(True)
         inputs = [k for k in self.agent.in_keys if k in present and k not in (keys.ACTION, keys.LOG_PROB)]
-        units = self.agent.training_units(
-            {
-                keys.ACTION: batch.get(keys.ACTION),
-                keys.LOG_PROB: batch.get(keys.LOG_PROB),
-                keys.COST_ADVANTAGE: cost_adv,
-                **{k: batch.get(k) for k in inputs},
-            }
-        )
-        with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
-            units.update({(HALF, k): v for k, v in self.agent.actor.params(units).items()})
-        nu_coef = self.projection_coef()
-        # fresh: see the docstring; at stage 1's rate (lr, or its annealed value with anneal_lr)
-        opt = torch.optim.Adam(self.actor_params, lr=self.actor_opt.param_groups[0]["lr"], fused=True)
-        sums, steps = torch.zeros(2), 0
-        for _, mb in minibatches(units, cfg.num_minibatches, cfg.projection_epochs):
-            loss, kl = self.projection_loss(self.agent.dist(mb), mb, nu_coef, torch.mean)
-            sums += torch.stack([loss.detach(), kl.detach()])
-            steps += 1
-            if self.kl_limit is not None and kl.item() > self.kl_limit:
-                break  # as PPO's stage: this step would leave the trust region
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            nn.utils.clip_grad_norm_(self.actor_params, cfg.max_grad_norm)
-            opt.step()
-        loss_projection, kl_projection = (sums / steps).tolist()
-        check_finite(loss_projection=loss_projection)
-        return {"loss_projection": loss_projection, "kl_projection": kl_projection}
+        return {
+            keys.ACTION: batch.get(keys.ACTION),
+            keys.LOG_PROB: batch.get(keys.LOG_PROB),
+            keys.COST_ADVANTAGE: cost_adv,
+            **{k: batch.get(k) for k in inputs},
+        }
 
     def projection_coef(self) -> float:
         """The cost surrogate's weight in stage 2: ``nu (1 - gamma_c gae_lambda) / (1 - gamma_c)``."""

@@ -15,19 +15,19 @@ default gymnasium run's training (measured with cProfile, see ``experiments/``).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Callable, ClassVar, Optional
+from functools import partial
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Optional
 
 import torch
 from tensordict import TensorDictBase
 from torch import distributions as D
-from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.episode_cost import EpisodeCost, EpisodeCostEstimate
-from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.algos.update_backend import Backend, OneAgent, run_epochs
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import (
@@ -143,6 +143,11 @@ class PPO:
         ``anneal_lambda_lr``): ``1 - i / anneal_iterations`` for iteration i = 0, 1, ..."""
         return max(0.0, 1.0 - self.iteration / self.cfg.anneal_iterations)
 
+    def learning_rates(self) -> tuple[float, float]:
+        """The actor's and the critics' learning rates this iteration (``anneal_lr``: annealed)."""
+        frac = self.anneal_fraction() if self.cfg.anneal_lr else 1.0
+        return frac * self.cfg.lr, frac * self.cfg.critic_lr
+
     # --- what the variants change -------------------------------------------------------------
     @property
     def lagrange_multiplier(self) -> float:
@@ -159,48 +164,53 @@ class PPO:
         """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         cfg = self.cfg
         if cfg.anneal_lr:
-            frac = self.anneal_fraction()
-            self.actor_opt.param_groups[0]["lr"] = frac * cfg.lr
-            self.critic_opt.param_groups[0]["lr"] = frac * cfg.critic_lr
+            self.actor_opt.param_groups[0]["lr"], self.critic_opt.param_groups[0]["lr"] = self.learning_rates()
         self.gae(batch, self.agent)
-        self.update_multiplier(self.episode_cost.update(batch))
-
-        adv = self.policy_advantage(batch)
-        if cfg.normalize_advantage:
-            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        batch.set(keys.POLICY_ADVANTAGE, adv)
-
+        batch.set(keys.POLICY_ADVANTAGE, self.prepare(batch))
         # Only what the minibatch loop reads, as training units: steps [N*T, ...], or for a
         # recurrent policy whole segments [U, L, ...] (Agent.training_units).
         data = self.agent.training_units({k: batch.get(k) for k in self._update_keys(batch)})
-        sums: dict[str, torch.Tensor] = {}
-        steps = 0
-        for _, mb in minibatches(data, cfg.num_minibatches, cfg.update_epochs):
-            loss_pi, stats = self.policy_loss(mb)
-            # Critics: regression on the GAE value targets (lambda-returns).
-            critic_losses = self.critics.losses(mb)
-            stats = {"loss_pi": loss_pi.detach(), **{k: v.detach() for k, v in critic_losses.items()}, **stats}
-            sums = {k: sums[k] + v if k in sums else v for k, v in stats.items()}
-            steps += 1
-            if self.kl_limit is not None and stats["kl_stop"].item() > self.kl_limit:
-                break  # KL early stopping: this minibatch's step would leave the trust region
-            self.actor_opt.zero_grad(set_to_none=True)
-            self.critic_opt.zero_grad(set_to_none=True)
-            # One backward pass: the losses have disjoint parameters, so each network's gradient
-            # is that of its own loss.
-            total = loss_pi
-            for loss in critic_losses.values():
-                total = total + loss
-            total.backward()
-            nn.utils.clip_grad_norm_(self.actor_params, cfg.max_grad_norm)
-            nn.utils.clip_grad_norm_(self.critic_params, cfg.max_grad_norm)
-            self.actor_opt.step()
-            self.critic_opt.step()
+        backend = OneAgent(self.agent, cfg.max_grad_norm, self.kl_limit)
+        groups = [(self.actor_opt, self.actor_params), (self.critic_opt, self.critic_params)]
+        sums, steps = run_epochs(
+            backend, data, cfg.num_minibatches, cfg.update_epochs, partial(self.minibatch_step, backend, groups)
+        )
         # One host sync per update (not per minibatch): read the statistics, stop on NaN/inf.
         means = (torch.stack(list(sums.values())) / steps).tolist()
-        stats = {k: means[i] for i, k in enumerate(sums) if k in self.stats}
-        check_finite(**stats)
+        stats = self.finish({k: means[i] for i, k in enumerate(sums)})
         check_parameters_finite(self.agent)
+        return stats
+
+    def prepare(self, batch: TensorDictBase) -> torch.Tensor:
+        """After GAE, before the minibatches (one agent's rows): J_c, the multiplier, the policy
+        advantage (normalised if ``normalize_advantage``)."""
+        self.update_multiplier(self.episode_cost.update(batch))
+        adv = self.policy_advantage(batch)
+        if self.cfg.normalize_advantage:
+            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        return adv
+
+    def minibatch_step(self, backend: Backend, groups: list, mb: Units, active: Any) -> tuple[Units, Any]:
+        """One minibatch: the policy loss and the critics' regression (reduced by the backend's
+        mean), KL early stopping, one backward pass and the backend's step. Returns the statistics
+        and the agents still active."""
+        dist, values = backend.training_pass(mb)
+        loss_pi, stats = self.policy_loss(mb, dist, backend.mean, backend.entropy_coef)
+        # Critics: regression on the GAE value targets (lambda-returns).
+        critic_losses = self.critics.losses(mb, values, backend.mean)
+        evaluated = active
+        active, stepping = backend.stop(stats["kl_stop"], active)
+        total = loss_pi
+        for loss in critic_losses.values():
+            total = total + loss
+        backend.step(total, groups, stepping)
+        return backend.kept({"loss_pi": loss_pi, **critic_losses, **stats}, evaluated), active
+
+    def finish(self, means: dict[str, float]) -> dict[str, float]:
+        """After the minibatches: the logged statistics (``stats`` of the minibatch means, checked
+        finite, the multiplier, the variant's own), and the clock advanced."""
+        stats = {k: v for k, v in means.items() if k in self.stats}
+        check_finite(**stats)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
         stats.update(self.iteration_stats())
         self.iteration += 1

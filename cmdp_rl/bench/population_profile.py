@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 
 from cmdp_rl import collector  # noqa: E402
+from cmdp_rl.algos.ppo import PPO  # noqa: E402
 from cmdp_rl.bench.population_benchmark import base, composed  # noqa: E402
 from cmdp_rl.population import agent, params, trainer, update  # noqa: E402
 
@@ -27,7 +28,7 @@ PARTS = [
     (collector.Collector, "collect", "rollout (Collector.collect)"),
     (update.TwinGAE, "__call__", "GAE (critic values + torchrl GAE)"),
     (update.PopulationPPO, "update", "update() total (GAE included)"),
-    (update.PopulationPPO, "_step", "  minibatch steps total"),
+    (PPO, "minibatch_step", "  minibatch steps total"),
     (agent.PopulationAgent, "training_pass", "    forward: the 3P networks"),
     (torch.Tensor, "backward", "    backward (losses + networks)"),
     (params.StackedParams, "clip_grad_norm_", "    grad-norm clipping"),

@@ -95,13 +95,15 @@ def main(cfg: DictConfig) -> None:
 
 def _main(raw: dict, new_dir: str | None) -> None:
     try:
-        if raw.get("resume") and (Path(raw["resume"]) / POPULATION_CHECKPOINT).is_file():
-            return _population(raw, resume=True)
-        if not raw.get("resume") and population_active(raw.get("population")):
+        if raw.get("resume"):  # a run's or a population's directory: its own config, RESUMABLE's changes
+            explicit = [
+                o.key_or_group for o in OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
+            ]
+            if (Path(raw["resume"]) / POPULATION_CHECKPOINT).is_file():
+                return _population(raw, None, explicit)
+            run_cfg = resume_config(raw["resume"], raw, explicit)
+        elif population_active(raw.get("population")):
             return _population(raw, new_dir)
-        if raw.get("resume"):
-            overrides = OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
-            run_cfg = resume_config(raw["resume"], raw, [o.key_or_group for o in overrides])
         else:
             run_cfg = load_config(raw)
     except (ConfigError, CheckpointError) as exc:
@@ -115,23 +117,15 @@ def _main(raw: dict, new_dir: str | None) -> None:
         _fail(exc, new_dir)
 
 
-def _population(raw: dict, new_dir: str | None = None, resume: bool = False) -> None:
-    """Several agents in one process (cmdp_rl/population/); a resume continues the population in
-    its directory, where only total_steps may be changed."""
+def _population(raw: dict, new_dir: str | None, explicit: list[str] | None = None) -> None:
+    """Several agents in one process (cmdp_rl/population/); ``explicit`` (a resume's command-line
+    keys): continue the population in its directory, changing only what a run's resume may."""
     from cmdp_rl.population import train_population
 
     try:
-        if resume:
-            explicit = [
-                o.key_or_group for o in OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
-            ]
-            train_population(
-                None,
-                raw["resume"],
-                resume=True,
-                total_steps=raw["total_steps"] if "total_steps" in explicit else None,
-                trust_checkpoint=bool(raw.get("trust_checkpoint")) and "trust_checkpoint" in explicit,
-            )
+        if explicit is not None:
+            trust = bool(raw.get("trust_checkpoint")) and "trust_checkpoint" in explicit
+            train_population(raw, raw["resume"], resume=True, explicit=explicit, trust_checkpoint=trust)
         else:
             clear_outputs(new_dir)
             train_population(raw, new_dir)

@@ -8,8 +8,10 @@
 - ``env``: all agents' envs as one batched env (the env's own population form, else each agent's
   own env in turn);
 - ``agent``: acting and valuing for all agents at once (the collector's and GAE's side);
-- ``update``: the PPO-family update of all agents at once;
-- ``trainer``: the loop, one run directory per agent, the population's checkpoint and summary.
+- ``update``: the stacked backend of the PPO family's one minibatch step (``algos/update_backend.py``),
+  each agent's own algorithm object around it;
+- ``trainer``: the agents built, driven through the runs' loop (``run/loop.py``) into one run
+  directory per agent, the population's checkpoint, resume and summary.
 """
 
 from cmdp_rl.population.spec import PER_AGENT_FIELDS, PopulationConfig, agent_configs, population_active

@@ -1,6 +1,6 @@
-"""The population's training loop: as ``trainer.train`` for each agent (collect with the single-run
-``Collector``, check the rollout, update, one ``metrics.csv`` row per agent from
-``trainer.metrics_row``, ``eval.json`` from ``trainer.complete_result``), one process for all.
+"""A population's run: its agents built as their single runs build them, trained through the loop
+``trainer.train`` drives (``run/loop.py``: one ``metrics.csv`` row per agent), ``eval.json`` from
+``trainer.complete_result``, one process for all.
 Outputs (docs/population.md): ``agents/<k>_<values>/`` (one single run's directory per agent),
 ``population.yaml`` (what a resume rebuilds from), ``population.pt`` (the checkpoint: one entry per
 agent in a single run's ``checkpoint.pt`` layout, and the shared collector and generators),
@@ -14,27 +14,23 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import torch
 import yaml
 
 from cmdp_rl import keys
-from cmdp_rl.algos import make_algo
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
-from cmdp_rl.envs import make_env
-from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
-from cmdp_rl.normalization import make_normalizers
-from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
 from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.report.metrics import constraint_name
-from cmdp_rl.rng import seed_everything
+from cmdp_rl.run.loop import Members, train_iterations
+from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
     CHECKPOINT,
     EVAL,
@@ -46,16 +42,18 @@ from cmdp_rl.run.rundir import (
     read_yaml,
 )
 from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import (
-    check_env_contract,
-    checkpoint_entry,
-    complete_result,
-    contract_options,
-    metrics_row,
-    open_run,
-)
+from cmdp_rl.trainer import build_run, check_env_contract, checkpoint_entry, complete_result, open_run
+from cmdp_rl.validation import ConfigError
 
 AGENTS_DIR = "agents"
+
+
+def _own(raw: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The population's config as ``population.yaml`` records it: trusting a checkpoint or resuming
+    is one command's word, not the population's."""
+    raw = copy.deepcopy(dict(raw or {}))
+    raw.pop("hydra", None)
+    return {**raw, "resume": None, "trust_checkpoint": False}
 
 
 def agent_dir_name(k: int, overrides: Mapping[str, Any]) -> str:
@@ -67,30 +65,31 @@ def train_population(
     out_dir: str | Path,
     echo: Callable[[str], None] = print,
     resume: bool = False,
-    total_steps: int | None = None,
+    explicit: Iterable[str] = (),
     trust_checkpoint: bool = False,
 ) -> dict[str, Any]:
     """Train the population that ``raw`` (a composed config with a ``population`` node) describes
-    into ``out_dir``; with ``resume``, continue the population in ``out_dir`` from its checkpoint
-    (``raw`` is then read from its ``population.yaml``; ``total_steps`` may extend it; an older
-    format's checkpoint only with ``trust_checkpoint``, which runs code from the file).
+    into ``out_dir``; with ``resume``, continue the population in ``out_dir`` from its checkpoint,
+    with its own config (``population.yaml``) and, as a run's resume, the options named in
+    ``explicit`` taken from ``raw`` where ``run/resume.py`` allows them (``total_steps`` extends
+    it); an older format's checkpoint only with ``trust_checkpoint``, which runs code from the file.
     Returns the summary written to ``population.json``."""
     out = Path(out_dir)
     state = None
     if resume:
         if not (out / POPULATION_CHECKPOINT).is_file():
             raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
-        raw = read_yaml(out / POPULATION_CONFIG, "resume")
+        saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
         saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint)
         if "update" in saved:  # the stacked layout predates defaults that its config does not name
-            raw = saved_config_defaults(raw)
+            saved_raw = saved_config_defaults(saved_raw)
         state = migrate(saved)
-    raw = copy.deepcopy(dict(raw or {}))
-    raw.pop("hydra", None)
-    raw["resume"] = None
-    raw["trust_checkpoint"] = False  # one command's word, not the population's
-    if total_steps is not None:
-        raw["total_steps"] = total_steps
+        raw = resumed_raw(saved_raw, raw or {}, explicit, out)
+        if raw.get("population") != saved_raw.get("population"):
+            raise ConfigError(f"population cannot change when resuming {out}")
+        for before, after in zip(agent_configs(_own(saved_raw))[1], agent_configs(_own(raw))[1]):
+            check_resume_config(before, after)
+    raw = _own(raw)
     overrides, cfgs = agent_configs(raw)  # every agent validated and the scope checked: nothing written yet
     cfg = cfgs[0]
     apply_threads(cfg)
@@ -106,11 +105,10 @@ def train_population(
     # generator state after that is where its single run's action samples and permutations start.
     agents, algos, generators = [], [], []
     for c in cfgs:
-        seed_everything(c.seed)
-        probe = make_env(c.env, device=c.device, algo=c.algo)
-        agent = make_agent(c.policy, probe, make_normalizers(c, probe), algo=c.algo)
+        probe, agent, algo = build_run(c)
+        probe.close()
         agents.append(agent)
-        algos.append(make_algo(c.algo, agent))
+        algos.append(algo)
         g = torch.Generator(device=device)
         g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
         generators.append(g)
@@ -136,7 +134,7 @@ def train_population(
 
     per_iter = T * N  # steps per agent per iteration
     iterations = math.ceil(cfg.total_steps / per_iter)
-    first, elapsed, steps = 1, 0.0, 0
+    first, elapsed = 1, 0.0
     costs = torch.zeros(P, len(names), dtype=torch.float64)  # every cost each agent collected so far
     if state is not None:
         if "agents" not in state:  # the stacked layout of earlier populations
@@ -148,16 +146,14 @@ def train_population(
         collector.load_state_dict(state["collector"])
         for g, s in zip(generators, state["generators"]):
             g.set_state(s)
-        first, elapsed, steps, costs = state["iteration"] + 1, state["time_s"], state["step"], state["costs"]
-        costs = torch.as_tensor(costs, dtype=torch.float64).view(P, len(names))  # a list of P before K costs
+        first, elapsed = state["iteration"] + 1, state["time_s"]
+        costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
     echo(
         f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({N} envs each): "
         f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
     )
-    env_id, allow_negative_cost = contract_options(cfg.env)
     start = time.perf_counter() - elapsed
-
     written: dict[int, list[dict[str, Any]]] = {}  # the entries of the last checkpoint, by iteration
 
     def entries(it: int, time_s: float) -> list[dict[str, Any]]:
@@ -166,63 +162,60 @@ def train_population(
         update.unstack_agents()
         written.clear()
         # an agent's entry: its single run's checkpoint.pt, the collector and random state left to the population's
+        steps = collector.total_steps // P
         written[it] = [
             {**checkpoint_entry(r, it, steps, time_s, a), "collector": None, "rng": None}
             for r, a in zip(run_cfgs, algos)
         ]
         return written[it]
 
-    def checkpoint(it: int) -> None:
-        for lg in loggers:
-            lg.sync()
+    def checkpoint(it: int, time_s: float) -> None:
+        shared = {"algo": cfg.algo.name, "policy": cfg.policy.name, "population": P, "iteration": it}
         save_checkpoint(
             out / POPULATION_CHECKPOINT,
             {
-                "algo": cfg.algo.name,
-                "policy": cfg.policy.name,
-                "population": P,
-                "iteration": it,
-                "step": steps,
-                "time_s": time.perf_counter() - start,
-                "agents": entries(it, time.perf_counter() - start),
+                **shared,
+                "step": collector.total_steps // P,
+                "time_s": time_s,
+                "agents": entries(it, time_s),
                 "collector": collector.state_dict(),
                 "generators": [g.get_state() for g in generators],
                 "costs": costs,
             },
         )
 
-    try:
-        for it in range(first, iterations + 1):
-            t0 = time.perf_counter()
-            batch = collector.collect()
-            steps += per_iter
-            check_rollout(batch, env_id, allow_negative_cost, first_step=steps // N - T + 1)
-            stats = update.update(batch)
-            costs = costs + batch.get((keys.NEXT, keys.COST)).reshape(P, -1, len(names)).sum(1).to(costs)
-            dt = time.perf_counter() - t0
-            timing = {"sps": per_iter / dt, "time_s": time.perf_counter() - start}
-            rows = [
-                metrics_row(
-                    it, steps, batch[i * N : (i + 1) * N], stats[i], timing, c.algo.cost_limit, total, names, None
-                )
-                for i, (c, total) in enumerate(zip(cfgs, costs.tolist()))
-            ]
-            for logger, row in zip(loggers, rows):
-                logger.log(row)
+    def cost_totals(batch: Any) -> list[list[float]]:
+        nonlocal costs
+        costs = costs + batch.get((keys.NEXT, keys.COST)).reshape(P, -1, len(names)).sum(1).to(costs)
+        return costs.tolist()
+
+    def report(it: int, rows: list[dict[str, Any]], dt: float) -> None:
+        if it % cfg.log_interval == 0 or it == first or it == iterations:
             returns = [r["episode_return"] for r in rows]
             ep_costs = [r[constraint_name("episode_cost", names[0], len(names))] for r in rows]
-            if it % cfg.log_interval == 0 or it == first or it == iterations:
-                echo(
-                    f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
-                    f"mean episode return {_nanmean(returns):.3f}, cost {_nanmean(ep_costs):.3f}"
-                )
-            if it % cfg.checkpoint_every == 0 or it == iterations:
-                checkpoint(it)
+            echo(
+                f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
+                f"mean episode return {_nanmean(returns):.3f}, cost {_nanmean(ep_costs):.3f}"
+            )
+
+    members = Members(
+        cfgs,
+        loggers,
+        collector,
+        lambda batch, it: update.update(batch),
+        cost_totals,
+        checkpoint,
+        out / POPULATION_CHECKPOINT,
+        report=report,
+    )
+    try:
+        train_iterations(members, first, iterations, start)
     finally:
         for lg in loggers:
             lg.close()
         env.close()
     train_time = time.perf_counter() - start
+    steps = collector.total_steps // P
 
     results = evaluate_population(pop, cfgs, device)
     summary_agents = []

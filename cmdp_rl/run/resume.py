@@ -56,7 +56,22 @@ def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: I
     a field outside :data:`RESUMABLE` raises :class:`ConfigError` (from :func:`check_resume_config`).
     """
     trust = bool(requested.get("trust_checkpoint")) and "trust_checkpoint" in explicit
-    merged = copy.deepcopy(saved_config(run_dir, "resume", trust))
+    saved = saved_config(run_dir, "resume", trust)
+    merged = resumed_raw(saved, requested, explicit, run_dir)
+    try:
+        cfg = load_config(merged)
+    except ConfigError as exc:
+        raise ConfigError(f"{exc} (resuming {run_dir})") from exc
+    check_resume_config(load_config({**saved, "resume": None}), cfg)
+    return cfg
+
+
+def resumed_raw(
+    saved: Mapping[str, Any], requested: Mapping[str, Any], explicit: Iterable[str], run_dir: str | Path
+) -> dict[str, Any]:
+    """A run's (or a population's) saved config with the options named in ``explicit`` taken from
+    ``requested``; what a resume may change is checked by the caller (:func:`check_resume_config`)."""
+    merged = copy.deepcopy(dict(saved))
     for key in explicit:
         if key == "hydra" or key.startswith("hydra."):  # Hydra's own settings, not the run's
             continue
@@ -80,12 +95,7 @@ def resume_config(run_dir: str | Path, requested: Mapping[str, Any], explicit: I
             node = node.setdefault(p, {})
         node[parts[-1]] = src
     merged["resume"] = str(run_dir)
-    try:
-        cfg = load_config(merged)
-    except ConfigError as exc:
-        raise ConfigError(f"{exc} (resuming {run_dir})") from exc
-    check_resume_config(load_config({**saved_config(run_dir, "resume", trust), "resume": None}), cfg)
-    return cfg
+    return merged
 
 
 def check_resume_config(saved: RunConfig, cfg: RunConfig) -> None:

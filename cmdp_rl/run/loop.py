@@ -1,0 +1,143 @@
+"""The training loop every run drives: collect, check the rollout, update, one ``metrics.csv`` row
+per member, checkpoint. A run has one member (``trainer.train``); a population has P, side by side
+in one batch (``population/run.py``), member i's envs the rows ``[i N, (i + 1) N)`` of the batch and
+its statistics the i-th of the update's list. What differs between the two (how the update steps
+the networks, what a checkpoint holds, how costs are counted) is in the :class:`Members` they give.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import torch
+from tensordict import TensorDictBase
+
+from cmdp_rl.algos import TrainingDiverged
+from cmdp_rl.algos.base import per_constraint
+from cmdp_rl.collector import Collector, finished_episodes
+from cmdp_rl.config import RunConfig
+from cmdp_rl.envs.contract import check_rollout
+from cmdp_rl.report.metrics import MetricsLogger, spread
+from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
+from cmdp_rl.run.progress import Progress
+
+
+def _mean(t: torch.Tensor) -> float:
+    return t.mean().item() if t.numel() else float("nan")
+
+
+def contract_options(env_cfg: Any) -> tuple[str, bool]:
+    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``)."""
+    return env_cfg.env_id(), bool(env_cfg.allow_negative_cost)
+
+
+def metrics_row(
+    iteration: int,
+    step: int,
+    batch: Any,
+    stats: dict[str, Any],
+    timing: dict[str, float],
+    cost_limit: Any,
+    cost_totals: list[float],
+    names: tuple[str, ...],
+    reference: Any,
+) -> dict[str, Any]:
+    """One ``metrics.csv`` row: the episodes that ended in ``batch`` (one member's ``[N, T]``), the
+    update's ``stats``, the costs collected so far; per-constraint values spread over columns."""
+    eps = finished_episodes(batch)
+    row = {
+        "iteration": iteration,
+        "step": step,
+        "episode_return": _mean(eps["return"]),
+        "episode_cost": [_mean(eps["cost"][:, k]) for k in range(len(names))],
+        "episode_length": _mean(eps["length"]),
+        "episodes": int(eps["length"].numel()),
+        "cost_limit": cost_limit,
+        **timing,
+        **stats,
+        "cost_rate": [cost_rate(total, step) for total in cost_totals],
+    }
+    limits = per_constraint(cost_limit, "algo.cost_limit", names)
+    row.update(normalized_scores(row["episode_return"], row["episode_cost"], row["cost_rate"], limits, reference))
+    return spread(row, names)
+
+
+@dataclasses.dataclass
+class Members:
+    """What the loop drives: ``cfgs`` and ``loggers``, one per member (P = 1 for a run), the
+    ``collector`` of all members' envs, and the member-specific steps:
+
+    - ``update(batch, iteration)``: every member's update on the batch, each member's statistics;
+    - ``cost_totals(batch)``: each member's costs collected so far, this batch included;
+    - ``checkpoint(iteration, time_s)``: the checkpoint at ``checkpoint_path``;
+    - ``report(iteration, rows, seconds)``: anything to say after an iteration's rows (optional).
+    """
+
+    cfgs: Sequence[RunConfig]
+    loggers: Sequence[MetricsLogger]
+    collector: Collector
+    update: Callable[[TensorDictBase, int], list[dict[str, Any]]]
+    cost_totals: Callable[[TensorDictBase], list[list[float]]]
+    checkpoint: Callable[[int, float], None]
+    checkpoint_path: Path
+    reference: Any = None
+    report: Callable[[int, list[dict[str, Any]], float], None] | None = None
+
+    @property
+    def envs_per_member(self) -> int:
+        return self.collector.env.num_envs // len(self.cfgs)
+
+    @property
+    def steps(self) -> int:
+        """Each member's env steps so far."""
+        return self.collector.total_steps // len(self.cfgs)
+
+    def part(self, batch: TensorDictBase, i: int) -> TensorDictBase:
+        """Member ``i``'s rows of ``batch``."""
+        n = self.envs_per_member
+        return batch if len(self.cfgs) == 1 else batch[i * n : (i + 1) * n]
+
+
+def train_iterations(m: Members, first: int, iterations: int, start: float, progress: Progress | None = None) -> None:
+    """Iterations ``first`` to ``iterations`` (a resume starts past its checkpoint's); ``start`` is
+    the ``perf_counter`` at which training time began (earlier by the time a resumed run had);
+    ``progress`` shows the first member's rows."""
+    cfg, n = m.cfgs[0], m.envs_per_member
+    names = m.collector.env.cost_names
+    per_iter = cfg.rollout_steps * n  # steps per member
+    env_id, allow_negative_cost = contract_options(cfg.env)
+    for it in range(first, iterations + 1):
+        t0 = time.perf_counter()
+        batch = m.collector.collect()
+        steps = m.steps
+        # The contract on what was collected (raw values): finite, costs >= 0; vectorised.
+        check_rollout(batch, env_id, allow_negative_cost, first_step=steps // n - cfg.rollout_steps + 1)
+        try:
+            stats = m.update(batch, it)
+        except TrainingDiverged as exc:
+            path = m.checkpoint_path
+            last = f"the last good checkpoint is {path}" if path.exists() else "no checkpoint was written yet"
+            raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
+        totals = m.cost_totals(batch)
+        dt = time.perf_counter() - t0
+        timing = {"sps": per_iter / dt, "time_s": time.perf_counter() - start}
+        rows = [
+            metrics_row(it, steps, m.part(batch, i), s, timing, c.algo.cost_limit, t, names, m.reference)
+            for i, (c, s, t) in enumerate(zip(m.cfgs, stats, totals))
+        ]
+        for logger, row in zip(m.loggers, rows):
+            logger.log(row, force_echo=it == iterations)
+        if progress is not None:
+            progress.update(rows[0])
+        if m.report is not None:
+            m.report(it, rows, dt)
+        if it % cfg.checkpoint_every == 0 or it == iterations:
+            for logger in m.loggers:  # the rows up to this iteration are on disk before the checkpoint names it
+                logger.sync()
+            m.checkpoint(it, time.perf_counter() - start)
+
+
+__all__ = ["Members", "contract_options", "metrics_row", "train_iterations"]
