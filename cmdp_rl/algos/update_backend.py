@@ -13,6 +13,7 @@ there. The algorithm owns the minibatch's losses (``PPO.minibatch_step``, CUP's 
 
 from __future__ import annotations
 
+import inspect
 from typing import Any, Callable, Protocol, Sequence
 
 import torch
@@ -75,7 +76,8 @@ def clip_grad_norm_(params: Sequence[torch.Tensor], max_norm: float) -> None:
         torch._foreach_mul_(grads, torch.clamp(max_norm / (total + 1e-6), max=1.0))
 
 
-_TORCH_ADAM_STEP = torch.optim.Adam.step
+# Torch's Adam.step, seen through the profiling wrapper torch puts on it when an optimiser is built.
+_TORCH_ADAM_STEP = inspect.unwrap(torch.optim.Adam.step)
 
 
 def adam_step(opt: torch.optim.Optimizer) -> None:
@@ -87,7 +89,7 @@ def adam_step(opt: torch.optim.Optimizer) -> None:
     g = groups[0]
     if not (
         type(opt) is torch.optim.Adam
-        and torch.optim.Adam.step is _TORCH_ADAM_STEP  # a patched step (a test's, a hook's) is honoured
+        and inspect.unwrap(torch.optim.Adam.step) is _TORCH_ADAM_STEP  # a patched step (a test's) is honoured
         and len(groups) == 1
         and g["fused"]
         and not (g["amsgrad"] or g["maximize"] or g["capturable"] or g["differentiable"] or g["weight_decay"])
