@@ -21,7 +21,7 @@ from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.registry import component, names
-from cmdp_rl.validation import ConfigError, PositiveInt, options, require
+from cmdp_rl.validation import ConfigError, PositiveInt, build, options, require
 
 # The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed: the
 # grid that configs/population/none.yaml declares (each a number some agent's own object reads).
@@ -63,15 +63,7 @@ class PopulationConfig:
 
 
 def population_spec(raw: Mapping[str, Any] | None) -> PopulationConfig:
-    data = dict(raw or {})
-    try:
-        spec = PopulationConfig(**data)
-    except TypeError as exc:
-        raise ConfigError(
-            f"population: unknown option(s) {sorted(set(data) - {'seeds', 'grid'})}; allowed: ['grid', 'seeds']"
-        ) from exc
-    except ValueError as exc:
-        raise ConfigError(f"population.seeds must be a positive integer, got {data.get('seeds')!r}") from exc
+    spec = build(PopulationConfig, dict(raw or {}), "population")
     for name, values in spec.fields().items():
         require(
             name in PER_AGENT_FIELDS,
