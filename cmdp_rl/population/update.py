@@ -173,25 +173,35 @@ class PopulationPPO:
             ("critics", self.agent.critics, self.critic_opt, "critic_opt"),
         ]
 
+    @torch.no_grad()
     def unstack_agents(self) -> None:
-        """Each agent's networks and Adam moments into its single-run algorithm object, whose
-        ``state_dict`` is then its single run's (what a checkpoint holds per agent)."""
+        """Each agent's networks, and its Adam moments through its optimiser's ``load_state_dict``,
+        into its single-run algorithm object, whose ``state_dict`` is then its single run's (what a
+        checkpoint holds per agent)."""
         for i, algo in enumerate(self.algos):
-            self.agent.load_into(i, algo.agent)
-            for name, stacked, stacked_opt, opt_name in self._pairs():
-                opt, moments = getattr(algo, opt_name), stacked_opt.agent_state(i, stacked)
-                step = stacked_opt.steps[i].to(torch.float32)
-                for n, p in getattr(algo.agent, name).named_parameters():
-                    opt.state[p] = {"step": step.clone(), **moments[n]}
+            for name, stacked, adam, opt_name in self._pairs():
+                opt, saved = getattr(algo, opt_name), getattr(algo, opt_name).state_dict()
+                params, m, v = (stacked.row(t, i) for t in (stacked.flat, adam.exp_avg, adam.exp_avg_sq))
+                step = adam.steps[i].to(torch.float32)
+                for k, (n, p) in enumerate(getattr(algo.agent, name).named_parameters()):
+                    p.copy_(params[n])
+                    saved["state"][k] = {"step": step.clone(), "exp_avg": m[n].clone(), "exp_avg_sq": v[n].clone()}
+                opt.load_state_dict(saved)
 
+    @torch.no_grad()
     def stack_agents(self) -> None:
         """The inverse of :meth:`unstack_agents`: after each agent's algorithm object loaded its
-        state (a resume), its networks and Adam moments into the stacked ones."""
+        state (a resume), its networks and Adam moments (no step yet: zero) into the stacked ones."""
         for i, algo in enumerate(self.algos):
-            for name, stacked, stacked_opt, opt_name in self._pairs():
-                module, opt = getattr(algo.agent, name), getattr(algo, opt_name)
-                stacked.load_agent(i, module)
-                stacked_opt.load_agent(i, stacked, {n: opt.state.get(p, {}) for n, p in module.named_parameters()})
+            for name, stacked, adam, opt_name in self._pairs():
+                saved = getattr(algo, opt_name).state_dict()["state"]
+                rows = [stacked.row(t, i) for t in (stacked.flat, adam.exp_avg, adam.exp_avg_sq)]
+                adam.steps[i] = 0.0
+                for k, (n, p) in enumerate(getattr(algo.agent, name).named_parameters()):
+                    state = saved.get(k, {})
+                    for row, value in zip(rows, (p, state.get("exp_avg"), state.get("exp_avg_sq"))):
+                        row[n].zero_() if value is None else row[n].copy_(value)
+                    adam.steps[i] = float(state.get("step", 0.0))
 
 
 __all__ = ["PopulationPPO"]
