@@ -31,16 +31,15 @@ RUN_AS_SWEEP = "run it as separate runs (python train.py -m ...)"
 
 def batched(algo: str) -> bool:
     """Whether the population trains ``algo``: a PPO whose update is ``PPO.update`` (the variant
-    lives in the hooks the population calls per agent: multiplier, advantage, surrogate) or that
-    adds CUP's projection, or a composition on such a base (Sauté's ``algo.base``)."""
+    lives in the hooks ``update_backend.iterate`` calls per agent: multiplier, advantage, surrogate,
+    a second stage), or a composition on such a base (Sauté's ``algo.base``)."""
     comp = component("algo", algo)
     if comp.options.envs is not None:  # trains on envs of its own kind, not a population's batch
         return False
     if not isinstance(comp.build, type):
         base = getattr(comp.options, "base", None)
         return isinstance(base, str) and base != algo and batched(base)
-    # CUP's second stage is the one stage beyond PPO's that the population runs (update.py).
-    return issubclass(comp.build, PPO) and (comp.build.update is PPO.update or hasattr(comp.build, "projection_loss"))
+    return issubclass(comp.build, PPO) and comp.build.update is PPO.update
 
 
 def batched_algos() -> list[str]:

@@ -114,7 +114,7 @@ def train_population(
         generators.append(g)
     env = population_env(cfgs, N, [c.seed for c in cfgs], device)
     pop = PopulationAgent(agents, generators, device)
-    update = PopulationPPO(cfgs, algos, pop, N)
+    update = PopulationPPO(pop, algos)
     collector = Collector(env, pop, T, seed=None)
 
     dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(overrides)]
