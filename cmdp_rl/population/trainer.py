@@ -268,14 +268,7 @@ def train_population(
 
 
 def _nanmean(values: list[float]) -> float:
-    finite = [v for v in values if not math.isnan(v)]
-    return sum(finite) / len(finite) if finite else float("nan")
+    return torch.tensor(values, dtype=torch.float64).nanmean().item()
 
 
-__all__ = [
-    "AGENTS_DIR",
-    "POPULATION_CHECKPOINT",
-    "POPULATION_CONFIG",
-    "POPULATION_SUMMARY",
-    "train_population",
-]
+__all__ = ["AGENTS_DIR", "train_population"]
