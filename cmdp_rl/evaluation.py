@@ -55,19 +55,23 @@ def evaluate(
     with torch.random.fork_rng(devices=[]):
         if seed is not None:
             torch.manual_seed(seed)
-        return _evaluate(agent, env, episodes, deterministic, seed, termination_metric, cost_limit)
+        return evaluate_members(agent, env, episodes, deterministic, [cost_limit], termination_metric, seed)[0]
 
 
-def _evaluate(
+def evaluate_members(
     agent: Agent,
     env: VecEnv,
     episodes: int,
     deterministic: bool,
-    seed: int | None,
-    termination_metric: str | None,
-    cost_limit: float | Sequence[float] | None = None,
-) -> dict[str, float]:
-    n = env.num_envs
+    cost_limits: Sequence[Any],
+    termination_metric: str | None = None,
+    seed: int | None = None,
+) -> list[dict[str, Any]]:
+    """:func:`evaluate`'s result for each of ``len(cost_limits)`` members side by side in ``env``
+    (a run is one; a population's agent i has the rows ``[i n, (i + 1) n)``), each with its own
+    budget, ``episodes`` episodes each; the caller seeds the members' action samples."""
+    parts = len(cost_limits)
+    n = env.num_envs // parts
     # A multi-agent env's M rows of a team end their episodes together (envs/multi_agent.py): an
     # episode is the team's, counted once, its return the mean of the agents' returns.
     m = getattr(env, "agents_per_env", 1)
@@ -75,19 +79,23 @@ def _evaluate(
     quota = [episodes // teams + (1 if i // m < episodes % teams else 0) for i in range(n)]
     chunk = 128
     collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
-    rows = episode_rows(collector, quota)
-    if m > 1:  # the j-th episode of a team: its agents' mean return, its first row's cost and length
-        rows = [
-            [(sum(rows[i + a][j][0] for a in range(m)) / m, *rows[i][j][1:]) for j in range(quota[i])]
-            for i in range(0, n, m)
-        ]
-    flat = [row for r in rows for row in r]
-    return summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit)
+    everyone = episode_rows(collector, quota * parts)
+    results = []
+    for j, cost_limit in enumerate(cost_limits):
+        rows = everyone[j * n : (j + 1) * n]
+        if m > 1:  # the j-th episode of a team: its agents' mean return, its first row's cost and length
+            rows = [
+                [(sum(rows[i + a][k][0] for a in range(m)) / m, *rows[i][k][1:]) for k in range(quota[i])]
+                for i in range(0, n, m)
+            ]
+        flat = [row for r in rows for row in r]
+        results.append(summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit))
+    return results
 
 
 def episode_rows(collector: Collector, quota: Sequence[int]) -> list[list[tuple[float, ...]]]:
     """Env i's first ``quota[i]`` whole episodes from ``collector``, each as (return, length,
-    terminated, cost_0, ..., cost_{K-1}); a population's evaluation reads its P N envs so."""
+    terminated, cost_0, ..., cost_{K-1})."""
     rows: list[list[tuple[float, ...]]] = [[] for _ in quota]
     while any(len(r) < q for r, q in zip(rows, quota)):
         batch = collector.collect()
@@ -115,7 +123,7 @@ def summarize_episodes(
 ) -> dict[str, Any]:
     """``evaluate``'s result from its episodes' rows ``(return, length, terminated, cost_0, ...)``:
     spreads of return, each cost and length, the termination rate, and with ``cost_limit`` the
-    intervals. Shared with the population's evaluation (population/evaluation.py)."""
+    intervals."""
     result: dict[str, Any] = {"episodes": len(flat), "deterministic": deterministic}
     result.update(_spread("episode_return", [row[0] for row in flat]))
     for k, cost_name in enumerate(names):

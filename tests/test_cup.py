@@ -1,6 +1,7 @@
 """CUP (Yang et al. 2022): the projection stage's stated properties, nu's dual ascent, a learning run."""
 
 import csv
+from unittest.mock import patch
 
 import pytest
 import torch
@@ -9,6 +10,7 @@ from torch.distributions import kl_divergence
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.ppo import PPO
+from cmdp_rl.algos.update_backend import OneAgent
 from cmdp_rl.config import compose_config
 
 
@@ -25,6 +27,18 @@ def setup(algo: dict):
     env = make_env(cfg.env)
     agent = make_agent(cfg.policy, env)
     return make_algo(cfg.algo, agent), Collector(env, agent, cfg.rollout_steps, seed=0).collect()
+
+
+def stage_one(algo, batch):
+    """PPO's iteration on CUP's networks (and nu): CUP's update without its second stage."""
+    with patch.object(type(algo), "second_stage", PPO.second_stage):
+        algo.update(batch)
+
+
+def project(algo, batch):
+    """CUP's stage 2 alone on a batch whose stage 1 ran: its mean loss and KL."""
+    backend = OneAgent(algo.agent, algo.cfg.max_grad_norm, algo.kl_limit)
+    return {k: v.item() for k, v in algo.second_stage(backend, [algo], [batch]).items()}
 
 
 def _actor(algo):
@@ -48,25 +62,25 @@ def test_with_nu_zero_the_projection_returns_the_improved_policy_unchanged():
     # The projection minimises KL(pi || pi_{k+1/2}) + nu c E[ratio A_c]; with nu = 0 its minimiser is
     # pi_{k+1/2}, where the gradient is 0: the stage must not move (no momentum carried in).
     algo, batch = setup({"nu_init": 0.0, "cost_limit": 100.0})
-    PPO.update(algo, batch)  # stage 1 (and nu: J_c < d keeps it at 0)
+    stage_one(algo, batch)  # stage 1 (and nu: J_c < d keeps it at 0)
     half = _actor(algo)
     assert not all(torch.equal(a, b) for a, b in zip(half, _actor(setup({})[0])))  # stage 1 moved it
-    stats = algo.project(batch)
+    stats = project(algo, batch)
     assert all(torch.equal(a, b) for a, b in zip(half, _actor(algo)))
     assert stats == {"loss_projection": 0.0, "kl_projection": 0.0}
     # Twice in a row (a second iteration's projection, with the first's optimizer gone) too.
-    algo.project(batch)
+    project(algo, batch)
     assert all(torch.equal(a, b) for a, b in zip(half, _actor(algo)))
 
 
 def test_with_nu_positive_the_projection_lowers_the_cost_surrogate_and_stays_near():
     algo, batch = setup({"nu_init": 1.0, "cost_limit": 100.0, "nu_lr": 1e-9})
-    PPO.update(algo, batch)
+    stage_one(algo, batch)
     units = algo.agent.training_units({k: batch.get(k) for k in algo.agent.in_keys if k in batch.keys(True)})
     with torch.no_grad():
         half_params = algo.agent.actor.params(units)
     cost_before, kl_before = _surrogates(algo, batch, half_params)
-    algo.project(batch)
+    project(algo, batch)
     cost_after, kl_after = _surrogates(algo, batch, half_params)
     assert kl_before == 0.0
     assert cost_after < cost_before - 0.01, (cost_before, cost_after)

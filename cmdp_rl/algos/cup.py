@@ -26,19 +26,19 @@ Two stages per iteration:
 from __future__ import annotations
 
 from functools import partial
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Sequence
 
 import torch
 from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl import keys
-from cmdp_rl.algos.base import check_finite, check_parameters_finite, single_constraint
+from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import DualAscent
 from cmdp_rl.algos.multiplier_options import Scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig, Reduce
-from cmdp_rl.algos.update_backend import Backend, OneAgent, run_epochs
+from cmdp_rl.algos.update_backend import Backend, joined, run_epochs
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options
@@ -85,26 +85,18 @@ class CUP(PPO):
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.cost)
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        stats = super().update(batch)  # stage 1 (PPO on A_r, the policy_advantage of PPO) and nu
-        stats.update(self.project(batch))
-        check_parameters_finite(self.agent)
-        return stats
-
-    def project(self, batch: TensorDictBase) -> dict[str, float]:
-        """Stage 2 on a batch whose GAE stage 1 computed: returns its mean loss and KL."""
+    def second_stage(self, backend: Backend, algos: Sequence[CUP], rows: Sequence[TensorDictBase]) -> dict:
+        """Stage 2 of every member (``algos``, each on its ``rows``, stage 1 done): each member's
+        mean loss and KL."""
         cfg = self.cfg
-        units = self.agent.training_units(self.projection_inputs(batch))
+        units = backend.training_units(joined([a.projection_inputs(r) for a, r in zip(algos, rows)]))
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
-            units.update({(HALF, k): v for k, v in self.agent.actor.params(units).items()})
+            units.update({(HALF, k): v for k, v in backend.actor_params(units).items()})
         # fresh: see the docstring; at stage 1's rate (lr, or its annealed value with anneal_lr)
-        opt = torch.optim.Adam(self.actor_params, lr=self.actor_opt.param_groups[0]["lr"], fused=True)
-        backend = OneAgent(self.agent, cfg.max_grad_norm, self.kl_limit)
-        step = partial(self.projection_step, backend, [(opt, self.actor_params)], self.projection_coef())
-        sums, steps = run_epochs(backend, units, cfg.num_minibatches, cfg.projection_epochs, step)
-        loss_projection, kl_projection = (torch.stack(list(sums.values())) / steps).tolist()
-        check_finite(loss_projection=loss_projection)
-        return {"loss_projection": loss_projection, "kl_projection": kl_projection}
+        nu_coef = backend.per_member([a.projection_coef() for a in algos])
+        step = partial(self.projection_step, backend, backend.fresh_actor_groups(algos), nu_coef)
+        sums, counts = run_epochs(backend, units, cfg.num_minibatches, cfg.projection_epochs, step)
+        return {k: v / counts for k, v in sums.items()}
 
     def projection_step(
         self, backend: Backend, groups: list, nu_coef: float | torch.Tensor, mb: dict, active: Any

@@ -15,8 +15,7 @@ default gymnasium run's training (measured with cProfile, see ``experiments/``).
 from __future__ import annotations
 
 import math
-from functools import partial
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Optional
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Optional, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -24,10 +23,10 @@ from torch import distributions as D
 
 from cmdp_rl import keys
 from cmdp_rl.advantages import TwinGAE
-from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
+from cmdp_rl.algos.base import AlgoConfig, check_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.episode_cost import EpisodeCost, EpisodeCostEstimate
-from cmdp_rl.algos.update_backend import Backend, OneAgent, run_epochs
+from cmdp_rl.algos.update_backend import Backend, OneAgent, iterate
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.registry import register
 from cmdp_rl.validation import (
@@ -162,24 +161,7 @@ class PPO:
     # --- the shared update ----------------------------------------------------------------------
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
-        cfg = self.cfg
-        if cfg.anneal_lr:
-            self.actor_opt.param_groups[0]["lr"], self.critic_opt.param_groups[0]["lr"] = self.learning_rates()
-        self.gae(batch, self.agent)
-        batch.set(keys.POLICY_ADVANTAGE, self.prepare(batch))
-        # Only what the minibatch loop reads, as training units: steps [N*T, ...], or for a
-        # recurrent policy whole segments [U, L, ...] (Agent.training_units).
-        data = self.agent.training_units({k: batch.get(k) for k in self._update_keys(batch)})
-        backend = OneAgent(self.agent, cfg.max_grad_norm, self.kl_limit)
-        groups = [(self.actor_opt, self.actor_params), (self.critic_opt, self.critic_params)]
-        sums, steps = run_epochs(
-            backend, data, cfg.num_minibatches, cfg.update_epochs, partial(self.minibatch_step, backend, groups)
-        )
-        # One host sync per update (not per minibatch): read the statistics, stop on NaN/inf.
-        means = (torch.stack(list(sums.values())) / steps).tolist()
-        stats = self.finish({k: means[i] for i, k in enumerate(sums)})
-        check_parameters_finite(self.agent)
-        return stats
+        return iterate([self], batch, OneAgent(self.agent, self.cfg.max_grad_norm, self.kl_limit))[0]
 
     def prepare(self, batch: TensorDictBase) -> torch.Tensor:
         """After GAE, before the minibatches (one agent's rows): J_c, the multiplier, the policy
@@ -245,6 +227,11 @@ class PPO:
             kl_stop = mean(log_ratio.exp() - 1 - log_ratio)
             clip_fraction = mean((log_ratio_clip != log_ratio).float())
         return -mean(gain), {"entropy": entropy, "kl": kl, "clip_fraction": clip_fraction, "kl_stop": kl_stop}
+
+    def second_stage(self, backend: Backend, algos: Sequence[PPO], rows: Sequence[TensorDictBase]) -> Units:
+        """A stage after the minibatch epochs, for every member (``algos``, each on its ``rows``),
+        before ``finish``: its statistics' means per member (none here; CUP's projection)."""
+        return {}
 
     def iteration_stats(self) -> dict[str, float]:
         """A variant's ``stats`` beyond the minibatch loop's (CRPO's ``cost_step``)."""

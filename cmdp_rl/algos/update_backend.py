@@ -1,6 +1,7 @@
-"""How a PPO-family update reaches its networks: the minibatch epochs written once, over one agent's
-training units ``[U, ...]`` (:class:`OneAgent`) or P agents' ``[P, U, ...]`` side by side
-(``population/update.StackedAgents``: each network a row of stacked parameters).
+"""How a PPO-family update reaches its networks: the iteration (:func:`iterate`) and its minibatch
+epochs written once, over one agent's training units ``[U, ...]`` (:class:`OneAgent`) or P agents'
+``[P, U, ...]`` side by side (``population/update.PopulationPPO``: each network a row of stacked
+parameters).
 
 The backend owns what differs: the order of each epoch (torch's global generator for one agent,
 each agent's own generator for P), the reduction of a per-unit loss (``torch.mean``, or the mean
@@ -8,16 +9,22 @@ over each agent's rows), the forward pass, gradient-norm clipping and the optimi
 Adam for one agent, ``population/params.StackedAdam`` for P), and KL early stopping, which is a
 mask over the agents: an agent past its limit is evaluated on that minibatch, takes no step and
 draws no further permutation, as a single run breaks out of its loop; with one agent the loop ends
-there. The algorithm owns the minibatch's losses (``PPO.minibatch_step``, CUP's stage 2).
+there. The algorithm owns the minibatch's losses (``PPO.minibatch_step``, CUP's stage 2) and each
+member's own arithmetic around them (``prepare``, ``finish``).
 """
 
 from __future__ import annotations
 
 import inspect
+from functools import partial
 from typing import Any, Callable, Protocol, Sequence
 
 import torch
+from tensordict import TensorDictBase
 from torch import distributions as D
+
+from cmdp_rl import keys
+from cmdp_rl.algos.base import TrainingDiverged, check_parameters_finite
 
 Units = dict[Any, torch.Tensor]
 # An optimiser and the parameters it steps: torch's Adam and a parameter list, or StackedAdam and
@@ -58,6 +65,28 @@ class Backend(Protocol):
         """The statistics detached, zero for an agent that did not evaluate this minibatch."""
 
     def count(self, evaluated: Any) -> Any: ...
+
+    # --- around the epochs: what an iteration asks of the members' networks and optimisers
+    def set_rates(self, algos: Sequence[Any]) -> None:
+        """Each member's learning rates this iteration (``anneal_lr``)."""
+
+    def groups(self, algos: Sequence[Any]) -> list[Group]:
+        """The actor's and the critics' optimiser and parameters."""
+
+    def fresh_actor_groups(self, algos: Sequence[Any]) -> list[Group]:
+        """A fresh Adam on the actors at each member's actor rate (CUP's stage 2)."""
+
+    def training_units(self, data: Units) -> Units:
+        """The members' ``[N, T, ...]`` rows as training units."""
+
+    def actor_params(self, units: Units) -> dict[str, torch.Tensor]:
+        """The actor's distribution parameters on training units."""
+
+    def per_member(self, values: Sequence[float]) -> Any:
+        """One number per member, as the losses weigh a unit by it."""
+
+    def check_finite(self) -> None:
+        """Stop (:class:`TrainingDiverged`) on a parameter that is not finite."""
 
 
 Step = Callable[[Units, Any], tuple[dict[str, torch.Tensor], Any]]
@@ -146,6 +175,54 @@ def run_epochs(backend: Backend, data: Units, num_minibatches: int, epochs: int,
     return sums, counts
 
 
+def members(batch: TensorDictBase, count: int) -> list[TensorDictBase]:
+    """Each member's rows of ``batch``: the batch itself for one."""
+    n = batch.shape[0] // count
+    return [batch] if count == 1 else [batch[i * n : (i + 1) * n] for i in range(count)]
+
+
+def joined(parts: Sequence[Any]) -> Any:
+    """The members' tensors (or dicts of them) back in one, in member order: the one for one."""
+    if len(parts) == 1:
+        return parts[0]
+    if isinstance(parts[0], dict):
+        return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+    return torch.cat(parts)
+
+
+def iterate(algos: Sequence[Any], batch: TensorDictBase, backend: Any) -> list[dict[str, float]]:
+    """One PPO-family iteration of every member on ``batch`` (a run: one algorithm and
+    :class:`OneAgent`; a population: each agent's own algorithm object and the stacked backend):
+    the learning rates, GAE, each member's ``prepare`` on its rows, the minibatch epochs (the first
+    algorithm's ``minibatch_step``), the algorithm's ``second_stage`` (CUP's), each member's
+    ``finish``. Returns each member's statistics."""
+    first, cfg = algos[0], algos[0].cfg
+    if cfg.anneal_lr:
+        backend.set_rates(algos)
+    first.gae(batch, backend.agent)  # along time, row by row: every member's rows at once
+    rows = members(batch, len(algos))
+    batch.set(keys.POLICY_ADVANTAGE, joined([a.prepare(r) for a, r in zip(algos, rows)]))
+    # Only what the minibatch loop reads, as training units: a run's steps [N*T, ...] (or a
+    # recurrent policy's segments, Agent.training_units), a population's [P, N*T, ...].
+    data = backend.training_units({k: batch.get(k) for k in first._update_keys(batch)})
+    step = partial(first.minibatch_step, backend, backend.groups(algos))
+    sums, counts = run_epochs(backend, data, cfg.num_minibatches, cfg.update_epochs, step)
+    means = {k: v / counts for k, v in sums.items()}  # each member's mean over its minibatches
+    means.update(first.second_stage(backend, algos, rows))
+    # One host sync per update (not per minibatch): read the statistics, stop on NaN/inf.
+    values = torch.stack(list(means.values())).reshape(len(means), len(algos)).tolist()
+    out = []
+    for i, a in enumerate(algos):
+        try:
+            out.append(a.finish({k: values[s][i] for s, k in enumerate(means)}))
+        except TrainingDiverged as exc:
+            if len(algos) == 1:
+                raise
+            raise TrainingDiverged(f"agent {i}: {exc}") from exc
+    backend.check_finite()
+    return out
+
+
 class OneAgent:
     """One agent's update: ``kl_limit`` None never stops; ``entropy_coef`` None is the algorithm's."""
 
@@ -202,5 +279,29 @@ class OneAgent:
     def count(self, evaluated: bool) -> int:
         return 1
 
+    def set_rates(self, algos: Sequence[Any]) -> None:
+        a = algos[0]
+        a.actor_opt.param_groups[0]["lr"], a.critic_opt.param_groups[0]["lr"] = a.learning_rates()
 
-__all__ = ["Backend", "OneAgent", "run_epochs"]
+    def groups(self, algos: Sequence[Any]) -> list[Group]:
+        a = algos[0]
+        return [(a.actor_opt, a.actor_params), (a.critic_opt, a.critic_params)]
+
+    def fresh_actor_groups(self, algos: Sequence[Any]) -> list[Group]:
+        a = algos[0]
+        return [(torch.optim.Adam(a.actor_params, lr=a.actor_opt.param_groups[0]["lr"], fused=True), a.actor_params)]
+
+    def training_units(self, data: Units) -> Units:
+        return self.agent.training_units(data)
+
+    def actor_params(self, units: Units) -> dict[str, torch.Tensor]:
+        return self.agent.actor.params(units)
+
+    def per_member(self, values: Sequence[float]) -> float:
+        return values[0]
+
+    def check_finite(self) -> None:
+        check_parameters_finite(self.agent)
+
+
+__all__ = ["Backend", "OneAgent", "iterate", "joined", "members", "run_epochs"]

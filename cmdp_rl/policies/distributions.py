@@ -52,9 +52,13 @@ class GaussianHead(nn.Module):
         self.log_std = nn.Parameter(torch.full_like(low, init_log_std))
 
     def forward(self, *features: torch.Tensor) -> dict[str, torch.Tensor]:
-        loc = self.center + self.half_width * self.net(*features)
-        scale = (self.half_width * self.log_std.exp()).expand_as(loc)
-        return {keys.LOC: loc, keys.SCALE: scale}
+        return self.params(self.net(*features), self.log_std)
+
+    def params(self, out: torch.Tensor, log_std: torch.Tensor) -> dict[str, torch.Tensor]:
+        """``(loc, scale)`` from the output network's ``out`` and ``log_std`` (a population's stacked
+        ones, ``[P, 1, A]``)."""
+        loc = self.center + self.half_width * out
+        return {keys.LOC: loc, keys.SCALE: (self.half_width * log_std.exp()).expand_as(loc)}
 
     @staticmethod
     def dist(params: dict[str, torch.Tensor]) -> D.Distribution:
@@ -125,7 +129,10 @@ class CategoricalHead(nn.Module):
         self.sizes = None if sizes is None else tuple(sizes)
 
     def forward(self, *features: torch.Tensor) -> dict[str, torch.Tensor]:
-        return {keys.LOGITS: self.net(*features)}
+        return self.params(self.net(*features))
+
+    def params(self, out: torch.Tensor, log_std: None = None) -> dict[str, torch.Tensor]:
+        return {keys.LOGITS: out}
 
     def dist(self, params: dict[str, torch.Tensor]) -> D.Distribution:
         if self.sizes is None:

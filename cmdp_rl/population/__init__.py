@@ -1,17 +1,8 @@
 """Population training: P independent agents trained by one process as one batched tensor program
-(``python train.py ... population.seeds=S population.grid.<field>=[...]``).
-
-- ``spec``: the ``population`` options, the per-agent fields, each agent's validated ``RunConfig``
-  and the refusals (what the batched program does not cover);
-- ``params``: the agents' networks as stacked parameters with a leading agent dimension, and Adam
-  on them;
-- ``env``: all agents' envs as one batched env (the env's own population form, else each agent's
-  own env in turn);
-- ``agent``: acting and valuing for all agents at once (the collector's and GAE's side);
-- ``update``: the stacked backend of the PPO family's one minibatch step (``algos/update_backend.py``),
-  each agent's own algorithm object around it;
-- ``trainer``: the agents built, driven through the runs' loop (``run/loop.py``) into one run
-  directory per agent, the population's checkpoint, resume and summary.
+(``python train.py ... population.seeds=S population.grid.<field>=[...]``, docs/population.md):
+``spec`` (what a population is, each agent's config), ``params`` and ``fused`` (the stacked
+networks, their Adam and fused pass), ``env`` (the agents' envs as one), ``agent`` (acting and
+valuing), ``update`` (the stacked backend of the shared update), ``trainer`` (the run).
 """
 
 from cmdp_rl.population.spec import PER_AGENT_FIELDS, PopulationConfig, agent_configs, population_active

@@ -37,7 +37,6 @@ class PopulationAgent:
     recurrent = False
 
     def __init__(self, agents: Sequence[Agent], generators: Sequence[torch.Generator], device: torch.device) -> None:
-        self.template = agents[0]
         self.head = agents[0].actor.head
         if not isinstance(self.head, (GaussianHead, CategoricalHead)) or getattr(self.head, "sizes", None):
             raise ConfigError(
@@ -49,8 +48,6 @@ class PopulationAgent:
         self.critics = StackedParams([a.critics for a in agents], device)
         self.generators = list(generators)
         self.num_agents = len(agents)
-        if isinstance(self.head, GaussianHead):  # on the stacked parameters' device
-            self.center, self.half_width = self.head.center.to(device), self.head.half_width.to(device)
         # Tanh MLPs of one shape (one action dimension, one cost: Reach1D): the actor and both
         # critics as one autograd node with a hand-written backward (population/fused.py).
         nets = (self.actor_net, *self.critic_nets.values())
@@ -78,11 +75,8 @@ class PopulationAgent:
         return self._head(sequential(self.actor_net, "head.net", self.actor, obs))
 
     def _head(self, out: torch.Tensor) -> dict[str, torch.Tensor]:
-        if isinstance(self.head, CategoricalHead):
-            return {keys.LOGITS: out}
-        loc = self.center + self.half_width * out
-        scale = (self.half_width * self.actor.view("head.log_std").unsqueeze(1).exp()).expand_as(loc)
-        return {keys.LOC: loc, keys.SCALE: scale}
+        gaussian = isinstance(self.head, GaussianHead)
+        return self.head.params(out, self.actor.view("head.log_std").unsqueeze(1) if gaussian else None)
 
     def training_pass(self, obs: torch.Tensor) -> tuple[D.Distribution, torch.Tensor, torch.Tensor]:
         """The action distribution and both critics' values on a minibatch ``[P, B, obs]``: one
@@ -146,15 +140,6 @@ class PopulationAgent:
         next_values[:, -1] = next_all[:, -1]
         next_values = torch.where(fresh, next_all, next_values)
         return values, next_values
-
-    # --- moving an agent out -----------------------------------------------------------------------
-    def load_into(self, i: int, agent: Agent) -> None:
-        """Copy agent ``i``'s parameters into a single-run ``Agent`` of the same architecture."""
-        with torch.no_grad():
-            for module, stacked in ((agent.actor, self.actor), (agent.critics, self.critics)):
-                state = stacked.agent_state(i)
-                for name, p in module.named_parameters():
-                    p.copy_(state[name])
 
 
 __all__ = ["PopulationAgent"]

@@ -49,15 +49,10 @@ class StackedParams:
         a, b = self.offsets[name]
         return self.flat[:, a:b].view(self.num_agents, *self.shapes[name])
 
-    def agent_state(self, i: int) -> dict[str, torch.Tensor]:
-        """Agent ``i``'s parameters by name, as its single-run module names them."""
-        with torch.no_grad():
-            return {n: self.view(n)[i].detach().clone() for n in self.names}
-
-    @torch.no_grad()
-    def load_agent(self, i: int, module: nn.Module) -> None:
-        """Agent ``i``'s parameters from a single-run module of the same architecture."""
-        self.flat[i] = torch.cat([p.detach().reshape(-1) for _, p in module.named_parameters()]).to(self.flat)
+    def row(self, t: torch.Tensor, i: int) -> dict[str, torch.Tensor]:
+        """Agent ``i``'s row of ``t`` (``[P, n]``: these parameters, or Adam's moments of them) by
+        parameter name, as views in its single-run module's shapes."""
+        return {n: t[i, a:b].view(self.shapes[n]) for n, (a, b) in self.offsets.items()}
 
     def grad_norms(self) -> torch.Tensor:
         """Each agent's gradient norm over all of these parameters, ``[P]``."""
@@ -117,30 +112,6 @@ class StackedAdam:
 
     def zero_grad(self) -> None:
         self.params.grad = None
-
-    def agent_state(self, i: int, stacked: StackedParams) -> dict[str, dict[str, torch.Tensor]]:
-        """Agent ``i``'s moments per parameter name (for its single-run optimizer's state)."""
-        out = {}
-        for n in stacked.names:
-            a, b = stacked.offsets[n]
-            shape = stacked.shapes[n]
-            out[n] = {
-                "exp_avg": self.exp_avg[i, a:b].reshape(shape).clone(),
-                "exp_avg_sq": self.exp_avg_sq[i, a:b].reshape(shape).clone(),
-            }
-        return out
-
-    @torch.no_grad()
-    def load_agent(self, i: int, stacked: StackedParams, moments: dict[str, dict[str, torch.Tensor]]) -> None:
-        """Agent ``i``'s step count and moments from its single-run optimizer's state per parameter
-        name (empty: no step taken yet); the inverse of :meth:`agent_state`."""
-        self.steps[i] = 0.0
-        for n in stacked.names:
-            a, b = stacked.offsets[n]
-            state = moments.get(n) or {}
-            self.steps[i] = float(state.get("step", 0.0))
-            for mine, key in ((self.exp_avg, "exp_avg"), (self.exp_avg_sq, "exp_avg_sq")):
-                mine[i, a:b] = state[key].reshape(-1) if key in state else 0.0
 
 
 def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:

@@ -21,7 +21,7 @@ from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.registry import component, names
-from cmdp_rl.validation import ConfigError, PositiveInt, options, require
+from cmdp_rl.validation import ConfigError, PositiveInt, build, options, require
 
 # The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed: the
 # grid that configs/population/none.yaml declares (each a number some agent's own object reads).
@@ -31,16 +31,15 @@ RUN_AS_SWEEP = "run it as separate runs (python train.py -m ...)"
 
 def batched(algo: str) -> bool:
     """Whether the population trains ``algo``: a PPO whose update is ``PPO.update`` (the variant
-    lives in the hooks the population calls per agent: multiplier, advantage, surrogate) or that
-    adds CUP's projection, or a composition on such a base (Sauté's ``algo.base``)."""
+    lives in the hooks ``update_backend.iterate`` calls per agent: multiplier, advantage, surrogate,
+    a second stage), or a composition on such a base (Sauté's ``algo.base``)."""
     comp = component("algo", algo)
     if comp.options.envs is not None:  # trains on envs of its own kind, not a population's batch
         return False
     if not isinstance(comp.build, type):
         base = getattr(comp.options, "base", None)
         return isinstance(base, str) and base != algo and batched(base)
-    # CUP's second stage is the one stage beyond PPO's that the population runs (update.py).
-    return issubclass(comp.build, PPO) and (comp.build.update is PPO.update or hasattr(comp.build, "projection_loss"))
+    return issubclass(comp.build, PPO) and comp.build.update is PPO.update
 
 
 def batched_algos() -> list[str]:
@@ -63,15 +62,7 @@ class PopulationConfig:
 
 
 def population_spec(raw: Mapping[str, Any] | None) -> PopulationConfig:
-    data = dict(raw or {})
-    try:
-        spec = PopulationConfig(**data)
-    except TypeError as exc:
-        raise ConfigError(
-            f"population: unknown option(s) {sorted(set(data) - {'seeds', 'grid'})}; allowed: ['grid', 'seeds']"
-        ) from exc
-    except ValueError as exc:
-        raise ConfigError(f"population.seeds must be a positive integer, got {data.get('seeds')!r}") from exc
+    spec = build(PopulationConfig, dict(raw or {}), "population")
     for name, values in spec.fields().items():
         require(
             name in PER_AGENT_FIELDS,

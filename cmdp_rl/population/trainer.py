@@ -22,10 +22,10 @@ import yaml
 from cmdp_rl import keys
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
+from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate_members
 from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
-from cmdp_rl.population.evaluation import evaluate_population
 from cmdp_rl.population.spec import agent_configs, label
 from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.report.metrics import constraint_name
@@ -114,7 +114,7 @@ def train_population(
         generators.append(g)
     env = population_env(cfgs, N, [c.seed for c in cfgs], device)
     pop = PopulationAgent(agents, generators, device)
-    update = PopulationPPO(cfgs, algos, pop, N)
+    update = PopulationPPO(pop, algos)
     collector = Collector(env, pop, T, seed=None)
 
     dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(overrides)]
@@ -217,7 +217,19 @@ def train_population(
     train_time = time.perf_counter() - start
     steps = collector.total_steps // P
 
-    results = evaluate_population(pop, cfgs, device)
+    # Each agent's single-run evaluation: min(eval_episodes, num_envs) envs of its own seeded with its
+    # evaluation seed, which also seeds its action samples.
+    seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
+    eval_env = population_env(cfgs, min(cfg.eval_episodes, N), seeds, device, evaluation=True)
+    training, pop.generators = pop.generators, [torch.Generator(device=device).manual_seed(s) for s in seeds]
+    limits = [c.algo.cost_limit for c in cfgs]
+    try:
+        results = evaluate_members(
+            pop, eval_env, cfg.eval_episodes, cfg.eval_deterministic, limits, cfg.env.termination_metric
+        )
+    finally:
+        pop.generators = training
+        eval_env.close()
     summary_agents = []
     for i, (d, c, result, entry) in enumerate(zip(dirs, cfgs, results, entries(iterations, train_time))):
         complete_result(result, c, steps, train_time, costs[i].tolist(), names, None)
@@ -256,14 +268,7 @@ def train_population(
 
 
 def _nanmean(values: list[float]) -> float:
-    finite = [v for v in values if not math.isnan(v)]
-    return sum(finite) / len(finite) if finite else float("nan")
+    return torch.tensor(values, dtype=torch.float64).nanmean().item()
 
 
-__all__ = [
-    "AGENTS_DIR",
-    "POPULATION_CHECKPOINT",
-    "POPULATION_CONFIG",
-    "POPULATION_SUMMARY",
-    "train_population",
-]
+__all__ = ["AGENTS_DIR", "train_population"]
