@@ -303,13 +303,7 @@ def _train(
         ckpt_path,
         reference,
     )
-    try:
-        train_iterations(members, first, iterations, start, progress)
-    finally:
-        progress.close()
-        logger.close()
-        env.close()
-    train_time = time.perf_counter() - start
+    train_time = train_iterations(members, first, iterations, start, progress)
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 

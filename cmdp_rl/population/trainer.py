@@ -208,13 +208,7 @@ def train_population(
         out / POPULATION_CHECKPOINT,
         report=report,
     )
-    try:
-        train_iterations(members, first, iterations, start)
-    finally:
-        for lg in loggers:
-            lg.close()
-        env.close()
-    train_time = time.perf_counter() - start
+    train_time = train_iterations(members, first, iterations, start)
     steps = collector.total_steps // P
 
     # Each agent's single-run evaluation: min(eval_episodes, num_envs) envs of its own seeded with its
