@@ -1,6 +1,6 @@
 """A population's run: its agents built as their single runs build them, trained through the loop
 ``trainer.train`` drives (``run/loop.py``: one ``metrics.csv`` row per agent), ``eval.json`` from
-``trainer.complete_result``, one process for all.
+``trainer.write_result``, one process for all.
 Outputs (docs/population.md): ``agents/<k>_<values>/`` (one single run's directory per agent),
 ``population.yaml`` (what a resume rebuilds from), ``population.pt`` (the checkpoint: one entry per
 agent in a single run's ``checkpoint.pt`` layout, and the shared collector and generators),
