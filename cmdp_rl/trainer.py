@@ -12,7 +12,7 @@ import math
 import shutil
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import torch
 import yaml
@@ -38,7 +38,17 @@ from cmdp_rl.run.loop import Members, contract_options, train_iterations
 from cmdp_rl.run.ownership import acquire, release
 from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.resume import load_resume_state
-from cmdp_rl.run.rundir import CHECKPOINT, CONFIG, EVAL, METRICS, RUN_INFO, TENSORBOARD, RunDirError, write_run_info
+from cmdp_rl.run.rundir import (
+    CHECKPOINT,
+    CONFIG,
+    EVAL,
+    METRICS,
+    RUN_INFO,
+    TENSORBOARD,
+    RunDirError,
+    ensure_writable,
+    write_run_info,
+)
 from cmdp_rl.threads import apply_threads
 
 
@@ -72,6 +82,15 @@ def check_env_contract(cfg: RunConfig) -> None:
         check_env(probe, steps=CONTRACT_STEPS, seed=cfg.seed, allow_negative_cost=allow_negative_cost, env_id=env_id)
     finally:
         probe.close()
+
+
+def check_env_contracts(*cfgs: RunConfig) -> None:
+    """:func:`check_env_contract` once per distinct env config of the members (a run has one)."""
+    checked: list[Any] = []
+    for cfg in cfgs:
+        if cfg.env not in checked:
+            check_env_contract(cfg)
+            checked.append(cfg.env)
 
 
 def complete_result(
@@ -153,6 +172,40 @@ def open_run(
     return logger, saved
 
 
+def open_runs(
+    dirs: Sequence[Path],
+    cfgs: Sequence[RunConfig],
+    stats: tuple[str, ...],
+    names: tuple[str, ...],
+    state: dict | None,
+    echo: Callable[[str], None],
+) -> tuple[list[MetricsLogger], list[dict[str, Any]]]:
+    """:func:`open_run` for each member's directory (a run has one), each checked writable first;
+    the first writes ``run_info.json`` and the others copy it (one process, one provenance)."""
+    opened = []
+    for d, c in zip(dirs, cfgs):
+        ensure_writable(d)
+        opened.append(open_run(d, c, stats, names, state, echo, None if d == dirs[0] else dirs[0] / RUN_INFO))
+    return [logger for logger, _ in opened], [saved for _, saved in opened]
+
+
+def restore(
+    state: dict[str, Any], algos: Sequence[Any], entries: Sequence[dict], collector: Collector
+) -> tuple[int, float]:
+    """A resume's checkpoint into each member's algorithm (from its entry: a run's is the checkpoint
+    itself) and into the collector. Returns the first iteration to train and the time trained."""
+    for algo, entry in zip(algos, entries):
+        algo.load_state_dict(entry["algo_state"])
+    collector.load_state_dict(state["collector"])
+    return state["iteration"] + 1, state["time_s"]
+
+
+def write_result(out: Path, result: dict[str, Any], cfg: RunConfig, *args: Any) -> None:
+    """:func:`complete_result` (``args`` are its after ``cfg``), then the run's ``eval.json``."""
+    complete_result(result, cfg, *args)
+    (out / EVAL).write_text(json.dumps(result, indent=2))
+
+
 def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s: float, algo: Any) -> dict[str, Any]:
     """A ``checkpoint.pt``'s run fields and the algorithm's ``state_dict`` (networks, optimisers,
     its own state); the caller adds the collector's and the random generators' state."""
@@ -189,7 +242,7 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
     apply_threads(cfg)
-    check_env_contract(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
+    check_env_contracts(cfg)  # before seeding: whatever randomness it uses, the run's is untouched
     env, agent, algo = build_run(cfg)
     # The budgets, one per cost (a list of the wrong length stops the run here, before any output).
     per_constraint(cfg.algo.cost_limit, "algo.cost_limit", env.cost_names)
@@ -221,17 +274,15 @@ def _train(
     # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
     collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=cfg.algo.uniform_action_steps)
     try:  # the last check a resume can fail: nothing is written before it
-        logger, run_cfg = open_run(out, cfg, algo.stats, names, state, echo)
+        (logger,), (run_cfg,) = open_runs([out], [cfg], algo.stats, names, state, echo)
     except CheckpointError:
         env.close()
         raise
     first, elapsed = 1, 0.0
     if state is not None:
         state = migrate(state, agent)  # an older format's layout (a trusted file) in the current one
-        algo.load_state_dict(state["algo_state"])
-        collector.load_state_dict(state["collector"])
+        first, elapsed = restore(state, [algo], [state], collector)
         load_rng_state(state["rng"])
-        first, elapsed = state["iteration"] + 1, state["time_s"]
     per_iter = cfg.rollout_steps * env.num_envs
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / CHECKPOINT
@@ -303,13 +354,7 @@ def _train(
         ckpt_path,
         reference,
     )
-    try:
-        train_iterations(members, first, iterations, start, progress)
-    finally:
-        progress.close()
-        logger.close()
-        env.close()
-    train_time = time.perf_counter() - start
+    train_time = train_iterations(members, first, iterations, start, progress)
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
@@ -331,10 +376,9 @@ def _train(
         cost_limit=cfg.algo.cost_limit,
     )
     eval_env.close()
-    complete_result(
-        result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference, average or mixture
+    write_result(
+        out, result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference, average or mixture
     )
-    (out / EVAL).write_text(json.dumps(result, indent=2))
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
     header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s; {deployed(result)}"
     for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header, cost_names=names):

@@ -1,6 +1,6 @@
 """A population's run: its agents built as their single runs build them, trained through the loop
 ``trainer.train`` drives (``run/loop.py``: one ``metrics.csv`` row per agent), ``eval.json`` from
-``trainer.complete_result``, one process for all.
+``trainer.write_result``, one process for all.
 Outputs (docs/population.md): ``agents/<k>_<values>/`` (one single run's directory per agent),
 ``population.yaml`` (what a resume rebuilds from), ``population.pt`` (the checkpoint: one entry per
 agent in a single run's ``checkpoint.pt`` layout, and the shared collector and generators),
@@ -33,16 +33,14 @@ from cmdp_rl.run.loop import Members, train_iterations
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
     CHECKPOINT,
-    EVAL,
     POPULATION_CHECKPOINT,
     POPULATION_CONFIG,
     POPULATION_SUMMARY,
-    RUN_INFO,
     ensure_writable,
     read_yaml,
 )
 from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import build_run, check_env_contract, checkpoint_entry, complete_result, open_run
+from cmdp_rl.trainer import build_run, check_env_contracts, checkpoint_entry, open_runs, restore, write_result
 from cmdp_rl.validation import ConfigError
 
 AGENTS_DIR = "agents"
@@ -93,11 +91,7 @@ def train_population(
     overrides, cfgs = agent_configs(raw)  # every agent validated and the scope checked: nothing written yet
     cfg = cfgs[0]
     apply_threads(cfg)
-    checked: list[Any] = []
-    for c in cfgs:  # the env contract once per distinct env config, on envs of its own
-        if c.env not in checked:
-            check_env_contract(c)
-            checked.append(c.env)
+    check_env_contracts(*cfgs)
     device = torch.device(cfg.device)
     P, N, T = len(cfgs), cfg.env.num_envs, cfg.rollout_steps
 
@@ -118,19 +112,12 @@ def train_population(
     collector = Collector(env, pop, T, seed=None)
 
     dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(overrides)]
-    ensure_writable(out)
+    ensure_writable(out)  # before population.yaml; each agent's directory is checked as a run's
     (out / POPULATION_CONFIG).write_text(
         yaml.safe_dump({k: v for k, v in raw.items() if k != "resume"}, sort_keys=False)
     )
     names = env.cost_names
-    loggers, run_cfgs = [], []
-    for d, c in zip(dirs, cfgs):  # each agent's directory as its single run opens it
-        ensure_writable(d)
-        logger, run_cfg = open_run(
-            d, c, algos[0].stats, names, state, lambda s: None, None if d == dirs[0] else dirs[0] / RUN_INFO
-        )
-        loggers.append(logger)
-        run_cfgs.append(run_cfg)
+    loggers, run_cfgs = open_runs(dirs, cfgs, algos[0].stats, names, state, lambda s: None)
 
     per_iter = T * N  # steps per agent per iteration
     iterations = math.ceil(cfg.total_steps / per_iter)
@@ -140,13 +127,10 @@ def train_population(
         if "agents" not in state:  # the stacked layout of earlier populations
             fresh = [checkpoint_entry(r, 0, 0, 0.0, a) for r, a in zip(run_cfgs, algos)]
             state = population_from_stacked(state, fresh, {"actor": agents[0].actor, "critics": agents[0].critics})
-        for algo, entry in zip(update.algos, state["agents"]):  # each agent as its single run resumes
-            algo.load_state_dict(entry["algo_state"])
+        first, elapsed = restore(state, update.algos, state["agents"], collector)  # each agent as its run resumes
         update.stack_agents()
-        collector.load_state_dict(state["collector"])
         for g, s in zip(generators, state["generators"]):
             g.set_state(s)
-        first, elapsed = state["iteration"] + 1, state["time_s"]
         costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
     echo(
@@ -208,13 +192,7 @@ def train_population(
         out / POPULATION_CHECKPOINT,
         report=report,
     )
-    try:
-        train_iterations(members, first, iterations, start)
-    finally:
-        for lg in loggers:
-            lg.close()
-        env.close()
-    train_time = time.perf_counter() - start
+    train_time = train_iterations(members, first, iterations, start)
     steps = collector.total_steps // P
 
     # Each agent's single-run evaluation: min(eval_episodes, num_envs) envs of its own seeded with its
@@ -232,11 +210,10 @@ def train_population(
         eval_env.close()
     summary_agents = []
     for i, (d, c, result, entry) in enumerate(zip(dirs, cfgs, results, entries(iterations, train_time))):
-        complete_result(result, c, steps, train_time, costs[i].tolist(), names, None)
         # The agent's entry of the population's checkpoint, as its own checkpoint.pt (for evaluate.py;
         # not resumable on its own: the population resumes from population.pt).
         save_checkpoint(d / CHECKPOINT, entry)
-        (d / EVAL).write_text(json.dumps(result, indent=2))
+        write_result(d, result, c, steps, train_time, costs[i].tolist(), names, None)
         summary_agents.append(
             {
                 "dir": str(d.relative_to(out)),

@@ -1,6 +1,6 @@
 """The training loop every run drives: collect, check the rollout, update, one ``metrics.csv`` row
 per member, checkpoint. A run has one member (``trainer.train``); a population has P, side by side
-in one batch (``population/run.py``), member i's envs the rows ``[i N, (i + 1) N)`` of the batch and
+in one batch (``population/trainer.py``), member i's envs the rows ``[i N, (i + 1) N)`` of the batch and
 its statistics the i-th of the update's list. What differs between the two (how the update steps
 the networks, what a checkpoint holds, how costs are counted) is in the :class:`Members` they give.
 """
@@ -101,10 +101,23 @@ class Members:
         return batch if len(self.cfgs) == 1 else batch[i * n : (i + 1) * n]
 
 
-def train_iterations(m: Members, first: int, iterations: int, start: float, progress: Progress | None = None) -> None:
+def train_iterations(m: Members, first: int, iterations: int, start: float, progress: Progress | None = None) -> float:
     """Iterations ``first`` to ``iterations`` (a resume starts past its checkpoint's); ``start`` is
     the ``perf_counter`` at which training time began (earlier by the time a resumed run had);
-    ``progress`` shows the first member's rows."""
+    ``progress`` shows the first member's rows. The loggers, the envs and ``progress`` are closed
+    when it ends, however it ends. Returns the training time."""
+    try:
+        _iterations(m, first, iterations, start, progress)
+    finally:
+        if progress is not None:
+            progress.close()
+        for logger in m.loggers:
+            logger.close()
+        m.collector.env.close()
+    return time.perf_counter() - start
+
+
+def _iterations(m: Members, first: int, iterations: int, start: float, progress: Progress | None) -> None:
     cfg, n = m.cfgs[0], m.envs_per_member
     names = m.collector.env.cost_names
     per_iter = cfg.rollout_steps * n  # steps per member
