@@ -100,10 +100,11 @@ def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: 
     row is a tensor row and not an env object), because one evaluation per member pays the
     per-step overhead M times."""
     m = len(actors)
-    batched = getattr(cfg.env, "backend", None) == "torch"
-    rows_each = max(1, min(cfg.mixture_episodes, 64 if batched else cfg.env.num_envs // m))
+    env_cfg = cfg.env.valuation_options()  # the same CMDP, batched where the env has a batched twin
+    batched = getattr(env_cfg, "backend", None) == "torch"
+    rows_each = max(1, min(cfg.mixture_episodes, 64 if batched else env_cfg.num_envs // m))
     quota = math.ceil(cfg.mixture_episodes / rows_each)
-    env = make_eval_env(cfg.env, num_envs=m * rows_each, device=cfg.device, algo=cfg.algo)
+    env = make_eval_env(env_cfg, num_envs=m * rows_each, device=cfg.device, algo=cfg.algo)
     own = agent.actor
     agent.actor = mixture_actor(actors, assigned=torch.arange(m * rows_each, device=env.device) % m)
     try:

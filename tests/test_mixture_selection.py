@@ -106,3 +106,21 @@ def test_the_run_deploys_records_and_reloads_the_chosen_mixture(feasible_run, tm
     got = json.loads(e.read_text())
     names = [f"episode_{m}" for m in ("return", "cost", "length")]
     assert {k: got[k] for k in names} == {k: eval_result(out)[k] for k in names}  # same mixture, same episodes
+
+
+def test_a_gym_reach1d_run_values_its_snapshots_on_the_torch_twin():
+    """The valuation of env=reach1d (gymnasium backend) steps the batched twin, the same CMDP to
+    the last bit: the members' values equal those of the same run on env.backend=torch."""
+    from cmdp_rl.envs import make_env
+    from cmdp_rl.mixture_selection import value_members
+    from cmdp_rl.policies import make_agent
+
+    cfgs = [load_config(tiny(env={"backend": b}, mixture_episodes=12)) for b in ("gym", "torch")]
+    assert cfgs[0].env.valuation_options().backend == "torch" and cfgs[0].env.backend == "gym"
+    torch.manual_seed(0)
+    env = make_env(cfgs[1].env, 2)
+    agents = [make_agent(cfgs[1].policy, env) for _ in range(2)]
+    actors = [a.actor for a in agents]
+    values = [value_members(actors, agents[0], cfg, 1) for cfg in cfgs]
+    assert values[0] == values[1] and values[0][0] != values[0][1]
+    assert all(v.episodes >= 12 for v in values[0])

@@ -44,6 +44,11 @@ class EnvOptions:
         (``config.resolve_budget``); a value given for ``algo.cost_limit`` wins."""
         return DEFAULT_BUDGET
 
+    def valuation_options(self) -> EnvOptions:
+        """The options the snapshot valuation (mixture_selection.py) builds its env from: the same
+        CMDP, on a batched backend where this env has one (these options themselves here)."""
+        return self
+
     def population_env(
         self, env_cfgs: Sequence[Any], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
     ) -> Any:

@@ -4,6 +4,7 @@ env, or its batched torch twin (``reach1d_torch.py``)."""
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Sequence, Union
 
@@ -81,6 +82,12 @@ class Reach1DConfig(EnvOptions):
                 "the best a policy can do is approach it"
             )
         return None
+
+    def valuation_options(self) -> Reach1DConfig:
+        """The torch twin: the same CMDP to the last bit (batched.py), one tensor program over the
+        valuation's thousand-odd episodes instead of as many gymnasium envs stepped in Python
+        (on the gym backend the valuation took longer than 120k steps of training)."""
+        return dataclasses.replace(self, backend="torch", stagger=False)
 
     def population_env(
         self, env_cfgs: Sequence[Reach1DConfig], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
