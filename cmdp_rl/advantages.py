@@ -77,3 +77,11 @@ class TwinGAE:
         self.cost(view)
         batch.set(keys.COST_ADVANTAGE, view.get(keys.COST_ADVANTAGE))
         batch.set(keys.COST_VALUE_TARGET, view.get(keys.COST_VALUE_TARGET))
+
+
+def standardized(x: torch.Tensor, dim: tuple[int, ...] | None = None) -> torch.Tensor:
+    """``(x - mean) / (std + 1e-8)``: over all of ``x``, or over ``dim`` (each remaining column on
+    its own). The advantages' normalisation, written once."""
+    if dim is None:
+        return (x - x.mean()) / (x.std() + 1e-8)
+    return (x - x.mean(dim=dim)) / (x.std(dim=dim) + 1e-8)

@@ -33,6 +33,7 @@ from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl import keys
+from cmdp_rl.advantages import standardized
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import DualAscent
@@ -113,7 +114,7 @@ class CUP(PPO):
         advantage (standardised if ``normalize_advantage``) and the networks' inputs."""
         cost_adv = batch.get(keys.COST_ADVANTAGE)
         if self.cfg.normalize_advantage:
-            cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
+            cost_adv = standardized(cost_adv)
         present = batch.keys(True)
         inputs = [k for k in self.agent.in_keys if k in present and k not in (keys.ACTION, keys.LOG_PROB)]
         return {

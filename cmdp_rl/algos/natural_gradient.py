@@ -20,7 +20,7 @@ from torch import nn
 from torch.distributions import kl_divergence
 
 from cmdp_rl import keys
-from cmdp_rl.advantages import TwinGAE
+from cmdp_rl.advantages import TwinGAE, standardized
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.episode_cost import EpisodeCostEstimate
@@ -209,7 +209,7 @@ class NaturalGradient:
         only centred: its scale must stay that of cost, to compare with the budget."""
         adv = units[keys.ADVANTAGE]
         if self.cfg.normalize_advantage:
-            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            adv = standardized(adv)
         return adv, units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
 
     def linearise(

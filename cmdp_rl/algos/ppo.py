@@ -22,7 +22,7 @@ from tensordict import TensorDictBase
 from torch import distributions as D
 
 from cmdp_rl import keys
-from cmdp_rl.advantages import TwinGAE
+from cmdp_rl.advantages import TwinGAE, standardized
 from cmdp_rl.algos.base import AlgoConfig, check_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.episode_cost import EpisodeCost, EpisodeCostEstimate
@@ -169,7 +169,7 @@ class PPO:
         self.update_multiplier(self.episode_cost.update(batch))
         adv = self.policy_advantage(batch)
         if self.cfg.normalize_advantage:
-            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            adv = standardized(adv)
         return adv
 
     def minibatch_step(self, backend: Backend, groups: list, mb: Units, active: Any) -> tuple[Units, Any]:
@@ -287,8 +287,7 @@ def lagrangian_advantage(
     if scale == "standardized":
         adv, cost_adv = batch.get(keys.ADVANTAGE), batch.get(keys.COST_ADVANTAGE)
         rows = tuple(range(cost_adv.dim() - 1))
-        cost_adv = (cost_adv - cost_adv.mean(dim=rows)) / (cost_adv.std(dim=rows) + 1e-8)
-        batch = {keys.ADVANTAGE: (adv - adv.mean()) / (adv.std() + 1e-8), keys.COST_ADVANTAGE: cost_adv}
+        batch = {keys.ADVANTAGE: standardized(adv), keys.COST_ADVANTAGE: standardized(cost_adv, rows)}
     return penalised(batch, lams) / (1.0 + sum(lams))
 
 

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, ClassVar, Optional, Sequence
 import torch
 
 from cmdp_rl import keys
+from cmdp_rl.advantages import standardized
 from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.cpo import CPOConfig
@@ -90,7 +91,7 @@ class TRPOLagrangian(NaturalGradient):
         lams = self.multiplier.update([episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost)
         adv = lagrangian_advantage(units, lams, cfg.advantage_scale)
         if cfg.normalize_advantage:
-            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            adv = standardized(adv)
         # Logged only (with K > 1: the mean over the constraints' cost surrogates).
         cost_adv = units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
         surrogates = Surrogates(self.agent, units, adv, cost_adv)
