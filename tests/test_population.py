@@ -14,7 +14,7 @@ from conftest import eval_result, metrics_rows, run_script, tiny
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.migrations import saved_config_defaults
 from cmdp_rl.population import train_population
-from cmdp_rl.population.spec import agent_configs, batched_algos
+from cmdp_rl.population.spec import agent_configs, batched_algos, unbatched
 from cmdp_rl.registry import component
 from cmdp_rl.run.sweeps import find_runs
 
@@ -367,49 +367,89 @@ def test_bad_population_config_is_one_line(population, message):
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
 
 
-@pytest.mark.parametrize(
-    "change, refused",
-    [
-        ({"algo": {"name": "cpo"}}, "population: algo=cpo is not batched"),
-        ({"policy": {"name": "gru"}}, "population: policy=gru is not batched"),
-        ({"env": {"backend": "gym", "stagger": False}}, "population: env=reach1d (backend gym) is not batched"),
-        ({"normalize": {"obs": True}}, "population: normalize is not batched"),
-        # else the agents' eval.json would name the average and hold the last iterate's numbers
-        ({"final_policy": "average"}, "population: final_policy=average is not batched"),
-    ],
-)
-def test_unsupported_population_is_refused(change, refused):
+# What the batched program does not cover, one case each: such a population's agents train one
+# after another through the single-run path (trainer.train).
+UNBATCHED = [
+    ({"algo": {"name": "cpo"}}, "algo=cpo is not batched"),
+    ({"policy": {"name": "gru"}}, "policy=gru is not batched"),
+    ({"env": {"backend": "gym", "stagger": False}}, "env=reach1d (backend gym) is not batched"),
+    ({"normalize": {"obs": True}}, "normalize is not batched"),
+    ({"final_policy": "average"}, "final_policy=average is not batched"),
+    ({"env": {"name": "skills", "num_envs": 2}}, "the action head HybridHead is not batched"),
+]
+
+
+def _unbatched(change: dict) -> dict:
     raw = torch_tiny()
     for k, v in change.items():
         raw[k] = {**raw.get(k, {}), **v} if isinstance(v, dict) else v
     if raw["algo"]["name"] == "cpo":
         raw["algo"] = {"name": "cpo"}
+    if raw["env"].get("name") == "skills":
+        raw["env"] = {"name": "skills", "num_envs": 2}
+        raw["algo"] = {"name": "ppo"}
     raw["population"] = {"seeds": 2}
-    with pytest.raises(ConfigError) as err:
-        agent_configs(raw)
-    assert str(err.value).startswith(refused) and "\n" not in str(err.value)
+    return raw
 
 
-def test_an_action_space_not_batched_is_refused_before_anything_is_written(tmp_path):
-    """env=skills has a hybrid action (a skill and its parameter): refused in one line when the
-    agents are built, before any output."""
-    raw = {"env": {"name": "skills", "num_envs": 2}, "algo": {"name": "ppo"}, "rollout_steps": 16}
-    raw["population"] = {"seeds": 2}
-    with pytest.raises(ConfigError) as err:
-        train_population(raw, tmp_path / "pop", echo=lambda s: None)
-    assert str(err.value).startswith("population: the action head HybridHead is not batched")
-    assert "\n" not in str(err.value) and not (tmp_path / "pop").exists()
+@pytest.mark.parametrize("change, why", UNBATCHED)
+def test_an_unbatched_population_trains_each_agent_as_its_single_run(tmp_path, change, why):
+    """Each agent equals ``train()`` on its own config.yaml exactly (the same code, one after
+    another in one process: the second agent's numbers must not depend on the first's)."""
+    said = []
+    summary = train_population(_unbatched(change), tmp_path / "pop", echo=said.append)
+    assert said[0].startswith(f"population: {why}") and "2 agents train one after another" in said[0]
+    dirs = sorted((tmp_path / "pop" / "agents").iterdir())
+    assert [r["dir"] for r in summary["runs"]] == [f"agents/{d.name}" for d in dirs] and len(dirs) == 2
+    for i in (1, 0):  # the second agent first: alone in its process state
+        cfg = load_config(yaml.safe_load((dirs[i] / "config.yaml").read_text()))
+        assert cfg.seed == i
+        train(cfg, tmp_path / f"single{i}", echo=lambda s: None)
+        assert metrics_rows(dirs[i]) == metrics_rows(tmp_path / f"single{i}")
+        assert eval_result(dirs[i]) == eval_result(tmp_path / f"single{i}")
 
 
-def test_train_cli_refuses_in_one_line(tmp_path):
-    proc = run_script("train.py", "algo=cpo", "env=reach1d_torch", "population.seeds=2", f"hydra.run.dir={tmp_path}/r")
-    assert proc.returncode == 2
-    assert proc.stderr.strip().splitlines()[-1].startswith("config error: population: algo=cpo is not batched")
+def test_an_unbatched_population_resumes_after_a_kill(tmp_path):
+    """Killed in its second agent's training: the resume continues that agent from its checkpoint
+    (the first, finished, is evaluated again) and ends with the numbers of the whole population."""
+    raw = _unbatched({"algo": {"name": "cpo"}})
+    raw["checkpoint_every"] = 2
+    whole = _population(tmp_path, raw, "whole")
+
+    def kill_at_3(line: str) -> None:  # the second agent's third iteration, after its checkpoint of 2
+        if line.startswith("agent 2/"):
+            kill_at_3.second = True
+        if getattr(kill_at_3, "second", False) and line.lstrip().startswith("iter    3"):
+            raise KeyboardInterrupt
+
+    killed = tmp_path / "killed"
+    with pytest.raises(KeyboardInterrupt):
+        train_population(raw, killed, echo=kill_at_3)
+    assert (killed / "agents/000_seed=0/eval.json").is_file() and not (killed / "agents/001_seed=1/eval.json").exists()
+    train_population(None, killed, echo=lambda s: None, resume=True)
+    for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
+        assert metrics_rows(a) == metrics_rows(b)
+        assert eval_result(a) == eval_result(b)
+
+
+def test_train_cli_trains_an_unbatched_population(tmp_path):
+    proc = run_script(
+        "train.py",
+        "algo=cpo",
+        "env=reach1d_torch",
+        "population.seeds=2",
+        "total_steps=4096",
+        "env.num_envs=8",
+        f"hydra.run.dir={tmp_path}/r",
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "population: algo=cpo is not batched" in proc.stdout
+    assert len(list((tmp_path / "r" / "agents").glob("*/eval.json"))) == 2
 
 
 def test_the_exercise_grid_as_populations():
     """experiments/studies/penalty_vs_constraint.py --population: each algorithm of a sweep is one
-    population whose agents are the sweep's jobs; cpo is left to run job by job."""
+    population whose agents are the sweep's jobs (cpo's train one after another)."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
@@ -418,12 +458,15 @@ def test_the_exercise_grid_as_populations():
 
     parts = sweep_parts("constraint_sweep")
     assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", False)]
-    assert len(parts[2].jobs("constraint_sweep")) == 30
     (penalty,) = sweep_parts("penalty_sweep")
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         raw = OmegaConf.to_container(
             compose("config", overrides=penalty.overrides("penalty_sweep", ["env.backend=torch"])), resolve=True
         )
+        cpo = compose("config", overrides=parts[2].overrides("constraint_sweep", ["env.backend=torch"]))
+    cpo_cfgs = agent_configs(OmegaConf.to_container(cpo, resolve=True))[1]
+    assert len(cpo_cfgs) == 30 and {c.algo.name for c in cpo_cfgs} == {"cpo"}
+    assert unbatched(cpo_cfgs[0]).startswith("algo=cpo is not batched")
     overrides, cfgs = agent_configs(raw)
     assert len(cfgs) == 42 and {c.algo.name for c in cfgs} == {"penalty"}
     assert sorted({(c.algo.penalty, str(c.env.start)) for c in cfgs}) == sorted(

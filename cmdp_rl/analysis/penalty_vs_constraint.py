@@ -23,8 +23,8 @@ is re-trained) and writes, into ``--out`` (default ``<first dir>/report``):
   (``cmdp_rl.envs.reach1d.optimum``) and checked against the runs.
 
 ``--population DIR`` first trains the whole grid of both sweeps in this process, as populations
-(``cmdp_rl.population``: one batched program per algorithm, on ``env.backend=torch``; the
-algorithms it does not batch, cpo, run job after job here unless ``--skip-unbatched``), into
+(``cmdp_rl.population``: one population per algorithm, on ``env.backend=torch``, batched but for
+cpo's, whose agents train one after another; ``--skip-unbatched`` leaves cpo out), into
 ``DIR/{penalty,constraint}/<algo>/``, then reports on ``DIR`` as above; ``DIR/timing.json`` holds
 each part's wall time. Overrides apply to every job (e.g. ``total_steps=204800``). ``--compare``
 reads another report's ``table.md`` (e.g. docs/penalty_vs_constraint.md, separate runs) and counts
@@ -80,12 +80,11 @@ def report(dirs: list[Path], out: Path) -> dict[str, Any]:
 
 
 def train_grid(out: Path, overrides: list[str], skip_unbatched: bool) -> dict[str, float]:
-    """Both sweeps' grids in this process: one population per batched algorithm, the others job by
-    job. Returns each part's wall time in seconds (and the total wall and CPU time)."""
+    """Both sweeps' grids in this process, one population per algorithm (cpo's agents one after
+    another: it is not batched). Returns each part's wall time in seconds (and the total wall and
+    CPU time)."""
     import time
 
-    from cmdp_rl import train
-    from cmdp_rl.config import compose_config
     from cmdp_rl.population import train_population
     from cmdp_rl.run.population_sweep import sweep_parts
 
@@ -93,22 +92,22 @@ def train_grid(out: Path, overrides: list[str], skip_unbatched: bool) -> dict[st
     start, cpu = time.perf_counter(), time.process_time()
     for experiment, sub in (("penalty_sweep", "penalty"), ("constraint_sweep", "constraint")):
         for part in sweep_parts(experiment):
-            t0 = time.perf_counter()
-            extra = ["env.backend=torch", *overrides]
-            where = out / sub / part.name
-            if part.batched:
-                train_population(_composed(part.overrides(experiment, extra)), where)
-            elif skip_unbatched:
+            if skip_unbatched and not part.batched:
                 continue
-            else:
-                for k, job in enumerate(part.jobs(experiment, extra)):
-                    print(f"{part.name} job {k + 1}: {' '.join(job[2:])}")
-                    train(compose_config(job), where / f"{k:03d}", echo=lambda s: None)
+            t0 = time.perf_counter()
+            raw = _composed(part.overrides(experiment, ["env.backend=torch", *overrides]))
+            train_population(raw, out / sub / part.name, echo=print if part.batched else _agents_only)
             timing[f"{sub}/{part.name}"] = time.perf_counter() - t0
             print(f"{sub}/{part.name}: {timing[f'{sub}/{part.name}']:.1f} s")
     timing["total"] = time.perf_counter() - start
     timing["total_cpu"] = time.process_time() - cpu  # this process's CPU seconds: what a free core would need
     return timing
+
+
+def _agents_only(line: str) -> None:
+    """An unbatched population's echo, its agents' own lines left out (one line per agent)."""
+    if line.startswith(("agent ", "population: ", "done: ")) and " steps in " not in line:
+        print(line)
 
 
 def _composed(overrides: list[str]) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from cmdp_rl.config import CONFIG_SOURCE
 from cmdp_rl.population.spec import population_active
 from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, resumable
 from cmdp_rl.run.resume import resume_config
-from cmdp_rl.run.rundir import POPULATION_CHECKPOINT, RunDirError
+from cmdp_rl.run.rundir import POPULATION_CONFIG, RunDirError
 from cmdp_rl.run.sweeps import clear_outputs, record_failure
 from cmdp_rl.trainer import train
 
@@ -99,7 +99,7 @@ def _main(raw: dict, new_dir: str | None) -> None:
             explicit = [
                 o.key_or_group for o in OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
             ]
-            if (Path(raw["resume"]) / POPULATION_CHECKPOINT).is_file():
+            if (Path(raw["resume"]) / POPULATION_CONFIG).is_file():
                 return _population(raw, None, explicit)
             run_cfg = resume_config(raw["resume"], raw, explicit)
         elif population_active(raw.get("population")):

@@ -21,10 +21,11 @@ from torch import nn
 
 from cmdp_rl import keys
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead
+from cmdp_rl.policies.distributions import GaussianHead
 from cmdp_rl.policies.mlp import Tanh
 from cmdp_rl.population.fused import FusedTanhMLP, layout
 from cmdp_rl.population.params import StackedParams, sequential, template
+from cmdp_rl.population.spec import unbatched_head
 from cmdp_rl.validation import ConfigError
 
 
@@ -38,11 +39,9 @@ class PopulationAgent:
 
     def __init__(self, agents: Sequence[Agent], generators: Sequence[torch.Generator], device: torch.device) -> None:
         self.head = agents[0].actor.head
-        if not isinstance(self.head, (GaussianHead, CategoricalHead)) or getattr(self.head, "sizes", None):
-            raise ConfigError(
-                f"population: the action head {type(self.head).__name__} is not batched (a Box or a Discrete "
-                "action space is); run it as separate runs (python train.py -m ...)"
-            )
+        why = unbatched_head(self.head)
+        if why is not None:  # train_population routes such agents to the single-run path first
+            raise ConfigError(f"population: {why}")
         self.actor_net, self.critic_nets = template(agents[0])
         self.actor = StackedParams([a.actor for a in agents], device)
         self.critics = StackedParams([a.critics for a in agents], device)

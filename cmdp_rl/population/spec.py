@@ -20,13 +20,13 @@ import yaml
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
 from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead
 from cmdp_rl.registry import component, names
 from cmdp_rl.validation import ConfigError, PositiveInt, build, options, require
 
 # The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed: the
 # grid that configs/population/none.yaml declares (each a number some agent's own object reads).
 PER_AGENT_FIELDS = tuple(flatten_dict(yaml.safe_load((CONFIG_DIR / "population" / "none.yaml").read_text())["grid"]))
-RUN_AS_SWEEP = "run it as separate runs (python train.py -m ...)"
 
 
 def batched(algo: str) -> bool:
@@ -112,12 +112,14 @@ def label(overrides: Mapping[str, Any]) -> str:
     return ",".join(f"{k}={fmt(v)}" for k, v in overrides.items())
 
 
-def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[RunConfig]]:
+def agent_configs(raw: Mapping[str, Any], stacked: bool = False) -> tuple[list[dict[str, Any]], list[RunConfig]]:
     """Each agent's overrides and validated config from a composed config holding ``population``.
-    A value that the field's own rules refuse stops here, in one line naming the grid field."""
+    A value that the field's own rules refuse stops here, in one line naming the grid field.
+    ``stacked``: for the batched program, which deploys each agent's last iterate
+    (``final_policy=auto`` is ``last``); else each agent's options resolve as its single run's."""
     raw = dict(raw)
     raw.pop("hydra", None)
-    if raw.get("final_policy", "auto") == "auto":  # a population deploys each agent's last iterate
+    if stacked and raw.get("final_policy", "auto") == "auto":
         raw["final_policy"] = "last"
     spec = population_spec(raw.pop("population", None))
     base_seed = int(raw.get("seed", 0))
@@ -133,47 +135,47 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
             varied = [k for k in ov if k != "seed" or "seed" in spec.fields()]
             where = f"population.grid.{varied[0]}" if len(varied) == 1 else "population"
             raise ConfigError(f"{where}: agent {i} ({label(ov)}): {exc}") from exc
-    check_supported(cfgs[0])
     return overrides, cfgs
 
 
-def check_supported(cfg: RunConfig) -> None:
-    """The batched program covers the PPO family with the MLP on an env with a batched backend (its
-    action space checked when the agents are built: ``PopulationAgent``); anything else is refused
-    in one line before anything is built."""
-
-    def refuse(what: str, allowed: str) -> None:
-        raise ConfigError(f"population: {what} is not batched ({allowed}); {RUN_AS_SWEEP}")
-
+def unbatched(cfg: RunConfig, final_policy: str = "auto") -> str | None:
+    """Why the batched program does not cover agents of ``cfg`` (``final_policy``: as the user gave
+    it), or None: it covers the PPO family with the MLP on the observation, on an env with a batched
+    backend, without normalisation (the action space is checked on the built agent:
+    :func:`unbatched_head`). Agents it does not cover train one after another, each as its single run."""
     if not batched(cfg.algo.name):
-        refuse(f"algo={cfg.algo.name}", f"algo must be one of {', '.join(batched_algos())}")
+        return f"algo={cfg.algo.name} is not batched (the batched algorithms: {', '.join(batched_algos())})"
     if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
-        refuse(
-            f"policy={cfg.policy.name}" + (" with include_prev_*" if cfg.policy.name == "mlp" else ""),
-            "policy must be mlp on the observation alone",
-        )
+        with_prev = " with include_prev_*" if cfg.policy.name == "mlp" else ""
+        return f"policy={cfg.policy.name}{with_prev} is not batched (mlp on the observation is)"
     # Envs in this process whose state a checkpoint holds: a torch backend's (each agent's own env in
     # turn, population.env.AgentEnvs, unless its options declare a population form), or an env of one
     # backend whose options declare its population form (safe_nav's P N worlds).
     backend = getattr(cfg.env, "backend", None)
     own_form = type(cfg.env).population_env is not EnvOptions.population_env
     if not (backend == "torch" or (backend is None and own_form)):
-        refuse(
-            f"env={cfg.env.name} (backend {backend})",
-            "env must have env.backend=torch, e.g. env=reach1d_torch or env=fork, or be env=safe_nav",
-        )
-    if cfg.final_policy != "last":  # the deployed average is the single run's loop's (policy_average.py)
-        refuse(f"final_policy={cfg.final_policy}", "final_policy must be last")
+        return f"env={cfg.env.name} (backend {backend}) is not batched (env.backend=torch, or env=safe_nav, is)"
+    if final_policy not in ("auto", "last"):  # the deployed average is the single run's loop's (policy_average.py)
+        return f"final_policy={final_policy} is not batched (the batched program deploys the last iterate)"
     if getattr(cfg.env, "probe", False):
-        refuse("env.probe=true", "the probe action is not batched")
+        return "env.probe=true is not batched"
     if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:
-        refuse("normalize", "normalize.obs, .reward and .cost must be false")
+        return "normalize is not batched"
     if cfg.logger.name not in ("csv", "tensorboard"):  # W&B: one process would hold P runs
-        refuse(f"logger={cfg.logger.name}", "logger must be csv or tensorboard")
+        return f"logger={cfg.logger.name} is not batched (csv and tensorboard are)"
     if cfg.reference.run is not None or cfg.reference.episode_return is not None:
-        refuse("reference", "reference.* must be null")
+        return "reference.* is not batched"
     if isinstance(getattr(cfg.algo, "penalty", 0.0), list):
-        refuse("a list algo.penalty", "one number")
+        return "a list algo.penalty is not batched"
+    return None
+
+
+def unbatched_head(head: Any) -> str | None:
+    """Why the batched program does not cover an agent's action head, or None (a Box's Gaussian and a
+    Discrete's categorical it covers)."""
+    if isinstance(head, (GaussianHead, CategoricalHead)) and not getattr(head, "sizes", None):
+        return None
+    return f"the action head {type(head).__name__} is not batched (a Box or a Discrete action space is)"
 
 
 __all__ = [
@@ -183,8 +185,9 @@ __all__ = [
     "batched_algos",
     "agent_configs",
     "agent_overrides",
-    "check_supported",
     "label",
     "population_active",
     "population_spec",
+    "unbatched",
+    "unbatched_head",
 ]

@@ -10,6 +10,7 @@ agent in a single run's ``checkpoint.pt`` layout, and the shared collector and g
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 import time
@@ -26,10 +27,11 @@ from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate_members
 from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
-from cmdp_rl.population.spec import agent_configs, label
+from cmdp_rl.population.spec import agent_configs, label, unbatched, unbatched_head
 from cmdp_rl.population.update import PopulationPPO
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.run.loop import Members, train_iterations
+from cmdp_rl.run.ownership import owned
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
     CHECKPOINT,
@@ -40,7 +42,7 @@ from cmdp_rl.run.rundir import (
     read_yaml,
 )
 from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import build_run, check_env_contracts, checkpoint_entry, open_runs, restore, write_result
+from cmdp_rl.trainer import build_run, check_env_contracts, checkpoint_entry, open_runs, restore, train, write_result
 from cmdp_rl.validation import ConfigError
 
 AGENTS_DIR = "agents"
@@ -75,22 +77,42 @@ def train_population(
     out = Path(out_dir)
     state = None
     if resume:
-        if not (out / POPULATION_CHECKPOINT).is_file():
-            raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
+        if not (out / POPULATION_CONFIG).is_file():
+            raise CheckpointError(f"resume: no {POPULATION_CONFIG} in {out}")
         saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
-        saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint)
-        if "update" in saved:  # the stacked layout predates defaults that its config does not name
-            saved_raw = saved_config_defaults(saved_raw)
-        state = migrate(saved)
+        if (out / POPULATION_CHECKPOINT).is_file():
+            saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint)
+            if "update" in saved:  # the stacked layout predates defaults that its config does not name
+                saved_raw = saved_config_defaults(saved_raw)
+            state = migrate(saved)
         raw = resumed_raw(saved_raw, raw or {}, explicit, out)
         if raw.get("population") != saved_raw.get("population"):
             raise ConfigError(f"population cannot change when resuming {out}")
         for before, after in zip(agent_configs(_own(saved_raw))[1], agent_configs(_own(raw))[1]):
             check_resume_config(before, after)
     raw = _own(raw)
-    overrides, cfgs = agent_configs(raw)  # every agent validated and the scope checked: nothing written yet
+    overrides, cfgs = agent_configs(raw)  # every agent validated: nothing written yet
+    apply_threads(cfgs[0])
+    why = unbatched(cfgs[0], raw.get("final_policy", "auto"))
+    if why is None:  # the action space: on the first agent as built
+        probe, agent, _ = build_run(cfgs[0])
+        probe.close()
+        why = unbatched_head(agent.actor.head)
+    if why is None and resume and state is None:
+        raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
+    # The directory is this population's alone while it trains (as a run's: run/ownership.py).
+    with owned(out, new_run=not resume, overwrite=bool(raw.get("overwrite"))):
+        if why is not None:
+            return _in_turn(overrides, cfgs, out, why, echo, resume, raw)
+        return _stacked(raw, out, state, echo)
+
+
+def _stacked(
+    raw: dict[str, Any], out: Path, state: dict[str, Any] | None, echo: Callable[[str], None]
+) -> dict[str, Any]:
+    """The batched program: every agent's env, acting and update as one."""
+    overrides, cfgs = agent_configs(raw, stacked=True)
     cfg = cfgs[0]
-    apply_threads(cfg)
     check_env_contracts(*cfgs)
     device = torch.device(cfg.device)
     P, N, T = len(cfgs), cfg.env.num_envs, cfg.rollout_steps
@@ -214,32 +236,81 @@ def train_population(
         # not resumable on its own: the population resumes from population.pt).
         save_checkpoint(d / CHECKPOINT, entry)
         write_result(d, result, c, steps, train_time, costs[i].tolist(), names, None)
-        summary_agents.append(
-            {
-                "dir": str(d.relative_to(out)),
-                "values": overrides[i],
-                "episode_return": result["episode_return"],
-                "episode_cost": result.get("episode_cost"),
-            }
-        )
+        summary_agents.append(_agent_summary(out, d, overrides[i], result))
+    summary = _summary(out, cfg, P, steps, train_time, start, summary_agents, envs_per_agent=N, iterations=iterations)
+    echo(
+        f"done: {P} agents x {steps:,} steps in {train_time:.1f}s ({summary['summed_steps_per_s']:,.0f} steps/s "
+        f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}"
+    )
+    return summary
+
+
+def _summary(
+    out: Path, cfg: Any, P: int, steps: int, train_time: float, start: float, agents: list, **shape: int
+) -> dict[str, Any]:
+    """``population.json``: the agents, their values and final evaluation, time, summed steps/s."""
     summary = {
         "agents": P,
         "algo": cfg.algo.name,
-        "envs_per_agent": N,
-        "iterations": iterations,
+        **shape,
         "steps_per_agent": steps,
         "steps_summed": steps * P,
         "train_time_s": train_time,
         "summed_steps_per_s": steps * P / train_time,
         "wall_time_s": time.perf_counter() - start,
-        "device": str(device),
+        "device": str(cfg.device),
         "torch_threads": torch.get_num_threads(),
-        "runs": summary_agents,
+        "runs": agents,
     }
     (out / POPULATION_SUMMARY).write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def _agent_summary(out: Path, d: Path, values: Mapping[str, Any], result: Mapping[str, Any]) -> dict[str, Any]:
+    return {
+        "dir": str(d.relative_to(out)),
+        "values": values,
+        "episode_return": result["episode_return"],
+        "episode_cost": result.get("episode_cost"),
+    }
+
+
+def _in_turn(
+    overrides: list[dict[str, Any]],
+    cfgs: list[Any],
+    out: Path,
+    why: str,
+    echo: Callable[[str], None],
+    resume: bool,
+    raw: Mapping[str, Any],
+) -> dict[str, Any]:
+    """Agents the batched program does not cover (``why``): each trained by the single-run path,
+    ``trainer.train``, into its directory, one after another in this process; the numbers of
+    separate runs, and none of the batched program's speed. A resume continues each agent as a run
+    resumes (from its ``checkpoint.pt``; a finished one is evaluated again, one killed before its
+    first checkpoint starts over)."""
+    P = len(cfgs)
+    dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(overrides)]
+    if not resume:
+        ensure_writable(out)
+        (out / POPULATION_CONFIG).write_text(yaml.safe_dump(dict(raw), sort_keys=False))
+    echo(f"population: {why}; its {P} agents train one after another, each as its single run, outputs in {out}")
+    start = time.perf_counter()
+    agents, train_time = [], 0.0
+    for k, (d, c) in enumerate(zip(dirs, cfgs)):
+        if resume:  # from the agent's checkpoint, or anew in its directory
+            c = (
+                dataclasses.replace(c, resume=str(d))
+                if (d / CHECKPOINT).is_file()
+                else dataclasses.replace(c, overwrite=True)
+            )
+        echo(f"agent {k + 1}/{P} ({label(overrides[k])}):")
+        result = train(c, d, echo=echo)
+        train_time += result["train_time_s"]
+        agents.append(_agent_summary(out, d, overrides[k], result))
+    summary = _summary(out, cfgs[0], P, result["steps"], train_time, start, agents)
     echo(
-        f"done: {P} agents x {steps:,} steps in {train_time:.1f}s ({summary['summed_steps_per_s']:,.0f} steps/s "
-        f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}"
+        f"done: {P} agents trained one after another in {summary['wall_time_s']:.1f}s; summary {out / POPULATION_SUMMARY}"
     )
     return summary
 

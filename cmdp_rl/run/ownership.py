@@ -51,8 +51,10 @@ class RunDirTaken(RunDirError):
 
 
 def resumable(resume: str | None) -> bool:
-    """Whether ``resume`` names a directory a run can continue from (it holds a checkpoint)."""
-    return bool(resume) and any((Path(resume) / name).is_file() for name in (CHECKPOINT, POPULATION_CHECKPOINT))
+    """Whether ``resume`` names a directory a run can continue from: it holds a checkpoint, or is a
+    population's (whose agents trained one after another keep their own checkpoints)."""
+    markers = (CHECKPOINT, POPULATION_CHECKPOINT, POPULATION_CONFIG)
+    return bool(resume) and any((Path(resume) / name).is_file() for name in markers)
 
 
 def holds_run(run_dir: str | Path) -> bool:

@@ -5,13 +5,12 @@ one population per algorithm, each job an agent (``experiments/studies/penalty_v
 The experiment's ``hydra.sweeper.params`` are read with Hydra's own override parser; the ``algo``
 entry (a list of config choices such as ``sweep/ppo_lag``) splits the jobs by algorithm, ``seed``
 becomes ``population.grid.seed`` and every other swept key must be a per-agent field
-(``cmdp_rl.population.spec.PER_AGENT_FIELDS``). An algorithm the batched program does not cover (``cpo``) is returned
-as its jobs' plain configs, to be run one after another.
+(``cmdp_rl.population.spec.PER_AGENT_FIELDS``). A part whose algorithm the batched program does not
+cover (``cpo``) is a population whose agents train one after another (``batched`` False).
 """
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -25,8 +24,7 @@ from cmdp_rl.validation import ConfigError
 
 @dataclass
 class SweepPart:
-    """The jobs of one algorithm choice: a population (``raw`` holds its ``population`` node), or
-    for an algorithm that is not batched, ``jobs``: one override list per job."""
+    """The jobs of one algorithm choice as one population (``overrides`` compose its config)."""
 
     name: str  # the algorithm's name, e.g. ppo_lag
     choice: str | None  # the sweep's algo choice, e.g. sweep/ppo_lag (None: the experiment's default)
@@ -39,15 +37,6 @@ class SweepPart:
         for key, values in self.grid.items():
             out.append(f"population.grid.{key}={_hydra_list(values)}")
         return out
-
-    def jobs(self, experiment: str, extra: Sequence[str] = ()) -> list[list[str]]:
-        """One override list per job (the grid's product), for the parts that run job by job."""
-        base = [f"+experiment={experiment}", *([f"algo={self.choice}"] if self.choice else []), *extra]
-        keys = list(self.grid)
-        return [
-            base + [f"{k}={_hydra_value(v)}" for k, v in zip(keys, combo)]
-            for combo in itertools.product(*self.grid.values())
-        ]
 
 
 def _hydra_value(v: Any) -> str:
