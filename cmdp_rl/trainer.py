@@ -24,11 +24,11 @@ from cmdp_rl.collector import Collector
 from cmdp_rl.config import RunConfig, budget_source, validate
 from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
+from cmdp_rl.final_policy import FinalPolicy
 from cmdp_rl.migrations import migrate
-from cmdp_rl.mixture_selection import choose_weights
 from cmdp_rl.normalization import make_normalizers
 from cmdp_rl.policies import make_agent
-from cmdp_rl.policy_average import ParameterAverage, deployed, first_averaged_iteration
+from cmdp_rl.policy_average import ParameterAverage, deployed
 from cmdp_rl.policy_mixture import IterateSnapshots
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
@@ -228,6 +228,26 @@ def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
     return env, agent, make_algo(cfg.algo, agent)
 
 
+def evaluate_run(cfg: RunConfig, agent: Any) -> dict[str, Any]:
+    """A run's final evaluation of ``agent``: ``eval_episodes`` episodes on min(eval_episodes,
+    num_envs) envs of its own, seeded with the run's evaluation seed."""
+    eval_env = make_eval_env(
+        cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
+    )
+    try:
+        return evaluate(
+            agent,
+            eval_env,
+            cfg.eval_episodes,
+            cfg.eval_deterministic,
+            seed=cfg.seed + EVAL_SEED_OFFSET,
+            termination_metric=cfg.env.termination_metric,  # what the env says termination means
+            cost_limit=cfg.algo.cost_limit,
+        )
+    finally:
+        eval_env.close()
+
+
 def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/run/rundir.py``). Returns the
@@ -287,17 +307,7 @@ def _train(
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
-    # final_policy=average: the actor's parameters averaged from this iteration on (policy_average.py).
-    average = ParameterAverage() if cfg.final_policy == "average" else None
-    average_from = first_averaged_iteration(iterations, cfg.average_last)
-    saved = None if state is None else state.get("policy_average")
-    if average is not None and saved is not None and saved["first_iteration"] == average_from:
-        average.load_state_dict(saved)  # (a resume that moved the window, e.g. more total_steps, restarts it)
-    # final_policy=mixture: snapshots of the actor over the same window (policy_mixture.py).
-    mixture = IterateSnapshots(average_from, iterations, cfg.mixture_size) if cfg.final_policy == "mixture" else None
-    saved = None if state is None else state.get("policy_mixture")
-    if mixture is not None and saved is not None:
-        mixture.adopt(saved)
+    final = FinalPolicy(cfg, iterations, state)  # what the run deploys: final_policy
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
@@ -312,10 +322,8 @@ def _train(
             if not cannot_resume:
                 cannot_resume.append(str(exc))
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
-        extra = {} if average is None else {"policy_average": {"first_iteration": average_from, **average.state_dict()}}
-        extra.update({} if mixture is None else {"policy_mixture": mixture.state_dict()})
         entry = checkpoint_entry(run_cfg, iteration, collector.total_steps, time_s, algo)
-        save_checkpoint(ckpt_path, {**extra, **entry, "collector": rollout, "rng": rng_state()})
+        save_checkpoint(ckpt_path, {**final.state_dict(), **entry, "collector": rollout, "rng": rng_state()})
 
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
@@ -336,12 +344,7 @@ def _train(
         agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
         stats = algo.update(batch)
         agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
-        if average is not None and it >= average_from:
-            average.update(agent.actor)
-        if mixture is not None and mixture.wants(it):
-            mixture.update(agent.actor, it)
-            if it == iterations and cfg.mixture_weights == "feasible":  # before the last checkpoint holds them
-                echo(choose_weights(mixture, agent, cfg, names))
+        final.after_update(agent, it, names, echo)
         return [stats]
 
     members = Members(
@@ -358,26 +361,10 @@ def _train(
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
-    if average is not None:  # deploy the average (the checkpoint keeps the last iterate to resume from)
-        average.apply(agent.actor)
-    if mixture is not None:  # deploy the mixture (likewise)
-        mixture.deploy(agent)
-    metric = cfg.env.termination_metric  # what the env says termination means (EnvOptions)
-    eval_env = make_eval_env(
-        cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
-    )
-    result = evaluate(
-        agent,
-        eval_env,
-        cfg.eval_episodes,
-        cfg.eval_deterministic,
-        seed=cfg.seed + EVAL_SEED_OFFSET,
-        termination_metric=metric,
-        cost_limit=cfg.algo.cost_limit,
-    )
-    eval_env.close()
+    final.deploy(agent)
+    result = evaluate_run(cfg, agent)
     write_result(
-        out, result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference, average or mixture
+        out, result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference, final.kept
     )
     logger.finish(result)  # the summary beside the metrics (logger=wandb)
     header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s; {deployed(result)}"

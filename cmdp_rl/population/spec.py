@@ -112,15 +112,11 @@ def label(overrides: Mapping[str, Any]) -> str:
     return ",".join(f"{k}={fmt(v)}" for k, v in overrides.items())
 
 
-def agent_configs(raw: Mapping[str, Any], stacked: bool = False) -> tuple[list[dict[str, Any]], list[RunConfig]]:
+def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[RunConfig]]:
     """Each agent's overrides and validated config from a composed config holding ``population``.
-    A value that the field's own rules refuse stops here, in one line naming the grid field.
-    ``stacked``: for the batched program, which deploys each agent's last iterate
-    (``final_policy=auto`` is ``last``); else each agent's options resolve as its single run's."""
+    A value that the field's own rules refuse stops here, in one line naming the grid field."""
     raw = dict(raw)
     raw.pop("hydra", None)
-    if stacked and raw.get("final_policy", "auto") == "auto":
-        raw["final_policy"] = "last"
     spec = population_spec(raw.pop("population", None))
     base_seed = int(raw.get("seed", 0))
     overrides = agent_overrides(spec, base_seed)
@@ -138,11 +134,11 @@ def agent_configs(raw: Mapping[str, Any], stacked: bool = False) -> tuple[list[d
     return overrides, cfgs
 
 
-def unbatched(cfg: RunConfig, final_policy: str = "auto") -> str | None:
-    """Why the batched program does not cover agents of ``cfg`` (``final_policy``: as the user gave
-    it), or None: it covers the PPO family with the MLP on the observation, on an env with a batched
-    backend, without normalisation (the action space is checked on the built agent:
-    :func:`unbatched_head`). Agents it does not cover train one after another, each as its single run."""
+def unbatched(cfg: RunConfig) -> str | None:
+    """Why the batched program does not cover agents of ``cfg``, or None: it covers the PPO family
+    with the MLP on the observation, on an env with a batched backend, without normalisation (the
+    action space is checked on the built agent: :func:`unbatched_head`). Agents it does not cover
+    train one after another, each as its single run."""
     if not batched(cfg.algo.name):
         return f"algo={cfg.algo.name} is not batched (the batched algorithms: {', '.join(batched_algos())})"
     if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
@@ -155,8 +151,6 @@ def unbatched(cfg: RunConfig, final_policy: str = "auto") -> str | None:
     own_form = type(cfg.env).population_env is not EnvOptions.population_env
     if not (backend == "torch" or (backend is None and own_form)):
         return f"env={cfg.env.name} (backend {backend}) is not batched (env.backend=torch, or env=safe_nav, is)"
-    if final_policy not in ("auto", "last"):  # the deployed average is the single run's loop's (policy_average.py)
-        return f"final_policy={final_policy} is not batched (the batched program deploys the last iterate)"
     if getattr(cfg.env, "probe", False):
         return "env.probe=true is not batched"
     if cfg.normalize.obs or cfg.normalize.reward or cfg.normalize.cost:

@@ -24,6 +24,7 @@ from cmdp_rl import keys
 from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.collector import Collector
 from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate_members
+from cmdp_rl.final_policy import FinalPolicy
 from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
@@ -42,7 +43,16 @@ from cmdp_rl.run.rundir import (
     read_yaml,
 )
 from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import build_run, check_env_contracts, checkpoint_entry, open_runs, restore, train, write_result
+from cmdp_rl.trainer import (
+    build_run,
+    check_env_contracts,
+    checkpoint_entry,
+    evaluate_run,
+    open_runs,
+    restore,
+    train,
+    write_result,
+)
 from cmdp_rl.validation import ConfigError
 
 AGENTS_DIR = "agents"
@@ -85,6 +95,11 @@ def train_population(
             if "update" in saved:  # the stacked layout predates defaults that its config does not name
                 saved_raw = saved_config_defaults(saved_raw)
             state = migrate(saved)
+            if saved_raw.get("final_policy", "auto") == "auto":  # as its agents resolved it (the last
+                # iterate, before populations deployed what a run deploys)
+                saved_raw["final_policy"] = (
+                    state["agents"][0]["config"]["final_policy"] if "agents" in state else "last"
+                )
         raw = resumed_raw(saved_raw, raw or {}, explicit, out)
         if raw.get("population") != saved_raw.get("population"):
             raise ConfigError(f"population cannot change when resuming {out}")
@@ -93,7 +108,7 @@ def train_population(
     raw = _own(raw)
     overrides, cfgs = agent_configs(raw)  # every agent validated: nothing written yet
     apply_threads(cfgs[0])
-    why = unbatched(cfgs[0], raw.get("final_policy", "auto"))
+    why = unbatched(cfgs[0])
     if why is None:  # the action space: on the first agent as built
         probe, agent, _ = build_run(cfgs[0])
         probe.close()
@@ -111,7 +126,7 @@ def _stacked(
     raw: dict[str, Any], out: Path, state: dict[str, Any] | None, echo: Callable[[str], None]
 ) -> dict[str, Any]:
     """The batched program: every agent's env, acting and update as one."""
-    overrides, cfgs = agent_configs(raw, stacked=True)
+    overrides, cfgs = agent_configs(raw)
     cfg = cfgs[0]
     check_env_contracts(*cfgs)
     device = torch.device(cfg.device)
@@ -155,6 +170,8 @@ def _stacked(
             g.set_state(s)
         costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
+    # What each agent deploys, kept on its single-run agent as its run keeps it (final_policy.py).
+    finals = [FinalPolicy(c, iterations, e) for c, e in zip(cfgs, state["agents"] if state else [None] * P)]
     echo(
         f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({N} envs each): "
         f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
@@ -170,8 +187,8 @@ def _stacked(
         # an agent's entry: its single run's checkpoint.pt, the collector and random state left to the population's
         steps = collector.total_steps // P
         written[it] = [
-            {**checkpoint_entry(r, it, steps, time_s, a), "collector": None, "rng": None}
-            for r, a in zip(run_cfgs, algos)
+            {**f.state_dict(), **checkpoint_entry(r, it, steps, time_s, a), "collector": None, "rng": None}
+            for r, a, f in zip(run_cfgs, algos, finals)
         ]
         return written[it]
 
@@ -204,11 +221,19 @@ def _stacked(
                 f"mean episode return {_nanmean(returns):.3f}, cost {_nanmean(ep_costs):.3f}"
             )
 
+    def update_step(batch: Any, it: int) -> list[dict[str, Any]]:
+        stats = update.update(batch)
+        if any(f.wants(it) for f in finals):  # the actors as their single runs hold them, then as they do
+            update.copy_actors(to_modules=True)
+            for k, (f, a) in enumerate(zip(finals, agents)):
+                f.after_update(a, it, names, lambda line, k=k: echo(f"agent {k}: {line}"))
+        return stats
+
     members = Members(
         cfgs,
         loggers,
         collector,
-        lambda batch, it: update.update(batch),
+        update_step,
         cost_totals,
         checkpoint,
         out / POPULATION_CHECKPOINT,
@@ -217,25 +242,21 @@ def _stacked(
     train_time = train_iterations(members, first, iterations, start)
     steps = collector.total_steps // P
 
-    # Each agent's single-run evaluation: min(eval_episodes, num_envs) envs of its own seeded with its
-    # evaluation seed, which also seeds its action samples.
-    seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
-    eval_env = population_env(cfgs, min(cfg.eval_episodes, N), seeds, device, evaluation=True)
-    training, pop.generators = pop.generators, [torch.Generator(device=device).manual_seed(s) for s in seeds]
-    limits = [c.algo.cost_limit for c in cfgs]
-    try:
-        results = evaluate_members(
-            pop, eval_env, cfg.eval_episodes, cfg.eval_deterministic, limits, cfg.env.termination_metric
-        )
-    finally:
-        pop.generators = training
-        eval_env.close()
+    final_entries = entries(iterations, train_time)  # the last iterates, before the deployed policies
+    for f, a in zip(finals, agents):
+        f.deploy(a)
+    if cfg.final_policy == "mixture":  # each agent's mixture as its run evaluates it, one after another
+        results = [evaluate_run(c, a) for c, a in zip(cfgs, agents)]
+    else:
+        update.copy_actors(to_modules=False)  # the deployed actors (an average) into the stacked rows
+        results = _evaluate(pop, cfgs, N, device)
     summary_agents = []
-    for i, (d, c, result, entry) in enumerate(zip(dirs, cfgs, results, entries(iterations, train_time))):
+    summary_agents = []
+    for i, (d, c, result, entry) in enumerate(zip(dirs, cfgs, results, final_entries)):
         # The agent's entry of the population's checkpoint, as its own checkpoint.pt (for evaluate.py;
         # not resumable on its own: the population resumes from population.pt).
         save_checkpoint(d / CHECKPOINT, entry)
-        write_result(d, result, c, steps, train_time, costs[i].tolist(), names, None)
+        write_result(d, result, c, steps, train_time, costs[i].tolist(), names, None, finals[i].kept)
         summary_agents.append(_agent_summary(out, d, overrides[i], result))
     summary = _summary(out, cfg, P, steps, train_time, start, summary_agents, envs_per_agent=N, iterations=iterations)
     echo(
@@ -243,6 +264,23 @@ def _stacked(
         f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}"
     )
     return summary
+
+
+def _evaluate(pop: PopulationAgent, cfgs: list[Any], n: int, device: torch.device) -> list[dict[str, Any]]:
+    """Each agent's single-run evaluation, side by side: min(eval_episodes, num_envs) envs of its own
+    seeded with its evaluation seed, which also seeds its action samples."""
+    cfg = cfgs[0]
+    seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
+    eval_env = population_env(cfgs, min(cfg.eval_episodes, n), seeds, device, evaluation=True)
+    training, pop.generators = pop.generators, [torch.Generator(device=device).manual_seed(s) for s in seeds]
+    limits = [c.algo.cost_limit for c in cfgs]
+    try:
+        return evaluate_members(
+            pop, eval_env, cfg.eval_episodes, cfg.eval_deterministic, limits, cfg.env.termination_metric
+        )
+    finally:
+        pop.generators = training
+        eval_env.close()
 
 
 def _summary(

@@ -146,6 +146,14 @@ class PopulationPPO:
                 opt.load_state_dict(saved)
 
     @torch.no_grad()
+    def copy_actors(self, to_modules: bool) -> None:
+        """The stacked actors' rows into each agent's single-run actor (``to_modules``), or back."""
+        for i, algo in enumerate(self.algos):
+            row = self.agent.actor.row(self.agent.actor.flat, i)
+            for n, p in algo.agent.actor.named_parameters():
+                p.copy_(row[n]) if to_modules else row[n].copy_(p)
+
+    @torch.no_grad()
     def stack_agents(self) -> None:
         """The inverse of :meth:`unstack_agents`: after each agent's algorithm object loaded its
         state (a resume), its networks and Adam moments (no step yet: zero) into the stacked ones."""
