@@ -14,7 +14,7 @@ from conftest import eval_result, metrics_rows, run_script, tiny
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.migrations import saved_config_defaults
 from cmdp_rl.population import train_population
-from cmdp_rl.population.spec import agent_configs, batched_algos, unbatched
+from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
 from cmdp_rl.registry import component
 from cmdp_rl.run.sweeps import find_runs
 
@@ -106,14 +106,19 @@ ALGO_OPTIONS = {
 }
 
 
+def _tiny_algo(name: str) -> dict:
+    """A tiny run's options: a PPO's two epochs of two minibatches, another algorithm's own tiny
+    options (``AlgoConfig.tiny``), and what makes its own arithmetic act (ALGO_OPTIONS)."""
+    own = {"update_epochs": 2, "num_minibatches": 2} if stacked(name) else component("algo", name).options.tiny
+    return {"name": name, **own, **ALGO_OPTIONS.get(name, {})}
+
+
 @pytest.mark.parametrize("name", batched_algos())
 def test_every_batched_algorithm_trains_as_its_single_runs(tmp_path, name):
     """Enumerated from the registry: each algorithm a population accepts, two agents with their own
     budget and seed, each equal to ``train()`` on its own config.yaml."""
-    algo = {"name": name, "update_epochs": 2, "num_minibatches": 2, **ALGO_OPTIONS.get(name, {})}
-    raw = torch_tiny(algo=algo)
-    if name != "ppo_lag":
-        del raw["algo"]["lambda_lr"]
+    raw = torch_tiny()
+    raw["algo"] = _tiny_algo(name)
     raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}
     pop = _population(tmp_path, raw)
     for i, d in enumerate(sorted((pop / "agents").iterdir())):
@@ -130,10 +135,9 @@ def _fork(name: str) -> dict:
     """A tiny run on the fork (envs/fork/): Discrete actions, and two costs for an algorithm that
     takes K > 1 constraints (its options' ``constraints`` is None), else one."""
     k = 2 if component("algo", name).options.constraints is None else 1
-    algo = {"name": name, "update_epochs": 2, "num_minibatches": 2, **ALGO_OPTIONS.get(name, {})}
     return {
         "env": {"name": "fork", "num_envs": 4, "num_costs": k},
-        "algo": algo,
+        "algo": _tiny_algo(name),
         "rollout_steps": 16,
         "total_steps": 4 * 64,
         "checkpoint_every": 2,
@@ -225,7 +229,10 @@ def test_an_agent_s_own_env_takes_its_own_options(tmp_path):
 
 
 def test_the_ppo_family_is_batched():
-    assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "cup", "saute"} <= set(batched_algos())
+    assert {"ppo", "penalty", "ppo_lag", "pid_lag", "crpo", "focops", "cup", "saute"} == {
+        n for n in batched_algos() if stacked(n)
+    }
+    assert {"cpo", "pcpo", "trpo_lag"} <= set(batched_algos())  # their own updates, envs and acting batched
 
 
 @pytest.mark.parametrize(
@@ -281,11 +288,13 @@ def test_each_agent_logs_to_its_own_tensorboard_directory(tmp_path):
 
 
 # fork: each agent's own env (AgentEnvs), whose state is every agent's env's.
-@pytest.mark.parametrize("algo, env", [("ppo_lag", "reach1d"), ("cup", "reach1d"), ("ppo_lag", "fork")])
+@pytest.mark.parametrize(
+    "algo, env", [("ppo_lag", "reach1d"), ("cup", "reach1d"), ("ppo_lag", "fork"), ("cpo", "reach1d")]
+)
 def test_population_resumes_after_a_kill(tmp_path, algo, env):
     raw = torch_tiny(algo={"name": algo}) if env == "reach1d" else _fork(algo)
     if algo != "ppo_lag":
-        del raw["algo"]["lambda_lr"]
+        raw["algo"] = _tiny_algo(algo)
     raw["population"] = {"seeds": 2, "grid": {"algo": {"cost_limit": [0.2]}}}
     whole = _population(tmp_path, raw, "whole")
 
@@ -378,7 +387,7 @@ def test_bad_population_config_is_one_line(population, message):
 # What the batched program does not cover, one case each: such a population's agents train one
 # after another through the single-run path (trainer.train).
 UNBATCHED = [
-    ({"algo": {"name": "cpo"}}, "algo=cpo is not batched"),
+    ({"algo": {"name": "sac_lag"}}, "algo=sac_lag is not batched"),
     ({"policy": {"name": "gru"}}, "policy=gru is not batched"),
     ({"env": {"backend": "gym", "stagger": False}}, "env=reach1d (backend gym) is not batched"),
     ({"normalize": {"obs": True}}, "normalize is not batched"),
@@ -391,8 +400,8 @@ def _unbatched(change: dict) -> dict:
     raw = torch_tiny()
     for k, v in change.items():
         raw[k] = {**raw.get(k, {}), **v} if isinstance(v, dict) else v
-    if raw["algo"]["name"] == "cpo":
-        raw["algo"] = {"name": "cpo"}
+    if raw["algo"]["name"] != "ppo_lag":  # another algorithm's tiny options, not ppo_lag's
+        raw["algo"] = {"name": raw["algo"]["name"], **component("algo", raw["algo"]["name"]).options.tiny}
     if raw["env"].get("name") == "skills":
         raw["env"] = {"name": "skills", "num_envs": 2}
         raw["algo"] = {"name": "ppo"}
@@ -420,7 +429,7 @@ def test_an_unbatched_population_trains_each_agent_as_its_single_run(tmp_path, c
 def test_an_unbatched_population_resumes_after_a_kill(tmp_path):
     """Killed in its second agent's training: the resume continues that agent from its checkpoint
     (the first, finished, is evaluated again) and ends with the numbers of the whole population."""
-    raw = _unbatched({"algo": {"name": "cpo"}})
+    raw = _unbatched({"policy": {"name": "gru"}})
     raw["checkpoint_every"] = 2
     whole = _population(tmp_path, raw, "whole")
 
@@ -443,7 +452,7 @@ def test_an_unbatched_population_resumes_after_a_kill(tmp_path):
 def test_train_cli_trains_an_unbatched_population(tmp_path):
     proc = run_script(
         "train.py",
-        "algo=cpo",
+        "policy=gru",
         "env=reach1d_torch",
         "population.seeds=2",
         "total_steps=4096",
@@ -451,13 +460,13 @@ def test_train_cli_trains_an_unbatched_population(tmp_path):
         f"hydra.run.dir={tmp_path}/r",
     )
     assert proc.returncode == 0, proc.stderr
-    assert "population: algo=cpo is not batched" in proc.stdout
+    assert "population: policy=gru is not batched" in proc.stdout
     assert len(list((tmp_path / "r" / "agents").glob("*/eval.json"))) == 2
 
 
 def test_the_exercise_grid_as_populations():
     """experiments/studies/penalty_vs_constraint.py --population: each algorithm of a sweep is one
-    population whose agents are the sweep's jobs (cpo's train one after another)."""
+    population whose agents are the sweep's jobs."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
@@ -465,7 +474,7 @@ def test_the_exercise_grid_as_populations():
     from cmdp_rl.run.population_sweep import sweep_parts
 
     parts = sweep_parts("constraint_sweep")
-    assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", False)]
+    assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", True)]
     (penalty,) = sweep_parts("penalty_sweep")
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         raw = OmegaConf.to_container(
@@ -474,7 +483,7 @@ def test_the_exercise_grid_as_populations():
         cpo = compose("config", overrides=parts[2].overrides("constraint_sweep", ["env.backend=torch"]))
     cpo_cfgs = agent_configs(OmegaConf.to_container(cpo, resolve=True))[1]
     assert len(cpo_cfgs) == 30 and {c.algo.name for c in cpo_cfgs} == {"cpo"}
-    assert unbatched(cpo_cfgs[0]).startswith("algo=cpo is not batched")
+    assert unbatched(cpo_cfgs[0]) is None  # batched: its envs and acting at once, each agent's own update
     overrides, cfgs = agent_configs(raw)
     assert len(cfgs) == 42 and {c.algo.name for c in cfgs} == {"penalty"}
     assert sorted({(c.algo.penalty, str(c.env.start)) for c in cfgs}) == sorted(

@@ -17,6 +17,7 @@ from typing import Any, Mapping
 
 import yaml
 
+from cmdp_rl.algos.base import AlgoConfig
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
 from cmdp_rl.envs.options import EnvOptions
@@ -29,21 +30,30 @@ from cmdp_rl.validation import ConfigError, PositiveInt, build, options, require
 PER_AGENT_FIELDS = tuple(flatten_dict(yaml.safe_load((CONFIG_DIR / "population" / "none.yaml").read_text())["grid"]))
 
 
-def batched(algo: str) -> bool:
-    """Whether the population trains ``algo``: a PPO whose update is ``PPO.update`` (the variant
-    lives in the hooks ``update_backend.iterate`` calls per agent: multiplier, advantage, surrogate,
-    a second stage), or a composition on such a base (Sauté's ``algo.base``)."""
+def stacked(algo: str) -> bool:
+    """Whether the population's update of ``algo`` is one batched program: a PPO whose update is
+    ``PPO.update`` (the variant lives in the hooks ``update_backend.iterate`` calls per agent:
+    multiplier, advantage, surrogate, a second stage), or a composition on such a base (Sauté's
+    ``algo.base``)."""
     comp = component("algo", algo)
-    if comp.options.envs is not None:  # trains on envs of its own kind, not a population's batch
-        return False
     if not isinstance(comp.build, type):
         base = getattr(comp.options, "base", None)
-        return isinstance(base, str) and base != algo and batched(base)
+        return isinstance(base, str) and base != algo and stacked(base)
     return issubclass(comp.build, PPO) and comp.build.update is PPO.update
 
 
+def batched(algo: str) -> bool:
+    """Whether the population trains ``algo``'s agents as one batched program: their envs and acting
+    at once, their update too where :func:`stacked`, else each agent's own single-run update on its
+    rows (``update.AgentUpdates``: the trust-region family). Not an algorithm that trains on envs
+    of its own kind, nor one whose collector acts at random first (an off-policy warm-up)."""
+    comp = component("algo", algo)
+    own_envs = comp.options.envs is not None
+    return not own_envs and comp.options.uniform_action_steps is AlgoConfig.uniform_action_steps
+
+
 def batched_algos() -> list[str]:
-    """Every registered algorithm a population accepts."""
+    """Every registered algorithm whose population is one batched program."""
     return [n for n in names("algo") if batched(n)]
 
 
@@ -135,10 +145,10 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
 
 
 def unbatched(cfg: RunConfig) -> str | None:
-    """Why the batched program does not cover agents of ``cfg``, or None: it covers the PPO family
-    with the MLP on the observation, on an env with a batched backend, without normalisation (the
-    action space is checked on the built agent: :func:`unbatched_head`). Agents it does not cover
-    train one after another, each as its single run."""
+    """Why the batched program does not cover agents of ``cfg``, or None: it covers the algorithms of
+    :func:`batched_algos` with the MLP on the observation, on an env with a batched backend, without
+    normalisation (the action space is checked on the built agent: :func:`unbatched_head`). Agents
+    it does not cover train one after another, each as its single run."""
     if not batched(cfg.algo.name):
         return f"algo={cfg.algo.name} is not batched (the batched algorithms: {', '.join(batched_algos())})"
     if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
@@ -177,6 +187,7 @@ __all__ = [
     "PopulationConfig",
     "batched",
     "batched_algos",
+    "stacked",
     "agent_configs",
     "agent_overrides",
     "label",

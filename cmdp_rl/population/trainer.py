@@ -28,8 +28,8 @@ from cmdp_rl.final_policy import FinalPolicy
 from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
-from cmdp_rl.population.spec import agent_configs, label, unbatched, unbatched_head
-from cmdp_rl.population.update import PopulationPPO
+from cmdp_rl.population.spec import agent_configs, label, stacked, unbatched, unbatched_head
+from cmdp_rl.population.update import AgentUpdates, PopulationPPO
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.run.loop import Members, train_iterations
 from cmdp_rl.run.ownership import owned
@@ -145,7 +145,7 @@ def _stacked(
         generators.append(g)
     env = population_env(cfgs, N, [c.seed for c in cfgs], device)
     pop = PopulationAgent(agents, generators, device)
-    update = PopulationPPO(pop, algos)
+    update = PopulationPPO(pop, algos) if stacked(cfg.algo.name) else AgentUpdates(pop, algos)
     collector = Collector(env, pop, T, seed=None)
 
     dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(overrides)]
@@ -250,7 +250,6 @@ def _stacked(
     else:
         update.copy_actors(to_modules=False)  # the deployed actors (an average) into the stacked rows
         results = _evaluate(pop, cfgs, N, device)
-    summary_agents = []
     summary_agents = []
     for i, (d, c, result, entry) in enumerate(zip(dirs, cfgs, results, final_entries)):
         # The agent's entry of the population's checkpoint, as its own checkpoint.pt (for evaluate.py;

@@ -1,7 +1,9 @@
-"""The PPO-family update of every agent at once: the iteration and its minibatch loop written once
-(``algos/update_backend.iterate``), each agent's own single-run algorithm object around it, on the
-stacked backend here: units ``[P, U, ...]``, each agent's permutations from its generator,
-per-agent means, the fused training pass, per-row clipping, ``StackedAdam``, the KL mask.
+"""The agents' update. :class:`PopulationPPO`, the PPO family's, is every agent's at once: the
+iteration and its minibatch loop written once (``algos/update_backend.iterate``), each agent's own
+single-run algorithm object around it, on the stacked backend here: units ``[P, U, ...]``, each
+agent's permutations from its generator, per-agent means, the fused training pass, per-row clipping,
+``StackedAdam``, the KL mask. :class:`AgentUpdates`, any other on-policy algorithm's (the
+trust-region family), is each agent's single-run update on its own rows, one after another.
 """
 
 from __future__ import annotations
@@ -169,4 +171,49 @@ class PopulationPPO:
                     adam.steps[i] = float(state.get("step", 0.0))
 
 
-__all__ = ["PopulationPPO"]
+class AgentUpdates:
+    """Each agent's own single-run update (``algo.update``) on its rows of the batch, its random
+    draws from its own generator (the global generator holds the agent's state during its update,
+    as its single run's holds it after acting), then its networks copied into the stacked rows the
+    population acts and values with. The agents' modules hold the networks between updates."""
+
+    def __init__(self, agent: PopulationAgent, algos: Sequence[Any]) -> None:
+        self.agent, self.algos = agent, list(algos)
+
+    def update(self, batch: TensorDictBase) -> list[dict[str, Any]]:
+        n = batch.shape[0] // len(self.algos)
+        stats = []
+        for i, (algo, g) in enumerate(zip(self.algos, self.agent.generators)):
+            device = g.device
+            saved = torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device)
+            _set_rng(device, g.get_state())
+            try:
+                stats.append(algo.update(batch[i * n : (i + 1) * n]))
+            finally:
+                g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
+                _set_rng(device, saved)
+        self.stack_agents()
+        return stats
+
+    @torch.no_grad()
+    def stack_agents(self) -> None:
+        """Every agent's networks (its module's parameters) into the stacked rows."""
+        for i, algo in enumerate(self.algos):
+            for stacked, module in ((self.agent.actor, algo.agent.actor), (self.agent.critics, algo.agent.critics)):
+                row = stacked.row(stacked.flat, i)
+                for n, p in module.named_parameters():
+                    row[n].copy_(p)
+
+    def unstack_agents(self) -> None:
+        """Nothing to move: each agent's algorithm object holds its networks and optimiser."""
+
+    def copy_actors(self, to_modules: bool) -> None:
+        if not to_modules:  # the modules hold the networks (a deployed average, too)
+            self.stack_agents()
+
+
+def _set_rng(device: torch.device, state: torch.Tensor) -> None:
+    torch.set_rng_state(state) if device.type == "cpu" else torch.cuda.set_rng_state(state, device)
+
+
+__all__ = ["AgentUpdates", "PopulationPPO"]
