@@ -455,8 +455,10 @@ def test_train_cli_trains_an_unbatched_population(tmp_path):
         "policy=gru",
         "env=reach1d_torch",
         "population.seeds=2",
-        "total_steps=4096",
-        "env.num_envs=8",
+        "total_steps=128",
+        "env.num_envs=2",
+        "rollout_steps=16",
+        "eval_episodes=2",
         f"hydra.run.dir={tmp_path}/r",
     )
     assert proc.returncode == 0, proc.stderr
