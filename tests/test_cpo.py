@@ -250,7 +250,7 @@ def test_cpo_cost_estimate_carries_the_last_finished_episodes_over_batches_where
     assert EpisodeCostEstimate().update(_episode_batch([])) == EpisodeCost((108.0,), 108.0, RUNNING)
     cpo = _cpo()
     cpo.policy_step = lambda units, cost, length: {"seen": (cost, length)}  # only what update passes on
-    cpo.fit_critics = lambda units: {}
+    cpo.fit_critics = lambda *args: {}
     cpo.gae = lambda batch, agent: batch
     seen = []
     for ends in ([], [5], [], []):

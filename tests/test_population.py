@@ -458,6 +458,7 @@ def test_train_cli_trains_an_unbatched_population(tmp_path):
         "total_steps=128",
         "env.num_envs=2",
         "rollout_steps=16",
+        "algo.num_minibatches=2",
         "eval_episodes=2",
         f"hydra.run.dir={tmp_path}/r",
     )

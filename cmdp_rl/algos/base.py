@@ -165,8 +165,14 @@ class TrainingDiverged(RuntimeError):
 
 
 def check_finite(**values: torch.Tensor | float) -> None:
-    """Raise :class:`TrainingDiverged` naming the first non-finite value."""
+    """Raise :class:`TrainingDiverged` naming the first non-finite value (of a tensor's, e.g. one
+    per agent of a population)."""
     for name, value in values.items():
+        if isinstance(value, torch.Tensor) and value.numel() > 1:
+            finite = torch.isfinite(value)
+            if bool(finite.all()):
+                continue
+            value = value[~finite][0]
         x = value.item() if isinstance(value, torch.Tensor) else float(value)
         if not math.isfinite(x):
             raise TrainingDiverged(f"{name} is {x}: training diverged")

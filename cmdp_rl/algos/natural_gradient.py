@@ -12,7 +12,7 @@ search: Schulman et al. 2015, "Trust Region Policy Optimization", Appendix C.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Callable, ClassVar
+from typing import TYPE_CHECKING, Annotated, Any, Callable, ClassVar
 
 import torch
 from tensordict import TensorDictBase
@@ -24,7 +24,7 @@ from cmdp_rl.advantages import TwinGAE, standardized
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.episode_cost import EpisodeCostEstimate
-from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.algos.update_backend import OneAgent, run_epochs
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.validation import Field, NonNegativeFloat, PositiveInt, options, require
 
@@ -183,6 +183,17 @@ class NaturalGradient:
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         self.gae(batch, self.agent)
+        units, stats = self.policy_update(batch)
+        backend = OneAgent(self.agent, self.cfg.max_grad_norm, None)
+        losses = self.fit_critics(units, backend, [(self.critic_opt, self.critic_params)])
+        stats.update({k: v.item() for k, v in losses.items()})
+        check_parameters_finite(self.agent)
+        stats["lagrange_multiplier"] = self.lagrange_multiplier
+        return stats
+
+    def policy_update(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
+        """After GAE: the J_c estimate, the training units and the policy step. Returns the units
+        (the critics' regression follows on them) and the step's statistics."""
         estimate = self.episode_cost.update(batch)
         # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
         needed = [
@@ -198,11 +209,7 @@ class NaturalGradient:
         units = self.agent.training_units({k: batch.get(k) for k in dict.fromkeys(needed) if k in present})
         # J_c, or K numbers with K constraints (only trpo_lag takes K > 1; the others refuse it when built).
         episode_cost = estimate.costs[0] if len(estimate.costs) == 1 else estimate.costs
-        stats = self.policy_step(units, episode_cost, estimate.length)
-        stats.update(self.fit_critics(units))
-        check_parameters_finite(self.agent)
-        stats["lagrange_multiplier"] = self.lagrange_multiplier
-        return stats
+        return units, self.policy_step(units, episode_cost, estimate.length)
 
     def advantages(self, units: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """The reward advantage (standardized if ``normalize_advantage``) and the cost advantage,
@@ -230,25 +237,25 @@ class NaturalGradient:
     def entropy(self, units: dict[str, torch.Tensor]) -> float:
         return self.agent.dist(units).entropy().mean().item()
 
-    def fit_critics(self, units: dict[str, torch.Tensor]) -> dict[str, float]:
-        """Regress the critics on their GAE value targets (minibatch Adam)."""
-        cfg = self.cfg
-        sums: dict[str, float] = {}
-        n = 0
-        for _, mb in minibatches(units, cfg.critic_minibatches, cfg.critic_epochs):
-            losses = self.critics.losses(mb)
+    def fit_critics(self, units: dict[str, torch.Tensor], backend: Any, groups: list) -> dict[str, torch.Tensor]:
+        """Regress the critics on their GAE value targets: ``critic_epochs`` passes of
+        ``critic_minibatches`` Adam steps, on one agent's units (``update_backend.OneAgent``) or P
+        agents' ``[P, U, ...]`` (the population's stacked backend), the optimiser and parameters in
+        ``groups``. Returns each loss's mean over the minibatches (per agent)."""
+
+        def step(mb: dict[str, torch.Tensor], active: Any) -> tuple[dict[str, torch.Tensor], Any]:
+            losses = self.critics.losses(mb, backend.critic_values(mb), backend.mean)
             check_finite(**losses)
-            self.critic_opt.zero_grad(set_to_none=True)
             total = None
             for loss in losses.values():
                 total = loss if total is None else total + loss
-            total.backward()
-            nn.utils.clip_grad_norm_(self.critic_params, cfg.max_grad_norm)
-            self.critic_opt.step()
-            for k, v in losses.items():
-                sums[k] = sums.get(k, 0.0) + v.item()
-            n += 1
-        return {k: v / n for k, v in sums.items()}
+            backend.step(total, groups, active)
+            # summed in float64, as Python floats would be
+            return backend.kept({k: v.double() for k, v in losses.items()}, active), active
+
+        cfg = self.cfg
+        sums, counts = run_epochs(backend, units, cfg.critic_minibatches, cfg.critic_epochs, step)
+        return {k: v / counts for k, v in sums.items()}
 
     def state_dict(self) -> dict:
         return {

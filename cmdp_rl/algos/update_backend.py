@@ -55,6 +55,9 @@ class Backend(Protocol):
     def training_pass(self, mb: Units) -> tuple[D.Distribution, dict[str, torch.Tensor] | None]:
         """The actor's distribution and, where computed together, the critics' values by signal."""
 
+    def critic_values(self, mb: Units) -> dict[str, torch.Tensor] | None:
+        """The critics' values by signal on a minibatch (None: ``CriticRegression`` computes them)."""
+
     def stop(self, kl: torch.Tensor, active: Any) -> tuple[Any, Any]:
         """KL early stopping: the agents still active after this minibatch, and those that step on it."""
 
@@ -254,6 +257,9 @@ class OneAgent:
 
     def training_pass(self, mb: Units) -> tuple[D.Distribution, None]:
         return self.agent.dist(mb), None  # the critics' values: CriticRegression.losses computes them
+
+    def critic_values(self, mb: Units) -> None:
+        return None  # CriticRegression.losses computes them
 
     def stop(self, kl: torch.Tensor, active: bool) -> tuple[bool, bool]:
         go = self.kl_limit is None or not kl.item() > self.kl_limit
