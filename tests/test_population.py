@@ -2,6 +2,7 @@
 does, the population resumes after a kill, bad or unsupported configs stop in one line."""
 
 import copy
+import json
 import math
 import shutil
 from pathlib import Path
@@ -16,6 +17,7 @@ from cmdp_rl.migrations import saved_config_defaults
 from cmdp_rl.population import train_population
 from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
 from cmdp_rl.registry import component
+from cmdp_rl.run.ownership import RunDirTaken
 from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
@@ -528,3 +530,26 @@ def test_fused_pass_gradients_equal_autograd_path():
         results.append([dist.mean.detach(), value.detach(), cost.detach(), pop.actor.flat.grad, pop.critics.flat.grad])
     for fused, reference in zip(*results):
         assert torch.equal(fused, reference)
+
+
+def test_the_population_benchmark_runs_end_to_end(tmp_path):
+    """A smoke run of experiments/speed/population_benchmark.py (its figures are not checked): the
+    population, the same agents one after another, and a scan whose sizes repeat the first's."""
+    from cmdp_rl.bench.population_benchmark import main
+
+    out = tmp_path / "bench.json"
+    assert (
+        main(["--agents", "2", "--envs", "2", "--iterations", "1", "--scan", "2,1", "--skip-layers", "--out", str(out)])
+        == 0
+    )
+    report = json.loads(out.read_text())
+    assert report["final_policy"] == "auto" and [r["agents"] for r in report["scan"]] == [2, 1]
+    assert report["together"]["steps_summed"] == report["one_after_another"]["steps_summed"] > 0
+
+
+def test_a_finished_population_s_directory_is_refused_as_finished(tmp_path):
+    raw = torch_tiny()
+    raw["population"] = {"seeds": 2}
+    pop = _population(tmp_path, raw)
+    with pytest.raises(RunDirTaken, match="already holds a finished run"):
+        train_population(raw, pop, echo=lambda s: None)

@@ -1,7 +1,8 @@
 """Population training against the same agents trained one after another, in one process.
 
     python experiments/speed/population_benchmark.py [--agents 64] [--envs 64] [--iterations 3]
-        [--scan 1,4,16,64,128] [--device cpu|cuda] [--threads 1] [--out outputs/population_benchmark.json]
+        [--scan 1,4,16,64,128] [--device cpu|cuda] [--threads 1] [--final-policy auto|last|...]
+        [--out outputs/population_benchmark.json]
 
 - together: ``--agents`` ppo_lag agents (the ``env=reach1d_torch`` preset with ``--envs`` envs each,
   one seed per agent) trained by ``train_population`` for ``--iterations`` iterations; summed
@@ -48,9 +49,10 @@ def composed(overrides: list[str]) -> dict:
         return OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
 
 
-def base(envs: int, iterations: int, device: str, threads: int) -> list[str]:
+def base(envs: int, iterations: int, device: str, threads: int, final_policy: str = "auto") -> list[str]:
     steps = iterations * envs * max(32, min(256, 2048 // envs))
     return [
+        f"final_policy={final_policy}",
         "algo=ppo_lag",
         "env=reach1d_torch",
         f"env.num_envs={envs}",
@@ -63,10 +65,14 @@ def base(envs: int, iterations: int, device: str, threads: int) -> list[str]:
     ]
 
 
+def _shape(args) -> tuple:
+    return args.envs, args.iterations, args.device, args.threads, args.final_policy
+
+
 def together(args, agents: int, tmp: Path) -> dict:
-    raw = composed(base(args.envs, args.iterations, args.device, args.threads) + [f"population.seeds={agents}"])
+    raw = composed(base(*_shape(args)) + [f"population.seeds={agents}"])
     cpu = time.process_time()
-    summary = train_population(raw, tmp / f"pop{agents}", echo=lambda s: None)
+    summary = train_population(raw, Path(tempfile.mkdtemp(prefix=f"pop{agents}_", dir=tmp)), echo=lambda s: None)
     cpu = time.process_time() - cpu
     return {
         "agents": agents,
@@ -79,7 +85,7 @@ def together(args, agents: int, tmp: Path) -> dict:
 
 
 def one_after_another(args, tmp: Path) -> dict:
-    raw = composed(base(args.envs, args.iterations, args.device, args.threads) + [f"population.seeds={args.agents}"])
+    raw = composed(base(*_shape(args)) + [f"population.seeds={args.agents}"])
     _, cfgs = agent_configs(raw)
     total_time, steps = 0.0, 0
     cpu = time.process_time()
@@ -153,6 +159,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scan", default="1,4,16,64,128")
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--final-policy",
+        default="auto",
+        choices=["auto", "last", "average", "mixture"],
+        help="what every agent deploys (auto: ppo_lag's valued mixture, whose valuation runs in the last update)",
+    )
     parser.add_argument("--skip-sequential", action="store_true", help="only the population side (and the scan)")
     parser.add_argument("--skip-layers", action="store_true", help="leave out the baddbmm / vmap comparison")
     parser.add_argument("--out", type=Path, default=ROOT / "outputs" / "population_benchmark.json")
@@ -164,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         "cpu": platform.processor() or platform.machine(),
         "envs_per_agent": args.envs,
         "iterations": args.iterations,
+        "final_policy": args.final_policy,
     }
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)

@@ -62,6 +62,11 @@ def holds_run(run_dir: str | Path) -> bool:
     return any((Path(run_dir) / name).exists() for name in RUN_FILES)
 
 
+def _finished(run_dir: Path) -> bool:
+    """Whether a run (its ``eval.json``) or a population (its ``population.json``) finished there."""
+    return (run_dir / EVAL).is_file() or (run_dir / POPULATION_SUMMARY).is_file()
+
+
 def _key(run_dir: str | Path) -> Path:
     return Path(run_dir).resolve()
 
@@ -109,7 +114,7 @@ def acquire(run_dir: str | Path, new_run: bool, overwrite: bool = False, hydra_r
     try:
         if new_run and holds_run(path) and not overwrite:
             raise RunDirTaken(
-                f"run directory {path} already holds {'a finished' if (path / EVAL).is_file() else 'an unfinished'} "
+                f"run directory {path} already holds {'a finished' if _finished(path) else 'an unfinished'} "
                 f"run: continue it with resume={run_dir}, or replace it with overwrite=true"
             )
         ensure_writable(path)
