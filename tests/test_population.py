@@ -543,7 +543,7 @@ def test_the_population_benchmark_runs_end_to_end(tmp_path):
         == 0
     )
     report = json.loads(out.read_text())
-    assert report["final_policy"] == "auto" and [r["agents"] for r in report["scan"]] == [2, 1]
+    assert report["final_policy"] == "last" and [r["agents"] for r in report["scan"]] == [2, 1]
     assert report["together"]["steps_summed"] == report["one_after_another"]["steps_summed"] > 0
 
 

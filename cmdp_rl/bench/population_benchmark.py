@@ -49,7 +49,7 @@ def composed(overrides: list[str]) -> dict:
         return OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
 
 
-def base(envs: int, iterations: int, device: str, threads: int, final_policy: str = "auto") -> list[str]:
+def base(envs: int, iterations: int, device: str, threads: int, final_policy: str = "last") -> list[str]:
     steps = iterations * envs * max(32, min(256, 2048 // envs))
     return [
         f"final_policy={final_policy}",
@@ -161,9 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument(
         "--final-policy",
-        default="auto",
+        default="last",
         choices=["auto", "last", "average", "mixture"],
-        help="what every agent deploys (auto: ppo_lag's valued mixture, whose valuation runs in the last update)",
+        help="what every agent deploys (last, as every figure before: the training alone; auto: ppo_lag's "
+        "valued mixture, whose valuation, per agent on both sides, runs in the last update)",
     )
     parser.add_argument("--skip-sequential", action="store_true", help="only the population side (and the scan)")
     parser.add_argument("--skip-layers", action="store_true", help="leave out the baddbmm / vmap comparison")
