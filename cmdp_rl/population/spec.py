@@ -30,26 +30,36 @@ from cmdp_rl.validation import ConfigError, PositiveInt, build, options, require
 PER_AGENT_FIELDS = tuple(flatten_dict(yaml.safe_load((CONFIG_DIR / "population" / "none.yaml").read_text())["grid"]))
 
 
-def stacked(algo: str) -> bool:
+def stacked(algo: str, base: str | None = None) -> bool:
     """Whether the population's update of ``algo`` is one batched program: a PPO whose update is
     ``PPO.update`` (the variant lives in the hooks ``update_backend.iterate`` calls per agent:
     multiplier, advantage, surrogate, a second stage), or a composition on such a base (Sauté's
-    ``algo.base``)."""
+    ``algo.base``: ``base`` where the config names it, else its default)."""
     comp = component("algo", algo)
     if not isinstance(comp.build, type):
-        base = getattr(comp.options, "base", None)
+        base = base or getattr(comp.options, "base", None)
         return isinstance(base, str) and base != algo and stacked(base)
     return issubclass(comp.build, PPO) and comp.build.update is PPO.update
 
 
-def batched(algo: str) -> bool:
+# What an algorithm whose update is not PPO's offers for its agents' updates (update.AgentUpdates):
+# its own policy step on an agent's rows after GAE, and a critic regression on any backend.
+PER_AGENT_HOOKS = ("policy_update", "fit_critics")
+
+
+def batched(algo: str, base: str | None = None) -> bool:
     """Whether the population trains ``algo``'s agents as one batched program: their envs and acting
-    at once, their update too where :func:`stacked`, else each agent's own single-run update on its
-    rows (``update.AgentUpdates``: the trust-region family). Not an algorithm that trains on envs
-    of its own kind, nor one whose collector acts at random first (an off-policy warm-up)."""
+    at once, their update too where :func:`stacked`, else each agent's own policy step and one
+    critic regression for all (an algorithm with :data:`PER_AGENT_HOOKS`: the trust-region family).
+    Not an algorithm that trains on envs of its own kind, nor one whose collector acts at random
+    first (an off-policy warm-up)."""
     comp = component("algo", algo)
-    own_envs = comp.options.envs is not None
-    return not own_envs and comp.options.uniform_action_steps is AlgoConfig.uniform_action_steps
+    if comp.options.envs is not None or comp.options.uniform_action_steps is not AlgoConfig.uniform_action_steps:
+        return False
+    if not isinstance(comp.build, type):
+        base = base or getattr(comp.options, "base", None)
+        return isinstance(base, str) and base != algo and batched(base)
+    return stacked(algo) or all(callable(getattr(comp.build, hook, None)) for hook in PER_AGENT_HOOKS)
 
 
 def batched_algos() -> list[str]:
@@ -149,7 +159,7 @@ def unbatched(cfg: RunConfig) -> str | None:
     :func:`batched_algos` with the MLP on the observation, on an env with a batched backend, without
     normalisation (the action space is checked on the built agent: :func:`unbatched_head`). Agents
     it does not cover train one after another, each as its single run."""
-    if not batched(cfg.algo.name):
+    if not batched(cfg.algo.name, getattr(cfg.algo, "base", None)):
         return f"algo={cfg.algo.name} is not batched (the batched algorithms: {', '.join(batched_algos())})"
     if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
         with_prev = " with include_prev_*" if cfg.policy.name == "mlp" else ""

@@ -145,7 +145,8 @@ def _stacked(
         generators.append(g)
     env = population_env(cfgs, N, [c.seed for c in cfgs], device)
     pop = PopulationAgent(agents, generators, device)
-    update = PopulationPPO(pop, algos) if stacked(cfg.algo.name) else AgentUpdates(pop, algos)
+    one_update = stacked(cfg.algo.name, getattr(cfg.algo, "base", None))
+    update = PopulationPPO(pop, algos) if one_update else AgentUpdates(pop, algos)
     collector = Collector(env, pop, T, seed=None)
 
     dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(overrides)]
