@@ -24,10 +24,9 @@ class FinalPolicy:
         self.first = first_averaged_iteration(iterations, cfg.average_last)
         self.average = ParameterAverage() if cfg.final_policy == "average" else None
         previous = (saved or {}).get("policy_average")
+        # (a resume that moved the window, e.g. more total_steps, restarts it)
         if self.average is not None and previous is not None and previous["first_iteration"] == self.first:
-            self.average.load_state_dict(
-                previous
-            )  # (a resume that moved the window, e.g. more total_steps, restarts it)
+            self.average.load_state_dict(previous)
         self.mixture = None
         if cfg.final_policy == "mixture":
             self.mixture = IterateSnapshots(self.first, iterations, cfg.mixture_size)

@@ -23,8 +23,9 @@ is re-trained) and writes, into ``--out`` (default ``<first dir>/report``):
   (``cmdp_rl.envs.reach1d.optimum``) and checked against the runs.
 
 ``--population DIR`` first trains the whole grid of both sweeps in this process, as populations
-(``cmdp_rl.population``: one population per algorithm, on ``env.backend=torch``, batched but for
-cpo's, whose agents train one after another; ``--skip-unbatched`` leaves cpo out), into
+(``cmdp_rl.population``: one population per algorithm, on ``env.backend=torch``; cpo's agents take
+their policy steps one after another; ``--skip-unbatched`` leaves out a part whose agents would
+train one after another, none in the grid as configured), into
 ``DIR/{penalty,constraint}/<algo>/``, then reports on ``DIR`` as above; ``DIR/timing.json`` holds
 each part's wall time. Overrides apply to every job (e.g. ``total_steps=204800``). ``--compare``
 reads another report's ``table.md`` (e.g. docs/penalty_vs_constraint.md, separate runs) and counts
@@ -80,9 +81,8 @@ def report(dirs: list[Path], out: Path) -> dict[str, Any]:
 
 
 def train_grid(out: Path, overrides: list[str], skip_unbatched: bool) -> dict[str, float]:
-    """Both sweeps' grids in this process, one population per algorithm (cpo's agents one after
-    another: it is not batched). Returns each part's wall time in seconds (and the total wall and
-    CPU time)."""
+    """Both sweeps' grids in this process, one population per algorithm. Returns each part's wall
+    time in seconds (and the total wall and CPU time)."""
     import time
 
     from cmdp_rl.population import train_population
@@ -161,7 +161,9 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="train the whole grid into this directory as populations first, then report on it",
     )
-    parser.add_argument("--skip-unbatched", action="store_true", help="with --population: leave out cpo's jobs")
+    parser.add_argument(
+        "--skip-unbatched", action="store_true", help="with --population: leave out the parts that are not batched"
+    )
     parser.add_argument("--compare", type=Path, default=None, help="another report's table.md to compare with")
     args = parser.parse_args(argv)
     overrides = [str(d) for d in args.dirs if "=" in str(d)]  # key=value: overrides for --population's jobs

@@ -6,7 +6,8 @@ The experiment's ``hydra.sweeper.params`` are read with Hydra's own override par
 entry (a list of config choices such as ``sweep/ppo_lag``) splits the jobs by algorithm, ``seed``
 becomes ``population.grid.seed`` and every other swept key must be a per-agent field
 (``cmdp_rl.population.spec.PER_AGENT_FIELDS``). A part whose algorithm the batched program does not
-cover (``cpo``) is a population whose agents train one after another (``batched`` False).
+cover (an off-policy one, say) is a population whose agents train one after another (``batched``
+False).
 """
 
 from __future__ import annotations
