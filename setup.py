@@ -1,5 +1,5 @@
 """What pyproject.toml cannot say: the checkout's configs/ folder ships inside the wheel as the package
-``cmdp_rl.configs``, where Hydra finds it (``pkg://cmdp_rl.configs``, see cmdp_rl/config.py). The folder
+``cmdp_rl.configs``, where Hydra finds it (``pkg://cmdp_rl.configs``, see cmdp_rl/config/run_config.py). The folder
 stays at the root in the checkout, beside cmdp_rl/, where a user looks for it."""
 
 from setuptools import find_namespace_packages, find_packages, setup

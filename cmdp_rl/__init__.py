@@ -13,17 +13,17 @@
 
 import gymnasium as _gym
 
-from cmdp_rl import keys
 from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.algos.ppo_lag import PenaltyPPO, PIDLagrangianPPO, PPOLagrangian
-from cmdp_rl.collector import Collector, finished_episodes
-from cmdp_rl.config import ConfigError, RunConfig, load_config, validate
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.run_config import ConfigError, RunConfig, load_config, validate
 from cmdp_rl.envs import REACH1D_ID, GymVecEnv, Reach1D, VecEnv, make_env
-from cmdp_rl.evaluation import evaluate
 from cmdp_rl.policies import Agent, make_agent
-from cmdp_rl.registry import register
-from cmdp_rl.trainer import train
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.collector import Collector, finished_episodes
+from cmdp_rl.run.evaluation import evaluate
+from cmdp_rl.run.trainer import train
 
 __version__ = "0.1.0"
 

@@ -5,9 +5,9 @@ import torch
 from tensordict import TensorDict
 
 from cmdp_rl import keys
-from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.policies import Agent, Critic
 from cmdp_rl.policies.mlp import MLPBody
+from cmdp_rl.rollout.advantages import TwinGAE
 
 GAMMA, LAM = 0.9, 0.8
 V = [0.5, 0.2, 0.1]  # V(s_0..s_2)

@@ -1,4 +1,4 @@
-"""The algorithm table's report (cmdp_rl.bench.algorithm_table, behind experiments/benchmarks/algorithm_table.py)
+"""The algorithm table's report (lab.bench.algorithm_table, behind experiments/benchmarks/algorithm_table.py)
 on hand-made run directories (seconds): the LP gap and
 each constraint's violation per algorithm, mean ± sample std over seeds."""
 
@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script():
-    from cmdp_rl.bench import algorithm_table
+    from lab.bench import algorithm_table
 
     return algorithm_table
 

@@ -8,7 +8,7 @@ import torch
 
 from cmdp_rl import Collector, TrainingDiverged, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.ppo import PPO
-from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
+from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
 
 
 def setup(algo: dict, **env):

@@ -1,4 +1,4 @@
-"""The report pieces in cmdp_rl.analysis and the sweep readers they use, on hand-computed values."""
+"""The report pieces in lab.studies and the sweep readers they use, on hand-computed values."""
 
 import json
 import math
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-from cmdp_rl.analysis.penalty_constraint import (
+from cmdp_rl.run.sweeps import FAILED, MISSING, OK, finished_runs, started_runs
+from lab.studies.penalty_constraint import (
     GroupKey,
     Run,
     from_missing,
@@ -16,9 +17,9 @@ from cmdp_rl.analysis.penalty_constraint import (
     table_markdown,
     table_rows,
 )
-from cmdp_rl.analysis.stats import count_finite, population_mean_std, sample_mean_std, tail_mean
-from cmdp_rl.analysis.tables import markdown_table, pm, write_csv
-from cmdp_rl.run.sweeps import FAILED, MISSING, OK, MissingJob, finished_runs, job_values, read_sweeps, started_runs
+from lab.studies.stats import count_finite, population_mean_std, sample_mean_std, tail_mean
+from lab.studies.tables import markdown_table, pm, write_csv
+from lab.sweeps import MissingJob, job_values, read_sweeps
 
 
 def test_sample_mean_std_is_over_finite_seeds_with_ddof_1():

@@ -19,7 +19,11 @@ import torch
 from conftest import ROOT, run_script, tiny
 
 from cmdp_rl import load_config, train
-from cmdp_rl.checkpoint import (
+from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
+from cmdp_rl.config.registry import component, load_builtins, names
+from cmdp_rl.population import train_population
+from cmdp_rl.report.plot import main as plot_main
+from cmdp_rl.run.checkpoint import (
     FORMAT_VERSION,
     CheckpointError,
     UnsafeCheckpointError,
@@ -28,11 +32,7 @@ from cmdp_rl.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
-from cmdp_rl.migrations import is_legacy
-from cmdp_rl.population import train_population
-from cmdp_rl.registry import component, load_builtins, names
-from cmdp_rl.report.plot import main as plot_main
+from cmdp_rl.run.migrations import is_legacy
 
 
 class CreatesAFile:

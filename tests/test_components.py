@@ -2,7 +2,7 @@
 
 This is the worked example of ``docs/architecture.md`` ("Add an algorithm", "Add an env"): nothing
 in ``cmdp_rl`` knows the names ``toy_reinforce`` or ``toy_target``. Each component declares its
-options (``cmdp_rl.validation.options``) and registers itself (``cmdp_rl.registry.register``);
+options (``cmdp_rl.config.validation.options``) and registers itself (``cmdp_rl.config.registry.register``);
 the trainer builds them, logs the statistics the algorithm declares, checkpoints, resumes and
 evaluates them like any built-in one.
 """
@@ -23,16 +23,16 @@ from conftest import ROOT, eval_result, metrics_rows
 from tensordict import TensorDictBase
 
 from cmdp_rl import ConfigError, evaluate, keys, load_config, make_agent, make_env, train
-from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos.base import AlgoConfig, check_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import PositiveFloat, PositiveInt, options
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.registry import register
 from cmdp_rl.report.metrics import MetricsLogger
-from cmdp_rl.validation import PositiveFloat, PositiveInt, options
+from cmdp_rl.rollout.advantages import TwinGAE
 
 
 # --- A toy env: a gymnasium env that reports its cost in info["cost"] ----------------------------

@@ -3,7 +3,7 @@ relative violation, the t interval and the table's counts, by hand."""
 
 import pytest
 
-from cmdp_rl.analysis.constraint_satisfaction import Outcome, interval, table
+from lab.studies.constraint_satisfaction import Outcome, interval, table
 
 
 def test_gap_violation_and_within_by_hand():

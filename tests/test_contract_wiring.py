@@ -14,7 +14,7 @@ from conftest import ROOT, metrics_rows, tiny
 from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
-from cmdp_rl.config import ConfigError
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import EnvContractError
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.run.rundir import RunDirError
@@ -121,7 +121,7 @@ def test_check_rollout_passes_finite_values_whose_sum_overflows():
 
 def test_the_check_leaves_the_training_numbers_alone(tmp_path, quiet, monkeypatch):
     """Same config and seed, with and without the pre-training check: the same metrics.csv."""
-    import cmdp_rl.trainer as trainer
+    import cmdp_rl.run.trainer as trainer
 
     cfg = tiny()
     train(load_config(cfg), tmp_path / "with", echo=quiet)

@@ -18,19 +18,19 @@ from conftest import ROOT
 from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
-from cmdp_rl.advantages import TwinGAE
 from cmdp_rl.algos import make_algo
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers
-from cmdp_rl.collector import Collector, finished_episodes
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.envs import GymVecEnv
-from cmdp_rl.migrations import migrate
-from cmdp_rl.normalization import ReturnScaler
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig
 from cmdp_rl.report.metrics import columns
 from cmdp_rl.report.plot import group_runs
 from cmdp_rl.report.plot import main as plot_main
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.rollout.advantages import TwinGAE
+from cmdp_rl.rollout.collector import Collector, finished_episodes
+from cmdp_rl.rollout.normalization import ReturnScaler
+from cmdp_rl.run.migrations import migrate
 
 ENV_ID = "cmdp_rl_test/TwoCost-v0"
 NAMES = ("hazard_a", "hazard_b")
@@ -202,7 +202,7 @@ def test_policy_advantage_sums_over_constraints_with_todays_normalisation():
 
 def test_one_multiplier_is_a_list_of_one_and_the_single_constraint_format_migrates():
     """One state per constraint, K = 1 included; format 2 saved one constraint's as the bare
-    controller state, which cmdp_rl.migrations puts under ``constraints`` (and which then loads)."""
+    controller state, which cmdp_rl.run.migrations puts under ``constraints`` (and which then loads)."""
     single = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0])
     single.update([3.0])
     assert single.state_dict() == {"constraints": [{"value": pytest.approx(0.2)}]}

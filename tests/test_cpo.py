@@ -9,13 +9,13 @@ from tensordict import TensorDict
 from torch.distributions import kl_divergence
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env
-from cmdp_rl.algos.conjugate_gradient import conjugate_gradient
-from cmdp_rl.algos.cpo import CONSTRAINED, RECOVERY, TRPO, fisher_vector_product, solve_dual
-from cmdp_rl.algos.episode_cost import FINISHED, RUNNING, WINDOW, EpisodeCost, EpisodeCostEstimate
-from cmdp_rl.migrations import migrate
+from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
+from cmdp_rl.algos.trust_region.cpo import CONSTRAINED, RECOVERY, TRPO, fisher_vector_product, solve_dual
 from cmdp_rl.policies.agent import Actor
 from cmdp_rl.policies.distributions import GaussianHead
 from cmdp_rl.policies.mlp import MLPBody, mlp
+from cmdp_rl.rollout.episode_cost import FINISHED, RUNNING, WINDOW, EpisodeCost, EpisodeCostEstimate
+from cmdp_rl.run.migrations import migrate
 
 
 def test_conjugate_gradient_solves_a_random_spd_system():
@@ -262,7 +262,7 @@ def test_cpo_cost_estimate_carries_the_last_finished_episodes_over_batches_where
     fresh.load_state_dict(cpo.state_dict())
     assert fresh.episode_cost.update(_episode_batch([])) == EpisodeCost((53.0,), 106.0, WINDOW)
     # A checkpoint from before the shared estimate kept CPO's last J_c as "episode_estimate" (format 2:
-    # cmdp_rl.migrations brings it to the current layout).
+    # cmdp_rl.run.migrations brings it to the current layout).
     old = {k: v for k, v in cpo.state_dict().items() if k != "episode_cost"}
     old["episode_estimate"] = (51.0, 102.0)
     fresh = _cpo()

@@ -7,8 +7,8 @@ import torch
 from conftest import tail_means
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
-from cmdp_rl.algos.episode_cost import EpisodeCostEstimate
-from cmdp_rl.config import compose_config
+from cmdp_rl.config.run_config import compose_config
+from cmdp_rl.rollout.episode_cost import EpisodeCostEstimate
 
 
 def setup(algo: dict):
@@ -62,7 +62,7 @@ def test_cost_step_is_a_metrics_column(tmp_path):
 
 
 def test_negative_tolerance_is_a_config_error():
-    from cmdp_rl.validation import ConfigError
+    from cmdp_rl.config.validation import ConfigError
 
     with pytest.raises(ConfigError, match=r"^algo.tolerance must be a number >= 0, got -0.1$"):
         load_config({"algo": {"name": "crpo", "tolerance": -0.1}})

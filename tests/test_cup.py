@@ -11,7 +11,7 @@ from torch.distributions import kl_divergence
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.algos.update_backend import OneAgent
-from cmdp_rl.config import compose_config
+from cmdp_rl.config.run_config import compose_config
 
 
 def setup(algo: dict):

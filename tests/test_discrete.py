@@ -20,15 +20,15 @@ from conftest import ROOT
 from torch.distributions import kl_divergence
 
 from cmdp_rl import keys, load_config, train
-from cmdp_rl.actions import UnsupportedActionSpace, action_dim, check_action_space, to_env
-from cmdp_rl.algos.cpo import fisher_vector_product
-from cmdp_rl.collector import Collector
-from cmdp_rl.config import ConfigError
+from cmdp_rl.algos.trust_region.cpo import fisher_vector_product
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import GymVecEnv, make_cost_env
-from cmdp_rl.evaluation import evaluate
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.distributions import Categorical, CategoricalHead, MultiCategorical, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder
+from cmdp_rl.rollout.actions import UnsupportedActionSpace, action_dim, check_action_space, to_env
+from cmdp_rl.rollout.collector import Collector
+from cmdp_rl.run.evaluation import evaluate
 from cmdp_rl.run.rundir import load_trained
 
 log = math.log

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.envs import GymVecEnv, Reach1D, TorchReach1D
 from cmdp_rl.envs.contract import EnvContract, EnvContractError, check_env
 from cmdp_rl.envs.grid.env import GRID_ID
-from cmdp_rl.validation import ConfigError
 
 BREAK_AT = 3  # the toy envs break on their third step
 

@@ -7,10 +7,10 @@ import torch
 from conftest import eval_result, run_script, tiny
 
 from cmdp_rl import keys, load_config, train
-from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.cli import evaluate as evaluate_cli
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
+from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
 
 
 @pytest.fixture(scope="module")

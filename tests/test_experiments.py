@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _load(name):
-    return importlib.import_module(f"cmdp_rl.analysis.{name}")
+    return importlib.import_module(f"lab.studies.{name}")
 
 
 def test_damping_metrics_measure_after_the_first_crossing_of_the_budget():

@@ -8,7 +8,7 @@ import torch
 from conftest import ROOT, cli_args, eval_result, metrics_rows, tiny
 
 from cmdp_rl import load_config, train
-from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.run.checkpoint import load_checkpoint
 
 # Loaded at interpreter start through PYTHONPATH: from the CMDP_NAN_AT-th update on, the reward
 # advantage every algorithm builds its policy advantage from is NaN, as after a numerical blow-up.
@@ -19,7 +19,7 @@ import os
 _nan_at = os.environ.pop("CMDP_NAN_AT", None)
 if _nan_at:
     from cmdp_rl import keys
-    from cmdp_rl.advantages import TwinGAE
+    from cmdp_rl.rollout.advantages import TwinGAE
     _original, _calls = TwinGAE.__call__, [0]
 
     def _poisoned(self, batch, ac):

@@ -1,8 +1,8 @@
 """The scripts behind the first-run figures and the library example read the Makefile and the library guide
 (docs/guide/library.md) themselves."""
 
-from cmdp_rl.bench import first_run, library_example
-from cmdp_rl.config import compose_config
+from cmdp_rl.config.run_config import compose_config
+from lab.bench import first_run, library_example
 
 
 def test_first_run_script_runs_the_makefiles_train_recipe():

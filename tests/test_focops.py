@@ -9,10 +9,10 @@ from conftest import tail_means
 from torchrl.modules import IndependentNormal
 
 from cmdp_rl import Collector, load_config, make_agent, make_algo, make_env, train
-from cmdp_rl.algos.episode_cost import FINISHED, EpisodeCost
 from cmdp_rl.algos.focops import focops_loss
-from cmdp_rl.config import compose_config
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.config.run_config import compose_config
+from cmdp_rl.config.validation import ConfigError
+from cmdp_rl.rollout.episode_cost import FINISHED, EpisodeCost
 
 A = torch.tensor([[0.4], [0.0], [-0.2]], dtype=torch.float64)  # actions, 3 states, 1-d
 ADV = torch.tensor([[1.0], [-2.0], [0.5]], dtype=torch.float64)  # A_r - nu A_c
@@ -91,7 +91,7 @@ def test_nu_is_projected_dual_ascent_clipped_to_0_and_nu_max():
     algo.update_multiplier(EpisodeCost((2.0,), 3.0, FINISHED))  # unclipped: 0.5 + 0.1 * (2 - 1)
     assert algo.lagrange_multiplier == pytest.approx(0.6)
     with pytest.raises(ConfigError, match=r"^algo.nu_init must be a number in \[0, algo.nu_max\], got 3.0$"):
-        from cmdp_rl.config import validate
+        from cmdp_rl.config.run_config import validate
 
         validate(load_config({"algo": {"name": "focops", "nu_init": 3.0}}))
 

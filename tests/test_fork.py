@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from cmdp_rl import load_config, train
-from cmdp_rl.config import ConfigError
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs.fork.env import TorchFork
 from cmdp_rl.envs.fork.model import ADVANCE, GOAL, fork_cmdp
 from cmdp_rl.envs.grid.optimum import solve_constrained

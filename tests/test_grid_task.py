@@ -5,8 +5,8 @@ import csv
 import pytest
 
 from cmdp_rl import load_config, train
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.envs import make_env
-from cmdp_rl.validation import ConfigError
 
 
 def test_grid_env_builds_with_discrete_actions_and_two_named_costs():
@@ -72,10 +72,10 @@ def test_a_trained_policy_is_valued_exactly_against_the_lp():
     import numpy as np
     import torch
 
-    from cmdp_rl.analysis.grid_policy import exact_gap, policy_table
     from cmdp_rl.envs.grid.optimum import solve_constrained
     from cmdp_rl.envs.grid.tabular import evaluate, grid_cmdp
     from cmdp_rl.policies import make_agent
+    from lab.studies.grid_policy import exact_gap, policy_table
 
     cfg = load_config({"env": {"name": "grid", "num_envs": 2}, "policy": {"name": "mlp", "hidden_sizes": [8]}})
     env = make_env(cfg.env)

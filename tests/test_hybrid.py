@@ -15,16 +15,23 @@ import torch
 from conftest import eval_result, metrics_rows
 
 from cmdp_rl import load_config, train
-from cmdp_rl.actions import UnsupportedActionSpace, action_bounds, action_dim, check_action_space, hybrid, to_env
-from cmdp_rl.algos.natural_gradient import fisher_vector_product
-from cmdp_rl.checkpoint import load_checkpoint
-from cmdp_rl.collector import Collector
-from cmdp_rl.config import ConfigError
+from cmdp_rl.algos.trust_region.natural_gradient import fisher_vector_product
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import GymVecEnv, check_env, make_env
 from cmdp_rl.envs.hold import HeldSkill
 from cmdp_rl.policies.agent import make_agent
 from cmdp_rl.policies.distributions import make_action_head
 from cmdp_rl.policies.hybrid import HybridHead, SkillParameters
+from cmdp_rl.rollout.actions import (
+    UnsupportedActionSpace,
+    action_bounds,
+    action_dim,
+    check_action_space,
+    hybrid,
+    to_env,
+)
+from cmdp_rl.rollout.collector import Collector
+from cmdp_rl.run.checkpoint import load_checkpoint
 
 LOG_2PI = math.log(2 * math.pi)
 

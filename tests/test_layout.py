@@ -1,5 +1,6 @@
-"""The layout keeps what the issue that shaped it asked for: experiments/ holds command lines, not logic (their
-code lives in the package, where tests import it), and no test reaches into a script by its path."""
+"""The layout keeps what shaped it: the library (cmdp_rl/, the wheel) holds what a user imports, one package per
+concept; benchmarks, studies and fidelity checks are checkout-only lab code (lab/), never imported by the library;
+experiments/ holds thin command lines over lab/; and no test reaches into a script by its path."""
 
 import ast
 import re
@@ -7,7 +8,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 # Reruns itself inside a virtual environment pinned to Safety-Gymnasium's own versions, where cmdp_rl is not
-# installed: its code cannot live in the package.
+# installed: its code cannot live in lab/ either.
 WHOLE_SCRIPTS = {"experiments/fidelity/safety_gym_fidelity.py"}
 
 
@@ -20,9 +21,9 @@ def test_experiment_scripts_are_thin_command_lines():
             continue
         tree = ast.parse(path.read_text())
         defined = [n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.ClassDef))]
-        assert not defined, f"{name} defines {defined}: move them into cmdp_rl/bench or cmdp_rl/analysis"
+        assert not defined, f"{name} defines {defined}: move them into lab/bench or lab/studies"
         sources = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
-        assert any(m and m.startswith("cmdp_rl.") for m in sources), f"{name} runs no package module"
+        assert any(m and m.startswith("lab.") for m in sources), f"{name} runs no lab module"
 
 
 def test_no_test_loads_a_script_by_path():
@@ -34,3 +35,25 @@ def test_no_test_loads_a_script_by_path():
         ):
             offenders.append(path.name)
     assert not offenders, f"import the package module instead of the script: {offenders}"
+
+
+def _imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    found = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    return found | {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+
+
+def test_the_library_never_imports_lab_code():
+    offenders = [
+        p.relative_to(ROOT).as_posix()
+        for p in sorted((ROOT / "cmdp_rl").rglob("*.py"))
+        if any(m == "lab" or m.startswith("lab.") for m in _imports(p))
+    ]
+    assert not offenders, f"the library imports checkout-only lab code: {offenders}"
+
+
+def test_the_package_root_holds_one_package_per_concept():
+    entries = sorted(p.name for p in (ROOT / "cmdp_rl").iterdir() if p.name not in {"__pycache__", "py.typed"})
+    assert len(entries) <= 12, entries
+    modules = [e for e in entries if e.endswith(".py")]
+    assert modules == ["__init__.py", "__main__.py"], f"modules at the root belong in a package: {modules}"

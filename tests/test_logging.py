@@ -8,7 +8,7 @@ from conftest import tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.algos.ppo import PPO
-from cmdp_rl.config import ConfigError
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.report.metrics import MetricsLogger, columns
 from cmdp_rl.report.plot import aggregate, group_runs, smooth
 from cmdp_rl.report.plot import main as plot_main

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_env
-from cmdp_rl.config import ConfigError
+from cmdp_rl.config.run_config import ConfigError
 
 # Short episodes (7 steps) over 20-step rollouts: episodes start mid-batch and span batches.
 ENV = {"num_envs": 4, "max_steps": 7, "probe": True, "start": [0.0, 0.8], "backend": "torch", "obs_noise": 0.1}

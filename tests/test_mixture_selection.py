@@ -12,9 +12,9 @@ from test_policy_mixture import _fork_mixture
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli
-from cmdp_rl.collector import Collector
-from cmdp_rl.mixture_selection import MemberValue, feasible_weights
-from cmdp_rl.policy_mixture import mixture_actor, weights_of
+from cmdp_rl.deploy.mixture import mixture_actor, weights_of
+from cmdp_rl.deploy.selection import MemberValue, feasible_weights
+from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.run.rundir import load_trained
 
 
@@ -111,8 +111,8 @@ def test_the_run_deploys_records_and_reloads_the_chosen_mixture(feasible_run, tm
 def test_a_gym_reach1d_run_values_its_snapshots_on_the_torch_twin():
     """The valuation of env=reach1d (gymnasium backend) steps the batched twin, the same CMDP to
     the last bit: the members' values equal those of the same run on env.backend=torch."""
+    from cmdp_rl.deploy.selection import value_members
     from cmdp_rl.envs import make_env
-    from cmdp_rl.mixture_selection import value_members
     from cmdp_rl.policies import make_agent
 
     cfgs = [load_config(tiny(env={"backend": b}, mixture_episodes=12)) for b in ("gym", "torch")]

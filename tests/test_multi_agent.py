@@ -9,12 +9,12 @@ from conftest import eval_result, metrics_rows
 from pettingzoo.test import parallel_api_test
 
 from cmdp_rl import load_config, train
-from cmdp_rl.checkpoint import load_checkpoint
-from cmdp_rl.config import ConfigError
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import EnvContractError, check_env, make_env
 from cmdp_rl.envs.multi_agent import PettingZooVecEnv
 from cmdp_rl.envs.team_work import TeamWork, constrained_optimum
 from cmdp_rl.policies.agent import make_agent
+from cmdp_rl.run.checkpoint import load_checkpoint
 
 WORK, SPRINT, IDLE = 1, 2, 0
 

@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from cmdp_rl import ConfigError, keys, load_config, make_agent, make_algo, make_env, train
-from cmdp_rl.checkpoint import load_checkpoint, save_checkpoint
-from cmdp_rl.collector import Collector
-from cmdp_rl.evaluation import evaluate
-from cmdp_rl.normalization import Normalizers, ObservationNormalizer, ReturnScaler, make_normalizers
+from cmdp_rl.rollout.collector import Collector
+from cmdp_rl.rollout.normalization import Normalizers, ObservationNormalizer, ReturnScaler, make_normalizers
+from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
+from cmdp_rl.run.evaluation import evaluate
 
 
 def test_normalized_observations_have_zero_mean_unit_std_on_a_known_stream():

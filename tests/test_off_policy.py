@@ -13,9 +13,9 @@ from test_resume import assert_same_run, crash_then_resume, final_state
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.algos import make_algo
-from cmdp_rl.algos.off_policy import discounted_budget
-from cmdp_rl.algos.replay_buffer import Replay
-from cmdp_rl.config import ConfigError
+from cmdp_rl.algos.off_policy.common import discounted_budget
+from cmdp_rl.algos.off_policy.replay_buffer import Replay
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import make_env
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD
@@ -120,7 +120,7 @@ def test_the_multiplier_rises_above_the_budget_and_falls_below(name):
         rollout_steps=2,
     )
     d_q = algo.lagrange.budgets[0]
-    from cmdp_rl.collector import Collector
+    from cmdp_rl.rollout.collector import Collector
 
     collector = Collector(env, algo.agent, 2, seed=0)
     constant(algo.agent.critics[Q_COST].net, 5.0)
@@ -180,7 +180,7 @@ def test_the_multiplier_reads_q_c_on_the_newest_states(name):
 
 def test_warm_up_acts_uniformly_and_does_not_update():
     algo, env = build({"name": "sac", "warmup_steps": 8, "batch_size": 4})
-    from cmdp_rl.collector import Collector
+    from cmdp_rl.rollout.collector import Collector
 
     collector = Collector(env, algo.agent, 2, seed=0, uniform_steps=8)
     first = collector.collect()  # 4 steps of 2 envs: all uniform (log-density of U(-0.1, 0.1) = log 5)
@@ -373,7 +373,7 @@ def test_the_pid_multiplier_acts_on_the_cost_critic():
         },
         rollout_steps=2,
     )
-    from cmdp_rl.collector import Collector
+    from cmdp_rl.rollout.collector import Collector
 
     collector = Collector(env, algo.agent, 2, seed=0)
     d_q = algo.lagrange.budgets[0]

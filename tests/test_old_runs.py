@@ -30,10 +30,10 @@ import pytest
 import torch
 
 from cmdp_rl import Collector, keys, train
-from cmdp_rl.checkpoint import FORMAT_VERSION, UnsafeCheckpointError, load_checkpoint
 from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main in-process: no interpreter per fixture
-from cmdp_rl.migrations import is_legacy
+from cmdp_rl.run.checkpoint import FORMAT_VERSION, UnsafeCheckpointError, load_checkpoint
 from cmdp_rl.run.convert import convert_run
+from cmdp_rl.run.migrations import is_legacy
 from cmdp_rl.run.resume import resume_config
 from cmdp_rl.run.rundir import load_trained
 
@@ -171,8 +171,8 @@ def test_converted_variants_act_as_before():
     encoder, observation normalization, GRU, two-layer LSTM and transformer): the converted
     networks give the old deterministic actions."""
     from cmdp_rl import load_config, make_agent, make_env
-    from cmdp_rl.migrations import convert_networks
-    from cmdp_rl.normalization import make_normalizers
+    from cmdp_rl.rollout.normalization import make_normalizers
+    from cmdp_rl.run.migrations import convert_networks
 
     variants = torch.load(FIXTURES / "variants.pt")
     assert len(variants) == 5

@@ -14,7 +14,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 COMPOSE = (
     "import cmdp_rl\n"
-    "from cmdp_rl.config import CONFIG_SOURCE, compose_config\n"
+    "from cmdp_rl.config.run_config import CONFIG_SOURCE, compose_config\n"
     "print(cmdp_rl.__file__)\n"
     "print(CONFIG_SOURCE)\n"
     "print(repr(compose_config(['env=grid', 'algo=cpo', 'seed=3'])))\n"
@@ -30,7 +30,7 @@ def installed(tmp_path_factory) -> Path:
     # (a stale build/lib would otherwise leak deleted modules into later wheels).
     source = tmp / "source"
     junk = shutil.ignore_patterns("__pycache__", "*.pyc")
-    for name in ("cmdp_rl", "configs"):
+    for name in ("cmdp_rl", "configs", "lab"):  # lab/ too: the check below is that setup.py leaves it out
         shutil.copytree(ROOT / name, source / name, ignore=junk)
     for name in ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md"):
         shutil.copy2(ROOT / name, source / name)
@@ -61,6 +61,9 @@ def _run(site: Path, cwd: Path, *cmd: str) -> subprocess.CompletedProcess:
 
 def test_the_wheel_ships_configs_and_composes_them_as_the_checkout_does(installed, tmp_path):
     assert (installed / "cmdp_rl" / "configs" / "config.yaml").is_file()
+    # Benchmarks, studies and fidelity checks are checkout-only lab code, never in the wheel.
+    assert not (installed / "lab").exists()
+    assert not [p for p in installed.rglob("*.py") if p.parent.name in ("bench", "analysis", "studies", "fidelity")]
     from_wheel = _run(installed, tmp_path, sys.executable, "-c", COMPOSE)
     from_checkout = subprocess.run([sys.executable, "-c", COMPOSE], cwd=ROOT, capture_output=True, text=True)
     assert from_wheel.returncode == 0 and from_checkout.returncode == 0, from_wheel.stderr + from_checkout.stderr
@@ -73,10 +76,10 @@ def test_the_wheel_ships_configs_and_composes_them_as_the_checkout_does(installe
 
 
 def test_installed_wheel_trains_evaluates_and_compares_outside_the_checkout(installed, tmp_path):
-    """The issue's check: ``python -m cmdp_rl.train algo=ppo_lag env=reach1d total_steps=4096`` from a
+    """The issue's check: ``python -m cmdp_rl algo=ppo_lag env=reach1d total_steps=4096`` from a
     directory outside the checkout writes a finished run; the console scripts read it back."""
     train = _run(
-        installed, tmp_path, sys.executable, "-m", "cmdp_rl.train", "algo=ppo_lag", "env=reach1d", "total_steps=4096"
+        installed, tmp_path, sys.executable, "-m", "cmdp_rl", "algo=ppo_lag", "env=reach1d", "total_steps=4096"
     )
     assert train.returncode == 0, train.stderr[-3000:]
     (run,) = (tmp_path / "outputs").glob("*/*_ppo_lag_reach1d_s0")

@@ -7,9 +7,9 @@ import pytest
 import torch
 from test_trpo_lag import RANDOM_RETURN
 
-from cmdp_rl.algos.pcpo import projected_step
-from cmdp_rl.config import compose_config
-from cmdp_rl.trainer import train
+from cmdp_rl.algos.trust_region.pcpo import projected_step
+from cmdp_rl.config.run_config import compose_config
+from cmdp_rl.run.trainer import train
 
 H = torch.tensor([[2.0, 0.5], [0.5, 1.0]], dtype=torch.float64)
 G = torch.tensor([1.0, 0.0], dtype=torch.float64)

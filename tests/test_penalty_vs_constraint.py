@@ -1,4 +1,4 @@
-"""The penalty-versus-constraint study's report (cmdp_rl.analysis.penalty_vs_constraint, the code of
+"""The penalty-versus-constraint study's report (lab.studies.penalty_vs_constraint, the code of
 experiments/studies/penalty_vs_constraint.py) on a fixture of run directories built here: finished,
 failed, interrupted and never-started runs, as a sweep leaves them."""
 
@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from cmdp_rl.algos.ppo_lag import PenaltyConfig, PPOLagConfig
-from cmdp_rl.analysis import penalty_vs_constraint as pvc
-from cmdp_rl.config import RunConfig
+from cmdp_rl.config.run_config import RunConfig
+from lab.studies import penalty_vs_constraint as pvc
 
 ROOT = Path(__file__).resolve().parents[1]
 

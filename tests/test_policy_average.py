@@ -10,9 +10,9 @@ from conftest import eval_result, tiny
 from torch import nn
 
 from cmdp_rl import load_config, train
-from cmdp_rl.checkpoint import load_checkpoint
 from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
-from cmdp_rl.policy_average import ParameterAverage, first_averaged_iteration
+from cmdp_rl.deploy.average import ParameterAverage, first_averaged_iteration
+from cmdp_rl.run.checkpoint import load_checkpoint
 from cmdp_rl.run.rundir import load_trained
 
 
@@ -63,7 +63,7 @@ def test_average_is_what_the_run_evaluates_and_evaluate_py_loads(tmp_path):
 
 
 def test_bad_final_policy_is_one_line():
-    from cmdp_rl.config import ConfigError
+    from cmdp_rl.config.run_config import ConfigError
 
     with pytest.raises(ConfigError, match="final_policy"):
         load_config(tiny(final_policy="median"))

@@ -13,9 +13,9 @@ from conftest import eval_result, tiny
 
 from cmdp_rl import keys, load_config, make_agent, make_env, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
-from cmdp_rl.collector import Collector
-from cmdp_rl.config import ConfigError
-from cmdp_rl.policy_mixture import IterateSnapshots, members_of, mixture_actor
+from cmdp_rl.config.run_config import ConfigError
+from cmdp_rl.deploy.mixture import IterateSnapshots, members_of, mixture_actor
+from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.run.rundir import load_trained
 
 
@@ -115,7 +115,7 @@ def test_mixture_is_what_the_run_evaluates_and_evaluate_py_loads(mixture_run, tm
 
 
 def test_the_command_line_sets_the_mixture():
-    from cmdp_rl.config import compose_config
+    from cmdp_rl.config.run_config import compose_config
 
     cfg = compose_config(["final_policy=mixture", "mixture_size=3"])  # as train.py's overrides
     assert (cfg.final_policy, cfg.mixture_size) == ("mixture", 3)
@@ -129,7 +129,7 @@ def test_mixture_of_recurrent_actors_is_refused_in_one_line():
 
 
 def test_fork_exact_value_of_a_mixture_is_the_mean_of_its_members():
-    from cmdp_rl.analysis.fork_policy import mixture_gap
+    from lab.studies.fork_policy import mixture_gap
 
     cfg = load_config({"env": {"name": "fork"}})
     model, best = cfg.env.model(), cfg.env.solve(1.0)

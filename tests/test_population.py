@@ -13,10 +13,10 @@ import yaml
 from conftest import eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import ConfigError, load_config, train
-from cmdp_rl.migrations import saved_config_defaults
+from cmdp_rl.config.registry import component
 from cmdp_rl.population import train_population
 from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
-from cmdp_rl.registry import component
+from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.ownership import RunDirTaken
 from cmdp_rl.run.sweeps import find_runs
 
@@ -475,8 +475,8 @@ def test_the_exercise_grid_as_populations():
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from cmdp_rl.config import CONFIG_DIR
-    from cmdp_rl.run.population_sweep import sweep_parts
+    from cmdp_rl.config.run_config import CONFIG_DIR
+    from lab.studies.population_sweep import sweep_parts
 
     parts = sweep_parts("constraint_sweep")
     assert [(p.name, p.batched) for p in parts] == [("ppo_lag", True), ("pid_lag", True), ("cpo", True)]
@@ -503,10 +503,10 @@ def test_fused_pass_gradients_equal_autograd_path():
     import torch
 
     from cmdp_rl.envs import make_env
-    from cmdp_rl.normalization import make_normalizers
     from cmdp_rl.policies import make_agent
     from cmdp_rl.population.agent import PopulationAgent
-    from cmdp_rl.rng import seed_everything
+    from cmdp_rl.rollout.normalization import make_normalizers
+    from cmdp_rl.run.rng import seed_everything
 
     raw = torch_tiny(algo={"name": "ppo_lag"})
     raw["population"] = {"seeds": 3, "grid": {}}
@@ -535,7 +535,7 @@ def test_fused_pass_gradients_equal_autograd_path():
 def test_the_population_benchmark_runs_end_to_end(tmp_path):
     """A smoke run of experiments/speed/population_benchmark.py (its figures are not checked): the
     population, the same agents one after another, and a scan whose sizes repeat the first's."""
-    from cmdp_rl.bench.population_benchmark import main
+    from lab.bench.population_benchmark import main
 
     out = tmp_path / "bench.json"
     assert (

@@ -4,9 +4,9 @@ policy, and that the batched Reach1D preset reaches the foundation issue's quali
 import pytest
 
 from cmdp_rl import train
-from cmdp_rl.config import CONFIG_DIR, compose_config
-from cmdp_rl.registry import names
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.config.registry import names
+from cmdp_rl.config.run_config import CONFIG_DIR, compose_config
+from cmdp_rl.config.validation import ConfigError
 
 ALGOS = ["ppo", "penalty", "ppo_lag", "pid_lag", "cpo"]
 POLICIES = ["mlp", "lstm", "gru", "transformer"]

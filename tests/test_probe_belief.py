@@ -9,8 +9,8 @@ import torch
 import yaml
 
 from cmdp_rl import load_config, make_agent, make_env  # noqa: E402
-from cmdp_rl.analysis import probe_belief  # noqa: E402
-from cmdp_rl.checkpoint import save_checkpoint  # noqa: E402
+from cmdp_rl.run.checkpoint import save_checkpoint  # noqa: E402
+from lab.studies import probe_belief  # noqa: E402
 
 
 @pytest.mark.parametrize("policy", ["mlp", "lstm"])

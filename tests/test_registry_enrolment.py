@@ -20,12 +20,13 @@ from test_cost_vector import ENV_ID as TWO_COST_ID
 from test_golden import GOLDEN, WRITE, _mismatch, _outputs, machine
 from test_resume import assert_same_run, crash_then_resume
 
-from cmdp_rl import evaluate, load_config, registry, train
-from cmdp_rl.checkpoint import load_checkpoint
-from cmdp_rl.policy_mixture import members_of
-from cmdp_rl.registry import component, names
+from cmdp_rl import evaluate, load_config, train
+from cmdp_rl.config import registry
+from cmdp_rl.config.registry import component, names
+from cmdp_rl.config.validation import ConfigError
+from cmdp_rl.deploy.mixture import members_of
+from cmdp_rl.run.checkpoint import load_checkpoint
 from cmdp_rl.run.rundir import load_trained
-from cmdp_rl.validation import ConfigError
 
 ALGOS = names("algo")
 

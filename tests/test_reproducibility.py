@@ -9,7 +9,7 @@ from conftest import ROOT, eval_result, metrics_rows, tiny
 
 import cmdp_rl
 from cmdp_rl import load_config, train
-from cmdp_rl.checkpoint import load_checkpoint
+from cmdp_rl.run.checkpoint import load_checkpoint
 
 
 def test_same_config_and_seed_give_identical_metrics(tmp_path, quiet):

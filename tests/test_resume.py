@@ -14,9 +14,9 @@ import torch
 from conftest import ROOT, cli_args, eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import load_config, train
-from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from cmdp_rl.config import ConfigError
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.report.metrics import MetricsLogger
+from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.run.resume import resume_config
 
 
@@ -136,7 +136,7 @@ def test_a_kill_while_writing_a_checkpoint_leaves_the_previous_one(tmp_path):
     """save_checkpoint is atomic: SIGKILL a process that rewrites a large checkpoint in a loop."""
     path = tmp_path / "ckpt.pt"
     code = (
-        "import sys, torch; from cmdp_rl.checkpoint import save_checkpoint\n"
+        "import sys, torch; from cmdp_rl.run.checkpoint import save_checkpoint\n"
         "i = 0\n"
         "while True:\n"
         "    save_checkpoint(sys.argv[1], {'i': i, 'w': torch.full((4_000_000,), float(i))})\n"

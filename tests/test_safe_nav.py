@@ -17,11 +17,11 @@ if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_s
 from conftest import eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import train  # noqa: E402
-from cmdp_rl.bench.safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the fidelity table's steering)
-from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
+from cmdp_rl.config.run_config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
 from cmdp_rl.envs.safe_nav.world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
 from cmdp_rl.envs.safety_gym.env import make_task  # noqa: E402
+from lab.fidelity.safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the fidelity table's steering)
 
 
 def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int = 0) -> dict:

@@ -24,12 +24,12 @@ if importlib.util.find_spec("mujoco_warp") is None:
 from conftest import eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import train  # noqa: E402
-from cmdp_rl.bench.safe_nav_fidelity import steer  # noqa: E402  (the steering the fidelity table uses)
-from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
+from cmdp_rl.config.run_config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
-from cmdp_rl.envs.safe_nav.physics_compare import compare_physics  # noqa: E402
 from cmdp_rl.envs.safe_nav.warp_world import PER_WORLD, WARP_TASKS  # noqa: E402
 from cmdp_rl.envs.safe_nav.world import NavWorlds, nav_spec  # noqa: E402
+from lab.fidelity.physics_compare import compare_physics  # noqa: E402
+from lab.fidelity.safe_nav_fidelity import steer  # noqa: E402  (the steering the fidelity table uses)
 
 RENDER_ONLY = ("cam_", "light_")  # camera and light fields: no physics reads them
 # One for all worlds in MuJoCo Warp, and read only when sleeping is enabled (it is not here).

@@ -23,11 +23,11 @@ if importlib.util.find_spec("safety_gymnasium") is None:
 from conftest import ForwardPolicy, eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import Collector, finished_episodes, keys, make_env, train  # noqa: E402
-from cmdp_rl.checkpoint import load_checkpoint  # noqa: E402
-from cmdp_rl.config import ConfigError, compose_config  # noqa: E402
+from cmdp_rl.config.run_config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium  # noqa: E402
 from cmdp_rl.envs.safety_gym.env import SafetyGymEnvConfig, make_task  # noqa: E402
 from cmdp_rl.envs.safety_gym.tasks import TASKS, task_problem  # noqa: E402
+from cmdp_rl.run.checkpoint import load_checkpoint  # noqa: E402
 from cmdp_rl.run.resume import resume_config  # noqa: E402
 
 FULL = bool(os.environ.get("SAFETY_GYM_ALL_TASKS"))
@@ -291,7 +291,7 @@ def test_video_of_a_navigation_run_renders_headless(run, tmp_path):
 def test_the_contract_check_of_an_async_run_steps_its_probe_in_this_process():
     # An async run's envs live in worker processes, where the check cannot read their raw info; its
     # separate probe envs run in this process instead (this was a TypeError before training).
-    from cmdp_rl.trainer import check_env_contract
+    from cmdp_rl.run.trainer import check_env_contract
 
     cfg = compose_config(["env=safety_gym", "env.task=SafetyPointGoal1-v0", "env.vector=async", "env.num_envs=2"])
     check_env_contract(cfg)  # raises on a breach or an unsupported env

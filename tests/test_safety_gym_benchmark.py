@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cmdp_rl.bench import safety_gym_benchmark
-from cmdp_rl.config import compose_config
+from cmdp_rl.config.run_config import compose_config
+from lab.bench import safety_gym_benchmark
 
 # task, algo, seed -> final eval return, eval cost, training cost rate
 RUNS = {

@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from cmdp_rl import train
-from cmdp_rl.config import compose_config, load_config
+from cmdp_rl.config.run_config import compose_config, load_config
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.envs.saute import BudgetStateEnv
 from cmdp_rl.envs.vector import Step, VecEnv
-from cmdp_rl.validation import ConfigError
 
 
 class Scripted(VecEnv):

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cmdp_rl.run.sweeps import FAILED, OK, find_runs, missing_jobs
+from cmdp_rl.run.sweeps import FAILED, OK, find_runs
+from lab.sweeps import missing_jobs
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [

@@ -14,9 +14,9 @@ from conftest import ROOT
 from test_cost_vector import ENV_ID
 
 from cmdp_rl import load_config, train
-from cmdp_rl.config import CONFIG_DIR, compose_config
-from cmdp_rl.registry import component, names
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.config.registry import component, names
+from cmdp_rl.config.run_config import CONFIG_DIR, compose_config
+from cmdp_rl.config.validation import ConfigError
 
 TASK_BUDGETS = {"safe_nav": 25.0, "safety_gym": 25.0, "velocity": 25.0, "reach1d": 1.0, "reach1d_torch": 1.0}
 

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 import cmdp_rl
-from cmdp_rl.config import compose_config
+from cmdp_rl.config.run_config import compose_config
 
 
 @pytest.fixture

@@ -100,8 +100,8 @@ def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
     """One multirun per algorithm family: every history-dependent head on the probe env (a 2-D
     action), from train.py to eval.json and a checkpoint that reloads and replays the evaluation."""
     from cmdp_rl import evaluate, load_config, make_agent, make_env
-    from cmdp_rl.checkpoint import load_checkpoint
-    from cmdp_rl.evaluation import EVAL_SEED_OFFSET
+    from cmdp_rl.run.checkpoint import load_checkpoint
+    from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET
 
     short = ["total_steps=512", "rollout_steps=64", "env.num_envs=4", "eval_episodes=4"]
     proc = run(

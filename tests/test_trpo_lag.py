@@ -9,8 +9,8 @@ from test_cpo import _hand_built_units
 from torch.distributions import kl_divergence
 
 from cmdp_rl import keys, load_config, make_agent, make_algo, make_env
-from cmdp_rl.config import compose_config
-from cmdp_rl.trainer import train
+from cmdp_rl.config.run_config import compose_config
+from cmdp_rl.run.trainer import train
 
 
 def _trpo_lag(**algo):

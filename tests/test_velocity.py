@@ -14,7 +14,7 @@ import torch
 from conftest import ForwardPolicy
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, train
-from cmdp_rl.config import compose_config
+from cmdp_rl.config.run_config import compose_config
 from cmdp_rl.envs import GymVecEnv
 from cmdp_rl.envs.velocity import VELOCITY_TASKS, VelocityCost, VelocityEnvConfig, make_velocity_env
 

@@ -8,7 +8,7 @@ import pytest
 import yaml
 from conftest import run_script
 
-from cmdp_rl.bench import velocity_benchmark
+from lab.bench import velocity_benchmark
 
 # algo, seed -> final eval return, eval cost, training cost rate
 RUNS = {

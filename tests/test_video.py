@@ -14,7 +14,7 @@ from conftest import tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli
-from cmdp_rl.config import ConfigError, compose_config
+from cmdp_rl.config.run_config import ConfigError, compose_config
 from cmdp_rl.envs.reach1d.env import FRAME_H, FRAME_W, Reach1D, render_reach1d
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.report.reach1d_episodes import record_reach1d

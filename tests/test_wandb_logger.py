@@ -16,7 +16,7 @@ import pytest
 from conftest import tiny
 
 from cmdp_rl import load_config, train
-from cmdp_rl.config import ConfigError, compose_config
+from cmdp_rl.config.run_config import ConfigError, compose_config
 
 pytest.importorskip("wandb")  # the test extra installs it (pip install -e '.[test]')
 import wandb  # noqa: E402

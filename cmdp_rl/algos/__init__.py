@@ -1,10 +1,10 @@
-"""Algorithms. Each module declares its options and registers itself (``cmdp_rl.registry``);
+"""Algorithms. Each module declares its options and registers itself (``cmdp_rl.config.registry``);
 ``algo=<name>`` selects one."""
 
 from __future__ import annotations
 
 from cmdp_rl.algos.base import AlgoConfig, Algorithm, TrainingDiverged
-from cmdp_rl.registry import component
+from cmdp_rl.config.registry import component
 
 
 def make_algo(cfg: AlgoConfig, agent) -> Algorithm:

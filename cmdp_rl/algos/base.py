@@ -9,11 +9,11 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
-from cmdp_rl.registry import declare_base
-from cmdp_rl.validation import Bool, Discount, Field, PositiveFloat, finite, options, require
+from cmdp_rl.config.registry import declare_base
+from cmdp_rl.config.validation import Bool, Discount, Field, PositiveFloat, finite, options, require
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
     from cmdp_rl.envs.vector import VecEnv
     from cmdp_rl.policies.agent import Agent
 
@@ -47,7 +47,7 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
 def multi_constraint_algorithms() -> list[str]:
     """The toolkit's algorithms that take any env with K > 1 costs (their options declare
     ``constraints = None`` and ``envs = None``), by name; a user's own registrations are not listed."""
-    from cmdp_rl.registry import component, names
+    from cmdp_rl.config.registry import component, names
 
     found = [(component("algo", n).options, n) for n in names("algo")]
     return [

@@ -7,8 +7,8 @@ from typing import Callable
 
 import torch
 
-from cmdp_rl import keys
 from cmdp_rl.policies.agent import Agent
+from cmdp_rl.rollout import keys
 
 # The statistic each critic's loss is logged as.
 LOSS_NAMES = {"reward": "loss_v", "cost": "loss_vc"}

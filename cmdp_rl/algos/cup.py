@@ -32,20 +32,20 @@ import torch
 from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
-from cmdp_rl import keys
-from cmdp_rl.advantages import standardized
 from cmdp_rl.algos.base import single_constraint
-from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import DualAscent
 from cmdp_rl.algos.multiplier_options import Scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig, Reduce
 from cmdp_rl.algos.update_backend import Backend, joined, run_epochs
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.registry import register
-from cmdp_rl.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.advantages import standardized
+from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
 
 HALF = "cup_half"  # key prefix of pi_{k+1/2}'s distribution parameters in the projection's units
 

@@ -35,18 +35,18 @@ import torch
 from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
-from cmdp_rl import keys
 from cmdp_rl.algos.base import single_constraint
-from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import PIDLagrangian
 from cmdp_rl.algos.multiplier_options import Scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, PPOConfig
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import NonNegativeFloat, PositiveFloat, options, require
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.registry import register
-from cmdp_rl.validation import NonNegativeFloat, PositiveFloat, options, require
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
 
 
 @options

@@ -24,11 +24,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, ClassVar, Literal
 
 from cmdp_rl.algos.ppo_lag import PPOLagConfig, PPOLagrangian
-from cmdp_rl.registry import register
-from cmdp_rl.validation import PositiveFloat, options, require
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import PositiveFloat, options, require
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
     from cmdp_rl.envs.vector import VecEnv
 
 

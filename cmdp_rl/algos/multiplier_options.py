@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal
 
 from cmdp_rl.algos.lagrange import DualAscent, MultiplierController
 from cmdp_rl.algos.last_iterate import AugmentedLagrangian, OptimisticDual, RegularizedDual
-from cmdp_rl.validation import NonNegativeFloat, finite, require
+from cmdp_rl.config.validation import NonNegativeFloat, finite, require
 
 Update = Literal["dual", "regularized", "optimistic", "augmented"]
 Scale = Literal["none", "budget"]

@@ -21,15 +21,11 @@ import torch
 from tensordict import TensorDictBase
 from torch import distributions as D
 
-from cmdp_rl import keys
-from cmdp_rl.advantages import TwinGAE, standardized
 from cmdp_rl.algos.base import AlgoConfig, check_finite
 from cmdp_rl.algos.critics import CriticRegression
-from cmdp_rl.algos.episode_cost import EpisodeCost, EpisodeCostEstimate
 from cmdp_rl.algos.update_backend import Backend, OneAgent, iterate
-from cmdp_rl.policies.agent import Agent
-from cmdp_rl.registry import register
-from cmdp_rl.validation import (
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import (
     AUTO,
     AutoInt,
     Bool,
@@ -39,9 +35,13 @@ from cmdp_rl.validation import (
     options,
     require,
 )
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.advantages import TwinGAE, standardized
+from cmdp_rl.rollout.episode_cost import EpisodeCost, EpisodeCostEstimate
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
 
 # KL early stopping (``algo.target_kl``): the update stops at the first minibatch whose approximate
 # KL from the behaviour policy, E[(r - 1) - log r] (never negative), exceeds KL_STOP * target_kl,

@@ -25,7 +25,6 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import PerConstraint, per_constraint
-from cmdp_rl.algos.episode_cost import EpisodeCost
 from cmdp_rl.algos.lagrange import MultiplierController, Multipliers, PIDLagrangian
 from cmdp_rl.algos.multiplier_options import (
     AdvantageScale,
@@ -36,12 +35,22 @@ from cmdp_rl.algos.multiplier_options import (
     violation_scale,
 )
 from cmdp_rl.algos.ppo import PPO, PPOConfig, lagrangian_advantage, logged_multiplier, penalised
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import (
+    Bool,
+    Field,
+    NonNegativeFloat,
+    PositiveFloat,
+    PositiveInt,
+    finite,
+    options,
+    require,
+)
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.registry import register
-from cmdp_rl.validation import Bool, Field, NonNegativeFloat, PositiveFloat, PositiveInt, finite, options, require
+from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
 
 
 @options

@@ -21,14 +21,14 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 from cmdp_rl.algos.base import Algorithm, per_constraint
 from cmdp_rl.algos.ppo import PPOConfig
+from cmdp_rl.config.registry import component, register
+from cmdp_rl.config.validation import build, finite, options, require
 from cmdp_rl.envs.saute import BudgetState, BudgetStateEnv
 from cmdp_rl.envs.vector import VecEnv
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.registry import component, register
-from cmdp_rl.validation import build, finite, options, require
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
 
 
 @options

@@ -23,8 +23,8 @@ import torch
 from tensordict import TensorDictBase
 from torch import distributions as D
 
-from cmdp_rl import keys
 from cmdp_rl.algos.base import TrainingDiverged, check_parameters_finite
+from cmdp_rl.rollout import keys
 
 Units = dict[Any, torch.Tensor]
 # An optimiser and the parameters it steps: torch's Adam and a parameter list, or StackedAdam and

@@ -6,7 +6,7 @@ upper bound on mean cost, and the rate of episodes over the budget (exact binomi
 docs/evaluation.md. With no options it repeats the run's own final evaluation (same episodes, same seed:
 the numbers in its eval.json).
 
-Options (cmdp_rl.config.EvalConfig):
+Options (cmdp_rl.config.run_config.EvalConfig):
   run=<dir>            the run directory (required)
   episodes=N           episodes to run (default: the run's eval_episodes)
   deterministic=B      true: the policy's mean action; false: sampled (default: the run's setting)
@@ -42,13 +42,13 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from cmdp_rl.checkpoint import CheckpointError
-from cmdp_rl.config import ConfigError, load_eval_config
-from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate
+from cmdp_rl.config.run_config import ConfigError, load_eval_config
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
 from cmdp_rl.report.summary import interval_summary
 from cmdp_rl.report.video import VideoError, make_render_env, record_video
+from cmdp_rl.run.checkpoint import CheckpointError
+from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, evaluate
 from cmdp_rl.run.rundir import load_trained, run_config
 
 

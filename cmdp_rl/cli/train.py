@@ -1,7 +1,7 @@
 """Train a constrained-RL agent: ``cmdp-train algo=ppo_lag env=reach1d [overrides]``.
 
-The same command is ``python -m cmdp_rl.train`` and, in a checkout, ``python train.py``.
-Options are documented in ``configs/`` (shipped in the package, see :data:`cmdp_rl.config.CONFIG_SOURCE`);
+The same command is ``python -m cmdp_rl`` and, in a checkout, ``python train.py``.
+Options are documented in ``configs/`` (shipped in the package, see :data:`cmdp_rl.config.run_config.CONFIG_SOURCE`);
 outputs go to Hydra's run directory. ``resume=<run dir> [total_steps=...]`` continues that run from its
 last checkpoint, in that directory, with the run's own config (see ``cmdp_rl/run/resume.py`` for what may
 change). Sweeps are Hydra multiruns (``-m``), e.g. ``cmdp-train -m +experiment=penalty_sweep``; see
@@ -20,14 +20,14 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl import ConfigError, TrainingDiverged, load_config
-from cmdp_rl.checkpoint import CheckpointError
-from cmdp_rl.config import CONFIG_SOURCE
+from cmdp_rl.config.run_config import CONFIG_SOURCE
 from cmdp_rl.population.spec import population_active
+from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, resumable
 from cmdp_rl.run.resume import resume_config
 from cmdp_rl.run.rundir import POPULATION_CONFIG, RunDirError
 from cmdp_rl.run.sweeps import clear_outputs, record_failure
-from cmdp_rl.trainer import train
+from cmdp_rl.run.trainer import train
 
 # How a single run ends on each error (inside a sweep the command raises instead: see _fail).
 EXIT_CODES = (

@@ -1,4 +1,4 @@
-"""Environments. Each env module declares its options and registers itself (``cmdp_rl.registry``);
+"""Environments. Each env module declares its options and registers itself (``cmdp_rl.config.registry``);
 ``env=<name>`` selects one. :class:`VecEnv` is the batched interface the collector drives."""
 
 from __future__ import annotations
@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from cmdp_rl.config.registry import component
 from cmdp_rl.envs.contract import EnvContractError, check_env
 from cmdp_rl.envs.grid.env import GRID_ID, GridWorld
 from cmdp_rl.envs.grid.task import GridEnvConfig
@@ -15,7 +16,6 @@ from cmdp_rl.envs.reach1d.env import Reach1D
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.envs.vector import GymVecEnv, Step, VecEnv
 from cmdp_rl.envs.velocity import make_velocity_env
-from cmdp_rl.registry import component
 
 REACH1D_ID = "cmdp_rl/Reach1D-v0"
 

@@ -39,9 +39,9 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
-from cmdp_rl import keys
-from cmdp_rl.actions import SUPPORTED, hybrid
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.config.validation import ConfigError
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.actions import SUPPORTED, hybrid
 
 ACTION_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete)
 OBSERVATION_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)

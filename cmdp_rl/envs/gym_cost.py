@@ -25,10 +25,10 @@ import numpy as np
 from gymnasium.envs.registration import load_env_creator
 from gymnasium.wrappers import TimeLimit
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options
 from cmdp_rl.envs.contract import EnvContractError
 from cmdp_rl.envs.options import EnvOptions
-from cmdp_rl.registry import register
-from cmdp_rl.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options
 
 if TYPE_CHECKING:
     from cmdp_rl.envs.vector import VecEnv

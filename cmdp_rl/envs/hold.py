@@ -1,7 +1,7 @@
 """Hold each chosen skill for ``k`` steps: the seed's ``pi = pi_hi o pi_lo`` with two time scales.
 
 :class:`HeldSkill` wraps a batched env whose actions are hybrid (``[skill, params...]``,
-``cmdp_rl.actions.hybrid``). On a decision step (an episode's first step, then every ``k``-th) the
+``cmdp_rl.rollout.actions.hybrid``). On a decision step (an episode's first step, then every ``k``-th) the
 skill the policy emits is taken and held; on the ``k - 1`` steps after it the env steps with the
 held skill whatever the policy emits, and the policy's parameters every step. The observation
 gains what the low-level policy needs to know: a one-hot of the held skill (zeros on a decision
@@ -24,8 +24,8 @@ from typing import Any
 import gymnasium as gym
 import torch
 
-from cmdp_rl.actions import hybrid
 from cmdp_rl.envs.vector import Step, VecEnv
+from cmdp_rl.rollout.actions import hybrid
 
 
 class HeldSkill(VecEnv):

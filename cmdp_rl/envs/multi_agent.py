@@ -22,7 +22,7 @@ A row carries (docs/multi_agent_and_hybrid.md):
   over rows is its expectation.
 
 Action spaces must be the same for every agent (one shared policy); any space the heads know
-(``cmdp_rl.actions``). Why not PettingZoo's vectorisation wrappers (SuperSuit): they concatenate
+(``cmdp_rl.rollout.actions``). Why not PettingZoo's vectorisation wrappers (SuperSuit): they concatenate
 agents the same way but are a separate package, drop ``info``, and reset agents independently.
 """
 
@@ -36,13 +36,13 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from cmdp_rl.actions import action_bounds, action_dim, check_action_space, to_env
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import ConfigError, Field, PositiveInt, options
 from cmdp_rl.envs.contract import Checker, EnvContract, EnvContractError
 from cmdp_rl.envs.env_state import env_state, load_env_state
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import Step, VecEnv, default_cost_names
-from cmdp_rl.registry import register
-from cmdp_rl.validation import ConfigError, Field, PositiveInt, options
+from cmdp_rl.rollout.actions import action_bounds, action_dim, check_action_space, to_env
 
 Constraint = Literal["team", "per_agent"]
 

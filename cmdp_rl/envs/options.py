@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from typing import Any, ClassVar, Optional, Sequence
 
-from cmdp_rl.registry import declare_base
-from cmdp_rl.validation import Bool, options
+from cmdp_rl.config.registry import declare_base
+from cmdp_rl.config.validation import Bool, options
 
 # The budget d of a task that states none (Reach1D's: one crossing of the wall per episode).
 DEFAULT_BUDGET = 1.0

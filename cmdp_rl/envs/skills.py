@@ -29,11 +29,11 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import PositiveFloat, PositiveInt, finite, options
 from cmdp_rl.envs.hold import HeldSkill
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import Step, VecEnv
-from cmdp_rl.registry import register
-from cmdp_rl.validation import PositiveFloat, PositiveInt, finite, options
 
 SKILLS = ("walk", "dash")
 

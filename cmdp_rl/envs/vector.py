@@ -15,9 +15,9 @@ import numpy as np
 import torch
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
-from cmdp_rl.actions import action_bounds, action_dim, check_action_space, to_env
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.envs.env_state import env_state, load_env_state
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.rollout.actions import action_bounds, action_dim, check_action_space, to_env
 
 
 class Step(NamedTuple):
@@ -150,7 +150,7 @@ class GymVecEnv(VecEnv):
             raise
         self._action_space = act_space
         self.obs_dim = int(np.prod(obs_space.shape))
-        # Actions are stored flat (cmdp_rl/actions.py): a box's numbers, or one index per component.
+        # Actions are stored flat (cmdp_rl/rollout/actions.py): a box's numbers, or one index per component.
         self.action_dim = action_dim(act_space)
         # Gymnasium steps on the CPU; tensors handed out live on ``device``.
         self.device = torch.device(device)

@@ -40,9 +40,9 @@ from typing import TYPE_CHECKING, Any, Literal, Optional
 import gymnasium as gym
 import numpy as np
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import NonNegativeFloat, PositiveInt, options
 from cmdp_rl.envs.options import SAFETY_GYM_BUDGET, EnvOptions
-from cmdp_rl.registry import register
-from cmdp_rl.validation import NonNegativeFloat, PositiveInt, options
 
 if TYPE_CHECKING:
     from cmdp_rl.envs.vector import VecEnv

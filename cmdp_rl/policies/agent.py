@@ -38,9 +38,9 @@ from tensordict import TensorDictBase
 from torch import distributions as D
 from torch import nn
 
-from cmdp_rl import keys
-from cmdp_rl.normalization import Normalizers
 from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead, sample
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.normalization import Normalizers
 
 Entries = Mapping[Any, torch.Tensor]  # key -> tensor with leading batch dims
 
@@ -272,7 +272,7 @@ def make_agent(cfg: Any, env: Any, normalizers: Normalizers | None = None, algo:
     """The agent ``policy=<cfg.name>`` builds for ``env`` (its observation and action spaces);
     ``normalizers``' observation normalizer, if any, goes in front of every network. ``algo``: the
     algorithm's options; the agent is then the one it trains (``AlgoConfig.shape_agent``)."""
-    from cmdp_rl.registry import component  # the registry imports the policy modules, which import this one
+    from cmdp_rl.config.registry import component  # the registry imports the policy modules, which import this one
 
     agent = component("policy", cfg.name).build(cfg, env, normalizers if normalizers is not None else Normalizers())
     agent = agent.to(env.device)

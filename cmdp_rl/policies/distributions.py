@@ -34,9 +34,9 @@ from torch import nn
 from torch.distributions import constraints, kl_divergence, register_kl
 from torchrl.modules import IndependentNormal
 
-from cmdp_rl import keys
-from cmdp_rl.actions import categories, check_action_space, hybrid
 from cmdp_rl.policies.hybrid import HybridHead
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.actions import categories, check_action_space, hybrid
 
 
 class GaussianHead(nn.Module):

@@ -1,7 +1,7 @@
 """The action distribution of a hybrid (hierarchical) action space: a skill and its parameters.
 
 The space is a gymnasium ``Tuple``/``Dict`` of one ``Discrete(n)`` (which skill) and one ``Box``
-(its ``p`` continuous parameters), ``cmdp_rl.actions.hybrid``. The seed's factoring
+(its ``p`` continuous parameters), ``cmdp_rl.rollout.actions.hybrid``. The seed's factoring
 ``pi = pi_hi o pi_lo`` is the distribution's own product rule,
 
     pi(k, x | s) = pi_hi(k | s) * pi_lo(x | s, k),
@@ -33,8 +33,8 @@ from torch import distributions as D
 from torch import nn
 from torch.distributions import constraints, kl_divergence, register_kl
 
-from cmdp_rl import keys
-from cmdp_rl.actions import Hybrid
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.actions import Hybrid
 
 
 class SkillParameters(D.Distribution):

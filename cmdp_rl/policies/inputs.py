@@ -16,8 +16,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from cmdp_rl import keys
-from cmdp_rl.actions import action_bounds, action_dim, categories, is_discrete
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.actions import action_bounds, action_dim, categories, is_discrete
 
 
 def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
@@ -35,7 +35,7 @@ class InputEncoder(nn.Module):
     A box's previous action is mapped to the action box as ``[-1, 1]`` and clipped there, as the
     env clips it: what the policy sees is the command the env executed. A discrete previous action
     is one-hot per component (all zeros for "none yet", the index -1 of an episode's first step,
-    ``cmdp_rl/actions.py``). ``obs_norm`` (a running normalizer, normalization.py) is applied to the
+    ``cmdp_rl/rollout/actions.py``). ``obs_norm`` (a running normalizer, normalization.py) is applied to the
     observation only. ``in_dim``: the width of the raw inputs concatenated (what a transformer
     stores per step); ``out_dim``: the width of the encoding.
     """

@@ -9,13 +9,13 @@ import gymnasium as gym
 import torch
 from torch import nn
 
-from cmdp_rl import keys
-from cmdp_rl.normalization import Normalizers
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import Bool, ConfigError, Field, finite, options
 from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
 from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
-from cmdp_rl.registry import register
-from cmdp_rl.validation import Bool, ConfigError, Field, finite, options
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.normalization import Normalizers
 
 if TYPE_CHECKING:
     from cmdp_rl.envs import VecEnv

@@ -31,17 +31,17 @@ from tensordict import TensorDict
 from torch import nn
 from torchrl.modules import GRUModule, LSTMModule, set_recurrent_mode
 
-from cmdp_rl import keys
-from cmdp_rl.normalization import Normalizers
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import Bool, Field, NonNegativeInt, PositiveInt, options, require
 from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
 from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.policies.mlp import Activation, LogStd, mlp
-from cmdp_rl.registry import register
-from cmdp_rl.validation import Bool, Field, NonNegativeInt, PositiveInt, options, require
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.normalization import Normalizers
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
     from cmdp_rl.envs import VecEnv
 
 HeadSizes = Annotated[

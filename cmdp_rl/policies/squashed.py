@@ -27,11 +27,11 @@ from torch import distributions as D
 from torch import nn
 from torchrl.modules import IndependentNormal, TanhNormal
 
-from cmdp_rl import keys
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
 from cmdp_rl.policies.distributions import GaussianHead
 from cmdp_rl.policies.mlp import MLPBody, mlp
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.rollout import keys
 
 Q_REWARD = ("q_reward_0", "q_reward_1")  # the twin reward Q-critics (clipped double Q)
 Q_COST = "q_cost"  # the cost Q-critic, one output per constraint

@@ -31,18 +31,18 @@ import torch
 from torch import nn
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
-from cmdp_rl import keys
-from cmdp_rl.normalization import Normalizers
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import Bool, Field, PositiveInt, options, require
 from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
 from cmdp_rl.policies.distributions import action_outputs, make_action_head
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.policies.mlp import Activation, LogStd, mlp
 from cmdp_rl.policies.recurrent import HeadSizes
-from cmdp_rl.registry import register
-from cmdp_rl.validation import Bool, Field, PositiveInt, options, require
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.normalization import Normalizers
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
     from cmdp_rl.envs import VecEnv
 
 

@@ -1,7 +1,7 @@
 """Acting and valuing for all agents at once: the collector's and GAE's side of a population.
 
-:class:`PopulationAgent` offers what :class:`~cmdp_rl.collector.Collector` and
-:class:`~cmdp_rl.advantages.TwinGAE` ask of an :class:`~cmdp_rl.policies.agent.Agent` (``in_keys``,
+:class:`PopulationAgent` offers what :class:`~cmdp_rl.rollout.collector.Collector` and
+:class:`~cmdp_rl.rollout.advantages.TwinGAE` ask of an :class:`~cmdp_rl.policies.agent.Agent` (``in_keys``,
 ``initial_state``, ``act``, ``rollout_values``) on the population's flat env batch ``[P N, ...]``,
 so the single-run collector and torchrl's GAE run unchanged. Inside, entries are viewed as
 ``[P, rows, ...]`` and every network is the single-run MLP applied per agent with stacked
@@ -19,14 +19,14 @@ from tensordict import TensorDictBase
 from torch import distributions as D
 from torch import nn
 
-from cmdp_rl import keys
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.distributions import GaussianHead
 from cmdp_rl.policies.mlp import Tanh
 from cmdp_rl.population.fused import FusedTanhMLP, layout
 from cmdp_rl.population.params import StackedParams, sequential, template
 from cmdp_rl.population.spec import unbatched_head
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.rollout import keys
 
 
 class PopulationAgent:

@@ -19,11 +19,11 @@ import yaml
 
 from cmdp_rl.algos.base import AlgoConfig
 from cmdp_rl.algos.ppo import PPO
-from cmdp_rl.config import CONFIG_DIR, RunConfig, flatten_dict, load_config
+from cmdp_rl.config.registry import component, names
+from cmdp_rl.config.run_config import CONFIG_DIR, RunConfig, flatten_dict, load_config
+from cmdp_rl.config.validation import ConfigError, PositiveInt, build, options, require
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead
-from cmdp_rl.registry import component, names
-from cmdp_rl.validation import ConfigError, PositiveInt, build, options, require
 
 # The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed: the
 # grid that configs/population/none.yaml declares (each a number some agent's own object reads).

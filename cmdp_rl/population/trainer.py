@@ -20,18 +20,20 @@ from typing import Any, Callable, Iterable, Mapping
 import torch
 import yaml
 
-from cmdp_rl import keys
-from cmdp_rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from cmdp_rl.collector import Collector
-from cmdp_rl.evaluation import EVAL_SEED_OFFSET, evaluate_members
-from cmdp_rl.final_policy import FinalPolicy
-from cmdp_rl.migrations import migrate, population_from_stacked, saved_config_defaults
+from cmdp_rl.config.threads import apply_threads
+from cmdp_rl.config.validation import ConfigError
+from cmdp_rl.deploy.final_policy import FinalPolicy
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
 from cmdp_rl.population.spec import agent_configs, label, stacked, unbatched, unbatched_head
 from cmdp_rl.population.update import AgentUpdates, PopulationPPO
 from cmdp_rl.report.metrics import constraint_name
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.collector import Collector
+from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, evaluate_members
 from cmdp_rl.run.loop import Members, train_iterations
+from cmdp_rl.run.migrations import migrate, population_from_stacked, saved_config_defaults
 from cmdp_rl.run.ownership import owned
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
@@ -42,8 +44,7 @@ from cmdp_rl.run.rundir import (
     ensure_writable,
     read_yaml,
 )
-from cmdp_rl.threads import apply_threads
-from cmdp_rl.trainer import (
+from cmdp_rl.run.trainer import (
     build_run,
     check_env_contracts,
     checkpoint_entry,
@@ -53,7 +54,6 @@ from cmdp_rl.trainer import (
     train,
     write_result,
 )
-from cmdp_rl.validation import ConfigError
 
 AGENTS_DIR = "agents"
 

@@ -14,11 +14,11 @@ from typing import Any, Sequence
 import torch
 from tensordict import TensorDictBase
 
-from cmdp_rl import keys
 from cmdp_rl.algos.base import TrainingDiverged
 from cmdp_rl.algos.update_backend import iterate, members
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.params import StackedAdam, StackedParams
+from cmdp_rl.rollout import keys
 
 # A stacked network, its Adam, and the attributes of an agent's algorithm object that hold the
 # same network's module (``algo.agent.<name>``) and optimiser.

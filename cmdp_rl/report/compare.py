@@ -31,7 +31,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from cmdp_rl.config import flatten_dict
+from cmdp_rl.config.run_config import flatten_dict
 from cmdp_rl.report.plot import IGNORED, pyplot, save_figure, smooth
 from cmdp_rl.run.sweeps import OK, RunRecord, find_runs, mark_superseded
 

@@ -21,7 +21,7 @@ import secrets
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from cmdp_rl.config import TENSORBOARD_MISSING, WANDB_MISSING, RunConfig
+from cmdp_rl.config.run_config import TENSORBOARD_MISSING, WANDB_MISSING, RunConfig
 
 WANDB_DIR = "wandb"  # wandb's files, under the run directory
 WANDB_ID = "wandb_id.txt"  # the wandb run's id, for a resume to continue the same run

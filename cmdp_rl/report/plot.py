@@ -24,8 +24,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from cmdp_rl.checkpoint import CheckpointError
-from cmdp_rl.config import flatten_dict
+from cmdp_rl.config.run_config import flatten_dict
+from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.rundir import CONFIG, METRICS, read_yaml
 
 PANELS = (

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from cmdp_rl import keys
-from cmdp_rl.collector import PolicyMemory
 from cmdp_rl.envs import Reach1D, reach1d_kwargs
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.plot import pyplot, save_figure
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.collector import PolicyMemory
 
 
 @dataclass

@@ -26,9 +26,9 @@ from typing import Annotated, Any, Optional
 
 import yaml
 
-from cmdp_rl.validation import finite, options, require
+from cmdp_rl.config.validation import finite, options, require
 
-RunConfig = Any  # cmdp_rl.config.RunConfig, which imports this module
+RunConfig = Any  # cmdp_rl.config.run_config.RunConfig, which imports this module
 
 EPSILON = 1e-6  # Safety Gym's: keeps the violation finite when PPO itself is within the budget
 NORMALIZED = ("normalized_return", "normalized_violation", "normalized_cost_rate")

@@ -33,11 +33,11 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from cmdp_rl import keys
-from cmdp_rl.actions import to_env
-from cmdp_rl.collector import PolicyMemory
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.validation import ConfigError
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.actions import to_env
+from cmdp_rl.rollout.collector import PolicyMemory
 
 VIDEO_MISSING = "video=true needs moviepy (gymnasium's RecordVideo writes with it): pip install 'cmdp_rl[video]'"
 HEADLESS_GL = (

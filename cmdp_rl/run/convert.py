@@ -1,6 +1,6 @@
 """Converting a run directory written before the safe checkpoint format, once, on the user's word:
 ``python -m cmdp_rl.run.convert <run dir> [<run dir> ...]`` (docs/checkpoints.md). The rules that
-bring an old checkpoint to the current layout are :mod:`cmdp_rl.migrations`; this module applies them
+bring an old checkpoint to the current layout are :mod:`cmdp_rl.run.migrations`; this module applies them
 to a run's (or a population's and its agents') files."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import Callable
 
 from torch import nn
 
-from cmdp_rl.checkpoint import FORMAT_VERSION, CheckpointError, load_checkpoint, save_checkpoint
-from cmdp_rl.migrations import migrate
+from cmdp_rl.run.checkpoint import FORMAT_VERSION, CheckpointError, load_checkpoint, save_checkpoint
+from cmdp_rl.run.migrations import migrate
 from cmdp_rl.run.rundir import CHECKPOINT, POPULATION_CHECKPOINT, run_config
 
 
@@ -44,8 +44,8 @@ def convert_run(run_dir: str | Path, echo: Callable[[str], None] = print) -> Pat
 def _run_agent(run_dir: Path) -> nn.Module:
     """The agent the run's config builds (its networks' names are what old ones convert to)."""
     from cmdp_rl.envs import make_eval_env
-    from cmdp_rl.normalization import Normalizers
     from cmdp_rl.policies import make_agent
+    from cmdp_rl.rollout.normalization import Normalizers
 
     cfg = run_config(run_dir, "convert")
     env = make_eval_env(cfg.env, num_envs=1, algo=cfg.algo)

@@ -17,11 +17,11 @@ from tensordict import TensorDictBase
 
 from cmdp_rl.algos import TrainingDiverged
 from cmdp_rl.algos.base import per_constraint
-from cmdp_rl.collector import Collector, finished_episodes
-from cmdp_rl.config import RunConfig
+from cmdp_rl.config.run_config import RunConfig
 from cmdp_rl.envs.contract import check_rollout
 from cmdp_rl.report.metrics import MetricsLogger, spread
 from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
+from cmdp_rl.rollout.collector import Collector, finished_episodes
 from cmdp_rl.run.progress import Progress
 
 

@@ -20,9 +20,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.config import ConfigError, RunConfig, flatten_dict, load_config
-from cmdp_rl.migrations import saved_config_defaults
+from cmdp_rl.config.run_config import ConfigError, RunConfig, flatten_dict, load_config
+from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
+from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.rundir import checkpoint_path, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
@@ -116,7 +116,7 @@ def check_resume_config(saved: RunConfig, cfg: RunConfig) -> None:
 
 def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
     """The checkpoint ``cfg.resume`` names, checked against ``cfg`` (algorithm, policy, config), as
-    it was written: :func:`cmdp_rl.migrations.migrate` brings an older format's to the current one."""
+    it was written: :func:`cmdp_rl.run.migrations.migrate` brings an older format's to the current one."""
     assert cfg.resume is not None
     ckpt = checkpoint_path(cfg.resume, "resume")
     state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name, trust=cfg.trust_checkpoint)

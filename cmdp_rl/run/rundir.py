@@ -2,10 +2,10 @@
 
 ::
 
-    config.yaml     the run's resolved config (cmdp_rl.config.RunConfig), what a resume continues with
+    config.yaml     the run's resolved config (cmdp_rl.config.run_config.RunConfig), what a resume continues with
     run_info.json   package version, git commit, library versions, command; one entry per resume
     metrics.csv     one row per iteration (cmdp_rl.report.metrics.COLUMNS)
-    checkpoint.pt   the last checkpoint (cmdp_rl.checkpoint), written atomically
+    checkpoint.pt   the last checkpoint (cmdp_rl.run.checkpoint), written atomically
     eval.json       the final evaluation
     error.txt       why the run failed, if it did (train.py; cmdp_rl.run.sweeps reads it back)
     tb/             TensorBoard events, with ``logger=tensorboard``
@@ -27,14 +27,14 @@ from typing import Any, NamedTuple
 
 import yaml
 
-from cmdp_rl.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.config import ConfigError, RunConfig, load_config
+from cmdp_rl.config.run_config import ConfigError, RunConfig, load_config
+from cmdp_rl.deploy.average import ParameterAverage
+from cmdp_rl.deploy.mixture import IterateSnapshots
 from cmdp_rl.envs import VecEnv, make_eval_env
-from cmdp_rl.migrations import migrate, saved_config_defaults
-from cmdp_rl.normalization import Normalizers
 from cmdp_rl.policies import Agent, make_agent
-from cmdp_rl.policy_average import ParameterAverage
-from cmdp_rl.policy_mixture import IterateSnapshots
+from cmdp_rl.rollout.normalization import Normalizers
+from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
+from cmdp_rl.run.migrations import migrate, saved_config_defaults
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.yaml"
@@ -149,7 +149,7 @@ def read_yaml(path: Path, what: str = "run") -> Any:
 
 def saved_config(run_dir: str | Path, what: str = "run", trust: bool = False) -> dict[str, Any]:
     """The run's own config as a plain mapping: its ``config.yaml`` (read with YAML's safe loader),
-    else the one in its checkpoint (``trust``: see :func:`~cmdp_rl.checkpoint.load_checkpoint`)."""
+    else the one in its checkpoint (``trust``: see :func:`~cmdp_rl.run.checkpoint.load_checkpoint`)."""
     ckpt = checkpoint_path(run_dir, what)
     cfg_path = Path(run_dir) / CONFIG
     if cfg_path.is_file():
@@ -178,7 +178,7 @@ def load_trained(
     """Rebuild a run's env (``num_envs`` of them) and agent, and load its checkpoint (or
     ``checkpoint``) into them. A checkpoint written by another algorithm or policy than the run's
     config names, or one whose networks do not fit it, raises :class:`CheckpointError`; one of an
-    older format, :class:`~cmdp_rl.checkpoint.UnsafeCheckpointError` unless ``trust``.
+    older format, :class:`~cmdp_rl.run.checkpoint.UnsafeCheckpointError` unless ``trust``.
     """
     cfg = run_config(run_dir, "evaluate", trust)
     ckpt = Path(checkpoint) if checkpoint is not None else checkpoint_path(run_dir, "evaluate")

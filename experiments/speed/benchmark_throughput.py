@@ -1,6 +1,6 @@
 """Throughput of the toolkit on Reach1D: env, rollout and end-to-end training steps per second.
 
-The command line over :mod:`cmdp_rl.bench.benchmark_throughput`, where the code and its documentation live.
+The command line over :mod:`lab.bench.benchmark_throughput`, where the code and its documentation live.
 """
 
 import sys
@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's cmdp_rl
 
-from cmdp_rl.bench.benchmark_throughput import main  # noqa: E402
+from lab.bench.benchmark_throughput import main  # noqa: E402
 
 if __name__ == "__main__":
     main()  # returns the figures it wrote, for a caller in Python

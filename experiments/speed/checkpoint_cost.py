@@ -2,7 +2,7 @@
 
     python experiments/speed/checkpoint_cost.py [--transitions 100032] [--updates 8] [--repeats 15] [--out DIR]
 
-The command line over :mod:`cmdp_rl.bench.checkpoint_cost`, where the code and its documentation live.
+The command line over :mod:`lab.bench.checkpoint_cost`, where the code and its documentation live.
 """
 
 import sys
@@ -10,7 +10,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's cmdp_rl
 
-from cmdp_rl.bench.checkpoint_cost import main  # noqa: E402
+from lab.bench.checkpoint_cost import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,6 +1,6 @@
 """Population training against the same agents trained one after another, in one process.
 
-The command line over :mod:`cmdp_rl.bench.population_benchmark`, where the code and its documentation live.
+The command line over :mod:`lab.bench.population_benchmark`, where the code and its documentation live.
 """
 
 import sys
@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's cmdp_rl
 
-from cmdp_rl.bench.population_benchmark import main  # noqa: E402
+from lab.bench.population_benchmark import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

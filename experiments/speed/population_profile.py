@@ -1,6 +1,6 @@
 """Where a population iteration's time goes: ms of process CPU time per part, per iteration.
 
-The command line over :mod:`cmdp_rl.bench.population_profile`, where the code and its documentation live.
+The command line over :mod:`lab.bench.population_profile`, where the code and its documentation live.
 """
 
 import sys
@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's cmdp_rl
 
-from cmdp_rl.bench.population_profile import main  # noqa: E402
+from lab.bench.population_profile import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

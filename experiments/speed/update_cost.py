@@ -1,6 +1,6 @@
 """What one PPO update costs as its minibatches grow: is the update bound by per-op overhead or by.
 
-The command line over :mod:`cmdp_rl.bench.update_cost`, where the code and its documentation live.
+The command line over :mod:`lab.bench.update_cost`, where the code and its documentation live.
 """
 
 import sys
@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's cmdp_rl
 
-from cmdp_rl.bench.update_cost import main  # noqa: E402
+from lab.bench.update_cost import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,7 +1,7 @@
 """Constraint satisfaction of the Lagrangian methods' final policies on CMDPs with exact optima
 (docs/constraint_satisfaction.md).
 
-The command line over :mod:`cmdp_rl.analysis.constraint_satisfaction` (its ``main``), where the code
+The command line over :mod:`lab.studies.constraint_satisfaction` (its ``main``), where the code
 and the options' documentation live.
 """
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # this checkout's cmdp_rl
 
-from cmdp_rl.analysis.constraint_satisfaction import main  # noqa: E402
+from lab.studies.constraint_satisfaction import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

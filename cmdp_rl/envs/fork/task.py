@@ -6,13 +6,13 @@ from __future__ import annotations
 from dataclasses import field
 from typing import Annotated, ClassVar, Literal, Sequence
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import Field, PositiveFloat, PositiveInt, finite, options
 from cmdp_rl.envs.fork.env import TorchFork
 from cmdp_rl.envs.fork.model import DEFAULT_END_PROB, DEFAULT_GOAL_REWARD, DEFAULT_LENGTHS, ForkCMDP, fork_cmdp
 from cmdp_rl.envs.grid.optimum import ConstrainedOptimum, solve_constrained
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import VecEnv
-from cmdp_rl.registry import register
-from cmdp_rl.validation import Field, PositiveFloat, PositiveInt, finite, options
 
 
 @options

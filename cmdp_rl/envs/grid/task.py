@@ -10,6 +10,8 @@ from dataclasses import field
 from functools import partial
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import ConfigError, Field, PositiveInt, finite, options
 from cmdp_rl.envs.grid.env import (
     COST_NAMES,
     DEFAULT_BUDGETS,
@@ -22,11 +24,9 @@ from cmdp_rl.envs.grid.env import (
 )
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
-from cmdp_rl.registry import register
-from cmdp_rl.validation import ConfigError, Field, PositiveInt, finite, options
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
 
 
 @options

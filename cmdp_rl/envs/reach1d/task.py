@@ -8,17 +8,17 @@ import dataclasses
 from functools import partial
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Sequence, Union
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import Bool, Field, NonNegativeFloat, PositiveInt, finite, is_finite, options, require
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.reach1d.batched import TorchReach1D
 from cmdp_rl.envs.reach1d.env import GOAL_TOLERANCE, Reach1D
 from cmdp_rl.envs.reach1d.optimum import constrained_optimum
 from cmdp_rl.envs.reach1d.population import PopulationReach1D
 from cmdp_rl.envs.vector import GymVecEnv, VecEnv
-from cmdp_rl.registry import register
-from cmdp_rl.validation import Bool, Field, NonNegativeFloat, PositiveInt, finite, is_finite, options, require
 
 if TYPE_CHECKING:
-    from cmdp_rl.config import RunConfig
+    from cmdp_rl.config.run_config import RunConfig
 
 ALLOWED_START = "a number in [0, 1] or a pair [low, high] with 0 <= low <= high <= 1"
 

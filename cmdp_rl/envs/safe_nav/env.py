@@ -28,6 +28,8 @@ from typing import Annotated, Any, Literal, Sequence
 import numpy as np
 import torch
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import ConfigError, Field, PositiveInt, options, require
 from cmdp_rl.envs.options import SAFETY_GYM_BUDGET, EnvOptions
 from cmdp_rl.envs.safe_nav.arrays import namespace, to_host
 from cmdp_rl.envs.safe_nav.button import ButtonTask
@@ -39,8 +41,6 @@ from cmdp_rl.envs.safe_nav.push import PushTask
 from cmdp_rl.envs.safe_nav.warp_world import WARP_TASKS, WarpWorlds, warp_problem
 from cmdp_rl.envs.safe_nav.world import ROBOTS, NavWorlds, nav_spec
 from cmdp_rl.envs.vector import Step, VecEnv
-from cmdp_rl.registry import register
-from cmdp_rl.validation import ConfigError, Field, PositiveInt, options, require
 
 # task family -> its logic (a module each)
 FAMILIES = {"Goal": GoalTask, "Circle": CircleTask, "Button": ButtonTask, "Push": PushTask}

@@ -23,14 +23,14 @@ from typing import Annotated, Any, Literal
 
 import gymnasium as gym
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options, require
 from cmdp_rl.envs.env_state import env_state, load_env_state
 from cmdp_rl.envs.options import SAFETY_GYM_BUDGET, EnvOptions
 from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium
 from cmdp_rl.envs.safety_gym.tasks import TASKS, task_problem
 from cmdp_rl.envs.safety_gym.world_state import load_world_state, world_state
 from cmdp_rl.envs.vector import GymVecEnv, default_cost_names
-from cmdp_rl.registry import register
-from cmdp_rl.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options, require
 
 INSTALL = "env=safety_gym needs Safety-Gymnasium: run `make setup-safety-gym`"
 

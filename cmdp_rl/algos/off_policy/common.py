@@ -1,0 +1,376 @@
+"""What SAC(-Lagrangian) and TD3(-Lagrangian) share: the replay buffer, target networks, the TD
+targets of the twin reward critics and the cost critic, the multiplier on the cost critic, and the
+update loop around each algorithm's gradient step.
+
+The one execution path stays: the trainer collects a short rollout (``rollout_steps`` "auto": 8
+steps of 8 envs, :meth:`OffPolicyConfig.auto_rollout_steps`) and :meth:`OffPolicy.update` adds its
+transitions to the buffer, then runs ``utd_ratio`` gradient steps per new transition once the buffer
+holds ``warmup_steps`` (the trainer's collector acts uniformly at random until then:
+``uniform_action_steps``).
+
+The cost budget. The multiplier compares the cost critic's estimate ``E_s[Q_c(s, pi(s))]`` over the
+states of the newest ``cost_window`` transitions (:meth:`OffPolicy.cost_estimate`) with a budget on
+the discounted scale: an episode budget ``d`` spent uniformly over
+an episode of ``T`` steps is ``d / T`` per step, whose discounted sum from the episode's start is
+:func:`discounted_budget` ``= d (1 - gamma^T) / (T (1 - gamma))``; the conversion of the
+Safety-Starter-Agents SAC-Lagrangian and of WCSAC (Yang et al. 2021). For ``T >> 1/(1 - gamma)``
+it is the per-step-rate form ``d / (T (1 - gamma))`` (Q_c of a stationary cost rate ``d / T``).
+What it assumes: cost spread evenly over the episode (docs/off_policy.md).
+
+Why the newest states and not the replayed minibatches': a uniform sample of the buffer comes mostly
+from older, different policies. On HalfCheetah at 100k steps the replayed-state estimate sat at the
+budget while the current policy's cost on its own states was about 1.7 times it, and lambda drifted
+down with every seed over budget (docs/off_policy.md, "HalfCheetah velocity: the benchmark").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, Union
+
+import torch
+from tensordict import TensorDictBase
+
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
+from cmdp_rl.algos.lagrange import Multipliers, PIDLagrangian
+from cmdp_rl.algos.multiplier_options import Scale, check_multiplier, make_controller, violation_scale
+from cmdp_rl.algos.off_policy.replay_buffer import Replay
+from cmdp_rl.algos.off_policy.target_networks import TargetCritics, td_target
+from cmdp_rl.algos.ppo import logged_multiplier
+from cmdp_rl.config.validation import (
+    AUTO,
+    Field,
+    NonNegativeFloat,
+    NonNegativeInt,
+    PositiveFloat,
+    PositiveInt,
+    finite,
+    options,
+    require,
+)
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, check_shaped, to_off_policy
+from cmdp_rl.rollout import keys
+
+if TYPE_CHECKING:
+    from cmdp_rl.config.run_config import RunConfig
+
+
+def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
+    """The episode budget ``d`` on the discounted scale of a cost Q-critic:
+    ``d (1 - gamma^T) / (T (1 - gamma))`` (module docstring); ``d`` when ``gamma = 0`` and T = 1."""
+    T = episode_length
+    return d * (1.0 - gamma**T) / (T * (1.0 - gamma))
+
+
+@dataclass
+class LagrangeFields:
+    """The multiplier of the ``_lag`` variants (mixed into their options)."""
+
+    # dual: projected dual ascent; pid: lagrange.PIDLagrangian; regularized, optimistic, augmented:
+    # the last-iterate updates of last_iterate.py (multiplier_options.py)
+    multiplier: Literal["dual", "pid", "regularized", "optimistic", "augmented"] = "dual"
+    lambda_scale: Scale = "budget"  # the violation's units: none: Q_c - d_Q; budget: (Q_c - d_Q) / d_Q
+    lambda_tau: NonNegativeFloat = 0.1  # regularized: tau of the dual's regulariser (SAC's alpha is the entropy)
+    lambda_nu: Annotated[float, finite(ge=0, lt=1)] = 0.0  # optimistic: EMA of the violation
+    lambda_init: NonNegativeFloat = 0.0
+    lambda_lr: PositiveFloat = 0.01  # dual: lambda <- max(0, lambda + lambda_lr (Q_c - d_Q)) per iteration
+    kp: NonNegativeFloat = 0.0  # pid gains (lagrange.PIDLagrangian); ki is the integral's step
+    ki: NonNegativeFloat = 0.01
+    kd: NonNegativeFloat = 0.0
+    lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
+    # The multiplier's Q_c estimate averages over the states of the newest cost_window transitions
+    # (the current policy's own); 0 averages over the replayed minibatches' states instead (module docstring).
+    cost_window: NonNegativeInt = 1000
+    # T of the budget conversion: "auto" reads the env's time limit (env.max_steps).
+    episode_length: Annotated[
+        Union[PositiveInt, Literal["auto"]], Field(description="a positive integer or 'auto'")
+    ] = AUTO
+
+
+@options
+class OffPolicyConfig(AlgoConfig):
+    """Options of every off-policy algorithm (gae_lambda, normalize_advantage and max_grad_norm
+    are not read)."""
+
+    name: str = "sac"
+    tiny: ClassVar[dict] = {"warmup_steps": 16, "batch_size": 16, "buffer_size": 1000, "utd_ratio": 0.25}
+    actor_head: ClassVar[str] = "tanh_gaussian"  # the actor it trains (policies/squashed.py); TD3: deterministic
+    lr: PositiveFloat = 3e-4  # actor
+    critic_lr: PositiveFloat = 3e-4
+    utd_ratio: Annotated[float, finite(gt=0, le=64)] = 1.0  # gradient steps per collected transition
+    warmup_steps: NonNegativeInt = 5000  # transitions (uniformly random actions) before the first update
+    batch_size: PositiveInt = 256
+    buffer_size: PositiveInt = 1_000_000
+    storage: Literal["memory", "memmap"] = "memory"  # memmap: torchrl's LazyMemmapStorage on disk
+    tau: Annotated[float, finite(gt=0, le=1)] = 0.005  # Polyak step of the target critics
+
+    @property
+    def uniform_action_steps(self) -> int:
+        return self.warmup_steps  # its warm-up
+
+    def shape_agent(self, agent: Agent) -> Agent:
+        check_off_policy_agent(agent, self.name)  # a squashed actor and Q-critics on the policy's MLP body
+        return to_off_policy(agent, self.actor_head, getattr(self, "exploration_noise", 0.1))
+
+    def auto_rollout_steps(self, run: RunConfig) -> int:
+        """``rollout_steps: auto``: about 64 transitions per iteration (8 steps of 8 envs)."""
+        return max(1, 64 // run.env.num_envs)
+
+    def resolve_auto(self, run: RunConfig) -> None:
+        if getattr(self, "episode_length", None) == AUTO:
+            T = getattr(run.env, "max_steps", None)
+            require(
+                T is not None,
+                "algo.episode_length",
+                f"a positive integer for env={run.env.name} (it has no max_steps to read)",
+                AUTO,
+            )
+            self.episode_length = int(T)
+
+    def describe_update(self) -> str:
+        return (
+            f"{self.utd_ratio:g} gradient steps per transition on batches of {self.batch_size} "
+            f"after {self.warmup_steps} warm-up steps"
+        )
+
+    def check(self, run: RunConfig) -> None:
+        require(
+            run.policy.name == "mlp",
+            "policy",
+            f"mlp for algo={self.name} (recurrent and transformer policies are not supported off-policy)",
+            run.policy.name,
+        )
+        require(
+            self.buffer_size >= self.batch_size,
+            "algo.buffer_size",
+            f">= algo.batch_size ({self.batch_size})",
+            self.buffer_size,
+        )
+        if isinstance(self, LagrangeFields) and self.multiplier != "pid":
+            check_multiplier(self, self.lambda_lr)
+
+
+class LagrangeTerm:
+    """Lambda per constraint on the cost critic's estimate against the discounted budget (a
+    controller of lagrange.py per constraint), or none for the unconstrained variants (lambda 0)."""
+
+    def __init__(self, cfg: OffPolicyConfig, agent: Agent) -> None:
+        limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
+        self.num_costs = len(limits)
+        self.multipliers = None
+        if isinstance(cfg, LagrangeFields):
+            self.budgets = [discounted_budget(d, cfg.cost_gamma, cfg.episode_length) for d in limits]
+
+            def make(d: float):
+                if cfg.multiplier == "pid":
+                    scale = violation_scale(d, cfg.lambda_scale)
+                    return PIDLagrangian(
+                        d, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init, lambda_max=cfg.lambda_max, scale=scale
+                    )
+                return make_controller(cfg, d, cfg.lambda_lr, cfg.lambda_init)
+
+            self.multipliers = Multipliers(make, self.budgets)
+
+    @property
+    def values(self) -> list[float]:
+        return self.multipliers.values if self.multipliers is not None else [0.0] * self.num_costs
+
+    def weights(self, device: torch.device) -> torch.Tensor | None:
+        """``[K]`` lambdas for the actor loss, None when unconstrained."""
+        if self.multipliers is None:
+            return None
+        return torch.tensor(self.multipliers.values, device=device)
+
+    def update(self, q_cost: list[float]) -> None:
+        if self.multipliers is not None:
+            self.multipliers.update(q_cost)
+
+    def state_dict(self) -> dict:
+        return {} if self.multipliers is None else self.multipliers.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        if self.multipliers is not None:
+            self.multipliers.load_state_dict(state)
+
+
+STATS = ("loss_q", "loss_qc", "loss_pi", "q_reward", "q_cost", "gradient_steps", "buffer_size")
+
+
+class OffPolicy:
+    """The update loop, replay, critics' targets and checkpointing; an algorithm adds its actor
+    head, its TD target's next action (:meth:`next_action`) and its actor step (:meth:`actor_step`)."""
+
+    stats = STATS
+
+    def __init__(self, cfg: OffPolicyConfig, agent: Agent) -> None:
+        check_shaped(agent, cfg.name)
+        self.cfg, self.agent = cfg, agent
+        device = agent.actor.head.low.device
+        self.replay = Replay(cfg.buffer_size, cfg.batch_size, cfg.storage, device)
+        self.lagrange = LagrangeTerm(cfg, agent)
+        self.targets = TargetCritics({name: agent.critics[name].net for name in (*Q_REWARD, Q_COST)})
+        self.actor_params = list(agent.actor.parameters())
+        self.critic_params = list(agent.critics.parameters())
+        # fused: one kernel per step for all parameters (as ppo.py).
+        self.actor_opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)
+        self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, fused=True)
+        self.steps_due = 0.0  # fractional gradient steps carried over (utd_ratio < 1)
+        self.gradient_steps = 0
+
+    # The critics are called on their output networks with the inputs prepared once per gradient
+    # step (the observation normalized once, the action scaled to [-1, 1] once, one concatenation
+    # for all critics) rather than through Critic/QBody per call (docs/off_policy.md, "Speed").
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        """The observation as the actor's body (and every Q-critic's) prepares it."""
+        return self.agent.actor.body({keys.OBS: obs})[0]
+
+    def scaled(self, action: torch.Tensor) -> torch.Tensor:
+        """An env-unit action in the critics' [-1, 1] units (QBody's scaling)."""
+        body = self.agent.critics[Q_COST].body
+        return (action - body.center) / body.half_width
+
+    def q_values(
+        self, names: tuple[str, ...], x: torch.Tensor, a: torch.Tensor, target: bool = False
+    ) -> list[torch.Tensor]:
+        """``Q_n(s, a)`` of each critic in ``names`` (live or target) on features ``x`` and a scaled action."""
+        h = torch.cat([x, a], dim=-1)
+        nets = self.targets.target if target else {n: self.agent.critics[n].net for n in names}
+        return [nets[n](h) for n in names]
+
+    def critic_loss(
+        self, mb: TensorDictBase, x: torch.Tensor | None = None, x_next: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Both reward twins and the cost critic regress on one-step TD targets with the same next
+        action a' (the algorithm's): ``r + gamma (1 - term) (min_j Q'_j(s', a') + bonus)`` and
+        ``c + gamma_c (1 - term) Q'_c(s', a')`` (Haarnoja et al. 2018b eq. 5; Fujimoto et al. 2018 eq. 10).
+        ``x``, ``x_next``: the batch's observation features if already computed."""
+        cfg = self.cfg
+        x = self.features(mb.get(keys.OBS)) if x is None else x
+        x_next = self.features(mb.get((keys.NEXT, keys.OBS))) if x_next is None else x_next
+        term = mb.get((keys.NEXT, keys.TERMINATED))
+        with torch.no_grad():
+            a_next, bonus = self.next_action(x_next)
+            q1, q2, q_c_next = self.q_values((*Q_REWARD, Q_COST), x_next, a_next, target=True)
+            y = td_target(mb.get((keys.NEXT, keys.REWARD)), term, cfg.gamma, torch.min(q1, q2) + bonus)
+            y_c = td_target(mb.get((keys.NEXT, keys.COST)), term, cfg.cost_gamma, q_c_next)
+        q1, q2, q_c = self.q_values((*Q_REWARD, Q_COST), x, self.scaled(mb.get(keys.ACTION)))
+        loss_q = (q1 - y).pow(2).mean() + (q2 - y).pow(2).mean()
+        loss_qc = (q_c - y_c).pow(2).mean()
+        return loss_q + loss_qc, {
+            "loss_q": loss_q.detach(),
+            "loss_qc": loss_qc.detach(),
+            "q_reward": q1.mean().detach(),
+        }
+
+    def penalised_q(
+        self, x: torch.Tensor, action: torch.Tensor, reward_critics: tuple[str, ...] = Q_REWARD
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(min_j Q_j(s, a) - sum_k lambda_k Q_c,k(s, a), Q_c(s, a))`` on features ``x`` and a
+        scaled action: what the actor ascends (the Lagrangian of Ha et al. 2020), and the cost
+        estimate the multiplier reads."""
+        if not any(self.lagrange.values):
+            # lambda = 0 (or unconstrained): the cost term adds nothing to the actor's gradient; Q_c is read without a
+            # graph, which spares its backward (a third of the actor step's critic backward).
+            q_r = self.q_values(reward_critics, x, action)
+            with torch.no_grad():
+                (q_c,) = self.q_values((Q_COST,), x, action)
+            return (q_r[0] if len(q_r) == 1 else torch.min(*q_r)), q_c
+        *q_r, q_c = self.q_values((*reward_critics, Q_COST), x, action)
+        q_r = q_r[0] if len(q_r) == 1 else torch.min(*q_r)
+        return q_r - (q_c * self.lagrange.weights(x.device)).sum(-1, keepdim=True), q_c
+
+    # --- what an algorithm provides -------------------------------------------------------------
+    def policy_action(self, x: torch.Tensor) -> torch.Tensor:
+        """The current policy's action on features ``x`` (scaled to [-1, 1]): a sample, or the
+        deterministic action of a deterministic policy."""
+        raise NotImplementedError
+
+    def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The TD target's next action (scaled to [-1, 1]) on the next observation's features, and
+        the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
+        raise NotImplementedError
+
+    def actor_step(self, x: torch.Tensor) -> dict[str, torch.Tensor] | None:
+        """One actor (and temperature) step on the observation features ``x``; returns its statistics with ``q_cost`` ``[K]``, or None
+        (a delayed step)."""
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def cost_estimate(self) -> torch.Tensor:
+        """``[K]`` ``E[Q_c(s, pi(s))]`` over the states of the newest ``cost_window`` transitions,
+        the estimate the multiplier reads (module docstring)."""
+        x = self.features(self.replay.newest(self.cfg.cost_window).get(keys.OBS))
+        (q_c,) = self.q_values((Q_COST,), x, self.policy_action(x))
+        return q_c.mean(0)
+
+    # --- the shared update ----------------------------------------------------------------------
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        cfg = self.cfg
+        added = self.replay.add(batch)
+        if len(self.replay) < max(cfg.warmup_steps, cfg.batch_size):
+            return self._stats({}, 0)
+        self.steps_due += cfg.utd_ratio * added
+        n = int(self.steps_due)
+        self.steps_due -= n
+        sums: dict[str, torch.Tensor] = {}
+        counts: dict[str, int] = {}
+        for _ in range(n):
+            mb = self.replay.sample()
+            x = self.features(mb.get(keys.OBS))
+            loss, stats = self.critic_loss(mb, x, self.features(mb.get((keys.NEXT, keys.OBS))))
+            self.critic_opt.zero_grad(set_to_none=True)
+            loss.backward()
+            self.critic_opt.step()
+            self.gradient_steps += 1
+            actor = self.actor_step(x)
+            if actor is not None:
+                stats.update(actor)
+                self.targets.soft_update(cfg.tau)  # every step for SAC; delayed with the actor for TD3
+            for k, v in stats.items():
+                sums[k] = sums[k] + v if k in sums else v
+                counts[k] = counts.get(k, 0) + 1
+        means = {k: v / counts[k] for k, v in sums.items()}
+        q_cost = means.pop("q_cost_k", None)  # over the replayed states
+        if q_cost is not None and self.lagrange.multipliers is not None and self.cfg.cost_window:
+            q_cost = self.cost_estimate()  # over the current policy's own states
+        if q_cost is not None:
+            self.lagrange.update(q_cost.tolist())  # once per iteration, as ppo_lag's lambda
+        out = {k: v.item() for k, v in means.items()}
+        out["q_cost"] = q_cost.mean().item() if q_cost is not None else float("nan")
+        check_finite(**{k: v for k, v in out.items() if not math.isnan(v)})
+        check_parameters_finite(self.agent)
+        return self._stats(out, n)
+
+    def _stats(self, out: dict[str, float], steps: int) -> dict[str, float]:
+        row = {k: out.get(k, float("nan")) for k in self.stats}
+        row.update(gradient_steps=steps, buffer_size=len(self.replay))
+        row["lagrange_multiplier"] = logged_multiplier(self.lagrange.values)
+        return row
+
+    # --- checkpointing: networks, targets, optimizers, multiplier and the buffer -----------------
+    def state_dict(self) -> dict:
+        return {
+            "networks": self.agent.state_dict(),
+            "targets": self.targets.state_dict(),
+            "actor_opt": self.actor_opt.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+            "multiplier": self.lagrange.state_dict(),
+            "replay": self.replay.state_dict(),
+            "steps_due": self.steps_due,
+            "gradient_steps": self.gradient_steps,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.agent.load_state_dict(state["networks"])
+        self.targets.load_state_dict(state["targets"])
+        self.actor_opt.load_state_dict(state["actor_opt"])
+        self.critic_opt.load_state_dict(state["critic_opt"])
+        self.lagrange.load_state_dict(state["multiplier"])
+        if "replay" in state:
+            self.replay.load_state_dict(state["replay"])
+        self.steps_due, self.gradient_steps = float(state["steps_due"]), int(state["gradient_steps"])
+
+
+__all__ = ["LagrangeFields", "OffPolicy", "OffPolicyConfig", "TargetCritics", "discounted_budget", "td_target"]

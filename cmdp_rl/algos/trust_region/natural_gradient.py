@@ -1,0 +1,270 @@
+"""What the trust-region algorithms share (CPO, TRPO-Lagrangian, PCPO): the options, the
+importance-weighted surrogates around the policy that collected the batch, the Fisher-vector
+product, the backtracking line search, and the iteration around the policy step (GAE, the J_c
+estimate, critic regression, checkpointing).
+
+Each algorithm is one subclass of :class:`NaturalGradient` that writes ``policy_step``: how the
+reward and cost gradients become a step (CPO's dual, TRPO's step on a Lagrangian, PCPO's
+projection). Natural gradient: Kakade 2001; the trust-region step with conjugate gradient and line
+search: Schulman et al. 2015, "Trust Region Policy Optimization", Appendix C.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Annotated, Any, Callable, ClassVar
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torch.distributions import kl_divergence
+
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
+from cmdp_rl.algos.critics import CriticRegression
+from cmdp_rl.algos.update_backend import OneAgent, run_epochs
+from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options, require
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.advantages import TwinGAE, standardized
+from cmdp_rl.rollout.episode_cost import EpisodeCostEstimate
+
+if TYPE_CHECKING:
+    from cmdp_rl.config.run_config import RunConfig
+
+
+@options
+class NaturalGradientConfig(AlgoConfig):
+    """The trust region, the conjugate gradient, and the critics' regression."""
+
+    tiny: ClassVar[dict] = {"critic_epochs": 2, "critic_minibatches": 2}  # AlgoConfig.tiny
+
+    target_kl: Annotated[
+        float, Field(gt=0, allow_inf_nan=False, description="a positive number (the KL radius delta)")
+    ] = 0.01
+    cg_iters: PositiveInt = 10
+    cg_damping: NonNegativeFloat = 0.1
+    critic_epochs: PositiveInt = 10
+    critic_minibatches: PositiveInt = 8
+
+    def check(self, run: RunConfig) -> None:
+        batch = run.rollout_steps * run.env.num_envs
+        require(
+            batch >= self.critic_minibatches,
+            "algo.critic_minibatches",
+            f"at most rollout_steps * env.num_envs = {batch}",
+            self.critic_minibatches,
+        )
+
+
+def fisher_vector_product(
+    kl: torch.Tensor, params: list[nn.Parameter], damping: float
+) -> Callable[[torch.Tensor], torch.Tensor]:
+    """``v -> (H + damping I) v`` with ``H`` the Hessian of ``kl`` (the mean KL from the old policy,
+    whose value and gradient are 0 at the old parameters, so its Hessian there is the Fisher
+    matrix). Double backprop: one graph for ``grad kl``, then one backward of ``grad kl . v`` per
+    product; the matrix is never formed."""
+    grads = torch.autograd.grad(kl, params, create_graph=True)
+    flat_grad = torch.cat([g.reshape(-1) for g in grads])
+
+    def fvp(v: torch.Tensor) -> torch.Tensor:
+        hv = torch.autograd.grad(flat_grad @ v, params, retain_graph=True)
+        return torch.cat([h.reshape(-1) for h in hv]) + damping * v
+
+    return fvp
+
+
+def flat(tensors: tuple[torch.Tensor, ...]) -> torch.Tensor:
+    return torch.cat([t.reshape(-1) for t in tensors])
+
+
+@torch.no_grad()
+def assign(params: list[nn.Parameter], vector: torch.Tensor) -> None:
+    """Copy a flat vector into the parameters, in place. (``nn.utils.vector_to_parameters``
+    rebinds each parameter to a view of the vector: a different memory alignment, which changes the
+    rounding of the BLAS kernels, so a resumed run, whose parameters are fresh tensors, would drift
+    from an uninterrupted one in the last bits.)"""
+    offset = 0
+    for p in params:
+        p.copy_(vector[offset : offset + p.numel()].view_as(p))
+        offset += p.numel()
+
+
+def per_step_constraint(episode_cost: float, cost_limit: float, episode_length: float) -> float:
+    """The constraint value ``c`` in the surrogate's per-step units.
+
+    The budget is on the expected undiscounted episode cost J_c; the surrogate is a per-step mean.
+    Summed over an episode (T steps on average, sampled on-policy), the surrogate's change predicts
+    the change of J_c (the performance-difference identity in its undiscounted episodic form), so
+    J_c + T * dL_c <= d reads dL_c <= -(J_c - d) / T: c = (J_c - d) / T. (The papers' discounted
+    form has 1 / (1 - gamma) where an episodic budget has the mean episode length T.)"""
+    return (episode_cost - cost_limit) / max(episode_length, 1.0)
+
+
+class Surrogates:
+    """The importance-weighted surrogates of the policy advantage and the cost advantage, and the
+    mean KL from ``pi_k``, the policy that collected the units (its distribution parameters are in
+    them). Calling it evaluates all three at the current parameters."""
+
+    def __init__(self, agent: Agent, units: dict[str, torch.Tensor], adv: torch.Tensor, cost_adv: torch.Tensor) -> None:
+        self.agent, self.units, self.adv, self.cost_adv = agent, units, adv, cost_adv
+        head = agent.actor.head
+        self.old_dist = head.dist({k: units[k] for k in head.param_keys})
+
+    def __call__(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        units = self.units
+        dist = self.agent.dist(units)
+        ratio = torch.exp(dist.log_prob(units[keys.ACTION]) - units[keys.LOG_PROB]).reshape(self.adv.shape)
+        return (ratio * self.adv).mean(), (ratio * self.cost_adv).mean(), kl_divergence(self.old_dist, dist).mean()
+
+
+NO_STEP = {"step_fraction": 0.0, "kl": 0.0, "surr_reward_change": 0.0, "surr_cost_change": 0.0}
+
+
+@torch.no_grad()
+def line_search(
+    params: list[nn.Parameter],
+    step: torch.Tensor,
+    surrogates: Surrogates,
+    old: tuple[float, float],
+    target_kl: float,
+    steps: int,
+    coef: float,
+    accept: Callable[[float, float], bool],
+) -> dict[str, float]:
+    """Backtracking line search (Schulman et al. 2015, Appendix C): try the fractions 1, coef,
+    coef^2, ... of ``step`` and keep the first whose sampled KL is finite and within ``target_kl``
+    and whose changes of the reward and cost surrogates ``accept(d_reward, d_cost)`` takes; if none
+    is, the parameters stay where they were. Returns the accepted fraction (0: none), its KL and
+    the surrogates' changes."""
+    theta0 = nn.utils.parameters_to_vector(params).detach()
+    old_reward, old_cost = old
+    for j in range(steps):
+        fraction = coef**j
+        assign(params, theta0 + fraction * step)
+        new_reward, new_cost, new_kl = (t.item() for t in surrogates())
+        d_reward, d_cost = new_reward - old_reward, new_cost - old_cost
+        if math.isfinite(new_kl) and new_kl <= target_kl and accept(d_reward, d_cost):
+            return {"step_fraction": fraction, "kl": new_kl, "surr_reward_change": d_reward, "surr_cost_change": d_cost}
+    assign(params, theta0)  # no acceptable step: stay at pi_k
+    return dict(NO_STEP)
+
+
+class NaturalGradient:
+    """The iteration of a trust-region algorithm: GAE on both signals, the J_c estimate, the policy
+    step the subclass writes, then the critics' regression on their GAE value targets."""
+
+    name = "natural_gradient"
+    stats: tuple[str, ...] = ()
+
+    def __init__(self, cfg: NaturalGradientConfig, agent: Agent) -> None:
+        self.cfg = cfg
+        self.agent = agent
+        self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
+        self.policy_params = list(agent.actor.parameters())
+        self.critic_params = list(agent.critics.parameters())
+        self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
+        self.critics = CriticRegression(agent)
+        # J_c and the mean episode length the constraint is measured with (algos/episode_cost.py):
+        # an unfinished episode's cost so far is only a lower bound of its cost, so batches in
+        # which no episode ended (1000-step episodes, 256-step rollouts) use the last episodes
+        # that did end.
+        self.episode_cost = EpisodeCostEstimate()
+
+    @property
+    def lagrange_multiplier(self) -> float:
+        return 0.0
+
+    def policy_step(
+        self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
+    ) -> dict[str, float]:
+        """Move the policy on training units carrying GAE advantages; returns its statistics."""
+        raise NotImplementedError
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
+        self.gae(batch, self.agent)
+        units, stats = self.policy_update(batch)
+        backend = OneAgent(self.agent, self.cfg.max_grad_norm, None)
+        losses = self.fit_critics(units, backend, [(self.critic_opt, self.critic_params)])
+        stats.update({k: v.item() for k, v in losses.items()})
+        check_parameters_finite(self.agent)
+        stats["lagrange_multiplier"] = self.lagrange_multiplier
+        return stats
+
+    def policy_update(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
+        """After GAE: the J_c estimate, the training units and the policy step. Returns the units
+        (the critics' regression follows on them) and the step's statistics."""
+        estimate = self.episode_cost.update(batch)
+        # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
+        needed = [
+            *self.agent.in_keys,
+            keys.ACTION,
+            keys.LOG_PROB,
+            *self.agent.actor.head.param_keys,
+            keys.ADVANTAGE,
+            keys.COST_ADVANTAGE,
+            *self.critics.target_keys(),
+        ]
+        present = batch.keys(True)
+        units = self.agent.training_units({k: batch.get(k) for k in dict.fromkeys(needed) if k in present})
+        # J_c, or K numbers with K constraints (only trpo_lag takes K > 1; the others refuse it when built).
+        episode_cost = estimate.costs[0] if len(estimate.costs) == 1 else estimate.costs
+        return units, self.policy_step(units, episode_cost, estimate.length)
+
+    def advantages(self, units: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """The reward advantage (standardized if ``normalize_advantage``) and the cost advantage,
+        only centred: its scale must stay that of cost, to compare with the budget."""
+        adv = units[keys.ADVANTAGE]
+        if self.cfg.normalize_advantage:
+            adv = standardized(adv)
+        return adv, units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
+
+    def linearise(
+        self, units: dict[str, torch.Tensor]
+    ) -> tuple[Surrogates, tuple[float, float], torch.Tensor, torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
+        """What CPO and PCPO build their subproblem from, at the current policy: the surrogates
+        (for the line search), their values, the gradients ``g`` (reward) and ``b`` (cost) and the
+        Fisher-vector product ``v -> H v``."""
+        params = self.policy_params
+        surrogates = Surrogates(self.agent, units, *self.advantages(units))
+        reward_surr, cost_surr, kl = surrogates()
+        g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
+        b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
+        fvp = fisher_vector_product(kl, params, self.cfg.cg_damping)
+        return surrogates, (reward_surr.item(), cost_surr.item()), g, b, fvp
+
+    @torch.no_grad()
+    def entropy(self, units: dict[str, torch.Tensor]) -> float:
+        return self.agent.dist(units).entropy().mean().item()
+
+    def fit_critics(self, units: dict[str, torch.Tensor], backend: Any, groups: list) -> dict[str, torch.Tensor]:
+        """Regress the critics on their GAE value targets: ``critic_epochs`` passes of
+        ``critic_minibatches`` Adam steps, on one agent's units (``update_backend.OneAgent``) or P
+        agents' ``[P, U, ...]`` (the population's stacked backend), the optimiser and parameters in
+        ``groups``. Returns each loss's mean over the minibatches (per agent)."""
+
+        def step(mb: dict[str, torch.Tensor], active: Any) -> tuple[dict[str, torch.Tensor], Any]:
+            losses = self.critics.losses(mb, backend.critic_values(mb), backend.mean)
+            check_finite(**losses)
+            total = None
+            for loss in losses.values():
+                total = loss if total is None else total + loss
+            backend.step(total, groups, active)
+            # summed in float64, as Python floats would be
+            return backend.kept({k: v.double() for k, v in losses.items()}, active), active
+
+        cfg = self.cfg
+        sums, counts = run_epochs(backend, units, cfg.critic_minibatches, cfg.critic_epochs, step)
+        return {k: v / counts for k, v in sums.items()}
+
+    def state_dict(self) -> dict:
+        return {
+            "networks": self.agent.state_dict(),
+            "critic_opt": self.critic_opt.state_dict(),
+            "episode_cost": self.episode_cost.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.agent.load_state_dict(state["networks"])
+        self.critic_opt.load_state_dict(state["critic_opt"])
+        self.episode_cost.load_state_dict(state["episode_cost"])

@@ -1,0 +1,316 @@
+"""The run-level configuration, and loading: the one place a run's options are put together.
+
+The YAML files under ``configs/`` document every option; Hydra composes them and
+:func:`load_config` turns the result into a :class:`RunConfig`. Each component (``env``, ``algo``,
+``policy``) declares its own options beside its code and registers itself (``cmdp_rl.config.registry``);
+this module picks the options class by name, and :func:`validate` runs the checks every part
+declares. Every error names the field and what is allowed, before a single environment step.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import field
+from pathlib import Path
+from typing import Annotated, Any, Literal, Mapping, Optional, Sequence
+
+from cmdp_rl.config.registry import KINDS, component, declared_base
+from cmdp_rl.config.threads import apply_threads
+from cmdp_rl.config.validation import (
+    AUTO,
+    AutoInt,
+    Bool,
+    ConfigError,
+    Field,
+    NonNegativeFloat,
+    PositiveFloat,
+    PositiveInt,
+    build,
+    finite,
+    options,
+    recheck,
+    require,
+)
+from cmdp_rl.report.safety_metrics import ReferenceConfig
+
+TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
+WANDB_MISSING = "logger=wandb needs the wandb package: pip install 'cmdp_rl[wandb]'"
+# What a config names when it leaves a component out.
+DEFAULTS = {"env": "reach1d", "algo": "ppo_lag", "policy": "mlp"}
+
+
+def _default(kind: str) -> Any:
+    return field(default_factory=lambda: component(kind, DEFAULTS[kind]).options())
+
+
+@options
+class NormalizeConfig:
+    """Running normalization of observations and scaling of reward and cost (normalization.py)."""
+
+    obs: Bool = False
+    obs_clip: PositiveFloat = 10.0
+    reward: Bool = False
+    cost: Bool = False
+
+
+@options
+class LoggerConfig:
+    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else,
+    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory, ``wandb`` also a
+    Weights & Biases run (files in the run's ``wandb/`` directory; ``project``, ``entity`` and
+    ``mode`` are wandb's, read only with ``logger=wandb``)."""
+
+    name: Literal["csv", "tensorboard", "wandb"] = "csv"
+    project: Annotated[str, Field(pattern=r"\S", description="a wandb project name")] = "cmdp_rl"
+    entity: Optional[str] = None  # a wandb user or team; None: the account's default
+    # offline: files only, no network (upload later with `wandb sync`); online: stream to the server
+    mode: Literal["offline", "online"] = "offline"
+
+
+@options
+class RunConfig:
+    env: Any = _default("env")  # the options class registered under env.name
+    policy: Any = _default("policy")  # ... under policy.name
+    algo: Any = _default("algo")  # ... under algo.name
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
+    seed: int = 0
+    total_steps: PositiveInt = 400_000
+    rollout_steps: AutoInt = AUTO  # "auto": from env.num_envs (resolve_auto)
+    device: Literal["cpu", "cuda"] = "cpu"
+    threads: PositiveInt = 1
+    eval_episodes: PositiveInt = 20
+    eval_deterministic: Bool = True
+    # The policy deployed at the end (evaluated, in eval.json, in evaluate.py and its video): the
+    # last iterate, the average of the actor's parameters over the last average_last fraction of
+    # the iterations (cmdp_rl/deploy/average.py), or a uniform mixture of at most mixture_size
+    # snapshots of the actor over that window, one drawn per episode (cmdp_rl/deploy/mixture.py).
+    # auto: the mixture for a primal-dual algorithm (AlgoConfig.deploys) with a memoryless policy on an
+    # env whose episodes are cheap to value (EnvOptions.values_snapshots), else the last iterate.
+    final_policy: Literal["auto", "last", "average", "mixture"] = "auto"
+    average_last: Annotated[float, finite(gt=0, le=1)] = 0.5
+    mixture_size: Annotated[int, Field(ge=1, le=64)] = 16
+    # final_policy=mixture: uniform weights, or feasible: the best mixture of the snapshots within
+    # every budget on their measured values (cmdp_rl/deploy/selection.py), each snapshot valued on
+    # mixture_episodes episodes of its own and its costs taken mixture_margin standard errors high.
+    mixture_weights: Literal["uniform", "feasible"] = "feasible"
+    mixture_episodes: PositiveInt = 100
+    mixture_margin: NonNegativeFloat = 3.0
+    checkpoint_every: PositiveInt = 10
+    log_interval: PositiveInt = 5
+    # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
+    resume: Annotated[Optional[str], Field(pattern=r"\S", description="null or a run directory")] = None
+    # A new run into a directory that already holds a run: replace that run's outputs (false: refuse;
+    # cmdp_rl/run/ownership.py).
+    overwrite: Bool = False
+    # Load the resumed run's checkpoint even if it is of an older format that only Python's full
+    # unpickler reads, which runs code from the file (docs/checkpoints.md). Never saved as true.
+    trust_checkpoint: Bool = False
+    normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+
+    def __post_init__(self) -> None:
+        resolve_budget(self)  # a config built directly, as a script may, has its task's budget too
+
+
+@options
+class EvalConfig:
+    """Options of ``cmdp-evaluate`` (``cmdp-evaluate run=<run dir> [key=value ...]``)."""
+
+    run: Optional[str] = None  # the run directory (required)
+    checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
+    episodes: Optional[int] = None  # default: the run's eval_episodes
+    deterministic: Optional[Bool] = None  # mean action; default: the run's eval_deterministic
+    seed: Optional[int] = None  # default: the run's evaluation seed (reproduces its eval.json)
+    plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
+    plot_episodes: int = 3  # episodes drawn in the PNG
+    output: Optional[str] = None  # also write the results as JSON to this path
+    video: Bool = False  # write mp4s of the policy (cmdp_rl/report/video.py): Reach1D, the velocity tasks
+    video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
+    video_dir: Optional[str] = None  # default: <run>/videos
+    video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps
+    # Load a checkpoint of an older format, which runs code from the file (docs/checkpoints.md).
+    trust_checkpoint: Bool = False
+
+
+# The Hydra configs. The checkout keeps them at its root (configs/, beside cmdp_rl/); the wheel ships that
+# folder as the package cmdp_rl.configs (setup.py). Whichever this package sits beside is the one read, so a
+# checkout run from its root never picks up another install's configs.
+_PACKAGE = Path(__file__).resolve().parents[1]  # cmdp_rl/
+_PACKAGED_CONFIGS = _PACKAGE / "configs"
+_IN_WHEEL = (_PACKAGED_CONFIGS / "config.yaml").is_file()
+CONFIG_DIR = _PACKAGED_CONFIGS if _IN_WHEEL else _PACKAGE.parent / "configs"
+# Where Hydra's search path finds them (the command's config_path): the package's resources in a wheel.
+CONFIG_SOURCE = "pkg://cmdp_rl.configs" if _IN_WHEEL else str(CONFIG_DIR)
+
+
+def compose_config(overrides: Sequence[str] = (), config_dir: str | Path | None = None) -> RunConfig:
+    """The validated config ``cmdp-train <overrides>`` runs: Hydra's compose over the shipped configs
+    (:data:`CONFIG_SOURCE`) or over ``config_dir`` (groups, presets and tuning files included), then
+    :func:`load_config`."""
+    from hydra import compose, initialize_config_dir, initialize_config_module  # the rest needs no Hydra
+    from omegaconf import OmegaConf
+
+    if config_dir is None and _IN_WHEEL:
+        context = initialize_config_module(config_module="cmdp_rl.configs", version_base="1.3")
+    else:
+        context = initialize_config_dir(config_dir=str(config_dir or CONFIG_DIR), version_base="1.3")
+    with context:
+        raw = compose("config", overrides=list(overrides))
+    return load_config(OmegaConf.to_container(raw, resolve=True))
+
+
+def load_config(raw: Mapping[str, Any]) -> RunConfig:
+    """Build and validate a :class:`RunConfig` from a plain mapping (e.g. a resolved Hydra config),
+    and set torch's thread count to its ``threads`` (process-wide, as :func:`cmdp_rl.train` does), so
+    that a script building the pieces itself from this config gets the same speed."""
+    raw = dict(raw)
+    raw.pop("hydra", None)
+    raw.pop("population", None)  # several agents: cmdp_rl/population/ reads it (spec.agent_configs)
+    parts: dict[str, Any] = {}
+    for kind in KINDS:
+        data = dict(raw.pop(kind, {}) or {})
+        options_cls = component(kind, data.get("name", DEFAULTS[kind])).options
+        parts[kind] = build(options_cls, data, kind)
+    nested = {"logger": LoggerConfig, "normalize": NormalizeConfig, "reference": ReferenceConfig}
+    for name, cls in nested.items():
+        parts[name] = build(cls, dict(raw.pop(name, {}) or {}), name)
+    cfg = build(RunConfig, raw, "")
+    for name, value in parts.items():
+        setattr(cfg, name, value)
+    validate(cfg)
+    apply_threads(cfg)  # as train() does: a script building its own pieces runs as fast (threads.py)
+    return cfg
+
+
+def load_eval_config(raw: Mapping[str, Any]) -> EvalConfig:
+    """Build and check ``evaluate.py``'s options."""
+    cfg = build(EvalConfig, dict(raw), "evaluate")
+    require(bool(cfg.run), "run", "a run directory (run=<dir>)", cfg.run)
+    require(cfg.episodes is None or cfg.episodes >= 1, "episodes", "a positive integer", cfg.episodes)
+    require(cfg.plot_episodes >= 1, "plot_episodes", "a positive integer", cfg.plot_episodes)
+    require(cfg.plot is None or cfg.plot.lower().endswith(".png"), "plot", "a path ending in .png", cfg.plot)
+    return cfg
+
+
+def flatten_dict(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested config as dotted keys: ``{"algo": {"lr": 1}}`` -> ``{"algo.lr": 1}``."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(flatten_dict(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def resolve_auto(cfg: RunConfig) -> None:
+    """Replace the ``"auto"`` batch-shape options by numbers that follow ``env.num_envs``.
+
+    A few envs (the gymnasium default of 8) want long rollouts and many passes over a small batch;
+    a thousand batched envs want short rollouts and one pass over a large one, as in massively
+    parallel PPO (Rudin et al., 2022, "Learning to Walk in Minutes Using Massively Parallel Deep RL").
+    The rules keep what the gym default does at N <= 8 exactly and scale from there:
+    ``rollout_steps`` = 2048 / N, within [32, 256]: 256 for N <= 8, 32 for N >= 64; the algorithm
+    resolves its own ``"auto"`` options from the batch (e.g. ``PPOConfig.resolve_auto``).
+    Numbers given in the config are kept. ``final_policy: auto`` becomes ``mixture`` or ``last``
+    (see the field). Works in place; called by :func:`validate`.
+    """
+    if cfg.rollout_steps == AUTO:
+        auto = cfg.algo.auto_rollout_steps(cfg)  # an off-policy algorithm's few steps
+        cfg.rollout_steps = auto if auto is not None else min(256, max(32, 2048 // cfg.env.num_envs))
+    if cfg.final_policy == AUTO:
+        mixture = cfg.algo.deploys == "mixture" and cfg.env.values_snapshots and cfg.policy.name == "mlp"
+        cfg.final_policy = "mixture" if mixture else "last"
+    cfg.algo.resolve_auto(cfg)
+
+
+def resolve_budget(cfg: RunConfig) -> None:
+    """``algo.cost_limit`` left unset (None) becomes the task's budget, ``env.budget()``
+    (``envs/options.py``): d = 25 on the Safety-Gymnasium tasks, 1 on Reach1D. A value given in the
+    config wins. Works in place, so ``config.yaml`` records the budget in force."""
+    if cfg.algo.cost_limit is None:
+        cfg.algo.cost_limit = cfg.env.budget()
+
+
+def budget_source(cfg: RunConfig) -> str:
+    """Where the budget in force came from, for the line a run starts with."""
+    return "the task's" if cfg.algo.cost_limit == cfg.env.budget() else "algo.cost_limit"
+
+
+def validate(cfg: RunConfig) -> None:
+    """Check every field against its declared range (again: a script may have assigned fields),
+    fill the task's budget (:func:`resolve_budget`) and the ``"auto"`` options (:func:`resolve_auto`),
+    then run the rules each component declares across fields (its ``check(run)``) and the run's own;
+    raise :class:`ConfigError` on the first violation."""
+    for kind in KINDS:
+        part = getattr(cfg, kind)
+        expected = component(kind, getattr(part, "name", None)).options
+        require(type(part) is expected, kind, f"a {expected.__name__} for {kind}.name={part.name}", type(part).__name__)
+        base = declared_base(kind)
+        require(
+            base is None or isinstance(part, base),
+            kind,
+            f"options deriving from {base.__module__}.{base.__qualname__} (the hooks it declares)" if base else "",
+            type(part).__name__,
+        )
+        recheck(part, kind)
+    for name in ("logger", "normalize", "reference"):
+        recheck(getattr(cfg, name), name)
+    recheck(cfg, "")
+    envs = cfg.algo.envs  # an algorithm that trains on some envs only (AlgoConfig.envs)
+    require(
+        envs is None or cfg.env.name in envs,
+        "env",
+        f"{' or '.join(envs or ())} with algo={cfg.algo.name}",
+        cfg.env.name,
+    )
+    resolve_budget(cfg)
+    resolve_auto(cfg)
+    for kind in KINDS:
+        getattr(cfg, kind).check(cfg) if hasattr(getattr(cfg, kind), "check") else None
+    if cfg.device == "cuda":
+        import torch
+
+        require(torch.cuda.is_available(), "device", "cpu on this machine (torch sees no CUDA device)", cfg.device)
+    if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
+        raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
+    if cfg.logger.name == "wandb" and importlib.util.find_spec("wandb") is None:
+        raise ConfigError(f"logger.name: {WANDB_MISSING}")
+    _validate_normalize(cfg)
+    require(
+        cfg.final_policy != "mixture" or cfg.policy.name == "mlp",
+        "final_policy",
+        f"last or average with policy={cfg.policy.name} (a mixture draws among memoryless actors: policy=mlp)",
+        cfg.final_policy,
+    )
+    cfg.reference.check(cfg)
+
+
+def _validate_normalize(cfg: RunConfig) -> None:
+    require(
+        not (cfg.normalize.cost and cfg.algo.reads_raw_cost),
+        "normalize.cost",
+        f"false with algo={cfg.algo.name} (it reads costs in their own units)",
+        cfg.normalize.cost,
+    )
+
+
+__all__ = [
+    "AUTO",
+    "CONFIG_DIR",
+    "CONFIG_SOURCE",
+    "ConfigError",
+    "EvalConfig",
+    "LoggerConfig",
+    "NormalizeConfig",
+    "ReferenceConfig",
+    "RunConfig",
+    "budget_source",
+    "compose_config",
+    "flatten_dict",
+    "load_config",
+    "load_eval_config",
+    "resolve_auto",
+    "resolve_budget",
+    "validate",
+]

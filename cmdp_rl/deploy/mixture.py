@@ -1,0 +1,227 @@
+"""The deployed policy of ``final_policy: mixture``: a uniform mixture of snapshots of the actor
+taken over the last ``average_last`` fraction of the iterations (at most ``mixture_size`` of
+them), one snapshot drawn per EPISODE and followed until the episode ends.
+
+Why a mixture drawn per episode: the guarantees of primal-dual (Lagrangian) methods are for the
+average of the iterates' occupancy measures, and a policy that draws iterate i with probability
+1/M at the start of an episode and follows it has exactly that occupancy, so its expected return
+and costs are the mean of the iterates' (Le, Voloshin, Yue, "Batch policy learning under
+constraints", ICML 2019, Sec. 3-4: the returned policy is the uniform mixture of the iterates;
+Calvo-Fullana, Paternain, Ribeiro, Chamon, IEEE TAC 2023, Sec. III: the last iterate of a
+primal-dual method need not be feasible, its iterates' mixture is). Drawing per step instead would
+mix the actions, which is a different (and generally not averaged) policy. A parameter average
+(``policy_average.py``) is one network, but near a randomised optimum it is a policy between the
+iterates, not their mixture.
+
+The draw is a carried state of the actor's body (``keys.MIXTURE_MEMBER``): on an episode's first
+step (``is_init``) each env row draws a member from torch's generator (the evaluation seeds it) and
+keeps it until its episode ends, as a recurrent state is kept. So the collector, the evaluation,
+``evaluate.py``, the Reach1D plot and the video run a mixture unchanged. Its members are memoryless
+actors (``policy=mlp``; config.py refuses the others, whose own states would collide).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import torch
+from torch import nn
+
+from cmdp_rl.policies.agent import Actor, Agent, Body, Entries
+from cmdp_rl.rollout import keys
+
+
+class IterateSnapshots:
+    """Copies of the actor's state taken every ``stride`` iterations, ending with the last: with a
+    window of W iterations and at most ``size`` members, ``stride = ceil(W / size)``. Its state is
+    plain tensors and ints, so a checkpoint with it loads with ``torch.load(weights_only=True)``."""
+
+    def __init__(self, first_iteration: int, iterations: int, size: int) -> None:
+        self.first_iteration, self.iterations = first_iteration, iterations
+        self.stride = math.ceil((iterations - first_iteration + 1) / size)
+        self.taken: list[int] = []
+        self.members: list[dict[str, torch.Tensor]] = []
+        # mixture_weights=feasible: each member's weight and measured value (mixture_selection.py);
+        # None: a uniform mixture.
+        self.weights: list[float] | None = None
+        self.values: list[dict] | None = None
+        self.feasible: bool | None = None
+
+    @property
+    def count(self) -> int:
+        return len(self.members)
+
+    def wants(self, iteration: int) -> bool:
+        return iteration >= self.first_iteration and (self.iterations - iteration) % self.stride == 0
+
+    @torch.no_grad()
+    def update(self, module: nn.Module, iteration: int) -> None:
+        self.taken.append(iteration)
+        self.members.append({k: v.detach().clone() for k, v in module.state_dict().items()})
+
+    def matches(self, state: dict) -> bool:
+        """Whether a saved state was taken on this window and stride (a resume may have moved them)."""
+        return (state["first_iteration"], state["stride"]) == (self.first_iteration, self.stride)
+
+    def adopt(self, state: dict) -> None:
+        """Resume from a saved state: all of it on the same window, else the saved snapshots that
+        this window's schedule also takes (a run extended with more total_steps keeps the ones
+        that still count); weights chosen at the saved run's end are dropped unless nothing moved."""
+        if self.matches(state):
+            self.load_state_dict(state)
+            return
+        kept = [(it, m) for it, m in zip(state["taken"], state["members"]) if self.wants(int(it))]
+        self.taken = [int(it) for it, _ in kept]
+        self.members = [{k: v.clone() for k, v in m.items()} for _, m in kept]
+
+    def state_dict(self) -> dict:
+        return {
+            "first_iteration": self.first_iteration,
+            "stride": self.stride,
+            "taken": list(self.taken),
+            "members": [{k: v.clone() for k, v in m.items()} for m in self.members],
+            "weights": self.weights,
+            "values": self.values,
+            "feasible": self.feasible,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.taken = [int(i) for i in state["taken"]]
+        self.members = [{k: v.clone() for k, v in m.items()} for m in state["members"]]
+        self.weights = None if state.get("weights") is None else [float(w) for w in state["weights"]]
+        self.values, self.feasible = state.get("values"), state.get("feasible")
+
+    def result_keys(self, weighting: str) -> dict:
+        """What ``eval.json`` records of the deployed mixture: the snapshots' iterations, and with
+        chosen weights the deployed (iteration, weight) pairs, feasibility and every snapshot's values."""
+        out = {"mixture_iterations": list(self.taken), "mixture_weights": weighting}
+        if self.weights is not None:
+            out.update(
+                mixture_deployed=[list(m) for m in self.deployed_members()],
+                mixture_feasible=self.feasible,
+                mixture_member_values=self.values,
+            )
+        return out
+
+    def deployed_members(self) -> list[tuple[int, float]]:
+        """(iteration, weight) of each member the deployed mixture draws from."""
+        weights = self.weights or [1.0 / len(self.members)] * len(self.members)
+        return [(it, w) for it, w in zip(self.taken, weights) if w > 0]
+
+    def actors(self, template: Actor) -> list[Actor]:
+        """One copy of ``template`` per member, holding that member's state."""
+        out = []
+        for state in self.members:
+            actor = copy.deepcopy(template)
+            actor.load_state_dict(state)
+            out.append(actor)
+        return out
+
+    def deploy(self, agent: Agent) -> None:
+        """Make ``agent`` act with the mixture (nothing when no snapshot was taken)."""
+        if not self.members:
+            return
+        actors = self.actors(agent.actor)
+        if self.weights is None:
+            agent.actor = mixture_actor(actors)
+        else:  # only the members with weight: at most K + 1 of them (mixture_selection.py)
+            chosen = [(a, w) for a, w in zip(actors, self.weights) if w > 0]
+            agent.actor = mixture_actor([a for a, _ in chosen], [w for _, w in chosen])
+
+
+class MixtureBody(Body):
+    """Runs every member actor on the step and keeps, per row, the distribution parameters of the
+    row's member (``keys.MIXTURE_MEMBER``, drawn afresh where ``is_init``)."""
+
+    state_keys = (keys.MIXTURE_MEMBER,)
+
+    def __init__(
+        self, members: list[Actor], weights: list[float] | None = None, assigned: torch.Tensor | None = None
+    ) -> None:
+        super().__init__()
+        if any(m.body.recurrent or m.body.state_keys for m in members):
+            raise ValueError("a mixture's members must be memoryless actors (policy=mlp)")
+        self.members = nn.ModuleList(members)
+        # Not buffers: the mixture is rebuilt from its snapshots, never loaded from a state dict.
+        self.weights = None if weights is None else torch.tensor(weights, dtype=torch.float64)
+        # A fixed member per env row instead of a draw: every member valued in one batch (mixture_selection.py).
+        self.assigned = assigned
+        seen = dict.fromkeys(k for m in members for k in m.body.in_keys)
+        self.in_keys = list({**seen, keys.IS_INIT: None, keys.MIXTURE_MEMBER: None})
+
+    def forward(self, d: Entries) -> tuple:
+        member = d[keys.MIXTURE_MEMBER].squeeze(-1)
+        if member.dim() != 1:  # rows over time as well: every member on every row, then pick
+            params = [m.params(d) for m in self.members]
+            return ({k: torch.stack([p[k] for p in params])[(member, *_grid(member))] for k in params[0]},)
+        # Each member on its own rows only: a valuation runs M members on M x E rows.
+        out: dict[str, torch.Tensor] = {}
+        n = member.shape[0]
+        for i, m in enumerate(self.members):
+            rows = (member == i).nonzero().squeeze(-1)
+            if rows.numel() == 0:
+                continue
+            own = m.params({k: v[rows] if torch.is_tensor(v) and v.shape[:1] == (n,) else v for k, v in d.items()})
+            for k, v in own.items():
+                if k not in out:
+                    out[k] = v.new_empty((n, *v.shape[1:]))
+                out[k][rows] = v
+        return (out,)
+
+    def step(self, d: Entries) -> tuple[tuple, dict]:
+        shape, device = d[keys.MIXTURE_MEMBER].shape, d[keys.MIXTURE_MEMBER].device
+        if self.assigned is not None:
+            fresh = self.assigned.view(shape).to(device)
+        elif self.weights is None:
+            fresh = torch.randint(len(self.members), shape, device=device)
+        else:
+            fresh = torch.multinomial(self.weights, shape.numel(), replacement=True).view(shape).to(device)
+        member = torch.where(d[keys.IS_INIT], fresh, d[keys.MIXTURE_MEMBER])
+        return self({**d, keys.MIXTURE_MEMBER: member}), {keys.MIXTURE_MEMBER: member}
+
+    def initial_state(self, num_envs: int, device: torch.device) -> dict:
+        return {keys.MIXTURE_MEMBER: torch.zeros(num_envs, 1, dtype=torch.long, device=device)}
+
+
+def _grid(member: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Index tensors of every position of ``member``, to pick each position's member's output."""
+    return torch.meshgrid(*[torch.arange(s, device=member.device) for s in member.shape], indexing="ij")
+
+
+class _Chosen(nn.Module):
+    """The mixture's head: the body already gives the chosen member's parameters; their
+    distribution is the members' own (every member has the same head)."""
+
+    def __init__(self, head: nn.Module) -> None:
+        super().__init__()
+        self._dist = head.dist  # a bound method, not a second registration of the member's head
+
+    def forward(self, params: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return params
+
+    def dist(self, params: dict[str, torch.Tensor]) -> torch.distributions.Distribution:
+        return self._dist(params)
+
+
+def mixture_actor(
+    members: list[Actor], weights: list[float] | None = None, assigned: torch.Tensor | None = None
+) -> Actor:
+    """An actor that draws one of ``members`` per episode (uniformly, or with ``weights``) and
+    follows it; with ``assigned`` (a member index per env row) each row always acts with its own."""
+    return Actor(MixtureBody(members, weights, assigned), _Chosen(members[0].head))
+
+
+def members_of(actor: Actor) -> list[Actor]:
+    """The member actors of a mixture; any other actor is its own one member."""
+    return list(actor.body.members) if isinstance(actor.body, MixtureBody) else [actor]
+
+
+def weights_of(actor: Actor) -> list[float]:
+    """The probability of drawing each of :func:`members_of`'s actors."""
+    members = members_of(actor)
+    weights = actor.body.weights if isinstance(actor.body, MixtureBody) else None
+    return [1.0 / len(members)] * len(members) if weights is None else weights.tolist()
+
+
+__all__ = ["IterateSnapshots", "MixtureBody", "members_of", "mixture_actor", "weights_of"]

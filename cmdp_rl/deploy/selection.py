@@ -1,0 +1,148 @@
+"""The weights of ``mixture_weights: feasible``: the best mixture of the run's snapshots that is
+within every budget on the snapshots' measured values.
+
+Why: a mixture drawn once per episode has the weighted mean of its members' expected return and
+costs (policy_mixture.py), so choosing its weights is a linear programme over the members' values,
+
+    max_w  sum_i w_i R_i   s.t.  sum_i w_i (C_ik + m se_ik) <= d_k  for every cost k,
+           sum_i w_i = 1,  w >= 0,
+
+whose solution puts weight on at most K + 1 members. This is the "shrinking" step of Cotter,
+Jiang, Sridharan, "Two-player games for efficient non-convex constrained optimization" (ALT 2019,
+Sec. 4, Lemma 2): from the iterates of a Lagrangian game, the best stochastic solution supported on
+at most m + 1 of them. A uniform mixture inherits the dual dynamics' average violation, which is
+O(1/sqrt(T)) and of either sign; the programme instead aims inside the budget by ``m`` standard
+errors of the members' measured costs.
+
+Each member is valued on its own evaluation episodes, seeded apart from the run's final evaluation:
+the final evaluation then measures the chosen mixture on fresh episodes, so the number a run
+reports is not the one its weights were chosen on. scipy's HiGHS solves the programme.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+import torch
+from scipy.optimize import linprog
+
+from cmdp_rl.algos.base import per_constraint
+from cmdp_rl.deploy.mixture import mixture_actor
+from cmdp_rl.envs import make_eval_env
+from cmdp_rl.rollout.collector import Collector
+from cmdp_rl.run.evaluation import episode_rows
+
+if TYPE_CHECKING:
+    from cmdp_rl.config.run_config import RunConfig
+    from cmdp_rl.deploy.mixture import IterateSnapshots
+    from cmdp_rl.policies.agent import Actor, Agent
+
+# A member valuation's evaluation seed is the run's seed plus this: neither a training seed nor
+# the final evaluation's (evaluation.EVAL_SEED_OFFSET).
+VALUATION_SEED_OFFSET = 2_000_003
+
+
+@dataclass(frozen=True)
+class MemberValue:
+    """One member's measured mean return, mean costs and their standard errors over its episodes."""
+
+    episode_return: float
+    episode_cost: tuple[float, ...]
+    cost_se: tuple[float, ...]
+    episodes: int
+
+    def as_dict(self) -> dict:
+        return {
+            "episode_return": self.episode_return,
+            "episode_cost": list(self.episode_cost),
+            "cost_se": list(self.cost_se),
+            "episodes": self.episodes,
+        }
+
+
+def feasible_weights(
+    values: Sequence[MemberValue], budgets: Sequence[float], margin: float
+) -> tuple[list[float], bool]:
+    """The mixture weights over ``values`` (see the module docstring) and whether the programme was
+    feasible. When no mixture is within the budgets on the members' values, all the weight goes to
+    the member with the smallest largest violation (relative to each budget; ties: higher return),
+    and the second item is False."""
+    returns = np.array([v.episode_return for v in values])
+    upper = np.array([[c + margin * s for c, s in zip(v.episode_cost, v.cost_se)] for v in values])  # [M, K]
+    d = np.asarray(budgets, dtype=float)
+    m = len(values)
+    solved = linprog(
+        -returns,
+        A_ub=upper.T,
+        b_ub=d,
+        A_eq=np.ones((1, m)),
+        b_eq=[1.0],
+        bounds=[(0.0, 1.0)] * m,
+        method="highs",
+    )
+    if solved.status == 0:
+        w = np.where(solved.x > 1e-9, solved.x, 0.0)
+        return (w / w.sum()).tolist(), True
+    scale = np.where(d > 0, d, 1.0)
+    worst = ((upper - d) / scale).max(axis=1)
+    best = min(range(m), key=lambda i: (worst[i], -returns[i]))
+    return [1.0 if i == best else 0.0 for i in range(m)], False
+
+
+def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: int) -> list[MemberValue]:
+    """Each of ``actors``' mean return and costs over at least ``cfg.mixture_episodes`` episodes of
+    the evaluation env, sampled or deterministic as the final evaluation is, seeded with the run's
+    seed plus ``VALUATION_SEED_OFFSET``. All members step in one batch, each on its own env rows
+    (as many rows per member as ``env.num_envs`` shares out, or 64 on a batched torch env, where a
+    row is a tensor row and not an env object), because one evaluation per member pays the
+    per-step overhead M times."""
+    m = len(actors)
+    env_cfg = cfg.env.valuation_options()  # the same CMDP, batched where the env has a batched twin
+    batched = getattr(env_cfg, "backend", None) == "torch"
+    rows_each = max(1, min(cfg.mixture_episodes, 64 if batched else env_cfg.num_envs // m))
+    quota = math.ceil(cfg.mixture_episodes / rows_each)
+    env = make_eval_env(env_cfg, num_envs=m * rows_each, device=cfg.device, algo=cfg.algo)
+    own = agent.actor
+    agent.actor = mixture_actor(actors, assigned=torch.arange(m * rows_each, device=env.device) % m)
+    try:
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(cfg.seed + VALUATION_SEED_OFFSET)
+            collector = Collector(
+                env, agent, 128, seed=cfg.seed + VALUATION_SEED_OFFSET, deterministic=cfg.eval_deterministic
+            )
+            rows = episode_rows(collector, [quota] * (m * rows_each))
+    finally:
+        agent.actor = own
+        env.close()
+    values = []
+    for i in range(m):  # rows (return, length, terminated, cost_0, ...) of member i's env rows
+        mine = np.array([row for r in rows[i::m] for row in r], dtype=float)
+        costs = mine[:, 3 : 3 + num_costs]
+        se = costs.std(axis=0, ddof=1) / math.sqrt(len(mine)) if len(mine) > 1 else np.zeros(num_costs)
+        values.append(
+            MemberValue(float(mine[:, 0].mean()), tuple(costs.mean(0).tolist()), tuple(se.tolist()), len(mine))
+        )
+    return values
+
+
+def choose_weights(snapshots: IterateSnapshots, agent: Agent, cfg: RunConfig, names: Sequence[str]) -> str:
+    """Value ``snapshots``' members (:func:`value_members`), set their weights to the best mixture
+    within ``cfg.algo.cost_limit`` and return one line that says what was chosen."""
+    budgets = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
+    values = value_members(snapshots.actors(agent.actor), agent, cfg, len(names))
+    weights, feasible = feasible_weights(values, budgets, cfg.mixture_margin)
+    snapshots.weights, snapshots.feasible = weights, feasible
+    snapshots.values = [v.as_dict() for v in values]
+    chosen = ", ".join(f"iteration {it} ({w:.2f})" for it, w in snapshots.deployed_members())
+    if feasible:
+        return f"mixture: {len(values)} snapshots valued over {values[0].episodes} episodes each; deployed {chosen}"
+    return (
+        f"mixture: no mixture of the {len(values)} snapshots is within budget on their values "
+        f"(costs + {cfg.mixture_margin:g} standard errors); deployed the least violating, {chosen}"
+    )
+
+
+__all__ = ["VALUATION_SEED_OFFSET", "MemberValue", "choose_weights", "feasible_weights", "value_members"]

@@ -1,0 +1,136 @@
+"""Running observation normalization and reward/cost scaling, saved with the networks.
+
+- Observations: ``clip((obs - mean) / std, -c, c)`` by a module placed in front of the actor and
+  both critics (one shared instance), so evaluation and a reloaded checkpoint see exactly the
+  statistics training used.
+- Reward and cost: each divided by the running std of its discounted sum before GAE ("reward
+  scaling", Engstrom et al. 2020, "Implementation Matters in Deep Policy Gradients", sec. 3), so
+  the critics regress on targets of order one. Logged returns and costs, and the constraint
+  ``J_c <= d``, stay in the env's units: the collector's episode sums are taken before scaling.
+  With K costs each constraint has its own running discounted sum and std (a hazard hit once per
+  episode and a speed cost paid every step differ by orders of magnitude).
+
+The running statistics are torchrl's ``RunningMeanStd`` (Welford's parallel update, buffers in the
+``state_dict``). Why not torchrl's ``VecNorm``/``ObservationNorm`` transforms: they act on an
+``EnvBase`` and update on every env step, while our envs are plain tensors-in/tensors-out
+``VecEnv``s (see ``envs/vector.py``); and a transform on the env side would have to be copied into
+the evaluation env and saved apart from the networks. Statistics change only through the two calls
+the training loop makes:
+
+1. :meth:`Normalizers.scale_batch` before the update: reward/cost statistics take in the batch, then
+   the batch's rewards and costs are divided in place.
+2. :meth:`Normalizers.update_observation_stats` after the update: the observation statistics take
+   in the batch's observations. Updating them only after the update keeps the policy that
+   collected the batch and the one PPO's ratio compares against identical (same statistics), so
+   the first ratio of every update is exactly 1. The first rollout therefore runs with the
+   initial statistics (mean 0, std 1), i.e. on raw observations.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.envs.transforms import RunningMeanStd
+
+from cmdp_rl.config.run_config import NormalizeConfig
+from cmdp_rl.rollout import keys
+
+if TYPE_CHECKING:
+    from cmdp_rl.config.run_config import RunConfig
+    from cmdp_rl.envs import VecEnv
+
+_EPS = 1e-8
+
+
+class ObservationNormalizer(nn.Module):
+    """``clip((obs - mean) / std, -clip, clip)`` with running statistics that change only in :meth:`update`."""
+
+    def __init__(self, obs_dim: int, clip: float = 10.0) -> None:
+        super().__init__()
+        self.stats = RunningMeanStd((obs_dim,))
+        self.clip = clip
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.stats.normalize(obs).clamp(-self.clip, self.clip)
+
+    @torch.no_grad()
+    def update(self, obs: torch.Tensor) -> None:
+        self.stats.update(obs.reshape(-1, obs.shape[-1]))
+
+
+class ReturnScaler(nn.Module):
+    """Scales a per-step signal by ``1 / std`` of its running discounted sum ``R_t = gamma R_{t-1} + x_t``
+    (reset where an episode ends), per env; the sums carry over from one batch to the next.
+    ``channels`` > 1 (K costs): one sum and one std per channel. One channel keeps scalar
+    statistics, as before costs became vectors (same reductions, same numbers, same checkpoint)."""
+
+    def __init__(self, num_envs: int, gamma: float, channels: int = 1) -> None:
+        super().__init__()
+        self.gamma = gamma
+        self.stats = RunningMeanStd(() if channels == 1 else (channels,))
+        self.register_buffer("running_return", torch.zeros(num_envs, channels))
+
+    @torch.no_grad()
+    def update(self, signal: torch.Tensor, done: torch.Tensor) -> None:
+        """``signal``: ``[num_envs, T, channels]``, ``done``: ``[num_envs, T, 1]``, in time order."""
+        ret = self.running_return
+        sums = []
+        for t in range(signal.shape[1]):
+            ret = self.gamma * ret + signal[:, t]
+            sums.append(ret)
+            ret = ret.masked_fill(done[:, t], 0.0)
+        self.running_return.copy_(ret)
+        self.stats.update(torch.stack(sums, 1))
+
+    def scale(self, signal: torch.Tensor) -> torch.Tensor:
+        return signal / (self.stats.var + _EPS).sqrt()
+
+
+class Normalizers(nn.Module):
+    """The normalizers a run uses; each is ``None`` when off. ``obs`` is also placed inside the
+    actor and critics by :func:`~cmdp_rl.policies.make_agent`."""
+
+    def __init__(
+        self,
+        obs: ObservationNormalizer | None = None,
+        reward: ReturnScaler | None = None,
+        cost: ReturnScaler | None = None,
+    ) -> None:
+        super().__init__()
+        self.obs = obs
+        self.reward = reward
+        self.cost = cost
+
+    @classmethod
+    def from_config(
+        cls, cfg: NormalizeConfig, obs_dim: int, num_envs: int, gamma: float, cost_gamma: float, num_costs: int = 1
+    ) -> Normalizers:
+        return cls(
+            ObservationNormalizer(obs_dim, cfg.obs_clip) if cfg.obs else None,
+            ReturnScaler(num_envs, gamma) if cfg.reward else None,
+            ReturnScaler(num_envs, cost_gamma, num_costs) if cfg.cost else None,
+        )
+
+    def scale_batch(self, batch: TensorDictBase) -> None:
+        """Before the update: take in the batch's rewards/costs, then scale them in place."""
+        done = batch.get((keys.NEXT, keys.DONE))
+        for scaler, key in ((self.reward, keys.REWARD), (self.cost, keys.COST)):
+            if scaler is not None:
+                x = batch.get((keys.NEXT, key))
+                scaler.update(x, done)
+                batch.set((keys.NEXT, key), scaler.scale(x))
+
+    def update_observation_stats(self, batch: TensorDictBase) -> None:
+        """After the update: take in the observations the batch's actions were chosen on."""
+        if self.obs is not None:
+            self.obs.update(batch.get(keys.OBS))
+
+
+def make_normalizers(cfg: RunConfig, env: VecEnv) -> Normalizers:
+    """The normalizers ``cfg.normalize`` asks for, with the algorithm's discounts."""
+    return Normalizers.from_config(
+        cfg.normalize, env.obs_dim, env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma, getattr(env, "num_costs", 1)
+    )

@@ -1,0 +1,195 @@
+"""Checkpoints: written atomically, loaded without running anything from the file.
+
+A checkpoint holds tensors, numbers, strings and plain containers of them (dict, list, tuple) and
+nothing else, so torch's safe unpickler (``torch.load(weights_only=True)``) reads it: loading
+someone else's run directory cannot run their code. No type is allow-listed
+(``torch.serialization.add_safe_globals`` is never called): what is not a tensor or a plain value
+when saved is written as tensors and plain values by :func:`encode` and read back by
+:func:`decode`:
+
+- a numpy array as a tensor of its dtype and shape (``torch.from_numpy``: the same bytes), under
+  the key :data:`NDARRAY`; a numpy scalar as a 0-d tensor under :data:`NUMPY_SCALAR`;
+- a ``collections.deque`` as its items and ``maxlen`` under :data:`DEQUE`.
+
+Anything else (a live object, pickled bytes) is refused when saving, naming where it sits, so a
+component cannot slip code into a checkpoint. Files of an older format (numpy objects pickled
+whole, which only the full unpickler reads) are refused unless the caller trusts them
+(``trust=True``, the user's ``trust_checkpoint=true``); :mod:`cmdp_rl.run.migrations` brings their
+contents to this format, and converts a run directory once. docs/checkpoints.md.
+"""
+
+from __future__ import annotations
+
+import collections
+import os
+import pickle
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+# 3: loads with torch's safe unpickler: numpy values and deques as tagged tensors and lists (encode),
+#    env state as arrays (MuJoCo's integration state, no pickled bytes), one multiplier state per
+#    constraint, networks under the agent's names (cmdp_rl.run.migrations brings older files here).
+# 2: adds what a resume needs (collector and env state, generators, training time).
+FORMAT_VERSION = 3
+# The oldest format cmdp_rl.run.migrations can bring to FORMAT_VERSION.
+OLDEST_FORMAT = 2
+
+NDARRAY = "__ndarray__"
+NUMPY_SCALAR = "__numpy_scalar__"
+DEQUE = "__deque__"
+
+# What the older formats pickled whole (numpy's array and scalar reconstruction, deques, the bytes of a
+# pickled MuJoCo data or Safety-Gymnasium world): a file whose only non-data globals are these is taken
+# for an old cmdp_rl checkpoint in the refusal's wording.
+_OLD_FORMAT_GLOBALS = re.compile(r"^(numpy\.|collections\.deque$|builtins\.bytes$|_codecs\.encode$)")
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint is missing, unreadable, or was written by another algorithm or policy."""
+
+
+class UnsafeCheckpointError(CheckpointError):
+    """A checkpoint that only Python's full unpickler reads: loading it would run code from the file."""
+
+
+def encode(value: Any, where: str = "state") -> Any:
+    """``value`` as tensors, numbers, strings and plain containers (see the module docstring);
+    ``TypeError`` naming ``where`` for anything that is none of these."""
+    if isinstance(value, np.generic):  # first: numpy's float64 is also a Python float
+        return {NUMPY_SCALAR: encode(np.asarray(value), where)[NDARRAY]}
+    if value is None or isinstance(value, (bool, int, float, str, torch.Tensor, torch.dtype, torch.Size)):
+        return value
+    if isinstance(value, np.ndarray):
+        if value.dtype.hasobject or value.dtype.kind in "USV":
+            raise TypeError(f"checkpoint: {where} is a numpy array of {value.dtype}, not numbers")
+        native = value.astype(value.dtype.newbyteorder("="), copy=False)
+        # (ascontiguousarray makes a 0-d array 1-d: the reshape keeps the shape)
+        return {NDARRAY: torch.from_numpy(np.ascontiguousarray(native)).reshape(native.shape)}
+    if isinstance(value, collections.deque):
+        return {DEQUE: [encode(v, f"{where}[{i}]") for i, v in enumerate(value)], "maxlen": value.maxlen}
+    if isinstance(value, dict):
+        out = collections.OrderedDict() if isinstance(value, collections.OrderedDict) else {}
+        for k, v in value.items():
+            if not isinstance(k, (str, int)):
+                raise TypeError(f"checkpoint: {where} has a key of type {type(k).__name__}, not str or int")
+            out[k] = encode(v, f"{where}.{k}")
+        return out
+    if isinstance(value, (list, tuple)):
+        items = [encode(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return items if isinstance(value, list) else tuple(items)
+    raise TypeError(
+        f"checkpoint: {where} is a {type(value).__module__}.{type(value).__name__}, which a checkpoint cannot hold"
+    )
+
+
+def decode(value: Any) -> Any:
+    """The inverse of :func:`encode`."""
+    if isinstance(value, dict):
+        if NDARRAY in value and len(value) == 1:
+            return value[NDARRAY].numpy()
+        if NUMPY_SCALAR in value and len(value) == 1:
+            return value[NUMPY_SCALAR].numpy()[()]
+        if DEQUE in value and len(value) == 2:
+            return collections.deque((decode(v) for v in value[DEQUE]), maxlen=value["maxlen"])
+        out = collections.OrderedDict() if isinstance(value, collections.OrderedDict) else {}
+        for k, v in value.items():
+            out[k] = decode(v)
+        return out
+    if isinstance(value, list):
+        return [decode(v) for v in value]
+    if isinstance(value, tuple):
+        return tuple(decode(v) for v in value)
+    return value
+
+
+def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
+    """Write ``state`` to ``path`` so that a kill at any moment leaves the old file or the new one,
+    never a partial one: write a sibling temp file, fsync it, then rename over the target."""
+    path = Path(path)
+    data = {"format": FORMAT_VERSION, **encode(state)}  # before the file is opened: a refusal writes nothing
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        torch.save(data, f)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    # Make the rename itself durable (a power cut after a kill-proof rename could still lose it).
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def _what_it_holds(path: Path, exc: Exception) -> tuple[list[str], str]:
+    """The globals (importable names) the file's pickle would call, found by reading its opcodes
+    (nothing is run), and, for a file torch cannot scan (not a torch zip file), the first line of
+    the safe unpickler's error."""
+    try:
+        return sorted(torch.serialization.get_unsafe_globals_in_checkpoint(path)), "no pickled object in it"
+    except Exception:  # noqa: BLE001 - not a zip checkpoint: torch's own reason is all there is
+        return [], str(exc).strip().splitlines()[0][:200]
+
+
+def _old_format(path: Path, how: str) -> UnsafeCheckpointError:
+    return UnsafeCheckpointError(
+        f"checkpoint: {path} is in an older cmdp_rl format ({how}), and reading it runs code from the file; if you "
+        f"trust who wrote it, convert the run once with `python -m cmdp_rl.run.convert {path.parent}`, or "
+        "load it as is with trust_checkpoint=true (docs/checkpoints.md)"
+    )
+
+
+def _refusal(path: Path, found: list[str]) -> UnsafeCheckpointError:
+    if all(_OLD_FORMAT_GLOBALS.match(g) for g in found):
+        return _old_format(path, "numpy objects pickled whole, which only Python's full unpickler reads")
+    return UnsafeCheckpointError(
+        f"checkpoint: {path} holds {', '.join(found)}, which is not data: refused, nothing in it was run "
+        "(a checkpoint holds tensors, numbers and strings only; docs/checkpoints.md)"
+    )
+
+
+def load_checkpoint(
+    path: str | Path, algo: str | None = None, policy: str | None = None, trust: bool = False
+) -> dict[str, Any]:
+    """Load a checkpoint with torch's safe unpickler, refusing one for another algorithm or policy
+    than expected. A file that needs the full unpickler raises :class:`UnsafeCheckpointError`
+    unless ``trust`` (which runs whatever the file holds). The state comes back in the format it
+    was written in (``state["format"]``); :func:`cmdp_rl.run.migrations.migrate` brings an older one
+    to :data:`FORMAT_VERSION`."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint: no file at {path}")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:  # torch's safe unpickler stopped: at something not data?
+        if not trust:
+            found, reason = _what_it_holds(path, exc)
+            if not found:  # nothing it would call: a damaged or foreign file
+                raise CheckpointError(f"checkpoint: {path} is corrupt or not a cmdp_rl checkpoint ({reason})") from None
+            raise _refusal(path, found) from None
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as inner:  # noqa: BLE001 - torch raises several types for a foreign file
+            raise CheckpointError(f"checkpoint: {path} is corrupt or not a cmdp_rl checkpoint ({inner})") from None
+    except Exception as exc:  # torch raises several types for a truncated or foreign file
+        raise CheckpointError(f"checkpoint: {path} is corrupt or not a cmdp_rl checkpoint ({exc})") from None
+    version = state.get("format") if isinstance(state, dict) else None
+    if not isinstance(version, int) or not OLDEST_FORMAT <= version <= FORMAT_VERSION:
+        raise CheckpointError(
+            f"checkpoint: {path} is not a cmdp_rl checkpoint of format {OLDEST_FORMAT} to {FORMAT_VERSION} "
+            f"(format {version!r})"
+        )
+    if version < FORMAT_VERSION and not trust:  # its migration may unpickle bytes the file holds
+        raise _old_format(path, f"format {version}, whose env state may hold pickled bytes")
+    if version == FORMAT_VERSION:
+        state = decode(state)
+    for field, expected in (("algo", algo), ("policy", policy)):
+        if expected is not None and state.get(field) != expected:
+            raise CheckpointError(
+                f"checkpoint: {path} was written by {field}={state.get(field)!r}, but this run uses {field}={expected!r}"
+            )
+    return state

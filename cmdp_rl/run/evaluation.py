@@ -1,0 +1,158 @@
+"""Evaluate a policy over a fixed number of whole episodes."""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import torch
+
+from cmdp_rl.envs import VecEnv
+from cmdp_rl.policies.agent import Agent
+from cmdp_rl.report.intervals import summarize as interval_estimates
+from cmdp_rl.report.metrics import constraint_name
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.collector import Collector
+
+EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
+
+
+def _spread(name: str, values: list[float]) -> dict[str, float]:
+    t = torch.tensor(values, dtype=torch.float64)
+    return {
+        name: t.mean().item(),
+        f"{name}_std": t.std(unbiased=False).item(),
+        f"{name}_min": t.min().item(),
+        f"{name}_max": t.max().item(),
+    }
+
+
+def evaluate(
+    agent: Agent,
+    env: VecEnv,
+    episodes: int,
+    deterministic: bool = True,
+    seed: int | None = None,
+    termination_metric: str | None = None,
+    cost_limit: float | Sequence[float] | None = None,
+) -> dict[str, float]:
+    """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
+    With K > 1 costs, each constraint's episode cost has its own keys, ``episode_cost/<cost>``,
+    ``episode_cost_std/<cost>``, ... (``metrics.constraint_name``).
+
+    Each env of the batch contributes a fixed quota of its first episodes, so short episodes are
+    not over-represented (counting whichever episodes end first would bias towards them).
+    With ``termination_metric`` (an env's name for what termination means, e.g. Reach1D's
+    ``goal_reached``), the result also has the fraction of episodes that ended by termination rather
+    than the time limit, under that name.
+    With ``seed``, a stochastic policy samples from torch's generator seeded with it, inside
+    ``fork_rng``: the same seed gives the same numbers, and the caller's generator is left as it was.
+    With ``cost_limit`` (the budget d), the result also has 95% intervals over the episodes: of mean
+    return and mean cost, cost's upper bound, and the rate of episodes with cost above d
+    (:func:`cmdp_rl.report.intervals.summarize`). With K > 1 costs ``cost_limit`` is one budget for every
+    constraint or a list of K, and each constraint's cost and violation keys carry ``/<cost>``
+    (``episode_cost_ucb95/hazard_a``, ``violation_rate/hazard_a``, ``intervals/hazard_a``).
+    """
+    with torch.random.fork_rng(devices=[]):
+        if seed is not None:
+            torch.manual_seed(seed)
+        return evaluate_members(agent, env, episodes, deterministic, [cost_limit], termination_metric, seed)[0]
+
+
+def evaluate_members(
+    agent: Agent,
+    env: VecEnv,
+    episodes: int,
+    deterministic: bool,
+    cost_limits: Sequence[Any],
+    termination_metric: str | None = None,
+    seed: int | None = None,
+) -> list[dict[str, Any]]:
+    """:func:`evaluate`'s result for each of ``len(cost_limits)`` members side by side in ``env``
+    (a run is one; a population's agent i has the rows ``[i n, (i + 1) n)``), each with its own
+    budget, ``episodes`` episodes each; the caller seeds the members' action samples."""
+    parts = len(cost_limits)
+    n = env.num_envs // parts
+    # A multi-agent env's M rows of a team end their episodes together (envs/multi_agent.py): an
+    # episode is the team's, counted once, its return the mean of the agents' returns.
+    m = getattr(env, "agents_per_env", 1)
+    teams = n // m
+    quota = [episodes // teams + (1 if i // m < episodes % teams else 0) for i in range(n)]
+    chunk = 128
+    collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
+    everyone = episode_rows(collector, quota * parts)
+    results = []
+    for j, cost_limit in enumerate(cost_limits):
+        rows = everyone[j * n : (j + 1) * n]
+        if m > 1:  # the j-th episode of a team: its agents' mean return, its first row's cost and length
+            rows = [
+                [(sum(rows[i + a][k][0] for a in range(m)) / m, *rows[i][k][1:]) for k in range(quota[i])]
+                for i in range(0, n, m)
+            ]
+        flat = [row for r in rows for row in r]
+        results.append(summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit))
+    return results
+
+
+def episode_rows(collector: Collector, quota: Sequence[int]) -> list[list[tuple[float, ...]]]:
+    """Env i's first ``quota[i]`` whole episodes from ``collector``, each as (return, length,
+    terminated, cost_0, ..., cost_{K-1})."""
+    rows: list[list[tuple[float, ...]]] = [[] for _ in quota]
+    while any(len(r) < q for r, q in zip(rows, quota)):
+        batch = collector.collect()
+        nxt = batch.get(keys.NEXT)
+        done = nxt.get(keys.DONE).squeeze(-1)
+        for i, t in done.nonzero().tolist():
+            if len(rows[i]) < quota[i]:
+                rows[i].append(
+                    (
+                        nxt.get(keys.EPISODE_RETURN)[i, t, 0].item(),
+                        float(nxt.get(keys.EPISODE_LENGTH)[i, t, 0].item()),
+                        float(nxt.get(keys.TERMINATED)[i, t, 0].item()),
+                        *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
+                    )
+                )
+    return rows
+
+
+def summarize_episodes(
+    flat: list[tuple[float, ...]],
+    names: Sequence[str],
+    deterministic: bool,
+    termination_metric: str | None = None,
+    cost_limit: float | Sequence[float] | None = None,
+) -> dict[str, Any]:
+    """``evaluate``'s result from its episodes' rows ``(return, length, terminated, cost_0, ...)``:
+    spreads of return, each cost and length, the termination rate, and with ``cost_limit`` the
+    intervals."""
+    result: dict[str, Any] = {"episodes": len(flat), "deterministic": deterministic}
+    result.update(_spread("episode_return", [row[0] for row in flat]))
+    for k, cost_name in enumerate(names):
+        spread = _spread("episode_cost", [row[3 + k] for row in flat])
+        result.update({constraint_name(key, cost_name, len(names)): v for key, v in spread.items()})
+    result.update(_spread("episode_length", [row[1] for row in flat]))
+    if termination_metric:
+        result[termination_metric] = sum(row[2] for row in flat) / len(flat)
+    if cost_limit is not None:
+        result.update(_intervals(flat, names, cost_limit))
+    return result
+
+
+def _intervals(
+    flat: list[tuple[float, ...]], names: Sequence[str], cost_limit: float | Sequence[float]
+) -> dict[str, Any]:
+    """The interval keys for each constraint (rows: return, length, terminated, cost_0, ...); with
+    one cost exactly :func:`cmdp_rl.report.intervals.summarize`'s keys, with K > 1 the return's interval
+    once and every other key per constraint as ``<key>/<cost>``."""
+    k = len(names)
+    limits = [float(cost_limit)] * k if isinstance(cost_limit, (int, float)) else [float(d) for d in cost_limit]
+    if len(limits) != k:
+        raise ValueError(f"evaluate: {len(limits)} budgets for {k} costs")
+    returns = [row[0] for row in flat]
+    out: dict[str, Any] = {}
+    for j, (name, d) in enumerate(zip(names, limits)):
+        est = interval_estimates(returns, [row[3 + j] for row in flat], d)
+        if k == 1:
+            return est
+        out["episode_return_ci95"] = est.pop("episode_return_ci95")
+        out.update({f"{key}/{name}": v for key, v in est.items()})
+    return out

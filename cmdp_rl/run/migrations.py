@@ -1,0 +1,268 @@
+"""Checkpoints of older formats, brought to :data:`cmdp_rl.run.checkpoint.FORMAT_VERSION`
+(``python -m cmdp_rl.run.convert <run dir> [...]`` applies these rules to a run's files once).
+
+Every compatibility rule lives here, keyed on the format a checkpoint was written in
+(:data:`STEPS`); the algorithms, envs and the trainer read only the current layout. Format 2 files
+pickle numpy objects whole and may hold pickled bytes (a MuJoCo ``MjData``, a Safety-Gymnasium
+world), so reading one runs code from the file: they load only on the user's word
+(``trust_checkpoint=true``, or the converter), never by default (``cmdp_rl/run/checkpoint.py``).
+
+What changed from format 2 to 3 (:func:`_from_2`):
+
+- networks written before the agent model (the ``ActorCritic`` triple, up to commit 6e31f3c) get the
+  :class:`~cmdp_rl.policies.agent.Agent`'s names (:func:`convert_networks`);
+- an algorithm state from before the shared J_c estimate gets one: empty for the PPO family, CPO's
+  last J_c (``episode_estimate``) as its window; PPO's learning-rate clock starts at 0 if absent;
+- the multipliers of the algorithms that keep one per constraint (:data:`_PER_CONSTRAINT`, the
+  format 2 writers: with one constraint they saved the bare controller) under ``constraints``;
+- a gymnasium MuJoCo env's pickled ``MjData`` becomes MuJoCo's integration state (``mj_getState``);
+  a Safety-Gymnasium navigation world's pickled object graph becomes its saved fields
+  (``envs/safety_gym/world_state.py``), through a task built from the run's config.
+"""
+
+from __future__ import annotations
+
+import io
+import pickle
+from typing import Any, Callable
+
+import torch
+from torch import nn
+
+from cmdp_rl.envs.env_state import mujoco_data_state
+from cmdp_rl.run.checkpoint import FORMAT_VERSION
+
+# --- networks of the ActorCritic triple (before the agent model) ---------------------------------
+# The networks are the same modules, built in the same order, under other names: the old actor was a
+# ``ProbabilisticActor`` around TensorDict modules (``actor.module.0.module.net.0.weight``), the
+# critics were ``critic.`` and ``cost_critic.`` (now ``critics.reward.`` and ``critics.cost.``), and
+# the observation normalizer sat inside each network (``...net.0.stats.mean``) as well as under
+# ``normalizers.``. So, network by network, the old entries other than the normalizer's statistics
+# are the new ones in the same order; each pair must agree in shape and in its last name, else the
+# checkpoint is refused. The normalizer's statistics come from ``normalizers.``, the one copy every
+# network shares. One exception to the order: the old MLP actor's input encoder, which now comes
+# first. Optimizer states need no change: each optimizer's parameters are in the same order.
+NETWORKS = {"actor.": "actor.", "critic.": "critics.reward.", "cost_critic.": "critics.cost."}
+NORMALIZERS = "normalizers."
+
+# Format 2's writers of one multiplier state per constraint (lagrange.Multipliers), which saved a
+# single constraint's as the bare controller state. A closed list: format 2 is no longer written.
+_PER_CONSTRAINT = ("ppo_lag", "pid_lag", "trpo_lag", "sac_lag", "td3_lag")
+
+
+def is_legacy(networks: dict) -> bool:
+    """Whether a checkpoint's network state is the old ``ActorCritic``'s."""
+    return any(k.startswith(("critic.", "cost_critic.")) for k in networks)
+
+
+def _is_statistic(key: str) -> bool:
+    """A running statistic of an observation normalizer (``...stats.mean``), which every network
+    shares with ``normalizers.obs``."""
+    return ".stats." in key or key.startswith("stats.")
+
+
+def convert_networks(networks: dict[str, torch.Tensor], agent: nn.Module) -> dict[str, torch.Tensor]:
+    """An old ``ActorCritic`` state dict as ``agent``'s state dict. Raises ``KeyError`` naming the
+    first entry that does not fit."""
+    target = agent.state_dict(keep_vars=True)
+    out: dict[str, torch.Tensor] = {k: v for k, v in networks.items() if k.startswith(NORMALIZERS)}
+    # Every alias of a normalizer's statistics in the agent is the same tensor as under normalizers.
+    shared = {v.data_ptr(): k for k, v in target.items() if k.startswith(NORMALIZERS)}
+    for key, value in target.items():
+        if key.startswith(NORMALIZERS):
+            continue
+        if value.data_ptr() in shared:
+            source = shared[value.data_ptr()]
+            if source not in out:
+                raise KeyError(f"old checkpoint lacks {source!r} (the statistics of {key!r})")
+            out[key] = out[source]
+    for old_prefix, new_prefix in NETWORKS.items():
+        old = [k for k in networks if k.startswith(old_prefix) and not _is_statistic(k)]
+        # The old MLP actor kept its input encoder (previous action and cost) inside the Gaussian
+        # head's network (``...module.net.encoder.``); the agent keeps it in the body, which comes first.
+        old.sort(key=lambda k: 0 if ".module.net.encoder." in k else 1)
+        new = [k for k in target if k.startswith(new_prefix) and k not in out]
+        if len(old) != len(new):
+            raise KeyError(
+                f"old checkpoint has {len(old)} entries under {old_prefix!r}, the agent {len(new)} under {new_prefix!r}"
+            )
+        for o, n in zip(old, new):
+            if o.rsplit(".", 1)[-1] != n.rsplit(".", 1)[-1] or networks[o].shape != target[n].shape:
+                raise KeyError(
+                    f"old checkpoint entry {o!r} {tuple(networks[o].shape)} does not fit {n!r} {tuple(target[n].shape)}"
+                )
+            out[n] = networks[o]
+    missing = target.keys() - out.keys()
+    if missing:
+        raise KeyError(f"old checkpoint has nothing for {sorted(missing)[:3]}")
+    return out
+
+
+# --- format 2 -> 3 -------------------------------------------------------------------------------
+def _algo_state_from_2(algo: str | None, state: dict[str, Any], agent: nn.Module | None) -> dict[str, Any]:
+    state = dict(state)
+    if agent is not None and "networks" in state and is_legacy(state["networks"]):
+        state["networks"] = convert_networks(state["networks"], agent)
+    if "targets" not in state:  # on-policy: the shared J_c estimate, the learning-rate clock
+        if "episode_cost" not in state:
+            estimate = state.pop("episode_estimate", None)  # CPO's last J_c, before the shared estimate
+            state["episode_cost"] = {"recent": [tuple(estimate)]} if estimate is not None else {}
+        state.setdefault("iteration", 0)
+    multiplier = state.get("multiplier")
+    if algo in _PER_CONSTRAINT and multiplier and "constraints" not in multiplier:
+        state["multiplier"] = {"constraints": [multiplier]}
+    return state
+
+
+def _mujoco_from_2(env: dict[str, Any]) -> dict[str, Any]:
+    """A gymnasium env's state (``envs/env_state.py``) whose ``MjData`` was pickled whole."""
+    env = dict(env)
+    data = pickle.loads(env.pop("mujoco_data"))  # trusted: the caller loaded a format 2 file on the user's word
+    env["mujoco"] = mujoco_data_state(data.model, data)
+    return env
+
+
+def _safety_gym_world_from_2(state: dict[str, Any], task: str) -> dict[str, Any]:
+    """A navigation task's state whose world was pickled whole (with its one model and data saved
+    apart: the MJCF and small arrays, MuJoCo's integration state): restored into a task built from
+    the run's id the way format 2 did, then saved as format 3 saves it."""
+    import mujoco
+
+    from cmdp_rl.envs.safety_gym.env import make_task
+
+    model = None
+    if state["xml"] is not None:
+        model = mujoco.MjModel.from_xml_string(state["xml"])
+        for name, value in state["model_arrays"].items():
+            getattr(model, name)[...] = value
+
+    class Format2Unpickler(pickle.Unpickler):  # trusted: the user's word on a format 2 file
+        data = None
+
+        def persistent_load(self, pid: tuple) -> Any:
+            if pid[0] == "model":
+                return model
+            if self.data is None:
+                self.data = mujoco.MjData(model)
+                mujoco.mj_setState(model, self.data, pid[1], mujoco.mjtState.mjSTATE_INTEGRATION)
+                mujoco.mj_forward(model, self.data)
+            return self.data
+
+    env = make_task(task)
+    try:
+        vars(env.inner).update(Format2Unpickler(io.BytesIO(state["builder"])).load())
+        env.steps = state["steps"]
+        return env.state_dict()
+    finally:
+        env.close()
+
+
+def _envs_from_2(value: Any, config: dict[str, Any]) -> Any:
+    """Every env state inside a collector state, in format 3's layout."""
+    if isinstance(value, dict):
+        if "builder" in value:  # a Safety-Gymnasium navigation task's world, pickled
+            return _safety_gym_world_from_2(value, config["env"]["task"])
+        value = {k: _envs_from_2(v, config) for k, v in value.items()}
+        return _mujoco_from_2(value) if "mujoco_data" in value else value
+    if isinstance(value, (list, tuple)):
+        return type(value)(_envs_from_2(v, config) for v in value)
+    return value
+
+
+def _from_2(state: dict[str, Any], agent: nn.Module | None) -> dict[str, Any]:
+    state = dict(state)
+    if "algo_state" in state:  # a run's checkpoint
+        state["algo_state"] = _algo_state_from_2(state.get("algo"), state["algo_state"], agent)
+        if state.get("collector") is not None:
+            state["collector"] = _envs_from_2(state["collector"], state.get("config") or {})
+    if "update" in state:  # a population's (cmdp_rl/population/): PPO family, Multipliers where any
+        update = dict(state["update"])
+        update["algos"] = [
+            {**a, "multiplier": {"constraints": [a["multiplier"]]}}
+            if "multiplier" in a and "constraints" not in a["multiplier"]
+            else a
+            for a in update["algos"]
+        ]
+        state["update"] = update
+    return state
+
+
+# The step from each format to the next.
+STEPS: dict[int, Callable[[dict[str, Any], nn.Module | None], dict[str, Any]]] = {2: _from_2}
+
+
+def migrate(state: dict[str, Any], agent: nn.Module | None = None) -> dict[str, Any]:
+    """``state`` (as :func:`~cmdp_rl.run.checkpoint.load_checkpoint` returned it, any format it reads)
+    in the current format's layout. ``agent``, the run's, names the networks of a checkpoint from
+    before the agent model; without it they are left as they are."""
+    version = state["format"]
+    for v in range(version, FORMAT_VERSION):
+        state = STEPS[v](state, agent)
+    return {**state, "format": FORMAT_VERSION}
+
+
+# --- a population's checkpoint of the stacked layout ----------------------------------------------
+def population_from_stacked(
+    state: dict[str, Any], entries: list[dict[str, Any]], modules: dict[str, nn.Module]
+) -> dict[str, Any]:
+    """A population checkpoint of the stacked layout (every agent's networks as rows of ``actor`` and
+    ``critics``, the optimisers' moments as rows under ``update``, as written up to commit 8dc7aaa)
+    with one entry per agent in a single run's layout. ``entries`` are the agents' entries as
+    freshly built (their configs, optimiser settings and algorithm state to fill in); ``modules``
+    names the ``actor`` and ``critics`` of one agent, whose parameter order the rows follow."""
+    update = state["update"]
+    out = []
+    for i, entry in enumerate(entries):
+        algo_state = {**entry["algo_state"], **update["algos"][i]}
+        networks = dict(algo_state["networks"])
+        for name, opt_name in (("actor", "actor_opt"), ("critics", "critic_opt")):
+            saved = update[opt_name]
+            steps = saved["steps"][i] if "steps" in saved else saved["step"]  # one count for all, earlier
+            at, moments = 0, {}
+            for j, (n, p) in enumerate(modules[name].named_parameters()):
+                rows = slice(at, at + p.numel())
+                at += p.numel()
+                networks[f"{name}.{n}"] = state[name][i, rows].reshape(p.shape).clone()
+                moments[j] = {
+                    "step": torch.tensor(float(steps)),
+                    **{k: saved[k][i, rows].reshape(p.shape).clone() for k in ("exp_avg", "exp_avg_sq")},
+                }
+            algo_state[opt_name] = {**entry["algo_state"][opt_name], "state": moments if float(steps) else {}}
+        algo_state["networks"] = networks
+        out.append({**entry, "iteration": state["iteration"], "step": state["step"], "algo_state": algo_state})
+    shared = {k: v for k, v in state.items() if k not in ("actor", "critics", "update")}
+    return {**shared, "agents": out}
+
+
+__all__ = ["STEPS", "convert_networks", "is_legacy", "migrate"]
+
+
+# Defaults that a run's saved config does not record because it was written before they existed
+# or changed: a config saved before ``mixture_weights`` existed ran with these values wherever it
+# names none (run options, then the algorithm's options where the algorithm has the field).
+_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {
+    "final_policy": "last",
+    "average_last": 0.25,
+    "mixture_size": 8,
+    "mixture_weights": "uniform",
+}
+_ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {"lambda_scale": "none", "nu_scale": "none"}
+
+
+def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
+    """A saved run config with the defaults it ran with made explicit (a run config written since
+    ``mixture_weights`` existed records every option and is returned as is)."""
+    import dataclasses
+
+    from cmdp_rl.config.registry import component
+
+    if "mixture_weights" in config:
+        return config
+    out = {**_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS, **config}
+    algo = dict(out.get("algo") or {})
+    name = algo.get("name", "ppo_lag")
+    if isinstance(name, str):
+        fields = {f.name for f in dataclasses.fields(component("algo", name).options)}
+        algo = {**{k: v for k, v in _ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS.items() if k in fields}, **algo}
+        out["algo"] = algo
+    return out
