@@ -3,7 +3,7 @@
 import io
 import sys
 
-from conftest import tiny
+from conftest import metrics_rows, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.run.progress import Progress
@@ -61,3 +61,39 @@ def test_a_row_without_a_multiplier_prints_what_it_has():
     bar.update(one)
     bar.close()
     assert "cost 1.00" in stream.getvalue() and "lambda" not in stream.getvalue()
+
+
+def test_the_line_shows_the_last_hundred_finished_episodes():
+    """Once an episode has ended the line never reads n/a: an iteration where none ended shows the window of the
+    last 100 finished episodes (its mean return and cost, and how many), as SB3 and OmniSafe do."""
+    import torch
+
+    from cmdp_rl.report.metrics import RecentEpisodes, format_row
+
+    recent = RecentEpisodes()
+    nothing = {"iteration": 1, "step": 32, "sps": 100.0, "episode_return": float("nan"), "episode_cost": float("nan")}
+    assert "n/a" in format_row(nothing, recent)  # no episode has ended yet
+    recent.add(torch.tensor([1.0, 3.0]).tolist(), [[2.0], [4.0]])
+    line = format_row(nothing, recent)
+    assert "n/a" not in line and "return   2.000 | cost   3.00 | last 2 episodes" in line
+    recent.add([10.0] * 150, [[0.0]] * 150)  # the window keeps the newest 100
+    assert format_row(nothing, recent).endswith("return  10.000 | cost   0.00 | last 100 episodes")
+    two = {**nothing, "episode_cost/a": 0.0, "episode_cost/b": 0.0}
+    del two["episode_cost"]
+    pair = RecentEpisodes()
+    pair.add([1.0], [[0.5, 2.0]])
+    assert "cost 0.50/2.00 | last 1 episodes" in format_row(two, pair)
+
+
+def test_a_long_episode_task_never_shows_na_after_its_first_episode(tmp_path):
+    """Episodes of up to 60 steps with 4-step rollouts per env end only every few iterations: every printed line
+    after the first finished episode has numbers, where the iteration's own mean would read n/a."""
+    lines = []
+    cfg = load_config(tiny(env={"max_steps": 60}, total_steps=40 * 4 * 2, rollout_steps=4, log_interval=1))
+    train(cfg, tmp_path, echo=lines.append)
+    rows = [line for line in lines if line.startswith("iter ")]
+    first = next(i for i, line in enumerate(rows) if "last " in line)
+    assert 0 < first < len(rows) - 1  # some iterations before any episode ended, then the window
+    assert all("n/a" not in line for line in rows[first:]), rows[first:]
+    csv_rows = metrics_rows(tmp_path)  # metrics.csv keeps each iteration's own episodes
+    assert any(r["episodes"] == "0" for r in csv_rows[first:])

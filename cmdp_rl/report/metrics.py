@@ -18,6 +18,7 @@ import dataclasses
 import math
 import os
 import secrets
+from collections import deque
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -124,6 +125,32 @@ def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
     return header
 
 
+# The progress line's window: the mean over the last this many finished episodes, as SB3's ep_rew_mean and
+# OmniSafe's window_lens do, so that a task whose episodes end only every few iterations (safe_nav's 1000
+# steps) never shows n/a once one has ended. metrics.csv keeps each iteration's own episodes.
+RECENT_EPISODES = 100
+
+
+class RecentEpisodes:
+    """The last :data:`RECENT_EPISODES` finished episodes' returns and costs (K per episode)."""
+
+    def __init__(self, size: int = RECENT_EPISODES) -> None:
+        self.returns: deque[float] = deque(maxlen=size)
+        self.costs: deque[tuple[float, ...]] = deque(maxlen=size)
+
+    def add(self, returns: Sequence[float], costs: Sequence[Sequence[float]]) -> None:
+        self.returns.extend(float(r) for r in returns)
+        self.costs.extend(tuple(float(c) for c in row) for row in costs)
+
+    def __len__(self) -> int:
+        return len(self.returns)
+
+    def means(self) -> tuple[float, list[float]]:
+        """The window's mean return and mean cost per constraint."""
+        n = len(self.returns)
+        return sum(self.returns) / n, [sum(col) / n for col in zip(*self.costs)]
+
+
 class MetricsLogger:
     """Writes one CSV row per iteration (flushed at once) and echoes a progress line every
     ``log_interval`` iterations. With ``resume_iteration`` it continues an existing file after
@@ -174,11 +201,16 @@ class MetricsLogger:
             self._file = open(self.path, "a", newline="")
             self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
         self._file.flush()
+        self.recent = RecentEpisodes()
         self._wandb = wandb
         if wandb is not None:
             wandb.start(resume_iteration is not None)  # last: a resume refused above starts no wandb run
 
-    def log(self, row: dict[str, Any], force_echo: bool = False) -> None:
+    def log(self, row: dict[str, Any], force_echo: bool = False, episodes: Mapping[str, Any] | None = None) -> None:
+        """Write ``row``; ``episodes`` (the iteration's finished episodes: ``return`` [E], ``cost`` [E, K])
+        feed the progress line's window of recent episodes."""
+        if episodes is not None:
+            self.recent.add(episodes["return"].tolist(), episodes["cost"].tolist())
         unknown = [k for k in row if k not in self.columns]
         if unknown:
             raise ValueError(
@@ -195,7 +227,7 @@ class MetricsLogger:
         if self._wandb is not None:
             self._wandb.log(row, self.columns)
         if force_echo or row["iteration"] == 1 or row["iteration"] % self.log_interval == 0:
-            self.echo(format_row(row))
+            self.echo(format_row(row, self.recent))
 
     def sync(self) -> None:
         """Force the rows written so far to disk; called before each checkpoint, so a checkpoint
@@ -287,9 +319,15 @@ def _per_constraint(row: dict[str, Any], name: str) -> list:
     return [v for k, v in row.items() if k.startswith(name + "/")]
 
 
-def format_row(row: dict[str, Any]) -> str:
-    """The progress line. A row without a multiplier (an algorithm that reports none) has no
-    ``lambda`` part, rather than a KeyError halfway through a run."""
+def format_row(row: dict[str, Any], recent: RecentEpisodes | None = None) -> str:
+    """The progress line. With ``recent`` (and an episode in it) the return and cost are the means of
+    its window, with its size; else the row's own. A row without a multiplier (an algorithm that reports
+    none) has no ``lambda`` part, rather than a KeyError halfway through a run."""
+    window = ""
+    if recent is not None and len(recent):
+        mean_return, mean_costs = recent.means()
+        row = {**row, "episode_return": mean_return, **recent_costs(row, mean_costs)}
+        window = f" | last {len(recent)} episodes"
     cost = "/".join(_fmt(c, ".2f") for c in _per_constraint(row, "episode_cost"))
     lams = _per_constraint(row, "lagrange_multiplier")
     lam = "/".join(_fmt(x, ".3f") for x in lams)
@@ -298,5 +336,13 @@ def format_row(row: dict[str, Any]) -> str:
         lam = _fmt(row["lagrange_multiplier"], "6.3f") if "lagrange_multiplier" in row else ""
     return (
         f"iter {row['iteration']:4d} | step {row['step']:>9,d} | {row['sps']:>8,.0f} steps/s"
-        f" | return {_fmt(row['episode_return'], '7.3f')} | cost {cost}" + (f" | lambda {lam}" if lams else "")
+        f" | return {_fmt(row['episode_return'], '7.3f')} | cost {cost}" + (f" | lambda {lam}" if lams else "") + window
     )
+
+
+def recent_costs(row: dict[str, Any], mean_costs: Sequence[float]) -> dict[str, float]:
+    """``mean_costs`` under the row's cost column names (one ``episode_cost``, or ``episode_cost/<cost>``)."""
+    if "episode_cost" in row:
+        return {"episode_cost": mean_costs[0]}
+    names = [k for k in row if k.startswith("episode_cost/")]
+    return dict(zip(names, mean_costs))

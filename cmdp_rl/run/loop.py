@@ -37,7 +37,7 @@ def contract_options(env_cfg: Any) -> tuple[str, bool]:
 def metrics_row(
     iteration: int,
     step: int,
-    batch: Any,
+    eps: dict[str, torch.Tensor],
     stats: dict[str, Any],
     timing: dict[str, float],
     cost_limit: Any,
@@ -45,9 +45,9 @@ def metrics_row(
     names: tuple[str, ...],
     reference: Any,
 ) -> dict[str, Any]:
-    """One ``metrics.csv`` row: the episodes that ended in ``batch`` (one member's ``[N, T]``), the
-    update's ``stats``, the costs collected so far; per-constraint values spread over columns."""
-    eps = finished_episodes(batch)
+    """One ``metrics.csv`` row: the episodes ``eps`` that ended in one member's batch
+    (:func:`~cmdp_rl.rollout.collector.finished_episodes`), the update's ``stats``, the costs collected so
+    far; per-constraint values spread over columns."""
     row = {
         "iteration": iteration,
         "step": step,
@@ -137,14 +137,15 @@ def _iterations(m: Members, first: int, iterations: int, start: float, progress:
         totals = m.cost_totals(batch)
         dt = time.perf_counter() - t0
         timing = {"sps": per_iter / dt, "time_s": time.perf_counter() - start}
+        eps = [finished_episodes(m.part(batch, i)) for i in range(len(m.cfgs))]
         rows = [
-            metrics_row(it, steps, m.part(batch, i), s, timing, c.algo.cost_limit, t, names, m.reference)
-            for i, (c, s, t) in enumerate(zip(m.cfgs, stats, totals))
+            metrics_row(it, steps, e, s, timing, c.algo.cost_limit, t, names, m.reference)
+            for c, e, s, t in zip(m.cfgs, eps, stats, totals)
         ]
-        for logger, row in zip(m.loggers, rows):
-            logger.log(row, force_echo=it == iterations)
+        for logger, row, e in zip(m.loggers, rows, eps):
+            logger.log(row, force_echo=it == iterations, episodes=e)
         if progress is not None:
-            progress.update(rows[0])
+            progress.update(rows[0], m.loggers[0].recent)
         if m.report is not None:
             m.report(it, rows, dt)
         if it % cfg.checkpoint_every == 0 or it == iterations:

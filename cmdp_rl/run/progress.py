@@ -11,6 +11,8 @@ from typing import Any, Callable, TextIO
 
 from tqdm import tqdm
 
+from cmdp_rl.report.metrics import RecentEpisodes, recent_costs
+
 
 class Progress:
     """``total_steps`` env steps in all, ``done_steps`` of them before this process (a resume)."""
@@ -39,10 +41,16 @@ class Progress:
         the same numbers, the plain echo otherwise."""
         return (lambda line: None) if self.live else self.echo
 
-    def update(self, row: dict[str, Any]) -> None:
-        """One iteration's row (``metrics.csv``'s): advance the bar, show its latest numbers."""
+    def update(self, row: dict[str, Any], recent: RecentEpisodes | None = None) -> None:
+        """One iteration's row (``metrics.csv``'s): advance the bar, show its latest numbers (the means of
+        ``recent``'s window of finished episodes, once one has ended)."""
         if self._bar is None:
             return
+        window = ""
+        if recent is not None and len(recent):
+            mean_return, mean_costs = recent.means()
+            row = {**row, "episode_return": mean_return, **recent_costs(row, mean_costs)}
+            window = f" ({len(recent)} episodes)"
 
         def each(name: str, fmt: str) -> str:  # one value, or K joined by '/' (episode_cost/<cost> columns)
             return "/".join(format(v, fmt) for k, v in row.items() if k == name or k.startswith(name + "/"))
@@ -50,7 +58,8 @@ class Progress:
         lam = each("lagrange_multiplier", ".3f")  # absent for an algorithm that reports no multiplier
         self._bar.set_postfix_str(
             f"return {row['episode_return']:.3f}, cost {each('episode_cost', '.2f')}"
-            + (f", lambda {lam}" if lam else ""),
+            + (f", lambda {lam}" if lam else "")
+            + window,
             refresh=False,
         )
         self._bar.update(row["step"] - self._bar.n)
