@@ -248,8 +248,8 @@ def test_toy_run_resumes_to_the_same_numbers(tmp_path, monkeypatch, quiet):
     train(load_config(toy()), whole, echo=quiet)
     original = MetricsLogger.log
 
-    def crash_after_5(self, row, force_echo=False):
-        original(self, row, force_echo)
+    def crash_after_5(self, row, force_echo=False, **kwargs):
+        original(self, row, force_echo, **kwargs)
         if row["iteration"] == 5:
             raise KeyboardInterrupt
 

@@ -49,8 +49,8 @@ def test_resumed_tensorboard_log_has_no_duplicate_steps(tmp_path, monkeypatch, q
     train(load_config(cfg), whole, echo=quiet)
     original = MetricsLogger.log
 
-    def crash_at_5(self, row, force_echo=False):
-        original(self, row, force_echo)
+    def crash_at_5(self, row, force_echo=False, **kwargs):
+        original(self, row, force_echo, **kwargs)
         if row["iteration"] == 5:
             self.sync()  # its events are on disk, as a killed run's may be
             raise KeyboardInterrupt

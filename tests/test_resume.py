@@ -28,8 +28,8 @@ def crash_after_row(monkeypatch, iteration: int) -> None:
     """Make training die right after writing the metrics row of ``iteration``."""
     original = MetricsLogger.log
 
-    def log(self, row, force_echo=False):
-        original(self, row, force_echo)
+    def log(self, row, force_echo=False, **kwargs):
+        original(self, row, force_echo, **kwargs)
         if row["iteration"] == iteration:
             raise Crash
 

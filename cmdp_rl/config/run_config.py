@@ -84,8 +84,9 @@ class RunConfig:
     # last iterate, the average of the actor's parameters over the last average_last fraction of
     # the iterations (cmdp_rl/deploy/average.py), or a uniform mixture of at most mixture_size
     # snapshots of the actor over that window, one drawn per episode (cmdp_rl/deploy/mixture.py).
-    # auto: the mixture for a primal-dual algorithm (AlgoConfig.deploys) with a memoryless policy on an
-    # env whose episodes are cheap to value (EnvOptions.values_snapshots), else the last iterate.
+    # auto: the best feasible mixture for a primal-dual algorithm (AlgoConfig.deploys) with a memoryless
+    # policy, else the last iterate; on an env whose episodes are not declared cheap
+    # (EnvOptions.values_snapshots) its valuation is held to VALUATION_SHARE of the run (resolve_auto).
     final_policy: Literal["auto", "last", "average", "mixture"] = "auto"
     average_last: Annotated[float, finite(gt=0, le=1)] = 0.5
     mixture_size: Annotated[int, Field(ge=1, le=64)] = 16
@@ -203,6 +204,30 @@ def flatten_dict(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+# The snapshot valuation's price where episodes are not declared cheap: at most this share of the run's env
+# steps, spent on at least MIN_VALUED_EPISODES episodes per snapshot valued (fewer snapshots rather than
+# fewer episodes each: a cost measured on a handful of episodes has a standard error of the budget's order
+# on the navigation tasks, and the margin then rules every snapshot out). A run too short to give one
+# snapshot that many deploys its last iterate. The share is what the issue of deployment on any env
+# allows to be "bounded and stated"; 10% keeps the valuation below the measurement noise of a run's time.
+VALUATION_SHARE = 0.1
+MIN_VALUED_EPISODES = 20
+
+
+def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
+    """(snapshots, episodes each) of ``final_policy: auto``'s mixture on an env not declared cheap to value,
+    within :data:`VALUATION_SHARE` of ``total_steps``; None where the share does not buy one snapshot
+    :data:`MIN_VALUED_EPISODES` episodes, or the env's episode length is unknown."""
+    steps = cfg.env.episode_steps()
+    if not steps:
+        return None
+    episodes = int(VALUATION_SHARE * cfg.total_steps // steps)
+    size = min(cfg.mixture_size, episodes // MIN_VALUED_EPISODES)
+    if size < 1:
+        return None
+    return size, min(cfg.mixture_episodes, episodes // size)
+
+
 def resolve_auto(cfg: RunConfig) -> None:
     """Replace the ``"auto"`` batch-shape options by numbers that follow ``env.num_envs``.
 
@@ -219,8 +244,11 @@ def resolve_auto(cfg: RunConfig) -> None:
         auto = cfg.algo.auto_rollout_steps(cfg)  # an off-policy algorithm's few steps
         cfg.rollout_steps = auto if auto is not None else min(256, max(32, 2048 // cfg.env.num_envs))
     if cfg.final_policy == AUTO:
-        mixture = cfg.algo.deploys == "mixture" and cfg.env.values_snapshots and cfg.policy.name == "mlp"
-        cfg.final_policy = "mixture" if mixture else "last"
+        mixture = cfg.algo.deploys == "mixture" and cfg.policy.name == "mlp"
+        plan = None if cfg.env.values_snapshots else valuation_plan(cfg)
+        if mixture and not cfg.env.values_snapshots and plan is not None:
+            cfg.mixture_size, cfg.mixture_episodes = plan
+        cfg.final_policy = "mixture" if mixture and (cfg.env.values_snapshots or plan is not None) else "last"
     cfg.algo.resolve_auto(cfg)
 
 

@@ -31,14 +31,15 @@ def deployed(result: dict) -> str:
     ``mixture_iterations`` keys (a result from before they existed: the last iterate)."""
     if result.get("final_policy") == "mixture" and result.get("mixture_deployed"):
         chosen = ", ".join(f"iteration {int(it)} ({w:.2f})" for it, w in result["mixture_deployed"])
+        margin = f", costs + {result['mixture_margin']:g} standard errors" if "mixture_margin" in result else ""
         within = (
-            "within budget on their values"
+            f"within budget on their values{margin}"
             if result.get("mixture_feasible")
             else "none within budget: the least violating"
         )
         if len(result["mixture_deployed"]) == 1:
             which = (
-                "the best within budget"
+                f"the best within budget{margin}"
                 if result.get("mixture_feasible")
                 else "none within budget: the least violating"
             )

@@ -47,6 +47,8 @@ class IterateSnapshots:
         self.weights: list[float] | None = None
         self.values: list[dict] | None = None
         self.feasible: bool | None = None
+        self.margin: float | None = None  # the standard errors its members' costs were taken high
+        self.valuation_steps: int | None = None  # the env steps valuing the members took
 
     @property
     def count(self) -> int:
@@ -102,6 +104,8 @@ class IterateSnapshots:
                 mixture_feasible=self.feasible,
                 mixture_member_values=self.values,
             )
+        if self.margin is not None:  # chosen in this process (a checkpoint keeps weights and values only)
+            out.update(mixture_margin=self.margin, mixture_valuation_steps=self.valuation_steps)
         return out
 
     def deployed_members(self) -> list[tuple[int, float]]:

@@ -53,6 +53,7 @@ class MemberValue:
     episode_cost: tuple[float, ...]
     cost_se: tuple[float, ...]
     episodes: int
+    steps: int = 0  # the env steps its episodes took: what valuing it cost
 
     def as_dict(self) -> dict:
         return {
@@ -123,7 +124,13 @@ def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: 
         costs = mine[:, 3 : 3 + num_costs]
         se = costs.std(axis=0, ddof=1) / math.sqrt(len(mine)) if len(mine) > 1 else np.zeros(num_costs)
         values.append(
-            MemberValue(float(mine[:, 0].mean()), tuple(costs.mean(0).tolist()), tuple(se.tolist()), len(mine))
+            MemberValue(
+                float(mine[:, 0].mean()),
+                tuple(costs.mean(0).tolist()),
+                tuple(se.tolist()),
+                len(mine),
+                int(mine[:, 1].sum()),
+            )
         )
     return values
 
@@ -136,11 +143,19 @@ def choose_weights(snapshots: IterateSnapshots, agent: Agent, cfg: RunConfig, na
     weights, feasible = feasible_weights(values, budgets, cfg.mixture_margin)
     snapshots.weights, snapshots.feasible = weights, feasible
     snapshots.values = [v.as_dict() for v in values]
+    snapshots.margin = cfg.mixture_margin
+    snapshots.valuation_steps = sum(v.steps for v in values)
     chosen = ", ".join(f"iteration {it} ({w:.2f})" for it, w in snapshots.deployed_members())
+    valued = (
+        f"mixture: {len(values)} snapshots valued over {values[0].episodes} episodes each "
+        f"({snapshots.valuation_steps:,} env steps)"
+    )
     if feasible:
-        return f"mixture: {len(values)} snapshots valued over {values[0].episodes} episodes each; deployed {chosen}"
+        return (
+            f"{valued}; deployed {chosen}, within budget with costs taken {cfg.mixture_margin:g} standard errors high"
+        )
     return (
-        f"mixture: no mixture of the {len(values)} snapshots is within budget on their values "
+        f"{valued}; no mixture is within budget on their values "
         f"(costs + {cfg.mixture_margin:g} standard errors); deployed the least violating, {chosen}"
     )
 

@@ -26,9 +26,9 @@ class EnvOptions:
     # Evaluation reports the fraction of episodes that terminated under this name (e.g. a goal
     # reached); None: the env's termination means nothing worth reporting.
     termination_metric: ClassVar[Optional[str]] = None
-    # Whether ``final_policy: auto`` may value a run's snapshots on this env's episodes
-    # (mixture_selection.py plays mixture_size x mixture_episodes of them): True where an episode is
-    # cheap, at most a few hundred steps of a batched env.
+    # Whether a run's snapshots may be valued on mixture_size x mixture_episodes of this env's episodes
+    # whatever that costs (deploy/selection.py): True where an episode is cheap, at most a few hundred steps
+    # of a batched env. Elsewhere the valuation is held to a share of the run's steps (selection.plan).
     values_snapshots: ClassVar[bool] = False
 
     def check(self, run: Any) -> None:
@@ -43,6 +43,10 @@ class EnvOptions:
         constraint, or one per cost in the env's cost order. ``algo.cost_limit`` defaults to it
         (``config.resolve_budget``); a value given for ``algo.cost_limit`` wins."""
         return DEFAULT_BUDGET
+
+    def episode_steps(self) -> int | None:
+        """The longest an episode runs (its time limit), where the options say; None: unknown."""
+        return getattr(self, "max_steps", None) or None
 
     def valuation_options(self) -> EnvOptions:
         """The options the snapshot valuation (mixture_selection.py) builds its env from: the same

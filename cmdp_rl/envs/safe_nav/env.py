@@ -314,6 +314,9 @@ class SafeNavEnvConfig(EnvOptions):
     def env_id(self) -> str:
         return f"safe_nav/{self.task}"
 
+    def episode_steps(self) -> int | None:
+        return self.max_steps or (FAMILIES[nav_spec(self.task).family].episode if not task_problem(self.task) else None)
+
     def check(self, run: Any) -> None:
         problem = task_problem(self.task) or physics_problem(self.physics, self.task)
         if problem:

@@ -159,6 +159,9 @@ class SafetyGymEnvConfig(EnvOptions):
         camera = {} if "Velocity" in self.task else {"camera_name": NAVIGATION_CAMERA}
         return make_task(self.task, self.max_steps, render_mode="rgb_array", width=w, height=h, **camera)
 
+    def episode_steps(self) -> int | None:
+        return self.max_steps or TASKS.get(self.task)
+
     def check(self, run: Any) -> None:
         problem = task_problem(self.task)
         if problem:
