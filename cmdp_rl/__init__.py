@@ -9,6 +9,11 @@
     algo = cmdp_rl.make_algo(cfg.algo, agent)
     collector = cmdp_rl.Collector(env, agent, cfg.rollout_steps, seed=0)
     stats = algo.update(collector.collect())
+
+and acts with what a finished run deployed::
+
+    policy = cmdp_rl.load("outputs/<date>/<time>_ppo_lag_reach1d_s0")
+    action, state = policy.predict(obs)                        # then predict(obs, state, episode_start=done)
 """
 
 import gymnasium as _gym
@@ -23,6 +28,7 @@ from cmdp_rl.policies import Agent, make_agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.collector import Collector, finished_episodes
 from cmdp_rl.run.evaluation import evaluate
+from cmdp_rl.run.rundir import load
 from cmdp_rl.run.trainer import train
 
 __version__ = "0.1.0"
@@ -47,6 +53,7 @@ __all__ = [
     "evaluate",
     "finished_episodes",
     "keys",
+    "load",
     "load_config",
     "make_agent",
     "make_algo",

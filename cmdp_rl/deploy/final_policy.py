@@ -1,7 +1,8 @@
 """What a run deploys (``final_policy``), kept beside its training: the last iterate, the average of
-the actor's parameters over the last iterations (``policy_average.py``) or a mixture of snapshots
-of the actor (``policy_mixture.py``). One per run, and one per agent of a population, each on its
-own single-run agent, so both deploy by the same code.
+the actor's parameters over the last iterations (``average.py``) or a mixture of snapshots of the actor
+(``mixture.py``). One per run, and one per agent of a population, each on its own single-run agent, so
+both deploy by the same code; :func:`deploy_saved` puts the same policy back from a checkpoint (evaluate,
+video, ``cmdp_rl.load``).
 """
 
 from __future__ import annotations
@@ -69,4 +70,21 @@ class FinalPolicy:
             self.mixture.deploy(agent)
 
 
-__all__ = ["FinalPolicy"]
+def deploy_saved(cfg: RunConfig, state: dict[str, Any], agent: Agent) -> None:
+    """Put into ``agent`` (holding the checkpoint's last iterate) the policy the run deployed, from the
+    checkpoint ``state``'s entries for it; a ValueError names what the checkpoint lacks."""
+    if cfg.final_policy == "average":
+        if "policy_average" not in state:
+            raise ValueError("the checkpoint has no averaged policy, but the run has final_policy=average")
+        average = ParameterAverage()
+        average.load_state_dict(state["policy_average"])
+        average.apply(agent.actor)
+    if cfg.final_policy == "mixture":
+        if "policy_mixture" not in state:
+            raise ValueError("the checkpoint has no policy mixture, but the run has final_policy=mixture")
+        mixture = IterateSnapshots(1, 1, 1)
+        mixture.load_state_dict(state["policy_mixture"])
+        mixture.deploy(agent)
+
+
+__all__ = ["FinalPolicy", "deploy_saved"]

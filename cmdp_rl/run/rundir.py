@@ -28,8 +28,8 @@ from typing import Any, NamedTuple
 import yaml
 
 from cmdp_rl.config.run_config import ConfigError, RunConfig, load_config
-from cmdp_rl.deploy.average import ParameterAverage
-from cmdp_rl.deploy.mixture import IterateSnapshots
+from cmdp_rl.deploy.final_policy import deploy_saved
+from cmdp_rl.deploy.policy import DeployedPolicy
 from cmdp_rl.envs import VecEnv, make_eval_env
 from cmdp_rl.policies import Agent, make_agent
 from cmdp_rl.rollout.normalization import Normalizers
@@ -192,18 +192,19 @@ def load_trained(
     except (KeyError, RuntimeError) as exc:
         env.close()
         raise CheckpointError(f"evaluate: {ckpt} does not fit the config of {run_dir} ({exc})") from exc
-    if cfg.final_policy == "average":  # the policy the run deployed (policy_average.py)
-        if "policy_average" not in state:
-            env.close()
-            raise CheckpointError(f"evaluate: {ckpt} has no averaged policy, but {run_dir} has final_policy=average")
-        average = ParameterAverage()
-        average.load_state_dict(state["policy_average"])
-        average.apply(agent.actor)
-    if cfg.final_policy == "mixture":  # the mixture of snapshots the run deployed (policy_mixture.py)
-        if "policy_mixture" not in state:
-            env.close()
-            raise CheckpointError(f"evaluate: {ckpt} has no policy mixture, but {run_dir} has final_policy=mixture")
-        mixture = IterateSnapshots(1, 1, 1)
-        mixture.load_state_dict(state["policy_mixture"])
-        mixture.deploy(agent)
+    try:  # the policy the run deployed: the last iterate, its average or its mixture (deploy/)
+        deploy_saved(cfg, state, agent)
+    except ValueError as exc:
+        env.close()
+        raise CheckpointError(f"evaluate: {ckpt}: {exc} ({run_dir})") from exc
     return Trained(cfg, env, agent, int(state["iteration"]), int(state["step"]))
+
+
+def load(run_dir: str | Path, checkpoint: str | Path | None = None, trust: bool = False) -> DeployedPolicy:
+    """The policy the run in ``run_dir`` deployed (its last checkpoint's, or ``checkpoint``'s), ready to
+    act: ``cmdp_rl.load(run_dir).predict(obs)``. Errors as :func:`load_trained`'s."""
+    trained = load_trained(run_dir, checkpoint, num_envs=1, trust=trust)
+    try:
+        return DeployedPolicy(trained.agent, trained.env.action_space, trained.env.num_costs, trained.cfg)
+    finally:
+        trained.env.close()
