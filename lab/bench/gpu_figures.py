@@ -291,7 +291,8 @@ def install(wheels: Path, payload: Path | None, site: Path, parts: Path | None =
     files = sorted(str(p) for p in wheels.glob("*.whl"))
     cmd = [sys.executable, "-m", "pip", "install", "-q", "--no-index", "--no-deps", "--no-compile"]
     cmd += ["--no-cache-dir", "--upgrade", "--target", str(site), *files]
-    subprocess.run(cmd, check=True)
+    if files:
+        subprocess.run(cmd, check=True)
     unpacked, problem = [], None
     for path in sorted(payload.rglob("*")) if payload else []:
         if not path.is_file():
