@@ -88,6 +88,7 @@ def test_space_options_budgets_storage_and_settings_are_checked_before_anything_
     assert "no value for cost 'hazard_b'" in _error(budgets, {"hazard_a": 1.0}, grid)
     assert "no value for cost 'hazard_b'" in _error(budgets, [1.0], grid)
     assert budgets({"hazard_a": 0.5, "hazard_b": 2}, grid)[1] == [0.5, 2.0]
+    assert "give hydra.sweeper.budget" in _error(budgets, None, grid, ["algo.cost_limit"])  # searched: no budget
 
     assert "cannot open storage" in _error(open_storage, "sqlite:////proc/no/such/dir/study.db", 1, 2)
     assert "cannot open storage" in _error(open_storage, "nosuchdb://user@host/db", 1, 2)
@@ -196,10 +197,10 @@ def test_the_pruner_judges_the_return_against_trials_within_budget_and_only_afte
     hopeless = study.ask()
     observe = Observer(f"sqlite:///{tmp_path / 'study.db'}", "t", hopeless.number)
     low = [{"episode_return": 0.1, "episode_cost": 50.0}, {"episode_return": 0.1, "episode_cost": 50.0}]
-    observe(2, 10, low)  # below the feasible trial's curve, but inside the warm-up (3 of 10 iterations)
+    observe(2, 10, low)  # below the feasible trial's curve, but inside the warm-up (3 of 10 iterations): unreported
     with pytest.raises(optuna.TrialPruned):
         observe(3, 10, low)
-    assert study.trials[hopeless.number].intermediate_values == {2: 0.1, 3: 0.1}  # the return, never the cost
+    assert study.trials[hopeless.number].intermediate_values == {3: 0.1}  # the return, never the cost
 
 
 def _search(sweep_dir: Path) -> subprocess.Popen:

@@ -175,14 +175,17 @@ def check_space(
     return raw_low
 
 
-def budgets(budget: Any, raw: Mapping[str, Any]) -> tuple[tuple[str, ...], list[float]]:
+def budgets(budget: Any, raw: Mapping[str, Any], searched: Sequence[str] = ()) -> tuple[tuple[str, ...], list[float]]:
     """The env's cost names (a 2-env copy of the base config's env is built: only the env knows them) and the
     search's budget per cost: ``budget`` (a number, a list of K, or ``{cost: budget}`` naming every cost), or,
-    when null, the config's own ``algo.cost_limit`` (the task's unless given)."""
+    when null, the config's own ``algo.cost_limit`` (the task's unless given), unless that is among the
+    ``searched`` options."""
     from cmdp_rl.algos.base import per_constraint
     from cmdp_rl.config.run_config import load_config
     from cmdp_rl.envs import make_env
 
+    if budget is None and "algo.cost_limit" in searched:
+        raise TuneError("algo.cost_limit is searched, so it is no budget to judge trials by: give hydra.sweeper.budget")
     cfg = load_config({k: v for k, v in raw.items() if k != "population"})
     env = make_env(cfg.env, num_envs=min(2, cfg.env.num_envs), device=cfg.device)
     try:

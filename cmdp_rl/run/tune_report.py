@@ -150,14 +150,10 @@ def _front(study: Any, best: Any) -> Any:
                 continue
             x = [t.user_attrs["cost"][k] for t in pts]
             y = [t.user_attrs["return"] for t in pts]
-            xerr = [
-                [c - t.user_attrs["cost_ci"][k][0] for c, t in zip(x, pts)],
-                [t.user_attrs["cost_ci"][k][1] - c for c, t in zip(x, pts)],
-            ]
-            yerr = [
-                [v - t.user_attrs["return_ci"][0] for v, t in zip(y, pts)],
-                [t.user_attrs["return_ci"][1] - v for v, t in zip(y, pts)],
-            ]
+            # The cost's bar runs from its mean to its 95% upper bound, what the feasibility rule reads by default.
+            xerr = [[0.0] * len(pts), [t.user_attrs["cost_upper"][k] - c for c, t in zip(x, pts)]]
+            yerr = [[v - t.user_attrs["return_ci"][0] for v, t in zip(y, pts)]]
+            yerr.append([t.user_attrs["return_ci"][1] - v for v, t in zip(y, pts)])
             ax.errorbar(x, y, xerr=xerr, yerr=yerr, fmt="o", color=color, alpha=0.7, ms=4, lw=0.8, label=label)
         # The front: for each cost, the best return of a trial no costlier (the non-dominated trials, as a step).
         front, top = [], float("-inf")
@@ -165,6 +161,8 @@ def _front(study: Any, best: Any) -> Any:
             if t.user_attrs["return"] > top:
                 top = t.user_attrs["return"]
                 front.append((t.user_attrs["cost"][k], top))
+        right = max(max(t.user_attrs["cost_upper"][k] for t in done), budget[k]) * 1.05
+        front.append((right, top))  # no costlier trial does better
         ax.step(*zip(*front), where="post", color="grey", lw=1, label="front")
         ax.axvline(budget[k], color="k", ls="--", lw=1, label=f"budget {budget[k]:g}")
         if best is not None:
@@ -177,7 +175,7 @@ def _front(study: Any, best: Any) -> Any:
                 mec="k",
                 label=f"best (trial {best.number})",
             )
-        ax.set_xlabel(f"eval cost{'' if len(names) == 1 else ' ' + name} (mean over seeds, 95% CI)")
+        ax.set_xlabel(f"eval cost{'' if len(names) == 1 else ' ' + name} (mean over seeds, to its 95% upper bound)")
         ax.set_ylabel("eval return (mean over seeds, 95% CI)")
         ax.legend(fontsize=8)
     axes[0][0].set_title(f"study {study.study_name!r}: return against cost", fontsize=10)

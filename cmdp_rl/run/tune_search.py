@@ -78,12 +78,12 @@ class Search:
         warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used with Study.optimize")
         options = OmegaConf.to_container(OmegaConf.create(sweeper.options), resolve=True)
         self.s = Settings.of(options)
-        self.sweeper, self.launcher = sweeper, sweeper.launcher
+        self.launcher = sweeper.launcher
         self.sweep_dir = Path(str(sweeper.config.hydra.sweep.dir)).absolute()
         params = [f"{k}={v}" for k, v in (options.get("params") or {}).items()]
         self.space, self.fixed = parse_space(params + list(arguments))
         raw = check_space(self.space, self.fixed, self.s.seeds, _compose(sweeper))
-        self.cost_names, self.budget = budgets(self.s.budget, raw)
+        self.cost_names, self.budget = budgets(self.s.budget, raw, list(self.space))
         self.base_seed = int(raw.get("seed", 0))
         sampler = self._sampler(hydra.utils.instantiate)
         if self.s.pruner is not None:  # built here too, so that a bad spec stops before any job (the job builds it)

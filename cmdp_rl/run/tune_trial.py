@@ -11,12 +11,15 @@ penalty on the value.
 
 Inside the job: the sweeper (run/tune_search.py) names the trial in the job's ``hydra.job.env_set``; the Hydra
 callback below (``hydra.callbacks`` in configs/config.yaml, a no-op in any other job) then watches the training
-loop's rows (``run/loop.py``'s ITERATION_OBSERVERS): each iteration it reports the mean over the trial's seeds of
-the training batches' episode return as Optuna's intermediate value, and past the warm-up
-(``hydra.sweeper.prune_after`` of the iterations) asks the study's pruner whether to stop. Only the return is
-reported: a trial is never pruned for its cost, which early in training is over budget in most runs that end within
-it. And the pruner compares the trial with the finished trials that are within budget only (:class:`FeasibleOnly`):
-a return bought by going over budget is no bar to clear.
+loop's rows (``run/loop.py``'s ITERATION_OBSERVERS). Past the warm-up (``hydra.sweeper.prune_after`` of the
+iterations), each iteration it reports the mean over the trial's seeds of the training batches' episode return as
+Optuna's intermediate value and asks the study's pruner whether to stop. Only the return is reported, so a trial is
+never pruned for its cost, which early in training is over budget in most runs that end within it. Nothing before
+the warm-up is reported either: early on, a constrained run's return is what it gains by going over budget before its
+multiplier rises, and Optuna's median and percentile pruners judge a trial by the best value it ever reported, so an
+early over-budget peak would shield a trial that then collapses, and a run that is cautious from the start would be
+pruned against the others' peaks (both seen on Reach1D: docs/tuning.md). And the pruner compares the trial with the
+finished trials within budget only (:class:`FeasibleOnly`): a return bought by going over budget is no bar to clear.
 """
 
 from __future__ import annotations
@@ -75,14 +78,12 @@ class Observer:
         # A population that trains its seeds one after another goes through the iterations once per seed: the
         # first seed's curve is the one reported and judged (a step is reported once).
         returns = [r["episode_return"] for r in rows if not math.isnan(r["episode_return"])]
-        if iteration in self.reported or not returns:
+        if iteration in self.reported or not returns or iteration < math.ceil(self.prune_after * iterations):
             return
         value = sum(returns) / len(returns)
         self.storage.set_trial_intermediate_value(self.trial_id, iteration, value)
         self.reported.add(iteration)
-        if self.pruner is None or iteration < math.ceil(self.prune_after * iterations):
-            return
-        if self.pruner.prune(self.study, self.storage.get_trial(self.trial_id)):
+        if self.pruner is not None and self.pruner.prune(self.study, self.storage.get_trial(self.trial_id)):
             raise optuna.TrialPruned(
                 f"trial {self.number} at iteration {iteration} of {iterations}: training return {value:.4g} "
                 f"is below what {type(self.pruner.inner).__name__} asks of it (against the trials within budget)"

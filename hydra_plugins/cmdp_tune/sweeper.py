@@ -40,7 +40,7 @@ class ConstrainedOptunaConf:
     pruner: Optional[Dict[str, Any]] = field(
         default_factory=lambda: {"_target_": "optuna.pruners.MedianPruner", "n_startup_trials": 5}
     )
-    prune_after: float = 0.3
+    prune_after: float = 0.5
     heartbeat_s: int = 10
     grace_s: int = 30
     max_failures: int = 3
