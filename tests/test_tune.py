@@ -27,7 +27,7 @@ from cmdp_rl.run.tune_search import sweep
 from cmdp_rl.run.tune_trial import FeasibleOnly, Observer, best_feasible, outcome
 
 ROOT = Path(__file__).resolve().parents[1]
-# A search of 5 trials of a second or two: 2 seeds, one iteration of 16 envs (one pass over the batch), a 4-episode
+# A search of 4 trials of a second or two: 2 seeds, one iteration of 16 envs (one pass over the batch), a 4-episode
 # evaluation of the last iterate.
 TINY = [
     "+tune=ppo_lag",
@@ -38,7 +38,7 @@ TINY = [
     "eval_episodes=4",
     "final_policy=last",
     "log_interval=1000",
-    "hydra.sweeper.n_trials=5",
+    "hydra.sweeper.n_trials=4",
     "hydra.sweeper.seeds=2",
     "hydra.sweeper.heartbeat_s=1",
     "hydra.sweeper.grace_s=2",
@@ -213,31 +213,38 @@ def _trials(sweep_dir: Path) -> list:
     return optuna.load_study(study_name="ppo_lag_reach1d", storage=f"sqlite:///{sweep_dir / 'study.db'}").trials
 
 
-def test_a_killed_search_resumes_on_two_workers_that_share_it_and_runs_nothing_twice(tmp_path):
-    """One test for both, to pay for the processes' start (seconds of imports) once: a search is killed with
-    SIGKILL while its second trial trains; two workers then resume it on its SQLite study and finish n_trials
-    between them, the killed trial failed and run again with its options, no finished trial run again."""
-    proc = _search(tmp_path)
-    deadline = time.monotonic() + 120
-    while not (tmp_path / "trial_0001").is_dir():  # trial 1's job has started: trial 0 is finished
-        assert proc.poll() is None and time.monotonic() < deadline, proc.stdout.read()[-3000:]
+def test_two_workers_share_a_study_and_a_worker_killed_mid_trial_loses_nothing(tmp_path):
+    """Two workers start on one new SQLite study; the one that asks for the third trial (so it has finished one) is
+    killed with SIGKILL while that trial trains. The other resumes the study as a restarted search would (the killed
+    trial, silent past the grace period, is failed and queued again with its options) and the two have finished
+    n_trials between them, none run twice. One test for all of it: each process pays seconds of imports."""
+    workers = {w.pid: w for w in (_search(tmp_path), _search(tmp_path))}
+    deadline = time.monotonic() + 180
+    while not (tmp_path / "trial_0002").is_dir():  # its job has started, so its worker and options are recorded
+        assert all(w.poll() is None for w in workers.values()) and time.monotonic() < deadline, _output(workers)
         time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert [t.state for t in _trials(tmp_path)] == [TrialState.COMPLETE, TrialState.RUNNING]
-    first = (tmp_path / "trial_0000" / "agents" / "000_seed=0" / "eval.json").stat().st_mtime_ns
+    killed = _trials(tmp_path)[2]
+    victim = workers.pop(int(killed.user_attrs["worker"].rsplit(":", 1)[1]))
+    victim.send_signal(signal.SIGKILL)
+    victim.wait()
+    before = {p: p.stat().st_mtime_ns for p in tmp_path.glob("trial_*/agents/*/eval.json")}
+    (survivor,) = workers.values()
+    out = survivor.communicate(timeout=240)[0]
+    assert survivor.returncode == 0, out[-3000:]
 
-    workers = [_search(tmp_path) for _ in range(2)]
-    outs = [w.communicate(timeout=240)[0] for w in workers]
-    assert [w.returncode for w in workers] == [0, 0], "\n".join(o[-2000:] for o in outs)
     trials = _trials(tmp_path)
     settled = [t for t in trials if t.state in (TrialState.COMPLETE, TrialState.PRUNED)]
-    assert len(settled) == 5  # n_trials over both workers (and the killed one), not 5 each
-    assert len({t.user_attrs["worker"] for t in settled}) == 3  # the killed search's, and both workers ran trials
-    assert trials[1].state == TrialState.FAIL  # its heartbeat stopped: failed, then run again with its options
-    (retry,) = [t for t in trials if t.system_attrs.get("failed_trial") == 1]
-    assert retry.state == TrialState.COMPLETE and retry.params == trials[1].params
-    assert (tmp_path / "trial_0000" / "agents" / "000_seed=0" / "eval.json").stat().st_mtime_ns == first
+    assert len(settled) == 4  # n_trials over both workers, not 4 each
+    assert len({t.user_attrs["worker"] for t in settled}) == 2  # both finished trials
+    assert trials[2].state == TrialState.FAIL  # its heartbeat stopped: failed, never counted, and run again
+    (retry,) = [t for t in trials if t.system_attrs.get("failed_trial") == 2]
+    assert retry.state == TrialState.COMPLETE and retry.params == trials[2].params
+    assert before and all(p.stat().st_mtime_ns == m for p, m in before.items())  # finished trials ran once
     ran = sorted(p.parent.parent.parent.name for p in tmp_path.glob("trial_*/agents/*/eval.json"))
     assert ran == sorted(2 * [f"trial_{t.number:04d}" for t in settled])  # each settled trial's 2 seeds, once
-    assert not any("#0 :" in out for out in outs)  # the workers launched no job for trial 0
+
+
+def _output(workers: dict) -> str:
+    for w in workers.values():
+        w.kill()
+    return "\n".join(w.communicate()[0][-2000:] for w in workers.values())

@@ -10,6 +10,7 @@ import dataclasses
 import math
 import re
 import time
+import warnings
 from typing import Any, Callable, Mapping, Sequence
 
 from cmdp_rl.config.validation import ConfigError
@@ -226,9 +227,11 @@ def open_storage(url: str, heartbeat_s: int, grace_s: int) -> Any:
     retry = retry or optuna.storages.RetryFailedTrialCallback
     for attempt in range(3):
         try:
-            return optuna.storages.RDBStorage(
-                url, heartbeat_interval=heartbeat_s, grace_period=grace_s, **{kw: retry(max_retry=3)}
-            )
+            with warnings.catch_warnings():  # heartbeats and their retry are marked experimental; used on purpose
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                return optuna.storages.RDBStorage(
+                    url, heartbeat_interval=heartbeat_s, grace_period=grace_s, **{kw: retry(max_retry=3)}
+                )
         except Exception as exc:  # noqa: BLE001 - SQLAlchemy's and the drivers' errors have no common base
             # Workers started together on a new database all create its tables; the slower ones' inserts fail
             # (a duplicate row, a table that already exists, a lock), and a second attempt finds the tables made.
