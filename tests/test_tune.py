@@ -164,6 +164,7 @@ def test_the_report_names_the_best_trial_within_budget_never_a_higher_infeasible
     )
     summary = json.loads((tmp_path / "tune.json").read_text())
     assert summary["best"]["trial"] == 1 and summary["within_budget"] == 2
+    assert [t["within_budget"] for t in summary["trials"]] == [False, True, True, False]
     for name in ("history.png", "importances.png", "front.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
     report_main([str(tmp_path / "study.db"), "--no-plots"])  # the same report again, from the storage

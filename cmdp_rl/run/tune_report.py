@@ -87,7 +87,10 @@ def report(study: Any, out_dir: str | Path, plots: bool = True) -> str:
         "within_budget": len(ok),
         "best": None if best is None else {"trial": best.number, "params": best.params, **_kept(best)},
         "rerun": None if best is None else rerun(best),
-        "trials": [{"trial": t.number, "state": t.state.name, "params": t.params, **_kept(t)} for t in trials],
+        "trials": [
+            {"trial": t.number, "state": t.state.name, "within_budget": feasible(t), "params": t.params, **_kept(t)}
+            for t in trials
+        ],
     }
     (out / "tune.json").write_text(json.dumps(summary, indent=2))
     if plots:
