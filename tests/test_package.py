@@ -20,6 +20,14 @@ COMPOSE = (
     "print(repr(compose_config(['env=grid', 'algo=cpo', 'seed=3'])))\n"
 )
 
+FIND_SWEEPER = (
+    "import sys\n"
+    "from hydra.core.plugins import Plugins\n"
+    "from hydra.plugins.sweeper import Sweeper\n"
+    "(found,) = [s for s in Plugins.instance().discover(Sweeper) if s.__name__ == 'ConstrainedOptunaSweeper']\n"
+    "print(sys.modules[found.__module__].__file__)\n"
+)
+
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory) -> Path:
@@ -30,7 +38,12 @@ def installed(tmp_path_factory) -> Path:
     # (a stale build/lib would otherwise leak deleted modules into later wheels).
     source = tmp / "source"
     junk = shutil.ignore_patterns("__pycache__", "*.pyc")
-    for name in ("cmdp_rl", "configs", "lab"):  # lab/ too: the check below is that setup.py leaves it out
+    for name in (
+        "cmdp_rl",
+        "configs",
+        "lab",
+        "hydra_plugins",
+    ):  # lab/ too: the check below is that setup.py leaves it out
         shutil.copytree(ROOT / name, source / name, ignore=junk)
     for name in ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md"):
         shutil.copy2(ROOT / name, source / name)
@@ -64,6 +77,10 @@ def test_the_wheel_ships_configs_and_composes_them_as_the_checkout_does(installe
     # Benchmarks, studies and fidelity checks are checkout-only lab code, never in the wheel.
     assert not (installed / "lab").exists()
     assert not [p for p in installed.rglob("*.py") if p.parent.name in ("bench", "analysis", "studies", "fidelity")]
+    # The search's sweeper ships beside the package, where Hydra looks for plugins, and Hydra finds the wheel's copy.
+    found = _run(installed, tmp_path, sys.executable, "-c", FIND_SWEEPER)
+    assert found.returncode == 0, found.stderr[-3000:]
+    assert Path(found.stdout.strip()).is_relative_to(installed / "hydra_plugins" / "cmdp_tune")
     from_wheel = _run(installed, tmp_path, sys.executable, "-c", COMPOSE)
     from_checkout = subprocess.run([sys.executable, "-c", COMPOSE], cwd=ROOT, capture_output=True, text=True)
     assert from_wheel.returncode == 0 and from_checkout.returncode == 0, from_wheel.stderr + from_checkout.stderr

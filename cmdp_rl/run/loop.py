@@ -24,6 +24,12 @@ from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
 from cmdp_rl.rollout.collector import Collector, finished_episodes
 from cmdp_rl.run.progress import Progress
 
+# Who else reads each iteration's rows, in this process: a hyperparameter search's trial (run/tune_trial.py) reports
+# the training curve to its study and raises optuna.TrialPruned to stop a hopeless trial. A Hydra job gets nothing
+# from its sweeper but its config, so the trial registers itself here (from a Hydra callback) instead of being passed
+# down. Each is called as ``observe(iteration, iterations, rows)``, rows one per member.
+ITERATION_OBSERVERS: list[Callable[[int, int, list[dict[str, Any]]], None]] = []
+
 
 def _mean(t: torch.Tensor) -> float:
     return t.mean().item() if t.numel() else float("nan")
@@ -148,10 +154,12 @@ def _iterations(m: Members, first: int, iterations: int, start: float, progress:
             progress.update(rows[0], m.loggers[0].recent)
         if m.report is not None:
             m.report(it, rows, dt)
+        for observe in ITERATION_OBSERVERS:
+            observe(it, iterations, rows)
         if it % cfg.checkpoint_every == 0 or it == iterations:
             for logger in m.loggers:  # the rows up to this iteration are on disk before the checkpoint names it
                 logger.sync()
             m.checkpoint(it, time.perf_counter() - start)
 
 
-__all__ = ["Members", "contract_options", "metrics_row", "train_iterations"]
+__all__ = ["ITERATION_OBSERVERS", "Members", "contract_options", "metrics_row", "train_iterations"]
