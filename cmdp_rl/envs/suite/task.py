@@ -1,0 +1,58 @@
+"""The generated suite as a component (``env=suite``): its options, the batched env, the instance's
+budgets as the task's, and the exact constrained optimum the end-of-run summary compares with.
+
+``python train.py env=suite env.instance=7 algo=ppo_lag`` trains on instance 7. Instances
+:data:`~cmdp_rl.envs.suite.model.TUNING` (0..29) may be used to choose defaults; instances
+:data:`~cmdp_rl.envs.suite.model.HELD_ASIDE` (1000..1029) never are (``model.py``).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal, Sequence
+
+from cmdp_rl.envs.options import EnvOptions
+from cmdp_rl.envs.suite.env import TorchSuite
+from cmdp_rl.envs.suite.model import FiniteCMDP, generate
+from cmdp_rl.envs.suite.optimum import FiniteOptimum, solve
+from cmdp_rl.envs.vector import VecEnv
+from cmdp_rl.registry import register
+from cmdp_rl.validation import NonNegativeInt, PositiveInt, options
+
+
+@options
+class SuiteConfig(EnvOptions):
+    """``env=suite``: instance ``instance`` of the generated finite-horizon CMDPs (``model.py``)."""
+
+    name: str = "suite"
+    # The suite stands for a user's own env: a run on it gets what env=gym would give it (no snapshot
+    # valuation on extra episodes, EnvOptions.values_snapshots), so what it measures carries over.
+    values_snapshots: ClassVar[bool] = False
+    backend: Literal["torch"] = "torch"  # one tensor program over the envs (env.py), on `device`
+    num_envs: PositiveInt = 16
+    instance: NonNegativeInt = 0
+
+    def model(self) -> FiniteCMDP:
+        """The instance's arrays (generated once per process and instance)."""
+        return generate(self.instance)
+
+    def budget(self) -> float | list[float]:
+        """The instance's budgets: one number where it has one cost, else one per cost."""
+        d = [float(x) for x in self.model().budgets]
+        return d[0] if len(d) == 1 else d
+
+    def solve(self, cost_limit: float | Sequence[float] | None = None) -> FiniteOptimum:
+        """The exact constrained optimum at these budgets (None: the instance's), by the finite-horizon
+        occupancy LP (``optimum.py``)."""
+        return solve(self.model(), cost_limit)
+
+    def optimum(self, cost_limit: float | Sequence[float]) -> float:
+        """J* within the budgets: the optimal expected episode return (undiscounted, as ``eval.json``
+        reports it). Read by the end-of-run summary."""
+        return self.solve(cost_limit).ret
+
+
+def make_suite(cfg: SuiteConfig, num_envs: int, device: str = "cpu") -> VecEnv:
+    return TorchSuite(cfg.model(), num_envs, device=device)
+
+
+register("env", "suite", SuiteConfig, make_suite)
