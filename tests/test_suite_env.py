@@ -10,7 +10,7 @@ import torch
 from scipy.optimize import linprog
 
 from cmdp_rl import load_config, train
-from cmdp_rl.config import ConfigError
+from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import check_env, make_env
 from cmdp_rl.envs.suite.env import TorchSuite
 from cmdp_rl.envs.suite.model import HELD_ASIDE, TUNING, FiniteCMDP, draw, evaluate, generate

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal, Sequence
 
+from cmdp_rl.config.registry import register
+from cmdp_rl.config.validation import NonNegativeInt, PositiveInt, options
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.suite.env import TorchSuite
 from cmdp_rl.envs.suite.model import FiniteCMDP, generate
 from cmdp_rl.envs.suite.optimum import FiniteOptimum, solve
 from cmdp_rl.envs.vector import VecEnv
-from cmdp_rl.registry import register
-from cmdp_rl.validation import NonNegativeInt, PositiveInt, options
 
 
 @options
@@ -24,8 +24,9 @@ class SuiteConfig(EnvOptions):
     """``env=suite``: instance ``instance`` of the generated finite-horizon CMDPs (``model.py``)."""
 
     name: str = "suite"
-    # The suite stands for a user's own env: a run on it gets what env=gym would give it (no snapshot
-    # valuation on extra episodes, EnvOptions.values_snapshots), so what it measures carries over.
+    # The suite stands for a user's own env: a run on it gets what any env with a known episode length
+    # gets (snapshots valued within a share of the run's steps, not at will: EnvOptions.values_snapshots),
+    # so what it measures carries over.
     values_snapshots: ClassVar[bool] = False
     backend: Literal["torch"] = "torch"  # one tensor program over the envs (env.py), on `device`
     num_envs: PositiveInt = 16
@@ -34,6 +35,10 @@ class SuiteConfig(EnvOptions):
     def model(self) -> FiniteCMDP:
         """The instance's arrays (generated once per process and instance)."""
         return generate(self.instance)
+
+    def episode_steps(self) -> int:
+        """Every episode lasts the instance's horizon (what sizes the snapshot valuation's episodes)."""
+        return self.model().horizon
 
     def budget(self) -> float | list[float]:
         """The instance's budgets: one number where it has one cost, else one per cost."""

@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 import torch
 
-from cmdp_rl import keys
 from cmdp_rl.envs.suite.env import observations
 from cmdp_rl.envs.suite.model import FiniteCMDP, Values, evaluate
+from cmdp_rl.rollout import keys
 
 if TYPE_CHECKING:  # the envs package is imported by the registry before the policies'
     from cmdp_rl.policies.agent import Actor
@@ -56,7 +56,7 @@ def mixture_values(
 
 def deployed_values(agent: Any, cmdp: FiniteCMDP, deterministic: bool = False) -> Values:
     """Exact values of what a run deploys: its actor, or the mixture ``final_policy=mixture`` built."""
-    from cmdp_rl.policy_mixture import members_of, weights_of
+    from cmdp_rl.deploy.mixture import members_of, weights_of
 
     return mixture_values(members_of(agent.actor), cmdp, weights_of(agent.actor), deterministic)
 
