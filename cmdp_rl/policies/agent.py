@@ -180,6 +180,9 @@ class Agent(nn.Module):
             out.update({(keys.NEXT, k): v for k, v in state.items()})
             if name is None:
                 out.update(self.actor.head(*features))
+        if isinstance(self.actor.head, GaussianHead):  # the same numbers without the distribution object
+            out[keys.ACTION], out[keys.LOG_PROB] = self.actor.head.act(out, deterministic)
+            return out
         dist = self.actor.head.dist(out)
         action = sample(dist, deterministic)
         out[keys.ACTION] = action

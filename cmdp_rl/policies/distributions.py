@@ -27,6 +27,8 @@ deterministic action is the mode (the Gaussian's mean, the categorical's most li
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import torch
 from torch import distributions as D
@@ -37,6 +39,8 @@ from torchrl.modules import IndependentNormal
 from cmdp_rl.policies.hybrid import HybridHead
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.actions import categories, check_action_space, hybrid
+
+_LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))  # Normal.log_prob's constant, computed as it computes it
 
 
 class GaussianHead(nn.Module):
@@ -63,6 +67,19 @@ class GaussianHead(nn.Module):
     @staticmethod
     def dist(params: dict[str, torch.Tensor]) -> D.Distribution:
         return IndependentNormal(params[keys.LOC], params[keys.SCALE])
+
+    @staticmethod
+    def act(params: dict[str, torch.Tensor], deterministic: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """The acting step's action and log-probability: what ``sample(dist(params), deterministic)``
+        and its ``log_prob`` give, op for op and draw for draw (``Normal.rsample``'s one
+        ``normal_`` of the loc's shape, ``Normal.log_prob``'s formula, summed over the action).
+        Written out because building the distribution costs more than the network itself at
+        every step of a rollout (argument validation, ``Independent``'s wrapping: about 100 µs
+        of 250 per step of 16 envs, measured 2026-11-28); the update still uses :meth:`dist`."""
+        loc, scale = params[keys.LOC], params[keys.SCALE]
+        action = loc if deterministic else loc + torch.empty_like(loc).normal_() * scale
+        log_prob = -((action - loc) ** 2) / (2 * scale**2) - scale.log() - _LOG_SQRT_2PI
+        return action, log_prob.sum(-1)
 
 
 class Categorical(D.Categorical):

@@ -16,7 +16,8 @@ Speed (docs/throughput.md, docs/population.md, docs/safe_nav.md, docs/safety_gym
 - ``benchmark_throughput`` (the table, ``make bench``) over ``throughput_rates`` (its measurements);
   ``update_cost``, ``profile_training``, ``contract_overhead``, ``speed_between_commits``;
 - ``population_benchmark``, ``population_profile``; ``off_policy_speed``, ``velocity_speed``;
-- ``safety_gym_speed``, ``safety_gym_profile``, ``safe_nav_speed``.
+- ``safety_gym_speed``, ``safety_gym_profile``, ``safe_nav_speed``, ``safe_nav_profile`` (the profile of
+  training against the physics bound) and ``update_minibatch_cost`` (a PPO minibatch step's cost).
 
 Fidelity: ``safe_nav_fidelity``, the batched torch navigation tasks against Safety-Gymnasium
 (docs/safe_nav.md). The Safety-Gymnasium fidelity check stays a script of its own

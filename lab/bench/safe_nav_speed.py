@@ -43,7 +43,7 @@ import torch
 from cmdp_rl import make_env, train
 from cmdp_rl.config.run_config import compose_config
 from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv
-from cmdp_rl.envs.safe_nav.world import FRAMESKIP
+from cmdp_rl.envs.safe_nav.spec import FRAMESKIP
 from cmdp_rl.envs.safety_gym.env import SafetyGymEnvConfig, make_task
 
 

@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 
 from cmdp_rl.envs.safe_nav.layout import LayoutSampler
-from cmdp_rl.envs.safe_nav.lidar import pseudo_lidar
-from cmdp_rl.envs.safe_nav.world import HAZARD_SIZE, NavWorlds
+from cmdp_rl.envs.safe_nav.lidar import pseudo_lidars
+from cmdp_rl.envs.safe_nav.spec import HAZARD_SIZE
+from cmdp_rl.envs.safe_nav.world import NavWorlds
 
 EPISODE = 1000
 REWARD_CLIP = 10.0
@@ -64,28 +65,26 @@ class ButtonTask:
 
     def lidars(self, envs, world: dict[str, np.ndarray]) -> list[np.ndarray]:
         pos, mat = world["agent_pos"], world["agent_mat"]
-        buttons = pseudo_lidar(self.buttons[envs], pos, mat)
-        buttons[self.timer[envs] != 0] = 0.0
-        out = [buttons, pseudo_lidar(self.goal[envs, None], pos, mat)]
+        groups = [self.buttons[envs], self.goal[envs, None]]
         if self.spec.level > 0:
-            out.append(pseudo_lidar(self.hazards[envs], pos, mat))
-            out.append(pseudo_lidar(world["xpos"][:, self.worlds.gremlins, :2], pos, mat))
+            groups += [self.hazards[envs], world["xpos"][:, self.worlds.gremlins, :2]]
+        out = pseudo_lidars(groups, pos, mat)
+        out[0][self.timer[envs] != 0] = 0.0
         return out
 
     def _touches(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per env: the robot touches its goal button / another button / a gremlin."""
+        """Per env: the robot touches its goal button / another button / a gremlin (every world's
+        contacts tested at once)."""
         w = self.worlds
         n = w.num_envs
+        env, g1, g2 = w.contacts()
+        robot1, robot2 = w.geom_is_robot[g1], w.geom_is_robot[g2]
+        button = np.where(robot2, w.geom_button[g1], np.where(robot1, w.geom_button[g2], -1))
+        goal_button = self.goal_button[env]
         goal, wrong, gremlin = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-        for i, d in enumerate(w.datas):
-            if not d.ncon:
-                continue
-            g1, g2 = d.contact.geom1, d.contact.geom2
-            robot1, robot2 = w.geom_is_robot[g1], w.geom_is_robot[g2]
-            button = np.where(robot2, w.geom_button[g1], np.where(robot1, w.geom_button[g2], -1))
-            goal[i] = bool(np.any(button == self.goal_button[i]))
-            wrong[i] = bool(np.any((button >= 0) & (button != self.goal_button[i])))
-            gremlin[i] = bool(np.any((w.geom_is_gremlin[g1] & robot2) | (robot1 & w.geom_is_gremlin[g2])))
+        goal[env[button == goal_button]] = True
+        wrong[env[(button >= 0) & (button != goal_button)]] = True
+        gremlin[env[(w.geom_is_gremlin[g1] & robot2) | (robot1 & w.geom_is_gremlin[g2])]] = True
         return goal, wrong, gremlin
 
     def step(self, world: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from cmdp_rl.envs.safe_nav.lidar import pseudo_lidar
-from cmdp_rl.envs.safe_nav.world import CIRCLE_RADIUS, SIGWALL_AT, NavWorlds
+from cmdp_rl.envs.safe_nav.spec import CIRCLE_RADIUS, SIGWALL_AT
+from cmdp_rl.envs.safe_nav.world import NavWorlds
 
 EPISODE = 500
 REWARD_FACTOR = 0.1

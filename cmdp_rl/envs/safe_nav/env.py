@@ -38,8 +38,9 @@ from cmdp_rl.envs.safe_nav.goal import GoalTask
 from cmdp_rl.envs.safe_nav.layout import LayoutSampler
 from cmdp_rl.envs.safe_nav.lidar import LIDAR_BINS, pseudo_lidar
 from cmdp_rl.envs.safe_nav.push import PushTask
+from cmdp_rl.envs.safe_nav.spec import ROBOTS, nav_spec
 from cmdp_rl.envs.safe_nav.warp_world import WARP_TASKS, WarpWorlds, warp_problem
-from cmdp_rl.envs.safe_nav.world import ROBOTS, NavWorlds, nav_spec
+from cmdp_rl.envs.safe_nav.world import NavWorlds
 from cmdp_rl.envs.vector import Step, VecEnv
 
 # task family -> its logic (a module each)
@@ -160,18 +161,8 @@ class SafeNavVecEnv(VecEnv):
 
     # --- reading the worlds -------------------------------------------------------------------
     def _gather(self, envs) -> dict:
-        w = self.worlds
-        if self.physics == "mjwarp":
-            return w.gather(envs)
-        datas = [w.datas[i] for i in envs]
-        xpos = np.stack([d.xpos for d in datas])
-        mat = np.stack([d.xmat[w.agent] for d in datas]).reshape(-1, 3, 3)
-        return {
-            "sensordata": np.stack([d.sensordata for d in datas]),
-            "xpos": xpos,
-            "agent_pos": xpos[:, w.agent],
-            "agent_mat": mat,
-        }
+        """The state of worlds ``envs`` (copies), as the task logic reads it."""
+        return self.worlds.gather(envs) if self.physics == "mjwarp" else self.worlds.read(envs)
 
     def _obs(self, envs, world: dict):
         sd = world["sensordata"]
@@ -227,24 +218,32 @@ class SafeNavVecEnv(VecEnv):
         warp = self.physics == "mjwarp"
         self.worlds.step(action.detach() if warp else action.detach().cpu().numpy().astype(np.float64))
         self.sampler.pending += 1  # the reference's per-step draw
-        world = self._gather(every if warp else range(n))
+        world = self.worlds.gather(every) if warp else self.worlds.gathered()
         reward, cost, terminated = self.logic.step(world)
         self.steps += 1
         truncated = self.steps >= self.max_steps
         next_obs = self._obs(every, world)
         obs = next_obs
+        next_obs_t = obs_t = self._tensor(next_obs)
         done = np.flatnonzero(to_host(terminated) | truncated)
         if len(done):
             obs = next_obs.clone() if warp else next_obs.copy()
             obs[done] = self._start(list(done))
+            obs_t = self._tensor(obs)
         self.last = {"next_obs": next_obs, "reward": reward, "obs": obs}  # float64, for fidelity checks
+        if warp:
+            signals = torch.stack([self._tensor(reward), self._tensor(cost)])
+            ends = torch.stack([self._tensor(terminated, torch.bool), self._tensor(truncated, torch.bool)])
+        else:  # one conversion for the floats and one for the flags (a cost flag stacks as 0.0 or 1.0)
+            signals = self._tensor(np.stack([reward, cost]))
+            ends = self._tensor(np.stack([terminated, truncated]), torch.bool)
         return Step(
-            next_obs=self._tensor(next_obs),
-            reward=self._tensor(reward).view(n, 1),
-            cost=self._tensor(cost).view(n, 1),
-            terminated=self._tensor(terminated, torch.bool).view(n, 1),
-            truncated=self._tensor(truncated, torch.bool).view(n, 1),
-            obs=self._tensor(obs),
+            next_obs=next_obs_t,
+            reward=signals[0].view(n, 1),
+            cost=signals[1].view(n, 1),
+            terminated=ends[0].view(n, 1),
+            truncated=ends[1].view(n, 1),
+            obs=obs_t,
         )
 
     # --- resume --------------------------------------------------------------------------------

@@ -22,8 +22,9 @@ import numpy as np
 
 from cmdp_rl.envs.safe_nav.arrays import like, namespace, to_host, zeros
 from cmdp_rl.envs.safe_nav.layout import LayoutSampler
-from cmdp_rl.envs.safe_nav.lidar import pseudo_lidar
-from cmdp_rl.envs.safe_nav.world import AGENT_KEEPOUT, GOAL_SIZE, HAZARD_KEEPOUT, HAZARD_SIZE, VASE_KEEPOUT, NavWorlds
+from cmdp_rl.envs.safe_nav.lidar import pseudo_lidars
+from cmdp_rl.envs.safe_nav.spec import AGENT_KEEPOUT, GOAL_SIZE, HAZARD_KEEPOUT, HAZARD_SIZE, VASE_KEEPOUT
+from cmdp_rl.envs.safe_nav.world import NavWorlds
 
 EPISODE = 1000
 REWARD_CLIP = 10.0
@@ -58,26 +59,17 @@ class GoalTask:
 
     def lidars(self, envs, world: dict) -> list:
         pos, mat = world["agent_pos"], world["agent_mat"]
-        out = [pseudo_lidar(self.goal[envs, None], pos, mat)]
+        groups = [self.goal[envs, None]]
         if self.spec.level > 0:
-            out.append(pseudo_lidar(self.hazards[envs], pos, mat))
-            out.append(pseudo_lidar(world["xpos"][:, self.worlds.vases, :2], pos, mat))
-        return out
+            groups += [self.hazards[envs], world["xpos"][:, self.worlds.vases, :2]]
+        return pseudo_lidars(groups, pos, mat)
 
     def _vase_cost(self) -> np.ndarray:
         """Level 2: a robot geom touching a vase, or a vase moving, costs."""
         w = self.worlds
-        hit = np.zeros(w.num_envs, dtype=bool)
-        dofs = w.vase_dof[:, None] + np.arange(3)
-        for i, d in enumerate(w.datas):
-            if d.ncon:
-                g1, g2 = d.contact.geom1, d.contact.geom2
-                touch = (w.geom_is_vase[g1] & w.geom_is_robot[g2]) | (w.geom_is_robot[g1] & w.geom_is_vase[g2])
-                hit[i] = bool(np.any(touch))
-            if not hit[i]:
-                speed = np.sqrt(np.sum(np.square(d.qvel[dofs]), axis=-1))
-                hit[i] = bool(np.any(speed >= VASE_SPEED))
-        return hit
+        hit = w.touching(w.geom_is_vase)
+        speed = np.sqrt(np.sum(np.square(w.qvel(w.vase_dof[:, None] + np.arange(3))), axis=-1))  # [N, vases]
+        return hit | np.any(speed >= VASE_SPEED, axis=-1)
 
     def _new_goal(self, i: int, agent_xy: np.ndarray, hazards: np.ndarray, vases: np.ndarray) -> bool:
         """Env ``i`` reached its goal: a new one, clear of where everything is now (host arrays of

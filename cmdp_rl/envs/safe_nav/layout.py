@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav.world import (
+from cmdp_rl.envs.safe_nav.spec import (
     AGENT_KEEPOUT,
     BUTTON_GOAL_KEEPOUT,
     BUTTON_HAZARD_KEEPOUT,

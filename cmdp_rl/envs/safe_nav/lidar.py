@@ -21,11 +21,33 @@ LIDAR_BINS, LIDAR_MAX = 16, 3.0
 def pseudo_lidar(objects_xy: Array, agent_pos: Array, agent_mat: Array, max_dist: float = LIDAR_MAX) -> Array:
     """Safety-Gymnasium's pseudo-lidar of M objects per env: ``objects_xy`` ``[N, M, 2]``,
     the robot's position ``[N, 3]`` and frame ``[N, 3, 3]`` -> ``[N, 16]``."""
+    return pseudo_lidars([objects_xy], agent_pos, agent_mat, max_dist)[0]
+
+
+def pseudo_lidars(groups: list[Array], agent_pos: Array, agent_mat: Array, max_dist: float = LIDAR_MAX) -> list[Array]:
+    """:func:`pseudo_lidar` of each group of objects (``[N, M_g, 2]`` each), computed over all the
+    groups' objects at once: one pass of array operations per env step instead of one per group
+    (each a few microseconds of call overhead on arrays of a few hundred numbers). Each object's
+    arithmetic is the same whatever it is batched with (checked bit for bit: the batched
+    ``matmul`` rows included), and each group's reading is the maximum over its own objects."""
+    xp = namespace(agent_pos)
+    n, sizes = agent_pos.shape[0], [g.shape[1] for g in groups]
+    if sum(sizes):
+        lit = _lit(xp.concatenate(groups, axis=1) if len(groups) > 1 else groups[0], agent_pos, agent_mat, max_dist)
+    out, lo = [], 0
+    for m in sizes:
+        reading = zeros(agent_pos, (n, LIDAR_BINS))
+        if m:
+            reading = xp.maximum(reading, xp.amax(lit[:, lo : lo + m], axis=1))
+        out.append(reading)
+        lo += m
+    return out
+
+
+def _lit(objects_xy: Array, agent_pos: Array, agent_mat: Array, max_dist: float) -> Array:
+    """What each object lights ``[N, M, 16]``: its bin and, aliased, the two neighbours."""
     xp = namespace(agent_pos)
     n, m = objects_xy.shape[:2]
-    out = zeros(agent_pos, (n, LIDAR_BINS))
-    if m == 0:
-        return out
     flat = zeros(agent_pos, (n, m, 1))
     world = xp.concatenate([objects_xy, flat], axis=-1) - agent_pos[:, None, :]
     ego = xp.matmul(world, agent_mat)  # the offset in the robot's frame (row vector times frame)
@@ -39,8 +61,7 @@ def pseudo_lidar(objects_xy: Array, agent_pos: Array, agent_mat: Array, max_dist
     at = (bins[..., None] == k, (bins[..., None] + 1) % LIDAR_BINS == k, (bins[..., None] - 1) % LIDAR_BINS == k)
     lit = xp.where(at[0], reading[..., None], 0.0)
     lit = xp.maximum(lit, xp.where(at[1], (alias * reading)[..., None], 0.0))
-    lit = xp.maximum(lit, xp.where(at[2], ((1 - alias) * reading)[..., None], 0.0))
-    return xp.maximum(out, xp.amax(lit, axis=1))
+    return xp.maximum(lit, xp.where(at[2], ((1 - alias) * reading)[..., None], 0.0))
 
 
-__all__ = ["LIDAR_BINS", "LIDAR_MAX", "pseudo_lidar"]
+__all__ = ["LIDAR_BINS", "LIDAR_MAX", "pseudo_lidar", "pseudo_lidars"]

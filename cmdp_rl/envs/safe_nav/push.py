@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 
 from cmdp_rl.envs.safe_nav.layout import LayoutSampler
-from cmdp_rl.envs.safe_nav.lidar import pseudo_lidar
-from cmdp_rl.envs.safe_nav.world import GOAL_SIZE, NavWorlds
+from cmdp_rl.envs.safe_nav.lidar import pseudo_lidars
+from cmdp_rl.envs.safe_nav.spec import GOAL_SIZE
+from cmdp_rl.envs.safe_nav.world import NavWorlds
 
 EPISODE = 1000
 REWARD_CLIP = 10.0
@@ -60,23 +61,11 @@ class PushTask:
 
     def lidars(self, envs, world: dict[str, np.ndarray]) -> list[np.ndarray]:
         pos, mat = world["agent_pos"], world["agent_mat"]
-        out = [pseudo_lidar(self.goal[envs, None], pos, mat)]
+        groups = [self.goal[envs, None]]
         if self.spec.level > 0:
-            out.append(pseudo_lidar(self.hazards[envs], pos, mat))
-            out.append(pseudo_lidar(self.pillars[envs], pos, mat))
-        out.append(pseudo_lidar(world["xpos"][:, None, self.worlds.push_box, :2], pos, mat))
-        return out
-
-    def _pillar_touch(self) -> np.ndarray:
-        w = self.worlds
-        hit = np.zeros(w.num_envs, dtype=bool)
-        for i, d in enumerate(w.datas):
-            if d.ncon:
-                g1, g2 = d.contact.geom1, d.contact.geom2
-                hit[i] = bool(
-                    np.any((w.geom_is_pillar[g1] & w.geom_is_robot[g2]) | (w.geom_is_robot[g1] & w.geom_is_pillar[g2]))
-                )
-        return hit
+            groups += [self.hazards[envs], self.pillars[envs]]
+        groups.append(world["xpos"][:, None, self.worlds.push_box, :2])
+        return pseudo_lidars(groups, pos, mat)
 
     def _new_goal(self, i: int, world: dict[str, np.ndarray]) -> bool:
         """The box reached env ``i``'s goal: a new one, clear of where everything is now (False: none)."""
@@ -105,7 +94,7 @@ class PushTask:
             agent_xy = world["agent_pos"][:, None, :2]
             cost = np.any(_dist(self.hazards, agent_xy) < self.spec.hazard_size, axis=-1)
         if self.spec.pillars_constrained:
-            cost |= self._pillar_touch()
+            cost |= self.worlds.touching(self.worlds.geom_is_pillar)
         terminated = np.zeros(len(box), dtype=bool)
         self.last_dist_box, self.last_box_goal = dist_box, box_goal
         for i in np.flatnonzero(reached):

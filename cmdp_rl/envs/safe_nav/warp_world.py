@@ -24,7 +24,8 @@ import importlib.util
 import numpy as np
 import torch
 
-from cmdp_rl.envs.safe_nav.world import FRAMESKIP, NavSpec, NavWorlds
+from cmdp_rl.envs.safe_nav.spec import FRAMESKIP, NavSpec
+from cmdp_rl.envs.safe_nav.world import NavWorlds
 
 # What env.physics=mjwarp offers: the Goal tasks without vase costs (a level-2 vase cost reads
 # MuJoCo's contact list, which MuJoCo Warp lays out differently), Point and Car.

@@ -1,0 +1,137 @@
+"""A navigation task's world as MJCF text, and rotations as MuJoCo's compiler stores them.
+
+The robot's XML is read from the installed Safety-Gymnasium package at run time; the objects are
+added in the reference's body order, with the same geoms (``world.py`` compiles it once).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from cmdp_rl.envs.safe_nav.spec import (
+    BUTTON_SIZE,
+    CIRCLE_RADIUS,
+    GREMLIN_DENSITY,
+    GREMLIN_SIZE,
+    PILLAR_HEIGHT,
+    PILLAR_SIZE,
+    PUSH_BOX,
+    SIGWALL_SIZE,
+    VASE_DENSITY,
+    VASE_SIZE,
+    NavSpec,
+)
+
+
+def package_dir() -> str:
+    """The installed Safety-Gymnasium package's folder (found, not imported: its import needs our
+    compatibility layer, and only its data files are read here)."""
+    spec = importlib.util.find_spec("safety_gymnasium")
+    if spec is None or not spec.submodule_search_locations:
+        raise ImportError("env=safe_nav reads the robots' models from Safety-Gymnasium: run `make setup-safety-gym`")
+    return list(spec.submodule_search_locations)[0]
+
+
+def _fmt(values) -> str:
+    return " ".join(repr(float(v)) for v in np.atleast_1d(values))
+
+
+def world_xml(spec: NavSpec) -> str:
+    """The task's MJCF: the robot's XML with the floor resized as Safety-Gymnasium does, then, in
+    its body order, the free bodies (box, vases, gremlins), the gremlins' mocap bodies (and their
+    welds), and the fixed ones (circle and sigwalls; or buttons, goal, hazards, pillars).
+    Positions are placeholders; layouts are set on the compiled model."""
+    root = ET.parse(os.path.join(package_dir(), "assets", "xmls", f"{spec.robot}.xml")).getroot()
+    worldbody = root.find("worldbody")
+    for geom in worldbody.findall("geom"):
+        if geom.get("name") == "floor":
+            geom.set("size", "3.5 3.5 0.1")
+    if spec.push_box:
+        size, density = PUSH_BOX[spec.robot]
+        body = ET.SubElement(worldbody, "body", name="push_box", pos="0 0 0", quat="1 0 0 0")
+        ET.SubElement(body, "freejoint", name="push_box")
+        ET.SubElement(
+            body, "geom", name="push_box", type="box", size=_fmt([size] * 3), density=repr(density), group="1"
+        )
+        for k, (sx, sy) in enumerate(((1, 1), (-1, 1), (1, -1), (-1, -1))):
+            ET.SubElement(
+                body,
+                "geom",
+                name=f"col{k + 1}",
+                type="box",
+                size=_fmt([size / 2, size / 2, size]),
+                density=repr(density),
+                group="1",
+                pos=_fmt([sx * size, sy * size, 0.0]),
+            )
+    frees = [(f"vase{i}", VASE_SIZE, VASE_DENSITY, "4") for i in range(spec.vases)]
+    frees += [(f"gremlin{i}obj", GREMLIN_SIZE, GREMLIN_DENSITY, "5") for i in range(spec.gremlins)]
+    for name, size, density, group in frees:
+        body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
+        ET.SubElement(body, "freejoint", name=name)
+        ET.SubElement(body, "geom", name=name, type="box", size=_fmt([size] * 3), density=repr(density), group=group)
+    if spec.gremlins:
+        equality = root.find("equality")
+        equality = ET.SubElement(root, "equality") if equality is None else equality
+    for i in range(spec.gremlins):
+        # The mocap body stays at the origin; its geom sits at the gremlin's place (placeholder
+        # pose off the body frame, so that the compiler does not mark the two frames as one).
+        body = ET.SubElement(worldbody, "body", name=f"gremlin{i}mocap", mocap="true")
+        ET.SubElement(
+            body,
+            "geom",
+            name=f"gremlin{i}mocap",
+            type="box",
+            size=_fmt([GREMLIN_SIZE] * 3),
+            pos="0.5 0.5 0.1",
+            quat=_fmt(rot_quat(1.0)),
+            contype="0",
+            conaffinity="0",
+            group="5",
+        )
+        ET.SubElement(
+            equality,
+            "weld",
+            name=f"gremlin{i}mocap",
+            body1=f"gremlin{i}mocap",
+            body2=f"gremlin{i}obj",
+            solref=".02 1.5",
+        )
+    # (name, type, size, group, has contacts)
+    if spec.family == "Circle":
+        statics = [("circle", "cylinder", [CIRCLE_RADIUS, 1e-2], "6", False)]
+        statics += [(f"sigwall{i}", "box", SIGWALL_SIZE, "10", False) for i in range(spec.sigwalls)]
+    else:
+        statics = [(f"button{i}", "sphere", [BUTTON_SIZE] * 3, "1", True) for i in range(spec.buttons)]
+        statics += [("goal", "cylinder", [spec.goal_size, spec.goal_size / 2], "9", False)]
+        statics += [(f"hazard{i}", "cylinder", [spec.hazard_size, 1e-2], "3", False) for i in range(spec.hazards)]
+        statics += [(f"pillar{i}", "cylinder", [PILLAR_SIZE, PILLAR_HEIGHT], "2", True) for i in range(spec.pillars)]
+    for name, kind, size, group, touch in statics:
+        body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
+        ET.SubElement(
+            body,
+            "geom",
+            name=name,
+            type=kind,
+            size=_fmt(size),
+            group=group,
+            contype="1" if touch else "0",
+            conaffinity="1" if touch else "0",
+        )
+    return ET.tostring(root, encoding="unicode")
+
+
+def rot_quat(theta: float) -> np.ndarray:
+    """A rotation by ``theta`` about z as the compiler stores it: (cos, 0, 0, sin) of the half
+    angle, normalised by MuJoCo's own rule (left as is when within 1e-15 of unit length, as the
+    compiler leaves it: a plain division would differ from the compiled model in the last bit)."""
+    import mujoco
+
+    quat = np.array([math.cos(theta / 2), 0.0, 0.0, math.sin(theta / 2)])
+    mujoco.mju_normalize4(quat)
+    return quat
