@@ -1,7 +1,7 @@
 """Discrete and MultiDiscrete actions end to end: the distributions (hand-computed), the previous
 action's encoding, the gymnasium vector env, the collector, CPO's Fisher-vector product on a
 categorical KL, every algorithm x every policy head on Discrete (env=grid with K = 2, or a one-cost
-env for the single-constraint algorithms) and MultiDiscrete actions (tests/cost_envs.py), a
+env for the single-constraint algorithms) and MultiDiscrete actions (tests/helpers/cost_envs.py), a
 learning check, checkpoints and evaluation, and ``train.py env=gym`` on a discrete env."""
 
 import csv
@@ -11,12 +11,12 @@ import os
 import subprocess
 import sys
 
-import cost_envs
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT
+from helpers import cost_envs
+from helpers.runs import ROOT
 from torch.distributions import kl_divergence
 
 from cmdp_rl import keys, load_config, train
@@ -321,7 +321,7 @@ def test_train_py_on_a_discrete_gym_env(tmp_path):
             sys.executable,
             str(ROOT / "train.py"),
             "env=gym",
-            f"env.id=cost_envs:{cost_envs.MATCH_ID}",
+            f"env.id=helpers.cost_envs:{cost_envs.MATCH_ID}",
             "env.num_envs=2",
             "rollout_steps=16",
             "total_steps=64",
