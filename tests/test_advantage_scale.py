@@ -11,8 +11,8 @@ import math
 
 import pytest
 import torch
+from helpers.cost_envs import two_cost_cfg, two_cost_env
 from tensordict import TensorDict
-from test_cost_vector import run_cfg, two_cost_env
 
 from cmdp_rl import keys, load_config
 from cmdp_rl.algos import make_algo
@@ -66,7 +66,7 @@ def test_standardized_with_the_budget_step_is_unit_free(algo):
     results = []
     for unit in (1.0, 100.0):
         cfg = load_config(
-            run_cfg(algo={"name": algo, "advantage_scale": "standardized", "cost_limit": [0.5 * unit, 1.0 * unit]})
+            two_cost_cfg(algo={"name": algo, "advantage_scale": "standardized", "cost_limit": [0.5 * unit, 1.0 * unit]})
         ).algo
         lag = make_algo(cfg, make_agent(PolicyConfig(), env))
         for j_c in ((0.9, 0.2), (1.4, 1.6), (0.7, 1.1)):

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT, run_script, tiny
+from helpers.runs import ROOT, run_script, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from conftest import tiny
+from helpers.runs import tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.report.compare import (

@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT, eval_result, metrics_rows
+from helpers.runs import ROOT, eval_result, metrics_rows
 from tensordict import TensorDictBase
 
 from cmdp_rl import ConfigError, evaluate, keys, load_config, make_agent, make_env, train

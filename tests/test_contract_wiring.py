@@ -7,10 +7,10 @@ import os
 import subprocess
 import sys
 
-import cost_envs
 import pytest
 import torch
-from conftest import ROOT, metrics_rows, tiny
+from helpers import cost_envs
+from helpers.runs import ROOT, metrics_rows, tiny
 from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
@@ -147,14 +147,14 @@ def _train_py(*args: str) -> subprocess.CompletedProcess:
 def test_train_py_exits_2_with_one_line_on_a_broken_env(tmp_path):
     out = _train_py(
         "env=gym",
-        f"env.id=cost_envs:{cost_envs.BROKEN_ID}",
+        f"env.id=helpers.cost_envs:{cost_envs.BROKEN_ID}",
         "+env.kwargs.fault=negative_cost",
         f"hydra.run.dir={tmp_path}",
     )
     assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
     assert lines == [
-        f'config error: env cost_envs:{cost_envs.BROKEN_ID} (env 0, step 1): info["cost"] is -0.5; '
+        f'config error: env helpers.cost_envs:{cost_envs.BROKEN_ID} (env 0, step 1): info["cost"] is -0.5; '
         "costs must be >= 0 in a CMDP (env.allow_negative_cost=true accepts signed costs)"
     ]
     assert not (tmp_path / "metrics.csv").exists() and not (tmp_path / "eval.json").exists()

@@ -1,8 +1,8 @@
 """Several constraints end to end: an env reporting K = 2 costs through the collector, the cost
 critic and GAE, the scalers, the multipliers, metrics.csv, eval.json and the plots.
 
-The env is a toy of this file (registered with gymnasium here, used through ``env=gym``), so every
-number below can be worked out by hand."""
+The env is a toy (tests/helpers/cost_envs.py: TwoCost, registered with gymnasium, used through ``env=gym``), so
+every number below can be worked out by hand."""
 
 import csv
 import json
@@ -10,18 +10,16 @@ import os
 import subprocess
 import sys
 
-import gymnasium as gym
-import numpy as np
 import pytest
 import torch
-from conftest import ROOT
+from helpers.cost_envs import TWO_COST_ID, TWO_COST_NAMES, two_cost_cfg, two_cost_env
+from helpers.runs import ROOT
 from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.algos import make_algo
 from cmdp_rl.algos.lagrange import DualAscent, Multipliers
 from cmdp_rl.config.validation import ConfigError
-from cmdp_rl.envs import GymVecEnv
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig
 from cmdp_rl.report.metrics import columns
@@ -32,75 +30,9 @@ from cmdp_rl.rollout.collector import Collector, finished_episodes
 from cmdp_rl.rollout.normalization import ReturnScaler
 from cmdp_rl.run.migrations import migrate
 
-ENV_ID = "cmdp_rl_test/TwoCost-v0"
-NAMES = ("hazard_a", "hazard_b")
-
-
-class TwoCost(gym.Env):
-    """A 1-D Box action in [-1, 1]; episodes of ``length`` steps; observation t / length.
-
-    - ``mode="fixed"``: reward = a, ``info["cost"] = [1, t]`` at step t = 1..length (independent of
-      the action: an episode's costs are (length, length (length + 1) / 2)).
-    - ``mode="learn"``: reward = a, ``info["cost"] = [a > 0, 0]``: the first constraint is paid for
-      the rewarding actions, the second never.
-    ``named``: declare ``cost_names`` (else the toolkit calls them cost_0, cost_1).
-    """
-
-    def __init__(self, length: int = 3, mode: str = "fixed", named: bool = True) -> None:
-        self.observation_space = gym.spaces.Box(0.0, 1.0, (1,), np.float32)
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
-        self.length, self.mode = length, mode
-        if named:
-            self.cost_names = NAMES
-        self.t = 0
-
-    def _obs(self) -> np.ndarray:
-        return np.array([self.t / self.length], dtype=np.float32)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.t = 0
-        return self._obs(), {}
-
-    def step(self, action):
-        a = float(np.clip(action[0], -1.0, 1.0))
-        self.t += 1
-        if self.mode == "fixed":
-            cost = np.array([1.0, float(self.t)])
-        else:
-            cost = np.array([float(a > 0), 0.0])
-        return self._obs(), a, self.t >= self.length, False, {"cost": cost}
-
-
-gym.register(ENV_ID, entry_point=TwoCost)
-
-
-def two_cost_env(num_envs: int = 2, **kwargs) -> GymVecEnv:
-    return GymVecEnv(lambda: TwoCost(**kwargs), num_envs)
-
-
-def run_cfg(**overrides) -> dict:
-    cfg = {
-        "env": {"name": "gym", "id": ENV_ID, "num_envs": 2, "kwargs": {"length": 4, "mode": "learn"}},
-        "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": [0.5, 1.0]},
-        "rollout_steps": 16,
-        "total_steps": 6 * 32,
-        "checkpoint_every": 100,
-        "eval_episodes": 4,
-        "log_interval": 1,
-    }
-    for k, v in overrides.items():
-        if isinstance(v, dict) and k in cfg:
-            cfg[k] = {**cfg[k], **v}
-        else:
-            cfg[k] = v
-    if cfg["algo"]["name"] in ("ppo_lag", "trpo_lag"):
-        cfg["algo"].setdefault("lambda_lr", 0.5)
-    return cfg
-
 
 def test_the_env_names_its_costs_or_they_are_numbered():
-    assert two_cost_env().cost_names == NAMES and two_cost_env().num_costs == 2
+    assert two_cost_env().cost_names == TWO_COST_NAMES and two_cost_env().num_costs == 2
     unnamed = two_cost_env(named=False)  # K from one probe step of a throwaway env
     assert unnamed.num_costs == 2 and unnamed.cost_names == ("cost_0", "cost_1")
 
@@ -182,7 +114,7 @@ def test_policy_advantage_sums_over_constraints_with_todays_normalisation():
         },
         batch_size=[1, 2],
     )
-    cfg = load_config(run_cfg()).algo
+    cfg = load_config(two_cost_cfg()).algo
     lag = make_algo(cfg, make_agent(PolicyConfig(), env))
     for controller, value in zip(lag.multiplier.controllers, (0.5, 2.0)):
         controller.value = value
@@ -191,11 +123,11 @@ def test_policy_advantage_sums_over_constraints_with_todays_normalisation():
     assert torch.allclose(lag.policy_advantage(batch), expected)
     assert lag.lagrange_multiplier == [0.5, 2.0]
     penalty = make_algo(
-        load_config(run_cfg(algo={"name": "penalty", "penalty": [1.0, 0.1]})).algo, make_agent(PolicyConfig(), env)
+        load_config(two_cost_cfg(algo={"name": "penalty", "penalty": [1.0, 0.1]})).algo, make_agent(PolicyConfig(), env)
     )
     assert torch.allclose(penalty.policy_advantage(batch), torch.tensor([[[1 - 1 - 1.0], [2 + 1 - 0.05]]]))
     one = make_algo(
-        load_config(run_cfg(algo={"name": "penalty", "penalty": 3.0})).algo, make_agent(PolicyConfig(), env)
+        load_config(two_cost_cfg(algo={"name": "penalty", "penalty": 3.0})).algo, make_agent(PolicyConfig(), env)
     )
     assert one.lagrange_multiplier == [3.0, 3.0]
 
@@ -248,7 +180,7 @@ def test_one_multiplier_is_a_list_of_one_and_the_single_constraint_format_migrat
     ],
 )
 def test_per_constraint_options_of_the_wrong_length_are_config_errors(tmp_path, quiet, algo, message):
-    cfg = run_cfg()
+    cfg = two_cost_cfg()
     cfg["algo"] = algo
     with pytest.raises(
         ConfigError,
@@ -260,7 +192,7 @@ def test_per_constraint_options_of_the_wrong_length_are_config_errors(tmp_path, 
 
 
 def test_metrics_columns_for_two_constraints():
-    cols = columns(("loss_pi",), NAMES)
+    cols = columns(("loss_pi",), TWO_COST_NAMES)
     assert cols[:12] == [
         "iteration",
         "step",
@@ -303,7 +235,7 @@ def test_ppo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_pa
     # 4-step episode: over budget, its lambda rises. hazard_b: never paid, budget 1: it stays at 0.
     out = tmp_path / "run"
     # lambda_scale none: each multiplier steps in its cost's own units, as the checks below compute
-    result = train(load_config(run_cfg(algo={"lambda_scale": "none"})), out, echo=quiet)
+    result = train(load_config(two_cost_cfg(algo={"lambda_scale": "none"})), out, echo=quiet)
     rows = read_rows(out / "metrics.csv")
     assert len(rows) == 6 and list(rows[0])[:5] == [
         "iteration",
@@ -346,14 +278,14 @@ def test_ppo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_pa
     ],
 )
 def test_memory_policies_read_the_cost_vector(tmp_path, quiet, policy):
-    cfg = run_cfg(policy=policy, total_steps=2 * 32, algo={"name": "pid_lag"})
+    cfg = two_cost_cfg(policy=policy, total_steps=2 * 32, algo={"name": "pid_lag"})
     train(load_config(cfg), tmp_path / "run", echo=quiet)
     rows = read_rows(tmp_path / "run" / "metrics.csv")
     assert len(rows) == 2 and float(rows[-1]["lagrange_multiplier/hazard_b"]) == 0.0
 
 
 def test_plots_draw_a_panel_per_constraint(tmp_path, quiet):
-    train(load_config(run_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
+    train(load_config(two_cost_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
     (curve,) = group_runs([tmp_path / "run"])
     assert [p for p, _ in curve.panels] == [
         "episode_return",
@@ -368,7 +300,7 @@ def test_plots_draw_a_panel_per_constraint(tmp_path, quiet):
 
 
 def test_evaluate_script_prints_a_cost_line_per_constraint(tmp_path, quiet, capsys):
-    train(load_config(run_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
+    train(load_config(two_cost_cfg(total_steps=2 * 32)), tmp_path / "run", echo=quiet)
     from cmdp_rl.cli import evaluate as script
 
     assert script.main([f"run={tmp_path / 'run'}", "episodes=2", f"output={tmp_path / 'e.json'}"]) == 0
@@ -381,14 +313,14 @@ def test_evaluate_script_prints_a_cost_line_per_constraint(tmp_path, quiet, caps
 
 
 def test_train_cli_stops_on_a_wrong_length_budget_with_one_line(tmp_path):
-    # The toy env is imported from this file through env.id=<module>:<id>.
+    # The toy env is imported through env.id=<module>:<id>.
     env = {**os.environ, "PYTHONPATH": str(ROOT / "tests")}
     proc = subprocess.run(
         [
             sys.executable,
             "train.py",
             "env=gym",
-            f"env.id=test_cost_vector:{ENV_ID}",
+            f"env.id=helpers.cost_envs:{TWO_COST_ID}",
             "algo.cost_limit=[1,2,3]",
             f"hydra.run.dir={tmp_path / 'run'}",
         ],
@@ -410,7 +342,7 @@ def test_trpo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_p
     # As ppo_lag above: hazard_a over its budget 0.5, its lambda rises by dual ascent on this
     # batch's J_c,a alone; hazard_b never paid, its lambda stays 0.
     out = tmp_path / "run"
-    cfg = run_cfg()
+    cfg = two_cost_cfg()
     cfg["algo"] = {
         "name": "trpo_lag",
         "critic_minibatches": 2,
@@ -431,7 +363,7 @@ def test_trpo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_p
 
 def test_eval_intervals_and_summary_per_constraint(tmp_path):
     lines = []
-    result = train(load_config(run_cfg(total_steps=2 * 32, eval_episodes=6)), tmp_path / "run", echo=lines.append)
+    result = train(load_config(two_cost_cfg(total_steps=2 * 32, eval_episodes=6)), tmp_path / "run", echo=lines.append)
     # One return interval; each constraint its own cost interval and violation count against its budget.
     assert len(result["episode_return_ci95"]) == 2 and "episode_cost_ci95" not in result
     assert result["violations/hazard_b"] == 0 and result["violation_rate/hazard_b"] == 0.0

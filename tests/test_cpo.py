@@ -5,6 +5,7 @@ import math
 
 import pytest
 import torch
+from helpers.policies import hand_built_units
 from tensordict import TensorDict
 from torch.distributions import kl_divergence
 
@@ -131,22 +132,6 @@ def test_dual_solution_is_the_optimum_of_the_trust_region_subproblem():
     assert seen == {TRPO, CONSTRAINED, RECOVERY, "active", "inactive"}
 
 
-def _hand_built_units(actor, n=512, seed=0):
-    """Training units with actions sampled from the actor; moving right (action above the mean) is
-    rewarded and costs."""
-    torch.manual_seed(seed)
-    units = {keys.OBS: torch.rand(n, 2)}
-    with torch.no_grad():
-        params = actor.params(units)
-        dist = actor.head.dist(params)
-        action = dist.sample()
-        units.update(params, **{keys.ACTION: action, keys.LOG_PROB: dist.log_prob(action)})
-    push = (units[keys.ACTION] - units[keys.LOC]) / units[keys.SCALE]
-    units[keys.ADVANTAGE] = push + 0.3 * torch.randn(n, 1)
-    units[keys.COST_ADVANTAGE] = 0.5 * push + 0.1 * torch.randn(n, 1)
-    return units
-
-
 def _surrogates(actor, units):
     with torch.no_grad():
         ratio = torch.exp(actor.dist({keys.OBS: units[keys.OBS]}).log_prob(units[keys.ACTION]) - units[keys.LOG_PROB])
@@ -166,7 +151,7 @@ def test_accepted_cpo_step_keeps_kl_within_delta_and_obeys_its_case(episode_cost
     delta = 0.005
     cpo = _cpo(target_kl=delta, cg_damping=0.01, cg_iters=20)
     actor = cpo.agent.actor
-    td = _hand_built_units(actor)
+    td = hand_built_units(actor)
     old_reward, old_cost = _surrogates(actor, td)
     old_dist = actor.head.dist({k: td[k] for k in (keys.LOC, keys.SCALE)})
     before = [p.detach().clone() for p in actor.parameters()]

@@ -4,7 +4,7 @@ import csv
 
 import pytest
 import torch
-from conftest import tail_means
+from helpers.runs import tail_means
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.config.run_config import compose_config

@@ -5,7 +5,7 @@ from unittest.mock import patch
 
 import pytest
 import torch
-from conftest import tail_means
+from helpers.runs import tail_means
 from torch.distributions import kl_divergence
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train

@@ -1,8 +1,8 @@
 """Discrete and MultiDiscrete actions end to end: the distributions (hand-computed), the previous
 action's encoding, the gymnasium vector env, the collector, CPO's Fisher-vector product on a
-categorical KL, every algorithm x every policy head on Discrete (env=grid with K = 2, or a one-cost
-env for the single-constraint algorithms) and MultiDiscrete actions (tests/cost_envs.py), a
-learning check, checkpoints and evaluation, and ``train.py env=gym`` on a discrete env."""
+categorical KL, every registered algorithm x every policy head on MultiDiscrete actions
+(tests/helpers/cost_envs.py) and, for those that take K > 1 costs, on Discrete actions with two costs
+(env=grid), a learning check, checkpoints and evaluation, and ``train.py env=gym`` on a discrete env."""
 
 import csv
 import json
@@ -11,17 +11,19 @@ import os
 import subprocess
 import sys
 
-import cost_envs
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT
+from helpers import cost_envs
+from helpers.runs import ROOT
 from torch.distributions import kl_divergence
 
 from cmdp_rl import keys, load_config, train
+from cmdp_rl.algos.base import AlgoConfig
 from cmdp_rl.algos.trust_region.cpo import fisher_vector_product
-from cmdp_rl.config.run_config import ConfigError
+from cmdp_rl.config.registry import component, names
+from cmdp_rl.config.run_config import CONFIG_DIR, ConfigError
 from cmdp_rl.envs import GymVecEnv, make_cost_env
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.distributions import Categorical, CategoricalHead, MultiCategorical, make_action_head
@@ -178,25 +180,31 @@ HEADS = {
     "gru": {"name": "gru", "hidden_size": 8, "head_sizes": [], "segment_length": 0},
     "transformer": {"name": "transformer", "window": 4, "width": 8, "heads": 2, "feedforward": 8, "head_sizes": [8]},
 }
-NATURAL_GRADIENT = ("cpo", "trpo_lag", "pcpo")  # critic_epochs/critic_minibatches; the rest: PPO's options
-MULTI = ("ppo", "penalty", "ppo_lag", "pid_lag", "trpo_lag")  # take K > 1 costs (their options: constraints = None)
-SINGLE = ("cpo", "pcpo", "crpo", "focops", "cup")  # one constraint: refuse K > 1 with one line
-ALGOS = MULTI + SINGLE
+# The built-in algorithms (the registry's, each with its yaml) that act with the policy's own agent
+# (AlgoConfig.shape_agent as it is) on any env: every head must train with each. The registry enrolment
+# (tests/test_registry_enrolment.py) runs every algorithm, and any a test registers, with the MLP on Discrete and
+# MultiDiscrete actions; there the off-policy ones, which reshape the agent (a squashed Gaussian actor), refuse
+# categorical actions in one line.
+ALGOS = [
+    a
+    for a in names("algo")
+    if (CONFIG_DIR / "algo" / f"{a}.yaml").is_file()
+    and component("algo", a).options.envs is None
+    and component("algo", a).options.shape_agent is AlgoConfig.shape_agent
+]
+MULTI = [a for a in ALGOS if component("algo", a).options.constraints is None]  # take K > 1 costs
+
+
 # A 3 x 3 grid with both hazards (tests/test_grid.py's) and short episodes: 2 iterations of 2 x 8 steps.
 SMALL_GRID = {"name": "grid", "num_envs": 2, "layout": ["SaG", ".b.", "..."], "end_prob": 0.3}
 
 
 def _cfg(env: str | dict, algo: str, policy: dict, steps: int, rollout: int = 16, **top) -> dict:
-    a = {"name": algo}
-    a.update(
-        {"critic_epochs": 1, "critic_minibatches": 2}
-        if algo in NATURAL_GRADIENT
-        else {"update_epochs": 2 if steps > 2 * rollout else 1, "num_minibatches": 2}
-    )
+    """A short run of ``algo`` with the tiny options it declares (AlgoConfig.tiny)."""
     env_cfg = env if isinstance(env, dict) else {"name": "gym", "id": env, "num_envs": 2}
     return {
         "env": env_cfg,
-        "algo": a,
+        "algo": {"name": algo, **component("algo", algo).options.tiny},
         "policy": policy,
         "rollout_steps": rollout,
         "total_steps": steps,
@@ -231,33 +239,24 @@ def test_every_algorithm_and_head_on_multi_discrete_actions(tmp_path, quiet, alg
     assert 0 <= result["episode_return"] <= 8 and result["episode_length"] == 8
 
 
-@pytest.mark.parametrize("algo,head", [(a, h) for a in MULTI for h in HEADS] + [(a, "mlp") for a in SINGLE])
-def test_every_algorithm_and_head_on_discrete_actions(tmp_path, quiet, algo, head):
-    """Discrete(4): the algorithms that take several constraints on env=grid (K = 2, a budget per
-    hazard) with every head; those that take one, which env=grid refuses (the next test), on the
-    one-cost Match env with the MLP (every head runs them on MultiDiscrete actions above)."""
-    if algo in MULTI:
-        cfg = _cfg(SMALL_GRID, algo, HEADS[head], 32, rollout=8)
-        cfg["algo"]["cost_limit"] = [0.3, 0.15]
-    else:
-        cfg = _cfg(cost_envs.MATCH_ID, algo, HEADS[head], 32, rollout=8)
+@pytest.mark.parametrize("head", HEADS)
+@pytest.mark.parametrize("algo", MULTI)
+def test_every_algorithm_and_head_on_discrete_actions_with_two_costs(tmp_path, quiet, algo, head):
+    """Discrete(4) on env=grid, K = 2 (a budget per hazard), with every head: the algorithms that take
+    several constraints (the others refuse K > 1 in one line: tests/test_registry_enrolment.py)."""
+    cfg = _cfg(SMALL_GRID, algo, HEADS[head], 32, rollout=8)
+    cfg["algo"]["cost_limit"] = [0.3, 0.15]
     result = train(load_config(cfg), tmp_path, echo=quiet)
     _check_outputs(tmp_path, result, 2)
-    if algo in MULTI:
-        assert {"episode_cost/hazard_a", "episode_cost/hazard_b"} <= set(result)
-        assert 0 <= result["episode_return"] <= 1
+    assert {"episode_cost/hazard_a", "episode_cost/hazard_b"} <= set(result)
+    assert 0 <= result["episode_return"] <= 1
 
 
-@pytest.mark.parametrize("algo", SINGLE)
-def test_single_constraint_algorithms_refuse_the_grid_in_one_line(tmp_path, quiet, algo):
-    cfg = _cfg(SMALL_GRID, algo, HEADS["mlp"], 32, rollout=8)
-    with pytest.raises(ConfigError) as err:
-        train(load_config(cfg), tmp_path / "run", echo=quiet)
-    msg = str(err.value)
-    assert "\n" not in msg and msg.startswith(
-        "algo must be penalty, pid_lag, ppo, ppo_lag, sac, sac_lag, saute, td3, td3_lag or trpo_lag for an env with 2 costs (hazard_a, hazard_b): "
-    )
-    assert not (tmp_path / "run").exists()
+def test_the_algorithm_lists_are_the_registrys():
+    """The lists above come from the registry's declarations: each on-policy family is in them, and only those."""
+    assert {"ppo", "ppo_lag", "pid_lag", "cpo", "trpo_lag", "focops", "saute"} <= set(ALGOS)
+    assert not {"sac", "sac_lag", "td3_lag", "mappo_lag"} & set(ALGOS)
+    assert {"ppo", "ppo_lag", "pid_lag", "trpo_lag"} <= set(MULTI) and not {"cpo", "pcpo", "crpo"} & set(MULTI)
 
 
 def test_checkpoint_reloads_and_evaluates_greedily_and_sampled(tmp_path, quiet):
@@ -321,7 +320,7 @@ def test_train_py_on_a_discrete_gym_env(tmp_path):
             sys.executable,
             str(ROOT / "train.py"),
             "env=gym",
-            f"env.id=cost_envs:{cost_envs.MATCH_ID}",
+            f"env.id=helpers.cost_envs:{cost_envs.MATCH_ID}",
             "env.num_envs=2",
             "rollout_steps=16",
             "total_steps=64",

@@ -4,7 +4,7 @@ import json
 
 import pytest
 import torch
-from conftest import eval_result, run_script, tiny
+from helpers.runs import eval_result, run_script, tiny
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli

@@ -5,7 +5,7 @@ import subprocess
 import sys
 
 import torch
-from conftest import ROOT, cli_args, eval_result, metrics_rows, tiny
+from helpers.runs import ROOT, cli_args, eval_result, metrics_rows, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.run.checkpoint import load_checkpoint

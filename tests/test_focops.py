@@ -5,7 +5,7 @@ import csv
 
 import pytest
 import torch
-from conftest import tail_means
+from helpers.runs import tail_means
 from torchrl.modules import IndependentNormal
 
 from cmdp_rl import Collector, load_config, make_agent, make_algo, make_env, train

@@ -18,19 +18,12 @@ Regenerate only when a change is *meant* to alter numbers, and say so in the com
 """
 
 import json
-import math
-import os
-import re
-from pathlib import Path
 
 import pytest
-import torch
-from conftest import eval_result, metrics_rows, tiny
+from helpers.golden import GOLDEN, WRITE, machine, mismatch, outputs
+from helpers.runs import tiny
 
 from cmdp_rl import load_config, train
-
-GOLDEN = Path(__file__).parent / "golden"
-WRITE = os.environ.get("CMDP_RL_WRITE_GOLDEN") == "1"
 
 CASES = {
     "ppo_lag_mlp": tiny(),
@@ -64,67 +57,20 @@ for case in CASES.values():
     }
 
 
-def _outputs(run_dir: Path) -> dict:
-    res = eval_result(run_dir)
-    res.pop("torch_threads", None)
-    return {"metrics": metrics_rows(run_dir), "eval": res}
-
-
-def machine() -> str:
-    """CPU model and the SIMD level torch uses: what decides the order of float sums here."""
-    model = "unknown-cpu"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return re.sub(r"[^A-Za-z0-9]+", "-", model).strip("-") + "_" + torch.backends.cpu.get_cpu_capability()
-
-
-def _mismatch(got: dict, want: dict, close: bool) -> str | None:
-    """First difference between two outputs (``None`` if none); ``close`` compares numbers with
-    the cross-machine tolerance instead of exactly."""
-
-    def same(g, w) -> bool:
-        if g == w:
-            return True
-        if not close:
-            return False
-        try:
-            return math.isclose(float(g), float(w), rel_tol=1e-2, abs_tol=1e-6)
-        except (TypeError, ValueError):
-            return False
-
-    for k, w in want["eval"].items():
-        if not same(got["eval"].get(k), w):
-            return f"eval.json {k}: {got['eval'].get(k)} != {w}"
-    if len(got["metrics"]) != len(want["metrics"]):
-        return f"metrics.csv has {len(got['metrics'])} rows, recorded {len(want['metrics'])}"
-    # Columns another algorithm fills were blank in the recorded file; since each algorithm writes
-    # only the statistics it declares, they may now be absent. Every recorded number must match.
-    for i, (g, w) in enumerate(zip(got["metrics"], want["metrics"])):
-        diff = {k: (g.get(k), w[k]) for k in w if not same(g.get(k, ""), w[k])}
-        if diff:
-            return f"metrics.csv row {i + 1} differs: {diff}"
-    return None
-
-
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_same_numbers_as_before(name, tmp_path, quiet):
     train(load_config(CASES[name]), tmp_path, echo=quiet)
-    got = _outputs(tmp_path)
+    got = outputs(tmp_path)
     if WRITE:
         path = GOLDEN / "machines" / machine() / f"{name}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(got, indent=1, sort_keys=True))
         pytest.skip(f"wrote {path}")
     recorded = [GOLDEN / f"{name}.json", *sorted(GOLDEN.glob(f"machines/*/{name}.json"))]
-    exact = {p: _mismatch(got, json.loads(p.read_text()), close=False) for p in recorded}
+    exact = {p: mismatch(got, json.loads(p.read_text()), close=False) for p in recorded}
     if any(m is None for m in exact.values()):
         return
     own = GOLDEN / "machines" / machine() / f"{name}.json"
     assert own not in exact, f"{name}: differs from this machine's own recording: {exact[own]}"
-    problem = _mismatch(got, json.loads(recorded[0].read_text()), close=True)
+    problem = mismatch(got, json.loads(recorded[0].read_text()), close=True)
     assert problem is None, f"{name}: {problem}"

@@ -4,7 +4,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import ForwardPolicy
+from helpers.policies import ForwardPolicy
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, make_env
 from cmdp_rl.envs.gym_cost import SixValueStep, make_cost_env

@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import eval_result, metrics_rows
+from helpers.runs import eval_result, metrics_rows
 
 from cmdp_rl import load_config, train
 from cmdp_rl.algos.trust_region.natural_gradient import fisher_vector_product

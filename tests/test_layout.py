@@ -57,3 +57,17 @@ def test_the_package_root_holds_one_package_per_concept():
     assert len(entries) <= 12, entries
     modules = [e for e in entries if e.endswith(".py")]
     assert modules == ["__init__.py", "__main__.py"], f"modules at the root belong in a package: {modules}"
+
+
+def test_tests_share_code_through_helpers_only():
+    """A test module imports shared code from tests/helpers/, never from another test module or from conftest.py
+    (which holds fixtures only): moving or renaming one test then breaks no other."""
+    tests = ROOT / "tests"
+    local = {p.stem for p in tests.glob("*.py")}
+    offenders = []
+    for path in sorted([*tests.glob("*.py"), *(tests / "helpers").glob("*.py")]):
+        reached = {m.split(".")[0] for m in _imports(path)} & local
+        if reached:
+            offenders.append(f"{path.relative_to(ROOT).as_posix()} imports {sorted(reached)}")
+    assert not offenders, f"move what is shared into tests/helpers/: {offenders}"
+    assert (tests / "helpers" / "__init__.py").is_file()

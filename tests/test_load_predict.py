@@ -4,7 +4,7 @@ the state it carries between calls. Its actions are the collector's own, step fo
 import numpy as np
 import pytest
 import torch
-from conftest import tiny
+from helpers.runs import tiny
 
 import cmdp_rl
 from cmdp_rl import load_config, train

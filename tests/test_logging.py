@@ -4,7 +4,7 @@ import csv
 
 import numpy as np
 import pytest
-from conftest import tiny
+from helpers.runs import tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.algos.ppo import PPO

@@ -7,8 +7,8 @@ import json
 import pytest
 import torch
 import yaml
-from conftest import eval_result, tiny
-from test_policy_mixture import _fork_mixture
+from helpers.policies import fork_mixture
+from helpers.runs import eval_result, tiny
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli
@@ -53,7 +53,7 @@ def test_no_mixture_within_budget_deploys_the_least_violating_member():
 
 
 def test_weighted_draws_per_episode_and_zero_weights_never_drawn():
-    env, agent, actors = _fork_mixture(members=3)
+    env, agent, actors = fork_mixture(members=3)
     agent.actor = mixture_actor(actors[:2], [0.8, 0.2])
     assert weights_of(agent.actor) == pytest.approx([0.8, 0.2])
     torch.manual_seed(0)

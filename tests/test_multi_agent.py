@@ -5,7 +5,7 @@ it trains to within the budget and 10% of the optimum, and resumes exactly."""
 import numpy as np
 import pytest
 import torch
-from conftest import eval_result, metrics_rows
+from helpers.runs import eval_result, metrics_rows
 from pettingzoo.test import parallel_api_test
 
 from cmdp_rl import load_config, train

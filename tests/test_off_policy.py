@@ -7,9 +7,9 @@ import math
 
 import pytest
 import torch
-from conftest import tiny
+from helpers.resume import assert_same_run, crash_then_resume, final_state
+from helpers.runs import tiny
 from tensordict import TensorDict
-from test_resume import assert_same_run, crash_then_resume, final_state
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.algos import make_algo
@@ -292,7 +292,7 @@ def test_sac_lag_learns_reach1d_within_budget(tmp_path, quiet):
     result = train(cfg, tmp_path, echo=quiet)
     assert result["episode_cost"] <= 1.0, result
     assert result["episode_return"] >= 0.6 * cfg.env.optimum(1.0), result
-    from conftest import metrics_rows
+    from helpers.runs import metrics_rows
 
     assert max(float(r["lagrange_multiplier"]) for r in metrics_rows(tmp_path)) > 0.05
 
@@ -329,14 +329,14 @@ def test_off_policy_lag_reaches_the_goal_through_the_wall_within_budget(tmp_path
 
 
 def test_one_multiplier_per_constraint_on_the_cost_critics_k_outputs(tmp_path, quiet):
-    """K = 2 (tests/test_cost_vector.py's env: the first cost is paid for every rewarding action, the
+    """K = 2 (tests/helpers/cost_envs.py's TwoCost: the first cost is paid for every rewarding action, the
     second never): one λ column per cost; the first rises, the second (estimate 0 < budget) stays 0."""
-    from conftest import metrics_rows
-    from test_cost_vector import run_cfg
+    from helpers.cost_envs import two_cost_cfg
+    from helpers.runs import metrics_rows
 
     # A short discount (d_Q = 0.5 (1 - 0.5^4) / (4 x 0.5) = 0.23 for the first cost) and a fast critic:
     # Q_c of the first cost passes its budget within the run's 80 gradient steps.
-    cfg = run_cfg(
+    cfg = two_cost_cfg(
         algo={
             "name": "sac_lag",
             "episode_length": 4,

@@ -5,7 +5,7 @@ import math
 
 import pytest
 import torch
-from test_trpo_lag import RANDOM_RETURN
+from helpers.runs import RANDOM_RETURN
 
 from cmdp_rl.algos.trust_region.pcpo import projected_step
 from cmdp_rl.config.run_config import compose_config
@@ -66,7 +66,7 @@ def test_projection_leaves_a_feasible_reward_step_alone(projection):
 
 @pytest.mark.slow  # a learning run (pyproject: markers)
 def test_pcpo_learns_reach1d_then_returns_within_budget(tmp_path):
-    """Reach1D with the passable wall, budget 0.5 (see test_trpo_lag: RANDOM_RETURN)."""
+    """Reach1D with the passable wall, budget 0.5 (helpers.runs.RANDOM_RETURN: a random policy's return)."""
     cfg = compose_config(
         [
             "algo=pcpo",

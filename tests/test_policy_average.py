@@ -6,7 +6,7 @@ import json
 
 import pytest
 import torch
-from conftest import eval_result, tiny
+from helpers.runs import eval_result, tiny
 from torch import nn
 
 from cmdp_rl import load_config, train

@@ -2,40 +2,25 @@
 snapshot schedule, and the deployed mixture used alike by the run's evaluation, its checkpoint
 (loaded with weights_only=True), eval.json and evaluate.py."""
 
-import copy
 import io
 import json
 
 import numpy as np
 import pytest
 import torch
-from conftest import eval_result, tiny
+from helpers.policies import fork_mixture
+from helpers.runs import eval_result, tiny
 
-from cmdp_rl import keys, load_config, make_agent, make_env, train
+from cmdp_rl import keys, load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
 from cmdp_rl.config.run_config import ConfigError
-from cmdp_rl.deploy.mixture import IterateSnapshots, members_of, mixture_actor
+from cmdp_rl.deploy.mixture import IterateSnapshots, members_of
 from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.run.rundir import load_trained
 
 
-def _fork_mixture(members: int = 4, num_envs: int = 8):
-    cfg = load_config({"env": {"name": "fork", "num_envs": num_envs}})
-    env = make_env(cfg.env)
-    agent = make_agent(cfg.policy, env)
-    actors = []
-    for i in range(members):  # members that differ: each its own output bias
-        actor = copy.deepcopy(agent.actor)
-        with torch.no_grad():
-            for p in actor.parameters():
-                p.add_(0.3 * i)
-        actors.append(actor)
-    agent.actor = mixture_actor(actors)
-    return env, agent, actors
-
-
 def test_one_member_per_episode_drawn_uniformly():
-    env, agent, actors = _fork_mixture()
+    env, agent, actors = fork_mixture()
     torch.manual_seed(0)
     batch = Collector(env, agent, 512, seed=0).collect()
     member = batch.get((keys.NEXT, keys.MIXTURE_MEMBER)).squeeze(-1)  # [N, T]: the member each step acted with
@@ -133,7 +118,7 @@ def test_fork_exact_value_of_a_mixture_is_the_mean_of_its_members():
 
     cfg = load_config({"env": {"name": "fork"}})
     model, best = cfg.env.model(), cfg.env.solve(1.0)
-    _, agent, actors = _fork_mixture(members=3)
+    _, agent, actors = fork_mixture(members=3)
     each = [mixture_gap([a], model, best) for a in actors]
     mixed = mixture_gap(members_of(agent.actor), model, best)
     assert mixed.ret == pytest.approx(np.mean([g.ret for g in each]))
@@ -151,7 +136,7 @@ def test_evaluate_py_plots_and_films_the_mixture(mixture_run, tmp_path, capsys):
 
 
 def test_a_resumed_run_deploys_the_same_mixture(tmp_path, monkeypatch, quiet):
-    from test_resume import assert_same_run, crash_then_resume
+    from helpers.resume import assert_same_run, crash_then_resume
 
     # 7 iterations, window 3..7 (5 snapshots, stride 1); checkpoints at 2, 4 and 6, a crash after row 5.
     cfg = tiny(final_policy="mixture", average_last=0.6, mixture_size=5, mixture_weights="uniform")

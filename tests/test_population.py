@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from conftest import eval_result, metrics_rows, run_script, tiny
+from helpers.runs import eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.config.registry import component

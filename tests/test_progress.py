@@ -3,7 +3,7 @@
 import io
 import sys
 
-from conftest import metrics_rows, tiny
+from helpers.runs import metrics_rows, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.run.progress import Progress

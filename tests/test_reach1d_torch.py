@@ -8,8 +8,8 @@ float32 actions; every output and the true position must then be equal, across e
 import numpy as np
 import pytest
 import torch
-from conftest import ForwardPolicy
 from gymnasium.utils import seeding
+from helpers.policies import ForwardPolicy
 
 from cmdp_rl import Collector, ConfigError, keys, load_config, make_env, train
 from cmdp_rl.envs import GymVecEnv, Reach1D, TorchReach1D

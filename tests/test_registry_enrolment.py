@@ -5,7 +5,7 @@ MultiDiscrete actions.
 The algorithms are the registry's when this file is collected: the built-in ones, and any a test
 file collected before this one registers (tests/test_components.py's toy_reinforce), so a new
 algorithm joins every check by registering. Each trains with the tiny options its options class
-declares beside it (``AlgoConfig.tiny``) on conftest's TINY Reach1D run.
+declares beside it (``AlgoConfig.tiny``) on helpers.runs' TINY Reach1D run.
 """
 
 import json
@@ -14,15 +14,15 @@ from dataclasses import replace
 
 import pytest
 import torch
-from conftest import eval_result, metrics_rows, tiny
-from cost_envs import MATCH_ID, MULTI_MATCH_ID
-from test_cost_vector import ENV_ID as TWO_COST_ID
-from test_golden import GOLDEN, WRITE, _mismatch, _outputs, machine
-from test_resume import assert_same_run, crash_then_resume
+from helpers.cost_envs import MATCH_ID, MULTI_MATCH_ID, TWO_COST_ID
+from helpers.golden import GOLDEN, WRITE, machine, mismatch, outputs
+from helpers.resume import assert_same_run, crash_then_resume
+from helpers.runs import eval_result, metrics_rows, tiny
 
 from cmdp_rl import evaluate, load_config, train
 from cmdp_rl.config import registry
 from cmdp_rl.config.registry import component, names
+from cmdp_rl.config.run_config import CONFIG_DIR
 from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.deploy.mixture import members_of
 from cmdp_rl.run.checkpoint import load_checkpoint
@@ -32,7 +32,7 @@ ALGOS = names("algo")
 
 
 def enrolled(algo: str, env: dict | None = None, **top) -> dict:
-    """conftest's TINY run with ``algo`` and the tiny options it declares (``env``: another env)."""
+    """helpers.runs' TINY run with ``algo`` and the tiny options it declares (``env``: another env)."""
     cfg = tiny(**top)
     own = component("algo", algo).options.tiny_env
     if env is not None or own:
@@ -91,7 +91,7 @@ def test_a_short_run_gives_its_golden_numbers(algo, tmp_path, quiet):
     assert [r["iteration"] for r in rows] == [str(i) for i in range(1, 8)]
     assert result["episodes"] == 4 and eval_result(tmp_path)["episodes"] == 4
     assert all(r["cost_limit"] == "0.2" and r["lagrange_multiplier"] != "" for r in rows)
-    got = _outputs(tmp_path)
+    got = outputs(tmp_path)
     first = GOLDEN / f"{name}.json"
     if WRITE:
         path = first if not first.exists() else GOLDEN / "machines" / machine() / f"{name}.json"
@@ -103,11 +103,11 @@ def test_a_short_run_gives_its_golden_numbers(algo, tmp_path, quiet):
             f"no golden numbers for {algo}: CMDP_RL_WRITE_GOLDEN=1 python -m pytest tests/test_registry_enrolment.py -k {algo}"
         )
     recorded = [first, *sorted(GOLDEN.glob(f"machines/*/{name}.json"))]
-    if any(_mismatch(got, json.loads(p.read_text()), close=False) is None for p in recorded):
+    if any(mismatch(got, json.loads(p.read_text()), close=False) is None for p in recorded):
         return
     own = GOLDEN / "machines" / machine() / f"{name}.json"
     assert own not in recorded, f"{name}: differs from this machine's own recording"
-    problem = _mismatch(got, json.loads(first.read_text()), close=True)
+    problem = mismatch(got, json.loads(first.read_text()), close=True)
     assert problem is None, f"{name}: {problem}"
 
 
@@ -130,9 +130,14 @@ def test_two_costs_train_with_a_budget_each_or_stop_in_one_line(algo, tmp_path, 
         header = (tmp_path / "metrics.csv").read_text().splitlines()[0].split(",")
         assert {"episode_cost/hazard_a", "episode_cost/hazard_b", "cost_limit/hazard_b"} <= set(header)
     else:
-        with pytest.raises(ConfigError, match=rf"for an env with 2 costs \(hazard_a, hazard_b\).*got '{algo}'"):
+        with pytest.raises(ConfigError, match=rf"for an env with 2 costs \(hazard_a, hazard_b\).*got '{algo}'") as err:
             train(load_config(cfg), tmp_path / "run", echo=quiet)
         assert not (tmp_path / "run").exists()
+        # The line names the toolkit's algorithms that take the env (a test's own registrations aside).
+        named = str(err.value).split(" for an env")[0].removeprefix("algo must be ").replace(" or ", ", ").split(", ")
+        builtin = [a for a in ALGOS if (CONFIG_DIR / "algo" / f"{a}.yaml").is_file()]
+        takes = [a for a in builtin if _takes(a) is None and component("algo", a).options.envs is None]
+        assert "\n" not in str(err.value) and named == sorted(takes)
 
 
 @pytest.mark.parametrize("env_id", [MATCH_ID, MULTI_MATCH_ID])

@@ -5,7 +5,7 @@ import subprocess
 
 import torch
 import yaml
-from conftest import ROOT, eval_result, metrics_rows, tiny
+from helpers.runs import ROOT, eval_result, metrics_rows, tiny
 
 import cmdp_rl
 from cmdp_rl import load_config, train

@@ -7,78 +7,25 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Callable
 
 import pytest
 import torch
-from conftest import ROOT, cli_args, eval_result, metrics_rows, run_script, tiny
+from helpers.resume import assert_same_run, crash_then_resume, final_state
+from helpers.runs import ROOT, cli_args, metrics_rows, run_script, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.config.run_config import ConfigError
-from cmdp_rl.report.metrics import MetricsLogger
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.run.resume import resume_config
 
 
-class Crash(Exception):
-    pass
-
-
-def crash_after_row(monkeypatch, iteration: int) -> None:
-    """Make training die right after writing the metrics row of ``iteration``."""
-    original = MetricsLogger.log
-
-    def log(self, row, force_echo=False, **kwargs):
-        original(self, row, force_echo, **kwargs)
-        if row["iteration"] == iteration:
-            raise Crash
-
-    monkeypatch.setattr(MetricsLogger, "log", log)
-
-
-def crash_then_resume(
-    cfg: dict, tmp_path: Path, monkeypatch, quiet, crash_after: int = 5, checked: Callable[[Path], None] | None = None
-) -> tuple[Path, Path]:
-    """Train ``cfg`` whole, then again dying after row ``crash_after`` and resumed from its last
-    checkpoint (``checked(broken)`` runs between the crash and the resume); both run dirs."""
-    whole, broken = tmp_path / "whole", tmp_path / "broken"
-    train(load_config(cfg), whole, echo=quiet)
-    crash_after_row(monkeypatch, crash_after)
-    with pytest.raises(Crash):
-        train(load_config(cfg), broken, echo=quiet)
-    monkeypatch.undo()
-    if checked is not None:
-        checked(broken)
-    train(load_config({**cfg, "resume": str(broken)}), echo=quiet)
-    return whole, broken
-
-
-def final_state(run_dir: Path) -> dict:
-    return load_checkpoint(run_dir / "checkpoint.pt")["algo_state"]
-
-
-def assert_same_run(a: Path, b: Path) -> None:
-    ra, rb = metrics_rows(a), metrics_rows(b)
-    assert [r["iteration"] for r in rb] == [str(i) for i in range(1, len(ra) + 1)]  # contiguous
-    assert ra == rb  # every column but wall-clock, bit for bit
-    assert eval_result(a) == eval_result(b)
-    sa, sb = final_state(a), final_state(b)
-    for k, t in sa["networks"].items():
-        assert torch.equal(t, sb["networks"][k]), k
-    assert sa.get("multiplier") == sb.get("multiplier")
-
-
-@pytest.mark.parametrize("algo", ["ppo", "penalty", "ppo_lag", "pid_lag", "cpo"])
-def test_crash_between_checkpoints_then_resume_equals_uninterrupted(tmp_path, monkeypatch, quiet, algo):
-    cfg = tiny(algo={"name": algo})
-    if algo != "ppo_lag":
-        cfg["algo"].pop("lambda_lr")
-    if algo == "pid_lag":  # every term of the controller carries state across the resume
-        cfg["algo"].update(kp=1.0, ki=0.5, kd=0.5, p_ema_alpha=0.5, d_ema_alpha=0.5, d_delay=2)
-    if algo == "cpo":  # no PPO epochs: one trust-region step, then critic regression
-        for k in ("update_epochs", "num_minibatches"):
-            cfg["algo"].pop(k)
-        cfg["algo"].update(critic_epochs=2, critic_minibatches=2)
+def test_a_pid_controller_with_every_term_resumes_exactly(tmp_path, monkeypatch, quiet):
+    """Every algorithm resumes exactly with its default options (tests/test_registry_enrolment.py); pid_lag's
+    defaults leave the derivative and both filters off, so here every term of the controller carries state
+    (the integral, the two EMAs, the delayed costs) across the resume."""
+    cfg = tiny(algo={"name": "pid_lag"})
+    cfg["algo"].pop("lambda_lr")
+    cfg["algo"].update(kp=1.0, ki=0.5, kd=0.5, p_ema_alpha=0.5, d_ema_alpha=0.5, d_delay=2)
 
     def crashed_past_the_last_checkpoint(broken: Path) -> None:  # checkpoints at 2 and 4, then row 5
         assert len(metrics_rows(broken)) == 5 and load_checkpoint(broken / "checkpoint.pt")["iteration"] == 4

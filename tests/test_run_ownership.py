@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, metrics_rows, tiny
+from helpers.runs import ROOT, metrics_rows, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.run.ownership import LOCK, RunDirTaken, acquire, release

@@ -22,7 +22,7 @@ if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_s
 if importlib.util.find_spec("mujoco_warp") is None:
     pytest.skip("MuJoCo Warp is installed by `make setup-mjwarp` (the mjwarp extra)", allow_module_level=True)
 
-from conftest import eval_result, metrics_rows  # noqa: E402
+from helpers.runs import eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.config.run_config import ConfigError, compose_config  # noqa: E402

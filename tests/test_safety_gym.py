@@ -20,7 +20,8 @@ import torch
 if importlib.util.find_spec("safety_gymnasium") is None:
     pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
 
-from conftest import ForwardPolicy, eval_result, metrics_rows  # noqa: E402
+from helpers.policies import ForwardPolicy  # noqa: E402
+from helpers.runs import eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import Collector, finished_episodes, keys, make_env, train  # noqa: E402
 from cmdp_rl.config.run_config import ConfigError, compose_config  # noqa: E402

@@ -5,7 +5,7 @@ import json
 
 import pytest
 import torch
-from conftest import ForwardPolicy
+from helpers.policies import ForwardPolicy
 
 from cmdp_rl import Collector, ConfigError, keys, load_config, train
 from cmdp_rl.envs import GymVecEnv, Reach1D

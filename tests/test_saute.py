@@ -131,7 +131,7 @@ def test_saute_learns_reach1d_within_budget(tmp_path):
 def test_evaluate_py_rebuilds_the_augmented_env_and_repeats_eval_json(tmp_path):
     """evaluate.py builds its env through make_eval_env with the run's algo options, so a Sauté
     policy (observation + budget) evaluates as it did in training."""
-    from conftest import eval_result, tiny
+    from helpers.runs import eval_result, tiny
 
     from cmdp_rl.cli import evaluate as evaluate_cli
 

@@ -10,8 +10,8 @@ import sys
 
 import pytest
 import yaml
-from conftest import ROOT
-from test_cost_vector import ENV_ID
+from helpers.cost_envs import TWO_COST_ID as ENV_ID
+from helpers.runs import ROOT
 
 from cmdp_rl import load_config, train
 from cmdp_rl.config.registry import component, names
@@ -99,7 +99,7 @@ def test_train_cli_takes_env_cost_names_and_refuses_a_wrong_count_in_one_line(tm
             sys.executable,
             "train.py",
             "env=gym",
-            f"env.id=test_cost_vector:{ENV_ID}",
+            f"env.id=helpers.cost_envs:{ENV_ID}",
             "env.cost_names=[hazard,speed,heat]",
             f"hydra.run.dir={tmp_path / 'run'}",
         ],
@@ -111,6 +111,6 @@ def test_train_cli_takes_env_cost_names_and_refuses_a_wrong_count_in_one_line(tm
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
     assert proc.stderr.strip().splitlines()[-1] == (
-        f"config error: env.cost_names must name the 2 cost(s) test_cost_vector:{ENV_ID} reports, got 3: ['hazard', 'speed', 'heat']"
+        f"config error: env.cost_names must name the 2 cost(s) helpers.cost_envs:{ENV_ID} reports, got 3: ['hazard', 'speed', 'heat']"
     )
     assert not (tmp_path / "run" / "metrics.csv").exists()

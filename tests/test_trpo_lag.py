@@ -5,7 +5,8 @@ import csv
 
 import pytest
 import torch
-from test_cpo import _hand_built_units
+from helpers.policies import hand_built_units
+from helpers.runs import RANDOM_RETURN
 from torch.distributions import kl_divergence
 
 from cmdp_rl import keys, load_config, make_agent, make_algo, make_env
@@ -33,7 +34,7 @@ def _surrogates(actor, units, lam):
 def test_accepted_step_keeps_kl_within_target_and_improves_the_lagrangian(lambda_init, target_kl):
     algo = _trpo_lag(lambda_init=lambda_init, lambda_lr=0.1, target_kl=target_kl, cg_iters=20, cg_damping=0.01)
     actor = algo.agent.actor
-    units = _hand_built_units(actor)
+    units = hand_built_units(actor)
     old_dist = actor.head.dist({k: units[k] for k in (keys.LOC, keys.SCALE)})
     before = [p.detach().clone() for p in actor.parameters()]
     info = algo.policy_step(units, episode_cost=1.0, episode_length=10.0)  # J_c = d: lambda stays put
@@ -46,7 +47,7 @@ def test_accepted_step_keeps_kl_within_target_and_improves_the_lagrangian(lambda
     assert kl == pytest.approx(info["kl"], rel=1e-5) and 0.0 < kl <= target_kl
     assert new_l > old_l and new_l - old_l == pytest.approx(info["surr_reward_change"], rel=1e-4)
     assert new_c - old_c == pytest.approx(info["surr_cost_change"], rel=1e-4, abs=1e-7)
-    # Moving right is rewarded and costs (_hand_built_units): with lambda = 0 the step raises the
+    # Moving right is rewarded and costs (hand_built_units): with lambda = 0 the step raises the
     # cost surrogate; with lambda = 20 the cost term (0.5 per unit push, against 1 of reward) wins.
     assert (new_c > old_c) if lambda_init == 0.0 else (new_c < old_c)
 
@@ -64,7 +65,7 @@ def _surrogates_at(params, actor, units, lam):
 
 def test_lambda_rises_by_dual_ascent_when_the_cost_exceeds_the_budget():
     algo = _trpo_lag(lambda_init=0.2, lambda_lr=0.05)
-    units = _hand_built_units(algo.agent.actor)
+    units = hand_built_units(algo.agent.actor)
     lams = []
     for episode_cost in (3.0, 3.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0):  # budget 1.0
         algo.policy_step(units, episode_cost=episode_cost, episode_length=10.0)
@@ -81,11 +82,9 @@ def test_lambda_rises_by_dual_ascent_when_the_cost_exceeds_the_budget():
     assert fresh.lagrange_multiplier == 0.0 and fresh.state_dict()["multiplier"] == state["multiplier"]
 
 
-# A uniform random policy on Reach1D with the passable wall: return 0.556, cost 3.54 per episode
-# (8192 episodes, measured). Within 8 iterations the learners below reach the goal (training return
-# well above that) and the constraint then pulls the cost back within the budget of 0.5; they have
-# not yet settled on a mixture that does both at once (the deterministic eval policy can't).
-RANDOM_RETURN = 0.556
+# Within 8 iterations the learners below reach the goal (training return well above RANDOM_RETURN, a uniform
+# random policy's) and the constraint then pulls the cost back within the budget of 0.5; they have not yet
+# settled on a mixture that does both at once (the deterministic eval policy can't).
 
 
 @pytest.mark.slow  # a learning run (pyproject: markers)

@@ -11,7 +11,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import ForwardPolicy
+from helpers.policies import ForwardPolicy
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, train
 from cmdp_rl.config.run_config import compose_config

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import run_script
+from helpers.runs import run_script
 
 from lab.bench import velocity_benchmark
 

@@ -10,7 +10,7 @@ import importlib.util
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import tiny
+from helpers.runs import tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli

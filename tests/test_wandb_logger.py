@@ -13,7 +13,7 @@ import struct
 import time
 
 import pytest
-from conftest import tiny
+from helpers.runs import tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.config.run_config import ConfigError, compose_config

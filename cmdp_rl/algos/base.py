@@ -99,7 +99,7 @@ class AlgoConfig:
     # True: the algorithm compares costs in their own units with the budget (a constraint's
     # linearisation, a multiplier's error), so normalize.cost=true is refused (config.validate).
     reads_raw_cost: ClassVar[bool] = False
-    # Options that make a run of seconds on the tests' tiny Reach1D (tests/conftest.py TINY): the
+    # Options that make a run of seconds on the tests' tiny Reach1D (tests/helpers/runs.py TINY): the
     # tests that every algorithm passes (tests/test_registry_enrolment.py) train each registered
     # algorithm with these, so a new algorithm joins them by registering.
     tiny: ClassVar[dict[str, Any]] = {}

@@ -42,7 +42,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from cmdp_rl.config.run_config import ConfigError, load_eval_config
+from cmdp_rl.config.run_config import ConfigError, EvalConfig, load_eval_config
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
 from cmdp_rl.report.summary import interval_summary
@@ -71,6 +71,18 @@ def _cost_lines(r: dict, cost_names: tuple[str, ...], cost_limit: float | list[f
     return lines
 
 
+def parse_options(argv: list[str]) -> EvalConfig:
+    """The command's ``key=value`` options, checked (:class:`EvalConfig`); the run directory is not read yet."""
+    bad = [a for a in argv if "=" not in a]
+    if bad:
+        raise ConfigError(f"evaluate: options are key=value, got {bad}; see --help")
+    try:
+        raw = OmegaConf.to_container(OmegaConf.from_dotlist(list(argv)))
+    except OmegaConfBaseException as exc:
+        raise ConfigError(f"evaluate: cannot parse {argv}: {exc}") from exc
+    return load_eval_config(raw)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command on ``argv`` (default: the process's arguments); returns the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -78,14 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         print(__doc__)
         return 0
     try:
-        bad = [a for a in argv if "=" not in a]
-        if bad:
-            raise ConfigError(f"evaluate: options are key=value, got {bad}; see --help")
-        try:
-            raw = OmegaConf.to_container(OmegaConf.from_dotlist(argv))
-        except OmegaConfBaseException as exc:
-            raise ConfigError(f"evaluate: cannot parse {argv}: {exc}") from exc
-        opts = load_eval_config(raw)
+        opts = parse_options(argv)
         run_cfg = run_config(opts.run, "evaluate", opts.trust_checkpoint)
         episodes = opts.episodes or run_cfg.eval_episodes
         deterministic = run_cfg.eval_deterministic if opts.deterministic is None else opts.deterministic

@@ -291,7 +291,9 @@ def plot_groups(
     return save_figure(fig, out)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The command's arguments (``argv``; default: the process's), checked: a bad one exits with argparse's
+    usage line, status 2."""
     parser = argparse.ArgumentParser(
         prog="python -m cmdp_rl.report.compare",
         description=__doc__.split("\n\n")[1],
@@ -315,6 +317,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--resamples must be at least 100, got {args.resamples}")
     if args.smooth < 1:
         parser.error(f"--smooth must be a positive integer, got {args.smooth}")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_args(argv)
     by = [b.strip() for item in args.by for b in item.split(",") if b.strip()]
     try:
         groups, unfinished = compare(args.paths, by, args.resamples, args.seed)

@@ -1,7 +1,7 @@
 """Safety-Gymnasium's multi-agent velocity tasks (Safety-MaMuJoCo) as a factory for ``env=pettingzoo``.
 
     python train.py env=pettingzoo env.factory=cmdp_rl.envs.safety_gym.multi_agent:SafetyMaMuJoCo \\
-        env.kwargs.scenario=HalfCheetah env.kwargs.agent_conf=2x3 algo=mappo_lag algo.constraint=per_agent
+        +env.kwargs.scenario=HalfCheetah +env.kwargs.agent_conf=2x3 algo=mappo_lag algo.constraint=per_agent
 
 :class:`SafetyMaMuJoCo` builds ``safety_gymnasium.make_ma(scenario, agent_conf)`` (a ``SafeMAEnv``
 over gymnasium-robotics' ``MultiAgentMujocoEnv``) through ``compat.py`` and adapts it to the

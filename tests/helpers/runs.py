@@ -1,0 +1,79 @@
+"""The tiny run every lifecycle test trains (seconds), its command line, and ways to read its outputs."""
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+WALL_CLOCK = ("sps", "time_s")  # the only columns allowed to differ between identical runs
+
+# 2 envs x 16 steps per iteration, random starts (the envs' generators matter), short episodes
+# (several end per iteration), wall=pass with a small budget (lambda moves every iteration).
+TINY = {
+    "env": {"num_envs": 2, "max_steps": 12, "wall": "pass", "start": [0.3, 0.48]},
+    "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.2, "lambda_lr": 0.5},
+    "rollout_steps": 16,
+    "total_steps": 7 * 32,
+    "checkpoint_every": 2,
+    "eval_episodes": 4,
+    "mixture_episodes": 8,  # a primal-dual algorithm deploys a valued mixture (final_policy=auto): keep it tiny
+    "log_interval": 1,
+}
+
+
+def tiny(**overrides) -> dict:
+    """The TINY config with top-level overrides and ``algo``/``env`` entries merged in."""
+    cfg = {k: (dict(v) if isinstance(v, dict) else v) for k, v in TINY.items()}
+    for k, v in overrides.items():
+        if isinstance(v, dict) and k in cfg:
+            cfg[k].update(v)
+        else:
+            cfg[k] = v
+    return cfg
+
+
+def cli_args(cfg: dict) -> list[str]:
+    """Hydra command-line overrides for a config dict like TINY."""
+    out = []
+    for k, v in cfg.items():
+        if isinstance(v, dict):
+            for kk, vv in v.items():
+                if k == "algo" and kk == "name":
+                    out.insert(0, f"algo={vv}")
+                else:
+                    out.append(f"{k}.{kk}={json.dumps(vv)}")
+        else:
+            out.append(f"{k}={json.dumps(v) if not isinstance(v, str) else v}")
+    return out
+
+
+def run_script(script: str, *args: str, timeout: int = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(ROOT / script), *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+    )
+
+
+def metrics_rows(run_dir: Path, drop=WALL_CLOCK) -> list[dict]:
+    with open(Path(run_dir) / "metrics.csv") as f:
+        return [{k: v for k, v in row.items() if k not in drop} for row in csv.DictReader(f)]
+
+
+def tail_means(run_dir: Path, *columns: str, last: int = 10) -> tuple[float, ...]:
+    """Each column's mean over the run's last ``last`` iterations (metrics.csv): a learning test's
+    reading of where training ended, less noisy than the final row alone."""
+    with open(Path(run_dir) / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))[-last:]
+    return tuple(sum(float(r[c]) for r in rows) / len(rows) for c in columns)
+
+
+def eval_result(run_dir: Path) -> dict:
+    out = json.loads((Path(run_dir) / "eval.json").read_text())
+    out.pop("train_time_s")
+    return out
+
+
+# A uniform random policy on Reach1D with the passable wall: return 0.556, cost 3.54 per episode (8192 episodes,
+# measured). A learning test's policy that reaches the goal earns well above it (test_trpo_lag, test_pcpo).
+RANDOM_RETURN = 0.556
