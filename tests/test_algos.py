@@ -159,10 +159,14 @@ def test_policy_loss_equals_torchrl_clip_ppo_loss():
     ref = ClipPPOLoss(td_actor, critic_network=None, clip_epsilon=0.1, entropy_coeff=0.01, normalize_advantage=False)
     ref.set_keys(advantage=keys.POLICY_ADVANTAGE, sample_log_prob=keys.LOG_PROB)
     out = ref(flat)
-    mb = {k: flat.get(k) for k in algo._update_keys(batch)}
-    loss, stats = algo.policy_loss(mb)
+    mb = {k: flat.get(k) for k in algo.update_keys(batch)}
+    dist = algo.agent.dist(mb)
+    terms, diagnostics = algo.policy_terms(dist, mb)  # per sample, reduced as a run's update does
+    entropy = dist.entropy().mean()
+    loss = terms.mean() - 0.01 * entropy
+    stats = {k: v.mean() for k, v in diagnostics.items()}
     assert torch.allclose(loss, out["loss_objective"] + out["loss_entropy"], rtol=1e-6, atol=1e-7)
-    assert torch.allclose(stats["entropy"], out["entropy"]) and torch.allclose(stats["kl"], out["kl_approx"])
+    assert torch.allclose(entropy, out["entropy"]) and torch.allclose(stats["kl"], out["kl_approx"])
     assert stats["clip_fraction"] == out["clip_fraction"] and 0.05 < stats["clip_fraction"].item() < 0.95
 
 
