@@ -92,7 +92,7 @@ def test_a_runs_optimiser_step_is_torchs_bit_for_bit():
         a(x).pow(2).sum().backward()
         assert nn.utils.clip_grad_norm_(list(a.parameters()), 0.5) > 0.5
         opt_a.step()
-        run.step(b(x).pow(2).sum(), [opt_b])
+        run.step(b(x).pow(2).sum(), [(opt_b, list(b.parameters()))])
         assert all(torch.equal(p, q) for p, q in zip(a.parameters(), b.parameters()))
     assert opt_b.state[next(b.parameters())]["step"].item() == 6
 

@@ -54,6 +54,8 @@ if TYPE_CHECKING:
 # factor 1.5 is the one Spinning Up's PPO and Stable-Baselines3's PPO use with their target_kl.
 KL_STOP = 1.5
 Units = dict[str, torch.Tensor]
+# An optimiser and the parameters it steps (a run's network; a population's stacked rows).
+Optimiser = tuple[Any, Any]
 
 
 @options
@@ -317,27 +319,28 @@ class OneRun:
         """The actor's distribution parameters (CUP's pi_{k+1/2})."""
         return self.agent.actor.params(units)
 
-    def optimisers(self, algos: Sequence[PPO]) -> list[torch.optim.Optimizer]:
-        return [algos[0].actor_opt, algos[0].critic_opt]
+    def optimisers(self, algos: Sequence[PPO]) -> list[Optimiser]:
+        a = algos[0]
+        return [(a.actor_opt, a.actor_params), (a.critic_opt, a.critic_params)]
 
-    def fresh_actor_optimiser(self, algos: Sequence[PPO]) -> list[torch.optim.Optimizer]:
+    def fresh_actor_optimiser(self, algos: Sequence[PPO]) -> list[Optimiser]:
         """Adam on the actor with no moments yet, at the actor's rate this iteration (CUP's stage 2)."""
         a = algos[0]
-        return [torch.optim.Adam(a.actor_params, lr=a.actor_opt.param_groups[0]["lr"], fused=True)]
+        return [(torch.optim.Adam(a.actor_params, lr=a.actor_opt.param_groups[0]["lr"], fused=True), a.actor_params)]
 
-    def step(self, loss: torch.Tensor, optimisers: Sequence[torch.optim.Optimizer], stepping: Any = True) -> None:
-        """Backward, clip and step, unless KL early stopping ended the update (``stepping`` false)."""
+    def step(self, loss: torch.Tensor, optimisers: Sequence[Optimiser], stepping: Any = True) -> None:
+        """Backward, clip each network's gradient norm, ``Optimizer.step``; nothing once KL early
+        stopping ended the update (``stepping`` false)."""
         if not stepping:
             return
-        params = [[p for group in opt.param_groups for p in group["params"]] for opt in optimisers]
-        for network in params:
-            for p in network:  # optimizer.zero_grad(set_to_none=True), without its per-call profiling
+        for _, params in optimisers:
+            for p in params:  # optimizer.zero_grad(set_to_none=True), without its per-call profiling
                 p.grad = None
         # One backward pass: the networks share no parameter, so each one's gradient is its own loss's.
         loss.backward()
-        for network in params:
-            clip_grad_norm_(network, self.max_grad_norm)
-        for opt in optimisers:
+        for _, params in optimisers:
+            clip_grad_norm_(params, self.max_grad_norm)
+        for opt, _ in optimisers:
             opt.step()
 
 

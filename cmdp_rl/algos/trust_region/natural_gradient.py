@@ -185,7 +185,9 @@ class NaturalGradient:
         """One iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         self.gae(batch, self.agent)
         units, stats = self.policy_update(batch)
-        losses = self.fit_critics(units, OneRun(self.agent, self.cfg.max_grad_norm), [self.critic_opt])
+        losses = self.fit_critics(
+            units, OneRun(self.agent, self.cfg.max_grad_norm), [(self.critic_opt, self.critic_params)]
+        )
         stats.update({k: v.item() for k, v in losses.items()})
         check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
