@@ -3,6 +3,7 @@ minibatch order is ``minibatches()``'s under the same seed, a KL stop ends the u
 evaluating its minibatch and draws no further order, the statistics average the minibatches each
 member evaluated, and a run's optimiser step is torch's, bit for bit."""
 
+import pytest
 import torch
 from torch import nn
 
@@ -77,8 +78,9 @@ def _twin_nets(seed: int = 0) -> tuple:
 
 
 def test_a_runs_optimiser_step_is_torchs_bit_for_bit():
-    """OneRun.step (one backward, the foreach clipping, Adam.step) against torch's own calls, over
-    steps that clip and an annealed learning rate."""
+    """OneRun.step (one backward, the foreach clipping, torch's functional fused Adam on the
+    optimiser's state) against torch's own calls (``clip_grad_norm_``, ``Adam.step``), over steps
+    that clip and an annealed learning rate."""
     a, b = _twin_nets()
     opt_a = torch.optim.Adam(a.parameters(), lr=1e-2, fused=True)
     opt_b = torch.optim.Adam(b.parameters(), lr=1e-2, fused=True)
@@ -111,3 +113,17 @@ def test_the_mlp_computes_what_nn_sequential_computes():
     a, _ = _twin_nets()
     x = torch.randn(5, 3)
     assert torch.equal(a(x), nn.Sequential.forward(a, x))
+
+
+def test_after_its_first_step_a_fused_adam_steps_through_the_functional_api(monkeypatch):
+    """The first step creates Adam's moments (``Adam.step``); later ones skip ``Optimizer.step``'s
+    wrappers (the reason for ``adam_step``): a silent fallback would cost the run its speed."""
+    from cmdp_rl.algos.ppo import adam_step
+
+    net, _ = _twin_nets()
+    opt = torch.optim.Adam(net.parameters(), lr=1e-2, fused=True)
+    net(torch.randn(4, 3)).sum().backward()
+    adam_step(opt)
+    monkeypatch.setattr(torch.optim.Adam, "step", lambda *a, **k: pytest.fail("Optimizer.step called"))
+    adam_step(opt)
+    assert opt.state[next(net.parameters())]["step"].item() == 2

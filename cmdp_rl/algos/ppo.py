@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Iterator, Optional, Sequence
 import torch
 from tensordict import TensorDictBase
 from torch import distributions as D
+from torch.optim.adam import adam as functional_adam
 
 from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
@@ -341,7 +342,48 @@ class OneRun:
         for _, params in optimisers:
             clip_grad_norm_(params, self.max_grad_norm)
         for opt, _ in optimisers:
-            opt.step()
+            adam_step(opt)
+
+
+def adam_step(opt: torch.optim.Optimizer) -> None:
+    """``opt.step()``. For torch's fused Adam with one parameter group, default options and its
+    moments created (after its first step), the same fused kernel through torch's documented
+    functional API, ``torch.optim.adam.adam``, on the optimiser's own state: ``Optimizer.step``'s
+    wrappers (profiling record, hooks, the per-parameter state scan) cost more than the kernel on
+    these small networks, 9% of ``make train``'s update measured in that run (docs/throughput.md).
+    tests/test_update_loop.py checks the two bit for bit."""
+    group, params = opt.param_groups[0], opt.param_groups[0]["params"]
+    plain = not any(group[k] for k in ("amsgrad", "maximize", "weight_decay", "capturable", "differentiable"))
+    if not (
+        type(opt) is torch.optim.Adam
+        and len(opt.param_groups) == 1
+        and group["fused"]
+        and plain
+        and not group.get("decoupled_weight_decay")
+        and len(opt.state) == len(params)
+        and all(p.grad is not None for p in params)
+    ):
+        opt.step()
+        return
+    states = [opt.state[p] for p in params]
+    beta1, beta2 = group["betas"]
+    with torch.no_grad():
+        functional_adam(
+            params,
+            [p.grad for p in params],
+            [s["exp_avg"] for s in states],
+            [s["exp_avg_sq"] for s in states],
+            [],
+            [s["step"] for s in states],
+            fused=True,
+            amsgrad=False,
+            beta1=beta1,
+            beta2=beta2,
+            lr=group["lr"],
+            weight_decay=0.0,
+            eps=group["eps"],
+            maximize=False,
+        )
 
 
 @torch.no_grad()
