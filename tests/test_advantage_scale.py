@@ -1,4 +1,4 @@
-"""``advantage_scale``: what the Lagrangian's multiplier weighs (algos/ppo.py: lagrangian_advantage).
+"""``advantage_scale``: what the Lagrangian's multiplier weighs (algos/ppo_lag.py: lagrangian_advantage).
 
 Checked against hand-computed advantages, and for the property it exists for: with
 ``advantage_scale: standardized`` and the budget-relative dual step, costs (and budgets) in other
@@ -16,7 +16,7 @@ from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config
 from cmdp_rl.algos import make_algo
-from cmdp_rl.algos.ppo import lagrangian_advantage
+from cmdp_rl.algos.ppo_lag import lagrangian_advantage
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig
 from cmdp_rl.rollout.episode_cost import FINISHED, EpisodeCost

@@ -9,8 +9,7 @@ from helpers.runs import tail_means
 from torch.distributions import kl_divergence
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
-from cmdp_rl.algos.ppo import PPO
-from cmdp_rl.algos.update_backend import OneAgent
+from cmdp_rl.algos.ppo import PPO, OneRun
 from cmdp_rl.config.run_config import compose_config
 
 
@@ -37,8 +36,8 @@ def stage_one(algo, batch):
 
 def project(algo, batch):
     """CUP's stage 2 alone on a batch whose stage 1 ran: its mean loss and KL."""
-    backend = OneAgent(algo.agent, algo.cfg.max_grad_norm, algo.kl_limit)
-    return {k: v.item() for k, v in algo.second_stage(backend, [algo], [batch]).items()}
+    members = OneRun(algo.agent, algo.cfg.max_grad_norm)
+    return {k: v.item() for k, v in algo.second_stage([algo], [batch], members).items()}
 
 
 def _actor(algo):
@@ -47,7 +46,7 @@ def _actor(algo):
 
 def _surrogates(algo, batch, half_params):
     """E[ratio_k A_c] (A_c standardized, as the projection reads it) and E[KL(pi || pi_{k+1/2})]."""
-    units = algo.agent.training_units({k: batch.get(k) for k in algo._update_keys(batch)})
+    units = algo.agent.training_units({k: batch.get(k) for k in algo.update_keys(batch)})
     cost_adv = batch.get(keys.COST_ADVANTAGE).flatten(0, 1)
     cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
     with torch.no_grad():

@@ -9,7 +9,7 @@ from helpers.runs import tail_means
 from torchrl.modules import IndependentNormal
 
 from cmdp_rl import Collector, load_config, make_agent, make_algo, make_env, train
-from cmdp_rl.algos.focops import focops_loss
+from cmdp_rl.algos.focops import focops_terms
 from cmdp_rl.config.run_config import compose_config
 from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.rollout.episode_cost import FINISHED, EpisodeCost
@@ -23,7 +23,8 @@ LOG_STD_K = torch.tensor([-0.7], dtype=torch.float64)
 def _loss(mu, log_std, temperature=1.5, delta=0.02):
     old = IndependentNormal(MU_K, LOG_STD_K.exp().expand_as(MU_K))
     dist = IndependentNormal(mu, log_std.exp().expand_as(mu))
-    return focops_loss(dist, old, A, old.log_prob(A), ADV, temperature, delta)
+    terms, kl = focops_terms(dist, old, A, old.log_prob(A), ADV, temperature, delta)
+    return terms.mean(), kl  # the loss the update minimises: the mean over states
 
 
 def test_the_gradient_at_pi_k_is_the_policy_gradient_over_the_temperature():
@@ -99,8 +100,8 @@ def test_nu_is_projected_dual_ascent_clipped_to_0_and_nu_max():
 def test_the_epochs_stop_at_the_first_minibatch_past_delta():
     algo, batch = setup({"target_kl": 1e-9, "num_minibatches": 4, "update_epochs": 3})
     calls = []
-    loss = algo.policy_loss
-    algo.policy_loss = lambda mb, *args: calls.append(1) or loss(mb, *args)
+    terms = algo.policy_terms
+    algo.policy_terms = lambda *args: calls.append(1) or terms(*args)
     algo.update(batch)
     assert len(calls) == 2  # the first minibatch is at pi_k (KL 0); after its step KL > delta: stop
 

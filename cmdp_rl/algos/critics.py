@@ -1,9 +1,7 @@
 """Critic regression, shared by every algorithm: each critic fits its GAE value targets
-(lambda-returns) by mean squared error."""
+(lambda-returns) by squared error, ``L^VF = (V(s) - V^targ)^2`` (Schulman et al. 2017, eq. 9)."""
 
 from __future__ import annotations
-
-from typing import Callable
 
 import torch
 
@@ -15,7 +13,7 @@ LOSS_NAMES = {"reward": "loss_v", "cost": "loss_vc"}
 
 
 class CriticRegression:
-    """MSE of every critic of the agent on a minibatch's value targets.
+    """The squared error of every critic of the agent on a minibatch's value targets.
 
     A minibatch is a dict of tensors (root keys) over training units: steps, or for recurrent
     critics segments (``Agent.training_units``).
@@ -24,20 +22,22 @@ class CriticRegression:
     def __init__(self, agent: Agent) -> None:
         self.agent = agent
 
-    def losses(
-        self,
-        mb: dict[str, torch.Tensor],
-        values: dict[str, torch.Tensor] | None = None,
-        mean: Callable[[torch.Tensor], torch.Tensor] = torch.mean,
+    def terms(
+        self, mb: dict[str, torch.Tensor], values: dict[str, torch.Tensor] | None = None
     ) -> dict[str, torch.Tensor]:
-        """``{"loss_v": ..., "loss_vc": ...}``: one loss per critic. A population passes its agents'
-        ``values`` by signal on ``[P, B, ...]`` and its per-agent ``mean``."""
+        """``{"loss_v": ..., "loss_vc": ...}``: each critic's loss per sample, for the caller to
+        reduce (``torch.mean``, or a population's mean per agent). ``values``: the critics' values
+        by signal where the caller computed them (a population's fused pass), else the agent's."""
         out = {}
         for signal in self.agent.critics:
             target = mb[keys.SIGNALS[signal][3]]
             value = self.agent.value(signal, mb) if values is None else values[signal]
-            out[LOSS_NAMES[signal]] = mean((value - target).pow(2))
+            out[LOSS_NAMES[signal]] = (value - target).pow(2)
         return out
+
+    def losses(self, mb: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Each critic's mean squared error on the minibatch."""
+        return {name: terms.mean() for name, terms in self.terms(mb).items()}
 
     def target_keys(self) -> list[str]:
         """The value targets a minibatch must carry."""

@@ -25,8 +25,7 @@ Two stages per iteration:
 
 from __future__ import annotations
 
-from functools import partial
-from typing import TYPE_CHECKING, Any, ClassVar, Sequence
+from typing import TYPE_CHECKING, ClassVar, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -34,9 +33,9 @@ from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.lagrange import DualAscent
+from cmdp_rl.algos.minibatch import Tally, joined, stopped
 from cmdp_rl.algos.multiplier_options import Scale, violation_scale
-from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig, Reduce
-from cmdp_rl.algos.update_backend import Backend, joined, run_epochs
+from cmdp_rl.algos.ppo import PPO, STATS, OneRun, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options
 from cmdp_rl.policies.agent import Agent
@@ -86,28 +85,32 @@ class CUP(PPO):
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.cost)
 
-    def second_stage(self, backend: Backend, algos: Sequence[CUP], rows: Sequence[TensorDictBase]) -> dict:
-        """Stage 2 of every member (``algos``, each on its ``rows``, stage 1 done): each member's
-        mean loss and KL."""
+    def second_stage(self, algos: Sequence[CUP], rows: Sequence[TensorDictBase], members: OneRun) -> dict:
+        """Stage 2 of every member (``algos``, each on its ``rows``, stage 1 done), in minibatch
+        epochs as PPO's (``ppo.ppo_update``), KL early stopping included: each member's mean loss
+        and KL."""
         cfg = self.cfg
-        units = backend.training_units(joined([a.projection_inputs(r) for a, r in zip(algos, rows)]))
+        units = members.agent.training_units(joined([a.projection_inputs(r) for a, r in zip(algos, rows)]))
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
-            units.update({(HALF, k): v for k, v in backend.actor_params(units).items()})
-        # fresh: see the docstring; at stage 1's rate (lr, or its annealed value with anneal_lr)
-        nu_coef = backend.per_member([a.projection_coef() for a in algos])
-        step = partial(self.projection_step, backend, backend.fresh_actor_groups(algos), nu_coef)
-        sums, counts = run_epochs(backend, units, cfg.num_minibatches, cfg.projection_epochs, step)
-        return {k: v / counts for k, v in sums.items()}
-
-    def projection_step(
-        self, backend: Backend, groups: list, nu_coef: float | torch.Tensor, mb: dict, active: Any
-    ) -> tuple[dict[str, torch.Tensor], Any]:
-        """One minibatch of stage 2 (``nu_coef``: one, or one per agent), stopped as PPO's stage is."""
-        loss, kl = self.projection_loss(backend.dist(mb), mb, nu_coef, backend.mean)
-        evaluated = active
-        active, stepping = backend.stop(kl.detach(), active)
-        backend.step(loss, groups, stepping)
-        return backend.kept({"loss_projection": loss, "kl_projection": kl}, evaluated), active
+            units.update({(HALF, k): v for k, v in members.actor_params(units).items()})
+        nu_coef = members.per_member([a.projection_coef() for a in algos])
+        kl_limit = None if self.kl_limit is None else members.per_member([a.kl_limit for a in algos])
+        optimiser = members.fresh_actor_optimiser(algos)  # fresh: see the module's docstring
+        tally, active = Tally(), True
+        for _ in range(cfg.projection_epochs):
+            for mb in members.minibatches(units, cfg.num_minibatches, active):
+                terms, kl_terms = self.projection_terms(members.dist(mb), mb, nu_coef)
+                loss, kl = members.mean(terms), members.mean(kl_terms)
+                evaluated = active
+                if kl_limit is not None:
+                    active = active & ~(kl.detach() > kl_limit)
+                members.step(loss, optimiser, active)
+                tally.add({"loss_projection": loss, "kl_projection": kl}, evaluated)
+                if stopped(active):
+                    break
+            if stopped(active):
+                break
+        return tally.means()
 
     def projection_inputs(self, batch: TensorDictBase) -> dict:
         """What stage 2 reads of one agent's batch: the actions, their behaviour log-probs, the cost
@@ -128,17 +131,19 @@ class CUP(PPO):
         """The cost surrogate's weight in stage 2: ``nu (1 - gamma_c gae_lambda) / (1 - gamma_c)``."""
         return self.multiplier.value * self.cost_coef
 
-    def projection_loss(
-        self, dist: Distribution, mb: dict[str, torch.Tensor], nu_coef: float | torch.Tensor, mean: Reduce
+    def projection_terms(
+        self, dist: Distribution, mb: dict[str, torch.Tensor], nu_coef: float | torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Stage 2's loss and ``KL(pi_theta || pi_{k+1/2})``, each reduced by ``mean`` (over the
-        minibatch, or per agent in a population, ``nu_coef`` then one per agent)."""
+        """Stage 2's loss per sample, ``KL(pi_theta || pi_{k+1/2}) + nu_coef pi_theta(a|s) /
+        pi_k(a|s) A_c`` (``nu_coef``: :meth:`projection_coef`, one per member), and its KL term."""
         head = self.agent.actor.head
         half = head.dist({k: mb[(HALF, k)] for k in head.param_keys})
         adv = mb[keys.COST_ADVANTAGE]
         kl = kl_divergence(dist, half).reshape(adv.shape)
         ratio = (dist.log_prob(mb[keys.ACTION]) - mb[keys.LOG_PROB]).reshape(adv.shape).exp()
-        return mean(kl + nu_coef * ratio * adv), mean(kl)
+        if isinstance(nu_coef, torch.Tensor):  # a population's, one per agent: over its [P, B, 1] samples
+            nu_coef = nu_coef.view(-1, *(1,) * (adv.dim() - 1))
+        return kl + nu_coef * ratio * adv, kl
 
     def state_dict(self) -> dict:
         return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}

@@ -29,7 +29,7 @@ before each minibatch's step). Everything else (critics, GAE, minibatches) is PP
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable, ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import torch
 from tensordict import TensorDictBase
@@ -68,22 +68,6 @@ class FOCOPSConfig(PPOConfig):
         require(self.nu_init <= self.nu_max, "algo.nu_init", "a number in [0, algo.nu_max]", self.nu_init)
 
 
-def focops_loss(
-    dist: Distribution,
-    old_dist: Distribution,
-    action: torch.Tensor,
-    old_log_prob: torch.Tensor,
-    adv: torch.Tensor,
-    temperature: float,
-    delta: float,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The projection step's loss on a minibatch: per state ``KL(pi_theta || pi_k)[s] -
-    ratio * adv / temperature``, kept where ``KL <= delta`` (Algorithm 1), averaged over all states.
-    ``adv`` is ``A_r - nu A_c``, shaped ``[..., 1]``. Returns the loss and the per-state KL."""
-    terms, kl = focops_terms(dist, old_dist, action, old_log_prob, adv, temperature, delta)
-    return terms.mean(), kl
-
-
 def focops_terms(
     dist: Distribution,
     old_dist: Distribution,
@@ -93,7 +77,9 @@ def focops_terms(
     temperature: float,
     delta: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`focops_loss` per state, before the average (a population averages per agent)."""
+    """The projection step's loss per state, ``KL(pi_theta || pi_k)[s] - ratio * adv / temperature``,
+    kept where ``KL <= delta`` (Algorithm 1); the update averages it over all states (a population
+    per agent). ``adv`` is ``A_r - nu A_c``, shaped ``[..., 1]``. Returns the terms and the per-state KL."""
     kl = kl_divergence(dist, old_dist).reshape(adv.shape)
     ratio = (dist.log_prob(action) - old_log_prob).reshape(adv.shape).exp()
     inside = (kl.detach() <= delta).to(adv.dtype)
@@ -132,9 +118,10 @@ class FOCOPS(PPO):
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return batch.get(keys.ADVANTAGE) - self.multiplier.value * batch.get(keys.COST_ADVANTAGE)
 
-    def surrogate(
-        self, dist: Distribution, mb: dict[str, torch.Tensor], mean: Callable[[torch.Tensor], torch.Tensor]
-    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def policy_terms(self, dist: Distribution, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict]:
+        """The projection step's loss per state (:func:`focops_terms`) in place of PPO's clipped
+        surrogate; the diagnostics: the exact KL from ``pi_k`` (logged, and what the epochs stop
+        on, at ``delta`` itself) and whether a state is outside the trust region."""
         head = self.agent.actor.head
         old_dist = head.dist({k: mb[k] for k in head.param_keys})  # pi_k, as it acted
         terms, kl = focops_terms(
@@ -146,14 +133,12 @@ class FOCOPS(PPO):
             self.cfg.temperature,
             self.cfg.target_kl,
         )
-        entropy = mean(dist.entropy())
         with torch.no_grad():
-            mean_kl = mean(kl)
-            outside = mean((kl > self.cfg.target_kl).float())
-        return mean(terms), {"entropy": entropy, "kl": mean_kl, "kl_stop": mean_kl, "outside_fraction": outside}
+            diagnostics = {"kl": kl, "kl_stop": kl, "outside_fraction": (kl > self.cfg.target_kl).float()}
+        return terms, diagnostics
 
-    def _update_keys(self, batch: TensorDictBase) -> list:
-        return [*super()._update_keys(batch), *self.agent.actor.head.param_keys]
+    def update_keys(self, batch: TensorDictBase) -> list:
+        return [*super().update_keys(batch), *self.agent.actor.head.param_keys]
 
     def state_dict(self) -> dict:
         return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}

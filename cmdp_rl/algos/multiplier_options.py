@@ -22,7 +22,7 @@ from cmdp_rl.config.validation import NonNegativeFloat, finite, require
 
 Update = Literal["dual", "regularized", "optimistic", "augmented"]
 Scale = Literal["none", "budget"]
-AdvantageScale = Literal["raw", "standardized"]  # ppo.lagrangian_advantage
+AdvantageScale = Literal["raw", "standardized"]  # ppo_lag.lagrangian_advantage
 
 
 @dataclass

@@ -1,29 +1,35 @@
-"""PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms"): one clipped-PPO update
-on a policy advantage, ``A = A_r`` here. Reward-penalty PPO and PPO-Lagrangian (Ray, Achiam,
-Amodei, 2019, "Benchmarking Safe Exploration in Deep RL") change only that advantage and the
-multiplier behind it: ppo_lag.py.
+"""PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms") and the update every
+PPO-family algorithm runs: :func:`ppo_update`, the epochs of minibatch steps on one screen.
 
-The clipped surrogate (eq. 7 of Schulman et al.) reads the combined advantage; both critics regress
-on their GAE value targets. The surrogate is written out here rather than torchrl's
-``ClipPPOLoss``: with the same formulas (clip in log-ratio space, entropy bonus, ``kl_approx``,
-``clip_fraction``; ``tests/test_algos.py`` checks it equals ``ClipPPOLoss`` on a batch),
-``ClipPPOLoss`` spent about two thirds of each minibatch on TensorDict work it does for features
-we do not use (ESS, ratio statistics, key resolution, a TensorDict clone), the largest cost of the
-default gymnasium run's training (measured with cProfile, see ``experiments/``).
+A variant changes what the loop reads, never the loop: the policy advantage and the multiplier
+behind it (reward-penalty PPO and PPO-Lagrangian, Ray, Achiam, Amodei 2019: ppo_lag.py; FOCOPS,
+CRPO), the per-sample policy loss (FOCOPS), a stage after the epochs (CUP). A population of P
+agents runs the same loop: the losses are per-sample terms, and what it changes is the reducer
+(one mean per agent instead of ``torch.mean``) and the optimiser step (each agent's rows of stacked
+parameters), with its networks' forward pass and each agent's own minibatch order
+(population/update.py); :class:`OneRun` is a run's.
+
+The clipped surrogate is written out here rather than torchrl's ``ClipPPOLoss``: with the same
+formulas (clip in log-ratio space, entropy bonus, ``kl_approx``, ``clip_fraction``;
+``tests/test_algos.py`` checks it equals ``ClipPPOLoss`` on a batch), ``ClipPPOLoss`` spent about
+two thirds of each minibatch on TensorDict work it does for features we do not use (ESS, ratio
+statistics, key resolution, a TensorDict clone), the largest cost of the default gymnasium run's
+training (measured with cProfile, see ``experiments/``).
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Optional, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Iterator, Optional, Sequence
 
 import torch
 from tensordict import TensorDictBase
 from torch import distributions as D
+from torch.optim.adam import adam as functional_adam
 
-from cmdp_rl.algos.base import AlgoConfig, check_finite
+from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
-from cmdp_rl.algos.update_backend import Backend, OneAgent, iterate
+from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, minibatches, stopped
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import (
     AUTO,
@@ -49,7 +55,8 @@ if TYPE_CHECKING:
 # factor 1.5 is the one Spinning Up's PPO and Stable-Baselines3's PPO use with their target_kl.
 KL_STOP = 1.5
 Units = dict[str, torch.Tensor]
-Reduce = Callable[[torch.Tensor], torch.Tensor]  # torch.mean, or a population's mean per agent
+# An optimiser and the parameters it steps (a run's network; a population's stacked rows).
+Optimiser = tuple[Any, Any]
 
 
 @options
@@ -103,18 +110,6 @@ class PPOConfig(AlgoConfig):
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
 
 
-def clipped_gain(
-    log_prob: torch.Tensor, old_log_prob: torch.Tensor, adv: torch.Tensor, log_clip: tuple[float, float]
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The clipped surrogate's per-sample gain ``min(r A, clip(r) A)`` (Schulman et al. 2017,
-    eq. 7), clipping the log-ratio to ``log_clip = (log(1 - eps), log(1 + eps))``; also returns the
-    log-ratio and its clipped value (for the KL and clip-fraction statistics). Elementwise, so a
-    population's update (population/update.py) reduces it per agent."""
-    log_ratio = (log_prob - old_log_prob).reshape(adv.shape)
-    log_ratio_clip = log_ratio.clamp(*log_clip)
-    return torch.minimum(log_ratio.exp() * adv, log_ratio_clip.exp() * adv), log_ratio, log_ratio_clip
-
-
 class PPO:
     name = "ppo"
     stats = STATS  # what update() returns besides lagrange_multiplier: metrics.csv's columns
@@ -147,6 +142,14 @@ class PPO:
         frac = self.anneal_fraction() if self.cfg.anneal_lr else 1.0
         return frac * self.cfg.lr, frac * self.cfg.critic_lr
 
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
+        if self.cfg.anneal_lr:
+            self.actor_opt.param_groups[0]["lr"], self.critic_opt.param_groups[0]["lr"] = self.learning_rates()
+        stats = ppo_update([self], batch, OneRun(self.agent, self.cfg.max_grad_norm))[0]
+        check_parameters_finite(self.agent)
+        return stats
+
     # --- what the variants change -------------------------------------------------------------
     @property
     def lagrange_multiplier(self) -> float:
@@ -158,35 +161,44 @@ class PPO:
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return batch.get(keys.ADVANTAGE)
 
-    # --- the shared update ----------------------------------------------------------------------
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
-        return iterate([self], batch, OneAgent(self.agent, self.cfg.max_grad_norm, self.kl_limit))[0]
+    def policy_terms(self, dist: D.Distribution, mb: Units) -> tuple[torch.Tensor, Units]:
+        """The policy loss per sample, ``-min(r A, clip(r, 1 - eps, 1 + eps) A)`` with
+        ``r = pi(a|s) / pi_old(a|s)`` (the clipped surrogate, Schulman et al. 2017, eq. 7; clipped
+        in log-ratio space, as ClipPPOLoss), and per-sample diagnostics, without a graph: the KL
+        estimate ``log pi_old - log pi``, the one early stopping reads, ``(r - 1) - log r`` (never
+        negative: Schulman 2020, "Approximating KL Divergence"; the one Stable-Baselines3 stops
+        on), and whether ``r`` was clipped."""
+        log_prob = dist.log_prob(mb[keys.ACTION])
+        old_log_prob, adv = mb[keys.LOG_PROB], mb[keys.POLICY_ADVANTAGE]
+        log_ratio = (log_prob - old_log_prob).reshape(adv.shape)
+        log_ratio_clip = log_ratio.clamp(*self.log_clip)
+        gain = torch.minimum(log_ratio.exp() * adv, log_ratio_clip.exp() * adv)
+        with torch.no_grad():
+            diagnostics = {
+                "kl": old_log_prob - log_prob,
+                "clip_fraction": (log_ratio_clip != log_ratio).float(),
+                "kl_stop": log_ratio.exp() - 1 - log_ratio,
+            }
+        return -gain, diagnostics
 
+    def second_stage(self, algos: Sequence[PPO], rows: Sequence[TensorDictBase], members: OneRun) -> Units:
+        """A stage after the minibatch epochs, for every member (``algos``, each on its ``rows``),
+        before ``finish``: its statistics' means per member (none here; CUP's projection)."""
+        return {}
+
+    def iteration_stats(self) -> dict[str, float]:
+        """A variant's ``stats`` beyond the minibatch loop's (CRPO's ``cost_step``)."""
+        return {}
+
+    # --- around the epochs, per member --------------------------------------------------------
     def prepare(self, batch: TensorDictBase) -> torch.Tensor:
-        """After GAE, before the minibatches (one agent's rows): J_c, the multiplier, the policy
-        advantage (normalised if ``normalize_advantage``)."""
+        """After GAE, on this member's rows: J_c, the multiplier, then the policy advantage
+        (standardised if ``normalize_advantage``)."""
         self.update_multiplier(self.episode_cost.update(batch))
         adv = self.policy_advantage(batch)
         if self.cfg.normalize_advantage:
             adv = standardized(adv)
         return adv
-
-    def minibatch_step(self, backend: Backend, groups: list, mb: Units, active: Any) -> tuple[Units, Any]:
-        """One minibatch: the policy loss and the critics' regression (reduced by the backend's
-        mean), KL early stopping, one backward pass and the backend's step. Returns the statistics
-        and the agents still active."""
-        dist, values = backend.training_pass(mb)
-        loss_pi, stats = self.policy_loss(mb, dist, backend.mean, backend.entropy_coef)
-        # Critics: regression on the GAE value targets (lambda-returns).
-        critic_losses = self.critics.losses(mb, values, backend.mean)
-        evaluated = active
-        active, stepping = backend.stop(stats["kl_stop"], active)
-        total = loss_pi
-        for loss in critic_losses.values():
-            total = total + loss
-        backend.step(total, groups, stepping)
-        return backend.kept({"loss_pi": loss_pi, **critic_losses, **stats}, evaluated), active
 
     def finish(self, means: dict[str, float]) -> dict[str, float]:
         """After the minibatches: the logged statistics (``stats`` of the minibatch means, checked
@@ -198,46 +210,7 @@ class PPO:
         self.iteration += 1
         return stats
 
-    def policy_loss(
-        self,
-        mb: Units,
-        dist: D.Distribution | None = None,
-        mean: Reduce = torch.mean,
-        entropy_coef: float | torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, Units]:
-        """:meth:`surrogate` minus the entropy bonus, and its statistics, detached. A population
-        passes its agents' distribution on ``[P, B, ...]``, its per-agent ``mean`` and coefficients."""
-        loss, stats = self.surrogate(self.agent.dist(mb) if dist is None else dist, mb, mean)
-        loss = loss - (self.entropy_coef if entropy_coef is None else entropy_coef) * stats["entropy"]
-        return loss, {**stats, "entropy": stats["entropy"].detach()}
-
-    def surrogate(self, dist: D.Distribution, mb: Units, mean: Reduce) -> tuple[torch.Tensor, Units]:
-        """Clipped surrogate (Schulman et al. 2017, eq. 7; clip on the log-ratio, as ClipPPOLoss) and
-        its statistics (entropy with its graph, KL ``E[log pi_old - log pi]``, clip fraction,
-        ``kl_stop``), reduced by ``mean``: over the minibatch, or per agent on a population's ``[P, B]``."""
-        log_prob = dist.log_prob(mb[keys.ACTION])
-        old_log_prob = mb[keys.LOG_PROB]
-        adv = mb[keys.POLICY_ADVANTAGE]
-        gain, log_ratio, log_ratio_clip = clipped_gain(log_prob, old_log_prob, adv, self.log_clip)
-        entropy = mean(dist.entropy())
-        with torch.no_grad():
-            kl = mean(old_log_prob - log_prob)
-            # Non-negative estimate for early stopping: E[(r - 1) - log r] (Schulman, 2020,
-            # "Approximating KL Divergence"; the one Stable-Baselines3 stops on).
-            kl_stop = mean(log_ratio.exp() - 1 - log_ratio)
-            clip_fraction = mean((log_ratio_clip != log_ratio).float())
-        return -mean(gain), {"entropy": entropy, "kl": kl, "clip_fraction": clip_fraction, "kl_stop": kl_stop}
-
-    def second_stage(self, backend: Backend, algos: Sequence[PPO], rows: Sequence[TensorDictBase]) -> Units:
-        """A stage after the minibatch epochs, for every member (``algos``, each on its ``rows``),
-        before ``finish``: its statistics' means per member (none here; CUP's projection)."""
-        return {}
-
-    def iteration_stats(self) -> dict[str, float]:
-        """A variant's ``stats`` beyond the minibatch loop's (CRPO's ``cost_step``)."""
-        return {}
-
-    def _update_keys(self, batch: TensorDictBase) -> list:
+    def update_keys(self, batch: TensorDictBase) -> list:
         """The batch entries the minibatch loop reads: the networks' inputs, the action and its
         behaviour log-prob, the policy advantage and the critics' value targets."""
         fixed = [keys.ACTION, keys.LOG_PROB, keys.POLICY_ADVANTAGE, *self.critics.target_keys()]
@@ -262,33 +235,167 @@ class PPO:
         self.iteration = int(state["iteration"])
 
 
-def penalised(batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float]) -> torch.Tensor:
-    """``A_r - sum_k lambda_k A_c,k`` (with K = 1 exactly ``A_r - lambda A_c``)."""
-    adv, cost_adv = batch.get(keys.ADVANTAGE), batch.get(keys.COST_ADVANTAGE)
-    for k, lam in enumerate(lams):
-        adv = adv - lam * cost_adv[..., k : k + 1]
-    return adv
+def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> list[dict[str, float]]:
+    """One iteration of every member on its rows of the ``[N, T]`` batch: a run is ``[self]`` on
+    :class:`OneRun`, a population its agents' own objects on ``population.update.PopulationPPO``,
+    whose reducer (``mean``: one mean per agent) and optimiser step plug in where a run's do.
+    Returns each member's statistics to log."""
+    ppo, cfg = algos[0], algos[0].cfg
+    ppo.gae(batch, members.agent)  # A_r, A_c and the critics' targets V^targ = A + V, every member's rows at once
+    rows = member_rows(batch, len(algos))
+    # Each member's J_c, its multiplier, its policy advantage A (PPO: A_r; ppo_lag: (A_r - lam A_c) / (1 + lam)).
+    batch.set(keys.POLICY_ADVANTAGE, joined([a.prepare(r) for a, r in zip(algos, rows)]))
+    units = members.agent.training_units({k: batch.get(k) for k in ppo.update_keys(batch)})
+    mean, optimisers = members.mean, members.optimisers(algos)  # the reducer: torch.mean for a run
+    entropy_coef = members.per_member([a.entropy_coef for a in algos])
+    kl_limit = None if ppo.kl_limit is None else members.per_member([a.kl_limit for a in algos])
+    tally, active = Tally(), True
+    for _ in range(cfg.update_epochs):
+        for mb in members.minibatches(units, cfg.num_minibatches, active):  # a fresh order each epoch
+            dist, values = members.forward(mb)  # pi_theta(.|s) and the critics' V_r(s), V_c(s)
+            # Clipped surrogate (eq. 7): L^CLIP = E[min(r A, clip(r, 1 - eps, 1 + eps) A)] with
+            # r = pi_theta(a|s) / pi_old(a|s); terms: -min(...) per sample (FOCOPS: its own loss).
+            terms, diagnostics = ppo.policy_terms(dist, mb)
+            entropy = mean(dist.entropy())
+            # Minimised (eq. 9): -L^CLIP - c_2 S[pi_theta] + L^VF for each critic, L^VF = E[(V(s) - V^targ)^2].
+            loss_pi = mean(terms) - entropy_coef * entropy
+            critic_losses = {k: mean(t) for k, t in ppo.critics.terms(mb, values).items()}
+            with torch.no_grad():
+                stats = {"loss_pi": loss_pi, **critic_losses, "entropy": entropy}
+                stats.update({k: mean(t) for k, t in diagnostics.items()})
+            # KL early stopping: once E[(r - 1) - log r] > 1.5 target_kl a member takes no step, on
+            # this minibatch or after (a run's loop ends); this minibatch still counts in its stats.
+            evaluated = active
+            if kl_limit is not None:
+                active = active & ~(stats["kl_stop"] > kl_limit)
+            members.step(sum(critic_losses.values(), loss_pi), optimisers, active)
+            tally.add(stats, evaluated)
+            if stopped(active):
+                break
+        if stopped(active):
+            break
+    means = tally.means()  # each member's mean over the minibatches it evaluated
+    means.update(ppo.second_stage(algos, rows, members))
+    out = []
+    for i, (algo, values) in enumerate(zip(algos, member_stats(means, len(algos)))):
+        try:
+            out.append(algo.finish(values))
+        except TrainingDiverged as exc:
+            if len(algos) == 1:
+                raise
+            raise TrainingDiverged(f"agent {i}: {exc}") from exc
+    return out
 
 
-def lagrangian_advantage(
-    batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float], scale: str = "raw"
-) -> torch.Tensor:
-    """The Lagrangian's policy advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``.
+class OneRun:
+    """What the update asks of one run's agent: its reducer is ``torch.mean`` and its optimiser
+    step is torch's (one backward pass, each network's gradient norm clipped, ``Optimizer.step``).
+    ``population.update.PopulationPPO`` answers the same calls for P agents side by side."""
 
-    ``scale``: ``raw`` weighs the advantages in their own units; ``standardized`` first brings
-    ``A_r`` and each ``A_c,k`` to mean 0 and standard deviation 1 over the batch, so that lambda = 1
-    weighs a cost signal as much as the reward's whatever either is measured in. On PointGoal1 the
-    cost advantage's spread is 10-30 times the reward's, so in raw units any lambda above about 0.1
-    already hands the policy's update to the cost (docs/constraint_satisfaction.md). OmniSafe
-    standardises the reward advantage and centres the cost advantage; both are standardised here so
-    that, with the budget-relative dual step, scaling the costs (and the budgets) by any factor
-    leaves the whole run unchanged.
-    """
-    if scale == "standardized":
-        adv, cost_adv = batch.get(keys.ADVANTAGE), batch.get(keys.COST_ADVANTAGE)
-        rows = tuple(range(cost_adv.dim() - 1))
-        batch = {keys.ADVANTAGE: standardized(adv), keys.COST_ADVANTAGE: standardized(cost_adv, rows)}
-    return penalised(batch, lams) / (1.0 + sum(lams))
+    mean = staticmethod(torch.mean)
+
+    def __init__(self, agent: Agent, max_grad_norm: float) -> None:
+        self.agent, self.max_grad_norm = agent, max_grad_norm
+
+    @staticmethod
+    def per_member(values: Sequence[Any]) -> Any:
+        """One number per member, as the losses weigh a member's terms by it: a run's one."""
+        return values[0]
+
+    def minibatches(self, units: Units, num_minibatches: int, active: Any = True) -> Iterator[Units]:
+        """One pass over the units in a fresh order (torch's global generator, as a seeded run repeats)."""
+        return (mb for _, mb in minibatches(units, num_minibatches))
+
+    def forward(self, mb: Units) -> tuple[D.Distribution, Units]:
+        """The actor's distribution and the critics' values by signal."""
+        return self.agent.dist(mb), self.values(mb)
+
+    def dist(self, mb: Units) -> D.Distribution:
+        return self.agent.dist(mb)
+
+    def values(self, mb: Units) -> Units:
+        return {signal: self.agent.value(signal, mb) for signal in self.agent.critics}
+
+    def actor_params(self, units: Units) -> Units:
+        """The actor's distribution parameters (CUP's pi_{k+1/2})."""
+        return self.agent.actor.params(units)
+
+    def optimisers(self, algos: Sequence[PPO]) -> list[Optimiser]:
+        a = algos[0]
+        return [(a.actor_opt, a.actor_params), (a.critic_opt, a.critic_params)]
+
+    def fresh_actor_optimiser(self, algos: Sequence[PPO]) -> list[Optimiser]:
+        """Adam on the actor with no moments yet, at the actor's rate this iteration (CUP's stage 2)."""
+        a = algos[0]
+        return [(torch.optim.Adam(a.actor_params, lr=a.actor_opt.param_groups[0]["lr"], fused=True), a.actor_params)]
+
+    def step(self, loss: torch.Tensor, optimisers: Sequence[Optimiser], stepping: Any = True) -> None:
+        """Backward, clip each network's gradient norm, ``Optimizer.step``; nothing once KL early
+        stopping ended the update (``stepping`` false)."""
+        if not stepping:
+            return
+        for _, params in optimisers:
+            for p in params:  # optimizer.zero_grad(set_to_none=True), without its per-call profiling
+                p.grad = None
+        # One backward pass: the networks share no parameter, so each one's gradient is its own loss's.
+        loss.backward()
+        for _, params in optimisers:
+            clip_grad_norm_(params, self.max_grad_norm)
+        for opt, _ in optimisers:
+            adam_step(opt)
+
+
+def adam_step(opt: torch.optim.Optimizer) -> None:
+    """``opt.step()``. For torch's fused Adam with one parameter group, default options and its
+    moments created (after its first step), the same fused kernel through torch's documented
+    functional API, ``torch.optim.adam.adam``, on the optimiser's own state: ``Optimizer.step``'s
+    wrappers (profiling record, hooks, the per-parameter state scan) cost more than the kernel on
+    these small networks, 9% of ``make train``'s update measured in that run (docs/throughput.md).
+    tests/test_update_loop.py checks the two bit for bit."""
+    group, params = opt.param_groups[0], opt.param_groups[0]["params"]
+    plain = not any(group[k] for k in ("amsgrad", "maximize", "weight_decay", "capturable", "differentiable"))
+    if not (
+        type(opt) is torch.optim.Adam
+        and len(opt.param_groups) == 1
+        and group["fused"]
+        and plain
+        and not group.get("decoupled_weight_decay")
+        and len(opt.state) == len(params)
+        and all(p.grad is not None for p in params)
+    ):
+        opt.step()
+        return
+    states = [opt.state[p] for p in params]
+    beta1, beta2 = group["betas"]
+    with torch.no_grad():
+        functional_adam(
+            params,
+            [p.grad for p in params],
+            [s["exp_avg"] for s in states],
+            [s["exp_avg_sq"] for s in states],
+            [],
+            [s["step"] for s in states],
+            fused=True,
+            amsgrad=False,
+            beta1=beta1,
+            beta2=beta2,
+            lr=group["lr"],
+            weight_decay=0.0,
+            eps=group["eps"],
+            maximize=False,
+        )
+
+
+@torch.no_grad()
+def clip_grad_norm_(params: Sequence[torch.Tensor], max_norm: float) -> None:
+    """``torch.nn.utils.clip_grad_norm_`` in its own arithmetic (per-tensor norms, their 2-norm,
+    the coefficient ``max_norm / (norm + 1e-6)`` clamped at 1) for parameters of one device and
+    dtype, with the ``torch._foreach_*`` kernels torch's uses: without its grouping of the
+    gradients by device and dtype on every call (docs/throughput.md)."""
+    grads = [p.grad for p in params if p.grad is not None]
+    if grads:
+        total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads, 2.0)), 2.0)
+        torch._foreach_mul_(grads, torch.clamp(max_norm / (total + 1e-6), max=1.0))
 
 
 def logged_multiplier(values: list[float]) -> float | list[float]:

@@ -1,5 +1,7 @@
 """Reward-penalty PPO and PPO-Lagrangian (dual ascent, PID, or a last-iterate update): PPO's
-clipped update (ppo.py) on a penalised advantage.
+clipped update (``ppo.ppo_update``) on a penalised advantage. A variant here is two methods, as in
+SafePO's PPO-Lag: ``update_multiplier`` moves lambda once per iteration from the measured episode
+cost, before the policy update, and ``policy_advantage`` is the advantage the surrogate reads.
 
 - Penalty: PPO on the reward ``r - lambda c`` with a fixed lambda. GAE is linear in the reward, so
   with ``V = V_r - lambda V_c`` its advantage is exactly ``A_r - lambda A_c``; the two critics stay
@@ -34,7 +36,7 @@ from cmdp_rl.algos.multiplier_options import (
     make_controller,
     violation_scale,
 )
-from cmdp_rl.algos.ppo import PPO, PPOConfig, lagrangian_advantage, logged_multiplier, penalised
+from cmdp_rl.algos.ppo import PPO, PPOConfig, logged_multiplier
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import (
     Bool,
@@ -47,10 +49,41 @@ from cmdp_rl.config.validation import (
     require,
 )
 from cmdp_rl.policies.agent import Agent
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.advantages import standardized
 from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
+
+
+def penalised(batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float]) -> torch.Tensor:
+    """``A_r - sum_k lambda_k A_c,k`` (with K = 1 exactly ``A_r - lambda A_c``)."""
+    adv, cost_adv = batch.get(keys.ADVANTAGE), batch.get(keys.COST_ADVANTAGE)
+    for k, lam in enumerate(lams):
+        adv = adv - lam * cost_adv[..., k : k + 1]
+    return adv
+
+
+def lagrangian_advantage(
+    batch: TensorDictBase | dict[str, torch.Tensor], lams: list[float], scale: str = "raw"
+) -> torch.Tensor:
+    """The Lagrangian's policy advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``.
+
+    ``scale``: ``raw`` weighs the advantages in their own units; ``standardized`` first brings
+    ``A_r`` and each ``A_c,k`` to mean 0 and standard deviation 1 over the batch, so that lambda = 1
+    weighs a cost signal as much as the reward's whatever either is measured in. On PointGoal1 the
+    cost advantage's spread is 10-30 times the reward's, so in raw units any lambda above about 0.1
+    already hands the policy's update to the cost (docs/constraint_satisfaction.md). OmniSafe
+    standardises the reward advantage and centres the cost advantage; both are standardised here so
+    that, with the budget-relative dual step, scaling the costs (and the budgets) by any factor
+    leaves the whole run unchanged.
+    """
+    if scale == "standardized":
+        adv, cost_adv = batch.get(keys.ADVANTAGE), batch.get(keys.COST_ADVANTAGE)
+        rows = tuple(range(cost_adv.dim() - 1))
+        batch = {keys.ADVANTAGE: standardized(adv), keys.COST_ADVANTAGE: standardized(cost_adv, rows)}
+    return penalised(batch, lams) / (1.0 + sum(lams))
 
 
 @options
@@ -158,9 +191,14 @@ class PPOLagrangian(PPO):
                     c.rho = frac * self.cfg.lambda_lr
                 else:
                     c.lr = frac * self.cfg.lambda_lr
-        self.multiplier.update(estimate.costs)  # every iteration (algos/episode_cost.py)
+        # Dual ascent on the Lagrangian J_r - lambda (J_c - d) (Ray, Achiam, Amodei 2019), by default:
+        # lambda <- max(0, lambda + lambda_lr (J_c - d) / s), s = d with lambda_scale=budget, else 1
+        # (lagrange.DualAscent; PID or a last-iterate update by algo.multiplier), one per constraint,
+        # on the batch's J_c estimate (rollout/episode_cost.py).
+        self.multiplier.update(estimate.costs)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
+        # (A_r - lambda A_c) / (1 + lambda): the surrogate of the Lagrangian, scaled back to A_r's units.
         return lagrangian_advantage(batch, self.multiplier.values, self.cfg.advantage_scale)
 
     def state_dict(self) -> dict:

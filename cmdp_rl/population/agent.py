@@ -93,6 +93,10 @@ class PopulationAgent:
     def value(self, signal: str, obs: torch.Tensor) -> torch.Tensor:
         return sequential(self.critic_nets[signal], f"{signal}.net", self.critics, obs)
 
+    def training_units(self, data: dict) -> dict:
+        """Entries of the ``[P N, T, ...]`` batch as each agent's training units, ``[P, N T, ...]``."""
+        return {k: v.reshape(self.num_agents, -1, *v.shape[2:]) for k, v in data.items()}
+
     def _agents(self, x: torch.Tensor) -> torch.Tensor:
         """A flat ``[P N, ...]`` (or ``[P N, T, ...]``) entry as ``[P, rows, features]``."""
         return x.reshape(self.num_agents, -1, x.shape[-1])

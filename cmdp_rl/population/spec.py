@@ -32,7 +32,7 @@ PER_AGENT_FIELDS = tuple(flatten_dict(yaml.safe_load((CONFIG_DIR / "population" 
 
 def stacked(algo: str, base: str | None = None) -> bool:
     """Whether the population's update of ``algo`` is one batched program: a PPO whose update is
-    ``PPO.update`` (the variant lives in the hooks ``update_backend.iterate`` calls per agent:
+    ``PPO.update`` (the variant lives in the hooks ``ppo.ppo_update`` calls per agent:
     multiplier, advantage, surrogate, a second stage), or a composition on such a base (Sauté's
     ``algo.base``: ``base`` where the config names it, else its default)."""
     comp = component("algo", algo)

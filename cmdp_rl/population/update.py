@@ -1,21 +1,22 @@
-"""The agents' update on the stacked backend: units ``[P, U, ...]``, each agent's permutations from
-its generator, per-agent means, per-row clipping, ``StackedAdam``, the KL mask
-(:class:`StackedBackend`). :class:`PopulationPPO`, the PPO family's, is every agent's iteration at
-once (``algos/update_backend.iterate``, the fused training pass), each agent's own single-run
-algorithm object around it. :class:`AgentUpdates`, the trust-region family's, is each agent's own
-policy step (``NaturalGradient.policy_update``) on its rows, then every agent's critic regression
-at once (``NaturalGradient.fit_critics`` on the stacked backend).
+"""The agents' update, P agents side by side: units ``[P, U, ...]``, each agent's minibatch order
+from its own generator, one mean per agent, per-row clipping, ``StackedAdam``, KL early stopping
+as a mask over the agents (:class:`StackedBackend`). :class:`PopulationPPO`, the PPO family's, is
+every agent's iteration at once (``algos/ppo.ppo_update``, with the fused training pass), each
+agent's own single-run algorithm object around it. :class:`AgentUpdates`, the trust-region
+family's, is each agent's own policy step (``NaturalGradient.policy_update``) on its rows, then
+every agent's critic regression at once (``NaturalGradient.fit_critics`` on this backend).
 """
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import TrainingDiverged
-from cmdp_rl.algos.update_backend import iterate, members
+from cmdp_rl.algos.minibatch import member_rows
+from cmdp_rl.algos.ppo import ppo_update
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.params import StackedAdam, StackedParams
 from cmdp_rl.rollout import keys
@@ -23,68 +24,57 @@ from cmdp_rl.rollout import keys
 # A stacked network, its Adam, and the attributes of an agent's algorithm object that hold the
 # same network's module (``algo.agent.<name>``) and optimiser.
 Pair = tuple[str, StackedParams, StackedAdam, str]
+# An optimiser with the stacked parameters it steps (their rows are clipped per agent).
+Optimiser = tuple[StackedAdam, StackedParams]
 
 
 class StackedBackend:
-    """The minibatch epochs of P agents side by side (``algos/update_backend.Backend``): a KL limit
-    per agent (``kl_limit`` ``[P]``, or None), gradient norms clipped at ``max_grad_norm`` per agent."""
+    """What an update loop asks of P agents side by side (``algos/ppo.OneRun`` answers it for a
+    run): the reducer is a mean per agent, the optimiser step clips each agent's gradient norm at
+    ``max_grad_norm`` and steps the agents still active."""
 
-    def __init__(self, agent: PopulationAgent, max_grad_norm: float, kl_limit: torch.Tensor | None) -> None:
-        self.agent, self.max_grad_norm, self.kl_limit = agent, max_grad_norm, kl_limit
+    def __init__(self, agent: PopulationAgent, max_grad_norm: float) -> None:
+        self.agent, self.max_grad_norm = agent, max_grad_norm
         self.rows = torch.arange(agent.num_agents, device=agent.actor.flat.device).unsqueeze(1)
-
-    # --- the epochs -----------------------------------------------------------------------------
-    def start(self) -> torch.Tensor:
-        return torch.ones(self.agent.num_agents, dtype=torch.bool, device=self.rows.device)
-
-    def any_active(self, active: torch.Tensor) -> bool:
-        return self.kl_limit is None or bool(active.any().item())  # no limit: all, no host sync
-
-    def units(self, data: dict) -> int:
-        return next(iter(data.values())).shape[1]
-
-    def shuffle(self, data: dict, active: torch.Tensor) -> dict:
-        total = self.units(data)
-        perm = torch.stack(
-            [
-                torch.randperm(total, generator=g, device=g.device) if on else torch.arange(total, device=g.device)
-                for g, on in zip(self.agent.generators, active.tolist())
-            ]
-        )
-        return {k: v[self.rows, perm] for k, v in data.items()}
-
-    def minibatch(self, shuffled: dict, start: int, stop: int) -> dict:
-        return {k: v[:, start:stop] for k, v in shuffled.items()}
 
     def mean(self, x: torch.Tensor) -> torch.Tensor:
         """The mean over each agent's rows: ``[P, B, ...]`` -> ``[P]``."""
         return x.reshape(self.agent.num_agents, -1).mean(1)
 
-    def stop(self, kl: torch.Tensor, active: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        if self.kl_limit is None:  # None: every agent steps
-            return active, None
-        active = active & ~(kl > self.kl_limit)
-        return active, active
+    def per_member(self, values: Sequence[float]) -> torch.Tensor:
+        """One number per agent, ``[P]``, as the losses weigh each agent's terms."""
+        return torch.tensor(values, dtype=torch.float32, device=self.rows.device)
 
-    def step(self, loss: torch.Tensor, groups: list, stepping: torch.Tensor | None) -> None:
-        # The per-agent losses summed: agents share no parameter, so each one's gradient is its own loss's.
-        for opt, _ in groups:
+    def minibatches(self, units: dict, num_minibatches: int, active: Any = True) -> Iterator[dict]:
+        """One pass, each agent's units in its own fresh order (from its generator, as its single
+        run draws it); an agent that KL early stopping stopped (``active`` false) draws none."""
+        total = next(iter(units.values())).shape[1]
+        size = total // num_minibatches
+        if size < 1:
+            raise ValueError(f"{num_minibatches} minibatches of {total} units: at most {total} allowed")
+        on = [True] * self.agent.num_agents if active is True else active.tolist()
+        perm = torch.stack(
+            [
+                torch.randperm(total, generator=g, device=g.device) if a else torch.arange(total, device=g.device)
+                for g, a in zip(self.agent.generators, on)
+            ]
+        )
+        shuffled = {k: v[self.rows, perm] for k, v in units.items()}
+        for j in range(num_minibatches):
+            yield {k: v[:, j * size : (j + 1) * size] for k, v in shuffled.items()}
+
+    def step(self, loss: torch.Tensor, optimisers: Sequence[Optimiser], stepping: Any = True) -> None:
+        """Backward, clip and step the agents ``stepping`` holds (True: all)."""
+        for opt, _ in optimisers:
             opt.zero_grad()
+        # The per-agent losses summed: agents share no parameter, so each one's gradient is its own loss's.
         loss.sum().backward()
-        for _, stacked in groups:
+        for _, stacked in optimisers:
             stacked.clip_grad_norm_(self.max_grad_norm)
-        for opt, _ in groups:
-            opt.step(stepping)
+        for opt, _ in optimisers:
+            opt.step(None if stepping is True else stepping)
 
-    def kept(self, stats: dict[str, torch.Tensor], evaluated: torch.Tensor) -> dict[str, torch.Tensor]:
-        if self.kl_limit is None:  # every agent evaluates every minibatch
-            return {k: v.detach() for k, v in stats.items()}
-        return {k: torch.where(evaluated, v.detach(), 0.0) for k, v in stats.items()}
-
-    def count(self, evaluated: torch.Tensor) -> torch.Tensor:
-        return evaluated.to(torch.float32)
-
-    def critic_values(self, mb: dict) -> dict[str, torch.Tensor]:
+    def values(self, mb: dict) -> dict[str, torch.Tensor]:
         return {s: self.agent.value(s, mb[keys.OBS]) for s in self.agent.critic_nets}
 
     def check_finite(self) -> None:
@@ -138,51 +128,43 @@ class StackedBackend:
 
 
 class PopulationPPO(StackedBackend):
-    """P agents' side of the shared update (``algos/update_backend.Backend``). ``algos`` are the
+    """P agents' side of the PPO family's update (``algos/ppo.ppo_update``). ``algos`` are the
     agents' single-run algorithm objects (PPO or a subclass that keeps ``PPO.update``): each keeps
     its agent's J_c window, multiplier and schedule clock; the networks and optimisers are here."""
 
     def __init__(self, agent: PopulationAgent, algos: Sequence[Any]) -> None:
-        self.algos, device = list(algos), agent.actor.flat.device
-        # each algorithm's own coefficient: a regularised multiplier adds its tau to the configured one
-        self.entropy_coef = torch.tensor([a.entropy_coef for a in algos], dtype=torch.float32, device=device)
-        limits = [a.kl_limit for a in algos]
-        kl_limit = None if limits[0] is None else torch.tensor(limits, dtype=torch.float32, device=device)
-        super().__init__(agent, self.algos[0].cfg.max_grad_norm, kl_limit)  # shared, as every shape and schedule
+        self.algos = list(algos)
+        super().__init__(agent, self.algos[0].cfg.max_grad_norm)  # shared, as every shape and schedule
         rates = [a.learning_rates() for a in self.algos]
         self.actor_opt = StackedAdam(agent.actor.flat, [lr for lr, _ in rates])
         self.critic_opt = StackedAdam(agent.critics.flat, [lr for _, lr in rates])
 
     def update(self, batch: TensorDictBase) -> list[dict[str, Any]]:
         """One iteration for every agent on the ``[P N, T]`` batch; each agent's logged statistics."""
-        return iterate(self.algos, batch, self)
+        if self.algos[0].cfg.anneal_lr:
+            rates = torch.tensor([a.learning_rates() for a in self.algos], dtype=torch.float64)
+            self.actor_opt.lr, self.critic_opt.lr = rates[:, 0].clone(), rates[:, 1].clone()
+        stats = ppo_update(self.algos, batch, self)
+        self.check_finite()
+        return stats
 
-    # --- around the epochs ----------------------------------------------------------------------
-    def set_rates(self, algos: Sequence[Any]) -> None:
-        rates = torch.tensor([a.learning_rates() for a in algos], dtype=torch.float64)
-        self.actor_opt.lr, self.critic_opt.lr = rates[:, 0].clone(), rates[:, 1].clone()
-
-    def groups(self, algos: Sequence[Any]) -> list:
-        return [(self.actor_opt, self.agent.actor), (self.critic_opt, self.agent.critics)]
-
-    def fresh_actor_groups(self, algos: Sequence[Any]) -> list:
-        return [(StackedAdam(self.agent.actor.flat, self.actor_opt.lr.tolist()), self.agent.actor)]
-
-    def training_units(self, data: dict) -> dict:
-        return {k: v.reshape(self.agent.num_agents, -1, *v.shape[2:]) for k, v in data.items()}
-
-    def actor_params(self, units: dict) -> dict[str, torch.Tensor]:
-        return self.agent.params(units[keys.OBS])
-
-    def per_member(self, values: Sequence[float]) -> torch.Tensor:
-        return torch.tensor(values, dtype=torch.float32, device=self.rows.device).view(-1, 1, 1)
+    # --- what the loops ask besides the reducer and the step ---------------------------------------
+    def forward(self, mb: dict) -> tuple[Any, dict[str, torch.Tensor]]:
+        """The actors' distribution and the critics' values, in one fused pass where it applies."""
+        dist, value, cost_value = self.agent.training_pass(mb[keys.OBS])
+        return dist, {"reward": value, "cost": cost_value}
 
     def dist(self, mb: dict) -> Any:
         return self.agent.dist(mb[keys.OBS])
 
-    def training_pass(self, mb: dict) -> tuple[Any, dict[str, torch.Tensor]]:
-        dist, value, cost_value = self.agent.training_pass(mb[keys.OBS])
-        return dist, {"reward": value, "cost": cost_value}
+    def actor_params(self, units: dict) -> dict[str, torch.Tensor]:
+        return self.agent.params(units[keys.OBS])
+
+    def optimisers(self, algos: Sequence[Any]) -> list[Optimiser]:
+        return [(self.actor_opt, self.agent.actor), (self.critic_opt, self.agent.critics)]
+
+    def fresh_actor_optimiser(self, algos: Sequence[Any]) -> list[Optimiser]:
+        return [(StackedAdam(self.agent.actor.flat, self.actor_opt.lr.tolist()), self.agent.actor)]
 
     def _pairs(self) -> list[Pair]:
         return [
@@ -201,14 +183,14 @@ class AgentUpdates(StackedBackend):
 
     def __init__(self, agent: PopulationAgent, algos: Sequence[Any]) -> None:
         self.algos = list(algos)
-        super().__init__(agent, self.algos[0].cfg.max_grad_norm, None)
+        super().__init__(agent, self.algos[0].cfg.max_grad_norm)
         self.critic_opt = StackedAdam(agent.critics.flat, [a.cfg.critic_lr for a in self.algos])
 
     def update(self, batch: TensorDictBase) -> list[dict[str, Any]]:
         first = self.algos[0]
         first.gae(batch, self.agent)  # every agent's rows at once
         units, stats = [], []
-        for algo, rows, g in zip(self.algos, members(batch, len(self.algos)), self.agent.generators):
+        for algo, rows, g in zip(self.algos, member_rows(batch, len(self.algos)), self.agent.generators):
             with _global_generator(g):
                 u, s = algo.policy_update(rows)
             units.append(u)

@@ -19,7 +19,6 @@ from pathlib import Path
 
 import torch
 
-from cmdp_rl.algos.ppo import PPO  # noqa: E402
 from cmdp_rl.population import agent, params, trainer, update  # noqa: E402
 from cmdp_rl.rollout import collector  # noqa: E402
 from lab.bench.population_benchmark import base, composed  # noqa: E402
@@ -28,8 +27,8 @@ PARTS = [
     (collector.Collector, "collect", "rollout (Collector.collect)"),
     (update.TwinGAE, "__call__", "GAE (critic values + torchrl GAE)"),
     (update.PopulationPPO, "update", "update() total (GAE included)"),
-    (PPO, "minibatch_step", "  minibatch steps total"),
-    (agent.PopulationAgent, "training_pass", "    forward: the 3P networks"),
+    (agent.PopulationAgent, "training_pass", "  forward: the 3P networks"),
+    (update.StackedBackend, "step", "  optimiser steps total"),
     (torch.Tensor, "backward", "    backward (losses + networks)"),
     (params.StackedParams, "clip_grad_norm_", "    grad-norm clipping"),
     (params.StackedAdam, "step", "    Adam (stacked)"),

@@ -107,7 +107,7 @@ METHODS: dict[str, list[str]] = {
     "ppo_lag/0.2": ["algo=ppo_lag", "algo.lambda_lr=0.2"],
     # The dual step in the cost's own units (the default before lambda_scale: budget).
     "ppo_lag/raw": ["algo=ppo_lag", "algo.lambda_scale=none"],
-    # lambda weighing the standardised advantages (ppo.lagrangian_advantage), with dual steps
+    # lambda weighing the standardised advantages (ppo_lag.lagrangian_advantage), with dual steps
     # of 0.05 (the default) and 0.03.
     "ppo_lag/standardized": ["algo=ppo_lag", "algo.advantage_scale=standardized"],
     "ppo_lag/standardized-0.03": ["algo=ppo_lag", "algo.advantage_scale=standardized", "algo.lambda_lr=0.03"],

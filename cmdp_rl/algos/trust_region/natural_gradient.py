@@ -21,7 +21,8 @@ from torch.distributions import kl_divergence
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
-from cmdp_rl.algos.update_backend import OneAgent, run_epochs
+from cmdp_rl.algos.minibatch import Tally
+from cmdp_rl.algos.ppo import OneRun
 from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options, require
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
@@ -184,8 +185,9 @@ class NaturalGradient:
         """One iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         self.gae(batch, self.agent)
         units, stats = self.policy_update(batch)
-        backend = OneAgent(self.agent, self.cfg.max_grad_norm, None)
-        losses = self.fit_critics(units, backend, [(self.critic_opt, self.critic_params)])
+        losses = self.fit_critics(
+            units, OneRun(self.agent, self.cfg.max_grad_norm), [(self.critic_opt, self.critic_params)]
+        )
         stats.update({k: v.item() for k, v in losses.items()})
         check_parameters_finite(self.agent)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
@@ -237,25 +239,20 @@ class NaturalGradient:
     def entropy(self, units: dict[str, torch.Tensor]) -> float:
         return self.agent.dist(units).entropy().mean().item()
 
-    def fit_critics(self, units: dict[str, torch.Tensor], backend: Any, groups: list) -> dict[str, torch.Tensor]:
-        """Regress the critics on their GAE value targets: ``critic_epochs`` passes of
-        ``critic_minibatches`` Adam steps, on one agent's units (``update_backend.OneAgent``) or P
-        agents' ``[P, U, ...]`` (the population's stacked backend), the optimiser and parameters in
-        ``groups``. Returns each loss's mean over the minibatches (per agent)."""
-
-        def step(mb: dict[str, torch.Tensor], active: Any) -> tuple[dict[str, torch.Tensor], Any]:
-            losses = self.critics.losses(mb, backend.critic_values(mb), backend.mean)
-            check_finite(**losses)
-            total = None
-            for loss in losses.values():
-                total = loss if total is None else total + loss
-            backend.step(total, groups, active)
-            # summed in float64, as Python floats would be
-            return backend.kept({k: v.double() for k, v in losses.items()}, active), active
-
-        cfg = self.cfg
-        sums, counts = run_epochs(backend, units, cfg.critic_minibatches, cfg.critic_epochs, step)
-        return {k: v / counts for k, v in sums.items()}
+    def fit_critics(self, units: dict[str, torch.Tensor], members: Any, optimisers: list) -> dict[str, torch.Tensor]:
+        """Regress the critics on their GAE value targets, ``(V(s) - V^targ)^2``: ``critic_epochs``
+        passes of ``critic_minibatches`` Adam steps, on one agent's units (``ppo.OneRun``) or P
+        agents' ``[P, U, ...]`` (``population.update.AgentUpdates``, each agent's mean its own).
+        Returns each loss's mean over the minibatches (per agent)."""
+        cfg, tally = self.cfg, Tally()
+        for _ in range(cfg.critic_epochs):
+            for mb in members.minibatches(units, cfg.critic_minibatches):
+                losses = {k: members.mean(t) for k, t in self.critics.terms(mb, members.values(mb)).items()}
+                check_finite(**losses)
+                first, *rest = losses.values()
+                members.step(sum(rest, first), optimisers)
+                tally.add({k: v.double() for k, v in losses.items()})  # summed in float64, as Python floats would be
+        return tally.means()
 
     def state_dict(self) -> dict:
         return {

@@ -28,7 +28,8 @@ import torch
 from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.lagrange import Multipliers
 from cmdp_rl.algos.multiplier_options import MultiplierFields, check_multiplier, make_controller
-from cmdp_rl.algos.ppo import lagrangian_advantage, logged_multiplier
+from cmdp_rl.algos.ppo import logged_multiplier
+from cmdp_rl.algos.ppo_lag import lagrangian_advantage
 from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.trust_region.cpo import CPOConfig
 from cmdp_rl.algos.trust_region.natural_gradient import (
