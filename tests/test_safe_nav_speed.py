@@ -11,7 +11,7 @@ import torch
 if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
     pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
 
-from conftest import eval_result, metrics_rows  # noqa: E402
+from helpers.runs import eval_result, metrics_rows  # noqa: E402
 
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.config.run_config import compose_config  # noqa: E402
