@@ -289,7 +289,7 @@ def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> 
 
 class OneRun:
     """What the update asks of one run's agent: its reducer is ``torch.mean`` and its optimiser
-    step is torch's (one backward pass, each network's gradient norm clipped, ``Optimizer.step``).
+    step is torch's (one backward pass, each network's gradient norm clipped, fused Adam).
     ``population.update.PopulationPPO`` answers the same calls for P agents side by side."""
 
     mean = staticmethod(torch.mean)
@@ -330,7 +330,7 @@ class OneRun:
         return [(torch.optim.Adam(a.actor_params, lr=a.actor_opt.param_groups[0]["lr"], fused=True), a.actor_params)]
 
     def step(self, loss: torch.Tensor, optimisers: Sequence[Optimiser], stepping: Any = True) -> None:
-        """Backward, clip each network's gradient norm, ``Optimizer.step``; nothing once KL early
+        """Backward, clip each network's gradient norm, step its Adam; nothing once KL early
         stopping ended the update (``stepping`` false)."""
         if not stepping:
             return
@@ -350,7 +350,7 @@ def adam_step(opt: torch.optim.Optimizer) -> None:
     moments created (after its first step), the same fused kernel through torch's documented
     functional API, ``torch.optim.adam.adam``, on the optimiser's own state: ``Optimizer.step``'s
     wrappers (profiling record, hooks, the per-parameter state scan) cost more than the kernel on
-    these small networks, 9% of ``make train``'s update measured in that run (docs/throughput.md).
+    these small networks: they added 9% to ``make train``'s update (docs/throughput.md).
     tests/test_update_loop.py checks the two bit for bit."""
     group, params = opt.param_groups[0], opt.param_groups[0]["params"]
     plain = not any(group[k] for k in ("amsgrad", "maximize", "weight_decay", "capturable", "differentiable"))
