@@ -150,6 +150,14 @@ class RecentEpisodes:
         n = len(self.returns)
         return sum(self.returns) / n, [sum(col) / n for col in zip(*self.costs)]
 
+    def over(self, row: dict[str, Any]) -> dict[str, Any]:
+        """``row`` with its return and cost columns replaced by the window's means (``row`` itself while the
+        window is empty)."""
+        if not len(self):
+            return row
+        mean_return, mean_costs = self.means()
+        return {**row, "episode_return": mean_return, **recent_costs(row, mean_costs)}
+
 
 class MetricsLogger:
     """Writes one CSV row per iteration (flushed at once) and echoes a progress line every
@@ -325,9 +333,7 @@ def format_row(row: dict[str, Any], recent: RecentEpisodes | None = None) -> str
     none) has no ``lambda`` part, rather than a KeyError halfway through a run."""
     window = ""
     if recent is not None and len(recent):
-        mean_return, mean_costs = recent.means()
-        row = {**row, "episode_return": mean_return, **recent_costs(row, mean_costs)}
-        window = f" | last {len(recent)} episodes"
+        row, window = recent.over(row), f" | last {len(recent)} episodes"
     cost = "/".join(_fmt(c, ".2f") for c in _per_constraint(row, "episode_cost"))
     lams = _per_constraint(row, "lagrange_multiplier")
     lam = "/".join(_fmt(x, ".3f") for x in lams)

@@ -11,7 +11,7 @@ from typing import Any, Callable, TextIO
 
 from tqdm import tqdm
 
-from cmdp_rl.report.metrics import RecentEpisodes, recent_costs
+from cmdp_rl.report.metrics import RecentEpisodes
 
 
 class Progress:
@@ -48,9 +48,7 @@ class Progress:
             return
         window = ""
         if recent is not None and len(recent):
-            mean_return, mean_costs = recent.means()
-            row = {**row, "episode_return": mean_return, **recent_costs(row, mean_costs)}
-            window = f" ({len(recent)} episodes)"
+            row, window = recent.over(row), f" ({len(recent)} episodes)"
 
         def each(name: str, fmt: str) -> str:  # one value, or K joined by '/' (episode_cost/<cost> columns)
             return "/".join(format(v, fmt) for k, v in row.items() if k == name or k.startswith(name + "/"))

@@ -17,7 +17,8 @@ How an instance is drawn (:func:`generate`, from ``numpy.random.default_rng((SUI
 - sizes: ``K`` in 1..3 (1 half of the time, so the algorithms that take one constraint have
   instances), ``S`` in 3..8, ``A`` in 2..4, ``H`` log-uniform in 10..200;
 - scales: the reward's ``R`` and each cost's ``C_k``, each log-uniform in [1e-2, 1e2] and drawn
-  independently, so the reward-to-cost ratio ranges over 1e-4..1e4 (the units problem of issue 41);
+  independently, so the reward-to-cost ratio ranges over 1e-4..1e4 (a multiplier must then reach
+  values of that ratio's order: what a default with units fails on);
 - tables: each (s, a) leads to 1 to 3 successor states (Dirichlet weights), ``r = R u`` with
   ``u = U(0, 1)^2`` and ``c_k = C_k (rho_k u + (1 - rho_k) w) m`` with ``rho_k`` in [0.5, 1], ``w``
   uniform and ``m`` a 0/1 mask (70% ones): what pays tends to cost, so the budget trades reward away;
