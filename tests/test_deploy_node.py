@@ -16,6 +16,7 @@ from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main, in-process
 from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.population import train_population
+from cmdp_rl.report.plot import group_runs
 from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.run.migrations import saved_config_defaults
 
@@ -123,3 +124,14 @@ def test_a_population_saved_with_the_flat_options_resumes_unchanged(tmp_path):
         assert metrics_rows(b) == metrics_rows(a)
         assert eval_result(b) == eval_result(a)
         assert eval_result(b)["final_policy"] == "mixture"  # the valued mixture, with TINY's 8 episodes each
+
+
+def test_curves_group_across_what_runs_deploy_whichever_layout_saved_it(tmp_path, quiet):
+    a, b = tmp_path / "a", tmp_path / "b"
+    train(load_config(tiny(total_steps=2 * 32)), a, echo=quiet)
+    shutil.copytree(a, b)
+    config = flat(yaml.safe_load((b / "config.yaml").read_text()))
+    config.update(seed=1, final_policy="average")  # another seed, saved before the node, deploying otherwise
+    (b / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    (curve,) = group_runs([a, b])
+    assert curve.seeds == 2 and curve.label == "ppo_lag, 2 seeds"
