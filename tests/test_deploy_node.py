@@ -19,6 +19,7 @@ from cmdp_rl.population import train_population
 from cmdp_rl.report.plot import group_runs
 from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.run.migrations import saved_config_defaults
+from cmdp_rl.run.sweeps import load_run
 
 # Each flat option, by its name in the node.
 FLAT = {
@@ -126,7 +127,7 @@ def test_a_population_saved_with_the_flat_options_resumes_unchanged(tmp_path):
         assert eval_result(b)["final_policy"] == "mixture"  # the valued mixture, with TINY's 8 episodes each
 
 
-def test_curves_group_across_what_runs_deploy_whichever_layout_saved_it(tmp_path, quiet):
+def test_plot_and_compare_read_either_layout_as_the_node(tmp_path, quiet):
     a, b = tmp_path / "a", tmp_path / "b"
     train(load_config(tiny(total_steps=2 * 32)), a, echo=quiet)
     shutil.copytree(a, b)
@@ -134,4 +135,7 @@ def test_curves_group_across_what_runs_deploy_whichever_layout_saved_it(tmp_path
     config.update(seed=1, final_policy="average")  # another seed, saved before the node, deploying otherwise
     (b / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
     (curve,) = group_runs([a, b])
-    assert curve.seeds == 2 and curve.label == "ppo_lag, 2 seeds"
+    assert curve.seeds == 2 and curve.label == "ppo_lag, 2 seeds"  # curves group across what runs deploy
+    # compare (run/sweeps.py) groups by the node: `--by deploy.policy` tells these two apart
+    assert [load_run(r).config["deploy"]["policy"] for r in (a, b)] == ["mixture", "average"]
+    assert "final_policy" not in load_run(b).config
