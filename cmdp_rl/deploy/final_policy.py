@@ -1,8 +1,8 @@
-"""What a run deploys (``deploy.policy``, options in ``options.py``), kept beside its training: the last iterate, the average of
-the actor's parameters over the last iterations (``average.py``) or a mixture of snapshots of the actor
-(``mixture.py``). One per run, and one per agent of a population, each on its own single-run agent, so
-both deploy by the same code; :func:`deploy_saved` puts the same policy back from a checkpoint (evaluate,
-video, ``cmdp_rl.load``).
+"""What a run deploys (``deploy.policy``; the node's options in ``options.py``), kept beside its training:
+the last iterate, the average of the actor's parameters over the last iterations (``average.py``) or a
+mixture of snapshots of the actor (``mixture.py``). One per run, and one per agent of a population, each
+on its own single-run agent, so both deploy by the same code; :func:`deploy_saved` puts the same policy
+back from a checkpoint (evaluate, video, ``cmdp_rl.load``).
 """
 
 from __future__ import annotations
