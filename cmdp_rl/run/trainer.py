@@ -104,20 +104,20 @@ def complete_result(
     average: ParameterAverage | IterateSnapshots | None = None,
 ) -> None:
     """Add to an evaluation's ``result`` what ``eval.json`` records of the run: budget, steps, train
-    time, threads, the deployed policy (``final_policy``, and how many iterations ``average`` holds),
-    cost rates and normalised scores per constraint, the reference."""
+    time, threads, the deployed policy (``final_policy``, the run's ``deploy.policy``, and how many iterations
+    ``average`` holds), cost rates and normalised scores per constraint, the reference."""
     result.update(
         {
             "cost_limit": cfg.algo.cost_limit,
             "steps": steps,
             "train_time_s": train_time,
             "torch_threads": torch.get_num_threads(),
-            "final_policy": cfg.final_policy,
+            "final_policy": cfg.deploy.policy,
             "averaged_iterations": None if average is None else average.count,
         }
     )
     if isinstance(average, IterateSnapshots):  # the mixture's members, and their weights if chosen
-        result.update(average.result_keys(cfg.mixture_weights))
+        result.update(average.result_keys(cfg.deploy.weights))
     k = len(names)
     limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
@@ -307,7 +307,7 @@ def _train(
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
-    final = FinalPolicy(cfg, iterations, state)  # what the run deploys: final_policy
+    final = FinalPolicy(cfg, iterations, state)  # what the run deploys: deploy.policy
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
