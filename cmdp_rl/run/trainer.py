@@ -223,7 +223,8 @@ def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s:
 def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
     """A run's env, agent and algorithm, under its seed (a population builds each agent so)."""
     seed_everything(cfg.seed)
-    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
+    cut_at = cfg.algo.cost_limit if cfg.early_terminate else None  # the early-terminated MDP's budget
+    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo, cut_at=cut_at)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
     return env, agent, make_algo(cfg.algo, agent)
 
