@@ -8,15 +8,21 @@ import importlib.util
 import gymnasium as gym
 import pytest
 import torch
+import yaml
 from helpers.policies import ForwardPolicy
-from helpers.runs import tiny
+from helpers.runs import metrics_rows, tiny
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, train
 from cmdp_rl.config.registry import component, names
 from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.envs import EarlyTerminated, GymVecEnv, Reach1D, TorchReach1D, make_env
 from cmdp_rl.envs.vector import Step, VecEnv
+from cmdp_rl.population import train_population
 from cmdp_rl.run.trainer import build_run, evaluate_run
+
+
+def quiet_echo(line):
+    pass
 
 
 def over_the_wall(obs):
@@ -171,7 +177,10 @@ ALGOS = names("algo")
 
 
 def _enrolled(algo):
+    """helpers.runs' TINY run with ``algo``'s tiny options, d = 0.2, starts beside the wall (crossings come
+    early: every training episode that crosses passes the budget), or the algorithm's own tiny env."""
     cfg = tiny(total_steps=96, early_terminate=True)
+    cfg["env"]["start"] = [0.46, 0.54]
     own = component("algo", algo).options
     if own.tiny_env:
         cfg["env"] = dict(own.tiny_env)
@@ -179,14 +188,48 @@ def _enrolled(algo):
     return cfg
 
 
+def _cut(env):
+    while not isinstance(env, EarlyTerminated) and hasattr(env, "env"):
+        env = env.env  # an algorithm's own wrapper (Sauté's budget state) holds the cut env
+    return isinstance(env, EarlyTerminated)
+
+
 @pytest.mark.parametrize("algo", ALGOS)
-def test_every_registered_algorithm_trains_on_the_early_terminated_mdp(algo, tmp_path, quiet):
-    cfg = load_config(_enrolled(algo))
-    assert cfg.early_terminate
-    train(cfg, tmp_path, echo=quiet)
-    if component("algo", algo).options.tiny_env:
-        return  # its own env: the run is the check
-    # Reach1D costs 1 per wall crossing and d = 0.2: every training episode ends at its first crossing
-    with open(tmp_path / "metrics.csv") as f:
-        costs = [float(r["episode_cost"]) for r in csv.DictReader(f) if r["episode_cost"]]
-    assert costs and max(costs) <= 1.0
+def test_every_registered_algorithm_trains_on_the_early_terminated_mdp(algo, tmp_path, quiet, monkeypatch):
+    batches = []
+    collect = Collector.collect
+
+    def recording(self):
+        batch = collect(self)
+        if _cut(self.env):  # the training collector's; evaluation's env is whole
+            batches.append(batch)
+        return batch
+
+    monkeypatch.setattr(Collector, "collect", recording)
+    train(load_config(_enrolled(algo)), tmp_path, echo=quiet)
+    assert batches, "training collected from the cut env"
+    over = 0
+    for batch in batches:
+        nxt = batch[keys.NEXT]
+        passed = (nxt[keys.EPISODE_COST] > 0.2).any(-1)
+        assert torch.equal(nxt[keys.TERMINATED].squeeze(-1) & passed, passed)  # where the sum passes d, it ends
+        over += int(passed.sum())
+    assert over > 0, "some training episode passed the budget (the check is not vacuous)"
+
+
+@pytest.mark.parametrize("env", [{"backend": "torch", "stagger": True}, {"name": "fork", "backend": "torch"}])
+def test_a_population_s_agents_train_as_their_single_runs_on_the_early_terminated_mdp(tmp_path, env):
+    """Reach1D's population form (one env of P N rows, each agent's rows cut at its own budget) and
+    the agents' own envs stepped in turn (the fork): each agent equals train() on its config.yaml."""
+    raw = tiny(env={"num_envs": 4, **env}, total_steps=4 * 64, early_terminate=True)
+    if env.get("name") == "fork":
+        raw["env"] = {"name": "fork", "num_envs": 4, "backend": "torch"}
+    raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.2, 0.5]}}}
+    train_population(raw, tmp_path / "pop", echo=quiet_echo)
+    for i, d in enumerate(sorted((tmp_path / "pop" / "agents").iterdir())):
+        cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
+        assert cfg.early_terminate
+        train(cfg, tmp_path / f"single{i}", echo=quiet_echo)
+        rows, expected = metrics_rows(d), metrics_rows(tmp_path / f"single{i}")
+        assert [r["episode_length"] for r in rows] == [r["episode_length"] for r in expected]
+        assert [r["episode_cost"] for r in rows] == [r["episode_cost"] for r in expected]
