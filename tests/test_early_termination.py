@@ -2,7 +2,6 @@
 ends, as a termination, at the first step after which a cost's episode sum exceeds its budget; every
 algorithm in the registry trains on it; evaluation episodes stay whole."""
 
-import csv
 import importlib.util
 
 import gymnasium as gym
@@ -13,16 +12,13 @@ from helpers.policies import ForwardPolicy
 from helpers.runs import metrics_rows, tiny
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, train
-from cmdp_rl.config.registry import component, names
-from cmdp_rl.config.validation import ConfigError
+from cmdp_rl.config.registry import component, names, register
+from cmdp_rl.config.validation import ConfigError, PositiveInt, options
 from cmdp_rl.envs import EarlyTerminated, GymVecEnv, Reach1D, TorchReach1D, make_env
+from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import Step, VecEnv
 from cmdp_rl.population import train_population
 from cmdp_rl.run.trainer import build_run, evaluate_run
-
-
-def quiet_echo(line):
-    pass
 
 
 def over_the_wall(obs):
@@ -34,16 +30,14 @@ def over_the_wall(obs):
 REACH = {"max_steps": 100, "wall": "pass", "start": 0.45, "obs_noise": 0.0}
 
 
-def _envs():
-    gym_env = GymVecEnv(lambda: Reach1D(**REACH), 3)
-    torch_env = TorchReach1D(3, **REACH)
-    return {"gymnasium": gym_env, "torch": torch_env}
+def _reach1d(backend):
+    return GymVecEnv(lambda: Reach1D(**REACH), 3) if backend == "gymnasium" else TorchReach1D(3, **REACH)
 
 
 @pytest.mark.parametrize("backend", ["gymnasium", "torch"])
 def test_an_episode_ends_at_the_first_step_whose_cost_sum_exceeds_the_budget(backend):
     # d = 2.5: the sum is 1, 2, 3 after steps 1, 2, 3, so every episode is cut at step 3 (terminated).
-    env = EarlyTerminated(_envs()[backend], [2.5])
+    env = EarlyTerminated(_reach1d(backend), [2.5])
     batch = Collector(env, ForwardPolicy(over_the_wall), rollout_steps=10, seed=0).collect()
     nxt = batch[keys.NEXT]
     ends = torch.zeros(3, 10, dtype=torch.bool)
@@ -58,12 +52,12 @@ def test_an_episode_ends_at_the_first_step_whose_cost_sum_exceeds_the_budget(bac
     assert torch.equal(nxt[keys.COST].squeeze(-1), torch.ones(3, 10))
     assert torch.allclose(batch[keys.OBS][:, 3, 0], torch.full((3,), 0.45))
     # at d = 3 the sum of 3 is within budget: the cut comes one step later
-    batch = Collector(EarlyTerminated(_envs()[backend], [3.0]), ForwardPolicy(over_the_wall), 10, seed=0).collect()
+    batch = Collector(EarlyTerminated(_reach1d(backend), [3.0]), ForwardPolicy(over_the_wall), 10, seed=0).collect()
     assert finished_episodes(batch)["length"].tolist() == [4.0] * 6
 
 
 def test_without_a_cut_the_same_episodes_run_on():
-    batch = Collector(_envs()["torch"], ForwardPolicy(over_the_wall), rollout_steps=10, seed=0).collect()
+    batch = Collector(_reach1d("torch"), ForwardPolicy(over_the_wall), rollout_steps=10, seed=0).collect()
     assert not batch[keys.NEXT][keys.DONE].any()
 
 
@@ -109,9 +103,42 @@ class NoPartialReset(TwoCosts):
     reset_rows = VecEnv.reset_rows
 
 
-def test_an_env_that_cannot_restart_one_episode_is_refused_in_one_line():
+@options
+class NoRestartConfig(EnvOptions):
+    name: str = "toy_no_restart"
+    num_envs: PositiveInt = 2
+
+
+class NoRestart(VecEnv):
+    """An env without ``reset_rows``: one step episodes, no cost."""
+
+    num_envs, obs_dim, action_dim = 2, 1, 1
+    action_low, action_high, device = -torch.ones(1), torch.ones(1), torch.device("cpu")
+
+    def reset(self, seed=None):
+        return torch.zeros(2, 1)
+
+    def step(self, action):
+        end, no = torch.ones(2, 1, dtype=torch.bool), torch.zeros(2, 1, dtype=torch.bool)
+        return Step(torch.zeros(2, 1), torch.zeros(2, 1), torch.zeros(2, 1), end, no, torch.zeros(2, 1))
+
+
+register("env", "toy_no_restart", NoRestartConfig, lambda cfg, num_envs, device="cpu": NoRestart())
+
+
+def test_an_env_that_cannot_restart_one_episode_is_refused_in_one_line_before_anything_is_written(tmp_path, quiet):
     with pytest.raises(ConfigError, match="early_terminate: true needs an env that can restart single episodes"):
         EarlyTerminated(NoPartialReset([]), [1.0])
+    cfg = load_config({"env": {"name": "toy_no_restart"}, "algo": {"name": "ppo"}, "early_terminate": True})
+    with pytest.raises(ConfigError) as refused:
+        train(cfg, tmp_path / "run", echo=quiet)
+    assert "\n" not in str(refused.value) and "NoRestart has none" in str(refused.value)
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
+    train(
+        load_config({"env": {"name": "toy_no_restart"}, "algo": {"name": "ppo"}, "total_steps": 64}),
+        tmp_path / "ok",
+        echo=quiet,
+    )
 
 
 # Every env family beyond Reach1D (whose episodes the first test counts step by step).
@@ -162,7 +189,10 @@ def test_every_env_family_is_cut_at_the_budget(family):
 
 def test_training_cuts_episodes_and_evaluation_runs_whole_ones(tmp_path, quiet):
     cfg = load_config(
-        {"env": {"name": "reach1d", "num_envs": 2, **REACH, "max_steps": 12}, "algo": {"name": "ppo", "cost_limit": 2.5}}
+        {
+            "env": {"name": "reach1d", "num_envs": 2, **REACH, "max_steps": 12},
+            "algo": {"name": "ppo", "cost_limit": 2.5},
+        }
     )
     cfg.early_terminate = True
     env, _, _ = build_run(cfg)
@@ -218,18 +248,18 @@ def test_every_registered_algorithm_trains_on_the_early_terminated_mdp(algo, tmp
 
 
 @pytest.mark.parametrize("env", [{"backend": "torch", "stagger": True}, {"name": "fork", "backend": "torch"}])
-def test_a_population_s_agents_train_as_their_single_runs_on_the_early_terminated_mdp(tmp_path, env):
+def test_a_population_s_agents_train_as_their_single_runs_on_the_early_terminated_mdp(tmp_path, env, quiet):
     """Reach1D's population form (one env of P N rows, each agent's rows cut at its own budget) and
     the agents' own envs stepped in turn (the fork): each agent equals train() on its config.yaml."""
     raw = tiny(env={"num_envs": 4, **env}, total_steps=4 * 64, early_terminate=True)
     if env.get("name") == "fork":
         raw["env"] = {"name": "fork", "num_envs": 4, "backend": "torch"}
     raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.2, 0.5]}}}
-    train_population(raw, tmp_path / "pop", echo=quiet_echo)
+    train_population(raw, tmp_path / "pop", echo=quiet)
     for i, d in enumerate(sorted((tmp_path / "pop" / "agents").iterdir())):
         cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
         assert cfg.early_terminate
-        train(cfg, tmp_path / f"single{i}", echo=quiet_echo)
+        train(cfg, tmp_path / f"single{i}", echo=quiet)
         rows, expected = metrics_rows(d), metrics_rows(tmp_path / f"single{i}")
         assert [r["episode_length"] for r in rows] == [r["episode_length"] for r in expected]
         assert [r["episode_cost"] for r in rows] == [r["episode_cost"] for r in expected]
