@@ -1,6 +1,6 @@
 """The early-terminated MDP: a training episode ends at the first step after which its cost passes the
-budget (Sun, Xu, Fang, Peng, Guo, Dai, Zhou, 2021, "Safe Exploration by Solving Early Terminated
-MDP", arXiv 2107.04200; cited by name, docs/references.md).
+budget (Sun et al., 2021, "Safe Exploration by Solving Early Terminated MDP", arXiv 2107.04200; cited
+by name, docs/references.md).
 
 The paper's point: ending the episode where the constraint is broken turns the CMDP into an MDP
 whose plain return already pays for the violation (every reward the rest of the episode would have
