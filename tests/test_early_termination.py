@@ -9,6 +9,7 @@ import pytest
 import torch
 import yaml
 from helpers.policies import ForwardPolicy
+from helpers.resume import assert_same_run, crash_then_resume
 from helpers.runs import metrics_rows, tiny
 
 from cmdp_rl import Collector, finished_episodes, keys, load_config, train
@@ -263,3 +264,11 @@ def test_a_population_s_agents_train_as_their_single_runs_on_the_early_terminate
         rows, expected = metrics_rows(d), metrics_rows(tmp_path / f"single{i}")
         assert [r["episode_length"] for r in rows] == [r["episode_length"] for r in expected]
         assert [r["episode_cost"] for r in rows] == [r["episode_cost"] for r in expected]
+
+
+@pytest.mark.parametrize("env", [{}, {"backend": "torch", "stagger": True}])
+def test_a_crashed_run_resumes_as_the_uninterrupted_one(env, tmp_path, monkeypatch, quiet):
+    # d = 1.5: an episode holds one crossing's cost without being cut, so a checkpoint holds running sums
+    cfg = tiny(early_terminate=True, env={**env, "start": [0.46, 0.54]})
+    cfg["algo"]["cost_limit"] = 1.5
+    assert_same_run(*crash_then_resume(cfg, tmp_path, monkeypatch, quiet))
