@@ -8,6 +8,7 @@ import gymnasium as gym
 import pytest
 import torch
 import yaml
+from helpers.cost_envs import TWO_COST_ID
 from helpers.policies import ForwardPolicy
 from helpers.resume import assert_same_run, crash_then_resume
 from helpers.runs import metrics_rows, tiny
@@ -151,8 +152,11 @@ FAMILIES = {
     "skills": {"name": "skills", "num_envs": 4, "hold": 2},
     "pettingzoo": {"name": "pettingzoo", "num_envs": 2},
     "safe_nav": {"name": "safe_nav", "num_envs": 2, "task": "PointGoal1"},
+    "gym": {"name": "gym", "num_envs": 3, "id": TWO_COST_ID},  # K = 2 costs
+    "velocity": {"name": "velocity", "num_envs": 2},
+    "safety_gym": {"name": "safety_gym", "num_envs": 2, "vector": "sync"},
 }
-NEEDS = {"safe_nav": "mujoco"}
+NEEDS = {"safe_nav": "mujoco", "velocity": "mujoco", "safety_gym": "safety_gymnasium"}
 
 
 def _random_steps(env, steps):
