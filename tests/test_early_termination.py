@@ -241,7 +241,9 @@ def test_every_registered_algorithm_trains_on_the_early_terminated_mdp(algo, tmp
         return batch
 
     monkeypatch.setattr(Collector, "collect", recording)
-    train(load_config(_enrolled(algo)), tmp_path, echo=quiet)
+    lines = []
+    train(load_config(_enrolled(algo)), tmp_path, echo=lines.append)
+    assert "cost limit 0.2 (algo.cost_limit), training episodes end past it (early_terminate)" in lines[0]
     assert batches, "training collected from the cut env"
     over = 0
     for batch in batches:
