@@ -4,8 +4,9 @@ by name, docs/references.md).
 
 The paper's point: ending the episode where the constraint is broken turns the CMDP into an MDP
 whose plain return already pays for the violation (every reward the rest of the episode would have
-brought is lost), so an agent that maximises return learns to stay within budget, with or without a
-multiplier. Here the cut is a termination (``terminated``: no bootstrap from the value after it),
+brought is lost), so maximising return favours staying within budget, with or without a multiplier
+(not always: the step that passes the budget keeps its own reward, so a violation that pays at once
+can still be worth it). Here the cut is a termination (``terminated``: no bootstrap from the value after it),
 with the running undiscounted episode cost of each constraint compared with its budget d
 (``algo.cost_limit``): the episode ends when *any* constraint's sum exceeds its budget, strictly
 (a cost exactly at d is within budget, as the evaluation's verdict counts it).
