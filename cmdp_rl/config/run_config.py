@@ -80,6 +80,10 @@ class RunConfig:
     threads: PositiveInt = 1
     eval_episodes: PositiveInt = 20
     eval_deterministic: Bool = True
+    # The early-terminated MDP: a training episode ends (terminated) at the first step after which a
+    # cost's episode sum exceeds its algo.cost_limit (cmdp_rl/envs/early_termination.py); evaluation
+    # episodes are whole.
+    early_terminate: Bool = False
     # The policy deployed at the end (evaluated, in eval.json, in evaluate.py, its video and cmdp_rl.load),
     # and how it is chosen: cmdp_rl/deploy/options.py.
     deploy: DeployConfig = field(default_factory=DeployConfig)

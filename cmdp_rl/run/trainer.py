@@ -223,7 +223,8 @@ def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s:
 def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
     """A run's env, agent and algorithm, under its seed (a population builds each agent so)."""
     seed_everything(cfg.seed)
-    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
+    cut_at = cfg.algo.cost_limit if cfg.early_terminate else None  # the early-terminated MDP's budget
+    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo, cut_at=cut_at)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
     return env, agent, make_algo(cfg.algo, agent)
 
@@ -333,9 +334,11 @@ def _train(
         shape += f"; {described}"
     backend = getattr(cfg.env, "backend", None)  # only envs with several implementations have one
     where = f"{backend}, " if backend else ""
+    cut = ", training episodes end past it (early_terminate)" if cfg.early_terminate else ""
     echo(
         f"training {cfg.algo.name} on {cfg.env.name} ({where}{env.num_envs} envs): "
-        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit} ({budget_source(cfg)}), outputs in {out}"
+        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit} ({budget_source(cfg)}){cut}, "
+        f"outputs in {out}"
     )
     progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
     logger.echo = progress.row_echo
