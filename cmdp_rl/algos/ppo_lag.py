@@ -102,7 +102,7 @@ class PPOLagConfig(PPOConfig, MultiplierFields):
     one of the last-iterate updates (multiplier_options.py)."""
 
     name: str = "ppo_lag"
-    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
+    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     lambda_init: NonNegativeFloat = 0.0
     lambda_lr: PositiveFloat = 0.05
     # With anneal_lr, also anneal lambda's step size linearly to 0 (the same schedule): the dual
@@ -120,7 +120,7 @@ class PIDLagConfig(PPOConfig):
     """PPO with lambda set by a PID controller (Stooke, Achiam, Abbeel 2020)."""
 
     name: str = "pid_lag"
-    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
+    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     lambda_init: NonNegativeFloat = 0.0
     kp: NonNegativeFloat = 2.0
     ki: NonNegativeFloat = 0.1
