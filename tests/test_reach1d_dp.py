@@ -4,13 +4,9 @@ against brute-force value iteration on r - lambda * c."""
 import numpy as np
 import pytest
 
-from cmdp_rl.envs.reach1d.optimum import (
-    closed_form_threshold,
-    constrained_optimum,
-    crossing_thresholds,
-    penalized_crosses,
-)
+from cmdp_rl.envs.reach1d.optimum import constrained_optimum
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
+from lab.studies.reach1d_thresholds import closed_form_threshold, crossing_thresholds, penalized_crosses
 
 PASS = Reach1DConfig(wall="pass")
 

@@ -16,8 +16,8 @@ from cmdp_rl.envs.suite.env import TorchSuite
 from cmdp_rl.envs.suite.model import HELD_ASIDE, TUNING, FiniteCMDP, draw, evaluate, generate
 from cmdp_rl.envs.suite.optimum import solve
 from cmdp_rl.envs.suite.task import SuiteConfig
-from cmdp_rl.envs.suite.valuation import deployed_values
 from cmdp_rl.run.rundir import load_trained
+from lab.studies.suite_valuation import deployed_values
 
 MANY = range(200)
 

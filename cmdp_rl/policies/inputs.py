@@ -11,6 +11,8 @@ Learning by PID Lagrangian Methods", sec. 6).
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import torch
 from torch import nn
@@ -63,6 +65,13 @@ class InputEncoder(nn.Module):
         cost = num_costs if include_prev_cost else 0
         self.in_dim = obs_dim + (action_dim(action_space) if include_prev_action else 0) + cost
         self.out_dim = obs_dim + (encoded if include_prev_action else 0) + cost
+
+    @classmethod
+    def of(cls, cfg: Any, env: Any, obs_norm: nn.Module | None) -> InputEncoder:
+        """The encoder a policy's options ``cfg`` (``include_prev_action``, ``include_prev_cost``) ask for on ``env``."""
+        return cls(
+            env.obs_dim, env.action_space, cfg.include_prev_action, cfg.include_prev_cost, obs_norm, env.num_costs
+        )
 
     def encode_action(self, action: torch.Tensor) -> torch.Tensor:
         if self.categories is None:

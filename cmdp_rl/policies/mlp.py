@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import field
 from typing import TYPE_CHECKING, Annotated, Literal, Mapping
 
-import gymnasium as gym
 import torch
 from torch import nn
 
@@ -123,19 +122,11 @@ class MLPBody(Body):
         return (x if self.take is None else x[..., : self.take],)
 
 
-def make_encoder(
-    cfg: PolicyConfig, obs_dim: int, action_space: gym.Space, obs_norm: nn.Module | None, num_costs: int = 1
-) -> InputEncoder | None:
-    """The input encoder if the policy reads more than the observation, else None."""
-    if not (cfg.include_prev_action or cfg.include_prev_cost):
-        return None
-    return InputEncoder(obs_dim, action_space, cfg.include_prev_action, cfg.include_prev_cost, obs_norm, num_costs)
-
-
 def make_mlp_agent(cfg: PolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
     """Actor and critics, each an MLP of its own on the same inputs."""
     obs_norm = normalizers.obs
-    encoder = make_encoder(cfg, env.obs_dim, env.action_space, obs_norm, env.num_costs)
+    # An encoder only if the policy reads more than the observation.
+    encoder = InputEncoder.of(cfg, env, obs_norm) if cfg.include_prev_action or cfg.include_prev_cost else None
     in_dim = env.obs_dim if encoder is None else encoder.out_dim
 
     def net(out_dim: int, out_gain: float) -> nn.Sequential:

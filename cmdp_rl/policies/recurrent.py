@@ -166,15 +166,7 @@ def make_recurrent_agent(cfg: RecurrentPolicyConfig, env: VecEnv, normalizers: N
     states = STATE_KEYS[cfg.name]
 
     def body(net: str) -> RecurrentBody:
-        encoder = InputEncoder(
-            env.obs_dim,
-            env.action_space,
-            cfg.include_prev_action,
-            cfg.include_prev_cost,
-            normalizers.obs,
-            env.num_costs,
-        )
-        return RecurrentBody(cfg, encoder, states[net])
+        return RecurrentBody(cfg, InputEncoder.of(cfg, env, normalizers.obs), states[net])
 
     def head_mlp(out_dim: int, out_gain: float = 1.0) -> nn.Sequential:
         return mlp(cfg.hidden_size, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain)

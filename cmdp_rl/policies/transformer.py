@@ -231,23 +231,15 @@ def make_transformer_agent(cfg: TransformerPolicyConfig, env: VecEnv, normalizer
     """Actor and critics: a transformer each (then an MLP), over the same carried window (the actor
     carries it)."""
 
-    def encoder() -> InputEncoder:
-        return InputEncoder(
-            env.obs_dim,
-            env.action_space,
-            cfg.include_prev_action,
-            cfg.include_prev_cost,
-            normalizers.obs,
-            env.num_costs,
-        )
-
     def network(out_dim: int, out_gain: float) -> _Trunk:
         return _Trunk(
-            WindowTransformer(cfg, encoder(), env.obs_dim),
+            WindowTransformer(cfg, InputEncoder.of(cfg, env, normalizers.obs), env.obs_dim),
             mlp(cfg.width, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain),
         )
 
-    token_dim = encoder().in_dim  # raw tokens: a discrete action is stored as its index
+    token_dim = InputEncoder.of(
+        cfg, env, normalizers.obs
+    ).in_dim  # raw tokens: a discrete action is stored as its index
     head = make_action_head(env.action_space, network(action_outputs(env.action_space), 0.01), cfg.init_log_std)
     actor = Actor(TransformerBody(cfg, token_dim), head)
     critics = {

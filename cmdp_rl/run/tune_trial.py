@@ -182,17 +182,11 @@ def outcome(results: Sequence[Mapping[str, Any]], names: Sequence[str], budget: 
 def _interval(values: Sequence[float]) -> list[float]:
     from scipy import stats  # here: every run imports this module (its Hydra callback), few of them need scipy
 
-    n, mean = len(values), sum(values) / len(values)
-    half = stats.t.ppf((1 + LEVEL) / 2, n - 1) * _se(values)
-    return [mean - half, mean + half]
+    mean = sum(values) / len(values)
+    return [float(b) for b in stats.t.interval(LEVEL, len(values) - 1, loc=mean, scale=stats.sem(values))]
 
 
 def _upper(values: Sequence[float]) -> float:
     from scipy import stats
 
-    return sum(values) / len(values) + stats.t.ppf(LEVEL, len(values) - 1) * _se(values)
-
-
-def _se(values: Sequence[float]) -> float:
-    n, mean = len(values), sum(values) / len(values)
-    return math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1) / n)
+    return float(sum(values) / len(values) + stats.t.ppf(LEVEL, len(values) - 1) * stats.sem(values))

@@ -134,8 +134,8 @@ def run_one(
     exists) and judge its deployed policy exactly."""
     from cmdp_rl import train
     from cmdp_rl.config.run_config import ConfigError, compose_config
-    from cmdp_rl.envs.suite.valuation import deployed_values
     from cmdp_rl.run.rundir import load_trained
+    from lab.studies.suite_valuation import deployed_values
 
     model = generate(instance)
     steps = step_budget(model.horizon, episodes, min_steps)

@@ -20,7 +20,7 @@ is re-trained) and writes, into ``--out`` (default ``<first dir>/report``):
   horizontal line, the penalty-optimal step function from the analysis; achieved cost against d
   for the constrained runs, the diagonal the ideal;
 - ``answers.md``: the exercise's answers computed from the env's parameters
-  (``cmdp_rl.envs.reach1d.optimum``) and checked against the runs.
+  (``lab.studies.reach1d_thresholds``) and checked against the runs.
 
 ``--population DIR`` first trains the whole grid of both sweeps in this process, as populations
 (``cmdp_rl.population``: one population per algorithm, on ``env.backend=torch``; cpo's agents take

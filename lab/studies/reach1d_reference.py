@@ -2,7 +2,7 @@
 answers derived from it.
 
 The penalty-optimal plans come from dynamic programming on the env's true-state dynamics
-(``cmdp_rl.envs.reach1d.optimum``), for the env and discounts the runs used; nothing is learned. This
+(``lab.studies.reach1d_thresholds``), for the env and discounts the runs used; nothing is learned. This
 module is a :class:`lab.studies.penalty_constraint.Reference` and writes ``answers.md``: (a)
 a penalty under which the optimal policy still collides, (b) why no single λ enforces a budget.
 """
@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.reach1d.optimum import CrossingThresholds, closed_form_threshold, crossing_thresholds
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.run.sweeps import RunRecord
 from lab.studies.penalty_constraint import budget_markdown, penalty_markdown, start_label
+from lab.studies.reach1d_thresholds import CrossingThresholds, closed_form_threshold, crossing_thresholds
 
 SEED_START = 0.1  # the seed exercise's start state
 
@@ -82,7 +82,7 @@ def answers_markdown(reference: Reach1DReference | None, rows: list[dict[str, An
     out.append(
         f"Env: wall={e.wall}, wall_x={e.wall_x}, goal={e.goal}, max_steps={e.max_steps}; "
         f"gamma={g}, cost_gamma={reference.cost_gamma}. Exact plans on the true state "
-        "(no sensor noise), positions on a 0.001 grid (`cmdp_rl/envs/reach1d/optimum.py`).\n"
+        "(no sensor noise), positions on a 0.001 grid (`lab/studies/reach1d_thresholds.py`).\n"
     )
     if reference.mixed_envs:
         out.append(

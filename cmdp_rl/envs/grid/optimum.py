@@ -44,6 +44,12 @@ class InfeasibleBudgets(ValueError):
     """No policy meets the budgets."""
 
 
+def policy_of(occupancy: np.ndarray) -> np.ndarray:
+    """``pi(a | s) = rho(s, a) / sum_a rho(s, a)`` from an occupancy ``[..., S, A]``; uniform where it is 0."""
+    visits = occupancy.sum(-1, keepdims=True)
+    return np.where(visits > 0, occupancy / np.where(visits > 0, visits, 1.0), 1.0 / occupancy.shape[-1])
+
+
 def solve_constrained(cmdp: TabularCMDP, budgets: float | Sequence[float]) -> ConstrainedOptimum:
     """``max_pi J(pi)`` subject to ``J_c[k](pi) <= budgets[k]`` (one number: every constraint; an
     infinite budget: no constraint), solved exactly by the occupancy LP with HiGHS' dual simplex
@@ -69,8 +75,6 @@ def solve_constrained(cmdp: TabularCMDP, budgets: float | Sequence[float]) -> Co
     if res.status != 0:
         raise RuntimeError(f"occupancy LP failed: {res.message}")
     rho = np.clip(res.x, 0.0, None).reshape(num_s, num_a)
-    visits = rho.sum(axis=1, keepdims=True)
-    policy = np.where(visits > 0, rho / np.where(visits > 0, visits, 1.0), 1.0 / num_a)
     multipliers = np.zeros(num_k)
     if rows.size:
         # HiGHS reports d(objective)/d(b_ub) for the minimised -r.rho: <= 0, the negated multiplier.
@@ -78,7 +82,7 @@ def solve_constrained(cmdp: TabularCMDP, budgets: float | Sequence[float]) -> Co
     return ConstrainedOptimum(
         ret=float(cmdp.r.reshape(-1) @ res.x),
         costs=cmdp.c.reshape(num_k, -1) @ res.x,
-        policy=policy,
+        policy=policy_of(rho),
         occupancy=rho,
         multipliers=multipliers,
         lagrangian_values=-res.eqlin.marginals,
@@ -86,4 +90,4 @@ def solve_constrained(cmdp: TabularCMDP, budgets: float | Sequence[float]) -> Co
     )
 
 
-__all__ = ["ConstrainedOptimum", "InfeasibleBudgets", "solve_constrained"]
+__all__ = ["ConstrainedOptimum", "InfeasibleBudgets", "policy_of", "solve_constrained"]

@@ -30,16 +30,11 @@ from cmdp_rl.envs.grid.env import (
 )
 
 
-@dataclass(frozen=True, eq=False)
-class TabularCMDP:
-    """``(S, A, P, r, c, mu0, gamma)`` with K cost functions (module docstring)."""
+class Sizes:
+    """S, A and K of a CMDP held as arrays ``P [S, A, S]`` and ``c [K, S, A]`` (this one, the suite's)."""
 
-    P: np.ndarray  # [S, A, S], substochastic rows allowed
-    r: np.ndarray  # [S, A]
-    c: np.ndarray  # [K, S, A]
-    mu0: np.ndarray  # [S]
-    gamma: float
-    cost_names: tuple[str, ...]
+    P: np.ndarray
+    c: np.ndarray
 
     @property
     def num_states(self) -> int:
@@ -52,6 +47,18 @@ class TabularCMDP:
     @property
     def num_costs(self) -> int:
         return self.c.shape[0]
+
+
+@dataclass(frozen=True, eq=False)
+class TabularCMDP(Sizes):
+    """``(S, A, P, r, c, mu0, gamma)`` with K cost functions (module docstring)."""
+
+    P: np.ndarray  # [S, A, S], substochastic rows allowed
+    r: np.ndarray  # [S, A]
+    c: np.ndarray  # [K, S, A]
+    mu0: np.ndarray  # [S]
+    gamma: float
+    cost_names: tuple[str, ...]
 
 
 @dataclass(frozen=True, eq=False)

@@ -50,6 +50,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from cmdp_rl.envs.grid.tabular import Sizes
+
 TUNING = range(0, 30)  # instance ids that may be used to choose defaults
 HELD_ASIDE = range(1000, 1030)  # instance ids never used to choose anything: measured only
 SUITE_STREAM = 0x5C17E  # the first word of every instance's seed: its own stream, apart from any run seed
@@ -64,7 +66,7 @@ MAX_REDRAWS = 200
 
 
 @dataclass(frozen=True, eq=False)
-class FiniteCMDP:
+class FiniteCMDP(Sizes):
     """A finite-horizon tabular CMDP and its budgets (module docstring)."""
 
     P: np.ndarray  # [S, A, S] transition probabilities, rows sum to 1
@@ -78,18 +80,6 @@ class FiniteCMDP:
     cost_range: np.ndarray | None = None  # [K, 2] least and greatest achievable J_c[k]
     budget_kind: str = ""  # how the budgets were drawn: mixed, vertex or slack
     instance: int | None = None
-
-    @property
-    def num_states(self) -> int:
-        return self.P.shape[0]
-
-    @property
-    def num_actions(self) -> int:
-        return self.P.shape[1]
-
-    @property
-    def num_costs(self) -> int:
-        return self.c.shape[0]
 
     @property
     def cost_names(self) -> tuple[str, ...]:

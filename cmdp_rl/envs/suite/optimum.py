@@ -24,16 +24,13 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import linprog
 
+from cmdp_rl.envs.grid.optimum import InfeasibleBudgets, policy_of
 from cmdp_rl.envs.suite.model import FiniteCMDP
 
 # A (t, s) the optimum visits with probability above VISITED is randomised where its most likely
 # action has probability below 1 - MIXED: far above the LP's own tolerances (1e-7 relative).
 VISITED = 1e-7
 MIXED = 1e-5
-
-
-class InfeasibleBudgets(ValueError):
-    """No policy meets the budgets."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,15 +100,13 @@ def solve(cmdp: FiniteCMDP, budgets: float | Sequence[float] | None = None) -> F
     if res.status != 0:
         raise RuntimeError(f"finite-horizon occupancy LP failed: {res.message}")
     x = np.clip(res.x, 0.0, None).reshape(H, S, A)
-    visits = x.sum(-1, keepdims=True)
-    policy = np.where(visits > 0, x / np.where(visits > 0, visits, 1.0), 1.0 / A)
     multipliers = np.zeros(K)
     if rows.size:  # HiGHS' marginals are d(-J*/r_unit)/d(d_k/c_unit_k) <= 0
         multipliers[rows] = np.clip(-res.ineqlin.marginals, 0.0, None) * r_unit / c_unit[rows]
     return FiniteOptimum(
         ret=float(np.tile(cmdp.r.reshape(-1), H) @ res.x),
         costs=cmdp.c.reshape(K, -1) @ x.sum(0).reshape(-1),
-        policy=policy,
+        policy=policy_of(x),
         occupancy=x,
         multipliers=multipliers,
         budgets=d,

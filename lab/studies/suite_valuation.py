@@ -1,7 +1,7 @@
-"""A trained policy on a suite instance, valued exactly: the actor's action probabilities at every
-(t, s), read off the network on the env's own observations, then backward induction
-(:func:`cmdp_rl.envs.suite.model.evaluate`). No episodes, so no sampling noise: a run's deployed
-policy can be held to its budget itself.
+"""A trained policy on a suite instance (``cmdp_rl.envs.suite``), valued exactly for the suite's study
+(``lab/studies/cmdp_suite.py``): the actor's action probabilities at every (t, s), read off the network
+on the env's own observations, then backward induction (``cmdp_rl.envs.suite.model.evaluate``). No
+episodes, so no sampling noise: a run's deployed policy can be held to its budget itself.
 
 ``deterministic``: the policy evaluation runs with ``eval_deterministic=true`` (the most likely
 action, ``policies/distributions.py``), as a one-hot table. A mixture of actors drawn once per
@@ -12,17 +12,15 @@ without ``include_prev_action``/``include_prev_cost``) is a table; any other is 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import torch
 
 from cmdp_rl.envs.suite.env import observations
 from cmdp_rl.envs.suite.model import FiniteCMDP, Values, evaluate
+from cmdp_rl.policies.agent import Actor
 from cmdp_rl.rollout import keys
-
-if TYPE_CHECKING:  # the envs package is imported by the registry before the policies'
-    from cmdp_rl.policies.agent import Actor
 
 
 @torch.no_grad()
