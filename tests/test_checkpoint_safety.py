@@ -21,7 +21,7 @@ from helpers.runs import ROOT, run_script, tiny
 from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
 from cmdp_rl.config.registry import component, load_builtins, names
-from cmdp_rl.population import train_population
+from cmdp_rl.population import population
 from cmdp_rl.report.plot import main as plot_main
 from cmdp_rl.run.checkpoint import (
     FORMAT_VERSION,
@@ -131,7 +131,7 @@ def test_the_population_resume_refuses_a_crafted_checkpoint(tmp_path):
     raw = tiny(env={"backend": "torch", "num_envs": 4, "stagger": True}, total_steps=2 * 64)
     raw["population"] = {"seeds": 2}
     out = tmp_path / "pop"
-    train_population(raw, out, echo=lambda _: None)
+    train(population(raw), out, echo=lambda _: None)
     target = tmp_path / "created_by_the_checkpoint"
     craft(out / "population.pt", target)
     before = snapshot(out)
