@@ -45,7 +45,8 @@ def write_flat(run) -> None:
     config = yaml.safe_load((run / "config.yaml").read_text())
     (run / "config.yaml").write_text(yaml.safe_dump(flat(config), sort_keys=False))
     state = load_checkpoint(run / "checkpoint.pt")
-    save_checkpoint(run / "checkpoint.pt", {**state, "config": flat(state["config"])})
+    members = [{**m, "config": flat(m["config"])} for m in state["members"]]
+    save_checkpoint(run / "checkpoint.pt", {**state, "members": members})
 
 
 def test_flat_options_map_to_the_node_with_their_values():
@@ -82,7 +83,7 @@ def test_a_run_saved_with_the_flat_options_evaluates_loads_and_resumes_unchanged
     shutil.copytree(new, old)
     write_flat(old)
     assert "final_policy" in yaml.safe_load((old / "config.yaml").read_text())  # else this proves nothing
-    assert "final_policy" in load_checkpoint(old / "checkpoint.pt")["config"]
+    assert "final_policy" in load_checkpoint(old / "checkpoint.pt")["members"][0]["config"]
 
     episodes = ("episode_return", "episode_cost", "episode_length")
     for run in (new, old):  # evaluate.py repeats the run's evaluation of the deployed mixture
@@ -119,8 +120,8 @@ def test_a_population_saved_with_the_flat_options_resumes_unchanged(tmp_path):
     saved = yaml.safe_load((killed / "population.yaml").read_text())
     (killed / "population.yaml").write_text(yaml.safe_dump(flat(saved), sort_keys=False))
     state = load_checkpoint(killed / "population.pt")
-    agents = [{**a, "config": flat(a["config"])} for a in state["agents"]]
-    save_checkpoint(killed / "population.pt", {**state, "agents": agents})
+    members = [{**m, "config": flat(m["config"])} for m in state["members"]]
+    save_checkpoint(killed / "population.pt", {**state, "members": members})
     train(resume_population(killed), killed, echo=lambda s: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(b) == metrics_rows(a)

@@ -163,7 +163,7 @@ def test_resume_continues_the_old_run(name, tmp_path):
     for k in common:  # the same numbers, but for the last bits another CPU moves
         assert _same_number(new[k], old[k]), (k, new[k], old[k])
     state = load_checkpoint(run / "checkpoint.pt")
-    assert state["step"] == 192 and not is_legacy(state["algo_state"]["networks"])
+    assert state["step"] == 192 and not is_legacy(state["members"][0]["algo_state"]["networks"])
 
 
 def test_converted_variants_act_as_before():

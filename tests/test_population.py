@@ -364,7 +364,7 @@ def test_a_population_of_the_stacked_layout_resumes(tmp_path):
         assert_close(metrics_rows(b), metrics_rows(a), b.name)
         assert_close(eval_result(b), eval_result(a), b.name)
     new = torch.load(killed / "population.pt", weights_only=True)
-    assert "update" not in new and [e["algo_state"]["iteration"] for e in new["agents"]] == [4, 4]
+    assert "update" not in new and [e["algo_state"]["iteration"] for e in new["members"]] == [4, 4]
 
 
 @pytest.mark.parametrize(

@@ -23,7 +23,7 @@ from typing import Any, Iterable, Mapping
 from cmdp_rl.config.run_config import ConfigError, RunConfig, flatten_dict, load_config
 from cmdp_rl.population.spec import Population, population
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.run.migrations import deploy_node, migrate, saved_config_defaults
+from cmdp_rl.run.migrations import deploy_node, member, migrate, saved_config_defaults
 from cmdp_rl.run.rundir import POPULATION_CHECKPOINT, POPULATION_CONFIG, checkpoint_path, read_yaml, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
@@ -121,7 +121,9 @@ def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
     assert cfg.resume is not None
     ckpt = checkpoint_path(cfg.resume, "resume")
     state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name, trust=cfg.trust_checkpoint)
-    missing = [k for k in ("collector", "rng", "algo_state", "iteration") if state.get(k) is None]
+    entry = member(state)
+    missing = [k for k in ("collector", "rng", "iteration") if state.get(k) is None]
+    missing += [] if entry.get("algo_state") is not None else ["algo_state"]
     if missing == ["collector"]:
         raise CheckpointError(
             f"resume: {ckpt} holds no env state (env {cfg.env.name!r}, "
@@ -130,7 +132,7 @@ def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
         )
     if missing:
         raise CheckpointError(f"resume: {ckpt} lacks {missing}; it cannot continue a run")
-    check_resume_config(load_config({**saved_config_defaults(state["config"]), "resume": None}), cfg)
+    check_resume_config(load_config({**saved_config_defaults(entry["config"]), "resume": None}), cfg)
     return state
 
 
@@ -156,9 +158,7 @@ def resume_population(
     deploy = saved_raw.setdefault("deploy", {})
     if state is not None and deploy.get("policy", "auto") == "auto":  # as its agents resolved it (the
         # last iterate, before populations deployed what a run deploys)
-        deploy["policy"] = (
-            deploy_node(state["agents"][0]["config"])["deploy"]["policy"] if "agents" in state else "last"
-        )
+        deploy["policy"] = deploy_node(member(state)["config"])["deploy"]["policy"] if "members" in state else "last"
     raw = resumed_raw(saved_raw, requested or {}, explicit, out)
     if raw.get("population") != saved_raw.get("population"):
         raise ConfigError(f"population cannot change when resuming {out}")

@@ -197,12 +197,10 @@ def open_runs(
     return [logger for logger, _ in opened], [saved for _, saved in opened]
 
 
-def restore(
-    state: dict[str, Any], algos: Sequence[Any], entries: Sequence[dict], collector: Collector
-) -> tuple[int, float]:
-    """A resume's checkpoint into each member's algorithm (from its entry: a run's is the checkpoint
-    itself) and into the collector. Returns the first iteration to train and the time trained."""
-    for algo, entry in zip(algos, entries):
+def restore(state: dict[str, Any], algos: Sequence[Any], collector: Collector) -> tuple[int, float]:
+    """A resume's checkpoint into each member's algorithm (from its entry) and into the collector.
+    Returns the first iteration to train and the time trained."""
+    for algo, entry in zip(algos, state["members"]):
         algo.load_state_dict(entry["algo_state"])
     collector.load_state_dict(state["collector"])
     return state["iteration"] + 1, state["time_s"]
@@ -214,18 +212,20 @@ def write_result(out: Path, result: dict[str, Any], cfg: RunConfig, *args: Any) 
     (out / EVAL).write_text(json.dumps(result, indent=2))
 
 
-def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s: float, algo: Any) -> dict[str, Any]:
-    """A ``checkpoint.pt``'s run fields and the algorithm's ``state_dict`` (networks, optimisers,
-    its own state); the caller adds the collector's and the random generators' state."""
-    return {
-        "algo": run_cfg["algo"]["name"],
-        "policy": run_cfg["policy"]["name"],
-        "config": run_cfg,
-        "iteration": iteration,
-        "step": step,
-        "time_s": time_s,
-        "algo_state": algo.state_dict(),
-    }
+def member_entry(run_cfg: dict[str, Any], algo: Any, final: FinalPolicy | None = None) -> dict[str, Any]:
+    """A member's entry of a checkpoint: its config, its algorithm's ``state_dict`` (networks,
+    optimisers, its own state) and what it deploys (``final``'s state)."""
+    return {**(final.state_dict() if final else {}), "config": run_cfg, "algo_state": algo.state_dict()}
+
+
+def checkpoint_state(
+    cfg: RunConfig, iteration: int, step: int, time_s: float, members: list[dict], collector: Any, rng: Any, **more: Any
+) -> dict[str, Any]:
+    """A checkpoint (format 4, docs/checkpoints.md), a run's or a population's: what its members share
+    (the iteration, each member's env ``step``s, the training time, the ``collector``'s state and the
+    random state ``rng``), their entries (:func:`member_entry`) and ``more`` (a population's costs)."""
+    shared = {"algo": cfg.algo.name, "policy": cfg.policy.name, "iteration": iteration, "step": step}
+    return {**shared, "time_s": time_s, "collector": collector, "rng": rng, "members": members, **more}
 
 
 def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
@@ -323,13 +323,13 @@ def _train(
     first, elapsed = 1, 0.0
     if state is not None:
         state = migrate(state, agent)  # an older format's layout (a trusted file) in the current one
-        first, elapsed = restore(state, [algo], [state], collector)
+        first, elapsed = restore(state, [algo], collector)
         load_rng_state(state["rng"])
     per_iter = cfg.rollout_steps * env.num_envs
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
-    final = FinalPolicy(cfg, iterations, state)  # what the run deploys: deploy.policy
+    final = FinalPolicy(cfg, iterations, state and state["members"][0])  # what the run deploys: deploy.policy
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
@@ -344,8 +344,10 @@ def _train(
             if not cannot_resume:
                 cannot_resume.append(str(exc))
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
-        entry = checkpoint_entry(run_cfg, iteration, collector.total_steps, time_s, algo)
-        save_checkpoint(ckpt_path, {**final.state_dict(), **entry, "collector": rollout, "rng": rng_state()})
+        entry = member_entry(run_cfg, algo, final)
+        save_checkpoint(
+            ckpt_path, checkpoint_state(cfg, iteration, collector.total_steps, time_s, [entry], rollout, rng_state())
+        )
 
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
@@ -499,17 +501,17 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
     first, elapsed = 1, 0.0
     costs = torch.zeros(P, len(names), dtype=torch.float64)  # every cost each agent collected so far
     if state is not None:
-        if "agents" not in state:  # the stacked layout of earlier populations
-            fresh = [checkpoint_entry(r, 0, 0, 0.0, a) for r, a in zip(run_cfgs, algos)]
+        if "members" not in state:  # the stacked layout of earlier populations
+            fresh = [member_entry(r, a) for r, a in zip(run_cfgs, algos)]
             state = population_from_stacked(state, fresh, {"actor": agents[0].actor, "critics": agents[0].critics})
-        first, elapsed = restore(state, update.algos, state["agents"], collector)  # each agent as its run resumes
+        first, elapsed = restore(state, update.algos, collector)  # each agent as its run resumes
         update.stack_agents()
-        for g, s in zip(generators, state["generators"]):
+        for g, s in zip(generators, state["rng"]["generators"]):
             g.set_state(s)
         costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(P, len(names))  # a list of P before K costs
         echo(f"resuming population {out} from iteration {state['iteration']}")
     # What each agent deploys, kept on its single-run agent as its run keeps it (final_policy.py).
-    finals = [FinalPolicy(c, iterations, e) for c, e in zip(cfgs, state["agents"] if state else [None] * P)]
+    finals = [FinalPolicy(c, iterations, e) for c, e in zip(cfgs, state["members"] if state else [None] * P)]
     echo(
         f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({N} envs each): "
         f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
@@ -517,33 +519,19 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
     start = time.perf_counter() - elapsed
     written: dict[int, list[dict[str, Any]]] = {}  # the entries of the last checkpoint, by iteration
 
-    def entries(it: int, time_s: float) -> list[dict[str, Any]]:
+    def entries(it: int) -> list[dict[str, Any]]:
         if it in written:  # the final one is the last checkpoint's: built once
             return written[it]
         update.unstack_agents()
         written.clear()
-        # an agent's entry: its single run's checkpoint.pt, the collector and random state left to the population's
-        steps = collector.total_steps // P
-        written[it] = [
-            {**f.state_dict(), **checkpoint_entry(r, it, steps, time_s, a), "collector": None, "rng": None}
-            for r, a, f in zip(run_cfgs, algos, finals)
-        ]
+        written[it] = [member_entry(r, a, f) for r, a, f in zip(run_cfgs, algos, finals)]
         return written[it]
 
     def checkpoint(it: int, time_s: float) -> None:
-        shared = {"algo": cfg.algo.name, "policy": cfg.policy.name, "population": P, "iteration": it}
-        save_checkpoint(
-            out / POPULATION_CHECKPOINT,
-            {
-                **shared,
-                "step": collector.total_steps // P,
-                "time_s": time_s,
-                "agents": entries(it, time_s),
-                "collector": collector.state_dict(),
-                "generators": [g.get_state() for g in generators],
-                "costs": costs,
-            },
-        )
+        rng = {"generators": [g.get_state() for g in generators]}
+        steps, rollout = collector.total_steps // P, collector.state_dict()
+        state = checkpoint_state(cfg, it, steps, time_s, entries(it), rollout, rng, costs=costs)
+        save_checkpoint(out / POPULATION_CHECKPOINT, state)
 
     def cost_totals(batch: Any) -> list[list[float]]:
         nonlocal costs
@@ -575,7 +563,7 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
     train_time = train_iterations(members, first, iterations, start)
     steps = collector.total_steps // P
 
-    final_entries = entries(iterations, train_time)  # the last iterates, before the deployed policies
+    final_entries = entries(iterations)  # the last iterates, before the deployed policies
     for f, a in zip(finals, agents):
         f.deploy(a)
     if cfg.deploy.policy == "mixture":  # each agent's mixture as its run evaluates it, one after another
@@ -585,8 +573,8 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
         results = _evaluate_stacked(stacked_agent, cfgs, N, device)
     for d, c, result, entry, cost, f in zip(dirs, cfgs, results, final_entries, costs.tolist(), finals):
         # The agent's entry of the population's checkpoint, as its own checkpoint.pt (for evaluate.py;
-        # not resumable on its own: the population resumes from population.pt).
-        save_checkpoint(d / CHECKPOINT, entry)
+        # not resumable on its own, no collector or random state: the population resumes from population.pt).
+        save_checkpoint(d / CHECKPOINT, checkpoint_state(c, iterations, steps, train_time, [entry], None, None))
         write_result(d, result, c, steps, train_time, cost, names, None, f.kept)
     return steps, train_time, results
 
