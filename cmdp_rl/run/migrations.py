@@ -18,6 +18,10 @@ What changed from format 2 to 3 (:func:`_from_2`):
 - a gymnasium MuJoCo env's pickled ``MjData`` becomes MuJoCo's integration state (``mj_getState``);
   a Safety-Gymnasium navigation world's pickled object graph becomes its saved fields
   (``envs/safety_gym/world_state.py``), through a task built from the run's config.
+
+From format 3 to 4 (:func:`_from_3`): one layout for a run and a population, the members' shared
+state at the top level and one entry per member under ``members`` (a run's entry was the checkpoint
+itself, a population's under ``agents``). Format 3 holds data only: it needs no trust.
 """
 
 from __future__ import annotations
