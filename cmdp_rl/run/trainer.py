@@ -439,28 +439,28 @@ def _train_population(pop: Population, out: Path, echo: Callable[[str], None]) -
                 echo(f"agent {k + 1}/{P} ({label(pop.overrides[k])}):")
                 results.append(train(c, d, echo=echo))
             steps, train_time = results[-1]["steps"], sum(r["train_time_s"] for r in results)
-    runs = [
-        {"dir": str(d.relative_to(out)), "values": ov, **{k: r.get(k) for k in ("episode_return", "episode_cost")}}
-        for d, ov, r in zip(dirs, pop.overrides, results)
-    ]
-    summary = {
-        "agents": P,
-        "algo": cfgs[0].algo.name,
-        **({"envs_per_agent": cfgs[0].env.num_envs, "iterations": _iterations(cfgs[0])} if why is None else {}),
-        "steps_per_agent": steps,
-        "steps_summed": steps * P,
-        "train_time_s": train_time,
-        "summed_steps_per_s": steps * P / train_time,
-        "wall_time_s": time.perf_counter() - start,
-        "device": str(cfgs[0].device),
-        "torch_threads": torch.get_num_threads(),
-        "runs": runs,
-    }
-    (out / POPULATION_SUMMARY).write_text(json.dumps(summary, indent=2))
-    echo(
-        f"done: {P} agents x {steps:,} steps in {train_time:.1f}s ({summary['summed_steps_per_s']:,.0f} steps/s "
-        f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}"
-    )
+        runs = [
+            {"dir": str(d.relative_to(out)), "values": ov, **{k: r.get(k) for k in ("episode_return", "episode_cost")}}
+            for d, ov, r in zip(dirs, pop.overrides, results)
+        ]
+        summary = {
+            "agents": P,
+            "algo": cfgs[0].algo.name,
+            **({"envs_per_agent": cfgs[0].env.num_envs, "iterations": _iterations(cfgs[0])} if why is None else {}),
+            "steps_per_agent": steps,
+            "steps_summed": steps * P,
+            "train_time_s": train_time,
+            "summed_steps_per_s": steps * P / train_time,
+            "wall_time_s": time.perf_counter() - start,
+            "device": str(cfgs[0].device),
+            "torch_threads": torch.get_num_threads(),
+            "runs": runs,
+        }
+        (out / POPULATION_SUMMARY).write_text(json.dumps(summary, indent=2))
+        echo(
+            f"done: {P} agents x {steps:,} steps in {train_time:.1f}s ({summary['summed_steps_per_s']:,.0f} steps/s "
+            f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}"
+        )
     return summary
 
 
