@@ -102,7 +102,7 @@ def test_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path, mon
         train(cfg, tmp_path, echo=lambda s: None)
     state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo", policy="mlp")
     assert state["iteration"] == 2 and state["step"] == 64
-    assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())
+    assert all(torch.isfinite(t).all() for t in state["members"][0]["algo_state"]["networks"].values())
     rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
     assert [r["iteration"] for r in rows] == ["1", "2"]
     assert not (tmp_path / "eval.json").exists()
@@ -227,7 +227,7 @@ def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monk
         train(cfg, tmp_path, echo=lambda s: None)
     state = load_checkpoint(tmp_path / "checkpoint.pt", algo="ppo")
     assert state["iteration"] == 2
-    assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())
+    assert all(torch.isfinite(t).all() for t in state["members"][0]["algo_state"]["networks"].values())
 
 
 def test_anneal_lr_scales_the_rates_linearly_to_zero_over_the_run():

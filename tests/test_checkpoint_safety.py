@@ -21,7 +21,7 @@ from helpers.runs import ROOT, run_script, tiny
 from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
 from cmdp_rl.config.registry import component, load_builtins, names
-from cmdp_rl.population import train_population
+from cmdp_rl.population import population
 from cmdp_rl.report.plot import main as plot_main
 from cmdp_rl.run.checkpoint import (
     FORMAT_VERSION,
@@ -131,7 +131,7 @@ def test_the_population_resume_refuses_a_crafted_checkpoint(tmp_path):
     raw = tiny(env={"backend": "torch", "num_envs": 4, "stagger": True}, total_steps=2 * 64)
     raw["population"] = {"seeds": 2}
     out = tmp_path / "pop"
-    train_population(raw, out, echo=lambda _: None)
+    train(population(raw), out, echo=lambda _: None)
     target = tmp_path / "created_by_the_checkpoint"
     craft(out / "population.pt", target)
     before = snapshot(out)
@@ -179,7 +179,7 @@ def test_every_algorithms_checkpoint_is_plain_data(algo, tmp_path):
                 walk(v, f"{where}[{i}]")
 
     walk(raw, "checkpoint")
-    assert raw["collector"] is not None and raw["algo_state"]["networks"]
+    assert raw["collector"] is not None and raw["members"][0]["algo_state"]["networks"]
 
 
 def test_encode_round_trips_numpy_values_and_refuses_objects(tmp_path):
@@ -231,10 +231,10 @@ def test_the_converter_turns_an_old_run_into_the_safe_format(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert f"format 2 -> {FORMAT_VERSION}" in proc.stdout
     state = load_checkpoint(run / "checkpoint.pt")  # the safe load, now
-    networks = state["algo_state"]["networks"]
+    networks = state["members"][0]["algo_state"]["networks"]
     assert state["format"] == FORMAT_VERSION and not is_legacy(networks)
     assert any(k.startswith("critics.cost.") for k in networks)
-    assert state["algo_state"]["multiplier"]["constraints"]  # one multiplier state per constraint
+    assert state["members"][0]["algo_state"]["multiplier"]["constraints"]  # one multiplier state per constraint
     assert (run / "checkpoint.pt.format2").read_bytes() == (
         ROOT / "tests/fixtures/old_runs/mlp/checkpoint.pt"
     ).read_bytes()

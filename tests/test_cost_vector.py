@@ -140,7 +140,7 @@ def test_one_multiplier_is_a_list_of_one_and_the_single_constraint_format_migrat
     assert single.state_dict() == {"constraints": [{"value": pytest.approx(0.2)}]}
     old = {"format": 2, "algo": "ppo_lag", "algo_state": {"multiplier": {"value": 0.2}}}
     restored = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0])
-    restored.load_state_dict(migrate(old)["algo_state"]["multiplier"])
+    restored.load_state_dict(migrate(old)["members"][0]["algo_state"]["multiplier"])
     assert restored.values == pytest.approx(single.values)
     double = Multipliers(lambda d: DualAscent(d, lr=0.1), [1.0, 5.0])
     assert double.update([3.0, 3.0]) == [pytest.approx(0.2), 0.0]

@@ -251,5 +251,5 @@ def test_cpo_cost_estimate_carries_the_last_finished_episodes_over_batches_where
     old = {k: v for k, v in cpo.state_dict().items() if k != "episode_cost"}
     old["episode_estimate"] = (51.0, 102.0)
     fresh = _cpo()
-    fresh.load_state_dict(migrate({"format": 2, "algo": "cpo", "algo_state": old})["algo_state"])
+    fresh.load_state_dict(migrate({"format": 2, "algo": "cpo", "algo_state": old})["members"][0]["algo_state"])
     assert fresh.episode_cost.update(_episode_batch([])) == EpisodeCost((51.0,), 102.0, WINDOW)

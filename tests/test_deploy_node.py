@@ -15,10 +15,11 @@ import cmdp_rl
 from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main, in-process
 from cmdp_rl.config.run_config import ConfigError
-from cmdp_rl.population import train_population
+from cmdp_rl.population import population
 from cmdp_rl.report.plot import group_runs
 from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.run.migrations import saved_config_defaults
+from cmdp_rl.run.resume import resume_population
 from cmdp_rl.run.sweeps import load_run
 
 # Each flat option, by its name in the node.
@@ -44,7 +45,8 @@ def write_flat(run) -> None:
     config = yaml.safe_load((run / "config.yaml").read_text())
     (run / "config.yaml").write_text(yaml.safe_dump(flat(config), sort_keys=False))
     state = load_checkpoint(run / "checkpoint.pt")
-    save_checkpoint(run / "checkpoint.pt", {**state, "config": flat(state["config"])})
+    members = [{**m, "config": flat(m["config"])} for m in state["members"]]
+    save_checkpoint(run / "checkpoint.pt", {**state, "members": members})
 
 
 def test_flat_options_map_to_the_node_with_their_values():
@@ -81,7 +83,7 @@ def test_a_run_saved_with_the_flat_options_evaluates_loads_and_resumes_unchanged
     shutil.copytree(new, old)
     write_flat(old)
     assert "final_policy" in yaml.safe_load((old / "config.yaml").read_text())  # else this proves nothing
-    assert "final_policy" in load_checkpoint(old / "checkpoint.pt")["config"]
+    assert "final_policy" in load_checkpoint(old / "checkpoint.pt")["members"][0]["config"]
 
     episodes = ("episode_return", "episode_cost", "episode_length")
     for run in (new, old):  # evaluate.py repeats the run's evaluation of the deployed mixture
@@ -107,20 +109,20 @@ def test_a_population_saved_with_the_flat_options_resumes_unchanged(tmp_path):
     raw = tiny(env={"backend": "torch", "num_envs": 4, "stagger": True}, total_steps=4 * 64)
     raw["population"] = {"seeds": 2}
     whole, killed = tmp_path / "whole", tmp_path / "killed"
-    train_population(raw, whole, echo=lambda s: None)
+    train(population(raw), whole, echo=lambda s: None)
 
     def kill_at_3(line: str) -> None:  # after iteration 3's rows, past the checkpoint of iteration 2
         if line.startswith("iteration 3/"):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        train_population(raw, killed, echo=kill_at_3)
+        train(population(raw), killed, echo=kill_at_3)
     saved = yaml.safe_load((killed / "population.yaml").read_text())
     (killed / "population.yaml").write_text(yaml.safe_dump(flat(saved), sort_keys=False))
     state = load_checkpoint(killed / "population.pt")
-    agents = [{**a, "config": flat(a["config"])} for a in state["agents"]]
-    save_checkpoint(killed / "population.pt", {**state, "agents": agents})
-    train_population(None, killed, echo=lambda s: None, resume=True)
+    members = [{**m, "config": flat(m["config"])} for m in state["members"]]
+    save_checkpoint(killed / "population.pt", {**state, "members": members})
+    train(resume_population(killed), killed, echo=lambda s: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(b) == metrics_rows(a)
         assert eval_result(b) == eval_result(a)

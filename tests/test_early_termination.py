@@ -19,7 +19,7 @@ from cmdp_rl.config.validation import ConfigError, PositiveInt, options
 from cmdp_rl.envs import EarlyTerminated, GymVecEnv, Reach1D, TorchReach1D, make_env
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import Step, VecEnv
-from cmdp_rl.population import train_population
+from cmdp_rl.population import population
 from cmdp_rl.run.trainer import build_run, evaluate_run
 
 
@@ -262,7 +262,7 @@ def test_a_population_s_agents_train_as_their_single_runs_on_the_early_terminate
     if env.get("name") == "fork":
         raw["env"] = {"name": "fork", "num_envs": 4, "backend": "torch"}
     raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.2, 0.5]}}}
-    train_population(raw, tmp_path / "pop", echo=quiet)
+    train(population(raw), tmp_path / "pop", echo=quiet)
     for i, d in enumerate(sorted((tmp_path / "pop" / "agents").iterdir())):
         cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
         assert cfg.early_terminate

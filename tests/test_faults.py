@@ -54,7 +54,7 @@ def test_nan_stops_the_cli_run_and_its_last_checkpoint_evaluates_and_resumes(tmp
     assert f"the last good checkpoint is {run / 'checkpoint.pt'}" in proc.stderr
     state = load_checkpoint(run / "checkpoint.pt")
     assert state["iteration"] == 4  # checkpoints every 2 iterations: 5 was good but not saved
-    assert all(torch.isfinite(t).all() for t in state["algo_state"]["networks"].values())
+    assert all(torch.isfinite(t).all() for t in state["members"][0]["algo_state"]["networks"].values())
     assert [r["iteration"] for r in metrics_rows(run)] == ["1", "2", "3", "4", "5"]
     assert not (run / "eval.json").exists()
 

@@ -246,7 +246,7 @@ def test_resume_is_exact(tmp_path, quiet):
     train(load_config({**cfg, "total_steps": 3 * 64}), short, echo=quiet)
     train(load_config({**cfg, "resume": str(short)}), echo=quiet)
     assert metrics_rows(long) == metrics_rows(short) and eval_result(long) == eval_result(short)
-    a, b = (load_checkpoint(d / "checkpoint.pt")["algo_state"]["networks"] for d in (long, short))
+    a, b = (load_checkpoint(d / "checkpoint.pt")["members"][0]["algo_state"]["networks"] for d in (long, short))
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 

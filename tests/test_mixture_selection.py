@@ -93,7 +93,7 @@ def test_the_run_deploys_records_and_reloads_the_chosen_mixture(feasible_run, tm
         assert upper <= result["cost_limit"] + 1e-9
     assert any(line.startswith("mixture: ") for line in lines)
     state = torch.load(out / "checkpoint.pt", weights_only=True)
-    assert state["policy_mixture"]["weights"] is not None
+    assert state["members"][0]["policy_mixture"]["weights"] is not None
     trained = load_trained(out)
     assert weights_of(trained.agent.actor) == pytest.approx([w for w in chosen.values()])
     trained.env.close()

@@ -176,7 +176,7 @@ def test_mappo_lag_resume_is_exact(tmp_path, quiet):
     train(load_config({**cfg, "total_steps": 3 * 60}), short, echo=quiet)
     train(load_config({**cfg, "resume": str(short)}), echo=quiet)
     assert metrics_rows(long) == metrics_rows(short) and eval_result(long) == eval_result(short)
-    a, b = (load_checkpoint(d / "checkpoint.pt") for d in (long, short))
+    a, b = (load_checkpoint(d / "checkpoint.pt")["members"][0] for d in (long, short))
     assert all(
         torch.equal(a["algo_state"]["networks"][k], b["algo_state"]["networks"][k]) for k in a["algo_state"]["networks"]
     )

@@ -118,7 +118,7 @@ def test_training_updates_statistics_from_collected_data_and_evaluation_leaves_t
     train(cfg, tmp_path, echo=lambda _: None)
     env = make_env(cfg.env)
     ac = make_agent(cfg.policy, env, make_normalizers(cfg, env))
-    make_algo(cfg.algo, ac).load_state_dict(load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"])
+    make_algo(cfg.algo, ac).load_state_dict(load_checkpoint(tmp_path / "checkpoint.pt")["members"][0]["algo_state"])
     stats = ac.normalizers.obs.stats
     # one observation per collected step, nothing from evaluation
     assert stats.count.item() == pytest.approx(128 + 1e-4)

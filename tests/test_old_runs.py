@@ -24,17 +24,20 @@ import math
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import torch
+import yaml
 
 from cmdp_rl import Collector, keys, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main in-process: no interpreter per fixture
+from cmdp_rl.population import population
 from cmdp_rl.run.checkpoint import FORMAT_VERSION, UnsafeCheckpointError, load_checkpoint
 from cmdp_rl.run.convert import convert_run
-from cmdp_rl.run.migrations import is_legacy
-from cmdp_rl.run.resume import resume_config
+from cmdp_rl.run.migrations import deploy_node, is_legacy
+from cmdp_rl.run.resume import resume_config, resume_population
 from cmdp_rl.run.rundir import load_trained
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -163,7 +166,7 @@ def test_resume_continues_the_old_run(name, tmp_path):
     for k in common:  # the same numbers, but for the last bits another CPU moves
         assert _same_number(new[k], old[k]), (k, new[k], old[k])
     state = load_checkpoint(run / "checkpoint.pt")
-    assert state["step"] == 192 and not is_legacy(state["algo_state"]["networks"])
+    assert state["step"] == 192 and not is_legacy(state["members"][0]["algo_state"]["networks"])
 
 
 def test_converted_variants_act_as_before():
@@ -185,3 +188,66 @@ def test_converted_variants_act_as_before():
         loc = Collector(env, agent, 16, seed=1, deterministic=True).collect()[keys.LOC]
         assert old["loc"].std() > 1e-4, name  # actions that vary: a wrong mapping would show
         assert torch.allclose(loc, old["loc"], rtol=0, atol=1e-7), name
+
+
+# Format 3 (tests/fixtures/format3/record.py, the code of commit 1509f63): a run's checkpoint held its
+# one entry at the top level, a population's population.pt one entry per agent under "agents".
+FORMAT3 = ROOT / "tests" / "fixtures" / "format3"
+
+
+def _format3(name: str, tmp_path: Path) -> Path:
+    run = tmp_path / name
+    shutil.copytree(FORMAT3 / name, run)
+    return run
+
+
+@pytest.mark.parametrize("name", ["run", "population/agents/001_seed=1"])
+def test_a_format_3_run_evaluates_safely_to_its_eval_json(name, tmp_path):
+    """A format 3 run (and a population agent's directory) loads with the safe unpickler, no trust
+    asked, and evaluates to the numbers its own code wrote (its deployed mixture included)."""
+    run = tmp_path / "run"
+    shutil.copytree(FORMAT3 / name, run)
+    saved = torch.load(run / "checkpoint.pt", weights_only=True)
+    assert saved["format"] == 3 and "algo_state" in saved and "members" not in saved  # else this proves nothing
+    assert "policy_mixture" in saved
+    out = tmp_path / "again.json"
+    assert evaluate_cli.main([f"run={run}", f"output={out}"]) == 0
+    old, new = json.loads((run / "eval.json").read_text()), json.loads(out.read_text())
+    for k in ("episodes", "episode_return", "episode_return_std", "episode_cost", "episode_length"):
+        assert new[k] == pytest.approx(old[k], rel=CROSS_CPU_REL, abs=CROSS_CPU_ABS), k
+
+
+def _four_iterations(rows: list[dict], whole: list[dict]) -> None:
+    assert [r["step"] for r in rows] == [r["step"] for r in whole] == ["64", "128", "192", "256"]
+    for row, expected in zip(rows, whole):
+        for k in sorted(set(expected) - TIMING):
+            assert _same_number(row[k], expected[k]), (row["iteration"], k, row[k], expected[k])
+
+
+def test_a_format_3_run_resumes_into_an_uninterrupted_run(tmp_path):
+    """Resumed from its format 3 checkpoint (iteration 2) to four iterations, without trust: the rows
+    of a run trained four iterations at once by this code (last bits: another CPU recorded it)."""
+    run = _format3("run", tmp_path)
+    train(resume_config(run, {"total_steps": 256}, ["total_steps"]), echo=lambda _: None)
+    cfg = resume_config(run, {}, [])
+    whole = tmp_path / "whole"
+    train(replace(cfg, resume=None, total_steps=256), whole, echo=lambda _: None)
+    _four_iterations(_rows(run / "metrics.csv"), _rows(whole / "metrics.csv"))
+    assert load_checkpoint(run / "checkpoint.pt")["format"] == FORMAT_VERSION
+
+
+def test_a_format_3_population_resumes_into_an_uninterrupted_population(tmp_path):
+    """A format 3 population (population.pt: one entry per agent under "agents") resumed to four
+    iterations, without trust, gives each agent the rows of a population trained four iterations at
+    once by this code; its checkpoint is then the current layout, one member per agent."""
+    pop = _format3("population", tmp_path)
+    assert "agents" in torch.load(pop / "population.pt", weights_only=True)  # else this proves nothing
+    train(resume_population(pop, {"total_steps": 256}, ["total_steps"]), pop, echo=lambda _: None)
+    # its config names the deployment options flat, as before the deploy node: as its resume reads it
+    raw = deploy_node(yaml.safe_load((FORMAT3 / "population" / "population.yaml").read_text()))
+    whole = tmp_path / "whole"
+    train(population({**raw, "total_steps": 256}), whole, echo=lambda _: None)
+    for a, b in zip(sorted((whole / "agents").iterdir()), sorted((pop / "agents").iterdir())):
+        _four_iterations(_rows(b / "metrics.csv"), _rows(a / "metrics.csv"))
+    state = load_checkpoint(pop / "population.pt")
+    assert state["format"] == FORMAT_VERSION and len(state["members"]) == 2 and "agents" not in state

@@ -46,12 +46,12 @@ def test_average_is_what_the_run_evaluates_and_evaluate_py_loads(tmp_path):
     result = train(load_config(cfg), out, echo=lambda s: None)
     assert result["final_policy"] == "average" and result["averaged_iterations"] >= 2
     state = load_checkpoint(out / "checkpoint.pt")
-    avg = state["policy_average"]
+    avg = state["members"][0]["policy_average"]
     assert avg["count"] == result["averaged_iterations"]
     trained = load_trained(out)
     for name, p in trained.agent.actor.named_parameters():
         assert torch.equal(p, avg["mean"][name])  # the deployed actor is the average ...
-    last = state["algo_state"]["networks"]
+    last = state["members"][0]["algo_state"]["networks"]
     assert any(not torch.equal(avg["mean"][n], last[f"actor.{n}"]) for n in avg["mean"])  # ... not the last
     trained.env.close()
     e = tmp_path / "e.json"

@@ -78,8 +78,8 @@ def test_mixture_is_what_the_run_evaluates_and_evaluate_py_loads(mixture_run, tm
     assert result["final_policy"] == "mixture" and result["mixture_iterations"] == [6, 8]
     assert result["averaged_iterations"] == 2
     state = torch.load(out / "checkpoint.pt", weights_only=True)  # safe unpickler, no migration
-    members = state["policy_mixture"]["members"]
-    last = state["algo_state"]["networks"]
+    members = state["members"][0]["policy_mixture"]["members"]
+    last = state["members"][0]["algo_state"]["networks"]
     assert all(torch.equal(members[-1][n], last[f"actor.{n}"]) for n in members[-1])  # the last iterate ...
     assert any(not torch.equal(members[0][n], last[f"actor.{n}"]) for n in members[0])  # ... and an earlier one
     trained = load_trained(out)
@@ -140,7 +140,7 @@ def test_a_resumed_run_deploys_the_same_mixture(tmp_path, monkeypatch, quiet):
     whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
     assert_same_run(whole, broken)
     assert eval_result(broken)["mixture_iterations"] == [3, 4, 5, 6, 7]
-    a, b = (torch.load(r / "checkpoint.pt", weights_only=True)["policy_mixture"] for r in (whole, broken))
+    a, b = (torch.load(r / "checkpoint.pt", weights_only=True)["members"][0]["policy_mixture"] for r in (whole, broken))
     assert a["taken"] == b["taken"] and all(
         torch.equal(x[k], y[k]) for x, y in zip(a["members"], b["members"]) for k in x
     )

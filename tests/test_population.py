@@ -14,10 +14,11 @@ from helpers.runs import eval_result, metrics_rows, run_script, tiny
 
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.config.registry import component
-from cmdp_rl.population import train_population
+from cmdp_rl.population import population
 from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
 from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.ownership import RunDirTaken
+from cmdp_rl.run.resume import resume_population
 from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
@@ -58,7 +59,7 @@ def _is_float(s: str) -> bool:
 
 def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
     out = tmp_path / name
-    train_population(raw, out, echo=lambda s: None)
+    train(population(raw), out, echo=lambda s: None)
     return out
 
 
@@ -306,10 +307,10 @@ def test_population_resumes_after_a_kill(tmp_path, algo, env):
 
     killed = tmp_path / "killed"
     with pytest.raises(KeyboardInterrupt):
-        train_population(raw, killed, echo=kill_at_3)
+        train(population(raw), killed, echo=kill_at_3)
     assert not list(killed.glob("agents/*/eval.json"))
     torch.load(killed / "population.pt", weights_only=True)  # plain tensors, numbers and strings
-    train_population(None, killed, echo=lambda s: None, resume=True)
+    train(resume_population(killed), killed, echo=lambda s: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(a) == metrics_rows(b)  # same process, same code: bit for bit
         assert eval_result(a) == eval_result(b)
@@ -334,10 +335,10 @@ def test_a_population_resume_changes_what_a_run_s_resume_may(tmp_path):
             node = node[part]
         node[key.split(".")[-1]] = value
         with pytest.raises(ConfigError) as err:
-            train_population(asked, short, echo=lambda s: None, resume=True, explicit=[key, "total_steps"])
+            train(resume_population(short, asked, [key, "total_steps"]), short, echo=lambda s: None)
         assert str(err.value).startswith(refused) and "\n" not in str(err.value)
     assert {p: p.read_bytes() for p in short.rglob("*") if p.is_file()} == before
-    train_population(raw, short, echo=lambda s: None, resume=True, explicit=["total_steps"])
+    train(resume_population(short, raw, ["total_steps"]), short, echo=lambda s: None)
     for a, b in zip(sorted((long / "agents").iterdir()), sorted((short / "agents").iterdir())):
         assert len(metrics_rows(b)) == 4
         assert metrics_rows(a) == metrics_rows(b)
@@ -355,7 +356,7 @@ def test_a_population_of_the_stacked_layout_resumes(tmp_path):
     assert "update" in old and "agents" not in old and old["iteration"] == 2  # else this proves nothing
     killed = tmp_path / "killed"
     shutil.copytree(OLD_POPULATION, killed)
-    train_population(None, killed, echo=lambda s: None, resume=True)
+    train(resume_population(killed), killed, echo=lambda s: None)
     # the recorded population ran with the defaults of its day, which its config does not name
     raw = saved_config_defaults(yaml.safe_load((OLD_POPULATION / "population.yaml").read_text()))
     whole = _population(tmp_path, raw, "whole")
@@ -363,7 +364,7 @@ def test_a_population_of_the_stacked_layout_resumes(tmp_path):
         assert_close(metrics_rows(b), metrics_rows(a), b.name)
         assert_close(eval_result(b), eval_result(a), b.name)
     new = torch.load(killed / "population.pt", weights_only=True)
-    assert "update" not in new and [e["algo_state"]["iteration"] for e in new["agents"]] == [4, 4]
+    assert "update" not in new and [e["algo_state"]["iteration"] for e in new["members"]] == [4, 4]
 
 
 @pytest.mark.parametrize(
@@ -416,7 +417,7 @@ def test_an_unbatched_population_trains_each_agent_as_its_single_run(tmp_path, c
     """Each agent equals ``train()`` on its own config.yaml exactly (the same code, one after
     another in one process: the second agent's numbers must not depend on the first's)."""
     said = []
-    summary = train_population(_unbatched(change), tmp_path / "pop", echo=said.append)
+    summary = train(population(_unbatched(change)), tmp_path / "pop", echo=said.append)
     assert said[0].startswith(f"population: {why}") and "2 agents train one after another" in said[0]
     dirs = sorted((tmp_path / "pop" / "agents").iterdir())
     assert [r["dir"] for r in summary["runs"]] == [f"agents/{d.name}" for d in dirs] and len(dirs) == 2
@@ -443,9 +444,9 @@ def test_an_unbatched_population_resumes_after_a_kill(tmp_path):
 
     killed = tmp_path / "killed"
     with pytest.raises(KeyboardInterrupt):
-        train_population(raw, killed, echo=kill_at_3)
+        train(population(raw), killed, echo=kill_at_3)
     assert (killed / "agents/000_seed=0/eval.json").is_file() and not (killed / "agents/001_seed=1/eval.json").exists()
-    train_population(None, killed, echo=lambda s: None, resume=True)
+    train(resume_population(killed), killed, echo=lambda s: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(a) == metrics_rows(b)
         assert eval_result(a) == eval_result(b)
@@ -552,4 +553,4 @@ def test_a_finished_population_s_directory_is_refused_as_finished(tmp_path):
     raw["population"] = {"seeds": 2}
     pop = _population(tmp_path, raw)
     with pytest.raises(RunDirTaken, match="already holds a finished run"):
-        train_population(raw, pop, echo=lambda s: None)
+        train(population(raw), pop, echo=lambda s: None)

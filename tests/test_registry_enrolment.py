@@ -52,10 +52,10 @@ def test_evaluation_loads_the_policy_without_building_the_algorithm(algo, tmp_pa
     monkeypatch.setitem(registry._REGISTRY["algo"], algo, replace(component("algo", algo), build=forbidden))
     trained = load_trained(tmp_path, num_envs=2)
     state = load_checkpoint(tmp_path / "checkpoint.pt")
-    saved = state["algo_state"]["networks"]
+    saved = state["members"][0]["algo_state"]["networks"]
     loaded = trained.agent.state_dict()
     if trained.cfg.deploy.policy == "mixture":  # the deployed actor is the chosen snapshots' mixture
-        snapshots = state["policy_mixture"]
+        snapshots = state["members"][0]["policy_mixture"]
         weights = snapshots["weights"] or [1.0] * len(snapshots["members"])  # None: uniform, all of them
         chosen = [m for m, w in zip(snapshots["members"], weights) if w > 0]
         members = members_of(trained.agent.actor)

@@ -18,7 +18,7 @@ def test_same_config_and_seed_give_identical_metrics(tmp_path, quiet):
     a, b, c = (metrics_rows(tmp_path / n) for n in "abc")
     assert len(a) == 7 and a == b  # every column but sps and time_s, as text: bit for bit
     assert eval_result(tmp_path / "a") == eval_result(tmp_path / "b")
-    na, nb = (load_checkpoint(tmp_path / n / "checkpoint.pt")["algo_state"]["networks"] for n in "ab")
+    na, nb = (load_checkpoint(tmp_path / n / "checkpoint.pt")["members"][0]["algo_state"]["networks"] for n in "ab")
     assert all(torch.equal(na[k], nb[k]) for k in na)
     # the comparison can fail: another seed changes the numbers
     assert [r["episode_return"] for r in a] != [r["episode_return"] for r in c]

@@ -172,7 +172,7 @@ def test_an_env_that_cannot_save_its_state_trains_but_refuses_to_resume(tmp_path
     lines = []
     train(load_config(tiny(total_steps=64)), tmp_path, echo=lines.append)
     assert any(line.startswith("warning: GymVecEnv cannot save its state") for line in lines)
-    assert load_checkpoint(tmp_path / "checkpoint.pt")["algo_state"]  # still a usable checkpoint
+    assert load_checkpoint(tmp_path / "checkpoint.pt")["members"][0]["algo_state"]  # still a usable checkpoint
     with pytest.raises(CheckpointError, match="holds no env state .* cannot continue exactly"):
         train(load_config(tiny(resume=str(tmp_path))), echo=quiet)
 

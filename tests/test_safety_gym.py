@@ -239,7 +239,7 @@ def test_a_resumed_run_ends_as_the_uninterrupted_one(run, tmp_path):
     train(resume_config(short, {"total_steps": 128}, ["total_steps"]), echo=lambda _: None)
     assert metrics_rows(short) == metrics_rows(whole)  # every column but wall-clock, bit for bit
     assert eval_result(short) == eval_result(whole)
-    a, b = (load_checkpoint(d / "checkpoint.pt")["algo_state"] for d in (whole, short))
+    a, b = (load_checkpoint(d / "checkpoint.pt")["members"][0]["algo_state"] for d in (whole, short))
     assert all(torch.equal(t, b["networks"][k]) for k, t in a["networks"].items())
 
 

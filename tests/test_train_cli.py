@@ -122,9 +122,9 @@ def test_each_memory_policy_trains_and_evaluates(tmp_path, algo):
         ev = json.loads((out / "eval.json").read_text())
         assert ev["episodes"] == 4
         state = load_checkpoint(out / "checkpoint.pt", algo=name_of_algo, policy=name)
-        cfg = load_config(state["config"])
+        cfg = load_config(state["members"][0]["config"])
         ac = make_agent(cfg.policy, make_env(cfg.env))
-        ac.load_state_dict(state["algo_state"]["networks"])
+        ac.load_state_dict(state["members"][0]["algo_state"]["networks"])
         # the reloaded memory policy replays the run's own evaluation exactly
         again = evaluate(
             ac,

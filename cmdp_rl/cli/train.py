@@ -21,10 +21,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl import ConfigError, TrainingDiverged, load_config
 from cmdp_rl.config.run_config import CONFIG_SOURCE
-from cmdp_rl.population.spec import population_active
+from cmdp_rl.population.spec import population, population_active
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, resumable
-from cmdp_rl.run.resume import resume_config
+from cmdp_rl.run.resume import resume_config, resume_population
 from cmdp_rl.run.rundir import POPULATION_CONFIG, RunDirError
 from cmdp_rl.run.sweeps import clear_outputs, record_failure
 from cmdp_rl.run.trainer import train
@@ -100,10 +100,12 @@ def _main(raw: dict, new_dir: str | None) -> None:
                 o.key_or_group for o in OverridesParser.create().parse_overrides(list(HydraConfig.get().overrides.task))
             ]
             if (Path(raw["resume"]) / POPULATION_CONFIG).is_file():
-                return _population(raw, None, explicit)
-            run_cfg = resume_config(raw["resume"], raw, explicit)
-        elif population_active(raw.get("population")):
-            return _population(raw, new_dir)
+                trust = bool(raw.get("trust_checkpoint")) and "trust_checkpoint" in explicit
+                run_cfg = resume_population(raw["resume"], raw, explicit, trust)
+            else:
+                run_cfg = resume_config(raw["resume"], raw, explicit)
+        elif population_active(raw.get("population")):  # several agents in one process (docs/population.md)
+            run_cfg = population(raw)
         else:
             run_cfg = load_config(raw)
     except (ConfigError, CheckpointError) as exc:
@@ -112,24 +114,8 @@ def _main(raw: dict, new_dir: str | None) -> None:
         if new_dir is not None:
             clear_outputs(new_dir)  # an earlier failure's error.txt must not outlive this run
         # A resumed run writes into its own directory, whatever hydra.run.dir says.
-        train(run_cfg, new_dir)
+        train(run_cfg, new_dir or raw.get("resume"))
     except Exception as exc:  # noqa: BLE001 - every failure is recorded, then handled by _fail
-        _fail(exc, new_dir)
-
-
-def _population(raw: dict, new_dir: str | None, explicit: list[str] | None = None) -> None:
-    """Several agents in one process (cmdp_rl/population/); ``explicit`` (a resume's command-line
-    keys): continue the population in its directory, changing only what a run's resume may."""
-    from cmdp_rl.population import train_population
-
-    try:
-        if explicit is not None:
-            trust = bool(raw.get("trust_checkpoint")) and "trust_checkpoint" in explicit
-            train_population(raw, raw["resume"], resume=True, explicit=explicit, trust_checkpoint=trust)
-        else:
-            clear_outputs(new_dir)
-            train_population(raw, new_dir)
-    except Exception as exc:  # noqa: BLE001 - recorded and reported as a single run's failure is
         _fail(exc, new_dir)
 
 

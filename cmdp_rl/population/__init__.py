@@ -1,18 +1,9 @@
-"""Population training: P independent agents trained by one process as one batched tensor program
-(``python train.py ... population.seeds=S population.grid.<field>=[...]``, docs/population.md):
-``spec`` (what a population is, each agent's config), ``params`` and ``fused`` (the stacked
-networks, their Adam and fused pass), ``env`` (the agents' envs as one), ``agent`` (acting and
-valuing), ``update`` (the stacked backend of the shared update), ``trainer`` (the run).
+"""P agents as one batched tensor program, for ``trainer.train`` (docs/population.md): ``spec`` (the
+grid -> each agent's config, what the batched program covers), and the stacked kernel: ``params``
+and ``fused`` (the stacked networks, their Adam and fused pass), ``env`` (the agents' envs as one),
+``agent`` (acting and valuing), ``update`` (the stacked backend of the shared update).
 """
 
-from cmdp_rl.population.spec import PER_AGENT_FIELDS, PopulationConfig, agent_configs, population_active
+from cmdp_rl.population.spec import PER_AGENT_FIELDS, Population, PopulationConfig, agent_configs, population
 
-__all__ = ["PER_AGENT_FIELDS", "PopulationConfig", "agent_configs", "population_active", "train_population"]
-
-
-def __getattr__(name: str):  # the trainer imports the whole toolkit: load it on first use
-    if name == "train_population":
-        from cmdp_rl.population.trainer import train_population
-
-        return train_population
-    raise AttributeError(name)
+__all__ = ["PER_AGENT_FIELDS", "Population", "PopulationConfig", "agent_configs", "population"]

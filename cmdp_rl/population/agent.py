@@ -40,7 +40,7 @@ class PopulationAgent:
     def __init__(self, agents: Sequence[Agent], generators: Sequence[torch.Generator], device: torch.device) -> None:
         self.head = agents[0].actor.head
         why = unbatched_head(self.head)
-        if why is not None:  # train_population routes such agents to the single-run path first
+        if why is not None:  # trainer.train routes such agents to the single-run path first
             raise ConfigError(f"population: {why}")
         self.actor_net, self.critic_nets = template(agents[0])
         self.actor = StackedParams([a.actor for a in agents], device)

@@ -11,6 +11,7 @@ option of an agent's own envs); everything else (shapes, schedules, the algorith
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 from dataclasses import field
 from typing import Any, Mapping
@@ -154,6 +155,27 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
     return overrides, cfgs
 
 
+@dataclasses.dataclass
+class Population:
+    """What ``trainer.train`` trains as P members: ``raw``, the composed config as ``population.yaml``
+    records it; each agent's ``overrides`` (its directory's label) and validated config; a resume's
+    checkpoint ``state`` (``run/resume.resume_population``), None for a new population or one whose
+    agents keep their own checkpoints."""
+
+    raw: dict[str, Any]
+    overrides: list[dict[str, Any]]
+    cfgs: list[RunConfig]
+    resume: bool = False
+    state: dict[str, Any] | None = None
+
+
+def population(raw: Mapping[str, Any], resume: bool = False, state: dict | None = None) -> Population:
+    """The population that ``raw`` (a composed config with a ``population`` node) describes, every
+    agent validated. Trusting a checkpoint or resuming is one command's word, not the population's."""
+    raw = {**copy.deepcopy({k: v for k, v in raw.items() if k != "hydra"}), "resume": None, "trust_checkpoint": False}
+    return Population(raw, *agent_configs(raw), resume=resume, state=state)
+
+
 def unbatched(cfg: RunConfig) -> str | None:
     """Why the batched program does not cover agents of ``cfg``, or None: it covers the algorithms of
     :func:`batched_algos` with the MLP on the observation, on an env with a batched backend, without
@@ -194,7 +216,9 @@ def unbatched_head(head: Any) -> str | None:
 
 __all__ = [
     "PER_AGENT_FIELDS",
+    "Population",
     "PopulationConfig",
+    "population",
     "batched",
     "batched_algos",
     "stacked",

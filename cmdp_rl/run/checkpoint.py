@@ -30,11 +30,16 @@ from typing import Any
 import numpy as np
 import torch
 
+# 4: one layout for a run and a population of P: the shared state (iteration, each member's steps,
+#    training time, the collector, the random state; a population's costs) and under "members" one
+#    entry per member (its config, its algorithm's state_dict, what it deploys). A run has one.
 # 3: loads with torch's safe unpickler: numpy values and deques as tagged tensors and lists (encode),
 #    env state as arrays (MuJoCo's integration state, no pickled bytes), one multiplier state per
 #    constraint, networks under the agent's names (cmdp_rl.run.migrations brings older files here).
 # 2: adds what a resume needs (collector and env state, generators, training time).
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
+# The first format whose files hold data only (read by the safe unpickler, no trust asked).
+SAFE_FORMAT = 3
 # The oldest format cmdp_rl.run.migrations can bring to FORMAT_VERSION.
 OLDEST_FORMAT = 2
 
@@ -183,9 +188,9 @@ def load_checkpoint(
             f"checkpoint: {path} is not a cmdp_rl checkpoint of format {OLDEST_FORMAT} to {FORMAT_VERSION} "
             f"(format {version!r})"
         )
-    if version < FORMAT_VERSION and not trust:  # its migration may unpickle bytes the file holds
+    if version < SAFE_FORMAT and not trust:  # its migration may unpickle bytes the file holds
         raise _old_format(path, f"format {version}, whose env state may hold pickled bytes")
-    if version == FORMAT_VERSION:
+    if version >= SAFE_FORMAT:
         state = decode(state)
     for field, expected in (("algo", algo), ("policy", policy)):
         if expected is not None and state.get(field) != expected:

@@ -1,6 +1,6 @@
 """The training loop every run drives: collect, check the rollout, update, one ``metrics.csv`` row
 per member, checkpoint. A run has one member (``trainer.train``); a population has P, side by side
-in one batch (``population/trainer.py``), member i's envs the rows ``[i N, (i + 1) N)`` of the batch and
+in one batch (``trainer.train`` on population/'s stacked kernel), member i's envs the rows ``[i N, (i + 1) N)`` of the batch and
 its statistics the i-th of the update's list. What differs between the two (how the update steps
 the networks, what a checkpoint holds, how costs are counted) is in the :class:`Members` they give.
 """

@@ -18,6 +18,10 @@ What changed from format 2 to 3 (:func:`_from_2`):
 - a gymnasium MuJoCo env's pickled ``MjData`` becomes MuJoCo's integration state (``mj_getState``);
   a Safety-Gymnasium navigation world's pickled object graph becomes its saved fields
   (``envs/safety_gym/world_state.py``), through a task built from the run's config.
+
+From format 3 to 4 (:func:`_from_3`): one layout for a run and a population, the members' shared
+state at the top level and one entry per member under ``members`` (a run's entry was the checkpoint
+itself, a population's under ``agents``). Format 3 holds data only: it needs no trust.
 """
 
 from __future__ import annotations
@@ -187,8 +191,45 @@ def _from_2(state: dict[str, Any], agent: nn.Module | None) -> dict[str, Any]:
     return state
 
 
+# --- format 3 -> 4 -------------------------------------------------------------------------------
+# What a checkpoint shares among its members; the rest of a format 3 run's (or population agent's)
+# checkpoint is its member entry.
+SHARED = ("algo", "policy", "iteration", "step", "time_s", "collector")
+
+
+def _entry_from_3(entry: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in entry.items() if k not in (*SHARED, "rng", "format", "population")}
+
+
+def _from_3(state: dict[str, Any], agent: nn.Module | None) -> dict[str, Any]:
+    """One layout for runs and populations: a run's ``checkpoint.pt`` (its entry at the top level) and
+    a population's ``population.pt`` (``agents``, ``generators``, ``costs``) as the shared state with
+    ``members``. A population of the stacked layout (``update``) stays as it is: its entries are built
+    from its agents' configs at its resume (:func:`population_from_stacked`)."""
+    if "algo_state" in state:
+        members = [_entry_from_3(state)]
+        rng = state.get("rng")
+    elif "agents" in state:
+        members = [_entry_from_3(e) for e in state["agents"]]
+        rng = {"generators": state["generators"]}
+    else:
+        return state
+    out = {**{k: state.get(k) for k in SHARED}, "rng": rng, "members": members}
+    if "costs" in state:
+        out["costs"] = state["costs"]
+    return out
+
+
 # The step from each format to the next.
-STEPS: dict[int, Callable[[dict[str, Any], nn.Module | None], dict[str, Any]]] = {2: _from_2}
+STEPS: dict[int, Callable[[dict[str, Any], nn.Module | None], dict[str, Any]]] = {2: _from_2, 3: _from_3}
+
+
+def member(state: dict[str, Any], i: int = 0) -> dict[str, Any]:
+    """Member ``i``'s entry (config, algorithm state, deployed policy) of a checkpoint as loaded, of
+    any format (before :func:`migrate`: a format 3 run's entry is the checkpoint itself)."""
+    if "members" in state:
+        return state["members"][i]
+    return state["agents"][i] if "agents" in state else state
 
 
 def migrate(state: dict[str, Any], agent: nn.Module | None = None) -> dict[str, Any]:
@@ -207,7 +248,7 @@ def population_from_stacked(
 ) -> dict[str, Any]:
     """A population checkpoint of the stacked layout (every agent's networks as rows of ``actor`` and
     ``critics``, the optimisers' moments as rows under ``update``, as written up to commit 8dc7aaa)
-    with one entry per agent in a single run's layout. ``entries`` are the agents' entries as
+    in the current layout, one member entry per agent. ``entries`` are the agents' entries as
     freshly built (their configs, optimiser settings and algorithm state to fill in); ``modules``
     names the ``actor`` and ``critics`` of one agent, whose parameter order the rows follow."""
     update = state["update"]
@@ -229,12 +270,12 @@ def population_from_stacked(
                 }
             algo_state[opt_name] = {**entry["algo_state"][opt_name], "state": moments if float(steps) else {}}
         algo_state["networks"] = networks
-        out.append({**entry, "iteration": state["iteration"], "step": state["step"], "algo_state": algo_state})
-    shared = {k: v for k, v in state.items() if k not in ("actor", "critics", "update")}
-    return {**shared, "agents": out}
+        out.append({**entry, "algo_state": algo_state})
+    shared = {k: v for k, v in state.items() if k in (*SHARED, "costs")}
+    return {**shared, "rng": {"generators": state["generators"]}, "members": out}
 
 
-__all__ = ["STEPS", "convert_networks", "is_legacy", "migrate"]
+__all__ = ["STEPS", "convert_networks", "is_legacy", "member", "migrate"]
 
 
 # Defaults that a run's saved config does not record because it was written before they existed

@@ -21,9 +21,10 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from cmdp_rl.config.run_config import ConfigError, RunConfig, flatten_dict, load_config
+from cmdp_rl.population.spec import Population, population
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.run.migrations import saved_config_defaults
-from cmdp_rl.run.rundir import checkpoint_path, saved_config
+from cmdp_rl.run.migrations import deploy_node, member, migrate, saved_config_defaults
+from cmdp_rl.run.rundir import POPULATION_CHECKPOINT, POPULATION_CONFIG, checkpoint_path, read_yaml, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
 # shape of anything saved. Prefixes: every field under ``logger.``.
@@ -120,7 +121,9 @@ def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
     assert cfg.resume is not None
     ckpt = checkpoint_path(cfg.resume, "resume")
     state = load_checkpoint(ckpt, algo=cfg.algo.name, policy=cfg.policy.name, trust=cfg.trust_checkpoint)
-    missing = [k for k in ("collector", "rng", "algo_state", "iteration") if state.get(k) is None]
+    entry = member(state)
+    missing = [k for k in ("collector", "rng", "iteration") if state.get(k) is None]
+    missing += [] if entry.get("algo_state") is not None else ["algo_state"]
     if missing == ["collector"]:
         raise CheckpointError(
             f"resume: {ckpt} holds no env state (env {cfg.env.name!r}, "
@@ -129,5 +132,37 @@ def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
         )
     if missing:
         raise CheckpointError(f"resume: {ckpt} lacks {missing}; it cannot continue a run")
-    check_resume_config(load_config({**saved_config_defaults(state["config"]), "resume": None}), cfg)
+    check_resume_config(load_config({**saved_config_defaults(entry["config"]), "resume": None}), cfg)
     return state
+
+
+def resume_population(
+    out: str | Path, requested: Mapping[str, Any] | None = None, explicit: Iterable[str] = (), trust: bool = False
+) -> Population:
+    """The population in ``out`` to continue, as :func:`resume_config` continues a run: its own config
+    (``population.yaml``) with the options named in ``explicit`` taken from ``requested`` where a
+    run's resume may change them, and its checkpoint (``population.pt``; an older format's only with
+    ``trust``, which runs code from the file) migrated to the current layout. A population whose
+    agents trained one after another has no checkpoint of its own: each agent resumes as a run."""
+    out = Path(out)
+    if not (out / POPULATION_CONFIG).is_file():
+        raise CheckpointError(f"resume: no {POPULATION_CONFIG} in {out}")
+    saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
+    state = None
+    if (out / POPULATION_CHECKPOINT).is_file():
+        saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust)
+        if "update" in saved:  # the stacked layout predates defaults that its config does not name
+            saved_raw = saved_config_defaults(saved_raw)
+        state = migrate(saved)
+    saved_raw = deploy_node(saved_raw)  # a population.yaml of the flat deployment options
+    deploy = saved_raw.setdefault("deploy", {})
+    if state is not None and deploy.get("policy", "auto") == "auto":  # as its agents resolved it (the
+        # last iterate, before populations deployed what a run deploys)
+        deploy["policy"] = deploy_node(member(state)["config"])["deploy"]["policy"] if "members" in state else "last"
+    raw = resumed_raw(saved_raw, requested or {}, explicit, out)
+    if raw.get("population") != saved_raw.get("population"):
+        raise ConfigError(f"population cannot change when resuming {out}")
+    before, after = population(saved_raw), population(raw, resume=True, state=state)
+    for a, b in zip(before.cfgs, after.cfgs):
+        check_resume_config(a, b)
+    return after

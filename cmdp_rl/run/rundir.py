@@ -34,7 +34,7 @@ from cmdp_rl.envs import VecEnv, make_eval_env
 from cmdp_rl.policies import Agent, make_agent
 from cmdp_rl.rollout.normalization import Normalizers
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.run.migrations import migrate, saved_config_defaults
+from cmdp_rl.run.migrations import member, migrate, saved_config_defaults
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.yaml"
@@ -154,7 +154,7 @@ def saved_config(run_dir: str | Path, what: str = "run", trust: bool = False) ->
     cfg_path = Path(run_dir) / CONFIG
     if cfg_path.is_file():
         return saved_config_defaults(read_yaml(cfg_path, what))
-    return saved_config_defaults(load_checkpoint(ckpt, trust=trust)["config"])
+    return saved_config_defaults(member(load_checkpoint(ckpt, trust=trust))["config"])
 
 
 def run_config(run_dir: str | Path, what: str = "run", trust: bool = False) -> RunConfig:
@@ -188,12 +188,13 @@ def load_trained(
     norm = Normalizers.from_config(cfg.normalize, env.obs_dim, cfg.env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma)
     agent = make_agent(cfg.policy, env, norm, algo=cfg.algo)  # the algorithm's networks, no algorithm
     try:  # every algorithm keeps its agent's state under "networks" (docs/architecture.md)
-        agent.load_state_dict(migrate(state, agent)["algo_state"]["networks"])
+        entry = member(migrate(state, agent))
+        agent.load_state_dict(entry["algo_state"]["networks"])
     except (KeyError, RuntimeError) as exc:
         env.close()
         raise CheckpointError(f"evaluate: {ckpt} does not fit the config of {run_dir} ({exc})") from exc
     try:  # the policy the run deployed: the last iterate, its average or its mixture (deploy/)
-        deploy_saved(cfg, state, agent)
+        deploy_saved(cfg, entry, agent)
     except ValueError as exc:
         env.close()
         raise CheckpointError(f"evaluate: {ckpt}: {exc} ({run_dir})") from exc

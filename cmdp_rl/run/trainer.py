@@ -26,16 +26,21 @@ from cmdp_rl.deploy.final_policy import FinalPolicy
 from cmdp_rl.deploy.mixture import IterateSnapshots
 from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.policies import make_agent
+from cmdp_rl.population.agent import PopulationAgent
+from cmdp_rl.population.env import population_env
+from cmdp_rl.population.spec import Population, label, stacked, unbatched, unbatched_head
+from cmdp_rl.population.update import AgentUpdates, PopulationPPO
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
+from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.rollout.normalization import make_normalizers
 from cmdp_rl.run.checkpoint import CheckpointError, save_checkpoint
-from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, evaluate
+from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, evaluate, evaluate_members
 from cmdp_rl.run.loop import Members, contract_options, train_iterations
-from cmdp_rl.run.migrations import migrate
-from cmdp_rl.run.ownership import acquire, release
+from cmdp_rl.run.migrations import migrate, population_from_stacked
+from cmdp_rl.run.ownership import acquire, owned, release
 from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.resume import load_resume_state
 from cmdp_rl.run.rng import load_rng_state, rng_state, seed_everything
@@ -44,6 +49,9 @@ from cmdp_rl.run.rundir import (
     CONFIG,
     EVAL,
     METRICS,
+    POPULATION_CHECKPOINT,
+    POPULATION_CONFIG,
+    POPULATION_SUMMARY,
     RUN_INFO,
     TENSORBOARD,
     RunDirError,
@@ -189,12 +197,10 @@ def open_runs(
     return [logger for logger, _ in opened], [saved for _, saved in opened]
 
 
-def restore(
-    state: dict[str, Any], algos: Sequence[Any], entries: Sequence[dict], collector: Collector
-) -> tuple[int, float]:
-    """A resume's checkpoint into each member's algorithm (from its entry: a run's is the checkpoint
-    itself) and into the collector. Returns the first iteration to train and the time trained."""
-    for algo, entry in zip(algos, entries):
+def restore(state: dict[str, Any], algos: Sequence[Any], collector: Collector) -> tuple[int, float]:
+    """A resume's checkpoint into each member's algorithm (from its entry) and into the collector.
+    Returns the first iteration to train and the time trained."""
+    for algo, entry in zip(algos, state["members"]):
         algo.load_state_dict(entry["algo_state"])
     collector.load_state_dict(state["collector"])
     return state["iteration"] + 1, state["time_s"]
@@ -206,18 +212,20 @@ def write_result(out: Path, result: dict[str, Any], cfg: RunConfig, *args: Any) 
     (out / EVAL).write_text(json.dumps(result, indent=2))
 
 
-def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s: float, algo: Any) -> dict[str, Any]:
-    """A ``checkpoint.pt``'s run fields and the algorithm's ``state_dict`` (networks, optimisers,
-    its own state); the caller adds the collector's and the random generators' state."""
-    return {
-        "algo": run_cfg["algo"]["name"],
-        "policy": run_cfg["policy"]["name"],
-        "config": run_cfg,
-        "iteration": iteration,
-        "step": step,
-        "time_s": time_s,
-        "algo_state": algo.state_dict(),
-    }
+def member_entry(run_cfg: dict[str, Any], algo: Any, final: FinalPolicy | None = None) -> dict[str, Any]:
+    """A member's entry of a checkpoint: its config, its algorithm's ``state_dict`` (networks,
+    optimisers, its own state) and what it deploys (``final``'s state)."""
+    return {**(final.state_dict() if final else {}), "config": run_cfg, "algo_state": algo.state_dict()}
+
+
+def checkpoint_state(
+    cfg: RunConfig, iteration: int, step: int, time_s: float, members: list[dict], collector: Any, rng: Any, **more: Any
+) -> dict[str, Any]:
+    """A checkpoint (format 4, docs/checkpoints.md), a run's or a population's: what its members share
+    (the iteration, each member's env ``step``s, the training time, the ``collector``'s state and the
+    random state ``rng``), their entries (:func:`member_entry`) and ``more`` (a population's costs)."""
+    shared = {"algo": cfg.algo.name, "policy": cfg.policy.name, "iteration": iteration, "step": step}
+    return {**shared, "time_s": time_s, "collector": collector, "rng": rng, "members": members, **more}
 
 
 def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
@@ -249,7 +257,9 @@ def evaluate_run(cfg: RunConfig, agent: Any) -> dict[str, Any]:
         eval_env.close()
 
 
-def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str], None] = print) -> dict[str, Any]:
+def train(
+    cfg: RunConfig | Population, out_dir: str | Path | None = None, echo: Callable[[str], None] = print
+) -> dict[str, Any]:
     """Train as ``cfg`` says, writing ``config.yaml``, ``run_info.json``, ``metrics.csv``,
     ``checkpoint.pt`` and ``eval.json`` under ``out_dir`` (see ``cmdp_rl/run/rundir.py``). Returns the
     evaluation summary. Same config and seed, same numbers (on the same machine and versions).
@@ -258,7 +268,18 @@ def train(cfg: RunConfig, out_dir: str | Path | None = None, echo: Callable[[str
     directory (``out_dir`` may be omitted). Its ``metrics.csv`` keeps the rows up to the
     checkpoint and continues after them; the run ends with the numbers it would have reached
     uninterrupted (see ``cmdp_rl/run/resume.py``).
+
+    A :class:`~cmdp_rl.population.spec.Population` (``population.population(raw)``, or
+    ``resume.resume_population(out_dir)`` to continue one) trains its P agents in this process, each
+    into a run directory ``out_dir/agents/<k>_<values>/`` as its single run writes one, and returns
+    the summary written to ``population.json`` (docs/population.md). A run is P = 1, on the
+    one-agent kernel; P agents train as one batched program (population/'s stacked kernel) where it
+    covers them, else one after another.
     """
+    if isinstance(cfg, Population):
+        if out_dir is None:
+            raise ValueError("train: out_dir is required for a population")
+        return _train_population(cfg, Path(out_dir), echo)
     validate(cfg)
     out = _run_dir(cfg, out_dir)
     state = load_resume_state(cfg) if cfg.resume is not None else None
@@ -302,13 +323,13 @@ def _train(
     first, elapsed = 1, 0.0
     if state is not None:
         state = migrate(state, agent)  # an older format's layout (a trusted file) in the current one
-        first, elapsed = restore(state, [algo], [state], collector)
+        first, elapsed = restore(state, [algo], collector)
         load_rng_state(state["rng"])
     per_iter = cfg.rollout_steps * env.num_envs
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
-    final = FinalPolicy(cfg, iterations, state)  # what the run deploys: deploy.policy
+    final = FinalPolicy(cfg, iterations, state and state["members"][0])  # what the run deploys: deploy.policy
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
@@ -323,8 +344,10 @@ def _train(
             if not cannot_resume:
                 cannot_resume.append(str(exc))
                 progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
-        entry = checkpoint_entry(run_cfg, iteration, collector.total_steps, time_s, algo)
-        save_checkpoint(ckpt_path, {**final.state_dict(), **entry, "collector": rollout, "rng": rng_state()})
+        entry = member_entry(run_cfg, algo, final)
+        save_checkpoint(
+            ckpt_path, checkpoint_state(cfg, iteration, collector.total_steps, time_s, [entry], rollout, rng_state())
+        )
 
     if state is not None:
         echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
@@ -374,3 +397,203 @@ def _train(
     for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header, cost_names=names):
         echo(line)
     return result
+
+
+# --- P agents ------------------------------------------------------------------------------------
+AGENTS_DIR = "agents"
+
+
+def agent_dir_name(k: int, overrides: dict[str, Any]) -> str:
+    return f"{k:03d}_{label(overrides)}".replace("/", "_").replace(" ", "")
+
+
+def _train_population(pop: Population, out: Path, echo: Callable[[str], None]) -> dict[str, Any]:
+    """:func:`train` of P agents: the stacked kernel where population/ covers them, else each agent's
+    run one after another in this process (a resume continues each from its own checkpoint)."""
+    cfgs, P = pop.cfgs, len(pop.cfgs)
+    apply_threads(cfgs[0])
+    why = unbatched(cfgs[0])
+    if why is None:  # the action space: on the first agent as built
+        probe, agent, _ = build_run(cfgs[0])
+        probe.close()
+        why = unbatched_head(agent.actor.head)
+    if why is None and pop.resume and pop.state is None:
+        raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
+    dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(pop.overrides)]
+    # The directory is this population's alone while it trains (as a run's: run/ownership.py).
+    with owned(out, new_run=not pop.resume, overwrite=bool(pop.raw.get("overwrite"))):
+        if not pop.resume or why is None:
+            ensure_writable(out)  # before population.yaml; each agent's directory is checked as a run's
+            saved = {k: v for k, v in pop.raw.items() if k != "resume"}
+            (out / POPULATION_CONFIG).write_text(yaml.safe_dump(saved, sort_keys=False))
+        start = time.perf_counter()
+        if why is None:
+            steps, train_time, results = _stacked(pop, dirs, echo)
+        else:  # the numbers of separate runs, and none of the batched program's speed
+            echo(f"population: {why}; its {P} agents train one after another, each as its single run, outputs in {out}")
+            results = []
+            for k, (d, c) in enumerate(zip(dirs, cfgs)):
+                if pop.resume:  # from the agent's checkpoint (a finished one is evaluated again), or anew
+                    resumed = (d / CHECKPOINT).is_file()
+                    c = dataclasses.replace(c, resume=str(d) if resumed else None, overwrite=not resumed)
+                echo(f"agent {k + 1}/{P} ({label(pop.overrides[k])}):")
+                results.append(train(c, d, echo=echo))
+            steps, train_time = results[-1]["steps"], sum(r["train_time_s"] for r in results)
+        runs = [
+            {"dir": str(d.relative_to(out)), "values": ov, **{k: r.get(k) for k in ("episode_return", "episode_cost")}}
+            for d, ov, r in zip(dirs, pop.overrides, results)
+        ]
+        summary = {
+            "agents": P,
+            "algo": cfgs[0].algo.name,
+            **({"envs_per_agent": cfgs[0].env.num_envs, "iterations": _iterations(cfgs[0])} if why is None else {}),
+            "steps_per_agent": steps,
+            "steps_summed": steps * P,
+            "train_time_s": train_time,
+            "summed_steps_per_s": steps * P / train_time,
+            "wall_time_s": time.perf_counter() - start,
+            "device": str(cfgs[0].device),
+            "torch_threads": torch.get_num_threads(),
+            "runs": runs,
+        }
+        (out / POPULATION_SUMMARY).write_text(json.dumps(summary, indent=2))
+        echo(
+            f"done: {P} agents x {steps:,} steps in {train_time:.1f}s ({summary['summed_steps_per_s']:,.0f} steps/s "
+            f"summed); runs in {out / AGENTS_DIR}, summary {out / POPULATION_SUMMARY}"
+        )
+    return summary
+
+
+def _iterations(cfg: RunConfig) -> int:
+    return math.ceil(cfg.total_steps / (cfg.rollout_steps * cfg.env.num_envs))
+
+
+def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> tuple[int, float, list[dict]]:
+    """The batched program: every agent's env, acting and update as one (population/'s stacked
+    kernel), through the loop a run drives. Returns each agent's steps, the training time and each
+    agent's evaluation."""
+    cfgs, state, out = pop.cfgs, pop.state, dirs[0].parent.parent
+    cfg = cfgs[0]
+    check_env_contracts(*cfgs)
+    device = torch.device(cfg.device)
+    P, N, T = len(cfgs), cfg.env.num_envs, cfg.rollout_steps
+
+    # Each agent's networks and algorithm state as its single run builds them, under its seed; the
+    # generator state after that is where its single run's action samples and permutations start.
+    agents, algos, generators = [], [], []
+    for c in cfgs:
+        probe, agent, algo = build_run(c)
+        probe.close()
+        agents.append(agent)
+        algos.append(algo)
+        g = torch.Generator(device=device)
+        g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
+        generators.append(g)
+    env = population_env(cfgs, N, [c.seed for c in cfgs], device)
+    stacked_agent = PopulationAgent(agents, generators, device)
+    one_update = stacked(cfg.algo.name, getattr(cfg.algo, "base", None))
+    update = PopulationPPO(stacked_agent, algos) if one_update else AgentUpdates(stacked_agent, algos)
+    collector = Collector(env, stacked_agent, T, seed=None)
+    names = env.cost_names
+    loggers, run_cfgs = open_runs(dirs, cfgs, algos[0].stats, names, state, lambda s: None)
+
+    per_iter, iterations = T * N, _iterations(cfg)  # steps per agent per iteration
+    first, elapsed = 1, 0.0
+    costs = torch.zeros(P, len(names), dtype=torch.float64)  # every cost each agent collected so far
+    if state is not None:
+        if "members" not in state:  # the stacked layout of earlier populations
+            fresh = [member_entry(r, a) for r, a in zip(run_cfgs, algos)]
+            state = population_from_stacked(state, fresh, {"actor": agents[0].actor, "critics": agents[0].critics})
+        first, elapsed = restore(state, update.algos, collector)  # each agent as its run resumes
+        update.stack_agents()
+        for g, s in zip(generators, state["rng"]["generators"]):
+            g.set_state(s)
+        costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(P, len(names))  # a list of P before K costs
+        echo(f"resuming population {out} from iteration {state['iteration']}")
+    # What each agent deploys, kept on its single-run agent as its run keeps it (final_policy.py).
+    finals = [FinalPolicy(c, iterations, e) for c, e in zip(cfgs, state["members"] if state else [None] * P)]
+    echo(
+        f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({N} envs each): "
+        f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
+    )
+    start = time.perf_counter() - elapsed
+    written: dict[int, list[dict[str, Any]]] = {}  # the entries of the last checkpoint, by iteration
+
+    def entries(it: int) -> list[dict[str, Any]]:
+        if it in written:  # the final one is the last checkpoint's: built once
+            return written[it]
+        update.unstack_agents()
+        written.clear()
+        written[it] = [member_entry(r, a, f) for r, a, f in zip(run_cfgs, algos, finals)]
+        return written[it]
+
+    def checkpoint(it: int, time_s: float) -> None:
+        rng = {"generators": [g.get_state() for g in generators]}
+        steps, rollout = collector.total_steps // P, collector.state_dict()
+        state = checkpoint_state(cfg, it, steps, time_s, entries(it), rollout, rng, costs=costs)
+        save_checkpoint(out / POPULATION_CHECKPOINT, state)
+
+    def cost_totals(batch: Any) -> list[list[float]]:
+        nonlocal costs
+        costs = costs + batch.get((keys.NEXT, keys.COST)).reshape(P, -1, len(names)).sum(1).to(costs)
+        return costs.tolist()
+
+    def report(it: int, rows: list[dict[str, Any]], dt: float) -> None:
+        if it % cfg.log_interval == 0 or it == first or it == iterations:
+            mean = [
+                torch.tensor([r[k] for r in rows], dtype=torch.float64).nanmean().item()
+                for k in ("episode_return", constraint_name("episode_cost", names[0], len(names)))
+            ]
+            echo(
+                f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
+                f"mean episode return {mean[0]:.3f}, cost {mean[1]:.3f}"
+            )
+
+    def update_step(batch: Any, it: int) -> list[dict[str, Any]]:
+        stats = update.update(batch)
+        if any(f.wants(it) for f in finals):  # the actors as their single runs hold them, then as they do
+            update.copy_actors(to_modules=True)
+            for k, (f, a) in enumerate(zip(finals, agents)):
+                f.after_update(a, it, names, lambda line, k=k: echo(f"agent {k}: {line}"))
+        return stats
+
+    members = Members(
+        cfgs, loggers, collector, update_step, cost_totals, checkpoint, out / POPULATION_CHECKPOINT, report=report
+    )
+    train_time = train_iterations(members, first, iterations, start)
+    steps = collector.total_steps // P
+
+    final_entries = entries(iterations)  # the last iterates, before the deployed policies
+    for f, a in zip(finals, agents):
+        f.deploy(a)
+    if cfg.deploy.policy == "mixture":  # each agent's mixture as its run evaluates it, one after another
+        results = [evaluate_run(c, a) for c, a in zip(cfgs, agents)]
+    else:
+        update.copy_actors(to_modules=False)  # the deployed actors (an average) into the stacked rows
+        results = _evaluate_stacked(stacked_agent, cfgs, N, device)
+    for d, c, result, entry, cost, f in zip(dirs, cfgs, results, final_entries, costs.tolist(), finals):
+        # The agent's entry of the population's checkpoint, as its own checkpoint.pt (for evaluate.py;
+        # not resumable on its own, no collector or random state: the population resumes from population.pt).
+        save_checkpoint(d / CHECKPOINT, checkpoint_state(c, iterations, steps, train_time, [entry], None, None))
+        write_result(d, result, c, steps, train_time, cost, names, None, f.kept)
+    return steps, train_time, results
+
+
+def _evaluate_stacked(
+    stacked_agent: PopulationAgent, cfgs: list[RunConfig], n: int, device: torch.device
+) -> list[dict[str, Any]]:
+    """Each agent's single-run evaluation, side by side: min(eval_episodes, num_envs) envs of its own
+    seeded with its evaluation seed, which also seeds its action samples."""
+    cfg = cfgs[0]
+    seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
+    eval_env = population_env(cfgs, min(cfg.eval_episodes, n), seeds, device, evaluation=True)
+    training = stacked_agent.generators
+    stacked_agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
+    limits = [c.algo.cost_limit for c in cfgs]
+    try:
+        return evaluate_members(
+            stacked_agent, eval_env, cfg.eval_episodes, cfg.eval_deterministic, limits, cfg.env.termination_metric
+        )
+    finally:
+        stacked_agent.generators = training
+        eval_env.close()

@@ -32,6 +32,7 @@ from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.rollout.normalization import make_normalizers
 from cmdp_rl.run.checkpoint import save_checkpoint
 from cmdp_rl.run.rng import rng_state, seed_everything
+from cmdp_rl.run.trainer import checkpoint_state, member_entry
 
 
 def main() -> None:
@@ -77,17 +78,9 @@ def main() -> None:
         t0 = time.perf_counter()
         save_checkpoint(
             path,
-            {
-                "algo": cfg.algo.name,
-                "policy": cfg.policy.name,
-                "config": {},
-                "iteration": 1,
-                "step": collector.total_steps,
-                "time_s": 0.0,
-                "algo_state": algo.state_dict(),
-                "collector": collector.state_dict(),
-                "rng": rng_state(),
-            },
+            checkpoint_state(
+                cfg, 1, collector.total_steps, 0.0, [member_entry({}, algo)], collector.state_dict(), rng_state()
+            ),
         )
         times.append(time.perf_counter() - t0)
     env.close()

@@ -5,7 +5,7 @@
         [--out outputs/population_benchmark.json]
 
 - together: ``--agents`` ppo_lag agents (the ``env=reach1d_torch`` preset with ``--envs`` envs each,
-  one seed per agent) trained by ``train_population`` for ``--iterations`` iterations; summed
+  one seed per agent) trained by ``train(population(raw))`` for ``--iterations`` iterations; summed
   training steps/s = agents x steps per agent / training wall time (evaluation excluded);
 - one after another: the same agents' configs through ``train()``, in this process, one by one;
   summed steps/s = the same steps / the sum of their training times (``eval.json``'s
@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[2]  # the checkout: outputs/ goes there
 
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.config.run_config import CONFIG_DIR  # noqa: E402
-from cmdp_rl.population import train_population  # noqa: E402
+from cmdp_rl.population import population  # noqa: E402
 from cmdp_rl.population.spec import agent_configs  # noqa: E402
 
 
@@ -72,7 +72,7 @@ def _shape(args) -> tuple:
 def together(args, agents: int, tmp: Path) -> dict:
     raw = composed(base(*_shape(args)) + [f"population.seeds={agents}"])
     cpu = time.process_time()
-    summary = train_population(raw, Path(tempfile.mkdtemp(prefix=f"pop{agents}_", dir=tmp)), echo=lambda s: None)
+    summary = train(population(raw), Path(tempfile.mkdtemp(prefix=f"pop{agents}_", dir=tmp)), echo=lambda s: None)
     cpu = time.process_time() - cpu
     return {
         "agents": agents,

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import torch
 
-from cmdp_rl.population import agent, params, trainer, update  # noqa: E402
+from cmdp_rl import train  # noqa: E402
+from cmdp_rl.population import agent, params, population, update  # noqa: E402
 from cmdp_rl.rollout import collector  # noqa: E402
 from lab.bench.population_benchmark import base, composed  # noqa: E402
 
@@ -63,7 +64,7 @@ def main() -> int:
     raw = composed(base(args.envs, args.iterations, "cpu", 1) + [f"population.seeds={args.agents}"])
     load = os.getloadavg()
     with tempfile.TemporaryDirectory() as d:
-        trainer.train_population(raw, Path(d) / "pop", echo=lambda s: None)
+        train(population(raw), Path(d) / "pop", echo=lambda s: None)
     n = max(1, args.iterations - 1)
     print(f"P = {args.agents} agents x {args.envs} envs, ms of CPU time per iteration (mean of iterations 2..):")
     for _, _, label in PARTS:

@@ -85,7 +85,8 @@ def train_grid(out: Path, overrides: list[str], skip_unbatched: bool) -> dict[st
     time in seconds (and the total wall and CPU time)."""
     import time
 
-    from cmdp_rl.population import train_population
+    from cmdp_rl.population import population
+    from cmdp_rl.run.trainer import train
     from lab.studies.population_sweep import sweep_parts
 
     timing: dict[str, float] = {}
@@ -96,7 +97,7 @@ def train_grid(out: Path, overrides: list[str], skip_unbatched: bool) -> dict[st
                 continue
             t0 = time.perf_counter()
             raw = _composed(part.overrides(experiment, ["env.backend=torch", *overrides]))
-            train_population(raw, out / sub / part.name, echo=print if part.batched else _agents_only)
+            train(population(raw), out / sub / part.name, echo=print if part.batched else _agents_only)
             timing[f"{sub}/{part.name}"] = time.perf_counter() - t0
             print(f"{sub}/{part.name}: {timing[f'{sub}/{part.name}']:.1f} s")
     timing["total"] = time.perf_counter() - start
@@ -106,7 +107,7 @@ def train_grid(out: Path, overrides: list[str], skip_unbatched: bool) -> dict[st
 
 def _agents_only(line: str) -> None:
     """An unbatched population's echo, its agents' own lines left out (one line per agent)."""
-    if line.startswith(("agent ", "population: ", "done: ")) and " steps in " not in line:
+    if line.startswith(("agent ", "population: ", "done: ")) and (" steps in " not in line or " summed)" in line):
         print(line)
 
 

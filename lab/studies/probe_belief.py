@@ -33,7 +33,7 @@ from cmdp_rl.rollout import keys
 from cmdp_rl.run import sweeps
 from cmdp_rl.run.checkpoint import load_checkpoint
 from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET
-from cmdp_rl.run.migrations import migrate
+from cmdp_rl.run.migrations import member, migrate
 from lab.studies import tables
 from lab.studies.stats import population_mean_std
 from lab.studies.tables import markdown_table, pm
@@ -54,7 +54,7 @@ def probe_stats(cfg: RunConfig, run_dir: Path, steps: int) -> dict[str, Any]:
     state = load_checkpoint(run_dir / "checkpoint.pt", policy=cfg.policy.name)
     env = make_env(dataclasses.replace(cfg.env, stagger=False), device=cfg.device)
     ac = make_agent(cfg.policy, env)
-    ac.load_state_dict(migrate(state, ac)["algo_state"]["networks"])  # older formats too
+    ac.load_state_dict(member(migrate(state, ac))["algo_state"]["networks"])  # older formats too
     batch = Collector(env, ac, steps, seed=cfg.seed + EVAL_SEED_OFFSET + 1).collect()
     env.close()
     probing = batch.get(keys.ACTION)[..., 1] > 0

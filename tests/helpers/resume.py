@@ -46,7 +46,7 @@ def crash_then_resume(
 
 
 def final_state(run_dir: Path) -> dict:
-    return load_checkpoint(run_dir / "checkpoint.pt")["algo_state"]
+    return load_checkpoint(run_dir / "checkpoint.pt")["members"][0]["algo_state"]
 
 
 def assert_same_run(a: Path, b: Path) -> None:
