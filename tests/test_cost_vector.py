@@ -347,8 +347,7 @@ def test_trpo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_p
         "name": "trpo_lag",
         "critic_minibatches": 2,
         "cost_limit": [0.5, 1.0],
-        "lambda_lr": 0.5,
-        "lambda_scale": "none",
+        "multiplier": {"lr": 0.5, "scale": "none"},
     }
     result = train(load_config(cfg), out, echo=quiet)
     rows = read_rows(out / "metrics.csv")

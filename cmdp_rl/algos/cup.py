@@ -34,7 +34,7 @@ from torch.distributions import Distribution, kl_divergence
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.lagrange import DualAscent
 from cmdp_rl.algos.minibatch import Tally, joined, stopped
-from cmdp_rl.algos.multiplier_options import Scale, violation_scale
+from cmdp_rl.algos.multiplier import Scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, STATS, OneRun, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options

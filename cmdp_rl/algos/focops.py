@@ -37,7 +37,7 @@ from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.lagrange import PIDLagrangian
-from cmdp_rl.algos.multiplier_options import Scale, violation_scale
+from cmdp_rl.algos.multiplier import Scale, violation_scale
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeFloat, PositiveFloat, options, require

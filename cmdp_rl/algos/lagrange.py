@@ -6,7 +6,7 @@ lambda >= 0, and saves its state with ``state_dict``: :class:`MultiplierControll
 interface the Lagrangian algorithms program against.
 
 Every controller reads the violation ``(J_c - d) / scale``. ``scale = 1`` is the classical update
-in the cost's units; ``scale = d`` (``lambda_scale: budget``, algos/multiplier_options.py) makes it
+in the cost's units; ``scale = d`` (``algo.multiplier.scale: budget``, algos/multiplier.py) makes it
 the relative violation, so that one step size means the same on a budget of 0.15 as on one of 25
 (docs/constraint_satisfaction.md). The last-iterate controllers live in algos/last_iterate.py.
 """

@@ -33,7 +33,7 @@ from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, evaluate_members
 from cmdp_rl.run.loop import Members, train_iterations
-from cmdp_rl.run.migrations import migrate, population_from_stacked, saved_config_defaults
+from cmdp_rl.run.migrations import migrate, population_from_stacked, saved_config_defaults, saved_config_nodes
 from cmdp_rl.run.ownership import owned
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
@@ -89,7 +89,7 @@ def train_population(
     if resume:
         if not (out / POPULATION_CONFIG).is_file():
             raise CheckpointError(f"resume: no {POPULATION_CONFIG} in {out}")
-        saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
+        saved_raw = saved_config_nodes(read_yaml(out / POPULATION_CONFIG, "resume"))
         if (out / POPULATION_CHECKPOINT).is_file():
             saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust_checkpoint)
             if "update" in saved:  # the stacked layout predates defaults that its config does not name
