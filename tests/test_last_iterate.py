@@ -116,11 +116,10 @@ def test_every_lagrangian_algorithm_builds_the_chosen_update_on_the_relative_vio
     assert isinstance(c, cls) and c.scale == pytest.approx(c.cost_limit)  # sac/td3: the discounted budget
 
 
-def test_regularized_ppo_lag_adds_tau_to_the_entropy_bonus_and_nu_scale_reaches_focops_and_cup():
+def test_regularized_ppo_lag_adds_tau_to_the_entropy_bonus_and_the_scale_reaches_focops_and_cup():
     ppo = _controllers({"name": "ppo_lag", "multiplier": {"kind": "regularized", "tau": 0.3}, "entropy_coef": 0.01})
     assert ppo.entropy_coef == pytest.approx(0.31)
     for name in ("focops", "cup", "pid_lag"):
-        scale = {"multiplier": {"scale": "budget"}} if name == "pid_lag" else {"nu_scale": "budget"}
-        m = _controllers({"name": name, "cost_limit": 0.25, **scale}).multiplier
+        m = _controllers({"name": name, "cost_limit": 0.25, "multiplier": {"scale": "budget"}}).multiplier
         m = m.controllers[0] if hasattr(m, "controllers") else m
         assert m.scale == 0.25

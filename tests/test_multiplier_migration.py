@@ -69,6 +69,11 @@ def test_an_old_pid_lag_run_evaluates_and_resumes_as_the_run_continued(tmp_path,
             {"name": "sac_lag", "multiplier": "pid", "lambda_lr": 0.01, "kp": 0.5, "lambda_tau": 0.2, "lambda_nu": 0.3},
             {"kind": "pid", "lr": 0.01, "kp": 0.5, "tau": 0.2, "nu": 0.3},
         ),
+        # FOCOPS's and CUP's nu: the same node (FOCOPS's clamp is its max).
+        (
+            {"name": "focops", "nu_init": 0.2, "nu_lr": 0.5, "nu_max": 3.0, "nu_scale": "none"},
+            {"init": 0.2, "lr": 0.5, "max": 3.0, "scale": "none"},
+        ),
         # pid_lag without any multiplier option still is PID.
         ({"name": "pid_lag"}, {"kind": "pid"}),
         # An algorithm without a multiplier keeps its options, the penalty's included.
@@ -78,7 +83,8 @@ def test_an_old_pid_lag_run_evaluates_and_resumes_as_the_run_continued(tmp_path,
 def test_flat_options_move_into_the_node(old, node):
     algo = saved_config_nodes({"algo": old, "mixture_weights": "feasible"})["algo"]
     assert algo.get("multiplier") == node
-    kept = {k: v for k, v in old.items() if node is None or not (k.startswith("lambda_") or k in ("kp", "multiplier"))}
+    flat = ("lambda_", "nu_", "kp", "multiplier")
+    kept = {k: v for k, v in old.items() if node is None or not k.startswith(flat)}
     assert {k: v for k, v in algo.items() if k != "multiplier"} == {
         k: v for k, v in kept.items() if k != "anneal_lambda_lr"
     }
@@ -91,7 +97,7 @@ def test_a_config_from_before_mixture_weights_ran_with_the_raw_violation():
     """Such a config ran with lambda_scale none (the default of its day); it lands in the node."""
     cfg = load_config(saved_config_defaults({"algo": {"name": "ppo_lag", "lambda_lr": 0.2}}))
     assert (cfg.algo.multiplier.scale, cfg.algo.multiplier.lr) == ("none", 0.2)
-    assert load_config(saved_config_defaults({"algo": {"name": "focops"}})).algo.nu_scale == "none"
+    assert load_config(saved_config_defaults({"algo": {"name": "focops"}})).algo.multiplier.scale == "none"
 
 
 def test_a_population_grid_over_flat_options_moves_into_the_node():

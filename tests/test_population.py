@@ -74,12 +74,16 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
             [1],
         ),
         # Options of the newly batched algorithms per agent: each agent's own algorithm object reads them.
-        ({"name": "focops"}, {"algo": {"nu_lr": [0.1, 0.5], "nu_max": [0.5]}}, [1]),
+        ({"name": "focops"}, {"algo": {"multiplier": {"lr": [0.1, 0.5], "max": [0.5]}}}, [1]),
         ({"name": "crpo"}, {"algo": {"tolerance": [0.0, 1.0]}}, [0, 1]),
         # What an agent deploys, as its run: the average of its last iterates' actors, and a mixture of
         # snapshots with uniform weights (ppo_lag above: final_policy=auto, its feasible mixture).
         ({"name": "pid_lag", "final_policy": "average"}, {"algo": {"cost_limit": [0.2, 0.5]}}, [0, 1]),
-        ({"name": "focops", "final_policy": "mixture", "mixture_weights": "uniform"}, {"algo": {"nu_lr": [0.5]}}, [0]),
+        (
+            {"name": "focops", "final_policy": "mixture", "mixture_weights": "uniform"},
+            {"algo": {"multiplier": {"lr": [0.5]}}},
+            [0],
+        ),
     ],
 )
 def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
@@ -106,9 +110,9 @@ def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
 # Options that make an algorithm's own arithmetic act in a tiny run: FOCOPS's multiplier and its
 # KL mask, CRPO's switch (a budget it overspends), CUP's nu in its projection, Sauté's budget state.
 ALGO_OPTIONS = {
-    "focops": {"nu_lr": 0.5, "target_kl": 0.005},
+    "focops": {"multiplier": {"lr": 0.5}, "target_kl": 0.005},
     "crpo": {"tolerance": 0.0},
-    "cup": {"nu_lr": 0.5},
+    "cup": {"multiplier": {"lr": 0.5}},
     "saute": {"unsafe_reward": -0.5},
 }
 

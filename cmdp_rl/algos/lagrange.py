@@ -23,6 +23,10 @@ class MultiplierController(ABC):
     """Sets lambda >= 0 from one measurement of the mean undiscounted episode cost ``J_c`` per
     iteration. ``value`` is the lambda in force."""
 
+    # An upper clamp on lambda (``algo.multiplier.max``; FOCOPS's nu_max): the update is projected onto
+    # [0, maximum]. A class attribute, set by ``MultiplierConfig.build``: infinite, it changes nothing.
+    maximum: float = math.inf
+
     def __init__(self, cost_limit: float, init: float = 0.0, scale: float = 1.0) -> None:
         if init < 0:
             raise ValueError(f"lambda_init must be >= 0, got {init}")
@@ -40,7 +44,7 @@ class MultiplierController(ABC):
         """Take in ``J_c`` (finite), update and return the new lambda."""
         if not math.isfinite(episode_cost):
             raise ValueError(f"episode_cost must be finite, got {episode_cost}")
-        self.value = self._next_value(float(episode_cost))
+        self.value = min(self.maximum, self._next_value(float(episode_cost)))
         assert self.value >= 0.0
         return self.value
 

@@ -4,9 +4,10 @@ controller they build, one per constraint.
 ``kind`` picks the update: ``dual`` (projected dual ascent, lagrange.DualAscent), ``pid``
 (lagrange.PIDLagrangian), or a last-iterate update of last_iterate.py (``regularized``,
 ``optimistic``, ``augmented``). ``lr``, ``init`` and ``scale`` are every kind's; the rest belong to
-one kind each and are read by it alone. ppo_lag, pid_lag (ppo_lag with ``kind: pid``), mappo_lag,
-trpo_lag, sac_lag and td3_lag take the node; each declares its own defaults
-(``configs/algo/<name>.yaml`` and the options class agree).
+one kind each and are read by it alone; ``max`` clamps lambda from above for every kind. ppo_lag,
+pid_lag (ppo_lag with ``kind: pid``), mappo_lag, trpo_lag, sac_lag, td3_lag, and FOCOPS and CUP
+(their cost multiplier nu) take the node; each declares its own defaults (``configs/algo/<name>.yaml``
+and the options class agree).
 
 ``scale`` picks the units of the violation the update steps on: ``none`` is ``J_c - d`` in the
 cost's units, ``budget`` is ``(J_c - d) / d``. Budget normalisation was chosen over a running scale
@@ -62,12 +63,17 @@ class MultiplierConfig:
     p_ema_alpha: EMA = 0.0  # pid: EMA weight on the past of the proportional term's violation
     d_ema_alpha: EMA = 0.0  # pid: EMA weight on the past of the cost the derivative differences
     d_delay: PositiveInt = 1  # pid: iterations between the two smoothed costs the derivative differences
-    max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf  # pid: lambda's clamp
+    # An upper clamp on lambda, every kind (pid: on its integral too); .inf: none.
+    max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
 
     def build(self, cost_limit: float) -> MultiplierController:
         """The controller of one constraint with budget ``cost_limit`` (the one constructor every
         Lagrangian algorithm calls, through :class:`~cmdp_rl.algos.lagrange.Multipliers`)."""
-        scale = violation_scale(cost_limit, self.scale)
+        controller = self._controller(cost_limit, violation_scale(cost_limit, self.scale))
+        controller.maximum = self.max
+        return controller
+
+    def _controller(self, cost_limit: float, scale: float) -> MultiplierController:
         if self.kind == "pid":
             return PIDLagrangian(
                 cost_limit,
@@ -101,7 +107,7 @@ class MultiplierConfig:
         if self.kind == "pid":
             gains = self.kp + self.ki + self.kd
             require(gains > 0, f"{prefix}.kp + {prefix}.ki + {prefix}.kd", "> 0 (some gain must act)", gains)
-            require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
+        require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
 
 
 def violation_scale(cost_limit: float, scale: str) -> float:

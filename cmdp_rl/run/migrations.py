@@ -250,7 +250,8 @@ _RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {
 _ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {"lambda_scale": "none", "nu_scale": "none"}
 
 # The multiplier's options before they became the node ``algo.multiplier`` (cmdp_rl/algos/multiplier.py):
-# flat fields of the algorithm, each the node's field named here. ``multiplier`` was the update's name (a
+# flat fields of the algorithm, each the node's field named here (FOCOPS's nu was PID's integral term
+# clamped at nu_max: the node's dual ascent with max, the same numbers; its saved state's "value" is nu). ``multiplier`` was the update's name (a
 # string; pid_lag had none: it was always PID); ``anneal_lambda_lr`` is gone (no run that set it improved,
 # and nothing else did): a config that names it loads without it, so a run saved with it true resumes
 # with a constant step.
@@ -268,6 +269,11 @@ _FLAT_MULTIPLIER = {
     "d_ema_alpha": "d_ema_alpha",
     "d_delay": "d_delay",
     "lambda_max": "max",
+    # FOCOPS's and CUP's cost multiplier nu
+    "nu_init": "init",
+    "nu_lr": "lr",
+    "nu_max": "max",
+    "nu_scale": "scale",
 }
 _DROPPED = ("anneal_lambda_lr",)
 
@@ -330,8 +336,8 @@ def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
     name = algo.get("name", "ppo_lag")
     if isinstance(name, str):
         fields = {f.name for f in dataclasses.fields(component("algo", name).options)}
-        if _has_multiplier_node(name):
-            fields.add("lambda_scale")  # flat, as the config's other multiplier options (multiplier_node)
+        if _has_multiplier_node(name):  # flat, as the config's other multiplier options (multiplier_node)
+            fields.add("nu_scale" if name in ("focops", "cup") else "lambda_scale")
         algo = {**{k: v for k, v in _ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS.items() if k in fields}, **algo}
         out["algo"] = algo
     return saved_config_nodes(out)
