@@ -108,9 +108,9 @@ def test_the_epochs_stop_at_the_first_minibatch_past_delta():
 @pytest.mark.slow  # a learning run (pyproject: markers)
 def test_focops_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5. The initial policy's training return is 0.00 (iteration 1,
-    seed 0). With the paper's nu_lr = 0.01 and nu_max = 2, nu is too slow and too small here (cost 1.0
-    per episode after 40 iterations): crossing is worth about 1.4 in reward. With nu_lr = 0.5 and
-    nu_max = 3, measured on seed 0: last 10 iterations return 0.42 at cost 0.34."""
+    seed 0). With the paper's multiplier.lr = 0.01 and multiplier.max = 2, nu is too slow and too small here (cost 1.0
+    per episode after 40 iterations): crossing is worth about 1.4 in reward. With multiplier.lr = 0.5 and
+    multiplier.max = 3, measured on seed 0: last 10 iterations return 0.42 at cost 0.34."""
     cfg = compose_config(
         [
             "env=reach1d_torch",

@@ -123,3 +123,12 @@ def test_regularized_ppo_lag_adds_tau_to_the_entropy_bonus_and_the_scale_reaches
         m = _controllers({"name": name, "cost_limit": 0.25, "multiplier": {"scale": "budget"}}).multiplier
         m = m.controllers[0] if hasattr(m, "controllers") else m
         assert m.scale == 0.25
+
+
+@pytest.mark.parametrize("kind", ["dual", "regularized", "optimistic", "augmented", "pid"])
+def test_max_clamps_every_kind_and_infinity_changes_nothing(kind):
+    # d = 1, scale none, J_c = 3: every kind's first step is lr * 2 = 10 (pid: kp 2 * 2 + ki 0.1 * 2), over the clamp.
+    clamped = MultiplierConfig(kind=kind, lr=5.0, scale="none", max=1.5).build(1.0)
+    assert clamped.update(3.0) == 1.5 and clamped.update(3.0) == 1.5
+    free = MultiplierConfig(kind=kind, lr=5.0, scale="none").build(1.0)
+    assert free.update(3.0) > 1.5

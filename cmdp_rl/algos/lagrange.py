@@ -23,7 +23,7 @@ class MultiplierController(ABC):
     """Sets lambda >= 0 from one measurement of the mean undiscounted episode cost ``J_c`` per
     iteration. ``value`` is the lambda in force."""
 
-    # An upper clamp on lambda (``algo.multiplier.max``; FOCOPS's nu_max): the update is projected onto
+    # An upper clamp on lambda (``algo.multiplier.max``; FOCOPS's clamp on nu): the update is projected onto
     # [0, maximum]. A class attribute, set by ``MultiplierConfig.build``: infinite, it changes nothing.
     maximum: float = math.inf
 
