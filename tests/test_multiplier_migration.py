@@ -105,3 +105,13 @@ def test_a_population_grid_over_flat_options_moves_into_the_node():
     out = saved_config_nodes(raw)
     assert out["algo"] == {"name": "pid_lag", "multiplier": {"kind": "pid", "kp": 1.0}}
     assert out["population"]["grid"]["algo"] == {"lr": [1e-3], "multiplier": {"ki": [0.1, 0.2]}}
+
+
+def test_a_moved_config_keeps_its_node_values_over_flat_defaults():
+    """A population's config, moved when read, then given the defaults of before mixture_weights
+    (the stacked layout's resume): the flat default lands in the node without replacing its values."""
+    moved = saved_config_nodes({"algo": {"name": "ppo_lag", "lambda_lr": 0.5}})
+    cfg = load_config(saved_config_defaults(moved))
+    assert (cfg.algo.multiplier.lr, cfg.algo.multiplier.scale) == (0.5, "none")
+    given = saved_config_defaults({"algo": {"name": "ppo_lag", "multiplier": {"scale": "budget"}}})
+    assert load_config(given).algo.multiplier.scale == "budget"

@@ -290,18 +290,22 @@ def _has_multiplier_node(name: Any) -> bool:
 
 def multiplier_node(algo: dict[str, Any]) -> dict[str, Any]:
     """An algorithm's saved options with the flat multiplier options of older configs moved into the
-    node (:data:`_FLAT_MULTIPLIER`); a config that already has the node is returned as is. Fields the
-    old config does not name take the algorithm's defaults of the node when it is built."""
-    if not _has_multiplier_node(algo.get("name", "ppo_lag")) or isinstance(algo.get("multiplier"), dict):
+    node (:data:`_FLAT_MULTIPLIER`). A value the node already holds wins over a flat one (a flat default
+    that :func:`saved_config_defaults` adds to a config already moved). Fields the old config does not
+    name take the algorithm's defaults of the node when it is built."""
+    name = algo.get("name", "ppo_lag")
+    if not _has_multiplier_node(name):
         return algo
-    flat = [k for k in (*_FLAT_MULTIPLIER, *_DROPPED) if k in algo]
-    if not flat and algo.get("name") != "pid_lag":
+    node = algo.get("multiplier")
+    node = dict(node) if isinstance(node, dict) else None
+    flat = [k for k in (*_FLAT_MULTIPLIER, *_DROPPED) if k in algo and not (k == "multiplier" and node is not None)]
+    if not flat and (node is not None or name != "pid_lag"):
         return algo
+    moved = {_FLAT_MULTIPLIER[k]: algo[k] for k in flat if k in _FLAT_MULTIPLIER}
+    if name == "pid_lag":
+        moved["kind"] = "pid"  # pid_lag had no kind: it was always PID
     out = {k: v for k, v in algo.items() if k not in flat}
-    node = {_FLAT_MULTIPLIER[k]: algo[k] for k in flat if k in _FLAT_MULTIPLIER}
-    if algo.get("name") == "pid_lag":
-        node["kind"] = "pid"
-    out["multiplier"] = node
+    out["multiplier"] = {**moved, **(node or {})}
     return out
 
 
