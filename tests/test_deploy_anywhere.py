@@ -1,13 +1,13 @@
 """A primal-dual run deploys the best mixture of its snapshots within budget on any env: where the env does
 not declare its episodes cheap (EnvOptions.values_snapshots), the valuation is held to a stated share of the
-run's steps (config.run_config.valuation_plan), spent on fewer snapshots rather than fewer episodes each."""
+run's steps (deploy.options.valuation_plan), spent on fewer snapshots rather than fewer episodes each."""
 
 import json
 
 import pytest
 
 from cmdp_rl import load_config, train
-from cmdp_rl.config.run_config import MIN_VALUED_EPISODES, VALUATION_SHARE, valuation_plan
+from cmdp_rl.deploy.options import MIN_VALUED_EPISODES, VALUATION_SHARE, valuation_plan
 
 
 def nav(**top) -> dict:
@@ -21,20 +21,20 @@ def nav(**top) -> dict:
 def test_the_valuation_plan_fits_the_share_of_a_navigation_run(total_steps, plan):
     cfg = load_config(nav(total_steps=total_steps))
     assert valuation_plan(cfg) == plan
-    assert cfg.final_policy == ("last" if plan is None else "mixture")
+    assert cfg.deploy.policy == ("last" if plan is None else "mixture")
     if plan is not None:
         size, episodes = plan
-        assert (cfg.mixture_size, cfg.mixture_episodes) == plan
+        assert (cfg.deploy.snapshots, cfg.deploy.episodes) == plan
         assert episodes >= MIN_VALUED_EPISODES and size * episodes * 1000 <= VALUATION_SHARE * total_steps
 
 
 def test_cheap_envs_keep_their_full_valuation_and_unconstrained_runs_their_last_iterate():
     reach = load_config({"env": {"name": "reach1d"}, "algo": {"name": "ppo_lag"}, "total_steps": 10_000})
-    assert (reach.final_policy, reach.mixture_size, reach.mixture_episodes) == ("mixture", 16, 100)
-    assert load_config(nav(algo={"name": "ppo"}, total_steps=10_000_000)).final_policy == "last"
-    # a given final_policy is the user's: no plan caps it
-    given = load_config(nav(final_policy="mixture", total_steps=1_000_000))
-    assert (given.mixture_size, given.mixture_episodes) == (16, 100)
+    assert (reach.deploy.policy, reach.deploy.snapshots, reach.deploy.episodes) == ("mixture", 16, 100)
+    assert load_config(nav(algo={"name": "ppo"}, total_steps=10_000_000)).deploy.policy == "last"
+    # a given deploy.policy is the user's: no plan caps it
+    given = load_config(nav(deploy={"policy": "mixture"}, total_steps=1_000_000))
+    assert (given.deploy.snapshots, given.deploy.episodes) == (16, 100)
 
 
 @pytest.mark.slow

@@ -23,7 +23,7 @@ RUNS = [("ppo_lag", 150_000), ("pid_lag", 150_000), ("trpo_lag", 150_000), ("cup
 @pytest.mark.parametrize("algo, steps", RUNS, ids=[r[0] for r in RUNS])
 def test_deployed_policy_within_budget_and_near_the_optimum(algo, steps, tmp_path, quiet):
     cfg = compose_config(["env=fork", f"algo={algo}", f"total_steps={steps}", "seed=0"])
-    assert cfg.final_policy == "mixture"  # what final_policy=auto deploys for a primal-dual method here
+    assert cfg.deploy.policy == "mixture"  # what deploy.policy=auto deploys for a primal-dual method here
     result = train(cfg, tmp_path, echo=quiet)
     assert result["mixture_feasible"]
     trained = load_trained(tmp_path)

@@ -14,12 +14,12 @@ from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.run.rundir import load_trained
 
 CASES = {
-    "mlp_mixture": tiny(),  # ppo_lag on Reach1D: final_policy=auto deploys a valued mixture
+    "mlp_mixture": tiny(),  # ppo_lag on Reach1D: deploy.policy=auto deploys a valued mixture
     "lstm_prev_cost": tiny(
-        final_policy="last",
+        deploy={"policy": "last"},
         policy={"name": "lstm", "hidden_size": 8, "head_sizes": [8], "segment_length": 8, "include_prev_cost": True},
     ),
-    "discrete_fork": {**tiny(final_policy="average"), "env": {"name": "fork", "num_envs": 2}},
+    "discrete_fork": {**tiny(deploy={"policy": "average"}), "env": {"name": "fork", "num_envs": 2}},
 }
 
 

@@ -1,4 +1,4 @@
-"""mixture_weights=feasible: the linear programme over the snapshots' measured values against
+"""deploy.weights=feasible: the linear programme over the snapshots' measured values against
 hand-solved cases, the weighted per-episode draw, and a run that deploys, records and reloads the
 chosen mixture (mixture_selection.py)."""
 
@@ -70,11 +70,7 @@ def feasible_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("feasible") / "run"
     cfg = tiny(
         total_steps=256,
-        final_policy="mixture",
-        average_last=0.5,
-        mixture_size=4,
-        mixture_weights="feasible",
-        mixture_episodes=10,
+        deploy={"policy": "mixture", "window": 0.5, "snapshots": 4, "weights": "feasible", "episodes": 10},
         eval_deterministic=False,
     )
     lines = []
@@ -87,7 +83,7 @@ def test_the_run_deploys_records_and_reloads_the_chosen_mixture(feasible_run, tm
     assert len(values) == len(result["mixture_iterations"]) == 4 and all(v["episodes"] == 10 for v in values)
     chosen = dict((int(it), w) for it, w in result["mixture_deployed"])
     assert sum(chosen.values()) == pytest.approx(1.0) and set(chosen) <= set(result["mixture_iterations"])
-    margin = yaml.safe_load((out / "config.yaml").read_text())["mixture_margin"]
+    margin = yaml.safe_load((out / "config.yaml").read_text())["deploy"]["margin"]
     if result["mixture_feasible"]:  # the chosen weights hold the budget on the values they were chosen on
         upper = sum(
             w * (v["episode_cost"][0] + margin * v["cost_se"][0])
@@ -115,7 +111,7 @@ def test_a_gym_reach1d_run_values_its_snapshots_on_the_torch_twin():
     from cmdp_rl.envs import make_env
     from cmdp_rl.policies import make_agent
 
-    cfgs = [load_config(tiny(env={"backend": b}, mixture_episodes=12)) for b in ("gym", "torch")]
+    cfgs = [load_config(tiny(env={"backend": b}, deploy={"episodes": 12})) for b in ("gym", "torch")]
     assert cfgs[0].env.valuation_options().backend == "torch" and cfgs[0].env.backend == "gym"
     torch.manual_seed(0)
     env = make_env(cfgs[1].env, 2)

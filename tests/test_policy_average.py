@@ -1,4 +1,4 @@
-"""final_policy=average: the averaged parameters by hand, the window, and the deployed policy used
+"""deploy.policy=average: the averaged parameters by hand, the window, and the deployed policy used
 alike by the run's evaluation, its checkpoint, eval.json and evaluate.py."""
 
 import io
@@ -42,7 +42,7 @@ def test_the_window_is_the_last_fraction_of_iterations():
 
 def test_average_is_what_the_run_evaluates_and_evaluate_py_loads(tmp_path):
     out = tmp_path / "run"
-    cfg = tiny(total_steps=256, final_policy="average", average_last=0.5)
+    cfg = tiny(total_steps=256, deploy={"policy": "average", "window": 0.5})
     result = train(load_config(cfg), out, echo=lambda s: None)
     assert result["final_policy"] == "average" and result["averaged_iterations"] >= 2
     state = load_checkpoint(out / "checkpoint.pt")
@@ -62,10 +62,12 @@ def test_average_is_what_the_run_evaluates_and_evaluate_py_loads(tmp_path):
     assert {k: got[k] for k in keys} == {k: eval_result(out)[k] for k in keys}  # the same policy, same episodes
 
 
-def test_bad_final_policy_is_one_line():
+def test_bad_deploy_option_is_one_line():
     from cmdp_rl.config.run_config import ConfigError
 
-    with pytest.raises(ConfigError, match="final_policy"):
-        load_config(tiny(final_policy="median"))
-    with pytest.raises(ConfigError, match="average_last"):
-        load_config(tiny(average_last=0.0))
+    with pytest.raises(ConfigError, match=r"^deploy\.policy must be one of \('auto', 'last', 'average', 'mixture'\)"):
+        load_config(tiny(deploy={"policy": "median"}))
+    with pytest.raises(ConfigError, match=r"^deploy\.window must be in \(0, 1\], got 0\.0$"):
+        load_config(tiny(deploy={"window": 0.0}))
+    with pytest.raises(ConfigError, match=r"^deploy: unknown option\(s\) \['average_last'\]"):
+        load_config(tiny(deploy={"average_last": 0.5}))

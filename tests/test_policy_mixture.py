@@ -1,4 +1,4 @@
-"""final_policy=mixture: one member drawn per episode and kept to its end, uniform draws, the
+"""deploy.policy=mixture: one member drawn per episode and kept to its end, uniform draws, the
 snapshot schedule, and the deployed mixture used alike by the run's evaluation, its checkpoint
 (loaded with weights_only=True), eval.json and evaluate.py."""
 
@@ -66,11 +66,8 @@ def mixture_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("mixture") / "run"
     cfg = tiny(
         total_steps=256,
-        final_policy="mixture",
-        average_last=0.5,
-        mixture_size=2,
+        deploy={"policy": "mixture", "window": 0.5, "snapshots": 2, "weights": "uniform"},
         eval_deterministic=False,
-        mixture_weights="uniform",
     )
     return out, train(load_config(cfg), out, echo=lambda s: None)
 
@@ -102,15 +99,15 @@ def test_mixture_is_what_the_run_evaluates_and_evaluate_py_loads(mixture_run, tm
 def test_the_command_line_sets_the_mixture():
     from cmdp_rl.config.run_config import compose_config
 
-    cfg = compose_config(["final_policy=mixture", "mixture_size=3"])  # as train.py's overrides
-    assert (cfg.final_policy, cfg.mixture_size) == ("mixture", 3)
+    cfg = compose_config(["deploy.policy=mixture", "deploy.snapshots=3"])  # as train.py's overrides
+    assert (cfg.deploy.policy, cfg.deploy.snapshots, cfg.deploy.weights) == ("mixture", 3, "feasible")
 
 
 def test_mixture_of_recurrent_actors_is_refused_in_one_line():
-    with pytest.raises(ConfigError, match="final_policy must be last or average with policy=lstm"):
-        load_config(tiny(final_policy="mixture", policy={"name": "lstm"}))
-    with pytest.raises(ConfigError, match="mixture_size"):
-        load_config(tiny(final_policy="mixture", mixture_size=0))
+    with pytest.raises(ConfigError, match="^deploy.policy must be last or average with policy=lstm"):
+        load_config(tiny(deploy={"policy": "mixture"}, policy={"name": "lstm"}))
+    with pytest.raises(ConfigError, match=r"^deploy\.snapshots must be in \[1, 64\], got 0$"):
+        load_config(tiny(deploy={"policy": "mixture", "snapshots": 0}))
 
 
 def test_fork_exact_value_of_a_mixture_is_the_mean_of_its_members():
@@ -139,7 +136,7 @@ def test_a_resumed_run_deploys_the_same_mixture(tmp_path, monkeypatch, quiet):
     from helpers.resume import assert_same_run, crash_then_resume
 
     # 7 iterations, window 3..7 (5 snapshots, stride 1); checkpoints at 2, 4 and 6, a crash after row 5.
-    cfg = tiny(final_policy="mixture", average_last=0.6, mixture_size=5, mixture_weights="uniform")
+    cfg = tiny(deploy={"policy": "mixture", "window": 0.6, "snapshots": 5, "weights": "uniform"})
     whole, broken = crash_then_resume(cfg, tmp_path, monkeypatch, quiet)
     assert_same_run(whole, broken)
     assert eval_result(broken)["mixture_iterations"] == [3, 4, 5, 6, 7]

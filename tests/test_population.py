@@ -77,10 +77,10 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
         ({"name": "focops"}, {"algo": {"multiplier": {"lr": [0.1, 0.5], "max": [0.5]}}}, [1]),
         ({"name": "crpo"}, {"algo": {"tolerance": [0.0, 1.0]}}, [0, 1]),
         # What an agent deploys, as its run: the average of its last iterates' actors, and a mixture of
-        # snapshots with uniform weights (ppo_lag above: final_policy=auto, its feasible mixture).
-        ({"name": "pid_lag", "final_policy": "average"}, {"algo": {"cost_limit": [0.2, 0.5]}}, [0, 1]),
+        # snapshots with uniform weights (ppo_lag above: deploy.policy=auto, its feasible mixture).
+        ({"name": "pid_lag", "deploy": {"policy": "average"}}, {"algo": {"cost_limit": [0.2, 0.5]}}, [0, 1]),
         (
-            {"name": "focops", "final_policy": "mixture", "mixture_weights": "uniform"},
+            {"name": "focops", "deploy": {"policy": "mixture", "weights": "uniform"}},
             {"algo": {"multiplier": {"lr": [0.5]}}},
             [0],
         ),
@@ -88,7 +88,7 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
 )
 def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
     algo = dict(algo)
-    top = {k: algo.pop(k) for k in ("final_policy", "mixture_weights") if k in algo}
+    top = {"deploy": algo.pop("deploy")} if "deploy" in algo else {}
     raw = torch_tiny(algo=algo, eval_deterministic=algo["name"] != "penalty", **top)  # penalty: sampled evaluation
     if algo["name"] != "ppo_lag" and "multiplier" not in algo:  # TINY's pinned node is ppo_lag's
         del raw["algo"]["multiplier"]
@@ -103,7 +103,7 @@ def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
         assert len(rows) == len(expected) == 4
         assert_close(rows, expected, f"agent {i} metrics")
         assert_close(eval_result(dirs[i]), eval_result(single), f"agent {i} eval")
-    deployed = top.get("final_policy", {"ppo_lag": "mixture", "penalty": "last"}.get(algo["name"]))
+    deployed = top.get("deploy", {}).get("policy", {"ppo_lag": "mixture", "penalty": "last"}.get(algo["name"]))
     assert deployed is None or eval_result(dirs[0])["final_policy"] == deployed  # the option is exercised
 
 

@@ -54,7 +54,7 @@ def test_evaluation_loads_the_policy_without_building_the_algorithm(algo, tmp_pa
     state = load_checkpoint(tmp_path / "checkpoint.pt")
     saved = state["algo_state"]["networks"]
     loaded = trained.agent.state_dict()
-    if trained.cfg.final_policy == "mixture":  # the deployed actor is the chosen snapshots' mixture
+    if trained.cfg.deploy.policy == "mixture":  # the deployed actor is the chosen snapshots' mixture
         snapshots = state["policy_mixture"]
         weights = snapshots["weights"] or [1.0] * len(snapshots["members"])  # None: uniform, all of them
         chosen = [m for m, w in zip(snapshots["members"], weights) if w > 0]

@@ -109,7 +109,7 @@ class AlgoConfig:
     # With ``envs``: the env options of its tiny test run, in place of TINY's Reach1D (one env of the
     # first kind it takes; the cross-cutting tests' iteration counts assume 32 rows x 16 steps).
     tiny_env: ClassVar[dict[str, Any]] = {}
-    # The policy ``final_policy: auto`` deploys: "mixture" for a primal-dual method, whose last
+    # The policy ``deploy.policy: auto`` deploys: "mixture" for a primal-dual method, whose last
     # iterate orbits the saddle point instead of converging to it (docs/constraint_satisfaction.md);
     # "last" for the others.
     deploys: ClassVar[str] = "last"

@@ -54,7 +54,7 @@ class CUPConfig(PPOConfig):
     """CUP (Yang et al. 2022): PPO on A_r, then a projection that trades KL for cost."""
 
     name: str = "cup"
-    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
+    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)  # nu
 

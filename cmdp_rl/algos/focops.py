@@ -54,7 +54,7 @@ class FOCOPSConfig(PPOConfig):
     """FOCOPS (Zhang, Vuong, Ross 2020). ``clip_epsilon`` is not read: the KL term bounds the step."""
 
     name: str = "focops"
-    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
+    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     temperature: PositiveFloat = 1.5  # lambda of Theorem 1
     target_kl: PositiveFloat = 0.02  # delta: the per-state indicator's bound and the early stop

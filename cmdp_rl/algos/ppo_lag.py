@@ -86,7 +86,7 @@ class PPOLagConfig(PPOConfig):
     one of the last-iterate updates (``multiplier``, multiplier.py)."""
 
     name: str = "ppo_lag"
-    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
+    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)
     advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
 

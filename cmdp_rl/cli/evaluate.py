@@ -113,11 +113,11 @@ def main(argv: list[str] | None = None) -> int:
     cost_names = env.cost_names
     env.close()
     result.update({"cost_limit": cfg.algo.cost_limit, "seed": seed, "checkpoint_iteration": iteration, "steps": step})
-    result["final_policy"] = cfg.final_policy  # the deployed policy load_trained loaded (policy_average.py)
+    result["final_policy"] = cfg.deploy.policy  # the deployed policy load_trained loaded (deploy_saved)
     mode = "deterministic" if deterministic else "stochastic"
     print(
         f"{opts.run}: {cfg.algo.name} on {cfg.env.name}, checkpoint of iteration {iteration} (step {step:,}); "
-        f"{result['episodes']} episodes, {mode} policy, seed {seed}; deployed policy: {cfg.final_policy}"
+        f"{result['episodes']} episodes, {mode} policy, seed {seed}; deployed policy: {cfg.deploy.policy}"
     )
     print(_line("episode_return", result, ".3f"))
     for line in _cost_lines(result, cost_names, cfg.algo.cost_limit):

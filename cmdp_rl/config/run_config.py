@@ -22,15 +22,15 @@ from cmdp_rl.config.validation import (
     Bool,
     ConfigError,
     Field,
-    NonNegativeFloat,
     PositiveFloat,
     PositiveInt,
     build,
-    finite,
     options,
     recheck,
     require,
 )
+from cmdp_rl.deploy.options import DeployConfig
+from cmdp_rl.deploy.options import resolve_auto as resolve_deploy
 from cmdp_rl.report.safety_metrics import ReferenceConfig
 
 TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
@@ -80,22 +80,13 @@ class RunConfig:
     threads: PositiveInt = 1
     eval_episodes: PositiveInt = 20
     eval_deterministic: Bool = True
-    # The policy deployed at the end (evaluated, in eval.json, in evaluate.py and its video): the
-    # last iterate, the average of the actor's parameters over the last average_last fraction of
-    # the iterations (cmdp_rl/deploy/average.py), or a uniform mixture of at most mixture_size
-    # snapshots of the actor over that window, one drawn per episode (cmdp_rl/deploy/mixture.py).
-    # auto: the best feasible mixture for a primal-dual algorithm (AlgoConfig.deploys) with a memoryless
-    # policy, else the last iterate; on an env whose episodes are not declared cheap
-    # (EnvOptions.values_snapshots) its valuation is held to VALUATION_SHARE of the run (resolve_auto).
-    final_policy: Literal["auto", "last", "average", "mixture"] = "auto"
-    average_last: Annotated[float, finite(gt=0, le=1)] = 0.5
-    mixture_size: Annotated[int, Field(ge=1, le=64)] = 16
-    # final_policy=mixture: uniform weights, or feasible: the best mixture of the snapshots within
-    # every budget on their measured values (cmdp_rl/deploy/selection.py), each snapshot valued on
-    # mixture_episodes episodes of its own and its costs taken mixture_margin standard errors high.
-    mixture_weights: Literal["uniform", "feasible"] = "feasible"
-    mixture_episodes: PositiveInt = 100
-    mixture_margin: NonNegativeFloat = 3.0
+    # The early-terminated MDP: a training episode ends (terminated) at the first step after which a
+    # cost's episode sum exceeds its algo.cost_limit (cmdp_rl/envs/early_termination.py); evaluation
+    # episodes are whole.
+    early_terminate: Bool = False
+    # The policy deployed at the end (evaluated, in eval.json, in evaluate.py, its video and cmdp_rl.load),
+    # and how it is chosen: cmdp_rl/deploy/options.py.
+    deploy: DeployConfig = field(default_factory=DeployConfig)
     checkpoint_every: PositiveInt = 10
     log_interval: PositiveInt = 5
     # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
@@ -172,7 +163,12 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
         data = dict(raw.pop(kind, {}) or {})
         options_cls = component(kind, data.get("name", DEFAULTS[kind])).options
         parts[kind] = build(options_cls, data, kind)
-    nested = {"logger": LoggerConfig, "normalize": NormalizeConfig, "reference": ReferenceConfig}
+    nested = {
+        "logger": LoggerConfig,
+        "normalize": NormalizeConfig,
+        "reference": ReferenceConfig,
+        "deploy": DeployConfig,
+    }
     for name, cls in nested.items():
         parts[name] = build(cls, dict(raw.pop(name, {}) or {}), name)
     cfg = build(RunConfig, raw, "")
@@ -204,30 +200,6 @@ def flatten_dict(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-# The snapshot valuation's price where episodes are not declared cheap: at most this share of the run's env
-# steps, spent on at least MIN_VALUED_EPISODES episodes per snapshot valued (fewer snapshots rather than
-# fewer episodes each: a cost measured on a handful of episodes has a standard error of the budget's order
-# on the navigation tasks, and the margin then rules every snapshot out). A run too short to give one
-# snapshot that many deploys its last iterate. The share is what the issue of deployment on any env
-# allows to be "bounded and stated"; 10% keeps the valuation below the measurement noise of a run's time.
-VALUATION_SHARE = 0.1
-MIN_VALUED_EPISODES = 20
-
-
-def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
-    """(snapshots, episodes each) of ``final_policy: auto``'s mixture on an env not declared cheap to value,
-    within :data:`VALUATION_SHARE` of ``total_steps``; None where the share does not buy one snapshot
-    :data:`MIN_VALUED_EPISODES` episodes, or the env's episode length is unknown."""
-    steps = cfg.env.episode_steps()
-    if not steps:
-        return None
-    episodes = int(VALUATION_SHARE * cfg.total_steps // steps)
-    size = min(cfg.mixture_size, episodes // MIN_VALUED_EPISODES)
-    if size < 1:
-        return None
-    return size, min(cfg.mixture_episodes, episodes // size)
-
-
 def resolve_auto(cfg: RunConfig) -> None:
     """Replace the ``"auto"`` batch-shape options by numbers that follow ``env.num_envs``.
 
@@ -237,18 +209,13 @@ def resolve_auto(cfg: RunConfig) -> None:
     The rules keep what the gym default does at N <= 8 exactly and scale from there:
     ``rollout_steps`` = 2048 / N, within [32, 256]: 256 for N <= 8, 32 for N >= 64; the algorithm
     resolves its own ``"auto"`` options from the batch (e.g. ``PPOConfig.resolve_auto``).
-    Numbers given in the config are kept. ``final_policy: auto`` becomes ``mixture`` or ``last``
-    (see the field). Works in place; called by :func:`validate`.
+    Numbers given in the config are kept. ``deploy.policy: auto`` becomes ``mixture`` or ``last``
+    (``cmdp_rl/deploy/options.py``). Works in place; called by :func:`validate`.
     """
     if cfg.rollout_steps == AUTO:
         auto = cfg.algo.auto_rollout_steps(cfg)  # an off-policy algorithm's few steps
         cfg.rollout_steps = auto if auto is not None else min(256, max(32, 2048 // cfg.env.num_envs))
-    if cfg.final_policy == AUTO:
-        mixture = cfg.algo.deploys == "mixture" and cfg.policy.name == "mlp"
-        plan = None if cfg.env.values_snapshots else valuation_plan(cfg)
-        if mixture and not cfg.env.values_snapshots and plan is not None:
-            cfg.mixture_size, cfg.mixture_episodes = plan
-        cfg.final_policy = "mixture" if mixture and (cfg.env.values_snapshots or plan is not None) else "last"
+    resolve_deploy(cfg)
     cfg.algo.resolve_auto(cfg)
 
 
@@ -282,7 +249,7 @@ def validate(cfg: RunConfig) -> None:
             type(part).__name__,
         )
         recheck(part, kind)
-    for name in ("logger", "normalize", "reference"):
+    for name in ("logger", "normalize", "reference", "deploy"):
         recheck(getattr(cfg, name), name)
     recheck(cfg, "")
     envs = cfg.algo.envs  # an algorithm that trains on some envs only (AlgoConfig.envs)
@@ -305,12 +272,7 @@ def validate(cfg: RunConfig) -> None:
     if cfg.logger.name == "wandb" and importlib.util.find_spec("wandb") is None:
         raise ConfigError(f"logger.name: {WANDB_MISSING}")
     _validate_normalize(cfg)
-    require(
-        cfg.final_policy != "mixture" or cfg.policy.name == "mlp",
-        "final_policy",
-        f"last or average with policy={cfg.policy.name} (a mixture draws among memoryless actors: policy=mlp)",
-        cfg.final_policy,
-    )
+    cfg.deploy.check(cfg)
     cfg.reference.check(cfg)
 
 
@@ -328,6 +290,7 @@ __all__ = [
     "CONFIG_DIR",
     "CONFIG_SOURCE",
     "ConfigError",
+    "DeployConfig",
     "EvalConfig",
     "LoggerConfig",
     "NormalizeConfig",

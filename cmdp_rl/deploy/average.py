@@ -1,5 +1,5 @@
-"""The deployed policy of ``final_policy: average``: the uniform (Polyak-Ruppert) average of the
-actor's parameters over the last ``average_last`` fraction of the training iterations.
+"""The deployed policy of ``deploy.policy: average``: the uniform (Polyak-Ruppert) average of the
+actor's parameters over the last ``deploy.window`` fraction of the training iterations.
 
 Why an average at all: a Lagrangian method's guarantees are for the average of its iterates
 (the policy and lambda orbit the saddle point; the last iterate is wherever the orbit ends). Why
@@ -21,14 +21,14 @@ import torch
 from torch import nn
 
 
-def first_averaged_iteration(iterations: int, average_last: float) -> int:
-    """The first of the last ``ceil(average_last * iterations)`` iterations (1-based; at least the last)."""
-    return iterations - max(1, math.ceil(average_last * iterations)) + 1
+def first_averaged_iteration(iterations: int, window: float) -> int:
+    """The first of the last ``ceil(window * iterations)`` iterations (1-based; at least the last)."""
+    return iterations - max(1, math.ceil(window * iterations)) + 1
 
 
 def deployed(result: dict) -> str:
-    """Which policy an evaluation ran, from its ``final_policy``, ``averaged_iterations`` and
-    ``mixture_iterations`` keys (a result from before they existed: the last iterate)."""
+    """Which policy an evaluation ran, from its ``final_policy`` (the run's ``deploy.policy``),
+    ``averaged_iterations`` and ``mixture_iterations`` keys (a result from before they existed: the last iterate)."""
     if result.get("final_policy") == "mixture" and result.get("mixture_deployed"):
         chosen = ", ".join(f"iteration {int(it)} ({w:.2f})" for it, w in result["mixture_deployed"])
         margin = f", costs + {result['mixture_margin']:g} standard errors" if "mixture_margin" in result else ""

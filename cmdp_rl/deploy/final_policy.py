@@ -1,8 +1,8 @@
-"""What a run deploys (``final_policy``), kept beside its training: the last iterate, the average of
-the actor's parameters over the last iterations (``average.py``) or a mixture of snapshots of the actor
-(``mixture.py``). One per run, and one per agent of a population, each on its own single-run agent, so
-both deploy by the same code; :func:`deploy_saved` puts the same policy back from a checkpoint (evaluate,
-video, ``cmdp_rl.load``).
+"""What a run deploys (``deploy.policy``; the node's options in ``options.py``), kept beside its training:
+the last iterate, the average of the actor's parameters over the last iterations (``average.py``) or a
+mixture of snapshots of the actor (``mixture.py``). One per run, and one per agent of a population, each
+on its own single-run agent, so both deploy by the same code; :func:`deploy_saved` puts the same policy
+back from a checkpoint (evaluate, video, ``cmdp_rl.load``).
 """
 
 from __future__ import annotations
@@ -17,20 +17,20 @@ from cmdp_rl.policies.agent import Agent
 
 
 class FinalPolicy:
-    """``cfg.final_policy`` over a run of ``iterations``, continuing what ``saved`` (a checkpoint's
+    """``cfg.deploy.policy`` over a run of ``iterations``, continuing what ``saved`` (a checkpoint's
     entry) holds of it."""
 
     def __init__(self, cfg: RunConfig, iterations: int, saved: dict[str, Any] | None = None) -> None:
         self.cfg, self.iterations = cfg, iterations
-        self.first = first_averaged_iteration(iterations, cfg.average_last)
-        self.average = ParameterAverage() if cfg.final_policy == "average" else None
+        self.first = first_averaged_iteration(iterations, cfg.deploy.window)
+        self.average = ParameterAverage() if cfg.deploy.policy == "average" else None
         previous = (saved or {}).get("policy_average")
         # (a resume that moved the window, e.g. more total_steps, restarts it)
         if self.average is not None and previous is not None and previous["first_iteration"] == self.first:
             self.average.load_state_dict(previous)
         self.mixture = None
-        if cfg.final_policy == "mixture":
-            self.mixture = IterateSnapshots(self.first, iterations, cfg.mixture_size)
+        if cfg.deploy.policy == "mixture":
+            self.mixture = IterateSnapshots(self.first, iterations, cfg.deploy.snapshots)
             if (saved or {}).get("policy_mixture") is not None:
                 self.mixture.adopt(saved["policy_mixture"])
 
@@ -50,7 +50,7 @@ class FinalPolicy:
             self.average.update(agent.actor)
         if self.mixture is not None and self.mixture.wants(iteration):
             self.mixture.update(agent.actor, iteration)
-            if iteration == self.iterations and self.cfg.mixture_weights == "feasible":  # before the last checkpoint
+            if iteration == self.iterations and self.cfg.deploy.weights == "feasible":  # before the last checkpoint
                 echo(choose_weights(self.mixture, agent, self.cfg, names))
 
     def state_dict(self) -> dict[str, Any]:
@@ -73,15 +73,15 @@ class FinalPolicy:
 def deploy_saved(cfg: RunConfig, state: dict[str, Any], agent: Agent) -> None:
     """Put into ``agent`` (holding the checkpoint's last iterate) the policy the run deployed, from the
     checkpoint ``state``'s entries for it; a ValueError names what the checkpoint lacks."""
-    if cfg.final_policy == "average":
+    if cfg.deploy.policy == "average":
         if "policy_average" not in state:
-            raise ValueError("the checkpoint has no averaged policy, but the run has final_policy=average")
+            raise ValueError("the checkpoint has no averaged policy, but the run has deploy.policy=average")
         average = ParameterAverage()
         average.load_state_dict(state["policy_average"])
         average.apply(agent.actor)
-    if cfg.final_policy == "mixture":
+    if cfg.deploy.policy == "mixture":
         if "policy_mixture" not in state:
-            raise ValueError("the checkpoint has no policy mixture, but the run has final_policy=mixture")
+            raise ValueError("the checkpoint has no policy mixture, but the run has deploy.policy=mixture")
         mixture = IterateSnapshots(1, 1, 1)
         mixture.load_state_dict(state["policy_mixture"])
         mixture.deploy(agent)

@@ -1,5 +1,5 @@
-"""The deployed policy of ``final_policy: mixture``: a uniform mixture of snapshots of the actor
-taken over the last ``average_last`` fraction of the iterations (at most ``mixture_size`` of
+"""The deployed policy of ``deploy.policy: mixture``: a uniform mixture of snapshots of the actor
+taken over the last ``deploy.window`` fraction of the iterations (at most ``deploy.snapshots`` of
 them), one snapshot drawn per EPISODE and followed until the episode ends.
 
 Why a mixture drawn per episode: the guarantees of primal-dual (Lagrangian) methods are for the
@@ -42,7 +42,7 @@ class IterateSnapshots:
         self.stride = math.ceil((iterations - first_iteration + 1) / size)
         self.taken: list[int] = []
         self.members: list[dict[str, torch.Tensor]] = []
-        # mixture_weights=feasible: each member's weight and measured value (mixture_selection.py);
+        # deploy.weights=feasible: each member's weight and measured value (mixture_selection.py);
         # None: a uniform mixture.
         self.weights: list[float] | None = None
         self.values: list[dict] | None = None

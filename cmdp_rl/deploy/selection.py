@@ -1,4 +1,4 @@
-"""The weights of ``mixture_weights: feasible``: the best mixture of the run's snapshots that is
+"""The weights of ``deploy.weights: feasible``: the best mixture of the run's snapshots that is
 within every budget on the snapshots' measured values.
 
 Why: a mixture drawn once per episode has the weighted mean of its members' expected return and
@@ -94,7 +94,7 @@ def feasible_weights(
 
 
 def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: int) -> list[MemberValue]:
-    """Each of ``actors``' mean return and costs over at least ``cfg.mixture_episodes`` episodes of
+    """Each of ``actors``' mean return and costs over at least ``cfg.deploy.episodes`` episodes of
     the evaluation env, sampled or deterministic as the final evaluation is, seeded with the run's
     seed plus ``VALUATION_SEED_OFFSET``. All members step in one batch, each on its own env rows
     (as many rows per member as ``env.num_envs`` shares out, or 64 on a batched torch env, where a
@@ -103,8 +103,8 @@ def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: 
     m = len(actors)
     env_cfg = cfg.env.valuation_options()  # the same CMDP, batched where the env has a batched twin
     batched = getattr(env_cfg, "backend", None) == "torch"
-    rows_each = max(1, min(cfg.mixture_episodes, 64 if batched else env_cfg.num_envs // m))
-    quota = math.ceil(cfg.mixture_episodes / rows_each)
+    rows_each = max(1, min(cfg.deploy.episodes, 64 if batched else env_cfg.num_envs // m))
+    quota = math.ceil(cfg.deploy.episodes / rows_each)
     env = make_eval_env(env_cfg, num_envs=m * rows_each, device=cfg.device, algo=cfg.algo)
     own = agent.actor
     agent.actor = mixture_actor(actors, assigned=torch.arange(m * rows_each, device=env.device) % m)
@@ -140,10 +140,10 @@ def choose_weights(snapshots: IterateSnapshots, agent: Agent, cfg: RunConfig, na
     within ``cfg.algo.cost_limit`` and return one line that says what was chosen."""
     budgets = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     values = value_members(snapshots.actors(agent.actor), agent, cfg, len(names))
-    weights, feasible = feasible_weights(values, budgets, cfg.mixture_margin)
+    weights, feasible = feasible_weights(values, budgets, cfg.deploy.margin)
     snapshots.weights, snapshots.feasible = weights, feasible
     snapshots.values = [v.as_dict() for v in values]
-    snapshots.margin = cfg.mixture_margin
+    snapshots.margin = cfg.deploy.margin
     snapshots.valuation_steps = sum(v.steps for v in values)
     chosen = ", ".join(f"iteration {it} ({w:.2f})" for it, w in snapshots.deployed_members())
     valued = (
@@ -151,12 +151,10 @@ def choose_weights(snapshots: IterateSnapshots, agent: Agent, cfg: RunConfig, na
         f"({snapshots.valuation_steps:,} env steps)"
     )
     if feasible:
-        return (
-            f"{valued}; deployed {chosen}, within budget with costs taken {cfg.mixture_margin:g} standard errors high"
-        )
+        return f"{valued}; deployed {chosen}, within budget with costs taken {cfg.deploy.margin:g} standard errors high"
     return (
         f"{valued}; no mixture is within budget on their values "
-        f"(costs + {cfg.mixture_margin:g} standard errors); deployed the least violating, {chosen}"
+        f"(costs + {cfg.deploy.margin:g} standard errors); deployed the least violating, {chosen}"
     )
 
 

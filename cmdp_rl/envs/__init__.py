@@ -4,10 +4,11 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, Sequence
 
 from cmdp_rl.config.registry import component
 from cmdp_rl.envs.contract import EnvContractError, check_env
+from cmdp_rl.envs.early_termination import EarlyTerminated, budgets_of
 from cmdp_rl.envs.grid.env import GRID_ID, GridWorld
 from cmdp_rl.envs.grid.task import GridEnvConfig
 from cmdp_rl.envs.gym_cost import make_cost_env
@@ -26,16 +27,26 @@ def reach1d_kwargs(cfg: Reach1DConfig) -> dict:
 
 
 def make_env(
-    cfg: Any, num_envs: int | None = None, device: str = "cpu", algo: Any = None, evaluation: bool = False
+    cfg: Any,
+    num_envs: int | None = None,
+    device: str = "cpu",
+    algo: Any = None,
+    evaluation: bool = False,
+    cut_at: float | Sequence[float] | None = None,
 ) -> VecEnv:
     """Build the batched env a config names (``num_envs`` overrides ``cfg.num_envs``).
 
     ``device`` is where the env's tensors live: a torch backend steps there; a gymnasium backend
     steps on the CPU and moves its tensors there. ``algo``: the algorithm's options; the env their
     ``wrap_env(env, evaluation)`` returns (``AlgoConfig``'s: the env itself; Sauté's budget state).
+    ``cut_at``: the budget(s) of the early-terminated MDP (``early_terminate: true``, a training env
+    only): each episode ends once a cost's sum passes its budget (``envs/early_termination.py``),
+    inside the algorithm's wrapper, so Sauté's budget state restarts with the cut episode.
     """
     n = cfg.num_envs if num_envs is None else num_envs
     env = component("env", cfg.name).build(cfg, n, device)
+    if cut_at is not None:
+        env = EarlyTerminated(env, budgets_of(cut_at, env.cost_names))
     return env if algo is None else algo.wrap_env(env, evaluation=evaluation)
 
 
@@ -49,6 +60,7 @@ def make_eval_env(cfg: Any, num_envs: int | None = None, device: str = "cpu", al
 __all__ = [
     "GRID_ID",
     "REACH1D_ID",
+    "EarlyTerminated",
     "EnvContractError",
     "GridEnvConfig",
     "GridWorld",

@@ -59,6 +59,11 @@ class HeldSkill(VecEnv):
         self.phase.zero_()
         return self._obs(self.env.reset(seed), self.held, self.phase)
 
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        self.held = self.held.masked_fill(rows, 0)
+        self.phase = self.phase.masked_fill(rows, 0)
+        return self._obs(self.env.reset_rows(rows), self.held[rows], self.phase[rows])
+
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
         decide = self.phase == 0

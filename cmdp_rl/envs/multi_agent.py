@@ -165,6 +165,14 @@ class PettingZooVecEnv(VecEnv):
             rows.append(self._rows(obs))
         return self._tensor(rows)
 
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        """A team's rows restart together (its agents share the episode): ``rows`` holds whole teams."""
+        teams = rows.view(self.num_teams, self.num_agents).cpu()
+        if bool((teams.any(1) != teams.all(1)).any()):
+            raise ValueError("reset_rows: the rows of a team restart together; got part of a team")
+        out = [self._rows(self.envs[i].reset()[0]) for i in torch.nonzero(teams.all(1)).view(-1).tolist()]
+        return self._tensor(out) if out else torch.zeros(0, self.obs_dim, device=self.device)
+
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
         sent = to_env(action, self._action_space)

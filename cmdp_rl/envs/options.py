@@ -26,9 +26,9 @@ class EnvOptions:
     # Evaluation reports the fraction of episodes that terminated under this name (e.g. a goal
     # reached); None: the env's termination means nothing worth reporting.
     termination_metric: ClassVar[Optional[str]] = None
-    # Whether a run's snapshots may be valued on mixture_size x mixture_episodes of this env's episodes
+    # Whether a run's snapshots may be valued on deploy.snapshots x deploy.episodes of this env's episodes
     # whatever that costs (deploy/selection.py): True where an episode is cheap, at most a few hundred steps
-    # of a batched env. Elsewhere the valuation is held to a share of the run's steps (selection.plan).
+    # of a batched env. Elsewhere the valuation is held to a share of the run's steps (deploy/options.py).
     values_snapshots: ClassVar[bool] = False
 
     def check(self, run: Any) -> None:

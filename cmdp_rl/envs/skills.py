@@ -87,6 +87,11 @@ class TorchSkills(VecEnv):
         self.t = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
         return self._obs(self.x, self.t)
 
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        self.x = self.x.masked_fill(rows, 0.0)
+        self.t = self.t.masked_fill(rows, 0)
+        return self._obs(self.x[rows], self.t[rows])
+
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
         cfg = self.cfg

@@ -63,6 +63,12 @@ class VecEnv(ABC):
     def cost_names(self) -> tuple[str, ...]:
         return default_cost_names(self.num_costs)
 
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        """Start a new episode in each env where ``rows`` (``[N]`` bool) is set, between steps, as the
+        env's own auto-reset would; returns their first observations ``[R, obs_dim]``, in row order.
+        Optional: the early-terminated MDP (``envs/early_termination.py``) needs it to cut an episode."""
+        raise NotImplementedError(f"{type(self).__name__} cannot restart single episodes")
+
     def close(self) -> None:  # noqa: B027 - optional hook
         pass
 
@@ -191,6 +197,12 @@ class GymVecEnv(VecEnv):
     def reset(self, seed: int | None = None) -> torch.Tensor:
         obs, _ = self.envs.reset(seed=seed)
         return self._obs(obs)
+
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        # gymnasium's partial reset (sync and async alike); the other envs' observations are unchanged.
+        mask = rows.detach().cpu().numpy().astype(bool).reshape(self.num_envs)
+        obs, _ = self.envs.reset(options={"reset_mask": mask})
+        return self._obs(obs)[rows.to(self.device)]
 
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)

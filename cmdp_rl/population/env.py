@@ -2,8 +2,8 @@
 stepping as its single run's envs: the env's own population form where its options declare one
 (``EnvOptions.population_env``: Reach1D's one tensor program, ``envs/reach1d/population.py``), else
 :class:`AgentEnvs`, each agent's own env stepped in turn. :func:`population_env` adds what the
-algorithm's options ask of every env (Sauté's budget state, ``algos/saute.py``), with each agent's
-own budgets.
+algorithm's options ask of every env (Sauté's budget state, ``algos/saute.py``) and the
+early-terminated MDP's cut (``early_terminate``, training only), with each agent's own budgets.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import torch
 
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.envs import make_env, make_eval_env
+from cmdp_rl.envs.early_termination import EarlyTerminated, budgets_of
 from cmdp_rl.envs.saute import BudgetState
 from cmdp_rl.envs.vector import Step, VecEnv
 
@@ -68,8 +69,13 @@ def population_env(
     """
     env = cfgs[0].env.population_env([c.env for c in cfgs], n, seeds, device, evaluation)
     if env is None:
-        make = make_eval_env if evaluation else make_env
-        return AgentEnvs([make(c.env, n, device=device, algo=c.algo) for c in cfgs], seeds)
+        if evaluation:
+            return AgentEnvs([make_eval_env(c.env, n, device=device, algo=c.algo) for c in cfgs], seeds)
+        cuts = [c.algo.cost_limit if c.early_terminate else None for c in cfgs]
+        return AgentEnvs([make_env(c.env, n, device, c.algo, cut_at=d) for c, d in zip(cfgs, cuts)], seeds)
+    if cfgs[0].early_terminate and not evaluation:  # one option for all (no grid field); each agent's budgets
+        rows = [budgets_of(c.algo.cost_limit, env.cost_names) for c in cfgs]
+        env = EarlyTerminated(env, torch.tensor(rows, device=device).repeat_interleave(n, 0))
     wrapped = cfgs[0].algo.wrap_env(env, evaluation=evaluation)
     state = getattr(wrapped, "state", None)
     if isinstance(state, BudgetState):  # one row of budgets per env: its agent's

@@ -33,7 +33,13 @@ from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, evaluate_members
 from cmdp_rl.run.loop import Members, train_iterations
-from cmdp_rl.run.migrations import migrate, population_from_stacked, saved_config_defaults, saved_config_nodes
+from cmdp_rl.run.migrations import (
+    deploy_node,
+    migrate,
+    population_from_stacked,
+    saved_config_defaults,
+    saved_config_nodes,
+)
 from cmdp_rl.run.ownership import owned
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
 from cmdp_rl.run.rundir import (
@@ -95,11 +101,13 @@ def train_population(
             if "update" in saved:  # the stacked layout predates defaults that its config does not name
                 saved_raw = saved_config_defaults(saved_raw)
             state = migrate(saved)
-            if saved_raw.get("final_policy", "auto") == "auto":  # as its agents resolved it (the last
-                # iterate, before populations deployed what a run deploys)
-                saved_raw["final_policy"] = (
-                    state["agents"][0]["config"]["final_policy"] if "agents" in state else "last"
-                )
+        saved_raw = deploy_node(saved_raw)  # a population.yaml of the flat deployment options (migrations.py)
+        deploy = saved_raw.setdefault("deploy", {})
+        if state is not None and deploy.get("policy", "auto") == "auto":  # as its agents resolved it (the
+            # last iterate, before populations deployed what a run deploys)
+            deploy["policy"] = (
+                deploy_node(state["agents"][0]["config"])["deploy"]["policy"] if "agents" in state else "last"
+            )
         raw = resumed_raw(saved_raw, raw or {}, explicit, out)
         if raw.get("population") != saved_raw.get("population"):
             raise ConfigError(f"population cannot change when resuming {out}")
@@ -246,7 +254,7 @@ def _stacked(
     final_entries = entries(iterations, train_time)  # the last iterates, before the deployed policies
     for f, a in zip(finals, agents):
         f.deploy(a)
-    if cfg.final_policy == "mixture":  # each agent's mixture as its run evaluates it, one after another
+    if cfg.deploy.policy == "mixture":  # each agent's mixture as its run evaluates it, one after another
         results = [evaluate_run(c, a) for c, a in zip(cfgs, agents)]
     else:
         update.copy_actors(to_modules=False)  # the deployed actors (an average) into the stacked rows

@@ -26,6 +26,7 @@ import numpy as np
 
 from cmdp_rl.config.run_config import flatten_dict
 from cmdp_rl.run.checkpoint import CheckpointError
+from cmdp_rl.run.migrations import deploy_node
 from cmdp_rl.run.rundir import CONFIG, METRICS, read_yaml
 
 PANELS = (
@@ -54,8 +55,12 @@ def _limit_column(panel: str) -> str:
 
 IGNORED = ("seed", "resume", "total_steps", "log_interval", "checkpoint_every", "threads", "logger")
 # What a run deploys at its end does not change its training curves: a plot of curves groups across it
-# (final_policy: auto gives a primal-dual algorithm the mixture and the others the last iterate).
-DEPLOYMENT = ("final_policy", "average_last", "mixture_size", "mixture_weights", "mixture_episodes", "mixture_margin")
+# (deploy.policy: auto gives a primal-dual algorithm the mixture and the others the last iterate).
+DEPLOYMENT = "deploy."  # the node's fields, flattened
+
+
+def _grouped_across(key: str) -> bool:
+    return key in IGNORED or key.startswith(DEPLOYMENT)
 
 
 @dataclass
@@ -77,7 +82,8 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]
     run = Path(run_dir)
     if not (run / METRICS).is_file():
         raise FileNotFoundError(f"plot: no {METRICS} in {run}")
-    cfg = flatten_dict(read_yaml(run / CONFIG, "plot")) if (run / CONFIG).is_file() else {}
+    # (a config saved with the flat deployment options has them as the deploy node: migrations.py)
+    cfg = flatten_dict(deploy_node(read_yaml(run / CONFIG, "plot"))) if (run / CONFIG).is_file() else {}
     with open(run / METRICS) as f:
         rows = list(csv.DictReader(f))
     if not rows:
@@ -117,14 +123,12 @@ def group_runs(run_dirs: Sequence[str | Path], k: int = 1) -> list[Curve]:
     loaded = [read_run(d) for d in run_dirs]
     groups: dict[str, list[tuple[dict, dict]]] = {}
     for cfg, cols in loaded:
-        key = json.dumps(
-            {k_: v for k_, v in cfg.items() if k_ not in IGNORED + DEPLOYMENT}, sort_keys=True, default=str
-        )
+        key = json.dumps({k_: v for k_, v in cfg.items() if not _grouped_across(k_)}, sort_keys=True, default=str)
         groups.setdefault(key, []).append((cfg, cols))
     # Label each group by its algorithm and whatever else tells the groups apart (among options all
     # of them have: one algorithm's own options are implied by its name).
     cfgs = [members[0][0] for members in groups.values()]
-    shared = set.intersection(*(set(c) for c in cfgs)) - set(IGNORED + DEPLOYMENT) - {"algo.name"}
+    shared = {k_ for k_ in set.intersection(*(set(c) for c in cfgs)) if not _grouped_across(k_)} - {"algo.name"}
     varying = sorted(k_ for k_ in shared if len({json.dumps(c[k_], default=str) for c in cfgs}) > 1)
     curves = []
     for members in groups.values():

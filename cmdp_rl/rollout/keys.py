@@ -65,6 +65,6 @@ NET_INPUT = "net_input"
 FEATURES = "features"
 WINDOW = "window"
 WINDOW_MASK = "window_mask"
-# final_policy=mixture (policy_mixture.py): which of the mixture's member actors each env row
+# deploy.policy=mixture (deploy/mixture.py): which of the mixture's member actors each env row
 # follows, drawn on an episode's first step and carried to its end.
 MIXTURE_MEMBER = "mixture_member"

@@ -328,13 +328,18 @@ def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
 
 def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
     """A saved run config with the defaults it ran with made explicit (a run config written since
-    ``mixture_weights`` existed records every option), in the current layout (:func:`saved_config_nodes`)."""
+    ``mixture_weights`` existed records every option), in the current layout (:func:`saved_config_nodes`,
+    :func:`deploy_node`)."""
+    return deploy_node(saved_config_nodes(_defaults_before_mixture_weights(config)))
+
+
+def _defaults_before_mixture_weights(config: dict[str, Any]) -> dict[str, Any]:
     import dataclasses
 
     from cmdp_rl.config.registry import component
 
-    if "mixture_weights" in config:
-        return saved_config_nodes(config)
+    if "mixture_weights" in config or "deploy" in config:
+        return config
     out = {**_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS, **config}
     algo = dict(out.get("algo") or {})
     name = algo.get("name", "ppo_lag")
@@ -344,4 +349,26 @@ def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
             fields.add("nu_scale" if name in ("focops", "cup") else "lambda_scale")
         algo = {**{k: v for k, v in _ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS.items() if k in fields}, **algo}
         out["algo"] = algo
-    return saved_config_nodes(out)
+    return out
+
+
+# The flat run options that became the ``deploy`` node, each by its name there.
+_DEPLOY_FIELDS = {
+    "final_policy": "policy",
+    "average_last": "window",
+    "mixture_size": "snapshots",
+    "mixture_weights": "weights",
+    "mixture_episodes": "episodes",
+    "mixture_margin": "margin",
+}
+
+
+def deploy_node(config: Any) -> Any:
+    """A config saved with the flat deployment options (``final_policy``, ``average_last``, ``mixture_*``)
+    with them as the ``deploy`` node, the same values under their new names; any other config as it is."""
+    if not isinstance(config, dict) or not _DEPLOY_FIELDS.keys() & config.keys():
+        return config
+    out = {k: v for k, v in config.items() if k not in _DEPLOY_FIELDS}
+    flat = {new: config[old] for old, new in _DEPLOY_FIELDS.items() if old in config}
+    out["deploy"] = {**flat, **(config.get("deploy") or {})}
+    return out

@@ -22,6 +22,7 @@ from typing import Any
 
 import yaml
 
+from cmdp_rl.run.migrations import deploy_node
 from cmdp_rl.run.rundir import CONFIG as CONFIG_FILE
 from cmdp_rl.run.rundir import ERROR as ERROR_FILE
 from cmdp_rl.run.rundir import EVAL as EVAL_FILE
@@ -100,6 +101,7 @@ def load_run(path: str | Path) -> RunRecord:
     # The validated config (written when training starts) is the truth; Hydra's composed one is
     # there from the job's start, also for runs that failed validation.
     config = _read_yaml(path / CONFIG_FILE) or _read_yaml(path / HYDRA_DIR / "config.yaml") or {}
+    config = deploy_node(config)  # a run saved with the flat deployment options groups with the node's
     record = RunRecord(
         path, INCOMPLETE, [str(o) for o in overrides], config, metrics=_read_metrics(path / METRICS_FILE)
     )

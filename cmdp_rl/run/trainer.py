@@ -104,20 +104,20 @@ def complete_result(
     average: ParameterAverage | IterateSnapshots | None = None,
 ) -> None:
     """Add to an evaluation's ``result`` what ``eval.json`` records of the run: budget, steps, train
-    time, threads, the deployed policy (``final_policy``, and how many iterations ``average`` holds),
-    cost rates and normalised scores per constraint, the reference."""
+    time, threads, the deployed policy (``final_policy``, the run's ``deploy.policy``, and how many iterations
+    ``average`` holds), cost rates and normalised scores per constraint, the reference."""
     result.update(
         {
             "cost_limit": cfg.algo.cost_limit,
             "steps": steps,
             "train_time_s": train_time,
             "torch_threads": torch.get_num_threads(),
-            "final_policy": cfg.final_policy,
+            "final_policy": cfg.deploy.policy,
             "averaged_iterations": None if average is None else average.count,
         }
     )
     if isinstance(average, IterateSnapshots):  # the mixture's members, and their weights if chosen
-        result.update(average.result_keys(cfg.mixture_weights))
+        result.update(average.result_keys(cfg.deploy.weights))
     k = len(names)
     limits = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     eval_costs = [result[constraint_name("episode_cost", c, k)] for c in names]
@@ -223,7 +223,8 @@ def checkpoint_entry(run_cfg: dict[str, Any], iteration: int, step: int, time_s:
 def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
     """A run's env, agent and algorithm, under its seed (a population builds each agent so)."""
     seed_everything(cfg.seed)
-    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo)
+    cut_at = cfg.algo.cost_limit if cfg.early_terminate else None  # the early-terminated MDP's budget
+    env = make_env(cfg.env, device=cfg.device, algo=cfg.algo, cut_at=cut_at)
     agent = make_agent(cfg.policy, env, make_normalizers(cfg, env), algo=cfg.algo)
     return env, agent, make_algo(cfg.algo, agent)
 
@@ -307,7 +308,7 @@ def _train(
     iterations = math.ceil(cfg.total_steps / per_iter)
     ckpt_path = out / CHECKPOINT
     start = time.perf_counter() - elapsed
-    final = FinalPolicy(cfg, iterations, state)  # what the run deploys: final_policy
+    final = FinalPolicy(cfg, iterations, state)  # what the run deploys: deploy.policy
 
     reference, warnings = load_reference(cfg)
     for warning in warnings:
@@ -333,9 +334,11 @@ def _train(
         shape += f"; {described}"
     backend = getattr(cfg.env, "backend", None)  # only envs with several implementations have one
     where = f"{backend}, " if backend else ""
+    cut = ", training episodes end past it (early_terminate)" if cfg.early_terminate else ""
     echo(
         f"training {cfg.algo.name} on {cfg.env.name} ({where}{env.num_envs} envs): "
-        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit} ({budget_source(cfg)}), outputs in {out}"
+        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit} ({budget_source(cfg)}){cut}, "
+        f"outputs in {out}"
     )
     progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
     logger.echo = progress.row_echo

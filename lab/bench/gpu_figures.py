@@ -582,7 +582,7 @@ def training_speed(device: str, tiny: bool, left: float, place_ms: float | None)
 
 def populations(device: str, tiny: bool, results: Results) -> dict:
     """Item 4: the population benchmark's together side (Reach1D torch preset, 64 envs per agent,
-    3 iterations, ppo_lag, final_policy=last) at P = 64 and 256, and its layer timing."""
+    3 iterations, ppo_lag, deploy.policy=last) at P = 64 and 256, and its layer timing."""
     from lab.bench.population_benchmark import layers, together
 
     sizes = (2, 4) if tiny else (64, 256)

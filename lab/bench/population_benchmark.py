@@ -52,7 +52,7 @@ def composed(overrides: list[str]) -> dict:
 def base(envs: int, iterations: int, device: str, threads: int, final_policy: str = "last") -> list[str]:
     steps = iterations * envs * max(32, min(256, 2048 // envs))
     return [
-        f"final_policy={final_policy}",
+        f"deploy.policy={final_policy}",
         "algo=ppo_lag",
         "env=reach1d_torch",
         f"env.num_envs={envs}",
@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         "--final-policy",
         default="last",
         choices=["auto", "last", "average", "mixture"],
-        help="what every agent deploys (last, as every figure before: the training alone; auto: ppo_lag's "
+        help="every agent's deploy.policy (last, as every figure before: the training alone; auto: ppo_lag's "
         "valued mixture, whose valuation, per agent on both sides, runs in the last update)",
     )
     parser.add_argument("--skip-sequential", action="store_true", help="only the population side (and the scan)")

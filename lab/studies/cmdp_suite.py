@@ -37,7 +37,7 @@ USAGE = """Algorithms on the generated suite, judged exactly (docs/constraint_sa
     python experiments/studies/cmdp_suite.py --instances 0-9 --seeds 0 --algos ppo_lag pid_lag trpo_lag
     python experiments/studies/cmdp_suite.py --instances 0-29 1000-1029 --seeds 0 1 2 --workers 2
     python experiments/studies/cmdp_suite.py --out outputs/cmdp_suite --existing      # tabulate only
-    python experiments/studies/cmdp_suite.py --instances 0-9 -- final_policy=mixture   # extra overrides
+    python experiments/studies/cmdp_suite.py --instances 0-9 -- deploy.policy=mixture   # extra overrides
 
 A run whose eval.json exists under --out is read, not retrained. Prints one line per run as it ends,
 then the table (per algorithm and split: the share of (CMDP, seed) pairs within every budget, at

@@ -1,8 +1,8 @@
 """A trained policy on the fork (env=fork), valued exactly: each actor's action probabilities in
 every state, read off the network, then one linear solve (:func:`cmdp_rl.envs.grid.tabular.evaluate`).
 A mixture of actors drawn once per episode has the mean of its members' values: values are linear
-in the occupancy measure (``final_policy=mixture`` deploys such a mixture: cmdp_rl/deploy/mixture.py;
-``final_policy=average`` a parameter average instead, one actor: cmdp_rl/deploy/average.py). No episodes, so no
+in the occupancy measure (``deploy.policy=mixture`` deploys such a mixture: cmdp_rl/deploy/mixture.py;
+``deploy.policy=average`` a parameter average instead, one actor: cmdp_rl/deploy/average.py). No episodes, so no
 sampling noise: a learning test can hold a policy to the budget itself."""
 
 from __future__ import annotations

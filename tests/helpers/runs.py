@@ -22,7 +22,9 @@ TINY = {
     "total_steps": 7 * 32,
     "checkpoint_every": 2,
     "eval_episodes": 4,
-    "mixture_episodes": 8,  # a primal-dual algorithm deploys a valued mixture (final_policy=auto): keep it tiny
+    # Pinned whole, so that a changed default moves only the tests about it. ppo_lag deploys a valued mixture
+    # (deploy.policy=auto), kept tiny: 8 episodes per snapshot.
+    "deploy": {"policy": "auto", "window": 0.5, "snapshots": 16, "weights": "feasible", "episodes": 8, "margin": 3.0},
     "log_interval": 1,
 }
 

@@ -50,7 +50,7 @@ class SACLagConfig(SACConfig, LagrangeFields):
     """SAC-Lagrangian (Ha et al. 2020): lambda on the cost critic against the discounted budget."""
 
     name: str = "sac_lag"
-    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
+    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
 
 
 class SAC(OffPolicy):

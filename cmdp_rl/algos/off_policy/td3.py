@@ -39,7 +39,7 @@ class TD3LagConfig(TD3Config, LagrangeFields):
     """TD3 with the Lagrangian of SAC-Lagrangian."""
 
     name: str = "td3_lag"
-    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
+    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
 
 
 class TD3(OffPolicy):

@@ -61,7 +61,7 @@ class TRPOLagConfig(CPOConfig):
     advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
     # lambda reads J_c from the episodes' raw cost sums; the policy advantage may be scaled.
     reads_raw_cost: ClassVar[bool] = False
-    deploys: ClassVar[str] = "mixture"  # final_policy=auto (AlgoConfig.deploys)
+    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[Optional[int]] = None  # one multiplier per cost: any K
 
     def check(self, run: RunConfig) -> None:

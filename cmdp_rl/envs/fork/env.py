@@ -57,6 +57,10 @@ class TorchFork(VecEnv):
         self.state = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
         return self._eye[self.state]
 
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        self.state = self.state.masked_fill(rows, 0)
+        return self._eye[self.state[rows]]
+
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
         a = action[:, 0].to(device=self.device, dtype=torch.int64)

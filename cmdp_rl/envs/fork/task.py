@@ -20,7 +20,7 @@ class ForkConfig(EnvOptions):
     """``env=fork``: three routes to a goal, K = 1 or 2 hazard costs (``model.py``)."""
 
     name: str = "fork"
-    values_snapshots: ClassVar[bool] = True  # final_policy=auto (EnvOptions.values_snapshots)
+    values_snapshots: ClassVar[bool] = True  # deploy.policy=auto (EnvOptions.values_snapshots)
     backend: Literal["torch"] = "torch"  # one tensor program over the envs (env.py), on `device`
     num_envs: PositiveInt = 16
     num_costs: Literal[1, 2] = 1  # 1: one cost, "hazard"; 2: "hazard_a" and "hazard_b", a budget each

@@ -35,7 +35,7 @@ class GridEnvConfig(EnvOptions):
     slip probability and the per-step end probability (grid.py says why the episodes end at random)."""
 
     name: str = "grid"
-    values_snapshots: ClassVar[bool] = True  # final_policy=auto (EnvOptions.values_snapshots)
+    values_snapshots: ClassVar[bool] = True  # deploy.policy=auto (EnvOptions.values_snapshots)
     backend: Literal["gym"] = "gym"
     num_envs: PositiveInt = 8
     slip: Annotated[float, finite(ge=0, le=1)] = DEFAULT_SLIP

@@ -173,6 +173,15 @@ class TorchReach1D(VecEnv):
             self.steps.zero_()
         return obs
 
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        # The draws of step's auto-reset, for the rows given.
+        x0 = self._start_x(rows)
+        reading0 = self._reading(x0, self.obs_noise, rows)
+        self.x = torch.where(rows, x0, self.x)
+        self.steps = self.steps.masked_fill(rows, 0)
+        self.last_probe = self.last_probe.masked_fill(rows, -1.0)
+        return self._obs(reading0, self.last_probe)[rows]
+
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
         act = action.to(device=self.device, dtype=torch.float32)

@@ -27,6 +27,13 @@ class PopulationNoise:
     def __init__(self, num_agents: int, envs_per_agent: int, device: torch.device) -> None:
         self.num_agents, self.n, self.device = num_agents, envs_per_agent, device
         self.generators = [torch.Generator(device=device) for _ in range(num_agents)]
+        # The agents that draw (None: all): while some agents' envs restart between steps
+        # (PopulationReach1D.reset_rows) only those agents' single runs draw; the others' rows get 0.
+        self.drawing: list[int] | None = None
+
+    def _agents(self, agents: Sequence[int] | None) -> list[int]:
+        chosen = range(self.num_agents) if agents is None else agents
+        return [i for i in chosen if self.drawing is None or i in self.drawing]
 
     def seed_agents(self, seeds: Sequence[int]) -> None:
         for g, s in zip(self.generators, seeds):
@@ -37,11 +44,16 @@ class PopulationNoise:
 
     def normal(self, where: torch.Tensor | None) -> torch.Tensor:
         opts = dict(dtype=torch.float64, device=self.device)
-        return torch.cat([torch.randn(self.n, generator=g, **opts) for g in self.generators])
+        if self.drawing is None:
+            return torch.cat([torch.randn(self.n, generator=g, **opts) for g in self.generators])
+        out = torch.zeros(self.num_agents, self.n, **opts)
+        for i in self._agents(None):
+            out[i] = torch.randn(self.n, generator=self.generators[i], **opts)
+        return out.reshape(-1)
 
     def uniform(self, where: torch.Tensor | None, agents: Sequence[int] | None = None) -> torch.Tensor:
         out = torch.zeros(self.num_agents, self.n, dtype=torch.float64, device=self.device)
-        for i in range(self.num_agents) if agents is None else agents:
+        for i in self._agents(agents):
             out[i] = torch.rand(self.n, dtype=torch.float64, device=self.device, generator=self.generators[i])
         return out.reshape(-1)
 
@@ -96,6 +108,14 @@ class PopulationReach1D(TorchReach1D):
 
     def seed_agents(self, seeds: Sequence[int]) -> None:
         self.noise.seed_agents(seeds)
+
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        # Only the agents with a restarted env draw, as their single runs' envs do.
+        self.noise.drawing = torch.nonzero(rows.view(self.num_agents, -1).any(1)).view(-1).tolist()
+        try:
+            return super().reset_rows(rows)
+        finally:
+            self.noise.drawing = None
 
     def _start_x(self, where: torch.Tensor | None) -> torch.Tensor:
         fixed = self.start_lo

@@ -44,7 +44,7 @@ class Reach1DConfig(EnvOptions):
     # Evaluation reports the fraction of episodes that terminated under this name: in Reach1D an
     # episode terminates only at the goal.
     termination_metric: ClassVar[str] = "goal_reached"
-    values_snapshots: ClassVar[bool] = True  # final_policy=auto (EnvOptions.values_snapshots)
+    values_snapshots: ClassVar[bool] = True  # deploy.policy=auto (EnvOptions.values_snapshots)
 
     def env_kwargs(self) -> dict[str, Any]:
         """The :class:`Reach1D` constructor arguments these options ask for."""

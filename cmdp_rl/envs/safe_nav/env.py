@@ -212,6 +212,9 @@ class SafeNavVecEnv(VecEnv):
             return x.to(dtype=dtype, device=self.device)
         return torch.from_numpy(np.ascontiguousarray(x)).to(dtype=dtype, device=self.device)
 
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        return self._tensor(self._start([int(i) for i in torch.nonzero(rows.view(-1)).view(-1).tolist()]))
+
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
         n, every = self.num_envs, slice(None)

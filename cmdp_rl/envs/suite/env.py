@@ -85,6 +85,12 @@ class TorchSuite(VecEnv):
         self.t = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
         return self._obs(self.state, self.t)
 
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        u = torch.rand(self.num_envs, dtype=torch.float64, device=self.device, generator=self.generator)
+        self.state = torch.where(rows, self._draw(self._cdf0.expand(self.num_envs, -1), u), self.state)
+        self.t = self.t.masked_fill(rows, 0)
+        return self._obs(self.state[rows], self.t[rows])
+
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
         a = action[:, 0].to(device=self.device, dtype=torch.int64)

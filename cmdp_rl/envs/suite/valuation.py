@@ -5,7 +5,7 @@ policy can be held to its budget itself.
 
 ``deterministic``: the policy evaluation runs with ``eval_deterministic=true`` (the most likely
 action, ``policies/distributions.py``), as a one-hot table. A mixture of actors drawn once per
-episode (``final_policy=mixture``) has the weighted mean of its members' values, values being
+episode (``deploy.policy=mixture``) has the weighted mean of its members' values, values being
 linear in the occupancy measure (Altman 1999, ch. 3). Only a memoryless policy (``policy=mlp``
 without ``include_prev_action``/``include_prev_cost``) is a table; any other is refused.
 """
@@ -55,7 +55,7 @@ def mixture_values(
 
 
 def deployed_values(agent: Any, cmdp: FiniteCMDP, deterministic: bool = False) -> Values:
-    """Exact values of what a run deploys: its actor, or the mixture ``final_policy=mixture`` built."""
+    """Exact values of what a run deploys: its actor, or the mixture ``deploy.policy=mixture`` built."""
     from cmdp_rl.deploy.mixture import members_of, weights_of
 
     return mixture_values(members_of(agent.actor), cmdp, weights_of(agent.actor), deterministic)

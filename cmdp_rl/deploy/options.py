@@ -1,0 +1,81 @@
+"""The ``deploy:`` node: which policy a run hands back at its end, and how it is chosen.
+
+One node for every consumer of the deployed policy: the end of training (``final_policy.FinalPolicy``),
+a checkpoint loaded again (``final_policy.deploy_saved``: evaluate, video, ``cmdp_rl.load``) and the
+snapshot valuation (``selection.py``, within :func:`valuation_plan`'s share of the run). The run config
+holds it as ``RunConfig.deploy``; :func:`resolve_auto` turns ``policy: auto`` into what the run deploys.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from cmdp_rl.config.validation import AUTO, Field, NonNegativeFloat, PositiveInt, finite, options, require
+
+RunConfig = Any  # cmdp_rl.config.run_config.RunConfig, which imports this module
+
+
+@options
+class DeployConfig:
+    """``deploy:`` (configs/config.yaml documents each field): the last iterate, the average of the actor's
+    parameters over the last ``window`` of the iterations (``average.py``), or a mixture of at most
+    ``snapshots`` snapshots of the actor over that window, one drawn per episode (``mixture.py``), weighted
+    uniformly or as the best mixture within every budget on their measured values (``selection.py``)."""
+
+    policy: Literal["auto", "last", "average", "mixture"] = "auto"
+    window: Annotated[float, finite(gt=0, le=1)] = 0.5
+    snapshots: Annotated[int, Field(ge=1, le=64)] = 16
+    weights: Literal["uniform", "feasible"] = "feasible"
+    episodes: PositiveInt = 100  # weights=feasible: episodes each snapshot is valued on
+    margin: NonNegativeFloat = 3.0  # weights=feasible: standard errors added to each snapshot's costs
+
+    def check(self, run: RunConfig) -> None:
+        """Rules that relate the deployed policy to the rest of the run."""
+        require(
+            self.policy != "mixture" or run.policy.name == "mlp",
+            "deploy.policy",
+            f"last or average with policy={run.policy.name} (a mixture draws among memoryless actors: policy=mlp)",
+            self.policy,
+        )
+
+
+# The snapshot valuation's price where episodes are not declared cheap: at most this share of the run's env
+# steps, spent on at least MIN_VALUED_EPISODES episodes per snapshot valued (fewer snapshots rather than
+# fewer episodes each: a cost measured on a handful of episodes has a standard error of the budget's order
+# on the navigation tasks, and the margin then rules every snapshot out). A run too short to give one
+# snapshot that many deploys its last iterate. The share is what the issue of deployment on any env
+# allows to be "bounded and stated"; 10% keeps the valuation below the measurement noise of a run's time.
+VALUATION_SHARE = 0.1
+MIN_VALUED_EPISODES = 20
+
+
+def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
+    """(snapshots, episodes each) of ``deploy.policy: auto``'s mixture on an env not declared cheap to value,
+    within :data:`VALUATION_SHARE` of ``total_steps``; None where the share does not buy one snapshot
+    :data:`MIN_VALUED_EPISODES` episodes, or the env's episode length is unknown."""
+    steps = cfg.env.episode_steps()
+    if not steps:
+        return None
+    episodes = int(VALUATION_SHARE * cfg.total_steps // steps)
+    size = min(cfg.deploy.snapshots, episodes // MIN_VALUED_EPISODES)
+    if size < 1:
+        return None
+    return size, min(cfg.deploy.episodes, episodes // size)
+
+
+def resolve_auto(cfg: RunConfig) -> None:
+    """``deploy.policy: auto`` becomes ``mixture`` for a primal-dual algorithm (``AlgoConfig.deploys``)
+    with a memoryless policy, where the env's episodes are cheap to value (``EnvOptions.values_snapshots``)
+    or :func:`valuation_plan` buys a valuation (whose snapshots and episodes it then sets), else ``last``.
+    A policy given in the config is kept, with its numbers. Works in place."""
+    deploy = cfg.deploy
+    if deploy.policy != AUTO:
+        return
+    mixture = cfg.algo.deploys == "mixture" and cfg.policy.name == "mlp"
+    plan = None if cfg.env.values_snapshots else valuation_plan(cfg)
+    if mixture and not cfg.env.values_snapshots and plan is not None:
+        deploy.snapshots, deploy.episodes = plan
+    deploy.policy = "mixture" if mixture and (cfg.env.values_snapshots or plan is not None) else "last"
+
+
+__all__ = ["MIN_VALUED_EPISODES", "VALUATION_SHARE", "DeployConfig", "resolve_auto", "valuation_plan"]
