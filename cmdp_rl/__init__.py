@@ -20,7 +20,7 @@ import gymnasium as _gym
 
 from cmdp_rl.algos import TrainingDiverged, make_algo
 from cmdp_rl.algos.ppo import PPO
-from cmdp_rl.algos.ppo_lag import PenaltyPPO, PIDLagrangianPPO, PPOLagrangian
+from cmdp_rl.algos.ppo_lag import PenaltyPPO, PPOLagrangian
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.run_config import ConfigError, RunConfig, load_config, validate
 from cmdp_rl.envs import REACH1D_ID, GymVecEnv, Reach1D, VecEnv, make_env
@@ -41,7 +41,6 @@ __all__ = [
     "Collector",
     "ConfigError",
     "GymVecEnv",
-    "PIDLagrangianPPO",
     "PPO",
     "PPOLagrangian",
     "PenaltyPPO",

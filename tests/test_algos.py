@@ -38,7 +38,7 @@ def test_policy_advantages():
     b = TensorDict({keys.ADVANTAGE: adv, keys.COST_ADVANTAGE: cadv}, [1, 2])
     _, ppo, _ = setup({"name": "ppo"})
     _, pen, _ = setup({"name": "penalty", "penalty": 2.0})
-    _, lag, _ = setup({"name": "ppo_lag", "lambda_init": 3.0})
+    _, lag, _ = setup({"name": "ppo_lag", "multiplier": {"init": 3.0}})
     assert torch.equal(ppo.policy_advantage(b), adv) and ppo.lagrange_multiplier == 0.0
     assert torch.allclose(pen.policy_advantage(b), adv - 2.0 * cadv) and pen.lagrange_multiplier == 2.0
     assert torch.allclose(lag.policy_advantage(b), (adv - 3.0 * cadv) / 4.0)
@@ -47,7 +47,7 @@ def test_policy_advantages():
 def test_lagrangian_update_moves_lambda_with_the_batch_cost():
     # wall=pass with 3-step episodes from 0.45: almost every episode crosses (cost 1 > d = 0.2)
     _, lag, col = setup(
-        {"name": "ppo_lag", "cost_limit": 0.2, "lambda_lr": 0.5, "update_epochs": 1},
+        {"name": "ppo_lag", "cost_limit": 0.2, "multiplier": {"lr": 0.5}, "update_epochs": 1},
         wall="pass",
         start=0.45,
         max_steps=3,
@@ -55,7 +55,7 @@ def test_lagrangian_update_moves_lambda_with_the_batch_cost():
     stats = lag.update(col.collect())
     assert stats["lagrange_multiplier"] > 0.0
     _, lag, col = setup(
-        {"name": "ppo_lag", "cost_limit": 5.0, "lambda_init": 1.0, "lambda_lr": 0.5, "update_epochs": 1}
+        {"name": "ppo_lag", "cost_limit": 5.0, "multiplier": {"init": 1.0, "lr": 0.5}, "update_epochs": 1}
     )
     assert lag.update(col.collect())["lagrange_multiplier"] < 1.0  # cost 0 < d: lambda falls
 
@@ -64,9 +64,9 @@ def test_pid_lagrangian_algorithm_uses_its_controller_and_checkpoints_it():
     # Same over-budget batches as above: with Kp > 0 lambda jumps by Kp * (J_c - d) at once.
     env = dict(wall="pass", start=0.45, max_steps=3)
     algo_cfg = {"cost_limit": 0.2, "update_epochs": 1}
-    _, lag, col = setup({"name": "ppo_lag", "lambda_lr": 0.5, **algo_cfg}, **env)
+    _, lag, col = setup({"name": "ppo_lag", "multiplier": {"lr": 0.5}, **algo_cfg}, **env)
     batch = col.collect()
-    _, pid, pcol = setup({"name": "pid_lag", "ki": 0.5, "kp": 2.0, **algo_cfg}, **env)
+    _, pid, pcol = setup({"name": "pid_lag", "multiplier": {"kind": "pid", "ki": 0.5, "kp": 2.0}, **algo_cfg}, **env)
     pbatch = pcol.collect()
     assert torch.equal(batch.get(("next", "cost")), pbatch.get(("next", "cost")))  # same data
     lam_i = lag.update(batch)["lagrange_multiplier"]
@@ -74,7 +74,7 @@ def test_pid_lagrangian_algorithm_uses_its_controller_and_checkpoints_it():
     j_c = (lam_i / 0.5) + 0.2  # dual ascent from 0: lambda = lr * (J_c - d)
     assert lam_pid == pytest.approx(lam_i + 2.0 * (j_c - 0.2))
     state = pid.state_dict()
-    _, pid2, _ = setup({"name": "pid_lag", "ki": 0.5, "kp": 2.0, **algo_cfg}, **env)
+    _, pid2, _ = setup({"name": "pid_lag", "multiplier": {"kind": "pid", "ki": 0.5, "kp": 2.0}, **algo_cfg}, **env)
     pid2.load_state_dict(state)
     assert pid2.multiplier.state_dict() == pid.multiplier.state_dict() and pid2.lagrange_multiplier == lam_pid
 
@@ -231,17 +231,16 @@ def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monk
 
 
 def test_anneal_lr_scales_the_rates_linearly_to_zero_over_the_run():
-    # 4 iterations of 2 x 32 steps: iteration i updates with 1 - i/4 of lr, critic_lr and lambda_lr.
+    # 4 iterations of 2 x 32 steps: iteration i updates with 1 - i/4 of lr and critic_lr; lambda's step
+    # is not annealed (the multiplier's lr stays 0.5).
     algo_cfg = {
         "name": "ppo_lag",
         "lr": 1e-3,
         "critic_lr": 2e-3,
-        "lambda_lr": 0.5,
+        "multiplier": {"lr": 0.5, "scale": "none"},  # the step below in the cost's own units
         "update_epochs": 1,
         "cost_limit": 0.2,
         "anneal_lr": True,
-        "anneal_lambda_lr": True,
-        "lambda_scale": "none",  # the step below in the cost's own units
     }
     cfg = load_config(
         {
@@ -265,12 +264,12 @@ def test_anneal_lr_scales_the_rates_linearly_to_zero_over_the_run():
         lag.update(batch)
         assert lag.actor_opt.param_groups[0]["lr"] == pytest.approx(frac * 1e-3)
         assert lag.critic_opt.param_groups[0]["lr"] == pytest.approx(frac * 2e-3)
-        assert lag.lagrange_multiplier == pytest.approx(max(0.0, before + frac * 0.5 * (cost - 0.2)))
+        assert lag.lagrange_multiplier == pytest.approx(max(0.0, before + 0.5 * (cost - 0.2)))
     assert lag.state_dict()["iteration"] == 4
     # Off (the default): the rates stay as given.
     _, plain, col = setup({"name": "ppo_lag", "update_epochs": 1})
-    assert plain.cfg.anneal_lr is False and plain.cfg.anneal_lambda_lr is False
+    assert plain.cfg.anneal_lr is False
     plain.update(col.collect())
     plain.update(col.collect())
     assert plain.actor_opt.param_groups[0]["lr"] == plain.cfg.lr
-    assert plain.multiplier.controllers[0].lr == plain.cfg.lambda_lr
+    assert plain.multiplier.controllers[0].lr == plain.cfg.multiplier.lr

@@ -36,19 +36,33 @@ BAD = [
     ({"algo": {"name": "ppo", "entropy_coef": -1.0}}, "algo.entropy_coef"),
     ({"algo": {"name": "ppo", "max_grad_norm": 0.0}}, "algo.max_grad_norm"),
     ({"algo": {"name": "penalty", "penalty": -2.0}}, "algo.penalty"),
-    ({"algo": {"name": "ppo_lag", "lambda_init": -1.0}}, "algo.lambda_init"),
-    ({"algo": {"name": "ppo_lag", "lambda_lr": 0.0}}, "algo.lambda_lr"),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"init": -1.0}}}, "algo.multiplier.init"),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"lr": 0.0}}}, "algo.multiplier.lr"),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"kind": "adam"}}}, "algo.multiplier.kind"),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"scale": "cost"}}}, "algo.multiplier.scale"),
+    (
+        {"algo": {"name": "ppo_lag", "multiplier": {"kind": "regularized", "lr": 0.5, "tau": 2.0}}},
+        "algo.multiplier.tau",
+    ),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"nu": 1.0}}}, "algo.multiplier.nu"),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"rho": 1.0}}}, "algo.multiplier"),  # no such field
+    ({"algo": {"name": "ppo_lag", "multiplier": "dual"}}, "algo.multiplier"),  # the node, not a kind's name
+    ({"algo": {"name": "ppo_lag", "lambda_lr": 0.1}}, "algo"),  # the flat name of before the node
+    ({"algo": {"name": "ppo", "multiplier": {"lr": 0.1}}}, "algo"),  # an unconstrained algorithm has none
     ({"algo": {"name": "ppo", "penalty": 1.0}}, "algo"),  # option of another algorithm
-    ({"algo": {"name": "pid_lag", "kp": -0.1}}, "algo.kp"),
-    ({"algo": {"name": "pid_lag", "ki": -0.1}}, "algo.ki"),
-    ({"algo": {"name": "pid_lag", "kd": float("nan")}}, "algo.kd"),
-    ({"algo": {"name": "pid_lag", "kp": 0.0, "ki": 0.0, "kd": 0.0}}, "algo.kp + algo.ki + algo.kd"),
-    ({"algo": {"name": "pid_lag", "p_ema_alpha": 1.0}}, "algo.p_ema_alpha"),
-    ({"algo": {"name": "pid_lag", "d_ema_alpha": -0.5}}, "algo.d_ema_alpha"),
-    ({"algo": {"name": "pid_lag", "d_delay": 0}}, "algo.d_delay"),
-    ({"algo": {"name": "pid_lag", "lambda_max": 0.0}}, "algo.lambda_max"),
-    ({"algo": {"name": "pid_lag", "lambda_init": 5.0, "lambda_max": 2.0}}, "algo.lambda_init"),
-    ({"algo": {"name": "pid_lag", "lambda_lr": 0.1}}, "algo"),  # dual ascent's option, not PID's
+    ({"algo": {"name": "pid_lag", "multiplier": {"kp": -0.1}}}, "algo.multiplier.kp"),
+    ({"algo": {"name": "pid_lag", "multiplier": {"ki": -0.1}}}, "algo.multiplier.ki"),
+    ({"algo": {"name": "pid_lag", "multiplier": {"kd": float("nan")}}}, "algo.multiplier.kd"),
+    (
+        {"algo": {"name": "pid_lag", "multiplier": {"kp": 0.0, "ki": 0.0, "kd": 0.0}}},
+        "algo.multiplier.kp + algo.multiplier.ki + algo.multiplier.kd",
+    ),
+    ({"algo": {"name": "pid_lag", "multiplier": {"p_ema_alpha": 1.0}}}, "algo.multiplier.p_ema_alpha"),
+    ({"algo": {"name": "pid_lag", "multiplier": {"d_ema_alpha": -0.5}}}, "algo.multiplier.d_ema_alpha"),
+    ({"algo": {"name": "pid_lag", "multiplier": {"d_delay": 0}}}, "algo.multiplier.d_delay"),
+    ({"algo": {"name": "pid_lag", "multiplier": {"max": 0.0}}}, "algo.multiplier.max"),
+    ({"algo": {"name": "pid_lag", "multiplier": {"init": 5.0, "max": 2.0}}}, "algo.multiplier.init"),
+    ({"algo": {"name": "sac_lag", "multiplier": {"kind": "pid", "kp": 0.0, "ki": 0.0}}}, "algo.multiplier.kp"),
     ({"algo": {"name": "cpo", "target_kl": 0.0}}, "algo.target_kl"),
     ({"algo": {"name": "cpo", "cg_iters": 0}}, "algo.cg_iters"),
     ({"algo": {"name": "cpo", "cg_damping": -0.1}}, "algo.cg_damping"),

@@ -60,7 +60,7 @@ def _surrogates(algo, batch, half_params):
 def test_with_nu_zero_the_projection_returns_the_improved_policy_unchanged():
     # The projection minimises KL(pi || pi_{k+1/2}) + nu c E[ratio A_c]; with nu = 0 its minimiser is
     # pi_{k+1/2}, where the gradient is 0: the stage must not move (no momentum carried in).
-    algo, batch = setup({"nu_init": 0.0, "cost_limit": 100.0})
+    algo, batch = setup({"multiplier": {"init": 0.0}, "cost_limit": 100.0})
     stage_one(algo, batch)  # stage 1 (and nu: J_c < d keeps it at 0)
     half = _actor(algo)
     assert not all(torch.equal(a, b) for a, b in zip(half, _actor(setup({})[0])))  # stage 1 moved it
@@ -73,7 +73,7 @@ def test_with_nu_zero_the_projection_returns_the_improved_policy_unchanged():
 
 
 def test_with_nu_positive_the_projection_lowers_the_cost_surrogate_and_stays_near():
-    algo, batch = setup({"nu_init": 1.0, "cost_limit": 100.0, "nu_lr": 1e-9})
+    algo, batch = setup({"multiplier": {"init": 1.0, "lr": 1e-9}, "cost_limit": 100.0})
     stage_one(algo, batch)
     units = algo.agent.training_units({k: batch.get(k) for k in algo.agent.in_keys if k in batch.keys(True)})
     with torch.no_grad():
@@ -87,24 +87,24 @@ def test_with_nu_positive_the_projection_lowers_the_cost_surrogate_and_stays_nea
 
 
 def test_nu_by_dual_ascent_on_the_budget():
-    algo, batch = setup({"nu_init": 0.5, "nu_lr": 0.5, "cost_limit": 0.0})
+    algo, batch = setup({"multiplier": {"init": 0.5, "lr": 0.5}, "cost_limit": 0.0})
     stats = algo.update(batch)  # J_c > 0.3 here (most episodes cross): nu rises by 0.5 * J_c
     assert stats["lagrange_multiplier"] > 0.5 + 0.15
     assert {"loss_projection", "kl_projection"} <= stats.keys()
-    copy, _ = setup({"nu_init": 0.5, "nu_lr": 0.5, "cost_limit": 0.0})
+    copy, _ = setup({"multiplier": {"init": 0.5, "lr": 0.5}, "cost_limit": 0.0})
     copy.load_state_dict(algo.state_dict())  # nu travels with the checkpoint
     assert copy.lagrange_multiplier == stats["lagrange_multiplier"]
-    algo, batch = setup({"nu_init": 0.1, "nu_lr": 0.5, "cost_limit": 5.0})
+    algo, batch = setup({"multiplier": {"init": 0.1, "lr": 0.5}, "cost_limit": 5.0})
     assert algo.update(batch)["lagrange_multiplier"] == 0.0  # 0.1 + 0.5 (J_c - 5) < 0: projected to 0
 
 
 @pytest.mark.slow  # a learning run (pyproject: markers)
 def test_cup_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5. The initial policy's training return is 0.00 (iteration 1,
-    seed 0). Measured on seed 0 with nu_init = 0.5, nu_lr = 0.05: after a burst of wall crossings
+    seed 0). Measured on seed 0 with multiplier.init = 0.5, multiplier.lr = 0.05: after a burst of wall crossings
     around iterations 27-30 (nu peaks near 0.42), the last 10 iterations hover short of the wall,
-    return 0.30 at cost 0.04. The outcome is sensitive to nu's start: nu_init = 0.7 ended mid-swing
-    (cost 1.37), nu_init = 0 with nu_lr = 0.1 still crossing every episode (cost 1.0)."""
+    return 0.30 at cost 0.04. The outcome is sensitive to nu's start: multiplier.init = 0.7 ended mid-swing
+    (cost 1.37), multiplier.init = 0 with multiplier.lr = 0.1 still crossing every episode (cost 1.0)."""
     cfg = compose_config(
         [
             "env=reach1d_torch",
@@ -112,8 +112,8 @@ def test_cup_learns_reach1d_within_budget(tmp_path):
             "env.num_envs=256",
             "algo=cup",
             "algo.cost_limit=0.5",
-            "algo.nu_init=0.5",
-            "algo.nu_lr=0.025",  # measured as 0.05 per unit of cost: at d = 0.5, 0.025 on (J_c - d) / d
+            "algo.multiplier.init=0.5",
+            "algo.multiplier.lr=0.025",  # measured as 0.05 per unit of cost: at d = 0.5, 0.025 on (J_c - d) / d
             "algo.num_minibatches=4",
             "algo.update_epochs=5",
             "total_steps=327680",

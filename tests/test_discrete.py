@@ -297,7 +297,13 @@ def test_ppo_lagrangian_avoids_the_costly_action(tmp_path, quiet):
     greedy policy stays within it and still matches the other contexts (best feasible: 6)."""
     cfg = {
         "env": {"name": "gym", "id": cost_envs.MATCH_ID, "num_envs": 4},
-        "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.5, "lambda_lr": 0.5},
+        "algo": {
+            "name": "ppo_lag",
+            "update_epochs": 2,
+            "num_minibatches": 2,
+            "cost_limit": 0.5,
+            "multiplier": {"lr": 0.5},
+        },
         "rollout_steps": 32,
         "total_steps": 2048,
         "eval_episodes": 8,

@@ -66,7 +66,7 @@ SUBSTITUTED = {
     "env.instance=I": "env.instance=0",
     "algo=A ": "algo=ppo_lag ",
     "total_steps=T": "total_steps=4096",
-    "algo.lambda_lr=η": "algo.lambda_lr=0.05",
+    "algo.multiplier.lr=η": "algo.multiplier.lr=0.05",
     "$p": "mujoco",
     "$s": "0",
 }

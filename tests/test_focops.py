@@ -1,5 +1,5 @@
 """FOCOPS (Zhang, Vuong, Ross 2020): the projection loss's gradient at pi_k by hand, the per-state
-KL indicator, nu's clipping to [0, nu_max], the KL early stop at delta, and a learning run."""
+KL indicator, nu's clipping to [0, multiplier.max], the KL early stop at delta, and a learning run."""
 
 import csv
 
@@ -77,24 +77,23 @@ def setup(algo: dict):
     return make_algo(cfg.algo, agent), Collector(env, agent, cfg.rollout_steps, seed=0).collect()
 
 
-def test_nu_is_projected_dual_ascent_clipped_to_0_and_nu_max():
-    algo, batch = setup({"cost_limit": 0.0, "nu_lr": 5.0, "nu_max": 1.5, "nu_init": 0.2})
+def test_nu_is_projected_dual_ascent_clipped_to_0_and_its_max():
+    algo, batch = setup({"cost_limit": 0.0, "multiplier": {"lr": 5.0, "max": 1.5, "init": 0.2}})
     stats = algo.update(batch)  # J_c of this batch is above 0.3 (most episodes cross): 0.2 + 5 * J_c > 1.5
     assert stats["lagrange_multiplier"] == 1.5
     algo.update_multiplier(EpisodeCost((0.1,), 3.0, FINISHED))  # still above d = 0: stays at the clamp
     assert algo.lagrange_multiplier == 1.5
-    copy, _ = setup({"cost_limit": 0.0, "nu_lr": 5.0, "nu_max": 1.5, "nu_init": 0.2})
+    copy, _ = setup({"cost_limit": 0.0, "multiplier": {"lr": 5.0, "max": 1.5, "init": 0.2}})
     copy.load_state_dict(algo.state_dict())  # nu travels with the checkpoint
     assert copy.lagrange_multiplier == 1.5
     algo.update_multiplier(EpisodeCost((-1.0,), 3.0, FINISHED))  # a step of -5: clipped at 0
     assert algo.lagrange_multiplier == 0.0
-    algo, _ = setup({"cost_limit": 1.0, "nu_lr": 0.1, "nu_init": 0.5})
+    algo, _ = setup({"cost_limit": 1.0, "multiplier": {"lr": 0.1, "init": 0.5}})
     algo.update_multiplier(EpisodeCost((2.0,), 3.0, FINISHED))  # unclipped: 0.5 + 0.1 * (2 - 1)
     assert algo.lagrange_multiplier == pytest.approx(0.6)
-    with pytest.raises(ConfigError, match=r"^algo.nu_init must be a number in \[0, algo.nu_max\], got 3.0$"):
-        from cmdp_rl.config.run_config import validate
-
-        validate(load_config({"algo": {"name": "focops", "nu_init": 3.0}}))
+    match = r"^algo.multiplier.init must be a number in \[0, algo.multiplier.max\], got 3.0$"
+    with pytest.raises(ConfigError, match=match):  # the paper's clamp of 2 is focops' default
+        load_config({"algo": {"name": "focops", "multiplier": {"init": 3.0}}})
 
 
 def test_the_epochs_stop_at_the_first_minibatch_past_delta():
@@ -109,9 +108,9 @@ def test_the_epochs_stop_at_the_first_minibatch_past_delta():
 @pytest.mark.slow  # a learning run (pyproject: markers)
 def test_focops_learns_reach1d_within_budget(tmp_path):
     """Reach1D, passable wall, budget 0.5. The initial policy's training return is 0.00 (iteration 1,
-    seed 0). With the paper's nu_lr = 0.01 and nu_max = 2, nu is too slow and too small here (cost 1.0
-    per episode after 40 iterations): crossing is worth about 1.4 in reward. With nu_lr = 0.5 and
-    nu_max = 3, measured on seed 0: last 10 iterations return 0.42 at cost 0.34."""
+    seed 0). With the paper's multiplier.lr = 0.01 and multiplier.max = 2, nu is too slow and too small here (cost 1.0
+    per episode after 40 iterations): crossing is worth about 1.4 in reward. With multiplier.lr = 0.5 and
+    multiplier.max = 3, measured on seed 0: last 10 iterations return 0.42 at cost 0.34."""
     cfg = compose_config(
         [
             "env=reach1d_torch",
@@ -119,8 +118,8 @@ def test_focops_learns_reach1d_within_budget(tmp_path):
             "env.num_envs=256",
             "algo=focops",
             "algo.cost_limit=0.5",
-            "algo.nu_lr=0.5",
-            "algo.nu_max=3",
+            "algo.multiplier.lr=0.5",
+            "algo.multiplier.max=3",
             "algo.num_minibatches=4",
             "algo.update_epochs=5",
             "total_steps=327680",

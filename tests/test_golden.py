@@ -31,7 +31,12 @@ CASES = {
     "penalty_mlp": tiny(algo={"name": "penalty", "penalty": 1.5}),
     "pid_lag_torch": tiny(
         env={"backend": "torch", "num_envs": 16, "stagger": True},
-        algo={"name": "pid_lag", "update_epochs": 2, "num_minibatches": 4, "kp": 1.0, "ki": 0.2},
+        algo={
+            "name": "pid_lag",
+            "update_epochs": 2,
+            "num_minibatches": 4,
+            "multiplier": {"kind": "pid", "kp": 1.0, "ki": 0.2},
+        },
     ),
     "cpo_mlp": tiny(algo={"name": "cpo", "critic_epochs": 2, "critic_minibatches": 2}),
     "ppo_lag_lstm": tiny(policy={"name": "lstm", "hidden_size": 8, "head_sizes": [8], "segment_length": 8}),
@@ -51,9 +56,8 @@ for case in CASES.values():
     case["algo"] = {
         k: v
         for k, v in case["algo"].items()
-        if not (case["algo"]["name"] == "cpo" and k in ("update_epochs", "num_minibatches", "lambda_lr"))
-        and not (case["algo"]["name"] in ("ppo", "penalty") and k == "lambda_lr")
-        and not (case["algo"]["name"] == "pid_lag" and k == "lambda_lr")
+        if not (case["algo"]["name"] == "cpo" and k in ("update_epochs", "num_minibatches", "multiplier"))
+        and not (case["algo"]["name"] in ("ppo", "penalty") and k == "multiplier")
     }
 
 

@@ -5,7 +5,7 @@ import pytest
 
 from cmdp_rl.algos.lagrange import DualAscent, PIDLagrangian
 from cmdp_rl.algos.last_iterate import AugmentedLagrangian, OptimisticDual, RegularizedDual
-from cmdp_rl.algos.multiplier_options import MultiplierFields, make_controller
+from cmdp_rl.algos.multiplier import MultiplierConfig
 
 
 def test_budget_scale_makes_dual_ascent_unit_free():
@@ -75,10 +75,9 @@ def test_augmented_lagrangian_prices_cost_above_its_multiplier():
     "kind, cls", [("dual", DualAscent), ("regularized", RegularizedDual), ("optimistic", OptimisticDual)]
 )
 def test_options_build_the_named_controller_with_the_budget_scale(kind, cls):
-    cfg = MultiplierFields(multiplier=kind, lambda_scale="budget")
-    m = make_controller(cfg, 0.25, 0.1, 0.0)
-    assert isinstance(m, cls) and m.scale == 0.25
-    assert make_controller(MultiplierFields(multiplier="augmented", lambda_scale="none"), 0.25, 0.1, 0.0).scale == 1.0
+    m = MultiplierConfig(kind=kind, lr=0.1, scale="budget").build(0.25)
+    assert isinstance(m, cls) and m.scale == 0.25 and m.lr == 0.1
+    assert MultiplierConfig(kind="augmented", lr=0.1, scale="none").build(0.25).scale == 1.0
 
 
 def _controllers(algo: dict):
@@ -97,24 +96,39 @@ def _controllers(algo: dict):
 @pytest.mark.parametrize(
     "algo, cls",
     [
-        ({"name": "ppo_lag", "multiplier": "optimistic"}, OptimisticDual),
-        ({"name": "trpo_lag", "multiplier": "augmented"}, AugmentedLagrangian),
-        ({"name": "sac_lag", "multiplier": "regularized", "buffer_size": 1000}, RegularizedDual),
-        ({"name": "td3_lag", "multiplier": "optimistic", "buffer_size": 1000}, OptimisticDual),
+        ({"name": "ppo_lag", "multiplier": {"kind": "optimistic", "scale": "budget"}}, OptimisticDual),
+        ({"name": "trpo_lag", "multiplier": {"kind": "augmented", "scale": "budget"}}, AugmentedLagrangian),
+        (
+            {"name": "sac_lag", "multiplier": {"kind": "regularized", "scale": "budget"}, "buffer_size": 1000},
+            RegularizedDual,
+        ),
+        (
+            {"name": "td3_lag", "multiplier": {"kind": "optimistic", "scale": "budget"}, "buffer_size": 1000},
+            OptimisticDual,
+        ),
+        ({"name": "sac_lag", "multiplier": {"kind": "pid", "scale": "budget"}, "buffer_size": 1000}, PIDLagrangian),
     ],
 )
 def test_every_lagrangian_algorithm_builds_the_chosen_update_on_the_relative_violation(algo, cls):
-    built = _controllers({**algo, "cost_limit": 0.5, "lambda_scale": "budget"})
+    built = _controllers({**algo, "cost_limit": 0.5})
     multipliers = built.lagrange.multipliers if hasattr(built, "lagrange") else built.multiplier
     (c,) = multipliers.controllers
     assert isinstance(c, cls) and c.scale == pytest.approx(c.cost_limit)  # sac/td3: the discounted budget
 
 
-def test_regularized_ppo_lag_adds_tau_to_the_entropy_bonus_and_nu_scale_reaches_focops_and_cup():
-    ppo = _controllers({"name": "ppo_lag", "multiplier": "regularized", "lambda_tau": 0.3, "entropy_coef": 0.01})
+def test_regularized_ppo_lag_adds_tau_to_the_entropy_bonus_and_the_scale_reaches_focops_and_cup():
+    ppo = _controllers({"name": "ppo_lag", "multiplier": {"kind": "regularized", "tau": 0.3}, "entropy_coef": 0.01})
     assert ppo.entropy_coef == pytest.approx(0.31)
     for name in ("focops", "cup", "pid_lag"):
-        field = "lambda_scale" if name == "pid_lag" else "nu_scale"
-        m = _controllers({"name": name, "cost_limit": 0.25, field: "budget"}).multiplier
+        m = _controllers({"name": name, "cost_limit": 0.25, "multiplier": {"scale": "budget"}}).multiplier
         m = m.controllers[0] if hasattr(m, "controllers") else m
         assert m.scale == 0.25
+
+
+@pytest.mark.parametrize("kind", ["dual", "regularized", "optimistic", "augmented", "pid"])
+def test_max_clamps_every_kind_and_infinity_changes_nothing(kind):
+    # d = 1, scale none, J_c = 3: every kind's first step is lr * 2 = 10 (pid: kp 2 * 2 + ki 0.1 * 2), over the clamp.
+    clamped = MultiplierConfig(kind=kind, lr=5.0, scale="none", max=1.5).build(1.0)
+    assert clamped.update(3.0) == 1.5 and clamped.update(3.0) == 1.5
+    free = MultiplierConfig(kind=kind, lr=5.0, scale="none").build(1.0)
+    assert free.update(3.0) > 1.5

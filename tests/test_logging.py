@@ -28,7 +28,7 @@ def scalars(run_dir):
 def test_every_algorithm_logs_the_same_names_to_csv_and_tensorboard(tmp_path, quiet, algo):
     cfg = tiny(algo={"name": algo}, logger={"name": "tensorboard"}, total_steps=3 * 32)
     if algo != "ppo_lag":
-        cfg["algo"].pop("lambda_lr")
+        cfg["algo"].pop("multiplier")
     train(load_config(cfg), tmp_path, echo=quiet)
     with open(tmp_path / "metrics.csv") as f:
         rows = list(csv.DictReader(f))
@@ -109,7 +109,7 @@ def test_plot_groups_seeds_and_writes_a_png(tmp_path, quiet, capsys):
     for algo, seed in (("ppo", 0), ("ppo", 1), ("ppo_lag", 0)):
         cfg = tiny(algo={"name": algo}, seed=seed, total_steps=3 * 32)
         if algo == "ppo":
-            cfg["algo"].pop("lambda_lr")
+            cfg["algo"].pop("multiplier")
         train(load_config(cfg), tmp_path / f"{algo}_{seed}", echo=quiet)
         dirs.append(tmp_path / f"{algo}_{seed}")
     curves = {c.label: c for c in group_runs(dirs)}

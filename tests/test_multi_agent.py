@@ -165,7 +165,7 @@ def test_evaluation_counts_a_teams_episode_once(tmp_path, quiet):
 def test_mappo_lag_resume_is_exact(tmp_path, quiet):
     cfg = {
         "env": {"name": "pettingzoo", "num_envs": 2},
-        "algo": {"name": "mappo_lag", "update_epochs": 2, "num_minibatches": 2, "lambda_lr": 0.5},
+        "algo": {"name": "mappo_lag", "update_epochs": 2, "num_minibatches": 2, "multiplier": {"lr": 0.5}},
         "rollout_steps": 15,  # not a multiple of the horizon: episodes run across iterations
         "total_steps": 6 * 60,
         "checkpoint_every": 2,

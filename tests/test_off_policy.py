@@ -95,16 +95,15 @@ def test_reward_target_takes_the_smaller_target_twin():
 @pytest.mark.parametrize("name", ["sac_lag", "td3_lag"])
 def test_the_multiplier_rises_above_the_budget_and_falls_below(name):
     """The cost critic held at a constant Q_c (learning rate ~0): one update moves lambda by
-    lambda_lr * (Q_c - d_Q), d_Q the discounted budget: up at Q_c = 5, down at Q_c = 0."""
+    multiplier.lr * (Q_c - d_Q), d_Q the discounted budget: up at Q_c = 5, down at Q_c = 0."""
     algo, env = build(
         {
             "name": name,
             "warmup_steps": 0,
             "batch_size": 4,
             "critic_lr": 1e-12,
-            "lambda_scale": "none",  # the step in the cost's own units, as the docstring computes it
-            "lambda_lr": 0.1,
-            "lambda_init": 0.3,
+            # the step in the cost's own units, as the docstring computes it
+            "multiplier": {"scale": "none", "lr": 0.1, "init": 0.3},
             "policy_delay": 1,
         }
         if name == "td3_lag"
@@ -113,9 +112,7 @@ def test_the_multiplier_rises_above_the_budget_and_falls_below(name):
             "warmup_steps": 0,
             "batch_size": 4,
             "critic_lr": 1e-12,
-            "lambda_scale": "none",
-            "lambda_lr": 0.1,
-            "lambda_init": 0.3,
+            "multiplier": {"scale": "none", "lr": 0.1, "init": 0.3},
         },
         rollout_steps=2,
     )
@@ -168,9 +165,16 @@ def test_the_multiplier_reads_q_c_on_the_newest_states(name):
         algo.replay.add(positions(1.0, 100))
         assert algo.cost_estimate().tolist() == pytest.approx([expected])
     algo, env = build(
-        {"name": name, "cost_window": 0, "warmup_steps": 0, "batch_size": 64, "lambda_lr": 1.0, "policy_delay": 1}
+        {
+            "name": name,
+            "cost_window": 0,
+            "warmup_steps": 0,
+            "batch_size": 64,
+            "multiplier": {"lr": 1.0},
+            "policy_delay": 1,
+        }
         if name == "td3_lag"
-        else {"name": name, "cost_window": 0, "warmup_steps": 0, "batch_size": 64, "lambda_lr": 1.0}
+        else {"name": name, "cost_window": 0, "warmup_steps": 0, "batch_size": 64, "multiplier": {"lr": 1.0}}
     )
     algo.agent.critics[Q_COST].net = FirstFeature()
     algo.replay.add(positions(0.0, 900))
@@ -243,8 +247,8 @@ def test_sac_lag_resumes_exactly_with_its_buffer(tmp_path, monkeypatch, quiet):
         ),
         ({"algo": {"name": "sac_lag", "utd_ratio": 0}}, "algo.utd_ratio must be in (0, 64]"),
         (
-            {"algo": {"name": "td3_lag", "multiplier": "adam"}},
-            "algo.multiplier must be one of ('dual', 'pid', 'regularized', 'optimistic', 'augmented')",
+            {"algo": {"name": "td3_lag", "multiplier": {"kind": "adam"}}},
+            "algo.multiplier.kind must be one of ('dual', 'pid', 'regularized', 'optimistic', 'augmented')",
         ),
     ],
 )
@@ -273,7 +277,7 @@ REACH = {
         "critic_lr": 1e-3,
         "alpha_init": 0.1,
         "alpha_lr": 1e-3,
-        "lambda_lr": 0.05,
+        "multiplier": {"lr": 0.05},
     },
     "policy": {"hidden_sizes": [32, 32], "activation": "relu"},
     "seed": 0,
@@ -342,7 +346,7 @@ def test_one_multiplier_per_constraint_on_the_cost_critics_k_outputs(tmp_path, q
             "episode_length": 4,
             "warmup_steps": 32,
             "batch_size": 16,
-            "lambda_lr": 0.5,
+            "multiplier": {"lr": 0.5},
             "utd_ratio": 0.5,
             "gamma": 0.5,
             "cost_gamma": 0.5,
@@ -358,18 +362,14 @@ def test_one_multiplier_per_constraint_on_the_cost_critics_k_outputs(tmp_path, q
 
 
 def test_the_pid_multiplier_acts_on_the_cost_critic():
-    """algo.multiplier=pid: lambda = kp (Q_c - d_Q) + I, I += ki (Q_c - d_Q) (lagrange.PIDLagrangian)."""
+    """algo.multiplier.kind=pid: lambda = kp (Q_c - d_Q) + I, I += ki (Q_c - d_Q) (lagrange.PIDLagrangian)."""
     algo, env = build(
         {
             "name": "sac_lag",
             "warmup_steps": 0,
             "batch_size": 4,
             "critic_lr": 1e-12,
-            "multiplier": "pid",
-            "lambda_scale": "none",
-            "kp": 1.0,
-            "ki": 0.1,
-            "lambda_init": 0.3,
+            "multiplier": {"kind": "pid", "scale": "none", "kp": 1.0, "ki": 0.1, "init": 0.3},
         },
         rollout_steps=2,
     )

@@ -69,21 +69,30 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
         # ppo_lag: the budget and the start distribution per agent (a range draws, a fixed start does not).
         ({"name": "ppo_lag"}, {"algo": {"cost_limit": [0.2, 0.5]}, "env": {"start": [[0.3, 0.48], 0.1]}}, [0, 3]),
         ({"name": "penalty", "penalty": 1.0}, {"algo": {"penalty": [0.5, 2.0], "lr": [3e-4, 1e-3]}}, [3]),
-        ({"name": "pid_lag", "kp": 1.0, "ki": 0.2}, {"algo": {"kp": [0.5, 2.0]}, "env": {"obs_noise": [0.05]}}, [1]),
+        (
+            {"name": "pid_lag", "multiplier": {"kind": "pid", "kp": 1.0, "ki": 0.2}},
+            {"algo": {"multiplier": {"kp": [0.5, 2.0]}}, "env": {"obs_noise": [0.05]}},
+            [1],
+        ),
         # Options of the newly batched algorithms per agent: each agent's own algorithm object reads them.
-        ({"name": "focops"}, {"algo": {"nu_lr": [0.1, 0.5], "nu_max": [0.5]}}, [1]),
+        ({"name": "focops"}, {"algo": {"multiplier": {"lr": [0.1, 0.5], "max": [0.5]}}}, [1]),
         ({"name": "crpo"}, {"algo": {"tolerance": [0.0, 1.0]}}, [0, 1]),
         # What an agent deploys, as its run: the average of its last iterates' actors, and a mixture of
         # snapshots with uniform weights (ppo_lag above: deploy.policy=auto, its feasible mixture).
         ({"name": "pid_lag", "deploy": {"policy": "average"}}, {"algo": {"cost_limit": [0.2, 0.5]}}, [0, 1]),
-        ({"name": "focops", "deploy": {"policy": "mixture", "weights": "uniform"}}, {"algo": {"nu_lr": [0.5]}}, [0]),
+        (
+            {"name": "focops", "deploy": {"policy": "mixture", "weights": "uniform"}},
+            {"algo": {"multiplier": {"lr": [0.5]}}},
+            [0],
+        ),
     ],
 )
 def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
     algo = dict(algo)
     top = {"deploy": algo.pop("deploy")} if "deploy" in algo else {}
     raw = torch_tiny(algo=algo, eval_deterministic=algo["name"] != "penalty", **top)  # penalty: sampled evaluation
-    raw["algo"] = {k: v for k, v in raw["algo"].items() if not (algo["name"] != "ppo_lag" and k == "lambda_lr")}
+    if algo["name"] != "ppo_lag" and "multiplier" not in algo:  # TINY's pinned node is ppo_lag's
+        del raw["algo"]["multiplier"]
     raw["population"] = {"seeds": 1, "grid": grid}
     pop = _population(tmp_path, raw)
     dirs = sorted((pop / "agents").iterdir())
@@ -102,9 +111,9 @@ def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
 # Options that make an algorithm's own arithmetic act in a tiny run: FOCOPS's multiplier and its
 # KL mask, CRPO's switch (a budget it overspends), CUP's nu in its projection, Sauté's budget state.
 ALGO_OPTIONS = {
-    "focops": {"nu_lr": 0.5, "target_kl": 0.005},
+    "focops": {"multiplier": {"lr": 0.5}, "target_kl": 0.005},
     "crpo": {"tolerance": 0.0},
-    "cup": {"nu_lr": 0.5},
+    "cup": {"multiplier": {"lr": 0.5}},
     "saute": {"unsafe_reward": -0.5},
 }
 
@@ -243,14 +252,14 @@ def test_the_ppo_family_is_batched():
     [
         # KL early stopping as a per-agent mask: a limit some agents reach in some iterations.
         {"name": "ppo", "target_kl": 0.002, "update_epochs": 4},
-        # Annealed rates (and lambda's step size) per agent, on each agent's own clock.
-        {"name": "ppo_lag", "anneal_lr": True, "anneal_lambda_lr": True},
+        # Annealed rates per agent, on each agent's own clock.
+        {"name": "ppo_lag", "anneal_lr": True},
     ],
 )
 def test_per_agent_schedules_match_single_runs(tmp_path, algo):
     raw = torch_tiny(algo=algo)
     if algo["name"] != "ppo_lag":
-        del raw["algo"]["lambda_lr"]
+        del raw["algo"]["multiplier"]
     raw["population"] = {"seeds": 2, "grid": {"algo": {"lr": [3e-4, 3e-3]}}}
     pop = _population(tmp_path, raw)
     for i, d in enumerate(sorted((pop / "agents").iterdir())):

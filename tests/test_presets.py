@@ -38,14 +38,14 @@ def test_the_batched_preset_composes_with_every_algorithm_and_policy(algo, polic
 
 def test_tuning_files_reach_only_their_own_pair():
     lag = compose_config(["env=reach1d_torch"])  # ppo_lag and mlp: both tuning files apply
-    assert (lag.algo.lr, lag.algo.critic_lr, lag.algo.lambda_init) == (2e-3, 3e-3, 0.3)
+    assert (lag.algo.lr, lag.algo.critic_lr, lag.algo.multiplier.init) == (2e-3, 3e-3, 0.3)
     assert (lag.policy.hidden_sizes, lag.policy.init_log_std) == ([32, 32], -1.5)
     ppo = compose_config(["env=reach1d_torch", "algo=ppo"])  # the PPO family's rates, no lambda
     assert (ppo.algo.lr, ppo.algo.critic_lr) == (1e-3, 3e-3)
     lstm = compose_config(["env=reach1d_torch", "policy=lstm"])  # the MLP's tuning stays with the MLP
     assert lstm.policy.init_log_std == -0.5
     gym = compose_config(["env=reach1d"])  # the gym env has no tuning files: the groups' own defaults
-    assert (gym.algo.lr, gym.algo.lambda_init, gym.policy.hidden_sizes) == (3e-4, 0.0, [64, 64])
+    assert (gym.algo.lr, gym.algo.multiplier.init, gym.policy.hidden_sizes) == (3e-4, 0.0, [64, 64])
 
 
 def test_the_grid_preset_evaluates_the_stochastic_policy_and_every_algorithm_gets_its_budgets():
@@ -59,8 +59,8 @@ def test_the_grid_preset_evaluates_the_stochastic_policy_and_every_algorithm_get
 
 
 def test_the_command_line_wins_over_tuning():
-    cfg = compose_config(["env=reach1d_torch", "algo.lr=5e-4", "algo.lambda_init=0", "policy.hidden_sizes=[16]"])
-    assert (cfg.algo.lr, cfg.algo.lambda_init, cfg.policy.hidden_sizes) == (5e-4, 0.0, [16])
+    cfg = compose_config(["env=reach1d_torch", "algo.lr=5e-4", "algo.multiplier.init=0", "policy.hidden_sizes=[16]"])
+    assert (cfg.algo.lr, cfg.algo.multiplier.init, cfg.policy.hidden_sizes) == (5e-4, 0.0, [16])
 
 
 @pytest.mark.slow  # a learning run (pyproject: markers)

@@ -24,8 +24,15 @@ def test_a_pid_controller_with_every_term_resumes_exactly(tmp_path, monkeypatch,
     defaults leave the derivative and both filters off, so here every term of the controller carries state
     (the integral, the two EMAs, the delayed costs) across the resume."""
     cfg = tiny(algo={"name": "pid_lag"})
-    cfg["algo"].pop("lambda_lr")
-    cfg["algo"].update(kp=1.0, ki=0.5, kd=0.5, p_ema_alpha=0.5, d_ema_alpha=0.5, d_delay=2)
+    cfg["algo"]["multiplier"] = {
+        "kind": "pid",
+        "kp": 1.0,
+        "ki": 0.5,
+        "kd": 0.5,
+        "p_ema_alpha": 0.5,
+        "d_ema_alpha": 0.5,
+        "d_delay": 2,
+    }
 
     def crashed_past_the_last_checkpoint(broken: Path) -> None:  # checkpoints at 2 and 4, then row 5
         assert len(metrics_rows(broken)) == 5 and load_checkpoint(broken / "checkpoint.pt")["iteration"] == 4

@@ -136,7 +136,7 @@ def test_evaluate_py_rebuilds_the_augmented_env_and_repeats_eval_json(tmp_path):
     from cmdp_rl.cli import evaluate as evaluate_cli
 
     cfg = tiny(total_steps=64, algo={"name": "saute", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.5})
-    del cfg["algo"]["lambda_lr"]
+    del cfg["algo"]["multiplier"]
     train(load_config(cfg), tmp_path, echo=lambda s: None)
     out = tmp_path / "e.json"
     assert evaluate_cli.main([f"run={tmp_path}", f"output={out}"]) == 0

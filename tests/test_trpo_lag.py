@@ -32,7 +32,7 @@ def _surrogates(actor, units, lam):
 
 @pytest.mark.parametrize("lambda_init,target_kl", [(0.0, 0.005), (0.0, 0.05), (20.0, 0.005)])
 def test_accepted_step_keeps_kl_within_target_and_improves_the_lagrangian(lambda_init, target_kl):
-    algo = _trpo_lag(lambda_init=lambda_init, lambda_lr=0.1, target_kl=target_kl, cg_iters=20, cg_damping=0.01)
+    algo = _trpo_lag(multiplier={"init": lambda_init, "lr": 0.1}, target_kl=target_kl, cg_iters=20, cg_damping=0.01)
     actor = algo.agent.actor
     units = hand_built_units(actor)
     old_dist = actor.head.dist({k: units[k] for k in (keys.LOC, keys.SCALE)})
@@ -64,7 +64,7 @@ def _surrogates_at(params, actor, units, lam):
 
 
 def test_lambda_rises_by_dual_ascent_when_the_cost_exceeds_the_budget():
-    algo = _trpo_lag(lambda_init=0.2, lambda_lr=0.05)
+    algo = _trpo_lag(multiplier={"init": 0.2, "lr": 0.05})
     units = hand_built_units(algo.agent.actor)
     lams = []
     for episode_cost in (3.0, 3.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0):  # budget 1.0
@@ -95,7 +95,7 @@ def test_trpo_lag_learns_reach1d_then_returns_within_budget(tmp_path):
             "env=reach1d_torch",
             "env.wall=pass",
             "algo.cost_limit=0.5",
-            "algo.lambda_lr=0.5",
+            "algo.multiplier.lr=0.5",
             "policy.init_log_std=-0.5",
             "total_steps=262144",
             "seed=0",

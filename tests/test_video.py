@@ -236,7 +236,7 @@ def test_a_saute_policy_sees_its_budget_state_in_the_video(tmp_path, monkeypatch
     # budget along as the training env does, z_{t+1} = z_t - c_t / d, restored at each episode's start.
     out = tmp_path / "run"
     cfg = tiny(total_steps=64, algo={"name": "saute", "update_epochs": 1, "num_minibatches": 2, "cost_limit": 0.5})
-    del cfg["algo"]["lambda_lr"]
+    del cfg["algo"]["multiplier"]
     train(load_config(cfg), out, echo=lambda s: None)
     from cmdp_rl.envs.saute import BudgetState
 

@@ -18,13 +18,14 @@ Two stages per iteration:
    fresh every iteration, since momentum from stage 1 or from earlier projections would move the
    policy with a zero gradient (``tests/test_cup.py``).
 
-``nu`` by projected dual ascent once per iteration, ``nu <- max(0, nu + nu_lr (J_c - d))``
-(:class:`~cmdp_rl.algos.lagrange.DualAscent`). ``A_c`` is standardized when
+``nu`` by projected dual ascent once per iteration, ``nu <- max(0, nu + lr (J_c - d))``
+(``algo.multiplier``, multiplier.py; another ``multiplier.kind`` moves nu its way). ``A_c`` is standardized when
 ``algo.normalize_advantage`` is, as PPO's advantage is. One cost signal.
 """
 
 from __future__ import annotations
 
+from dataclasses import field
 from typing import TYPE_CHECKING, ClassVar, Sequence
 
 import torch
@@ -32,12 +33,11 @@ from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
-from cmdp_rl.algos.lagrange import DualAscent
 from cmdp_rl.algos.minibatch import Tally, joined, stopped
-from cmdp_rl.algos.multiplier_options import Scale, violation_scale
+from cmdp_rl.algos.multiplier import MultiplierConfig
 from cmdp_rl.algos.ppo import PPO, STATS, OneRun, PPOConfig
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import AUTO, AutoInt, NonNegativeFloat, PositiveFloat, options
+from cmdp_rl.config.validation import AUTO, AutoInt, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import standardized
@@ -56,9 +56,12 @@ class CUPConfig(PPOConfig):
     name: str = "cup"
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
-    nu_init: NonNegativeFloat = 0.0
-    nu_lr: PositiveFloat = 0.05
-    nu_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)  # nu
+
+    def check(self, run: RunConfig) -> None:
+        super().check(run)
+        self.multiplier.check()
+
     projection_epochs: AutoInt = AUTO  # auto: update_epochs
 
     def resolve_auto(self, run: RunConfig) -> None:
@@ -75,7 +78,7 @@ class CUP(PPO):
     def __init__(self, cfg: CUPConfig, agent: Agent) -> None:
         cost_limit = single_constraint(cfg.cost_limit, agent, "cup", "cup has one cost multiplier nu")
         super().__init__(cfg, agent)
-        self.multiplier = DualAscent(cost_limit, cfg.nu_lr, cfg.nu_init, violation_scale(cost_limit, cfg.nu_scale))
+        self.multiplier = cfg.multiplier.build(cost_limit)
         self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
 
     @property

@@ -19,9 +19,9 @@ Two steps per iteration, both first order:
    the KL term has zero gradient and the gradient is ``-(1/lambda) E[grad log pi (A_r - nu A_c)]``,
    a policy gradient (``tests/test_focops.py`` checks it by hand).
 
-``nu`` is set before the policy update by ``nu <- clip(nu + nu_lr (J_c - d), 0, nu_max)``
-(Algorithm 1; :class:`~cmdp_rl.algos.lagrange.PIDLagrangian` with only its integral term, whose
-clamp is ``nu_max``). The minibatch epochs stop early once a minibatch's mean KL from ``pi_k``
+``nu`` is set before the policy update by ``nu <- clip(nu + lr (J_c - d), 0, max)``
+(Algorithm 1: ``algo.multiplier``'s dual ascent with its clamp ``max``, multiplier.py; another
+``multiplier.kind`` moves nu its way). The minibatch epochs stop early once a minibatch's mean KL from ``pi_k``
 exceeds ``delta`` (Algorithm 1 checks the batch's mean KL per epoch; the shared PPO loop checks
 before each minibatch's step). Everything else (critics, GAE, minibatches) is PPO's loop
 (``ppo.py``). One cost signal: the paper's several constraints would each have a ``nu``.
@@ -29,6 +29,7 @@ before each minibatch's step). Everything else (critics, GAE, minibatches) is PP
 
 from __future__ import annotations
 
+from dataclasses import field
 from typing import TYPE_CHECKING, ClassVar
 
 import torch
@@ -36,11 +37,10 @@ from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
-from cmdp_rl.algos.lagrange import PIDLagrangian
-from cmdp_rl.algos.multiplier_options import Scale, violation_scale
+from cmdp_rl.algos.multiplier import MultiplierConfig
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import NonNegativeFloat, PositiveFloat, options, require
+from cmdp_rl.config.validation import PositiveFloat, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.episode_cost import EpisodeCost
@@ -58,14 +58,12 @@ class FOCOPSConfig(PPOConfig):
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     temperature: PositiveFloat = 1.5  # lambda of Theorem 1
     target_kl: PositiveFloat = 0.02  # delta: the per-state indicator's bound and the early stop
-    nu_init: NonNegativeFloat = 0.0
-    nu_lr: PositiveFloat = 0.01
-    nu_max: PositiveFloat = 2.0
-    nu_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    # nu, the paper's: a step of 0.01 and a clamp at 2.
+    multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.01, max=2.0))
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
-        require(self.nu_init <= self.nu_max, "algo.nu_init", "a number in [0, algo.nu_max]", self.nu_init)
+        self.multiplier.check()
 
 
 def focops_terms(
@@ -98,15 +96,7 @@ class FOCOPS(PPO):
         cost_limit = single_constraint(cfg.cost_limit, agent, "focops", "focops has one cost multiplier nu")
         super().__init__(cfg, agent)
         self.kl_limit = cfg.target_kl  # Algorithm 1 stops at delta itself, not PPO's 1.5 delta
-        self.multiplier = PIDLagrangian(
-            cost_limit,
-            kp=0.0,
-            ki=cfg.nu_lr,
-            kd=0.0,
-            init=cfg.nu_init,
-            lambda_max=cfg.nu_max,
-            scale=violation_scale(cost_limit, cfg.nu_scale),
-        )
+        self.multiplier = cfg.multiplier.build(cost_limit)
 
     @property
     def lagrange_multiplier(self) -> float:

@@ -6,7 +6,7 @@ lambda >= 0, and saves its state with ``state_dict``: :class:`MultiplierControll
 interface the Lagrangian algorithms program against.
 
 Every controller reads the violation ``(J_c - d) / scale``. ``scale = 1`` is the classical update
-in the cost's units; ``scale = d`` (``lambda_scale: budget``, algos/multiplier_options.py) makes it
+in the cost's units; ``scale = d`` (``algo.multiplier.scale: budget``, algos/multiplier.py) makes it
 the relative violation, so that one step size means the same on a budget of 0.15 as on one of 25
 (docs/constraint_satisfaction.md). The last-iterate controllers live in algos/last_iterate.py.
 """
@@ -22,6 +22,10 @@ from typing import Callable, Sequence
 class MultiplierController(ABC):
     """Sets lambda >= 0 from one measurement of the mean undiscounted episode cost ``J_c`` per
     iteration. ``value`` is the lambda in force."""
+
+    # An upper clamp on lambda (``algo.multiplier.max``; FOCOPS's clamp on nu): the update is projected onto
+    # [0, maximum]. A class attribute, set by ``MultiplierConfig.build``: infinite, it changes nothing.
+    maximum: float = math.inf
 
     def __init__(self, cost_limit: float, init: float = 0.0, scale: float = 1.0) -> None:
         if init < 0:
@@ -40,7 +44,7 @@ class MultiplierController(ABC):
         """Take in ``J_c`` (finite), update and return the new lambda."""
         if not math.isfinite(episode_cost):
             raise ValueError(f"episode_cost must be finite, got {episode_cost}")
-        self.value = self._next_value(float(episode_cost))
+        self.value = min(self.maximum, self._next_value(float(episode_cost)))
         assert self.value >= 0.0
         return self.value
 

@@ -106,7 +106,7 @@ class AugmentedLagrangian(MultiplierController):
     multiplier by ``rho g`` while the budget is broken and falls to 0 with slack. Because the
     primal objective is frozen for the iteration, the quadratic acts through that slope alone:
     this is the penalty term's first-order effect, a proportional term on top of dual ascent.
-    ``rho`` is ``lambda_lr``."""
+    ``rho`` is ``algo.multiplier.lr``."""
 
     def __init__(self, cost_limit: float, rho: float, init: float = 0.0, scale: float = 1.0) -> None:
         super().__init__(cost_limit, init, scale)

@@ -21,11 +21,13 @@ observation). What this module adds is the constraint's scope:
 
 from __future__ import annotations
 
+from dataclasses import field
 from typing import TYPE_CHECKING, ClassVar, Literal
 
+from cmdp_rl.algos.multiplier import MultiplierConfig
 from cmdp_rl.algos.ppo_lag import PPOLagConfig, PPOLagrangian
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import PositiveFloat, options, require
+from cmdp_rl.config.validation import options, require
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
@@ -41,7 +43,7 @@ class MAPPOLagConfig(PPOLagConfig):
     # The team task trains in 40 iterations, not hundreds: lambda must cross
     # the range a relative violation of about 2 gives in that time (0.5 on relative violations is the
     # raw step of 0.05 that the task was measured with, at its budget of 10).
-    lambda_lr: PositiveFloat = 0.5
+    multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.5))
     envs: ClassVar[tuple[str, ...]] = ("pettingzoo",)  # its agents are the rows of that env's batch
     tiny_env: ClassVar[dict] = {"name": "pettingzoo", "num_envs": 1}  # two agents: 2 rows, as TINY's 2 envs
 

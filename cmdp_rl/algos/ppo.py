@@ -133,8 +133,8 @@ class PPO:
         self.entropy_coef = cfg.entropy_coef
 
     def anneal_fraction(self) -> float:
-        """The annealed rates' fraction of their initial values this iteration (``anneal_lr``,
-        ``anneal_lambda_lr``): ``1 - i / anneal_iterations`` for iteration i = 0, 1, ..."""
+        """The annealed rates' fraction of their initial values this iteration (``anneal_lr``):
+        ``1 - i / anneal_iterations`` for iteration i = 0, 1, ..."""
         return max(0.0, 1.0 - self.iteration / self.cfg.anneal_iterations)
 
     def learning_rates(self) -> tuple[float, float]:

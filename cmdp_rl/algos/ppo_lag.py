@@ -9,7 +9,7 @@ cost, before the policy update, and ``policy_advantage`` is the advantage the su
 - Lagrangian: ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by a controller on the measured
   ``J_c - d`` once per iteration, before the policy update: projected dual ascent, PID (Stooke,
   Achiam, Abbeel 2020; lagrange.py), or the last-iterate updates of last_iterate.py
-  (``algo.multiplier``, multiplier_options.py).
+  (``algo.multiplier.kind``, multiplier.py). pid_lag is ppo_lag with ``multiplier.kind: pid``.
 
 K constraints (an env reporting K costs): one multiplier per constraint, each moved by its own
 ``J_c,k - d_k`` (``lagrange.Multipliers``), and the advantage is
@@ -20,34 +20,18 @@ Penalty takes one lambda for every cost or a list of K: ``A_r - sum_k lambda_k A
 
 from __future__ import annotations
 
-import math
-from typing import TYPE_CHECKING, Annotated, ClassVar
+from dataclasses import field
+from typing import TYPE_CHECKING, ClassVar
 
 import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import PerConstraint, per_constraint
-from cmdp_rl.algos.lagrange import MultiplierController, Multipliers, PIDLagrangian
-from cmdp_rl.algos.multiplier_options import (
-    AdvantageScale,
-    MultiplierFields,
-    Scale,
-    check_multiplier,
-    make_controller,
-    violation_scale,
-)
+from cmdp_rl.algos.lagrange import Multipliers
+from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig
 from cmdp_rl.algos.ppo import PPO, PPOConfig, logged_multiplier
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import (
-    Bool,
-    Field,
-    NonNegativeFloat,
-    PositiveFloat,
-    PositiveInt,
-    finite,
-    options,
-    require,
-)
+from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import standardized
@@ -97,51 +81,29 @@ class PenaltyConfig(PPOConfig):
 
 
 @options
-class PPOLagConfig(PPOConfig, MultiplierFields):
-    """PPO-Lagrangian (Ray, Achiam, Amodei 2019): lambda adapted by projected dual ascent, or by
-    one of the last-iterate updates (multiplier_options.py)."""
+class PPOLagConfig(PPOConfig):
+    """PPO-Lagrangian (Ray, Achiam, Amodei 2019): lambda adapted by projected dual ascent, PID, or
+    one of the last-iterate updates (``multiplier``, multiplier.py)."""
 
     name: str = "ppo_lag"
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
-    lambda_init: NonNegativeFloat = 0.0
-    lambda_lr: PositiveFloat = 0.05
-    # With anneal_lr, also anneal lambda's step size linearly to 0 (the same schedule): the dual
-    # iterate then settles instead of swinging, as diminishing dual steps do in the convergence
-    # results for primal-dual methods; false: lambda_lr throughout.
-    anneal_lambda_lr: Bool = False
-
-    def check(self, run: RunConfig) -> None:
-        super().check(run)
-        check_multiplier(self, self.lambda_lr)
-
-
-@options
-class PIDLagConfig(PPOConfig):
-    """PPO with lambda set by a PID controller (Stooke, Achiam, Abbeel 2020)."""
-
-    name: str = "pid_lag"
-    deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
-    lambda_init: NonNegativeFloat = 0.0
-    kp: NonNegativeFloat = 2.0
-    ki: NonNegativeFloat = 0.1
-    kd: NonNegativeFloat = 0.0
-    p_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
-    d_ema_alpha: Annotated[float, finite(ge=0, lt=1)] = 0.0
-    d_delay: PositiveInt = 1
-    lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
-    lambda_scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
+    multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)
     advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
-        gains = self.kp + self.ki + self.kd
-        require(gains > 0, "algo.kp + algo.ki + algo.kd", "> 0 (some gain must act)", gains)
-        require(
-            self.lambda_init <= self.lambda_max,
-            "algo.lambda_init",
-            "a number in [0, algo.lambda_max]",
-            self.lambda_init,
-        )
+        self.multiplier.check()
+
+
+@options
+class PIDLagConfig(PPOLagConfig):
+    """pid_lag: ppo_lag with lambda from a PID controller (Stooke, Achiam, Abbeel 2020), its gains
+    the tested setting of docs/pid_and_cpo.md. A preset, not an algorithm: the class exists only so
+    that a config that names pid_lag without a multiplier node (a dict, a script) gets the
+    preset's node, as configs/algo/pid_lag.yaml gives Hydra."""
+
+    name: str = "pid_lag"
+    multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(kind="pid"))
 
 
 class PenaltyPPO(PPO):
@@ -160,8 +122,8 @@ class PenaltyPPO(PPO):
 
 
 class PPOLagrangian(PPO):
-    """Lambda from a :class:`MultiplierController`: projected dual ascent here, PID in
-    :class:`PIDLagrangianPPO`; the policy update is the same."""
+    """Lambda from the controllers ``algo.multiplier`` builds (multiplier.py), one per constraint;
+    the policy update is the same for every kind."""
 
     name = "ppo_lag"
 
@@ -169,31 +131,20 @@ class PPOLagrangian(PPO):
         super().__init__(cfg, agent)
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
         # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
-        self.multiplier = Multipliers(lambda d: self.make_multiplier(cfg, d), limits)
-        if getattr(cfg, "multiplier", "dual") == "regularized":
+        self.multiplier = Multipliers(cfg.multiplier.build, limits)
+        if cfg.multiplier.kind == "regularized":
             # The policy side of Ding et al.'s regularised Lagrangian: an entropy bonus tau
             # (on the standardised policy advantage, so tau is in its units).
-            self.entropy_coef = cfg.entropy_coef + cfg.lambda_tau
-
-    @staticmethod
-    def make_multiplier(cfg: PPOLagConfig, cost_limit: float) -> MultiplierController:
-        return make_controller(cfg, cost_limit, cfg.lambda_lr, cfg.lambda_init)
+            self.entropy_coef = cfg.entropy_coef + cfg.multiplier.tau
 
     @property
     def lagrange_multiplier(self) -> float | list[float]:
         return logged_multiplier(self.multiplier.values)
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
-        if getattr(self.cfg, "anneal_lambda_lr", False):
-            frac = self.anneal_fraction()
-            for c in self.multiplier.controllers:
-                if hasattr(c, "rho"):
-                    c.rho = frac * self.cfg.lambda_lr
-                else:
-                    c.lr = frac * self.cfg.lambda_lr
         # Dual ascent on the Lagrangian J_r - lambda (J_c - d) (Ray, Achiam, Amodei 2019), by default:
-        # lambda <- max(0, lambda + lambda_lr (J_c - d) / s), s = d with lambda_scale=budget, else 1
-        # (lagrange.DualAscent; PID or a last-iterate update by algo.multiplier), one per constraint,
+        # lambda <- max(0, lambda + lr (J_c - d) / s), s = d with multiplier.scale=budget, else 1
+        # (lagrange.DualAscent; PID or a last-iterate update by algo.multiplier.kind), one per constraint,
         # on the batch's J_c estimate (rollout/episode_cost.py).
         self.multiplier.update(estimate.costs)
 
@@ -209,29 +160,6 @@ class PPOLagrangian(PPO):
         self.multiplier.load_state_dict(state["multiplier"])
 
 
-class PIDLagrangianPPO(PPOLagrangian):
-    """PPO-Lagrangian with lambda from a PID controller on ``J_c - d`` (Stooke, Achiam, Abbeel,
-    2020, "Responsive Safety in RL by PID Lagrangian Methods"): the proportional and derivative
-    terms damp the overshoot and oscillation of the integral-only dual ascent."""
-
-    name = "pid_lag"
-
-    @staticmethod
-    def make_multiplier(cfg: PIDLagConfig, cost_limit: float) -> MultiplierController:
-        return PIDLagrangian(
-            cost_limit,
-            kp=cfg.kp,
-            ki=cfg.ki,
-            kd=cfg.kd,
-            init=cfg.lambda_init,
-            p_ema_alpha=cfg.p_ema_alpha,
-            d_ema_alpha=cfg.d_ema_alpha,
-            d_delay=cfg.d_delay,
-            lambda_max=cfg.lambda_max,
-            scale=violation_scale(cost_limit, cfg.lambda_scale),
-        )
-
-
 register("algo", "penalty", PenaltyConfig, PenaltyPPO)
 register("algo", "ppo_lag", PPOLagConfig, PPOLagrangian)
-register("algo", "pid_lag", PIDLagConfig, PIDLagrangianPPO)
+register("algo", "pid_lag", PIDLagConfig, PPOLagrangian)

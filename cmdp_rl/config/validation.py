@@ -84,6 +84,8 @@ def _describe(annotation: Any, metadata: list) -> str:
                 bounds[name] = getattr(m, name)
         if isinstance(m, at.Interval):
             bounds.update({k: v for k, v in vars(m).items() if v is not None})
+    if hasattr(annotation, "__pydantic_fields__"):  # a nested node (build's _nodes)
+        return f"a mapping of its options ({', '.join(annotation.__pydantic_fields__)})"
     if annotation is bool:
         return "true or false"
     if annotation is str:
@@ -126,6 +128,7 @@ def build(cls: type[T], data: Mapping[str, Any], prefix: str) -> T:
     unknown = sorted(set(data) - set(names))
     if unknown:
         raise ConfigError(f"{prefix or 'config'}: unknown option(s) {unknown}; allowed: {sorted(names)}")
+    data = {**data, **_nodes(cls, data, prefix)}
     try:
         return cls(**data)
     except ValidationError as exc:
@@ -134,6 +137,28 @@ def build(cls: type[T], data: Mapping[str, Any], prefix: str) -> T:
         if field not in names:  # not a field's value: pass pydantic's own words on
             raise ConfigError(f"{prefix or 'config'}: {err['msg']}") from None
         raise ConfigError(f"{_dotted(prefix, field)} must be {allowed(cls, field)}, got {data.get(field)!r}") from None
+
+
+def _nodes(cls: type, data: Mapping[str, Any], prefix: str) -> dict[str, Any]:
+    """The nested option nodes among ``data`` (a field whose type is itself an :func:`options` class,
+    e.g. ``algo.multiplier``) built first, so that an error names the nested field
+    (``algo.multiplier.lr``). A mapping fills in only what it names: the rest are the values of the
+    field's default (the algorithm's own defaults of the node, as Hydra's merge of a YAML node gives);
+    an instance is validated again (:func:`recheck`)."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        node = cls.__pydantic_fields__[f.name].annotation
+        if f.name not in data or not (isinstance(node, type) and hasattr(node, "__pydantic_fields__")):
+            continue
+        value, where = data[f.name], _dotted(prefix, f.name)
+        if isinstance(value, node):
+            value = {g.name: getattr(value, g.name) for g in dataclasses.fields(value)}
+        elif isinstance(value, Mapping) and f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+            value = {**{g.name: getattr(default, g.name) for g in dataclasses.fields(default)}, **value}
+        if isinstance(value, Mapping):
+            out[f.name] = build(node, value, where)
+    return out
 
 
 def recheck(obj: T, prefix: str) -> T:

@@ -280,7 +280,8 @@ __all__ = ["STEPS", "convert_networks", "is_legacy", "member", "migrate"]
 
 # Defaults that a run's saved config does not record because it was written before they existed
 # or changed: a config saved before ``mixture_weights`` existed ran with these values wherever it
-# names none (run options, then the algorithm's options where the algorithm has the field).
+# names none (run options, then the algorithm's options where the algorithm has the field; its
+# multiplier's scale where it has a multiplier node, written flat as such a config wrote it).
 _RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {
     "final_policy": "last",
     "average_last": 0.25,
@@ -289,11 +290,88 @@ _RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {
 }
 _ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {"lambda_scale": "none", "nu_scale": "none"}
 
+# The multiplier's options before they became the node ``algo.multiplier`` (cmdp_rl/algos/multiplier.py):
+# flat fields of the algorithm, each the node's field named here (FOCOPS's nu was PID's integral term
+# clamped at nu_max: the node's dual ascent with max, the same numbers; its saved state's "value" is nu). ``multiplier`` was the update's name (a
+# string; pid_lag had none: it was always PID); ``anneal_lambda_lr`` is gone (no run that set it improved,
+# and nothing else did): a config that names it loads without it, so a run saved with it true resumes
+# with a constant step.
+_FLAT_MULTIPLIER = {
+    "multiplier": "kind",
+    "lambda_lr": "lr",
+    "lambda_init": "init",
+    "lambda_scale": "scale",
+    "lambda_tau": "tau",
+    "lambda_nu": "nu",
+    "kp": "kp",
+    "ki": "ki",
+    "kd": "kd",
+    "p_ema_alpha": "p_ema_alpha",
+    "d_ema_alpha": "d_ema_alpha",
+    "d_delay": "d_delay",
+    "lambda_max": "max",
+    # FOCOPS's and CUP's cost multiplier nu
+    "nu_init": "init",
+    "nu_lr": "lr",
+    "nu_max": "max",
+    "nu_scale": "scale",
+}
+_DROPPED = ("anneal_lambda_lr",)
+
+
+def _has_multiplier_node(name: Any) -> bool:
+    import dataclasses
+
+    from cmdp_rl.config.registry import component
+
+    return isinstance(name, str) and "multiplier" in {
+        f.name for f in dataclasses.fields(component("algo", name).options)
+    }
+
+
+def multiplier_node(algo: dict[str, Any]) -> dict[str, Any]:
+    """An algorithm's saved options with the flat multiplier options of older configs moved into the
+    node (:data:`_FLAT_MULTIPLIER`). A value the node already holds wins over a flat one (a flat default
+    that :func:`saved_config_defaults` adds to a config already moved). Fields the old config does not
+    name take the algorithm's defaults of the node when it is built."""
+    name = algo.get("name", "ppo_lag")
+    if not _has_multiplier_node(name):
+        return algo
+    node = algo.get("multiplier")
+    node = dict(node) if isinstance(node, dict) else None
+    flat = [k for k in (*_FLAT_MULTIPLIER, *_DROPPED) if k in algo and not (k == "multiplier" and node is not None)]
+    if not flat and (node is not None or name != "pid_lag"):
+        return algo
+    moved = {_FLAT_MULTIPLIER[k]: algo[k] for k in flat if k in _FLAT_MULTIPLIER}
+    if name == "pid_lag":
+        moved["kind"] = "pid"  # pid_lag had no kind: it was always PID
+    out = {k: v for k, v in algo.items() if k not in flat}
+    out["multiplier"] = {**moved, **(node or {})}
+    return out
+
+
+def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
+    """A saved config (a run's, or a population's with its grid) with the options that became nodes
+    in the nodes (:func:`multiplier_node`; a population's ``grid.algo.<flat>`` as ``grid.algo.multiplier.<field>``)."""
+    out = dict(config)
+    if isinstance(out.get("algo"), dict):
+        out["algo"] = multiplier_node(out["algo"])
+    grid = (out.get("population") or {}).get("grid") or {}
+    varied = grid.get("algo") if isinstance(grid, dict) else None
+    name = (out.get("algo") or {}).get("name", "ppo_lag")
+    if isinstance(varied, dict) and _has_multiplier_node(name) and any(k in varied for k in _FLAT_MULTIPLIER):
+        node = dict(varied.get("multiplier") or {})
+        node.update({_FLAT_MULTIPLIER[k]: v for k, v in varied.items() if k in _FLAT_MULTIPLIER})
+        varied = {k: v for k, v in varied.items() if k not in _FLAT_MULTIPLIER}
+        out["population"] = {**out["population"], "grid": {**grid, "algo": {**varied, "multiplier": node}}}
+    return out
+
 
 def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
     """A saved run config with the defaults it ran with made explicit (a run config written since
-    ``mixture_weights`` existed records every option), in the current layout (:func:`deploy_node`)."""
-    return deploy_node(_defaults_before_mixture_weights(config))
+    ``mixture_weights`` existed records every option), in the current layout (:func:`saved_config_nodes`,
+    :func:`deploy_node`)."""
+    return deploy_node(saved_config_nodes(_defaults_before_mixture_weights(config)))
 
 
 def _defaults_before_mixture_weights(config: dict[str, Any]) -> dict[str, Any]:
@@ -308,6 +386,8 @@ def _defaults_before_mixture_weights(config: dict[str, Any]) -> dict[str, Any]:
     name = algo.get("name", "ppo_lag")
     if isinstance(name, str):
         fields = {f.name for f in dataclasses.fields(component("algo", name).options)}
+        if _has_multiplier_node(name):  # flat, as the config's other multiplier options (multiplier_node)
+            fields.add("nu_scale" if name in ("focops", "cup") else "lambda_scale")
         algo = {**{k: v for k, v in _ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS.items() if k in fields}, **algo}
         out["algo"] = algo
     return out

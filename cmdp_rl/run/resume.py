@@ -23,7 +23,7 @@ from typing import Any, Iterable, Mapping
 from cmdp_rl.config.run_config import ConfigError, RunConfig, flatten_dict, load_config
 from cmdp_rl.population.spec import Population, population
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.run.migrations import deploy_node, member, migrate, saved_config_defaults
+from cmdp_rl.run.migrations import deploy_node, member, migrate, saved_config_defaults, saved_config_nodes
 from cmdp_rl.run.rundir import POPULATION_CHECKPOINT, POPULATION_CONFIG, checkpoint_path, read_yaml, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
@@ -147,7 +147,7 @@ def resume_population(
     out = Path(out)
     if not (out / POPULATION_CONFIG).is_file():
         raise CheckpointError(f"resume: no {POPULATION_CONFIG} in {out}")
-    saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
+    saved_raw = saved_config_nodes(read_yaml(out / POPULATION_CONFIG, "resume"))  # flat multiplier options
     state = None
     if (out / POPULATION_CHECKPOINT).is_file():
         saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust)

@@ -2,7 +2,7 @@
 
     python experiments/benchmarks/first_run.py               # seeds 0-4
     python experiments/benchmarks/first_run.py --seeds 0 1 --out outputs/first_run
-    python experiments/benchmarks/first_run.py -- algo.lambda_lr=0.1   # the recipe with overrides appended
+    python experiments/benchmarks/first_run.py -- algo.multiplier.lr=0.1   # the recipe with overrides appended
 
 Runs the Makefile's `train` recipe with `seed=S` appended, one run after another, and prints per
 seed the training time (eval.json's train_time_s), the eval return, the constrained optimum (the

@@ -42,7 +42,7 @@ def measure(algo_name: str, iterations: int, profile: bool, lambda_init: float) 
             f"algo={algo_name}",
             *NETWORKS,
             "threads=1",
-            f"algo.lambda_init={lambda_init}",
+            f"algo.multiplier.init={lambda_init}",
         ]
     )
     torch.manual_seed(0)

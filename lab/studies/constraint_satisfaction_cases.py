@@ -21,51 +21,61 @@ CASES: dict[str, list[str]] = {
 # The multiplier settings compared (algo overrides; the algorithm first).
 METHODS: dict[str, list[str]] = {
     "ppo_lag": ["algo=ppo_lag"],
-    "ppo_lag/budget": ["algo=ppo_lag", "algo.lambda_scale=budget"],
-    "ppo_lag/optimistic": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.multiplier=optimistic"],
-    "ppo_lag/regularized": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.multiplier=regularized"],
-    "ppo_lag/augmented": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.multiplier=augmented"],
-    "ppo_lag/average": ["algo=ppo_lag", "algo.lambda_scale=budget", "deploy.policy=average"],
-    # The same with a 4x larger dual step (relative units): lambda_lr = 0.2.
-    "ppo_lag/budget-0.2": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.lambda_lr=0.2"],
+    "ppo_lag/budget": ["algo=ppo_lag", "algo.multiplier.scale=budget"],
+    "ppo_lag/optimistic": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo.multiplier.kind=optimistic"],
+    "ppo_lag/regularized": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo.multiplier.kind=regularized"],
+    "ppo_lag/augmented": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo.multiplier.kind=augmented"],
+    "ppo_lag/average": ["algo=ppo_lag", "algo.multiplier.scale=budget", "deploy.policy=average"],
+    # The same with a 4x larger dual step (relative units): multiplier.lr = 0.2.
+    "ppo_lag/budget-0.2": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo.multiplier.lr=0.2"],
     "ppo_lag/optimistic-0.2": [
         "algo=ppo_lag",
-        "algo.lambda_scale=budget",
-        "algo.multiplier=optimistic",
-        "algo.lambda_lr=0.2",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.kind=optimistic",
+        "algo.multiplier.lr=0.2",
     ],
     "ppo_lag/augmented-0.2": [
         "algo=ppo_lag",
-        "algo.lambda_scale=budget",
-        "algo.multiplier=augmented",
-        "algo.lambda_lr=0.2",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.kind=augmented",
+        "algo.multiplier.lr=0.2",
     ],
-    "ppo_lag/average-0.2": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.lambda_lr=0.2", "deploy.policy=average"],
+    "ppo_lag/average-0.2": [
+        "algo=ppo_lag",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.lr=0.2",
+        "deploy.policy=average",
+    ],
     # The average over the last half of the iterations instead of the last quarter.
     "ppo_lag/average-0.2-half": [
         "algo=ppo_lag",
-        "algo.lambda_scale=budget",
-        "algo.lambda_lr=0.2",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.lr=0.2",
         "deploy.policy=average",
         "deploy.window=0.5",
     ],
     # deploy.policy=mixture: the last iterates' actors, one drawn per episode (deploy/mixture.py),
     # on the same training as budget-0.2 and optimistic-0.2 (only the deployed policy differs).
     "ppo_lag/mixture": ["algo=ppo_lag", "deploy.policy=mixture"],
-    "ppo_lag/mixture-0.2": ["algo=ppo_lag", "algo.lambda_scale=budget", "algo.lambda_lr=0.2", "deploy.policy=mixture"],
+    "ppo_lag/mixture-0.2": [
+        "algo=ppo_lag",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.lr=0.2",
+        "deploy.policy=mixture",
+    ],
     "ppo_lag/optimistic-0.2-mixture": [
         "algo=ppo_lag",
-        "algo.lambda_scale=budget",
-        "algo.multiplier=optimistic",
-        "algo.lambda_lr=0.2",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.kind=optimistic",
+        "algo.multiplier.lr=0.2",
         "deploy.policy=mixture",
     ],
     # The mixture over the last half of the iterations, 16 members: a window as long as one orbit
-    # of the dual-policy loop on the fork (about 40 iterations at lambda_lr = 0.2).
+    # of the dual-policy loop on the fork (about 40 iterations at multiplier.lr = 0.2).
     "ppo_lag/mixture-0.2-half": [
         "algo=ppo_lag",
-        "algo.lambda_scale=budget",
-        "algo.lambda_lr=0.2",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.lr=0.2",
         "deploy.policy=mixture",
         "deploy.window=0.5",
         "deploy.snapshots=16",
@@ -73,8 +83,8 @@ METHODS: dict[str, list[str]] = {
     # The best mixture of those snapshots within budget on their measured values (mixture_selection.py).
     "ppo_lag/feasible-0.2-half": [
         "algo=ppo_lag",
-        "algo.lambda_scale=budget",
-        "algo.lambda_lr=0.2",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.lr=0.2",
         "deploy.policy=mixture",
         "deploy.window=0.5",
         "deploy.snapshots=16",
@@ -82,9 +92,9 @@ METHODS: dict[str, list[str]] = {
     ],
     "ppo_lag/optimistic-0.2-feasible-half": [
         "algo=ppo_lag",
-        "algo.lambda_scale=budget",
-        "algo.multiplier=optimistic",
-        "algo.lambda_lr=0.2",
+        "algo.multiplier.scale=budget",
+        "algo.multiplier.kind=optimistic",
+        "algo.multiplier.lr=0.2",
         "deploy.policy=mixture",
         "deploy.window=0.5",
         "deploy.snapshots=16",
@@ -92,7 +102,7 @@ METHODS: dict[str, list[str]] = {
     ],
     "ppo_lag/feasible-half": [
         "algo=ppo_lag",
-        "algo.lambda_scale=budget",
+        "algo.multiplier.scale=budget",
         "deploy.policy=mixture",
         "deploy.window=0.5",
         "deploy.snapshots=16",
@@ -104,13 +114,13 @@ METHODS: dict[str, list[str]] = {
     "td3_lag": ["algo=td3_lag"],
     "focops": ["algo=focops"],
     "cup": ["algo=cup"],
-    "ppo_lag/0.2": ["algo=ppo_lag", "algo.lambda_lr=0.2"],
-    # The dual step in the cost's own units (the default before lambda_scale: budget).
-    "ppo_lag/raw": ["algo=ppo_lag", "algo.lambda_scale=none"],
+    "ppo_lag/0.2": ["algo=ppo_lag", "algo.multiplier.lr=0.2"],
+    # The dual step in the cost's own units (the default before multiplier.scale: budget).
+    "ppo_lag/raw": ["algo=ppo_lag", "algo.multiplier.scale=none"],
     # lambda weighing the standardised advantages (ppo_lag.lagrangian_advantage), with dual steps
     # of 0.05 (the default) and 0.03.
     "ppo_lag/standardized": ["algo=ppo_lag", "algo.advantage_scale=standardized"],
-    "ppo_lag/standardized-0.03": ["algo=ppo_lag", "algo.advantage_scale=standardized", "algo.lambda_lr=0.03"],
+    "ppo_lag/standardized-0.03": ["algo=ppo_lag", "algo.advantage_scale=standardized", "algo.multiplier.lr=0.03"],
     "pid_lag/standardized": ["algo=pid_lag", "algo.advantage_scale=standardized"],
     "trpo_lag/standardized": ["algo=trpo_lag", "algo.advantage_scale=standardized"],
 }

@@ -33,6 +33,7 @@ import numpy as np
 
 from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.run import sweeps
+from cmdp_rl.run.migrations import saved_config_nodes
 from lab.studies.stats import count_finite, sample_mean_std
 from lab.studies.tables import markdown_table, pm
 from lab.sweeps import experiment_arg_parser, experiment_sweep_dir
@@ -43,13 +44,14 @@ SMOOTH = 5  # iterations in the moving average of overshoot_smooth
 
 
 def load_run(run: sweeps.RunRecord) -> dict:
-    cfg, ev = run.config, run.eval or {}
+    cfg, ev = saved_config_nodes(run.config), run.eval or {}  # a sweep's runs from before algo.multiplier too
+    gains = cfg["algo"]["multiplier"]
     col = lambda name: np.array([r[name] for r in run.metrics])  # noqa: E731
     return {
         "dir": run.path.name,
-        "ki": cfg["algo"]["ki"],
-        "kp": cfg["algo"]["kp"],
-        "kd": cfg["algo"]["kd"],
+        "ki": gains["ki"],
+        "kp": gains["kp"],
+        "kd": gains["kd"],
         "seed": cfg["seed"],
         "d": cfg["algo"]["cost_limit"],
         "step": col("step"),

@@ -141,7 +141,7 @@ def two_cost_cfg(**overrides) -> dict:
         else:
             cfg[k] = v
     if cfg["algo"]["name"] in ("ppo_lag", "trpo_lag"):
-        cfg["algo"].setdefault("lambda_lr", 0.5)
+        cfg["algo"]["multiplier"] = {"lr": 0.5, **cfg["algo"].get("multiplier", {})}
     return cfg
 
 

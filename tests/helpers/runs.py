@@ -1,5 +1,6 @@
 """The tiny run every lifecycle test trains (seconds), its command line, and ways to read its outputs."""
 
+import copy
 import csv
 import json
 import subprocess
@@ -10,10 +11,13 @@ ROOT = Path(__file__).resolve().parents[2]
 WALL_CLOCK = ("sps", "time_s")  # the only columns allowed to differ between identical runs
 
 # 2 envs x 16 steps per iteration, random starts (the envs' generators matter), short episodes
-# (several end per iteration), wall=pass with a small budget (lambda moves every iteration).
+# (several end per iteration), wall=pass with a small budget (lambda moves every iteration). The
+# multiplier's options are pinned, so that a changed default moves only the tests about it; a test of
+# another algorithm drops the node or replaces it whole.
+MULTIPLIER = {"kind": "dual", "lr": 0.5, "init": 0.0, "scale": "budget"}
 TINY = {
     "env": {"num_envs": 2, "max_steps": 12, "wall": "pass", "start": [0.3, 0.48]},
-    "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.2, "lambda_lr": 0.5},
+    "algo": {"name": "ppo_lag", "update_epochs": 2, "num_minibatches": 2, "cost_limit": 0.2, "multiplier": MULTIPLIER},
     "rollout_steps": 16,
     "total_steps": 7 * 32,
     "checkpoint_every": 2,
@@ -27,7 +31,7 @@ TINY = {
 
 def tiny(**overrides) -> dict:
     """The TINY config with top-level overrides and ``algo``/``env`` entries merged in."""
-    cfg = {k: (dict(v) if isinstance(v, dict) else v) for k, v in TINY.items()}
+    cfg = copy.deepcopy(TINY)
     for k, v in overrides.items():
         if isinstance(v, dict) and k in cfg:
             cfg[k].update(v)
@@ -37,13 +41,16 @@ def tiny(**overrides) -> dict:
 
 
 def cli_args(cfg: dict) -> list[str]:
-    """Hydra command-line overrides for a config dict like TINY."""
+    """Hydra command-line overrides for a config dict like TINY (a nested node, as algo.multiplier,
+    one override per field)."""
     out = []
     for k, v in cfg.items():
         if isinstance(v, dict):
             for kk, vv in v.items():
                 if k == "algo" and kk == "name":
                     out.insert(0, f"algo={vv}")
+                elif isinstance(vv, dict):
+                    out += [f"{k}.{kk}.{f}={json.dumps(x) if not isinstance(x, str) else x}" for f, x in vv.items()]
                 else:
                     out.append(f"{k}.{kk}={json.dumps(vv)}")
         else:

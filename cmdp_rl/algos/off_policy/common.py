@@ -26,22 +26,21 @@ down with every seed over budget (docs/off_policy.md, "HalfCheetah velocity: the
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, Union
 
 import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
-from cmdp_rl.algos.lagrange import Multipliers, PIDLagrangian
-from cmdp_rl.algos.multiplier_options import Scale, check_multiplier, make_controller, violation_scale
+from cmdp_rl.algos.lagrange import Multipliers
+from cmdp_rl.algos.multiplier import MultiplierConfig
 from cmdp_rl.algos.off_policy.replay_buffer import Replay
 from cmdp_rl.algos.off_policy.target_networks import TargetCritics, td_target
 from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.config.validation import (
     AUTO,
     Field,
-    NonNegativeFloat,
     NonNegativeInt,
     PositiveFloat,
     PositiveInt,
@@ -68,18 +67,9 @@ def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
 class LagrangeFields:
     """The multiplier of the ``_lag`` variants (mixed into their options)."""
 
-    # dual: projected dual ascent; pid: lagrange.PIDLagrangian; regularized, optimistic, augmented:
-    # the last-iterate updates of last_iterate.py (multiplier_options.py)
-    multiplier: Literal["dual", "pid", "regularized", "optimistic", "augmented"] = "dual"
-    lambda_scale: Scale = "budget"  # the violation's units: none: Q_c - d_Q; budget: (Q_c - d_Q) / d_Q
-    lambda_tau: NonNegativeFloat = 0.1  # regularized: tau of the dual's regulariser (SAC's alpha is the entropy)
-    lambda_nu: Annotated[float, finite(ge=0, lt=1)] = 0.0  # optimistic: EMA of the violation
-    lambda_init: NonNegativeFloat = 0.0
-    lambda_lr: PositiveFloat = 0.01  # dual: lambda <- max(0, lambda + lambda_lr (Q_c - d_Q)) per iteration
-    kp: NonNegativeFloat = 0.0  # pid gains (lagrange.PIDLagrangian); ki is the integral's step
-    ki: NonNegativeFloat = 0.01
-    kd: NonNegativeFloat = 0.0
-    lambda_max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
+    # The multiplier.py node, on the violation Q_c - d_Q (budget: (Q_c - d_Q) / d_Q), with the off-policy
+    # defaults: a step of 0.01 per iteration and, for kind: pid, the integral alone (ki = 0.01, kp = kd = 0).
+    multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.01, kp=0.0, ki=0.01))
     # The multiplier's Q_c estimate averages over the states of the newest cost_window transitions
     # (the current policy's own); 0 averages over the replayed minibatches' states instead (module docstring).
     cost_window: NonNegativeInt = 1000
@@ -148,8 +138,8 @@ class OffPolicyConfig(AlgoConfig):
             f">= algo.batch_size ({self.batch_size})",
             self.buffer_size,
         )
-        if isinstance(self, LagrangeFields) and self.multiplier != "pid":
-            check_multiplier(self, self.lambda_lr)
+        if isinstance(self, LagrangeFields):
+            self.multiplier.check()
 
 
 class LagrangeTerm:
@@ -162,16 +152,7 @@ class LagrangeTerm:
         self.multipliers = None
         if isinstance(cfg, LagrangeFields):
             self.budgets = [discounted_budget(d, cfg.cost_gamma, cfg.episode_length) for d in limits]
-
-            def make(d: float):
-                if cfg.multiplier == "pid":
-                    scale = violation_scale(d, cfg.lambda_scale)
-                    return PIDLagrangian(
-                        d, kp=cfg.kp, ki=cfg.ki, kd=cfg.kd, init=cfg.lambda_init, lambda_max=cfg.lambda_max, scale=scale
-                    )
-                return make_controller(cfg, d, cfg.lambda_lr, cfg.lambda_init)
-
-            self.multipliers = Multipliers(make, self.budgets)
+            self.multipliers = Multipliers(cfg.multiplier.build, self.budgets)
 
     @property
     def values(self) -> list[float]:

@@ -11,8 +11,8 @@ PPO-Lagrangian (dividing by ``1 + lambda`` keeps its scale as lambda grows)::
 with ``g`` the gradient of the Lagrangian surrogate and ``H`` the Fisher matrix (conjugate
 gradient on Fisher-vector products), then a backtracking line search that keeps the first
 fraction whose sampled KL is within delta and whose Lagrangian surrogate improves. lambda >= 0 by
-projected dual ascent on ``J_c - d`` (lagrange.DualAscent, as ppo_lag), once per iteration, before
-the step.
+projected dual ascent on ``J_c - d`` (lagrange.DualAscent, as ppo_lag; or another
+``algo.multiplier.kind``, multiplier.py), once per iteration, before the step.
 
 K constraints: as ppo_lag, one multiplier per constraint, each moved by its own ``J_c,k - d_k``,
 and the advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)`` (K = 1: the above).
@@ -21,13 +21,14 @@ and the advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)`` (K = 1
 from __future__ import annotations
 
 import math
+from dataclasses import field
 from typing import TYPE_CHECKING, ClassVar, Optional, Sequence
 
 import torch
 
 from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.lagrange import Multipliers
-from cmdp_rl.algos.multiplier_options import MultiplierFields, check_multiplier, make_controller
+from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig
 from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.algos.ppo_lag import lagrangian_advantage
 from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
@@ -41,7 +42,7 @@ from cmdp_rl.algos.trust_region.natural_gradient import (
     line_search,
 )
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import NonNegativeFloat, PositiveFloat, options
+from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import standardized
@@ -51,13 +52,13 @@ if TYPE_CHECKING:
 
 
 @options
-class TRPOLagConfig(CPOConfig, MultiplierFields):
+class TRPOLagConfig(CPOConfig):
     """TRPO-Lagrangian: CPO's trust region and line search, ppo_lag's multiplier (its
-    ``multiplier: regularized`` regularises the dual only: TRPO's surrogate has no entropy term)."""
+    ``multiplier.kind: regularized`` regularises the dual only: TRPO's surrogate has no entropy term)."""
 
     name: str = "trpo_lag"
-    lambda_init: NonNegativeFloat = 0.0
-    lambda_lr: PositiveFloat = 0.05
+    multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)
+    advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
     # lambda reads J_c from the episodes' raw cost sums; the policy advantage may be scaled.
     reads_raw_cost: ClassVar[bool] = False
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
@@ -65,7 +66,7 @@ class TRPOLagConfig(CPOConfig, MultiplierFields):
 
     def check(self, run: RunConfig) -> None:
         super().check(run)
-        check_multiplier(self, self.lambda_lr)
+        self.multiplier.check()
 
 
 class TRPOLagrangian(NaturalGradient):
@@ -78,7 +79,7 @@ class TRPOLagrangian(NaturalGradient):
         super().__init__(cfg, agent)
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
         # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
-        self.multiplier = Multipliers(lambda d: make_controller(cfg, d, cfg.lambda_lr, cfg.lambda_init), limits)
+        self.multiplier = Multipliers(cfg.multiplier.build, limits)
 
     @property
     def lagrange_multiplier(self) -> float | list[float]:
