@@ -68,8 +68,10 @@ train: setup
 	$(PY) train.py algo=ppo_lag env=reach1d_torch total_steps=3145728
 
 # The tests include Safety-Gymnasium's tasks (tests/test_safety_gym.py), so CI installs it.
+# One pytest worker per core (pytest-xdist, -n auto: 2 here); worksteal hands a worker that runs dry the
+# queued tests of the other, so a few long learning tests do not leave a core idle at the end (docs/testing.md).
 test: setup setup-safety-gym
-	$(PY) -m pytest tests
+	$(PY) -m pytest tests -n auto --dist worksteal
 
 # Throughput table (env, rollout, training steps/s, peak memory); writes outputs/benchmark_throughput.json.
 # Takes a few minutes; pass options with BENCH_ARGS, e.g. `make bench BENCH_ARGS="--device cuda"`.

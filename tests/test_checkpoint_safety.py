@@ -9,19 +9,19 @@ and holds no pickled bytes; the converter turns an old run into that format.
 
 import collections
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from helpers.runs import ROOT, run_script, tiny
+from helpers.cli import train_py
+from helpers.runs import ROOT, tiny
 
 from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
 from cmdp_rl.config.registry import component, load_builtins, names
 from cmdp_rl.population import population
+from cmdp_rl.report.compare import main as compare_main
 from cmdp_rl.report.plot import main as plot_main
 from cmdp_rl.run.checkpoint import (
     FORMAT_VERSION,
@@ -32,6 +32,7 @@ from cmdp_rl.run.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from cmdp_rl.run.convert import main as convert_main
 from cmdp_rl.run.migrations import is_legacy
 
 
@@ -88,7 +89,7 @@ def test_evaluate_and_resume_refuse_a_crafted_checkpoint(run_dir, tmp_path, caps
     _one_line_refusal(capsys.readouterr().err, run / "checkpoint.pt", "holds io.open, which is not data")
     assert not target.exists()
 
-    proc = run_script("train.py", f"resume={run}", "total_steps=128")
+    proc = train_py(f"resume={run}", "total_steps=128")  # train.py's main(), here as evaluate's above
     assert proc.returncode == 2, proc.stderr[-2000:]
     _one_line_refusal(proc.stderr, run / "checkpoint.pt", "cannot resume: checkpoint:")
     assert "io.open" in proc.stderr and not target.exists()
@@ -99,20 +100,15 @@ def test_evaluate_and_resume_refuse_a_crafted_checkpoint(run_dir, tmp_path, caps
     assert not target.exists()
 
 
-def test_compare_reads_no_checkpoint(run_dir, tmp_path):
+def test_compare_reads_no_checkpoint(run_dir, tmp_path, capsys):
     run = tmp_path / "sweep" / "run"
     shutil.copytree(run_dir, run)
     target = tmp_path / "created_by_the_checkpoint"
     craft(run / "checkpoint.pt", target)
-    proc = subprocess.run(
-        [sys.executable, "-m", "cmdp_rl.report.compare", str(tmp_path / "sweep")],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "violation rate" in proc.stdout and not target.exists()
+    code = compare_main([str(tmp_path / "sweep")])  # `python -m cmdp_rl.report.compare`'s main(), in this process
+    out = capsys.readouterr()
+    assert code == 0, out.err[-2000:]
+    assert "violation rate" in out.out and not target.exists()
 
 
 def test_a_config_yaml_with_a_python_tag_is_refused(run_dir, tmp_path, capsys):
@@ -135,7 +131,7 @@ def test_the_population_resume_refuses_a_crafted_checkpoint(tmp_path):
     target = tmp_path / "created_by_the_checkpoint"
     craft(out / "population.pt", target)
     before = snapshot(out)
-    proc = run_script("train.py", f"resume={out}", "total_steps=512")
+    proc = train_py(f"resume={out}", "total_steps=512")
     assert proc.returncode == 2, proc.stderr[-2000:]
     _one_line_refusal(proc.stderr, out / "population.pt", "holds io.open, which is not data")
     assert not target.exists() and snapshot(out) == before
@@ -216,20 +212,15 @@ def test_a_damaged_file_is_corrupt_not_unsafe(tmp_path):
     assert not isinstance(info.value, UnsafeCheckpointError)
 
 
-def test_the_converter_turns_an_old_run_into_the_safe_format(tmp_path):
+def test_the_converter_turns_an_old_run_into_the_safe_format(tmp_path, capsys):
     run = tmp_path / "mlp"
     shutil.copytree(ROOT / "tests" / "fixtures" / "old_runs" / "mlp", run)
     with pytest.raises(UnsafeCheckpointError, match="python -m cmdp_rl.run.convert"):
         load_checkpoint(run / "checkpoint.pt")
-    proc = subprocess.run(
-        [sys.executable, "-m", "cmdp_rl.run.convert", str(run)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert f"format 2 -> {FORMAT_VERSION}" in proc.stdout
+    code = convert_main([str(run)])  # `python -m cmdp_rl.run.convert`'s main(), in this process
+    out = capsys.readouterr()
+    assert code == 0, out.err[-2000:]
+    assert f"format 2 -> {FORMAT_VERSION}" in out.out
     state = load_checkpoint(run / "checkpoint.pt")  # the safe load, now
     networks = state["members"][0]["algo_state"]["networks"]
     assert state["format"] == FORMAT_VERSION and not is_legacy(networks)

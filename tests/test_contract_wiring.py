@@ -3,14 +3,11 @@ every rollout after, and stops with one line naming the env, index, step and fie
 result is written; train.py exits 2 without a traceback. A run directory that cannot be written
 stops the same way."""
 
-import os
-import subprocess
-import sys
-
 import pytest
 import torch
 from helpers import cost_envs
-from helpers.runs import ROOT, metrics_rows, tiny
+from helpers.cli import train_py
+from helpers.runs import metrics_rows, tiny
 from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
@@ -137,15 +134,8 @@ def test_an_unwritable_run_directory_stops_train(tmp_path, quiet):
         train(load_config(tiny()), blocker / "run", echo=quiet)
 
 
-def _train_py(*args: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "tests"), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run(
-        [sys.executable, str(ROOT / "train.py"), *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
-    )
-
-
 def test_train_py_exits_2_with_one_line_on_a_broken_env(tmp_path):
-    out = _train_py(
+    out = train_py(
         "env=gym",
         f"env.id=helpers.cost_envs:{cost_envs.BROKEN_ID}",
         "+env.kwargs.fault=negative_cost",
@@ -161,7 +151,7 @@ def test_train_py_exits_2_with_one_line_on_a_broken_env(tmp_path):
 
 
 def test_train_py_exits_2_with_one_line_on_an_unwritable_run_directory():
-    out = _train_py("hydra.run.dir=/proc/cmdp_rl_cannot_exist", "total_steps=64")
+    out = train_py("hydra.run.dir=/proc/cmdp_rl_cannot_exist", "total_steps=64")
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [
         "cannot write outputs: run directory /proc/cmdp_rl_cannot_exist cannot be created or written: "

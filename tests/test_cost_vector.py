@@ -6,14 +6,11 @@ every number below can be worked out by hand."""
 
 import csv
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 import torch
+from helpers.cli import train_py
 from helpers.cost_envs import TWO_COST_ID, TWO_COST_NAMES, two_cost_cfg, two_cost_env
-from helpers.runs import ROOT
 from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
@@ -314,21 +311,11 @@ def test_evaluate_script_prints_a_cost_line_per_constraint(tmp_path, quiet, caps
 
 def test_train_cli_stops_on_a_wrong_length_budget_with_one_line(tmp_path):
     # The toy env is imported through env.id=<module>:<id>.
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests")}
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "train.py",
-            "env=gym",
-            f"env.id=helpers.cost_envs:{TWO_COST_ID}",
-            "algo.cost_limit=[1,2,3]",
-            f"hydra.run.dir={tmp_path / 'run'}",
-        ],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
+    proc = train_py(
+        "env=gym",
+        f"env.id=helpers.cost_envs:{TWO_COST_ID}",
+        "algo.cost_limit=[1,2,3]",
+        f"hydra.run.dir={tmp_path / 'run'}",
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
     assert proc.stderr.strip().splitlines()[-1] == (

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from helpers.cli import train_py
 from helpers.resume import assert_same_run, crash_then_resume, final_state
 from helpers.runs import ROOT, cli_args, metrics_rows, run_script, tiny
 
@@ -157,8 +158,8 @@ def test_resume_cli_refuses_missing_corrupt_and_foreign_checkpoints(tmp_path, qu
     train(load_config(tiny(total_steps=64)), run, echo=quiet)
     good = (run / "checkpoint.pt").read_bytes()
 
-    def refused(message, *args):
-        res = run_script("train.py", *args, f"hydra.run.dir={tmp_path / 'hydra'}")
+    def refused(message, *args):  # train.py's main() in this process: what it says is checked, not its start-up
+        res = train_py(*args, f"hydra.run.dir={tmp_path / 'hydra'}")
         assert res.returncode == 2 and message in res.stderr, res.stderr[-2000:]
 
     refused("no run directory at", f"resume={tmp_path / 'nowhere'}")

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers.cli import train_py
 from helpers.runs import ROOT, metrics_rows, tiny
 
 from cmdp_rl import load_config, train
@@ -29,12 +30,6 @@ def snapshot(root: Path) -> dict[str, str]:
     }
 
 
-def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "train.py", *args], cwd=ROOT, capture_output=True, text=True, timeout=300, env=os.environ
-    )
-
-
 def hold_in_another_process(run_dir: Path, new_run: bool = True) -> subprocess.Popen:
     """A process that claims ``run_dir`` (as a new run, or as a resume of the run there) and keeps
     it, as a running run does."""
@@ -49,11 +44,13 @@ def hold_in_another_process(run_dir: Path, new_run: bool = True) -> subprocess.P
 
 
 def test_a_second_run_into_a_finished_runs_directory_stops_with_one_line_and_changes_nothing(tmp_path):
+    # train.py's main() in this process (helpers/cli.py): a finished run's directory is refused by what it holds,
+    # whichever process asks; a live process's lock is the subject of the tests below, each with processes of its own.
     run = tmp_path / "run"
-    assert cli(*CLI, f"hydra.run.dir={run}").returncode == 0
+    assert train_py(*CLI, f"hydra.run.dir={run}").returncode == 0
     before = snapshot(run)
     assert "eval.json" in before and ".hydra/config.yaml" in before
-    proc = cli(*CLI, "seed=1", f"hydra.run.dir={run}")
+    proc = train_py(*CLI, "seed=1", f"hydra.run.dir={run}")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
     assert proc.stderr.strip().splitlines() == [
         f"cannot write outputs: run directory {run} already holds a finished run: "
@@ -61,7 +58,7 @@ def test_a_second_run_into_a_finished_runs_directory_stops_with_one_line_and_cha
     ]
     assert snapshot(run) == before
     # As the line says: overwrite=true replaces it (a run of another length: 4 rows, not 2) ...
-    assert cli(*CLI, "total_steps=64", "overwrite=true", f"hydra.run.dir={run}").returncode == 0
+    assert train_py(*CLI, "total_steps=64", "overwrite=true", f"hydra.run.dir={run}").returncode == 0
     assert len(metrics_rows(run)) == 4
 
 
@@ -138,10 +135,10 @@ def test_claims_within_one_process_are_counted(tmp_path):
 
 def test_a_sweep_run_again_into_its_directory_leaves_its_jobs_alone(tmp_path):
     sweep = tmp_path / "sweep"
-    assert cli("-m", *CLI, "seed=0,1", f"hydra.sweep.dir={sweep}").returncode == 0
+    assert train_py("-m", *CLI, "seed=0,1", f"hydra.sweep.dir={sweep}").returncode == 0  # in this process, as above
     before = snapshot(sweep)
     time.sleep(1)  # so that a rewritten file would differ in Hydra's timestamps too
-    proc = cli("-m", *CLI, "seed=0,1", f"hydra.sweep.dir={sweep}")
+    proc = train_py("-m", *CLI, "seed=0,1", f"hydra.sweep.dir={sweep}")
     assert proc.returncode != 0 and "already holds a finished run" in proc.stderr
     after = snapshot(sweep)
     jobs = {k: v for k, v in before.items() if k != "multirun.yaml"}  # Hydra's record of the sweep itself

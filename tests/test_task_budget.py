@@ -4,14 +4,11 @@ Safety-Gymnasium and velocity tasks, 1 on Reach1D) for every registered algorith
 And ``env.cost_names`` names a third-party env's costs."""
 
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 import yaml
+from helpers.cli import train_py
 from helpers.cost_envs import TWO_COST_ID as ENV_ID
-from helpers.runs import ROOT
 
 from cmdp_rl import load_config, train
 from cmdp_rl.config.registry import component, names
@@ -93,21 +90,11 @@ def test_env_cost_names_of_the_wrong_count_stop_before_any_output(tmp_path):
 
 
 def test_train_cli_takes_env_cost_names_and_refuses_a_wrong_count_in_one_line(tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests")}
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "train.py",
-            "env=gym",
-            f"env.id=helpers.cost_envs:{ENV_ID}",
-            "env.cost_names=[hazard,speed,heat]",
-            f"hydra.run.dir={tmp_path / 'run'}",
-        ],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
+    proc = train_py(
+        "env=gym",
+        f"env.id=helpers.cost_envs:{ENV_ID}",
+        "env.cost_names=[hazard,speed,heat]",
+        f"hydra.run.dir={tmp_path / 'run'}",
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr + proc.stdout
     assert proc.stderr.strip().splitlines()[-1] == (

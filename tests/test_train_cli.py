@@ -1,4 +1,5 @@
-"""train.py as a user runs it, in a subprocess."""
+"""train.py as a user runs it, in a subprocess; the config errors through its main() in this process
+(tests/helpers/cli.py: the same exit status and output, without a new interpreter's imports)."""
 
 import csv
 import json
@@ -7,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers.cli import train_py
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = [
@@ -82,7 +84,7 @@ def test_cpo_trains_and_logs_its_dual(tmp_path):
     ],
 )
 def test_bad_input_fails_before_training_with_the_field_named(tmp_path, args, message):
-    proc = run(*args, f"hydra.run.dir={tmp_path}")
+    proc = train_py(*args, f"hydra.run.dir={tmp_path}")
     assert proc.returncode != 0
     assert message in proc.stderr + proc.stdout
     assert not (tmp_path / "metrics.csv").exists()

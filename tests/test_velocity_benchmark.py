@@ -65,7 +65,9 @@ def test_report_normalizes_by_the_sweeps_own_ppo_runs(tmp_path):
 
 def test_run_launches_the_experiment_through_train_py_and_reports(tmp_path):
     """`--run` is `train.py -m +experiment=velocity_benchmark` (train.py's resolvers and all), then
-    the report, here for one tiny job of each algorithm."""
+    the report, here for one tiny job of each algorithm. Its joblib launcher with one job runs them one after
+    another in train.py's process: two would start two more interpreters (seconds of imports each), and
+    launching side by side is tests/test_sweep_launchers.py's subject."""
     pytest.importorskip("mujoco")
     sweep = tmp_path / "sweep"
     proc = run_script(
@@ -77,6 +79,7 @@ def test_run_launches_the_experiment_through_train_py_and_reports(tmp_path):
         "env.num_envs=2",
         "env.max_steps=64",
         "eval_episodes=1",
+        "hydra.launcher.n_jobs=1",
         f"hydra.sweep.dir={sweep}",
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
