@@ -69,7 +69,7 @@ def test_flat_options_map_to_the_node_with_their_values():
     # before mixture_weights existed: the deployment defaults of its day, under the node, where it names none
     older = saved_config_defaults({"algo": {"name": "ppo_lag"}, "final_policy": "average"})
     assert older["deploy"] == {"policy": "average", "window": 0.25, "snapshots": 8, "weights": "uniform"}
-    assert older["algo"]["lambda_scale"] == "none"
+    assert older["algo"]["multiplier"]["scale"] == "none"  # the multiplier's default of its day, in its node
 
 
 def test_a_flat_option_given_to_a_new_run_is_refused_in_one_line():

@@ -37,7 +37,8 @@ def _as_before_the_node(run) -> None:
 
     (run / "config.yaml").write_text(yaml.safe_dump(flat(yaml.safe_load((run / "config.yaml").read_text()))))
     state = load_checkpoint(run / "checkpoint.pt")
-    save_checkpoint(run / "checkpoint.pt", {**state, "config": flat(state["config"])})
+    members = [{**m, "config": flat(m["config"])} for m in state["members"]]  # format 4: configs per member
+    save_checkpoint(run / "checkpoint.pt", {**state, "members": members})
 
 
 def test_an_old_pid_lag_run_evaluates_and_resumes_as_the_run_continued(tmp_path, quiet):

@@ -36,7 +36,7 @@ from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main in-proces
 from cmdp_rl.population import population
 from cmdp_rl.run.checkpoint import FORMAT_VERSION, UnsafeCheckpointError, load_checkpoint
 from cmdp_rl.run.convert import convert_run
-from cmdp_rl.run.migrations import deploy_node, is_legacy
+from cmdp_rl.run.migrations import deploy_node, is_legacy, saved_config_nodes
 from cmdp_rl.run.resume import resume_config, resume_population
 from cmdp_rl.run.rundir import load_trained
 
@@ -243,8 +243,8 @@ def test_a_format_3_population_resumes_into_an_uninterrupted_population(tmp_path
     pop = _format3("population", tmp_path)
     assert "agents" in torch.load(pop / "population.pt", weights_only=True)  # else this proves nothing
     train(resume_population(pop, {"total_steps": 256}, ["total_steps"]), pop, echo=lambda _: None)
-    # its config names the deployment options flat, as before the deploy node: as its resume reads it
-    raw = deploy_node(yaml.safe_load((FORMAT3 / "population" / "population.yaml").read_text()))
+    # its config names the deployment and multiplier options flat, as before their nodes: as its resume reads it
+    raw = deploy_node(saved_config_nodes(yaml.safe_load((FORMAT3 / "population" / "population.yaml").read_text())))
     whole = tmp_path / "whole"
     train(population({**raw, "total_steps": 256}), whole, echo=lambda _: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((pop / "agents").iterdir())):
