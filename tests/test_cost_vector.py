@@ -15,7 +15,7 @@ from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.algos import make_algo
-from cmdp_rl.algos.lagrange import DualAscent, Multipliers
+from cmdp_rl.algos.multiplier import DualAscent, Multipliers
 from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig

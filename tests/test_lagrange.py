@@ -1,6 +1,6 @@
 import pytest
 
-from cmdp_rl.algos.lagrange import DualAscent
+from cmdp_rl.algos.multiplier import DualAscent
 
 
 def test_lambda_rises_above_budget_falls_below_and_stays_nonnegative():
@@ -28,7 +28,7 @@ def test_state_round_trip_and_bad_input():
 # --- PID Lagrangian (Stooke, Achiam, Abbeel 2020) ---------------------------------------------
 import random
 
-from cmdp_rl.algos.lagrange import MultiplierController, PIDLagrangian
+from cmdp_rl.algos.multiplier import MultiplierController, PIDLagrangian
 
 COSTS = [6.0, 4.0, 1.0, 0.0, 0.0, 0.0, 0.0, 3.5, 2.0, 2.0, 0.5, 9.0, 0.0]
 

@@ -1,11 +1,16 @@
-"""The multiplier updates of algos/last_iterate.py and the budget-normalised violation, each against
+"""The multiplier updates of algos/multiplier.py and the budget-normalised violation, each against
 a sequence worked out by hand (the arithmetic is in the comments)."""
 
 import pytest
 
-from cmdp_rl.algos.lagrange import DualAscent, PIDLagrangian
-from cmdp_rl.algos.last_iterate import AugmentedLagrangian, OptimisticDual, RegularizedDual
-from cmdp_rl.algos.multiplier import MultiplierConfig
+from cmdp_rl.algos.multiplier import (
+    AugmentedLagrangian,
+    DualAscent,
+    MultiplierConfig,
+    OptimisticDual,
+    PIDLagrangian,
+    RegularizedDual,
+)
 
 
 def test_budget_scale_makes_dual_ascent_unit_free():

@@ -10,8 +10,7 @@ from helpers.resume import assert_same_run
 from helpers.runs import tiny
 
 from cmdp_rl import load, load_config, train
-from cmdp_rl.algos.lagrange import PIDLagrangian
-from cmdp_rl.algos.multiplier import MultiplierConfig
+from cmdp_rl.algos.multiplier import MultiplierConfig, PIDLagrangian
 from cmdp_rl.cli import evaluate as evaluate_cli
 from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.run.migrations import saved_config_defaults, saved_config_nodes
@@ -121,7 +120,7 @@ def test_a_moved_config_keeps_its_node_values_over_flat_defaults():
 
 
 def test_focops_old_nu_state_loads_into_the_node_and_continues_the_same():
-    """FOCOPS's nu was PID's integral alone clamped at nu_max (lagrange.PIDLagrangian with kp = kd = 0);
+    """FOCOPS's nu was PID's integral alone clamped at nu_max (multiplier.PIDLagrangian with kp = kd = 0);
     the node's dual ascent with max gives the same numbers, and the old saved state loads into it."""
     costs = [3.0, 2.5, 0.2, 0.0, 4.0, 1.0, 0.9]
     old = PIDLagrangian(0.5, kp=0.0, ki=0.3, kd=0.0, init=0.1, lambda_max=1.2, scale=0.5)

@@ -362,7 +362,7 @@ def test_one_multiplier_per_constraint_on_the_cost_critics_k_outputs(tmp_path, q
 
 
 def test_the_pid_multiplier_acts_on_the_cost_critic():
-    """algo.multiplier.kind=pid: lambda = kp (Q_c - d_Q) + I, I += ki (Q_c - d_Q) (lagrange.PIDLagrangian)."""
+    """algo.multiplier.kind=pid: lambda = kp (Q_c - d_Q) + I, I += ki (Q_c - d_Q) (multiplier.PIDLagrangian)."""
     algo, env = build(
         {
             "name": "sac_lag",

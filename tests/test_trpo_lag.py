@@ -73,7 +73,7 @@ def test_lambda_rises_by_dual_ascent_when_the_cost_exceeds_the_budget():
     # lambda <- max(0, lambda + 0.05 (J_c - 1)): +0.1, +0.1, +0.025, then -0.05 per step down to 0.
     expected = [0.3, 0.4, 0.425, 0.375, 0.325, 0.275, 0.225, 0.175]
     assert lams == pytest.approx(expected, abs=1e-12)
-    algo.multiplier.controllers[0].value = 0.02  # the one constraint's controller (lagrange.Multipliers)
+    algo.multiplier.controllers[0].value = 0.02  # the one constraint's controller (multiplier.Multipliers)
     algo.policy_step(units, episode_cost=0.0, episode_length=10.0)
     assert algo.lagrange_multiplier == 0.0  # projected onto lambda >= 0
     state = algo.state_dict()

@@ -8,7 +8,7 @@ Control", and the Safe-Policy-Optimization benchmark): a Lagrangian multiplier p
 policy advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``.
 
 Here the agents are rows of the batch (``envs/multi_agent.py``), so MAPPO needs no update of its
-own: the PPO-Lagrangian update (``algos/ppo.py``) with its multipliers (``algos/lagrange.py``, the
+own: the PPO-Lagrangian update (``algos/ppo.py``) with its multipliers (``algos/multiplier.py``, the
 shared machinery) runs on the rows, the MLP policy on a multi-agent env is the decentralised actor
 over ``[own observation | agent id]`` and the critics read the whole row (every agent's
 observation). What this module adds is the constraint's scope:

@@ -8,11 +8,11 @@ cost, before the policy update, and ``policy_advantage`` is the advantage the su
   separate.
 - Lagrangian: ``A = (A_r - lambda A_c) / (1 + lambda)``, lambda by a controller on the measured
   ``J_c - d`` once per iteration, before the policy update: projected dual ascent, PID (Stooke,
-  Achiam, Abbeel 2020; lagrange.py), or the last-iterate updates of last_iterate.py
+  Achiam, Abbeel 2020; multiplier.py), or the last-iterate updates of multiplier.py
   (``algo.multiplier.kind``, multiplier.py). pid_lag is ppo_lag with ``multiplier.kind: pid``.
 
 K constraints (an env reporting K costs): one multiplier per constraint, each moved by its own
-``J_c,k - d_k`` (``lagrange.Multipliers``), and the advantage is
+``J_c,k - d_k`` (``multiplier.Multipliers``), and the advantage is
 ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``: the same normalisation as K = 1, which it
 is exactly (the penalised advantage's scale stays that of ``A_r`` however many multipliers grow).
 Penalty takes one lambda for every cost or a list of K: ``A_r - sum_k lambda_k A_c,k``.
@@ -27,8 +27,7 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import PerConstraint, per_constraint
-from cmdp_rl.algos.lagrange import Multipliers
-from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig
+from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig, Multipliers
 from cmdp_rl.algos.ppo import PPO, PPOConfig, logged_multiplier
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
@@ -130,7 +129,7 @@ class PPOLagrangian(PPO):
     def __init__(self, cfg: PPOLagConfig, agent: Agent) -> None:
         super().__init__(cfg, agent)
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
-        # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
+        # One multiplier per constraint (multiplier.Multipliers), each with its own budget d_k.
         self.multiplier = Multipliers(cfg.multiplier.build, limits)
         if cfg.multiplier.kind == "regularized":
             # The policy side of Ding et al.'s regularised Lagrangian: an entropy bonus tau
@@ -144,7 +143,7 @@ class PPOLagrangian(PPO):
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         # Dual ascent on the Lagrangian J_r - lambda (J_c - d) (Ray, Achiam, Amodei 2019), by default:
         # lambda <- max(0, lambda + lr (J_c - d) / s), s = d with multiplier.scale=budget, else 1
-        # (lagrange.DualAscent; PID or a last-iterate update by algo.multiplier.kind), one per constraint,
+        # (multiplier.DualAscent; PID or a last-iterate update by algo.multiplier.kind), one per constraint,
         # on the batch's J_c estimate (rollout/episode_cost.py).
         self.multiplier.update(estimate.costs)
 

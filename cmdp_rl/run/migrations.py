@@ -49,7 +49,7 @@ from cmdp_rl.run.checkpoint import FORMAT_VERSION
 NETWORKS = {"actor.": "actor.", "critic.": "critics.reward.", "cost_critic.": "critics.cost."}
 NORMALIZERS = "normalizers."
 
-# Format 2's writers of one multiplier state per constraint (lagrange.Multipliers), which saved a
+# Format 2's writers of one multiplier state per constraint (multiplier.Multipliers), which saved a
 # single constraint's as the bare controller state. A closed list: format 2 is no longer written.
 _PER_CONSTRAINT = ("ppo_lag", "pid_lag", "trpo_lag", "sac_lag", "td3_lag")
 

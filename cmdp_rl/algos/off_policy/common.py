@@ -33,8 +33,7 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
-from cmdp_rl.algos.lagrange import Multipliers
-from cmdp_rl.algos.multiplier import MultiplierConfig
+from cmdp_rl.algos.multiplier import MultiplierConfig, Multipliers
 from cmdp_rl.algos.off_policy.replay_buffer import Replay
 from cmdp_rl.algos.off_policy.target_networks import TargetCritics, td_target
 from cmdp_rl.algos.ppo import logged_multiplier
@@ -144,7 +143,7 @@ class OffPolicyConfig(AlgoConfig):
 
 class LagrangeTerm:
     """Lambda per constraint on the cost critic's estimate against the discounted budget (a
-    controller of lagrange.py per constraint), or none for the unconstrained variants (lambda 0)."""
+    controller of multiplier.py per constraint), or none for the unconstrained variants (lambda 0)."""
 
     def __init__(self, cfg: OffPolicyConfig, agent: Agent) -> None:
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)

@@ -6,7 +6,7 @@
   (eq. 18) towards a target entropy (-dim(A) by default, as its Appendix D).
 - SAC-Lagrangian: the policy ascends ``min_j Q_j - alpha log pi - sum_k lambda_k Q_c,k`` (Ha et al.
   2020, "Learning to Walk in the Real World with Minimal Human Effort": a Lagrangian on the expected
-  discounted cost of a cost Q-critic), lambda_k by a controller of ``lagrange.py`` on
+  discounted cost of a cost Q-critic), lambda_k by a controller of ``multiplier.py`` on
   ``E[Q_c,k(s, pi(s))] - d_k``, the budget on the discounted scale (``off_policy.discounted_budget``).
 
 log pi is measured in the squashed [-1, 1] action units (the env-unit density plus

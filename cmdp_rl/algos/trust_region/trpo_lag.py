@@ -11,7 +11,7 @@ PPO-Lagrangian (dividing by ``1 + lambda`` keeps its scale as lambda grows)::
 with ``g`` the gradient of the Lagrangian surrogate and ``H`` the Fisher matrix (conjugate
 gradient on Fisher-vector products), then a backtracking line search that keeps the first
 fraction whose sampled KL is within delta and whose Lagrangian surrogate improves. lambda >= 0 by
-projected dual ascent on ``J_c - d`` (lagrange.DualAscent, as ppo_lag; or another
+projected dual ascent on ``J_c - d`` (multiplier.DualAscent, as ppo_lag; or another
 ``algo.multiplier.kind``, multiplier.py), once per iteration, before the step.
 
 K constraints: as ppo_lag, one multiplier per constraint, each moved by its own ``J_c,k - d_k``,
@@ -27,8 +27,7 @@ from typing import TYPE_CHECKING, ClassVar, Optional, Sequence
 import torch
 
 from cmdp_rl.algos.base import check_finite, per_constraint
-from cmdp_rl.algos.lagrange import Multipliers
-from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig
+from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig, Multipliers
 from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.algos.ppo_lag import lagrangian_advantage
 from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
@@ -78,7 +77,7 @@ class TRPOLagrangian(NaturalGradient):
     def __init__(self, cfg: TRPOLagConfig, agent: Agent) -> None:
         super().__init__(cfg, agent)
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
-        # One multiplier per constraint (lagrange.Multipliers), each with its own budget d_k.
+        # One multiplier per constraint (multiplier.Multipliers), each with its own budget d_k.
         self.multiplier = Multipliers(cfg.multiplier.build, limits)
 
     @property
