@@ -165,7 +165,7 @@ class NaturalGradient:
         self.critic_params = list(agent.critics.parameters())
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
         self.critics = CriticRegression(agent)
-        # J_c and the mean episode length the constraint is measured with (algos/episode_cost.py):
+        # J_c and the mean episode length the constraint is measured with (rollout/episode_cost.py):
         # an unfinished episode's cost so far is only a lower bound of its cost, so batches in
         # which no episode ended (1000-step episodes, 256-step rollouts) use the last episodes
         # that did end.
