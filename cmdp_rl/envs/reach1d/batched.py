@@ -173,14 +173,21 @@ class TorchReach1D(VecEnv):
             self.steps.zero_()
         return obs
 
-    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
-        # The draws of step's auto-reset, for the rows given.
+    def _restart(
+        self, rows: torch.Tensor, x: torch.Tensor, steps: torch.Tensor, last_probe: torch.Tensor
+    ) -> torch.Tensor:
+        """New episodes in ``rows`` over the state (x, steps, last_probe), with the gymnasium env's
+        draws in its order; sets the state and returns every row's observation of it (the restarted
+        rows' first ones). step's auto-reset and reset_rows both start episodes through it."""
         x0 = self._start_x(rows)
         reading0 = self._reading(x0, self.obs_noise, rows)
-        self.x = torch.where(rows, x0, self.x)
-        self.steps = self.steps.masked_fill(rows, 0)
-        self.last_probe = self.last_probe.masked_fill(rows, -1.0)
-        return self._obs(reading0, self.last_probe)[rows]
+        self.x = torch.where(rows, x0, x)
+        self.steps = steps.masked_fill(rows, 0)
+        self.last_probe = last_probe.masked_fill(rows, -1.0)
+        return self._obs(reading0, self.last_probe)
+
+    def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        return self._restart(rows, self.x, self.steps, self.last_probe)[rows]
 
     def step(self, action: torch.Tensor) -> Step:
         self.check_action(action)
@@ -210,13 +217,8 @@ class TorchReach1D(VecEnv):
 
         # Auto-reset the envs whose episode ended, in the gymnasium env's draw order.
         done = terminated | truncated
-        x0 = self._start_x(done)
-        reading0 = self._reading(x0, self.obs_noise, done)
         self.final_x = x
-        self.x = torch.where(done, x0, x)
-        self.steps = steps.masked_fill(done, 0)
-        self.last_probe = last_probe.masked_fill(done, -1.0)
-        obs = torch.where(done.unsqueeze(-1), self._obs(reading0, self.last_probe), next_obs)
+        obs = torch.where(done.unsqueeze(-1), self._restart(done, x, steps, last_probe), next_obs)
         return Step(
             next_obs=next_obs,
             reward=reward.to(torch.float32).unsqueeze(-1),

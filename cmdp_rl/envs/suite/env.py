@@ -77,17 +77,21 @@ class TorchSuite(VecEnv):
         row's last entry may fall short of 1 by rounding: clamp to the last state)."""
         return (u.unsqueeze(-1) >= cdf).sum(-1).clamp_(max=self.cmdp.num_states - 1)
 
+    def _start(self, u: torch.Tensor) -> torch.Tensor:
+        """Every row's initial state, drawn from mu0 with the uniforms ``u`` ``[N]``."""
+        return self._draw(self._cdf0.expand(self.num_envs, -1), u)
+
     def reset(self, seed: int | None = None) -> torch.Tensor:
         if seed is not None:
             self.generator.manual_seed(seed)
         u = torch.rand(self.num_envs, dtype=torch.float64, device=self.device, generator=self.generator)
-        self.state = self._draw(self._cdf0.expand(self.num_envs, -1), u)
+        self.state = self._start(u)
         self.t = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
         return self._obs(self.state, self.t)
 
     def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
         u = torch.rand(self.num_envs, dtype=torch.float64, device=self.device, generator=self.generator)
-        self.state = torch.where(rows, self._draw(self._cdf0.expand(self.num_envs, -1), u), self.state)
+        self.state = torch.where(rows, self._start(u), self.state)
         self.t = self.t.masked_fill(rows, 0)
         return self._obs(self.state[rows], self.t[rows])
 
@@ -101,7 +105,7 @@ class TorchSuite(VecEnv):
         nxt = self._draw(self._cdf[s, a], u[0])
         t = self.t + 1
         terminated = t >= self.horizon
-        start = self._draw(self._cdf0.expand(self.num_envs, -1), u[1])
+        start = self._start(u[1])
         self.state = torch.where(terminated, start, nxt)
         self.t = t.masked_fill(terminated, 0)
         return Step(
