@@ -147,14 +147,16 @@ def resume_population(
     out = Path(out)
     if not (out / POPULATION_CONFIG).is_file():
         raise CheckpointError(f"resume: no {POPULATION_CONFIG} in {out}")
-    saved_raw = saved_config_nodes(read_yaml(out / POPULATION_CONFIG, "resume"))  # flat multiplier options
-    state = None
+    saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
+    state, stacked = None, False
     if (out / POPULATION_CHECKPOINT).is_file():
         saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust)
-        if "update" in saved:  # the stacked layout predates defaults that its config does not name
-            saved_raw = saved_config_defaults(saved_raw)
+        stacked = "update" in saved
         state = migrate(saved)
-    saved_raw = deploy_node(saved_raw)  # a population.yaml of the flat deployment options
+    # In the current layout: the stacked layout predates defaults that its config does not name
+    # (saved_config_defaults); a population.yaml names only what its author gave, so any other has
+    # only its flat multiplier and deployment options moved into their nodes.
+    saved_raw = saved_config_defaults(saved_raw) if stacked else deploy_node(saved_config_nodes(saved_raw))
     deploy = saved_raw.setdefault("deploy", {})
     if state is not None and deploy.get("policy", "auto") == "auto":  # as its agents resolved it (the
         # last iterate, before populations deployed what a run deploys)
