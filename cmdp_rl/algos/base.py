@@ -10,7 +10,7 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from cmdp_rl.config.registry import declare_base
-from cmdp_rl.config.validation import Bool, Discount, Field, PositiveFloat, finite, options, require
+from cmdp_rl.config.validation import Bool, Discount, Field, PositiveFloat, finite, options, per_constraint, require
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
@@ -23,25 +23,6 @@ Budget = Annotated[float, finite(ge=0)]
 PerConstraint = Annotated[
     Union[Budget, list[Budget]], Field(description="a number >= 0 or a list of numbers >= 0, one per cost")
 ]
-
-
-def per_constraint(value: float | Sequence[float], field: str, cost_names: Sequence[str]) -> list[float]:
-    """``value`` (a number, or a list of K numbers) as K numbers, one per cost of ``cost_names``; a
-    list of another length is a config error naming ``field`` and K. Only the env tells K, so this
-    runs when the algorithm is built on the agent, before the run writes anything."""
-    k = len(cost_names)
-    # None is "the task's budget", which config.validate fills in before anything is built.
-    require(value is not None, field, "a number or a list of numbers (config.validate fills in the task's)", value)
-    if isinstance(value, (int, float)):
-        return [float(value)] * k
-    values = list(value)
-    require(
-        len(values) == k,
-        field,
-        f"a number or a list of {k} numbers, one per cost of the env ({', '.join(cost_names)})",
-        values,
-    )
-    return [float(v) for v in values]
 
 
 def multi_constraint_algorithms() -> list[str]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Annotated, Any, Literal, Mapping, TypeVar, Union, get_args, get_origin
+from typing import Annotated, Any, Literal, Mapping, Sequence, TypeVar, Union, get_args, get_origin
 
 import annotated_types as at
 from pydantic import ConfigDict, Field, StrictBool, ValidationError
@@ -170,6 +170,26 @@ def is_finite(x: Any) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
+def per_constraint(value: float | Sequence[float], field: str, cost_names: Sequence[str]) -> list[float]:
+    """``value`` (a number, or a list of K numbers) as K numbers, one per cost of ``cost_names``; a
+    list of another length is a config error naming ``field`` and K. Only the env tells K, so this
+    runs where the env is known (the algorithm built on the agent, the early-terminated env), before
+    the run writes anything."""
+    k = len(cost_names)
+    # None is "the task's budget", which config.validate fills in before anything is built.
+    require(value is not None, field, "a number or a list of numbers (config.validate fills in the task's)", value)
+    if isinstance(value, (int, float)):
+        return [float(value)] * k
+    values = list(value)
+    require(
+        len(values) == k,
+        field,
+        f"a number or a list of {k} numbers, one per cost of the env ({', '.join(cost_names)})",
+        values,
+    )
+    return [float(v) for v in values]
+
+
 __all__ = [
     "AUTO",
     "AutoInt",
@@ -187,6 +207,7 @@ __all__ = [
     "finite",
     "is_finite",
     "options",
+    "per_constraint",
     "recheck",
     "require",
 ]

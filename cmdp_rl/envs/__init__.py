@@ -7,8 +7,9 @@ import dataclasses
 from typing import Any, Sequence
 
 from cmdp_rl.config.registry import component
+from cmdp_rl.config.validation import per_constraint
 from cmdp_rl.envs.contract import EnvContractError, check_env
-from cmdp_rl.envs.early_termination import EarlyTerminated, budgets_of
+from cmdp_rl.envs.early_termination import EarlyTerminated
 from cmdp_rl.envs.grid.env import GRID_ID, GridWorld
 from cmdp_rl.envs.grid.task import GridEnvConfig
 from cmdp_rl.envs.gym_cost import make_cost_env
@@ -46,7 +47,7 @@ def make_env(
     n = cfg.num_envs if num_envs is None else num_envs
     env = component("env", cfg.name).build(cfg, n, device)
     if cut_at is not None:
-        env = EarlyTerminated(env, budgets_of(cut_at, env.cost_names))
+        env = EarlyTerminated(env, per_constraint(cut_at, "algo.cost_limit", env.cost_names))
     return env if algo is None else algo.wrap_env(env, evaluation=evaluation)
 
 

@@ -23,22 +23,8 @@ from typing import Any, Sequence
 import gymnasium as gym
 import torch
 
-from cmdp_rl.config.validation import ConfigError, require
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.envs.vector import Step, VecEnv
-
-
-def budgets_of(cut_at: float | Sequence[float], cost_names: Sequence[str]) -> list[float]:
-    """``cut_at`` (``algo.cost_limit``: a number, or one number per cost) as one budget per cost."""
-    if isinstance(cut_at, (int, float)):
-        return [float(cut_at)] * len(cost_names)
-    values = [float(v) for v in cut_at]
-    require(
-        len(values) == len(cost_names),
-        "algo.cost_limit",
-        f"a number or a list of {len(cost_names)} numbers, one per cost of the env ({', '.join(cost_names)})",
-        values,
-    )
-    return values
 
 
 class EarlyTerminated(VecEnv):
@@ -114,4 +100,4 @@ class EarlyTerminated(VecEnv):
         self.env.close()
 
 
-__all__ = ["EarlyTerminated", "budgets_of"]
+__all__ = ["EarlyTerminated"]

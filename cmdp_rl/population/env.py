@@ -14,7 +14,7 @@ import torch
 
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.envs import make_env, make_eval_env
-from cmdp_rl.envs.early_termination import EarlyTerminated, budgets_of
+from cmdp_rl.envs.early_termination import EarlyTerminated
 from cmdp_rl.envs.saute import BudgetState
 from cmdp_rl.envs.vector import Step, VecEnv
 
@@ -74,7 +74,7 @@ def population_env(
         cuts = [c.algo.cost_limit if c.early_terminate else None for c in cfgs]
         return AgentEnvs([make_env(c.env, n, device, c.algo, cut_at=d) for c, d in zip(cfgs, cuts)], seeds)
     if cfgs[0].early_terminate and not evaluation:  # one option for all (no grid field); each agent's budgets
-        rows = [budgets_of(c.algo.cost_limit, env.cost_names) for c in cfgs]
+        rows = [per_constraint(c.algo.cost_limit, "algo.cost_limit", env.cost_names) for c in cfgs]
         env = EarlyTerminated(env, torch.tensor(rows, device=device).repeat_interleave(n, 0))
     wrapped = cfgs[0].algo.wrap_env(env, evaluation=evaluation)
     state = getattr(wrapped, "state", None)
