@@ -204,8 +204,8 @@ def test_the_pruner_judges_the_return_against_trials_within_budget_and_only_afte
     assert study.trials[hopeless.number].intermediate_values == {3: 0.1}  # the return, never the cost
 
 
-def _search(sweep_dir: Path) -> subprocess.Popen:
-    cmd = [sys.executable, str(ROOT / "train.py"), "-m", *TINY, f"hydra.sweep.dir={sweep_dir}"]
+def _search(sweep_dir: Path, *extra: str) -> subprocess.Popen:
+    cmd = [sys.executable, str(ROOT / "train.py"), "-m", *TINY, *extra, f"hydra.sweep.dir={sweep_dir}"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
@@ -219,21 +219,35 @@ def test_two_workers_share_a_study_and_a_worker_killed_mid_trial_loses_nothing(t
     killed with SIGKILL while that trial trains. The other resumes the study as a restarted search would (the killed
     trial, silent past the grace period, is failed and queued again with its options) and the two have finished
     n_trials between them, none run twice. One test for all of it: each process pays seconds of imports."""
-    workers = {w.pid: w for w in (_search(tmp_path), _search(tmp_path))}
-    deadline = time.monotonic() + 180
-    while not (tmp_path / "trial_0002").is_dir():  # its job has started, so its worker and options are recorded
-        assert all(w.poll() is None for w in workers.values()) and time.monotonic() < deadline, _output(workers)
-        time.sleep(0.05)
-    killed = _trials(tmp_path)[2]
-    victim = workers.pop(int(killed.user_attrs["worker"].rsplit(":", 1)[1]))
-    victim.send_signal(signal.SIGKILL)
-    victim.wait()
-    before = {p: p.stat().st_mtime_ns for p in tmp_path.glob("trial_*/agents/*/eval.json")}
+    # On a quiet machine the premise can fail by timing: a trial trains in about a second, so the third may finish
+    # between its directory appearing and the kill (seen once in a fresh clone's run), or one worker, started
+    # seconds before the other, may finish the first two trials alone so that the victim has finished none. Then
+    # the two workers start again on a new study (at most five times); trials 16 times the others' length widen
+    # both windows.
+    for attempt in range(5):
+        sweep = tmp_path / f"attempt_{attempt}"
+        workers = {w.pid: w for w in (_search(sweep, "total_steps=32768"), _search(sweep, "total_steps=32768"))}
+        deadline = time.monotonic() + 180
+        while not (sweep / "trial_0002").is_dir():  # its job has started, so its worker and options are recorded
+            assert all(w.poll() is None for w in workers.values()) and time.monotonic() < deadline, _output(workers)
+            time.sleep(0.01)
+        trials = _trials(sweep)
+        killed = trials[2]
+        owner = killed.user_attrs["worker"]
+        if killed.state == TrialState.RUNNING and any(t.user_attrs.get("worker") == owner for t in trials[:2]):
+            victim = workers.pop(int(killed.user_attrs["worker"].rsplit(":", 1)[1]))
+            victim.send_signal(signal.SIGKILL)
+            victim.wait()
+            break
+        _output(workers)  # stops both
+    else:
+        pytest.fail("five times, the third trial finished before the kill, or its worker had finished no trial before")
+    before = {p: p.stat().st_mtime_ns for p in sweep.glob("trial_*/agents/*/eval.json")}
     (survivor,) = workers.values()
     out = survivor.communicate(timeout=240)[0]
     assert survivor.returncode == 0, out[-3000:]
 
-    trials = _trials(tmp_path)
+    trials = _trials(sweep)
     settled = [t for t in trials if t.state in (TrialState.COMPLETE, TrialState.PRUNED)]
     assert len(settled) == 4  # n_trials over both workers, not 4 each
     assert len({t.user_attrs["worker"] for t in settled}) == 2  # both finished trials
@@ -241,7 +255,7 @@ def test_two_workers_share_a_study_and_a_worker_killed_mid_trial_loses_nothing(t
     (retry,) = [t for t in trials if t.system_attrs.get("failed_trial") == 2]
     assert retry.state == TrialState.COMPLETE and retry.params == trials[2].params
     assert before and all(p.stat().st_mtime_ns == m for p, m in before.items())  # finished trials ran once
-    ran = sorted(p.parent.parent.parent.name for p in tmp_path.glob("trial_*/agents/*/eval.json"))
+    ran = sorted(p.parent.parent.parent.name for p in sweep.glob("trial_*/agents/*/eval.json"))
     assert ran == sorted(2 * [f"trial_{t.number:04d}" for t in settled])  # each settled trial's 2 seeds, once
 
 
