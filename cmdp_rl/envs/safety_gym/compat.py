@@ -1,13 +1,10 @@
-"""Importing Safety-Gymnasium 1.0.0 on our stack (gymnasium 1.x, mujoco 3+/4, numpy 2, Python 3.11).
-
-Its only release was written for gymnasium 0.28, mujoco 2.3 and Python <= 3.10; it is installed with
-``--no-deps`` (``make setup-safety-gym``) and never edited. :func:`import_safety_gymnasium` applies
-seven fixes (docs/safety_gym.md's table says what breaks and why), each only as far as needed:
-1-3 only while the package imports (stand-ins for removed gymnasium modules and registration helpers,
-and for ``gymnasium_robotics``), 4 its colour defaults made hashable, 5 ``MjModel.jnt`` accepting a
-one-element array (the one process-wide patch), 6 its ``get_sensor``'s one-element readings, 7 its
-``OffScreenViewer`` call given the frame size. ``safety_gymnasium.make`` cannot run on gymnasium 1.x:
-``env.py``'s ``make_task`` builds a task from its registered entry point and kwargs instead."""
+"""Importing Safety-Gymnasium 1.0.0 (written for gymnasium 0.28, mujoco 2.3, Python <= 3.10) on our stack,
+installed with ``--no-deps`` (``make setup-safety-gym``) and never edited. :func:`import_safety_gymnasium`
+applies seven fixes, each only as far as needed (docs/safety_gym.md's table: what breaks and why): 1-3
+only while the package imports (stand-ins for removed gymnasium modules and registration helpers, and
+for ``gymnasium_robotics``); 4 hashable colour defaults; 5 ``MjModel.jnt`` taking a one-element array
+(the one process-wide patch); 6 ``get_sensor``'s one-element readings; 7 the viewer's frame size.
+``safety_gymnasium.make`` cannot run on gymnasium 1.x: ``env.make_task`` builds from the entry point."""
 
 from __future__ import annotations
 
