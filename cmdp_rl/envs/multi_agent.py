@@ -146,11 +146,8 @@ class PettingZooVecEnv(VecEnv):
         return torch.from_numpy(np.concatenate(rows).astype(np.float32)).to(self.device)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
-        rows = []
-        for i, env in enumerate(self.envs):
-            obs, _ = env.reset(seed=None if seed is None else seed + i)
-            rows.append(self._rows(obs))
-        return self._tensor(rows)
+        seeds = [None if seed is None else seed + i for i in range(self.num_teams)]
+        return self._tensor([self._rows(env.reset(seed=s)[0]) for env, s in zip(self.envs, seeds)])
 
     def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
         """A team's rows restart together (its agents share the episode): ``rows`` holds whole teams."""
@@ -170,12 +167,8 @@ class PettingZooVecEnv(VecEnv):
             obs, reward, terminated, truncated, infos = env.step(actions)
             term = any(bool(terminated.get(a, False)) for a in self.agents)
             done = term or any(bool(truncated.get(a, False)) for a in self.agents) or not env.agents
-            rows = self._rows(obs)
-            next_rows.append(rows)
-            if done:
-                obs, _ = env.reset()
-                rows = self._rows(obs)
-            obs_rows.append(rows)
+            next_rows.append(self._rows(obs))
+            obs_rows.append(self._rows(env.reset()[0]) if done else next_rows[-1])
             rewards.append(np.array([float(reward.get(a, 0.0)) for a in self.agents], dtype=np.float32))
             costs.append(self._team_cost(infos))
             terms.append(np.full(m, term))
