@@ -1,23 +1,12 @@
-"""Interval estimates of one run's final evaluation, over its evaluation episodes.
+"""Interval estimates of one run's final evaluation, over its evaluation episodes (docs/evaluation.md):
 
-A mean over 20 episodes says nothing about how far the policy's true mean may be from it, and
-"cost 0.00" says nothing about how often the policy would break its budget. This module gives:
+- mean return and mean cost with a two-sided 95% BCa bootstrap interval (Efron 1987, "Better Bootstrap
+  Confidence Intervals"; ``scipy.stats.bootstrap``, a fixed seed), and mean cost's one-sided upper bound;
+- the violation rate, the fraction of episodes whose cost exceeded the budget ``d``, with the exact binomial
+  (Clopper-Pearson 1934) two-sided interval and one-sided upper bound: no distributional assumption.
 
-- mean return and mean cost with a two-sided 95% confidence interval: the bias-corrected and
-  accelerated (BCa) bootstrap (Efron 1987, "Better Bootstrap Confidence Intervals";
-  ``scipy.stats.bootstrap``), resampling the episodes with a fixed seed so a rerun gives the same
-  numbers;
-- mean cost's one-sided 95% upper confidence bound, from the same bootstrap distribution;
-- the violation rate, the fraction of episodes whose cost exceeded the budget ``d``, with the exact
-  binomial (Clopper-Pearson 1934) two-sided 95% interval and one-sided 95% upper bound. This one
-  needs no distributional assumption: with 0 violations in n episodes the upper bound is
-  ``1 - 0.05**(1/n)`` (14% for n = 20, 3% for n = 100).
-
-What resampling cannot do: show spread that the sample did not have. When every episode had the
-same value (a deterministic policy on a deterministic task, or no episode with any cost), the
-bootstrap interval is that value alone; the result says so (``no_spread``), and for cost the
-violation-rate bound is then the claim to rest on. With a single episode there is no interval at all
-(``None``).
+Resampling cannot show spread the sample did not have: when every episode had the same value the interval
+is that value alone, and the result says so (``no_spread``); with one episode there is none (``None``).
 """
 
 from __future__ import annotations
@@ -29,8 +18,8 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import stats
 
-LEVEL = 0.95  # the key names below say "95"; one level for every interval of eval.json
-RESAMPLES = 9999  # scipy's default; 20-1000 episodes resample in milliseconds
+LEVEL = 0.95  # the key names below say "95"
+RESAMPLES = 9999  # scipy's default
 SEED = 0  # the bootstrap's own generator, independent of torch's: intervals never move training
 BOOTSTRAP_METHOD = "BCa bootstrap over episodes (scipy.stats.bootstrap)"
 BINOMIAL_METHOD = "exact binomial, Clopper-Pearson (scipy.stats.binomtest)"
@@ -42,12 +31,8 @@ VIOLATION_TOLERANCE = 1e-9
 def mean_interval(
     values: Sequence[float], level: float = LEVEL, resamples: int = RESAMPLES, seed: int = SEED
 ) -> dict[str, Any]:
-    """Mean of ``values`` with a two-sided BCa bootstrap interval at ``level`` (``low``, ``high``)
-    and the one-sided upper bound at ``level`` (``upper``).
-
-    ``no_spread`` is True when all values are equal (the interval is then the value itself: the
-    bootstrap has nothing to resample); with one value the bounds are None.
-    """
+    """Mean of ``values`` with a two-sided BCa bootstrap interval at ``level`` (``low``, ``high``) and the
+    one-sided upper bound (``upper``); ``no_spread`` when all values are equal; None bounds for one value."""
     x = np.asarray(values, dtype=np.float64)
     if x.ndim != 1 or x.size == 0:
         raise ValueError(f"mean_interval: need a non-empty 1-D sample, got shape {x.shape}")
@@ -142,13 +127,8 @@ def _ci(pair: list[float] | None, fmt: str) -> str:
 
 
 def summary_lines(result: dict[str, Any], cost_limit: float) -> list[str]:
-    """Human-readable lines for a result holding :func:`summarize`'s keys (and ``episode_return``,
-    ``episode_cost``, ``episodes``), e.g.::
-
-        return 0.356, 95% CI [0.351, 0.361]
-        cost   0.00, 95% CI [0.00, 0.00], 95% upper bound 0.00 (limit 1.0); no spread over 20 episodes
-        violations 0/20 episodes (cost > 1): rate 0%, 95% CI [0%, 17%], 95% upper bound 14%
-    """
+    """Lines for a result holding :func:`summarize`'s keys (and ``episode_return``, ``episode_cost``,
+    ``episodes``): the return's interval, the cost's, the violations' (the README shows them)."""
     n = result["episodes"]
     flat = result["intervals"]["no_spread"]
     ucb = result["episode_cost_ucb95"]

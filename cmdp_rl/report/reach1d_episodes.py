@@ -1,11 +1,5 @@
-"""Replaying Reach1D episodes with what the agent could not see, and drawing them.
-
-The collector keeps only what learning needs; the true position lives in the env's ``info`` and
-never reaches a batch. Replay steps one plain Reach1D per episode and records it, away from the
-collector's hot path. It sends actions in the env's own dtype, as ``GymVecEnv`` does.
-
-Videos of a policy (Reach1D's drawn frame, the MuJoCo velocity tasks) are ``cmdp_rl/report/video.py``'s.
-"""
+"""Replaying Reach1D episodes with what the agent could not see, and drawing them: the true position lives in
+the env's ``info`` and never reaches a batch, so replay steps one plain Reach1D away from the collector."""
 
 from __future__ import annotations
 
@@ -19,8 +13,7 @@ from cmdp_rl.envs import Reach1D, reach1d_kwargs
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.plot import pyplot, save_figure
-from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.collector import PolicyMemory
+from cmdp_rl.report.video import PolicyOnOneEnv
 
 
 @dataclass
@@ -51,29 +44,23 @@ def record_reach1d(
     """Run ``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once, as env 0 of
     a vector env is), recording the true position beside the reading the agent saw."""
     env = Reach1D(**reach1d_kwargs(env_cfg))
-    memory = PolicyMemory(agent, 1, env.action_space, torch.device("cpu"))
+    policy = PolicyOnOneEnv(agent, env.action_space, deterministic)
     out: list[Reach1DEpisode] = []
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         obs, info = env.reset(seed=seed)
         for _ in range(episodes):
             ep = Reach1DEpisode(true_x=[info["true_x"]], reading=[float(obs[0])])
-            is_init, carried = True, memory.start()
+            policy.start()
             while True:
-                wrote = agent.act(
-                    {**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0), keys.IS_INIT: torch.tensor([[is_init]])},
-                    deterministic,
-                )
-                action = wrote[keys.ACTION][0].numpy().astype(env.action_space.dtype)
+                action = policy.act(obs).numpy().astype(env.action_space.dtype)  # the env's dtype, as GymVecEnv
                 obs, reward, terminated, truncated, info = env.step(action)
-                # as in the collector: the policy's next state, previous action and cost
-                _, carried = memory.step(wrote, torch.tensor([[float(info["cost"])]]), torch.tensor([[False]]))
+                policy.observe(np.array([info["cost"]]))
                 ep.action.append(float(action[0]))
                 ep.reward.append(float(reward))
                 ep.cost.append(float(info["cost"]))
                 ep.true_x.append(float(info["true_x"]))
                 ep.reading.append(float(obs[0]))
-                is_init = False
                 if terminated or truncated:
                     ep.terminated = bool(terminated)
                     break

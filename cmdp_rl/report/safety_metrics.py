@@ -1,18 +1,14 @@
 """The safe-RL field's run metrics (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep
 Reinforcement Learning", sec. 5; Safety Gym's ``bench/bench_utils.py`` has the same formulas).
 
-- cost rate ``rho_c``: all costs incurred during training divided by the env steps taken so far,
-  safety *during* training rather than of the final policy.
+- cost rate ``rho_c``: all costs incurred during training over the env steps taken so far.
 - Normalized by an unconstrained PPO reference trained on the same env for the same number of steps:
     normalized return          J_r / J_r^PPO
     normalized violation       max(0, J_c - d) / max(eps, J_c^PPO - d),   eps = 1e-6
     normalized cost rate       rho_c / rho_c^PPO
   with ``J_r``, ``J_c`` the final policy's mean episode return and cost and ``d`` this run's budget.
-  0 violation is within budget; 1 is as far over budget as PPO. Without a reference, blank (None).
-- K costs: the cost rate, the violation and the normalized cost rate are per constraint, against
-  the reference's number for that constraint (a reference run on the same env has them in its
-  eval.json as ``episode_cost/<cost>``, ``cost_rate/<cost>``); a single reference number given in
-  the config cannot say which constraint it is for, so with K > 1 those metrics stay blank.
+  Without a reference, blank (None). With K costs the cost metrics are per constraint, against a reference
+  run's per-cost numbers; a single number in the config cannot say which constraint it is for (blank).
 """
 
 from __future__ import annotations

@@ -1,20 +1,11 @@
-"""Videos of a trained policy (``python evaluate.py run=<dir> video=true``), through gymnasium's own
-``RecordVideo`` wrapper (which writes the mp4 with moviepy: ``pip install 'cmdp_rl[video]'``).
+"""Videos of a trained policy (``python evaluate.py run=<dir> video=true``), through gymnasium's
+``RecordVideo`` (which writes with moviepy: ``pip install 'cmdp_rl[video]'``). An env that can render
+declares ``render_env()`` on its options: one gymnasium env of its config with ``render_mode="rgb_array"``.
 
-An env component that can render declares ``render_env()`` on its options: one gymnasium env of its
-config with ``render_mode="rgb_array"``. Reach1D draws its frame with numpy (``envs/reach1d/env.py``;
-the batched torch backend renders through this gym twin of the same config), the velocity tasks use
-MuJoCo's camera (``env=safety_gym``'s navigation tasks: its "track" camera, following the robot),
-and ``env=gym`` offers its env's own frames when it has an ``rgb_array`` mode.
-
-Headless MuJoCo: with no ``DISPLAY`` and no ``MUJOCO_GL`` set, this module sets ``MUJOCO_GL=egl``
-(gymnasium would otherwise try GLFW first, which needs a display). Without a GPU, EGL renders in
-software through Mesa (llvmpipe): Debian's ``libegl1`` (which brings ``libegl-mesa0``),
-``libopengl0`` and ``libgl1-mesa-dri``. In software a frame takes about 0.1 s (docs/evaluation.md
-gives the measurements), so a whole 1000-step episode takes a few minutes; ``video_steps`` cuts it short. Without them the video fails with
-one line that names them. ``MUJOCO_GL=osmesa`` needs ``libosmesa6`` instead; note that MuJoCo reads
-``MUJOCO_GL`` when it is imported (torchrl imports it), so a ``MUJOCO_GL`` naming a missing library
-breaks ``import cmdp_rl`` itself, before this module can say anything.
+Headless MuJoCo: with no ``DISPLAY`` and no ``MUJOCO_GL``, this module sets ``MUJOCO_GL=egl`` (gymnasium
+would try GLFW first, which needs a display); without a GPU EGL renders in software through Mesa
+(:data:`HEADLESS_GL` names the packages; docs/evaluation.md the speed). MuJoCo reads ``MUJOCO_GL`` when
+imported (torchrl imports it), so one naming a missing library breaks ``import cmdp_rl`` itself.
 """
 
 from __future__ import annotations
@@ -108,17 +99,14 @@ def make_render_env(env_cfg: Any) -> gym.Env:
 
 
 def exact_fps(fps: float) -> int:
-    """The power of two nearest ``fps`` (within a factor of 1.42 of it). moviepy counts a clip's
-    frames as ``int(sum(n * [1 / fps]) * fps)``, which for most rates rounds some counts down and
-    drops the last frame (at 10 fps: 393 of the counts 1..1001; moviepy issue #2507); with a power
-    of two the sum is exact and every frame is written."""
+    """The power of two nearest ``fps``: moviepy counts a clip's frames as ``int(sum(n * [1 / fps]) * fps)``,
+    which for most rates drops the last frame (moviepy issue #2507); with a power of two the sum is exact."""
     return 2 ** max(0, round(math.log2(fps)))
 
 
 @contextlib.contextmanager
 def _unraisable_ignored() -> Iterator[None]:
-    """Drop the errors raised in ``__del__`` meanwhile: after a renderer failed to start, Python
-    would print them as tracebacks after the one-line error."""
+    """Drop the errors raised in ``__del__`` meanwhile (a failed renderer's tracebacks after the one-line error)."""
     hook, sys.unraisablehook = sys.unraisablehook, lambda _: None
     try:
         yield
@@ -126,9 +114,9 @@ def _unraisable_ignored() -> Iterator[None]:
         sys.unraisablehook = hook
 
 
-class _PolicyOnOneEnv:
-    """The trained actor driving one plain env, carrying its memory from step to step as the
-    collector does. ``act`` is the one place the policy is called (as ``replay.record_reach1d`` does)."""
+class PolicyOnOneEnv:
+    """The trained actor driving one plain env, carrying its memory from step to step as the collector does
+    (the video, ``reach1d_episodes.record_reach1d``). ``extra``: an env transform's state (Sauté's budget)."""
 
     def __init__(self, agent: Agent, action_space: gym.Space, deterministic: bool, extra: Any = None) -> None:
         self.agent, self.deterministic, self.extra = agent, deterministic, extra
@@ -142,7 +130,7 @@ class _PolicyOnOneEnv:
     def act(self, obs: np.ndarray) -> torch.Tensor:
         # as GymVecEnv hands observations to the collector: float32, flat
         obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))
-        if self.extra is not None:  # what the algorithm's env transform adds (Sauté's remaining budget)
+        if self.extra is not None:
             obs_t = self.extra.observation(obs_t)
         self.wrote = self.agent.act(
             {**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])}, self.deterministic
@@ -170,13 +158,11 @@ def record_video(
     name_prefix: str = "policy",
     algo: Any = None,
 ) -> list[VideoEpisode]:
-    """Record ``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with
-    ``seed`` once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
-    (``<name_prefix>-episode-<i>.mp4``: the reset frame and one per step). ``max_steps`` cuts each
-    episode short (MuJoCo renders about 10 frames a second in software). ``algo``: the run's
-    algorithm options; the state their ``observation_state(cost_names)`` gives (an env transform's
-    state the policy sees beside the env's observation: Sauté's budget), if any, is carried along
-    the episode."""
+    """Record ``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with ``seed``
+    once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
+    (``<name_prefix>-episode-<i>.mp4``: the reset frame and one per step); ``max_steps`` cuts each short.
+    ``algo``: the run's algorithm options, whose ``observation_state(cost_names)`` (Sauté's budget), if any,
+    is carried along the episode."""
     from gymnasium.wrappers import RecordVideo
 
     env = make_render_env(env_cfg)
@@ -187,7 +173,7 @@ def record_video(
         name_prefix=name_prefix,
         fps=exact_fps(env.metadata.get("render_fps", 30)),
     )
-    policy = _PolicyOnOneEnv(
+    policy = PolicyOnOneEnv(
         agent, env.action_space, deterministic, None if algo is None else algo.observation_state(agent.cost_names)
     )
     out: list[VideoEpisode] = []
