@@ -1,28 +1,15 @@
-"""The actor's action distribution, chosen from the env's action space.
+"""The actor's action distribution, chosen from the env's action space. A head holds the actor's output
+network and maps its output to the distribution's parameters, which a batch stores (so a step's behaviour
+policy can be rebuilt: CPO's KL to it):
 
-A distribution head holds the actor's output network (a stateless function of the features the
-actor's body computes) and maps its output to the distribution's parameters (entries a batch
-stores, so the behaviour policy of a step can be rebuilt: CPO's KL to it); it builds the
-distribution from them:
+- ``Box``: :class:`GaussianHead`, a diagonal Gaussian in the env's units with a state-independent log-std
+  (the network works in [-1, 1]). Samples are not squashed: the env clips them, so a stored action's
+  log-probability never meets a tanh saturation.
+- ``Discrete``, ``MultiDiscrete``: :class:`CategoricalHead`, one categorical per component
+  (:class:`MultiCategorical`: log-probabilities, entropies and KLs summed); actions ``[..., m]`` indices.
+- a ``Tuple``/``Dict`` of one ``Discrete`` and one ``Box``: :class:`~cmdp_rl.policies.hybrid.HybridHead`.
 
-- ``gymnasium.spaces.Box``: :class:`GaussianHead`, a diagonal Gaussian in the env's action units
-  with a state-independent log-std (the network works in [-1, 1]; the mean is rescaled to the box,
-  the std is a fraction of the box's half-width). Samples are not squashed: the env clips them, so
-  the log-probability of a stored action never meets a tanh saturation.
-- ``gymnasium.spaces.Discrete``: :class:`CategoricalHead`, a categorical over the ``n`` actions on
-  the network's logits. Its actions are stored as ``[..., 1]`` integer indices, like a box action
-  of one dimension.
-- ``gymnasium.spaces.MultiDiscrete``: :class:`CategoricalHead` too, on ``sum(nvec)`` logits split
-  into one independent categorical per component (:class:`MultiCategorical`): the log-probability
-  and the entropy are the components' sums, the KL between two of them the sum of the components'
-  KLs (so CPO's Fisher-vector product needs nothing else). Actions are ``[..., m]`` indices.
-
-- a hybrid ``Tuple``/``Dict`` of one ``Discrete`` and one ``Box`` (a skill and its parameters):
-  :class:`~cmdp_rl.policies.hybrid.HybridHead`, a categorical over the skills times a Gaussian over
-  the parameters conditioned on the skill (``policies/hybrid.py``).
-
-Every head samples by ``rsample`` where the distribution has one, else ``sample``, and its
-deterministic action is the mode (the Gaussian's mean, the categorical's most likely action).
+The deterministic action is the mode.
 """
 
 from __future__ import annotations
@@ -70,12 +57,9 @@ class GaussianHead(nn.Module):
 
     @staticmethod
     def act(params: dict[str, torch.Tensor], deterministic: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """The acting step's action and log-probability: what ``sample(dist(params), deterministic)``
-        and its ``log_prob`` give, op for op and draw for draw (``Normal.rsample``'s one
-        ``normal_`` of the loc's shape, ``Normal.log_prob``'s formula, summed over the action).
-        Written out because building the distribution costs more than the network itself at
-        every step of a rollout (argument validation, ``Independent``'s wrapping: about 100 µs
-        of 250 per step of 16 envs, measured 2026-11-28); the update still uses :meth:`dist`."""
+        """The acting step's action and log-probability: ``sample(dist(params), deterministic)`` and its
+        ``log_prob``, op for op and draw for draw. Written out because building the distribution
+        (argument validation, ``Independent``'s wrapping) costs more than the network at every step."""
         loc, scale = params[keys.LOC], params[keys.SCALE]
         action = loc if deterministic else loc + torch.empty_like(loc).normal_() * scale
         log_prob = -((action - loc) ** 2) / (2 * scale**2) - scale.log() - _LOG_SQRT_2PI
@@ -158,9 +142,7 @@ class CategoricalHead(nn.Module):
 
 
 def action_outputs(space: gym.Space) -> int:
-    """How many outputs the actor's network needs for ``space``: the box's dimension (the mean), or
-    one logit per action (per choice of each component of a ``MultiDiscrete``), or a hybrid
-    space's logits and per-skill means."""
+    """How many outputs the actor's network needs for ``space``: the box's means, the logits, or both."""
     check_action_space(space)
     if hybrid(space) is not None:
         return HybridHead.outputs(hybrid(space))

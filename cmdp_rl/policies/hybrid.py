@@ -1,29 +1,17 @@
-"""The action distribution of a hybrid (hierarchical) action space: a skill and its parameters.
-
-The space is a gymnasium ``Tuple``/``Dict`` of one ``Discrete(n)`` (which skill) and one ``Box``
-(its ``p`` continuous parameters), ``cmdp_rl.rollout.actions.hybrid``. The seed's factoring
-``pi = pi_hi o pi_lo`` is the distribution's own product rule,
+"""The action distribution of a hybrid action space: a gymnasium ``Tuple``/``Dict`` of one ``Discrete(n)``
+(which skill) and one ``Box`` (its ``p`` parameters), ``cmdp_rl.rollout.actions.hybrid``:
 
     pi(k, x | s) = pi_hi(k | s) * pi_lo(x | s, k),
 
-``pi_hi`` a categorical over the ``n`` skills and ``pi_lo`` a diagonal Gaussian whose mean and std
-belong to the chosen skill (the network outputs ``n`` logits and ``n x p`` means; the log-stds are
-``n x p`` state-independent parameters, as :class:`~cmdp_rl.policies.distributions.GaussianHead`'s).
-Everything the algorithms read is exact, in closed form over the ``n`` skills:
+``pi_hi`` a categorical over the skills, ``pi_lo`` a diagonal Gaussian whose mean and (state-independent)
+std belong to the chosen skill. What the algorithms read is exact over the ``n`` skills:
+``log pi(k, x) = log pi_hi(k) + log N(x; mu_k, sigma_k)``, ``H(pi) = H(pi_hi) + sum_k pi_hi(k) H(N_k)`` and
+``KL(pi || pi') = KL(pi_hi || pi_hi') + sum_k pi_hi(k) KL(N_k || N'_k)`` (the chain rules), the KL registered
+with torch for CPO's Fisher-vector product. Why by hand: torch and torchrl have no distribution whose
+continuous part is conditioned on the discrete one (``MixtureSameFamily`` marginalises the skill out).
 
-- ``log pi(k, x) = log pi_hi(k) + log N(x; mu_k, sigma_k)``;
-- ``H(pi) = H(pi_hi) + sum_k pi_hi(k) H(N_k)`` (the chain rule of entropy);
-- ``KL(pi || pi') = KL(pi_hi || pi_hi') + sum_k pi_hi(k) KL(N_k || N'_k)`` (the chain rule of
-  relative entropy), registered with torch, so CPO's and TRPO's Fisher-vector product (the Hessian
-  of this KL, by double backprop) and FOCOPS/CUP's per-state KL need nothing else.
-
-Why by hand: torch.distributions and torchrl have no mixed discrete-continuous distribution whose
-continuous part is conditioned on the discrete one, and a ``MixtureSameFamily`` would marginalise
-the skill out (the env needs to be told which one was chosen).
-
-Stored actions are float ``[..., 1 + p]``: the skill index (an exact small integer), then the
-parameters, in the box's units (not squashed: the env clips). The deterministic action, for greedy
-evaluation, takes the most likely skill and that skill's mean.
+Stored actions are float ``[..., 1 + p]``: the skill index, then the parameters in the box's units (the env
+clips). The deterministic action: the most likely skill and its mean.
 """
 
 from __future__ import annotations
@@ -92,9 +80,8 @@ def _kl_skill_parameters(p: SkillParameters, q: SkillParameters) -> torch.Tensor
 
 
 class HybridHead(nn.Module):
-    """``net(features)`` -> ``n`` skill logits and ``n x p`` parameter means in [-1, 1], rescaled to
-    the box as :class:`~cmdp_rl.policies.distributions.GaussianHead` does; a log-std per skill and
-    parameter (in units of the box's half-width)."""
+    """``net(features)`` -> ``n`` skill logits and ``n x p`` means in [-1, 1] rescaled to the box, as
+    ``GaussianHead`` does; a log-std per skill and parameter (in units of the box's half-width)."""
 
     param_keys = (keys.LOGITS, keys.LOC, keys.SCALE)
 

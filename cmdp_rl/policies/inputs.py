@@ -1,12 +1,8 @@
-"""What a policy network reads: the observation and, optionally, the previous action and cost.
-
-A POMDP policy should act on its history (o_0..o_t, a_0..a_{t-1}); the previous action and cost
-are the parts of that history the observation lacks. The collector writes them at the root
-(``keys.PREV_ACTION``, ``keys.PREV_COST``; zero on an episode's first step) for any policy whose
-``in_keys`` ask for them, so a memory policy can integrate its own motion (dead reckoning) and
-notice when it paid a cost. Feeding the previous cost to a recurrent policy follows the
-PID-Lagrangian experiments (Stooke, Achiam, Abbeel, 2020, "Responsive Safety in Reinforcement
-Learning by PID Lagrangian Methods", sec. 6).
+"""What a policy network reads: the observation and, optionally, the previous action and cost, the parts of
+the history (o_0..o_t, a_0..a_{t-1}) the observation lacks: a memory policy can integrate its own motion and
+notice when it paid a cost (the previous cost as in Stooke, Achiam, Abbeel, 2020, "Responsive Safety in
+Reinforcement Learning by PID Lagrangian Methods", sec. 6). The collector writes them at the root for any
+policy whose ``in_keys`` ask for them (zero on an episode's first step).
 """
 
 from __future__ import annotations
@@ -32,15 +28,10 @@ def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
 
 
 class InputEncoder(nn.Module):
-    """``cat(normalized obs, previous action, previous cost vector [K])``.
-
-    A box's previous action is mapped to the action box as ``[-1, 1]`` and clipped there, as the
-    env clips it: what the policy sees is the command the env executed. A discrete previous action
-    is one-hot per component (all zeros for "none yet", the index -1 of an episode's first step,
-    ``cmdp_rl/rollout/actions.py``). ``obs_norm`` (a running normalizer, normalization.py) is applied to the
-    observation only. ``in_dim``: the width of the raw inputs concatenated (what a transformer
-    stores per step); ``out_dim``: the width of the encoding.
-    """
+    """``cat(normalized obs, previous action, previous cost vector [K])``. A box's previous action is scaled
+    to ``[-1, 1]`` and clipped, as the env clips it; a discrete one is one-hot per component (all zeros for
+    the index -1 of an episode's first step). ``in_dim``: the raw inputs' width (what a transformer stores
+    per step); ``out_dim``: the encoding's."""
 
     def __init__(
         self,

@@ -1,21 +1,12 @@
-"""The off-policy agent: a squashed actor and Q-critics, in the agent model's actor/critics bank.
-
-The policy factory (``policy=mlp``) builds an on-policy agent: a Gaussian actor with a
-state-independent std and V-critics. An off-policy algorithm turns it into its own with
-:func:`to_off_policy` before training, keeping the actor's body (the observation normalizer) and
-the MLP's shape (widths, activation):
+"""The off-policy agent: :func:`to_off_policy` turns ``policy=mlp``'s agent into a squashed actor and
+Q-critics, keeping the actor's body (the observation normalizer) and the MLP's widths and activation:
 
 - :class:`TanhGaussianHead` (SAC): ``a = center + half_width * tanh(u)``, ``u ~ N(mu(s), sigma(s))``
-  with a state-dependent std (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and
-  Applications", appendix C), torchrl's ``TanhNormal``; deterministic action ``tanh(mu)`` rescaled.
-- :class:`DeterministicHead` (TD3): ``a = center + half_width * tanh(net(s))``; acting adds
-  Gaussian exploration noise of ``noise * half_width`` and clips to the box (:class:`ClippedNormal`),
-  the deterministic action is the noiseless one.
-- Q-critics: :class:`Critic` on :class:`QBody`, which reads the observation and the action (scaled
-  to [-1, 1]). The bank holds ``"q_reward_0"``, ``"q_reward_1"`` (the twins) and ``"q_cost"`` (one
-  output per constraint, as the V cost critic).
-
-Evaluation and the collector need nothing else: both act through ``Agent.act`` on the head.
+  (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications", appendix C; torchrl's ``TanhNormal``).
+- :class:`DeterministicHead` (TD3): ``a = center + half_width * tanh(net(s))``, acting with Gaussian noise of
+  ``noise * half_width`` clipped to the box (:class:`ClippedNormal`).
+- Q-critics on :class:`QBody` (the observation and the action scaled to [-1, 1]): the twins
+  :data:`Q_REWARD` and :data:`Q_COST` (one output per constraint).
 """
 
 from __future__ import annotations
@@ -152,9 +143,8 @@ def check_shaped(agent: Agent, algo: str) -> None:
 
 
 def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> Agent:
-    """Give ``agent`` (an MLP agent, :func:`check_off_policy_agent`) the off-policy actor head
-    (``actor``: ``"tanh_gaussian"`` or ``"deterministic"``) and the Q-critics, in place. The MLP's
-    widths and activation are the policy's (``policy.hidden_sizes``, ``policy.activation``). Returns it."""
+    """Give ``agent`` (an MLP agent, :func:`check_off_policy_agent`) the off-policy actor head (``actor``:
+    ``"tanh_gaussian"`` or ``"deterministic"``) and the Q-critics, in place; returns it."""
     head = agent.actor.head
     low, high = head.center - head.half_width, head.center + head.half_width
     in_dim, hidden, activation = _mlp_shape(head.net)
@@ -173,8 +163,7 @@ def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> Agent:
     critics = {name: q(1) for name in Q_REWARD}
     critics[Q_COST] = q(agent.num_costs)
     agent.critics = nn.ModuleDict(critics).to(device)
-    # ReLU in place: the same values without a fresh [B, width] tensor per layer (the layer before,
-    # a Linear, keeps nothing of its output for its backward); measured in docs/off_policy.md, Speed.
+    # ReLU in place: no fresh [B, width] tensor per layer (the Linear before it keeps nothing of its output).
     for m in (*agent.actor.modules(), *agent.critics.modules()):
         if isinstance(m, nn.ReLU):
             m.inplace = True

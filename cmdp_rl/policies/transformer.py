@@ -1,24 +1,15 @@
 """Transformer policy (``policy=transformer``): causal self-attention over the last K steps.
 
-Each step is a token ``(observation, previous action, previous cost)``; the policy and both critics
-attend over the window of the last ``K = policy.window`` tokens of the current episode, this step's
-included, with causal self-attention (Vaswani et al., 2017, "Attention Is All You Need", sec. 3.2;
-the decoder's mask, sec. 3.2.3) and positions within the window, learned or sinusoidal (sec. 3.5).
-Steps before the episode's start are masked out. Parisotto et al. (2020, "Stabilizing
-Transformers for Reinforcement Learning") use attention over past steps as a POMDP memory; this
-is the plain, windowed form.
+Each step is a token ``(observation, previous action, previous cost)``; the policy and both critics attend
+over the last ``K = policy.window`` tokens of the current episode with causal self-attention (Vaswani et al.,
+2017, "Attention Is All You Need", sec. 3.2) and learned or sinusoidal positions (sec. 3.5); Parisotto et
+al. (2020, "Stabilizing Transformers for Reinforcement Learning") use such attention as a POMDP memory.
+torchrl has no online transformer policy, so it is built on ``torch.nn.TransformerEncoderLayer``.
 
-Why written here: torchrl 0.14 has no online transformer policy (no GTrXL; see the stack notes),
-so it is built on ``torch.nn.TransformerEncoder``.
-
-The window is policy state carried by the collector like a recurrent state: the root holds the
-raw tokens of the K - 1 steps before this one (``keys.HISTORY``, oldest first) and which belong to
-the current episode (``keys.HISTORY_MASK``); :class:`HistoryWindow` appends this step's token and
-returns the shifted history, which the agent writes under ``"next"``. Because each step of a batch carries its own window,
-the networks are stateless functions of a step's entries: training uses ordinary shuffled
-minibatches of steps, and the output equals a pass over the explicit window of the trajectory
-(``tests/test_memory_policies.py``). Tokens are stored raw; observation normalization is applied
-when they are read, so a stored window always meets the current statistics.
+The window is state the collector carries: the raw tokens of the K - 1 steps before this one
+(``keys.HISTORY``) and which belong to the episode (``keys.HISTORY_MASK``). Each step of a batch carries
+its own window, so training uses shuffled single steps. Tokens are stored raw and normalized when read,
+so a stored window always meets the current statistics.
 """
 
 from __future__ import annotations
@@ -33,8 +24,7 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import Bool, Field, PositiveInt, options, require
-from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
-from cmdp_rl.policies.distributions import action_outputs, make_action_head
+from cmdp_rl.policies.agent import Agent, Body, actor_and_critics
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.policies.mlp import Activation, LogStd, mlp
 from cmdp_rl.policies.recurrent import HeadSizes
@@ -51,9 +41,7 @@ class TransformerPolicyConfig:
     """``policy=transformer``: causal self-attention over the last ``window`` steps."""
 
     name: str = "transformer"
-    window: Annotated[int, Field(ge=1, description="a positive integer (steps attended to)")] = (
-        16  # K, this step included
-    )
+    window: Annotated[int, Field(ge=1, description="a positive integer (steps attended to)")] = 16
     layers: PositiveInt = 1
     heads: PositiveInt = 2
     width: PositiveInt = 32  # model width d (divisible by heads)
@@ -106,19 +94,11 @@ def sinusoidal_positions(length: int, width: int) -> torch.Tensor:
 
 
 class WindowTransformer(nn.Module):
-    """Embeds a window of raw tokens, runs causal self-attention, returns the last position's
-    features ``[..., width]``: pre-norm ``nn.TransformerEncoderLayer``s and a final LayerNorm.
-
-    Attention mask: position i sees positions j <= i of the current episode, and always itself (a
-    query with no key would give NaN, which masked weights of 0 would still carry into valid
-    positions). Padded positions are therefore never seen by valid ones.
-
-    Only the last position's output is used, so the last layer is evaluated for that query alone
-    (:meth:`_last_query`: the layer's own submodules, its arithmetic for one row; equal to the full
-    layer's last row, ``tests/test_memory_policies.py``). With one layer this skips the
-    attention output, feed-forward block and norms of K - 1 positions: about 3 times faster on CPU
-    at K = 16 (measured), the transformer being the slowest head to train.
-    """
+    """Embeds a window of raw tokens, runs causal self-attention (pre-norm ``nn.TransformerEncoderLayer``s, a
+    final LayerNorm) and returns the last position's features ``[..., width]``. Position i sees positions
+    j <= i of the episode and always itself (a query with no key would give NaN). Only the last position's
+    output is used, so the last layer is evaluated for that query alone (:meth:`_last_query`), which skips
+    the work of K - 1 positions in the slowest head to train."""
 
     def __init__(self, cfg: TransformerPolicyConfig, encoder: InputEncoder, obs_dim: int) -> None:
         super().__init__()
@@ -166,8 +146,7 @@ class WindowTransformer(nn.Module):
         return y + layer.linear2(layer.activation(layer.linear1(layer.norm2(y))))
 
     def forward(self, window: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        # torch's math attention kernel: its second derivatives exist (CPO's Fisher-vector products
-        # need them; the fused CPU kernel has none), and at these sizes it was as fast (measured).
+        # torch's math kernel: its second derivatives exist (CPO's Fisher-vector products), the fused one's not.
         with sdpa_kernel(SDPBackend.MATH):
             return self._forward(window, mask)
 
@@ -198,9 +177,7 @@ class _Trunk(nn.Module):
 
 
 class TransformerBody(Body):
-    """The step's window (:class:`HistoryWindow`, from the carried history) and its mask: the
-    features the transformer (the output network after it) reads. Stateless as a function of a
-    step's entries (the window travels with its step), so training uses shuffled single steps;
+    """The step's window (:class:`HistoryWindow`) and its mask, which the transformer after it reads;
     acting also returns the next step's history."""
 
     def __init__(self, cfg: TransformerPolicyConfig, token_dim: int) -> None:
@@ -228,25 +205,15 @@ class TransformerBody(Body):
 
 
 def make_transformer_agent(cfg: TransformerPolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
-    """Actor and critics: a transformer each (then an MLP), over the same carried window (the actor
-    carries it)."""
+    """Actor and critics: a transformer each (then an MLP), over the same carried window."""
+    token_dim = InputEncoder.of(cfg, env, normalizers.obs).in_dim  # raw tokens: a discrete action as its index
 
-    def network(out_dim: int, out_gain: float) -> _Trunk:
-        return _Trunk(
-            WindowTransformer(cfg, InputEncoder.of(cfg, env, normalizers.obs), env.obs_dim),
-            mlp(cfg.width, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain),
-        )
+    def network(role: str, out_dim: int, out_gain: float) -> tuple[TransformerBody, _Trunk]:
+        transformer = WindowTransformer(cfg, InputEncoder.of(cfg, env, normalizers.obs), env.obs_dim)
+        trunk = _Trunk(transformer, mlp(cfg.width, cfg.head_sizes, out_dim, cfg.activation, out_gain))
+        return TransformerBody(cfg, token_dim), trunk
 
-    token_dim = InputEncoder.of(
-        cfg, env, normalizers.obs
-    ).in_dim  # raw tokens: a discrete action is stored as its index
-    head = make_action_head(env.action_space, network(action_outputs(env.action_space), 0.01), cfg.init_log_std)
-    actor = Actor(TransformerBody(cfg, token_dim), head)
-    critics = {
-        signal: Critic(TransformerBody(cfg, token_dim), network(critic_outputs(signal, env), 1.0))
-        for signal in ("reward", "cost")
-    }
-    return Agent(actor, critics, normalizers, cost_names=env.cost_names)
+    return actor_and_critics(env, normalizers, cfg.init_log_std, network)
 
 
 register("policy", "transformer", TransformerPolicyConfig, make_transformer_agent)
