@@ -1,21 +1,15 @@
-"""The deployed policy of ``deploy.policy: average``: the uniform (Polyak-Ruppert) average of the
-actor's parameters over the last ``deploy.window`` fraction of the training iterations.
-
-Why an average at all: a Lagrangian method's guarantees are for the average of its iterates
-(the policy and lambda orbit the saddle point; the last iterate is wherever the orbit ends). Why
-of the parameters, rather than a mixture of the last M actors with one drawn per episode (whose
-occupancy measure is exactly the average of theirs): the average is one network of the same
-architecture, so every consumer of a trained agent (the evaluation, evaluate.py, the Reach1D plot,
-the video, a deterministic evaluation, a recurrent policy's carried state) runs it unchanged, and
-the checkpoint grows by one actor instead of M. The price: near a randomised optimum the iterates
-differ mostly in the few logits that pick between the mixed actions, and averaging those logits
-gives a policy between the iterates' choices, not their exact mixture (docs/constraint_satisfaction.md
-measures how close it ends). Buffers (none in the toolkit's actors today) are the last iterate's.
+"""The deployed policy of ``deploy.policy: average``: the uniform (Polyak-Ruppert) average of the actor's
+parameters over the last ``deploy.window`` fraction of the iterations. A Lagrangian method's guarantees are
+for the average of its iterates (they orbit the saddle point); an average of the parameters is one network of
+the same architecture, which every consumer of an agent runs unchanged (any policy head, a recurrent one
+included), but near a randomised optimum it is a policy between the iterates' choices, not their mixture
+(``mixture.py``; docs/constraint_satisfaction.md measures both). Buffers are the last iterate's.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import nn
@@ -28,28 +22,22 @@ def first_averaged_iteration(iterations: int, window: float) -> int:
 
 def deployed(result: dict) -> str:
     """Which policy an evaluation ran, from its ``final_policy`` (the run's ``deploy.policy``),
-    ``averaged_iterations`` and ``mixture_iterations`` keys (a result from before they existed: the last iterate)."""
-    if result.get("final_policy") == "mixture" and result.get("mixture_deployed"):
-        chosen = ", ".join(f"iteration {int(it)} ({w:.2f})" for it, w in result["mixture_deployed"])
+    ``averaged_iterations`` and ``mixture_*`` keys (a result from before they existed: the last iterate)."""
+    chosen = result.get("mixture_deployed") if result.get("final_policy") == "mixture" else None
+    if chosen:
         margin = f", costs + {result['mixture_margin']:g} standard errors" if "mixture_margin" in result else ""
-        within = (
-            f"within budget on their values{margin}"
-            if result.get("mixture_feasible")
-            else "none within budget: the least violating"
-        )
-        if len(result["mixture_deployed"]) == 1:
-            which = (
-                f"the best within budget{margin}"
-                if result.get("mixture_feasible")
-                else "none within budget: the least violating"
-            )
+        feasible = result.get("mixture_feasible")
+        if len(chosen) == 1:
+            which = f"the best within budget{margin}" if feasible else "none within budget: the least violating"
             return (
-                f"deployed policy: iteration {int(result['mixture_deployed'][0][0])}'s actor, of "
+                f"deployed policy: iteration {int(chosen[0][0])}'s actor, of "
                 f"{result.get('averaged_iterations')} snapshots valued ({which} on their values)"
             )
+        within = f"within budget on their values{margin}" if feasible else "none within budget: the least violating"
+        pairs = ", ".join(f"iteration {int(it)} ({w:.2f})" for it, w in chosen)
         return (
             f"deployed policy: a weighted mixture of {result.get('averaged_iterations')} iterates' actors "
-            f"({within}): {chosen}, one drawn per episode"
+            f"({within}): {pairs}, one drawn per episode"
         )
     if result.get("final_policy") == "mixture":
         return (
@@ -62,15 +50,18 @@ def deployed(result: dict) -> str:
 
 
 class ParameterAverage:
-    """Running mean of a module's parameters, one sample per :meth:`update`. Its state holds plain
-    tensors and an int, so a checkpoint with it loads with ``torch.load(weights_only=True)``."""
+    """Running mean of a module's parameters, one sample per :meth:`update`; its state is plain tensors and
+    an int (``torch.load(weights_only=True)``)."""
 
-    def __init__(self) -> None:
-        self.count = 0
+    def __init__(self, first_iteration: int = 1) -> None:
+        self.first_iteration, self.count = first_iteration, 0
         self.mean: dict[str, torch.Tensor] = {}
 
+    def wants(self, iteration: int) -> bool:
+        return iteration >= self.first_iteration
+
     @torch.no_grad()
-    def update(self, module: nn.Module) -> None:
+    def update(self, module: nn.Module, iteration: int | None = None) -> None:
         self.count += 1
         for name, p in module.named_parameters():
             if name not in self.mean:
@@ -85,8 +76,12 @@ class ParameterAverage:
             if name in self.mean:
                 p.copy_(self.mean[name])
 
+    def deploy(self, agent: Any) -> None:
+        self.apply(agent.actor)
+
     def state_dict(self) -> dict:
-        return {"count": self.count, "mean": {k: v.clone() for k, v in self.mean.items()}}
+        mean = {k: v.clone() for k, v in self.mean.items()}
+        return {"first_iteration": self.first_iteration, "count": self.count, "mean": mean}
 
     def load_state_dict(self, state: dict) -> None:
         self.count = int(state["count"])

@@ -1,9 +1,6 @@
-"""The ``deploy:`` node: which policy a run hands back at its end, and how it is chosen.
-
-One node for every consumer of the deployed policy: the end of training (``final_policy.FinalPolicy``),
-a checkpoint loaded again (``final_policy.deploy_saved``: evaluate, video, ``cmdp_rl.load``) and the
-snapshot valuation (``selection.py``, within :func:`valuation_plan`'s share of the run). The run config
-holds it as ``RunConfig.deploy``; :func:`resolve_auto` turns ``policy: auto`` into what the run deploys.
+"""The ``deploy:`` node (``RunConfig.deploy``): which policy a run hands back at its end, read by the end of
+training, a checkpoint loaded again (``final_policy.py``) and the snapshot valuation (``selection.py``);
+:func:`resolve_auto` turns ``policy: auto`` into what the run deploys.
 """
 
 from __future__ import annotations
@@ -40,11 +37,9 @@ class DeployConfig:
 
 
 # The snapshot valuation's price where episodes are not declared cheap: at most this share of the run's env
-# steps, spent on at least MIN_VALUED_EPISODES episodes per snapshot valued (fewer snapshots rather than
-# fewer episodes each: a cost measured on a handful of episodes has a standard error of the budget's order
-# on the navigation tasks, and the margin then rules every snapshot out). A run too short to give one
-# snapshot that many deploys its last iterate. The share is what the issue of deployment on any env
-# allows to be "bounded and stated"; 10% keeps the valuation below the measurement noise of a run's time.
+# steps, on at least MIN_VALUED_EPISODES episodes per snapshot (fewer snapshots rather than fewer episodes: a
+# cost measured on a handful has a standard error of the budget's order on the navigation tasks, and the
+# margin then rules every snapshot out). A run too short for one such snapshot deploys its last iterate.
 VALUATION_SHARE = 0.1
 MIN_VALUED_EPISODES = 20
 

@@ -1,11 +1,7 @@
 """The deployed policy as a user acts with it: ``cmdp_rl.load(run_dir).predict(obs)``, Stable-Baselines3's
-convention (``predict(observation, state, episode_start, deterministic) -> (action, state)``).
-
-It wraps the run's agent with the deployed actor already in place (deploy/final_policy.py: the last iterate,
-the average or the mixture) and carries between calls what the collector carries between steps
-(rollout/collector.PolicyMemory): a recurrent state, a transformer's window, the previous action and cost, a
-mixture's member for the episode. ``predict`` reads numpy or torch observations, one ``[obs_dim]`` or a batch
-``[n, obs_dim]``, and answers in kind.
+convention (``predict(observation, state, episode_start, deterministic) -> (action, state)``). It carries
+between calls what the collector carries between steps (``PolicyMemory``); ``predict`` reads numpy or torch
+observations, one ``[obs_dim]`` or a batch ``[n, obs_dim]``, and answers in kind.
 """
 
 from __future__ import annotations
@@ -57,11 +53,8 @@ class DeployedPolicy:
             if memory.prev_cost and cost is None:
                 raise ValueError("predict: this policy reads the previous step's cost: pass cost=[n, K] (or [K])")
             step_cost = torch.zeros(n, self.num_costs) if cost is None else torch.as_tensor(cost, dtype=torch.float32)
-            done = (
-                torch.zeros(n, 1, dtype=torch.bool)
-                if episode_start is None
-                else torch.as_tensor(np.asarray(episode_start), dtype=torch.bool).reshape(n, 1)
-            )
+            starts = np.zeros(n, dtype=bool) if episode_start is None else np.asarray(episode_start)
+            done = torch.as_tensor(starts, dtype=torch.bool).reshape(n, 1)
             _, carried = memory.step(state["out"], step_cost.reshape(n, self.num_costs).to(self.device), done)
             state = {**state, "root": {**state["root"], **carried}, "is_init": done}
         root = {**state["root"], keys.OBS: obs, keys.IS_INIT: state["is_init"].to(self.device)}
