@@ -4,17 +4,10 @@
 Finished runs (an ``eval.json``) under the given directories are grouped by config: by the fields
 named with ``--by``, else by every field but the seed (and bookkeeping such as ``total_steps``,
 ``threads``, ``logger``). Per group, over its runs' final evaluations, the table gives for return,
-cost and the violation rate (fraction of evaluation episodes with cost above the budget):
-
-- the mean and the interquartile mean (IQM: the mean of the middle half of the runs, robust to one
-  outlying seed), each with rliable's 95% stratified-bootstrap interval over runs (Agarwal et al. 2021,
-  "Deep Reinforcement Learning at the Edge of the Statistical Precipice");
-- a verdict against the budget d, from the 95% interval of the mean cost: "within budget with 95%
-  confidence" only if its upper end is at most d, "violates the budget with 95% confidence" if its
-  lower end is above d, else "inconclusive".
-
-``--figure`` draws learning curves from each run's ``metrics.csv``: per group the mean over runs
-with its 95% bootstrap band, return and cost (with the budget). See docs/evaluation.md.
+cost and the violation rate (fraction of evaluation episodes with cost above the budget) the mean and
+the interquartile mean (IQM), each with rliable's 95% stratified-bootstrap interval over runs (Agarwal
+et al. 2021), and a verdict against the budget d from the mean cost's interval. ``--figure`` draws each
+group's learning curves with their 95% bootstrap bands. See docs/evaluation.md.
 """
 
 from __future__ import annotations
@@ -63,9 +56,8 @@ def verdict(low: float | None, high: float | None, cost_limit: float | None) -> 
 
 @dataclass
 class Group:
-    """Runs with the same config but for the seed (or the same ``--by`` values), and their figures.
-    ``stats[metric]`` has ``n`` (runs with that number), ``mean``, ``mean_low``, ``mean_high``,
-    ``iqm``, ``iqm_low``, ``iqm_high`` (bounds None with fewer than 2 runs)."""
+    """Runs with the same config but for the seed (or the same ``--by`` values), and their figures:
+    ``stats[metric]`` is :func:`interval_estimates`'s."""
 
     label: str
     runs: list[RunRecord]
@@ -103,7 +95,8 @@ def _bootstrap(
 
 
 def interval_estimates(scores: np.ndarray, resamples: int = RESAMPLES, seed: int = 0) -> dict[str, Any]:
-    """Mean and IQM of one score per run, with 95% stratified-bootstrap intervals (rliable)."""
+    """``n``, mean and IQM of one score per run, with 95% stratified-bootstrap intervals (rliable):
+    ``mean_low``, ``mean_high``, ``iqm_low``, ``iqm_high``, None with fewer than 2 runs."""
     from rliable import metrics
 
     x = np.asarray(scores, dtype=np.float64)
@@ -121,8 +114,7 @@ def interval_estimates(scores: np.ndarray, resamples: int = RESAMPLES, seed: int
 
 
 def load_runs(paths: Sequence[str | Path]) -> tuple[list[RunRecord], list[RunRecord]]:
-    """``(finished, not finished)`` runs under ``paths`` (run or sweep directories); a rerun
-    supersedes the run it repeats (:func:`cmdp_rl.run.sweeps.mark_superseded`)."""
+    """``(finished, not finished)`` runs under ``paths``; a rerun supersedes the run it repeats."""
     records: dict[Path, RunRecord] = {}
     for p in paths:
         if not Path(p).is_dir():
@@ -142,8 +134,7 @@ def _value(v: Any) -> str:
 
 
 def group_runs(runs: Sequence[RunRecord], by: Sequence[str] = ()) -> list[Group]:
-    """Group by the ``by`` fields' values, else by the whole config but :data:`IGNORED` (labelled
-    by the fields that tell the groups apart)."""
+    """Group by the ``by`` fields' values, else by the whole config but :data:`IGNORED`."""
     flat = [flatten_dict(r.config) for r in runs]
     if by:
         keys = [tuple(_value(f.get(b, "?")) for b in by) for f in flat]
@@ -167,8 +158,7 @@ def _budget(run: RunRecord) -> float | None:
 def compare(
     paths: Sequence[str | Path], by: Sequence[str] = (), resamples: int = RESAMPLES, seed: int = 0
 ) -> tuple[list[Group], list[RunRecord]]:
-    """Groups of the finished runs under ``paths`` with their figures and verdicts, and the runs
-    that did not finish."""
+    """Groups of the finished runs under ``paths`` with their figures and verdicts, and the unfinished runs."""
     done, unfinished = load_runs(paths)
     groups = group_runs(done, by)
     for g in groups:
@@ -187,20 +177,19 @@ def _fmt(v: float | None, fmt: str) -> str:
     return "n/a" if v is None else format(v, fmt)
 
 
+def _cell(s: dict[str, Any], p: str, fmt: str) -> str:
+    """``p`` (mean or iqm) of the stats ``s`` with its interval."""
+    return f"{_fmt(s[p], fmt)} [{_fmt(s[p + '_low'], fmt)}, {_fmt(s[p + '_high'], fmt)}]" if s["n"] else "n/a"
+
+
 def format_table(groups: Sequence[Group]) -> str:
-    """The comparison as aligned text: one block of rows per group."""
+    """The comparison as aligned text, a block of rows per group."""
     head = ("group", "runs", "metric", "mean [95% CI]", "IQM [95% CI]")
     rows = []
     for g in groups:
         for i, (name, title, fmt) in enumerate(METRICS):
             s = g.stats[name]
-
-            def cell(p: str, s: dict = s, fmt: str = fmt) -> str:
-                return (
-                    f"{_fmt(s[p], fmt)} [{_fmt(s[p + '_low'], fmt)}, {_fmt(s[p + '_high'], fmt)}]" if s["n"] else "n/a"
-                )
-
-            rows.append((g.label if i == 0 else "", str(s["n"]), title, cell("mean"), cell("iqm")))
+            rows.append((g.label if i == 0 else "", str(s["n"]), title, _cell(s, "mean", fmt), _cell(s, "iqm", fmt)))
         budget = "n/a (budgets differ)" if g.cost_limit is None else f"{g.cost_limit:g}"
         rows.append(("", "", "budget d", budget, g.verdict))
     widths = [max(len(r[j]) for r in [head, *rows]) for j in range(len(head))]
@@ -208,20 +197,13 @@ def format_table(groups: Sequence[Group]) -> str:
     return "\n".join([line(head), line(tuple("-" * w for w in widths)), *map(line, rows)])
 
 
-def csv_rows(groups: Sequence[Group]) -> list[dict[str, Any]]:
-    """One row per group: runs, budget, verdict, and for each metric n, mean, IQM and their bounds."""
-    rows = []
-    for g in groups:
-        row: dict[str, Any] = {"group": g.label, "runs": len(g.runs), "cost_limit": g.cost_limit, "verdict": g.verdict}
-        for name, _, _ in METRICS:
-            for k, v in g.stats[name].items():
-                row[f"{name}_{k}"] = v
-        rows.append(row)
-    return rows
-
-
 def write_csv(groups: Sequence[Group], path: str | Path) -> Path:
-    rows = csv_rows(groups)
+    """One row per group: runs, budget, verdict, and for each metric n, mean, IQM and their bounds."""
+    rows = [
+        {"group": g.label, "runs": len(g.runs), "cost_limit": g.cost_limit, "verdict": g.verdict}
+        | {f"{name}_{k}": v for name, _, _ in METRICS for k, v in g.stats[name].items()}
+        for g in groups
+    ]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as f:
@@ -234,9 +216,8 @@ def write_csv(groups: Sequence[Group], path: str | Path) -> Path:
 def curve_band(
     runs: Sequence[RunRecord], name: str, k: int = 5, resamples: int = RESAMPLES, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(step, mean, low, high)`` of metric ``name`` over ``runs``' metrics.csv: each run smoothed
-    (trailing mean over ``k`` iterations), cut to the iterations every run reached, thinned to
-    :data:`CURVE_POINTS`; the band is the 95% stratified bootstrap over runs (none for one run)."""
+    """``(step, mean, low, high)`` of metric ``name`` over ``runs``' metrics.csv, each smoothed over ``k``
+    iterations, cut to those every run reached and thinned to :data:`CURVE_POINTS`; the band: rliable's."""
     n = min(len(r.metrics) for r in runs)
     idx = np.unique(np.linspace(0, n - 1, min(n, CURVE_POINTS)).round().astype(int)) if n else np.array([], int)
     step = np.array([runs[0].metrics[i]["step"] for i in idx])
@@ -265,8 +246,7 @@ def plot_groups(
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    """The command's arguments (``argv``; default: the process's), checked: a bad one exits with argparse's
-    usage line, status 2."""
+    """The command's arguments (``argv``; default: the process's); a bad one exits with status 2."""
     parser = argparse.ArgumentParser(
         prog="python -m cmdp_rl.report.compare",
         description=__doc__.split("\n\n")[1],

@@ -1,12 +1,7 @@
-"""Interval estimates of one run's final evaluation, over its evaluation episodes (docs/evaluation.md):
-
-- mean return and mean cost with a two-sided 95% BCa bootstrap interval (Efron 1987, "Better Bootstrap
-  Confidence Intervals"; ``scipy.stats.bootstrap``, a fixed seed), and mean cost's one-sided upper bound;
-- the violation rate, the fraction of episodes whose cost exceeded the budget ``d``, with the exact binomial
-  (Clopper-Pearson 1934) two-sided interval and one-sided upper bound: no distributional assumption.
-
-Resampling cannot show spread the sample did not have: when every episode had the same value the interval
-is that value alone, and the result says so (``no_spread``); with one episode there is none (``None``).
+"""Interval estimates of one run's final evaluation over its episodes (docs/evaluation.md): mean return and
+cost with a two-sided 95% BCa bootstrap interval (Efron 1987; ``scipy.stats.bootstrap``, a fixed seed) and the
+cost's one-sided upper bound; the violation rate with the exact binomial (Clopper-Pearson 1934) interval and
+bound. Resampling cannot show spread the sample lacks: equal values give ``no_spread``; one episode, ``None``.
 """
 
 from __future__ import annotations
@@ -37,14 +32,8 @@ def mean_interval(
     if x.ndim != 1 or x.size == 0:
         raise ValueError(f"mean_interval: need a non-empty 1-D sample, got shape {x.shape}")
     mean = float(x.mean())
-    out: dict[str, Any] = {
-        "mean": mean,
-        "n": int(x.size),
-        "low": None,
-        "high": None,
-        "upper": None,
-        "no_spread": bool(np.ptp(x) == 0),
-    }
+    out: dict[str, Any] = {"mean": mean, "n": int(x.size), **dict.fromkeys(("low", "high", "upper"))}
+    out["no_spread"] = bool(np.ptp(x) == 0)
     if x.size < 2:
         return out
     if out["no_spread"]:
@@ -69,8 +58,8 @@ def mean_interval(
 
 
 def violation_interval(costs: Sequence[float], cost_limit: float, level: float = LEVEL) -> dict[str, Any]:
-    """The fraction of episodes with cost above ``cost_limit``, with the exact (Clopper-Pearson)
-    two-sided interval (``low``, ``high``) and one-sided upper bound (``upper``) at ``level``."""
+    """The fraction of episodes with cost above ``cost_limit``, with its Clopper-Pearson two-sided interval
+    (``low``, ``high``) and one-sided upper bound (``upper``)."""
     c = np.asarray(costs, dtype=np.float64)
     if c.ndim != 1 or c.size == 0:
         raise ValueError(f"violation_interval: need a non-empty 1-D sample, got shape {c.shape}")
@@ -91,8 +80,7 @@ def violation_interval(costs: Sequence[float], cost_limit: float, level: float =
 def summarize(
     returns: Sequence[float], costs: Sequence[float], cost_limit: float, resamples: int = RESAMPLES, seed: int = SEED
 ) -> dict[str, Any]:
-    """The interval keys eval.json carries, for one run's evaluation episodes (JSON-ready:
-    intervals are ``[low, high]`` lists, unknown bounds are None)."""
+    """The interval keys eval.json carries (``[low, high]`` lists; None for unknown bounds)."""
     ret = mean_interval(returns, LEVEL, resamples, seed)
     cost = mean_interval(costs, LEVEL, resamples, seed)
     viol = violation_interval(costs, cost_limit, LEVEL)
@@ -127,8 +115,7 @@ def _ci(pair: list[float] | None, fmt: str) -> str:
 
 
 def summary_lines(result: dict[str, Any], cost_limit: float) -> list[str]:
-    """Lines for a result holding :func:`summarize`'s keys (and ``episode_return``, ``episode_cost``,
-    ``episodes``): the return's interval, the cost's, the violations' (the README shows them)."""
+    """The return's, the cost's and the violations' interval lines of a result holding :func:`summarize`'s keys."""
     n = result["episodes"]
     flat = result["intervals"]["no_spread"]
     ucb = result["episode_cost_ucb95"]

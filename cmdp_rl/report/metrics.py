@@ -34,7 +34,6 @@ RUN_COLUMNS = [
     "sps",
     "time_s",
 ]
-# The field's metrics (safety_metrics.py): blank where no reference is given.
 SAFETY_COLUMNS = ["cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate"]
 PER_CONSTRAINT = (
     "episode_cost",
@@ -47,8 +46,7 @@ PER_CONSTRAINT = (
 
 
 def constraint_name(name: str, cost_name: str, num_costs: int) -> str:
-    """The column (or eval.json key) of ``name`` for one constraint: ``name`` itself when the env
-    has one cost, else ``name/cost_name``."""
+    """The column (or eval.json key) of ``name`` for one constraint: ``name`` with one cost, else ``name/cost_name``."""
     return name if num_costs == 1 else f"{name}/{cost_name}"
 
 
@@ -131,10 +129,9 @@ class RecentEpisodes:
 
 
 class MetricsLogger:
-    """One CSV row per iteration (flushed at once), a progress line every ``log_interval`` iterations.
-    ``resume_iteration``: continue the file after that row (:func:`truncate_metrics`). ``tensorboard_dir``:
-    every numeric column but ``iteration`` and ``step`` as a scalar at ``global_step = step``; ``resume_step``
-    (the checkpoint's) hides what a killed run wrote after it (``purge_step``). ``wandb``: :func:`wandb_for`."""
+    """One CSV row per iteration and a progress line every ``log_interval``. ``resume_iteration``: continue the
+    file (:func:`truncate_metrics`); ``tensorboard_dir``: the numbers as scalars at ``step``, ``resume_step``
+    hiding what a killed run wrote after its checkpoint; ``wandb``: :func:`wandb_for`."""
 
     def __init__(
         self,
@@ -178,8 +175,7 @@ class MetricsLogger:
             wandb.start(resume_iteration is not None)  # last: a resume refused above starts no wandb run
 
     def log(self, row: dict[str, Any], force_echo: bool = False, episodes: Mapping[str, Any] | None = None) -> None:
-        """Write ``row``; ``episodes`` (the iteration's finished episodes: ``return`` [E], ``cost`` [E, K])
-        feed the progress line's window of recent episodes."""
+        """Write ``row``; ``episodes`` (finished ones: ``return`` [E], ``cost`` [E, K]) feed the progress line."""
         if episodes is not None:
             self.recent.add(episodes["return"].tolist(), episodes["cost"].tolist())
         unknown = [k for k in row if k not in self.columns]
@@ -212,7 +208,7 @@ class MetricsLogger:
             self._tb.close()
 
     def finish(self, summary: Mapping[str, Any]) -> None:
-        """The end-of-run summary (eval.json's contents): attached to the wandb run, which ends here."""
+        """Attach the run's summary (eval.json) to the wandb run, which ends here."""
         if self._wandb is not None:
             self._wandb.finish(summary)
 
@@ -279,9 +275,7 @@ def _fmt(x: float, spec: str) -> str:
 
 def _per_constraint(row: dict[str, Any], name: str) -> list:
     """``name``'s values in a row: its one column, or its ``name/<cost>`` columns in order."""
-    if name in row:
-        return [row[name]]
-    return [v for k, v in row.items() if k.startswith(name + "/")]
+    return [row[name]] if name in row else [v for k, v in row.items() if k.startswith(name + "/")]
 
 
 def format_row(row: dict[str, Any], recent: RecentEpisodes | None = None) -> str:

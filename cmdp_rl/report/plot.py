@@ -1,10 +1,9 @@
 """Learning curves of runs: ``python -m cmdp_rl.report.plot <run dirs...> [-o curves.png] [--smooth K]``.
 
-Draws episode return, episode cost (with each config's budget d as a dashed line) and the Lagrange
-multiplier against env steps, from each run's ``metrics.csv``. Runs whose configs differ only in
-``seed`` are one curve: the mean over seeds, with a band of one standard deviation across seeds.
-Each run's curve is first smoothed with a trailing mean over ``K`` iterations that skips iterations
-in which no episode ended (NaN in the CSV). With K > 1 costs: a cost and a multiplier panel per constraint.
+Draws episode return, episode cost (with each config's budget d dashed) and the Lagrange multiplier (a cost
+and a multiplier panel per constraint) against env steps from each run's ``metrics.csv``. Runs whose configs
+differ only in ``seed`` are one curve, the mean with a band of one standard deviation, each run first smoothed
+by a trailing mean over ``K`` iterations that skips those in which no episode ended.
 """
 
 from __future__ import annotations
@@ -33,8 +32,7 @@ PANELS = (
 
 
 def panels(columns: Sequence[str]) -> list[tuple[str, str]]:
-    """(column, title) of each panel for a run with these metrics.csv columns: return, then each
-    constraint's episode cost, then each constraint's multiplier."""
+    """(column, title) of each panel for a run with these metrics.csv columns: return, costs, multipliers."""
     out = [PANELS[0]]
     for name, title in PANELS[1:]:
         if name in columns:
@@ -65,8 +63,7 @@ def varying(cfgs: Sequence[dict[str, Any]], skip: Callable[[str], bool]) -> list
 
 @dataclass
 class Curve:
-    """One group of runs' mean per panel, its band ``(low, high)`` per panel (none for one run), and the
-    budget d of each episode-cost panel."""
+    """One group of runs: mean and band ``(low, high)`` per panel (none for one run), each cost panel's budget."""
 
     label: str
     step: np.ndarray
@@ -97,7 +94,7 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]
 
 
 def smooth(x: np.ndarray, k: int) -> np.ndarray:
-    """Trailing mean over the last ``k`` finite values in a window of ``k`` entries."""
+    """Trailing mean over the finite values in a window of ``k`` entries."""
     if k <= 1:
         return x
     out = np.full_like(x, np.nan)
@@ -123,7 +120,7 @@ def aggregate(runs: Sequence[dict[str, np.ndarray]], k: int = 1) -> tuple[np.nda
 
 
 def group_runs(run_dirs: Sequence[str | Path], k: int = 1) -> list[Curve]:
-    """Group runs whose configs agree on everything but :data:`IGNORED` and average each group."""
+    """Group runs whose configs agree but for :data:`IGNORED` and the deploy node, and average each group."""
     groups: dict[str, list[tuple[dict, dict]]] = {}
     for cfg, cols in map(read_run, run_dirs):
         groups.setdefault(config_key(cfg, _grouped_across), []).append((cfg, cols))

@@ -13,7 +13,8 @@ from cmdp_rl.envs import Reach1D, reach1d_kwargs
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.plot import pyplot, save_figure
-from cmdp_rl.report.video import PolicyOnOneEnv
+from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.collector import PolicyMemory
 
 
 @dataclass
@@ -41,26 +42,31 @@ class Reach1DEpisode:
 def record_reach1d(
     agent: Agent, env_cfg: Reach1DConfig, episodes: int, deterministic: bool = True, seed: int = 0
 ) -> list[Reach1DEpisode]:
-    """Run ``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once, as env 0 of
-    a vector env is), recording the true position beside the reading the agent saw."""
+    """``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once), with the true positions."""
     env = Reach1D(**reach1d_kwargs(env_cfg))
-    policy = PolicyOnOneEnv(agent, env.action_space, deterministic)
+    memory = PolicyMemory(agent, 1, env.action_space, torch.device("cpu"))
     out: list[Reach1DEpisode] = []
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         obs, info = env.reset(seed=seed)
         for _ in range(episodes):
             ep = Reach1DEpisode(true_x=[info["true_x"]], reading=[float(obs[0])])
-            policy.start()
+            is_init, carried = True, memory.start()
             while True:
-                action = policy.act(obs).numpy().astype(env.action_space.dtype)  # the env's dtype, as GymVecEnv
+                wrote = agent.act(
+                    {**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0), keys.IS_INIT: torch.tensor([[is_init]])},
+                    deterministic,
+                )
+                action = wrote[keys.ACTION][0].numpy().astype(env.action_space.dtype)  # as GymVecEnv sends it
                 obs, reward, terminated, truncated, info = env.step(action)
-                policy.observe(np.array([info["cost"]]))
+                # as in the collector: the policy's next state, previous action and cost
+                _, carried = memory.step(wrote, torch.tensor([[float(info["cost"])]]), torch.tensor([[False]]))
                 ep.action.append(float(action[0]))
                 ep.reward.append(float(reward))
                 ep.cost.append(float(info["cost"]))
                 ep.true_x.append(float(info["true_x"]))
                 ep.reading.append(float(obs[0]))
+                is_init = False
                 if terminated or truncated:
                     ep.terminated = bool(terminated)
                     break
@@ -71,8 +77,7 @@ def record_reach1d(
 
 
 def plot_reach1d(episodes: list[Reach1DEpisode], env_cfg: Reach1DConfig, path: str | Path, title: str = "") -> Path:
-    """One panel per episode: true position and noisy reading against time, the wall, the goal
-    (with its 0.02 reach band), and a red cross at every step that crossed the wall (cost 1)."""
+    """A panel per episode: true position and reading over time, the wall, the goal (its 0.02 band), crossings."""
     plt = pyplot()
     n = len(episodes)
     fig, axes = plt.subplots(n, 1, figsize=(9.5, 2.4 * n), sharex=True, squeeze=False)

@@ -1,9 +1,7 @@
-"""The end-of-run summary: how good the trained policy is, in words a newcomer can read.
-
-What it knows of a task comes from the env's options, each optional: ``optimum(cost_limit) -> float``, an
-exact solver's best eval return within the budget (given the list of K budgets with K > 1 costs);
-``termination_metric``, the ``eval.json`` key of the fraction of episodes that terminated (a goal reached);
-``termination_note() -> str | None``, why no episode can terminate with these options (printed instead).
+"""The end-of-run summary, in words a newcomer can read. What it knows of a task comes from the env's options,
+each optional: ``optimum(cost_limit)`` (an exact solver's best return within the budget; K budgets with K > 1
+costs), ``termination_metric`` (the ``eval.json`` key of the fraction of episodes that terminated) and
+``termination_note()`` (why no episode can terminate with these options, printed instead).
 """
 
 from __future__ import annotations
@@ -30,8 +28,7 @@ class Constraint:
 
 
 def _named(cost_limit: float | Sequence[float], cost_names: Sequence[str] | None) -> list[tuple[str, str, float]]:
-    """(name, eval.json key suffix, budget) per constraint: ``cost`` and the plain keys for one cost, else each
-    cost's name and ``/<name>``."""
+    """(name, eval.json key suffix, budget) per constraint: (``cost``, ``""``) for one cost, else ``/<name>``."""
     if cost_names is None or len(cost_names) == 1:
         return [("cost", "", *per_constraint(cost_limit, "algo.cost_limit", ["cost"]))]
     return [(n, "/" + n, d) for n, d in zip(cost_names, per_constraint(cost_limit, "algo.cost_limit", cost_names))]
@@ -94,10 +91,8 @@ def summary_lines(
     optimum: float | None = None,
     cost_names: Sequence[str] | None = None,
 ) -> list[str]:
-    """The summary: ``header`` and the episode count, then return (against the optimum where the
-    env can compute it: pass ``optimum`` to skip the solver), each constraint against its budget
-    with a verdict (``cost_names``: the env's K > 1 costs, each its own line), the interval
-    estimates (per constraint), and the termination metric where the task has one."""
+    """The summary: ``header`` and episode count, return (against the env's optimum, or ``optimum``), each
+    constraint against its budget, the intervals and the termination metric where the task has one."""
     named = _named(cost_limit, cost_names)
     if optimum is None:
         optimum = optimum_of(env_cfg, named[0][2] if len(named) == 1 else [d for _, _, d in named])

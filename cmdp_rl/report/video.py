@@ -1,11 +1,7 @@
-"""Videos of a trained policy (``python evaluate.py run=<dir> video=true``), through gymnasium's
-``RecordVideo`` (which writes with moviepy: ``pip install 'cmdp_rl[video]'``). An env that can render
-declares ``render_env()`` on its options: one gymnasium env of its config with ``render_mode="rgb_array"``.
-
-Headless MuJoCo: with no ``DISPLAY`` and no ``MUJOCO_GL``, this module sets ``MUJOCO_GL=egl`` (gymnasium
-would try GLFW first, which needs a display); without a GPU EGL renders in software through Mesa
-(:data:`HEADLESS_GL` names the packages; docs/evaluation.md the speed). MuJoCo reads ``MUJOCO_GL`` when
-imported (torchrl imports it), so one naming a missing library breaks ``import cmdp_rl`` itself.
+"""Videos of a trained policy (``evaluate.py run=<dir> video=true``) through gymnasium's ``RecordVideo`` (moviepy:
+``pip install 'cmdp_rl[video]'``), on the env its options' ``render_env()`` gives. Headless MuJoCo: with no
+``DISPLAY`` and no ``MUJOCO_GL`` this sets ``MUJOCO_GL=egl`` (software through Mesa without a GPU:
+:data:`HEADLESS_GL`); MuJoCo reads it when imported, so one naming a missing library breaks ``import cmdp_rl``.
 """
 
 from __future__ import annotations
@@ -25,10 +21,9 @@ import numpy as np
 import torch
 
 from cmdp_rl.config.validation import ConfigError
+from cmdp_rl.deploy.policy import DeployedPolicy
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.actions import to_env
-from cmdp_rl.rollout.collector import PolicyMemory
 
 VIDEO_MISSING = "video=true needs moviepy (gymnasium's RecordVideo writes with it): pip install 'cmdp_rl[video]'"
 HEADLESS_GL = (
@@ -56,8 +51,8 @@ def _headless_gl() -> None:
 
 
 def make_render_env(env_cfg: Any) -> gym.Env:
-    """One env of ``env_cfg`` that renders ``rgb_array`` frames, with one frame rendered already:
-    an env that cannot render, or a renderer that cannot start here, fails now with one line."""
+    """One env of ``env_cfg`` that renders ``rgb_array`` frames, one frame rendered already: an env that
+    cannot render, or a renderer that cannot start here, fails now with one line."""
     if importlib.util.find_spec("moviepy") is None:
         raise ConfigError(f"video: {VIDEO_MISSING}")
     make = getattr(env_cfg, "render_env", None)
@@ -114,38 +109,6 @@ def _unraisable_ignored() -> Iterator[None]:
         sys.unraisablehook = hook
 
 
-class PolicyOnOneEnv:
-    """The trained actor driving one plain env, carrying its memory from step to step as the collector does
-    (the video, ``reach1d_episodes.record_reach1d``). ``extra``: an env transform's state (Sauté's budget)."""
-
-    def __init__(self, agent: Agent, action_space: gym.Space, deterministic: bool, extra: Any = None) -> None:
-        self.agent, self.deterministic, self.extra = agent, deterministic, extra
-        self.memory = PolicyMemory(agent, 1, action_space, torch.device("cpu"))
-
-    def start(self) -> None:
-        self.carried, self.is_init = self.memory.start(), True
-        if self.extra is not None:
-            self.extra.start()
-
-    def act(self, obs: np.ndarray) -> torch.Tensor:
-        # as GymVecEnv hands observations to the collector: float32, flat
-        obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))
-        if self.extra is not None:
-            obs_t = self.extra.observation(obs_t)
-        self.wrote = self.agent.act(
-            {**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])}, self.deterministic
-        )
-        return self.wrote[keys.ACTION][0]
-
-    def observe(self, cost: np.ndarray) -> None:
-        """After the env's step: the policy's next state, previous action and cost (all K of them)."""
-        cost_t = torch.as_tensor(cost, dtype=torch.float32).view(1, -1)
-        if self.extra is not None:
-            self.extra.observe(cost_t)
-        _, self.carried = self.memory.step(self.wrote, cost_t, torch.tensor([[False]]))
-        self.is_init = False
-
-
 @torch.no_grad()
 def record_video(
     agent: Agent,
@@ -158,11 +121,8 @@ def record_video(
     name_prefix: str = "policy",
     algo: Any = None,
 ) -> list[VideoEpisode]:
-    """Record ``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with ``seed``
-    once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
-    (``<name_prefix>-episode-<i>.mp4``: the reset frame and one per step); ``max_steps`` cuts each short.
-    ``algo``: the run's algorithm options, whose ``observation_state(cost_names)`` (Sauté's budget), if any,
-    is carried along the episode."""
+    """``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with ``seed`` once), one mp4
+    each in ``video_dir``, cut at ``max_steps``; ``algo``'s ``observation_state`` (Sauté's budget) carried along."""
     from gymnasium.wrappers import RecordVideo
 
     env = make_render_env(env_cfg)
@@ -173,23 +133,29 @@ def record_video(
         name_prefix=name_prefix,
         fps=exact_fps(env.metadata.get("render_fps", 30)),
     )
-    policy = PolicyOnOneEnv(
-        agent, env.action_space, deterministic, None if algo is None else algo.observation_state(agent.cost_names)
-    )
+    policy = DeployedPolicy(agent, env.action_space, agent.num_costs)
+    extra = None if algo is None else algo.observation_state(agent.cost_names)
     out: list[VideoEpisode] = []
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         obs, _ = env.reset(seed=seed)
         for i in range(episodes):
-            policy.start()
+            state = step_cost = None
             ret = cost = 0.0
             steps = 0
+            if extra is not None:
+                extra.start()
             while True:
-                action = to_env(policy.act(obs).view(1, -1), env.action_space)[0]  # as the vector env steps it
+                obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))  # as GymVecEnv gives it
+                if extra is not None:
+                    obs_t = extra.observation(obs_t)
+                action, state = policy.predict(obs_t, state, deterministic=deterministic, cost=step_cost)
+                action = to_env(torch.as_tensor(action).view(1, -1), env.action_space)[0]  # as the vector env steps
                 obs, reward, terminated, truncated, info = env.step(action)
-                step_cost = np.asarray(info.get("cost", 0.0), dtype=np.float64).reshape(-1)  # [K]
-                policy.observe(step_cost)
-                ret, cost, steps = ret + float(reward), cost + step_cost, steps + 1
+                step_cost = np.asarray(info.get("cost", 0.0), dtype=np.float64).reshape(1, -1)  # [1, K]
+                if extra is not None:
+                    extra.observe(torch.as_tensor(step_cost, dtype=torch.float32))
+                ret, cost, steps = ret + float(reward), cost + step_cost[0], steps + 1
                 if terminated or truncated or (max_steps is not None and steps >= max_steps):
                     break
             episode_cost = float(cost[0]) if np.size(cost) == 1 else tuple(float(c) for c in cost)
