@@ -1,10 +1,6 @@
 """The deployed policy of ``deploy.policy: average``: the uniform (Polyak-Ruppert) average of the actor's
-parameters over the last ``deploy.window`` fraction of the iterations. A Lagrangian method's guarantees are
-for the average of its iterates (they orbit the saddle point); an average of the parameters is one network of
-the same architecture, which every consumer of an agent runs unchanged (any policy head, a recurrent one
-included), but near a randomised optimum it is a policy between the iterates' choices, not their mixture
-(``mixture.py``; docs/constraint_satisfaction.md measures both). Buffers are the last iterate's.
-"""
+parameters over the last ``deploy.window`` of the iterations: one network any consumer runs unchanged, but near a
+randomised optimum a policy between the iterates' choices, not their mixture (docs/constraint_satisfaction.md)."""
 
 from __future__ import annotations
 
@@ -21,37 +17,29 @@ def first_averaged_iteration(iterations: int, window: float) -> int:
 
 
 def deployed(result: dict) -> str:
-    """Which policy an evaluation ran, from its ``final_policy`` (the run's ``deploy.policy``),
-    ``averaged_iterations`` and ``mixture_*`` keys (a result from before they existed: the last iterate)."""
-    chosen = result.get("mixture_deployed") if result.get("final_policy") == "mixture" else None
+    """Which policy an evaluation ran, from its ``final_policy`` and ``averaged_iterations`` and ``mixture_*`` keys."""
+    policy, n = result.get("final_policy", "last"), result.get("averaged_iterations")
+    chosen = result.get("mixture_deployed") if policy == "mixture" else None
     if chosen:
         margin = f", costs + {result['mixture_margin']:g} standard errors" if "mixture_margin" in result else ""
         feasible = result.get("mixture_feasible")
         if len(chosen) == 1:
             which = f"the best within budget{margin}" if feasible else "none within budget: the least violating"
-            return (
-                f"deployed policy: iteration {int(chosen[0][0])}'s actor, of "
-                f"{result.get('averaged_iterations')} snapshots valued ({which} on their values)"
-            )
+            which = f"{n} snapshots valued ({which} on their values)"
+            return f"deployed policy: iteration {int(chosen[0][0])}'s actor, of {which}"
         within = f"within budget on their values{margin}" if feasible else "none within budget: the least violating"
         pairs = ", ".join(f"iteration {int(it)} ({w:.2f})" for it, w in chosen)
-        return (
-            f"deployed policy: a weighted mixture of {result.get('averaged_iterations')} iterates' actors "
-            f"({within}): {pairs}, one drawn per episode"
-        )
-    if result.get("final_policy") == "mixture":
-        return (
-            f"deployed policy: a uniform mixture of {result.get('averaged_iterations')} iterates' actors "
-            f"(iterations {result.get('mixture_iterations')}), one drawn per episode"
-        )
-    if result.get("final_policy", "last") == "average":
-        return f"deployed policy: the average of the last {result.get('averaged_iterations')} iterates' parameters"
+        return f"deployed policy: a weighted mixture of {n} iterates' actors ({within}): {pairs}, one drawn per episode"
+    if policy == "mixture":
+        iterations = f"iterations {result.get('mixture_iterations')}"
+        return f"deployed policy: a uniform mixture of {n} iterates' actors ({iterations}), one drawn per episode"
+    if policy == "average":
+        return f"deployed policy: the average of the last {n} iterates' parameters"
     return "deployed policy: the last iterate"
 
 
 class ParameterAverage:
-    """Running mean of a module's parameters, one sample per :meth:`update`; its state is plain tensors and
-    an int (``torch.load(weights_only=True)``)."""
+    """Running mean of a module's parameters, one sample per :meth:`update` (plain tensors and an int)."""
 
     def __init__(self, first_iteration: int = 1) -> None:
         self.first_iteration, self.count = first_iteration, 0

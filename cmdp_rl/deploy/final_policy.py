@@ -1,7 +1,5 @@
-"""What a run deploys (``deploy.policy``), kept beside its training: the last iterate, the parameter average
-(``average.py``) or a mixture of snapshots (``mixture.py``); one per run or population agent.
-:func:`deploy_saved` puts the same policy back from a checkpoint (evaluate, video, ``cmdp_rl.load``).
-"""
+"""What a run (or population agent) deploys, kept beside its training: the last iterate, the parameter average
+(``average.py``) or a mixture of snapshots (``mixture.py``); :func:`deploy_saved` puts it back from a checkpoint."""
 
 from __future__ import annotations
 
@@ -18,8 +16,7 @@ ENTRIES = {"average": ("policy_average", "averaged policy"), "mixture": ("policy
 
 
 class FinalPolicy:
-    """``cfg.deploy.policy`` over a run of ``iterations``, continuing what ``saved`` (a checkpoint's
-    entry) holds of it."""
+    """``cfg.deploy.policy`` over a run of ``iterations``, continuing a checkpoint entry's ``saved``."""
 
     def __init__(self, cfg: RunConfig, iterations: int, saved: dict[str, Any] | None = None) -> None:
         self.cfg, self.iterations = cfg, iterations
@@ -59,8 +56,7 @@ class FinalPolicy:
 
 
 def deploy_saved(cfg: RunConfig, state: dict[str, Any], agent: Agent) -> None:
-    """Put into ``agent`` (holding the checkpoint's last iterate) the policy the run deployed, from the
-    checkpoint ``state``'s entries for it; a ValueError names what the checkpoint lacks."""
+    """Put into ``agent`` (the checkpoint's last iterate) the policy the run deployed, from ``state``."""
     if cfg.deploy.policy not in ENTRIES:
         return
     key, what = ENTRIES[cfg.deploy.policy]

@@ -1,14 +1,8 @@
-"""The deployed policy of ``deploy.policy: mixture``: a mixture of at most ``deploy.snapshots`` snapshots of
-the actor over the last ``deploy.window`` fraction of the iterations, one drawn per EPISODE and followed
-until it ends. A primal-dual method's guarantees are for the average of its iterates' occupancy measures,
-which is exactly the occupancy of this policy (Le, Voloshin, Yue, ICML 2019, Sec. 3-4; Calvo-Fullana,
-Paternain, Ribeiro, Chamon, IEEE TAC 2023, Sec. III: the last iterate need not be feasible, the mixture is);
-a draw per step would mix the actions, a different policy.
-
-The draw is a carried state of the actor's body (``keys.MIXTURE_MEMBER``), drawn where ``is_init`` from
-torch's generator, so everything that runs an agent runs a mixture unchanged. Its members are memoryless
-actors (``policy=mlp``), whose states cannot collide.
-"""
+"""The deployed policy of ``deploy.policy: mixture``: at most ``deploy.snapshots`` snapshots of the actor over
+the last ``deploy.window`` of the iterations, one drawn per EPISODE and followed until it ends, whose occupancy
+is the iterates' average, what a primal-dual method's guarantees are about (docs/constraint_satisfaction.md).
+The draw is a carried state of the actor's body (``keys.MIXTURE_MEMBER``), drawn where ``is_init``, so
+everything that runs an agent runs a mixture unchanged; its members are memoryless (``policy=mlp``)."""
 
 from __future__ import annotations
 
@@ -23,8 +17,7 @@ from cmdp_rl.rollout import keys
 
 
 class IterateSnapshots:
-    """Copies of the actor's state every ``stride = ceil(W / size)`` iterations of a window of W, ending with
-    the last; its state is plain tensors and ints (``torch.load(weights_only=True)``)."""
+    """The actor's state every ``stride = ceil(W / size)`` iterations of a window of W, ending with the last."""
 
     def __init__(self, first_iteration: int, iterations: int, size: int) -> None:
         self.first_iteration, self.iterations = first_iteration, iterations
@@ -51,8 +44,7 @@ class IterateSnapshots:
         self.members.append({k: v.detach().clone() for k, v in module.state_dict().items()})
 
     def adopt(self, state: dict) -> None:
-        """Resume from a saved state: all of it on the same window, else the saved snapshots this window's
-        schedule also takes, without the weights chosen at the saved run's end."""
+        """Resume from a saved state; on a moved window, only the snapshots this window also takes, unweighted."""
         if (state["first_iteration"], state["stride"]) == (self.first_iteration, self.stride):
             self.load_state_dict(state)
             return
@@ -61,15 +53,9 @@ class IterateSnapshots:
         self.members = [{k: v.clone() for k, v in m.items()} for _, m in kept]
 
     def state_dict(self) -> dict:
-        return {
-            "first_iteration": self.first_iteration,
-            "stride": self.stride,
-            "taken": list(self.taken),
-            "members": [{k: v.clone() for k, v in m.items()} for m in self.members],
-            "weights": self.weights,
-            "values": self.values,
-            "feasible": self.feasible,
-        }
+        members = [{k: v.clone() for k, v in m.items()} for m in self.members]
+        out = dict(first_iteration=self.first_iteration, stride=self.stride, taken=list(self.taken), members=members)
+        return out | dict(weights=self.weights, values=self.values, feasible=self.feasible)
 
     def load_state_dict(self, state: dict) -> None:
         self.taken = [int(i) for i in state["taken"]]
@@ -78,8 +64,7 @@ class IterateSnapshots:
         self.values, self.feasible = state.get("values"), state.get("feasible")
 
     def result_keys(self, weighting: str) -> dict:
-        """What ``eval.json`` records of the deployed mixture: the snapshots' iterations, and with chosen
-        weights the deployed (iteration, weight) pairs, feasibility and every snapshot's values."""
+        """What ``eval.json`` records of the deployed mixture (its iterations; weights, feasibility, values)."""
         out = {"mixture_iterations": list(self.taken), "mixture_weights": weighting}
         if self.weights is not None:
             out.update(
@@ -118,8 +103,7 @@ class IterateSnapshots:
 
 
 class MixtureBody(Body):
-    """Runs every member actor on the step and keeps, per row, the distribution parameters of the
-    row's member (``keys.MIXTURE_MEMBER``, drawn afresh where ``is_init``)."""
+    """Runs the member actors and keeps each row's member's parameters (``keys.MIXTURE_MEMBER``)."""
 
     state_keys = (keys.MIXTURE_MEMBER,)
 
@@ -179,8 +163,7 @@ def _grid(member: torch.Tensor) -> tuple[torch.Tensor, ...]:
 def mixture_actor(
     members: list[Actor], weights: list[float] | None = None, assigned: torch.Tensor | None = None
 ) -> Actor:
-    """An actor that draws one of ``members`` per episode (uniformly, or with ``weights``) and
-    follows it; with ``assigned`` (a member index per env row) each row always acts with its own."""
+    """An actor drawing one of ``members`` per episode (with ``weights``), or each row's ``assigned`` one."""
     # The body gives the chosen member's parameters; the distribution is the members' own (a bound method:
     # not a second registration of the member's head).
     head = nn.Identity()

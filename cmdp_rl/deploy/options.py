@@ -1,7 +1,5 @@
-"""The ``deploy:`` node (``RunConfig.deploy``): which policy a run hands back at its end, read by the end of
-training, a checkpoint loaded again (``final_policy.py``) and the snapshot valuation (``selection.py``);
-:func:`resolve_auto` turns ``policy: auto`` into what the run deploys.
-"""
+"""The ``deploy:`` node (``RunConfig.deploy``): which policy a run hands back, read by ``final_policy.py`` and
+``selection.py``; :func:`resolve_auto` turns ``policy: auto`` into what the run deploys."""
 
 from __future__ import annotations
 
@@ -14,10 +12,8 @@ RunConfig = Any  # cmdp_rl.config.run_config.RunConfig, which imports this modul
 
 @options
 class DeployConfig:
-    """``deploy:`` (configs/config.yaml documents each field): the last iterate, the average of the actor's
-    parameters over the last ``window`` of the iterations (``average.py``), or a mixture of at most
-    ``snapshots`` snapshots of the actor over that window, one drawn per episode (``mixture.py``), weighted
-    uniformly or as the best mixture within every budget on their measured values (``selection.py``)."""
+    """``deploy:`` (configs/config.yaml documents each field): the last iterate, the parameter average
+    (``average.py``) or a mixture of snapshots (``mixture.py``), weighted uniformly or by ``selection.py``."""
 
     policy: Literal["auto", "last", "average", "mixture"] = "auto"
     window: Annotated[float, finite(gt=0, le=1)] = 0.5
@@ -45,9 +41,8 @@ MIN_VALUED_EPISODES = 20
 
 
 def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
-    """(snapshots, episodes each) of ``deploy.policy: auto``'s mixture on an env not declared cheap to value,
-    within :data:`VALUATION_SHARE` of ``total_steps``; None where the share does not buy one snapshot
-    :data:`MIN_VALUED_EPISODES` episodes, or the env's episode length is unknown."""
+    """(snapshots, episodes each) of ``auto``'s mixture within :data:`VALUATION_SHARE` of ``total_steps`` where
+    episodes are not declared cheap; None where that buys no snapshot :data:`MIN_VALUED_EPISODES` episodes."""
     steps = cfg.env.episode_steps()
     if not steps:
         return None
@@ -59,10 +54,8 @@ def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
 
 
 def resolve_auto(cfg: RunConfig) -> None:
-    """``deploy.policy: auto`` becomes ``mixture`` for a primal-dual algorithm (``AlgoConfig.deploys``)
-    with a memoryless policy, where the env's episodes are cheap to value (``EnvOptions.values_snapshots``)
-    or :func:`valuation_plan` buys a valuation (whose snapshots and episodes it then sets), else ``last``.
-    A policy given in the config is kept, with its numbers. Works in place."""
+    """``deploy.policy: auto`` becomes ``mixture`` for a primal-dual algorithm with a memoryless policy where the
+    env's episodes are cheap to value or :func:`valuation_plan` buys a valuation (setting it), else ``last``."""
     deploy = cfg.deploy
     if deploy.policy != AUTO:
         return

@@ -1,15 +1,11 @@
 """The weights of ``deploy.weights: feasible``: the best mixture of the run's snapshots within every budget on
-their measured values. A mixture drawn per episode has the weighted mean of its members' return and costs
-(``mixture.py``), so its weights solve a linear programme (scipy's HiGHS):
+their measured values, the linear programme (scipy's HiGHS)
 
-    max_w  sum_i w_i R_i   s.t.  sum_i w_i (C_ik + m se_ik) <= d_k  for every cost k,
-           sum_i w_i = 1,  w >= 0,
+    max_w  sum_i w_i R_i   s.t.  sum_i w_i (C_ik + m se_ik) <= d_k  for every cost k,  sum_i w_i = 1,  w >= 0,
 
-whose solution puts weight on at most K + 1 members: the "shrinking" step of Cotter, Jiang, Sridharan (ALT
-2019, Sec. 4, Lemma 2). A uniform mixture inherits the dual dynamics' average violation, of either sign; this
-aims inside the budget by ``m`` standard errors. Members are valued on episodes seeded apart from the final
-evaluation, which then measures the chosen mixture on fresh episodes.
-"""
+Cotter, Jiang, Sridharan's "shrinking" step (ALT 2019, Sec. 4): at most K + 1 members, ``m`` standard errors
+inside the budget (docs/constraint_satisfaction.md). Members are valued on episodes seeded apart from the
+final evaluation, which then measures the chosen mixture afresh."""
 
 from __future__ import annotations
 
@@ -72,10 +68,8 @@ def feasible_weights(
 
 
 def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: int) -> list[MemberValue]:
-    """Each of ``actors``' mean return and costs over at least ``cfg.deploy.episodes`` episodes of the
-    evaluation env, acting as the final evaluation does, seeded with the run's seed plus
-    ``VALUATION_SEED_OFFSET``. All members step in one batch, each on its own env rows (``env.num_envs``
-    shared out, or 64 on a batched torch env), rather than paying the per-step overhead M times."""
+    """Each of ``actors``' mean return and costs over at least ``cfg.deploy.episodes`` evaluation episodes
+    (seed + ``VALUATION_SEED_OFFSET``), all in one batch, each on its own env rows."""
     m = len(actors)
     env_cfg = cfg.env.valuation_options()  # the same CMDP, batched where the env has a batched twin
     batched = getattr(env_cfg, "backend", None) == "torch"
@@ -99,21 +93,13 @@ def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: 
         mine = np.array([row for r in rows[i::m] for row in r], dtype=float)
         costs = mine[:, 3 : 3 + num_costs]
         se = costs.std(axis=0, ddof=1) / math.sqrt(len(mine)) if len(mine) > 1 else np.zeros(num_costs)
-        values.append(
-            MemberValue(
-                float(mine[:, 0].mean()),
-                tuple(costs.mean(0).tolist()),
-                tuple(se.tolist()),
-                len(mine),
-                int(mine[:, 1].sum()),
-            )
-        )
+        ret, steps = float(mine[:, 0].mean()), int(mine[:, 1].sum())
+        values.append(MemberValue(ret, tuple(costs.mean(0).tolist()), tuple(se.tolist()), len(mine), steps))
     return values
 
 
 def choose_weights(snapshots: IterateSnapshots, agent: Agent, cfg: RunConfig, names: Sequence[str]) -> str:
-    """Value ``snapshots``' members (:func:`value_members`), set their weights to the best mixture
-    within ``cfg.algo.cost_limit`` and return one line that says what was chosen."""
+    """Value ``snapshots``' members, weight them as the best mixture within budget; one line saying what."""
     budgets = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     values = value_members(snapshots.actors(agent.actor), agent, cfg, len(names))
     weights, feasible = feasible_weights(values, budgets, cfg.deploy.margin)

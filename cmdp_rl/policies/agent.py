@@ -1,15 +1,8 @@
-"""The agent every algorithm trains: an :class:`Actor` (a :class:`Body`, then a distribution head chosen from
-the env's action space, ``distributions.py``) and ``critics``, :class:`Critic` keyed by signal (``"reward"``,
-``"cost"``; ``keys.SIGNALS``). Plain ``nn.Module``s on dicts of tensors; the heads
-(``policy=mlp|lstm|gru|transformer``) differ only in their bodies and output networks. Acting
-(:meth:`Agent.act`) steps N envs and returns each carried state's next value under ``("next", key)``;
-training (:meth:`Agent.dist`, :meth:`Agent.value`) runs the same modules on steps or, for a recurrent body,
-on segments from the state stored at their first step (:meth:`Agent.training_units`).
-
-With K costs the ``"cost"`` critic is one network with K outputs, not K critics: every layer downstream keeps
-the cost as one tensor with a trailing K, one pass values all constraints, a recurrent cost critic keeps one
-state, and K = 1 is the same network. The price: the K values share their hidden layers.
-"""
+"""The agent every algorithm trains: an :class:`Actor` (a :class:`Body`, then a distribution head) and critics
+keyed by signal (``keys.SIGNALS``), plain ``nn.Module``s on dicts of tensors; the heads
+(``policy=mlp|lstm|gru|transformer``) differ only in their bodies and output networks (docs/architecture.md).
+With K costs the ``"cost"`` critic is one network with K outputs, not K critics: downstream the cost is one
+tensor with a trailing K, one pass values all, and K = 1 is the same network; the K values share hidden layers."""
 
 from __future__ import annotations
 
@@ -35,10 +28,9 @@ Features = tuple  # what a body gives the network after it: one tensor or severa
 
 
 class Body(nn.Module):
-    """The part of an actor or a critic that reads the step's entries and carries its history (the output
-    network after it is stateless). ``in_keys``: the root entries it reads, its state included;
-    ``state_keys``: its state's entries, whose next values :meth:`step` returns; ``recurrent``: trains on
-    segments ``[B, L]`` run in sequence (else any grouping of steps gives the same outputs)."""
+    """The part of an actor or critic that reads a step's entries and carries its history. ``in_keys``: what it
+    reads, its state included; ``state_keys``: its state, whose next value :meth:`step` returns; ``recurrent``:
+    trains on segments ``[B, L]`` in sequence (else any grouping of steps gives the same outputs)."""
 
     in_keys: list
     state_keys: tuple = ()
@@ -92,9 +84,8 @@ class Critic(nn.Module):
 
 
 class Agent(nn.Module):
-    """Actor, critics keyed by signal, and the normalization statistics they use (saved with them).
-    ``segment_length``: steps per training segment of a recurrent agent (0 or not shorter than the
-    rollout: the whole row). ``cost_names``: the env's K costs, the cost critic's outputs in order."""
+    """Actor, critics keyed by signal and the normalization statistics they use. ``segment_length``: steps per
+    training segment of a recurrent agent (0: the whole row); ``cost_names``: the cost critic's K outputs."""
 
     def __init__(
         self,
@@ -122,31 +113,22 @@ class Agent(nn.Module):
     @property
     def in_keys(self) -> list:
         """Every root entry the actor or a critic reads, each once, in order of first use."""
-        seen: dict = {}
-        for body in self._bodies():
-            seen.update(dict.fromkeys(body.in_keys))
-        return list(seen)
-
-    def _bodies(self) -> list[Body]:
-        return [self.actor.body, *(c.body for c in self.critics.values())]
+        bodies = [self.actor.body, *(c.body for c in self.critics.values())]
+        return list(dict.fromkeys(k for body in bodies for k in body.in_keys))
 
     def _stepped(self) -> list[tuple[str | None, Body]]:
-        """The networks :meth:`act` steps: the actor, and critics with a state of their own (their
-        state at every step must be in the batch: a segment is re-run from its stored state)."""
+        """The bodies :meth:`act` steps: the actor's and those of critics with a state (re-run from it)."""
         critics = [(name, c.body) for name, c in self.critics.items() if c.body.recurrent]
         return [(None, self.actor.body), *critics]
 
     def initial_state(self, num_envs: int, device: torch.device | str = "cpu") -> dict:
-        state: dict = {}
-        for _, body in self._stepped():
-            state.update(body.initial_state(num_envs, torch.device(device)))
-        return state
+        device = torch.device(device)
+        return {k: v for _, body in self._stepped() for k, v in body.initial_state(num_envs, device).items()}
 
     @torch.no_grad()
     def act(self, d: Entries, deterministic: bool = False) -> dict:
-        """One step: the distribution's parameters, the action (sampled, or the mode if
-        ``deterministic``) and its log-prob, and every carried state's next value under
-        ``("next", key)``."""
+        """One step: the distribution's parameters, the action (the mode if ``deterministic``), its log-prob
+        and each carried state's next value under ``("next", key)``."""
         out: dict = {}
         for name, body in self._stepped():
             features, state = body.step(d)
@@ -157,9 +139,8 @@ class Agent(nn.Module):
             out[keys.ACTION], out[keys.LOG_PROB] = self.actor.head.act(out, deterministic)
             return out
         dist = self.actor.head.dist(out)
-        action = sample(dist, deterministic)
-        out[keys.ACTION] = action
-        out[keys.LOG_PROB] = dist.log_prob(action)
+        out[keys.ACTION] = sample(dist, deterministic)
+        out[keys.LOG_PROB] = dist.log_prob(out[keys.ACTION])
         return out
 
     def dist(self, units: Entries) -> D.Distribution:
@@ -171,8 +152,7 @@ class Agent(nn.Module):
         return self.critics[signal](units)
 
     def training_units(self, data: Mapping[Any, torch.Tensor]) -> dict:
-        """Entries of a ``[N, T, ...]`` batch as training units ``[U, ...]``: steps (``U = N T``) or,
-        for a recurrent agent, segments ``[U, L, ...]`` with ``U = N T / L``, never single steps."""
+        """A ``[N, T, ...]`` batch as steps ``[N T, ...]``, or a recurrent agent's segments ``[N T / L, L, ...]``."""
         if not self.recurrent:
             return {k: v.flatten(0, 1) for k, v in data.items()}
         out = {}
@@ -186,13 +166,10 @@ class Agent(nn.Module):
     def rollout_values(self, batch: TensorDictBase, signal: str) -> tuple[torch.Tensor, torch.Tensor]:
         """``(V(obs), V(next obs))`` of the ``signal`` critic on a collector batch ``[N, T]``, each ``[N, T, 1]``.
 
-        ``V(next obs)`` is the following step's ``V(obs)`` except at episode ends and the last step ("fresh"
-        steps), where it is one more step of the critic from the state it reached, without a reset: so
-        ``V(final obs)`` conditions on the episode's history, which a truncated episode bootstraps from
-        (torchrl's ``GAE(shifted=True)`` on a recurrent critic would take the next episode's reset
-        observation there). A recurrent critic's root values are one pass over each row from its stored
-        state, restarting at every ``is_init``: the values it gives stepping through the rollout.
-        """
+        ``V(next obs)`` is the following step's ``V(obs)`` except at episode ends and the last step, where it is one
+        more step of the critic from the state it reached, without a reset: ``V(final obs)`` then conditions on the
+        episode's history (torchrl's shifted GAE would read the next episode's reset observation). A recurrent
+        critic's values are one pass over each row from its stored state, restarting at every ``is_init``."""
         critic = self.critics[signal]
         body = critic.body
         N, T = batch.shape
@@ -240,9 +217,8 @@ def _chunked(critic: Critic, flat: dict) -> torch.Tensor:
 
 
 def make_agent(cfg: Any, env: Any, normalizers: Normalizers | None = None, algo: Any = None) -> Agent:
-    """The agent ``policy=<cfg.name>`` builds for ``env``; ``normalizers``' observation normalizer, if any, goes
-    in front of every network. ``algo``: the algorithm's options; the agent is then the one it trains
-    (``AlgoConfig.shape_agent``)."""
+    """The agent ``policy=<cfg.name>`` builds for ``env`` (behind ``normalizers``' observation normalizer), or,
+    given ``algo``'s options, the one it trains (``AlgoConfig.shape_agent``)."""
     from cmdp_rl.config.registry import component  # the registry imports the policy modules, which import this one
 
     agent = component("policy", cfg.name).build(cfg, env, normalizers if normalizers is not None else Normalizers())

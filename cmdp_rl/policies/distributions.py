@@ -1,16 +1,7 @@
-"""The actor's action distribution, chosen from the env's action space. A head holds the actor's output
-network and maps its output to the distribution's parameters, which a batch stores (so a step's behaviour
-policy can be rebuilt: CPO's KL to it):
-
-- ``Box``: :class:`GaussianHead`, a diagonal Gaussian in the env's units with a state-independent log-std
-  (the network works in [-1, 1]). Samples are not squashed: the env clips them, so a stored action's
-  log-probability never meets a tanh saturation.
-- ``Discrete``, ``MultiDiscrete``: :class:`CategoricalHead`, one categorical per component
-  (:class:`MultiCategorical`: log-probabilities, entropies and KLs summed); actions ``[..., m]`` indices.
-- a ``Tuple``/``Dict`` of one ``Discrete`` and one ``Box``: :class:`~cmdp_rl.policies.hybrid.HybridHead`.
-
-The deterministic action is the mode.
-"""
+"""The actor's action distribution, chosen from the env's action space: :class:`GaussianHead` on a ``Box`` (in
+the env's units, unsquashed: the env clips, so a stored action's log-probability never meets a tanh saturation),
+:class:`CategoricalHead` on ``Discrete``/``MultiDiscrete`` (indices), ``HybridHead`` on a skill and its
+parameters. A head maps its output network's output to the parameters a batch stores (CPO's KL reads them)."""
 
 from __future__ import annotations
 
@@ -25,7 +16,7 @@ from torchrl.modules import IndependentNormal
 
 from cmdp_rl.policies.hybrid import HybridHead
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.actions import categories, check_action_space, hybrid
+from cmdp_rl.rollout.actions import action_bounds, categories, check_action_space, hybrid
 
 _LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))  # Normal.log_prob's constant, computed as it computes it
 
@@ -46,8 +37,7 @@ class GaussianHead(nn.Module):
         return self.params(self.net(*features), self.log_std)
 
     def params(self, out: torch.Tensor, log_std: torch.Tensor) -> dict[str, torch.Tensor]:
-        """``(loc, scale)`` from the output network's ``out`` and ``log_std`` (a population's stacked
-        ones, ``[P, 1, A]``)."""
+        """``(loc, scale)`` from ``out`` and ``log_std`` (a population's stacked ones, ``[P, 1, A]``)."""
         loc = self.center + self.half_width * out
         return {keys.LOC: loc, keys.SCALE: (self.half_width * log_std.exp()).expand_as(loc)}
 
@@ -57,9 +47,8 @@ class GaussianHead(nn.Module):
 
     @staticmethod
     def act(params: dict[str, torch.Tensor], deterministic: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """The acting step's action and log-probability: ``sample(dist(params), deterministic)`` and its
-        ``log_prob``, op for op and draw for draw. Written out because building the distribution
-        (argument validation, ``Independent``'s wrapping) costs more than the network at every step."""
+        """The action and log-probability ``sample(dist(params), deterministic)`` gives, op for op and draw for draw,
+        without building the distribution (its validation and wrapping cost more than the network every step)."""
         loc, scale = params[keys.LOC], params[keys.SCALE]
         action = loc if deterministic else loc + torch.empty_like(loc).normal_() * scale
         log_prob = -((action - loc) ** 2) / (2 * scale**2) - scale.log() - _LOG_SQRT_2PI
@@ -81,8 +70,7 @@ class Categorical(D.Categorical):
 
 
 class MultiCategorical(D.Distribution):
-    """Independent categoricals, one per component of a ``MultiDiscrete`` action, on logits
-    ``[..., sum(sizes)]`` split into ``sizes``; values are ``[..., m]`` indices (``m = len(sizes)``)."""
+    """Independent categoricals on logits ``[..., sum(sizes)]`` split by ``sizes``; values ``[..., m]`` indices."""
 
     arg_constraints = {"logits": constraints.real_vector}
     has_rsample = False
@@ -119,8 +107,7 @@ def _kl_multi_categorical(p: MultiCategorical, q: MultiCategorical) -> torch.Ten
 
 
 class CategoricalHead(nn.Module):
-    """``net(features)`` -> logits of a categorical over the actions, or of ``len(sizes)``
-    independent categoricals (a ``MultiDiscrete`` space)."""
+    """``net(features)`` -> the logits of one categorical, or of ``len(sizes)`` (a ``MultiDiscrete``)."""
 
     param_keys = (keys.LOGITS,)
 
@@ -154,15 +141,12 @@ def action_outputs(space: gym.Space) -> int:
 def make_action_head(
     space: gym.Space, net: nn.Module, init_log_std: float = -0.5
 ) -> GaussianHead | CategoricalHead | HybridHead:
-    """The distribution head for ``space`` around the output network ``net`` (``init_log_std``: the
-    Gaussian's initial log-std, in units of the box's half-width)."""
+    """The head for ``space`` around ``net`` (``init_log_std`` in units of the box's half-width)."""
     check_action_space(space)
     if hybrid(space) is not None:
         return HybridHead(net, hybrid(space), init_log_std)
     if isinstance(space, gym.spaces.Box):
-        low = torch.as_tensor(space.low, dtype=torch.float32).reshape(-1)
-        high = torch.as_tensor(space.high, dtype=torch.float32).reshape(-1)
-        return GaussianHead(net, low, high, init_log_std)
+        return GaussianHead(net, *action_bounds(space), init_log_std)
     if isinstance(space, gym.spaces.Discrete):
         return CategoricalHead(net)
     return CategoricalHead(net, categories(space))
@@ -173,14 +157,3 @@ def sample(dist: D.Distribution, deterministic: bool) -> torch.Tensor:
     if deterministic:
         return dist.deterministic_sample
     return dist.rsample() if dist.has_rsample else dist.sample()
-
-
-__all__ = [
-    "Categorical",
-    "CategoricalHead",
-    "GaussianHead",
-    "MultiCategorical",
-    "action_outputs",
-    "make_action_head",
-    "sample",
-]

@@ -1,18 +1,9 @@
-"""The action distribution of a hybrid action space: a gymnasium ``Tuple``/``Dict`` of one ``Discrete(n)``
-(which skill) and one ``Box`` (its ``p`` parameters), ``cmdp_rl.rollout.actions.hybrid``:
-
-    pi(k, x | s) = pi_hi(k | s) * pi_lo(x | s, k),
-
-``pi_hi`` a categorical over the skills, ``pi_lo`` a diagonal Gaussian whose mean and (state-independent)
-std belong to the chosen skill. What the algorithms read is exact over the ``n`` skills:
-``log pi(k, x) = log pi_hi(k) + log N(x; mu_k, sigma_k)``, ``H(pi) = H(pi_hi) + sum_k pi_hi(k) H(N_k)`` and
-``KL(pi || pi') = KL(pi_hi || pi_hi') + sum_k pi_hi(k) KL(N_k || N'_k)`` (the chain rules), the KL registered
-with torch for CPO's Fisher-vector product. Why by hand: torch and torchrl have no distribution whose
-continuous part is conditioned on the discrete one (``MixtureSameFamily`` marginalises the skill out).
-
-Stored actions are float ``[..., 1 + p]``: the skill index, then the parameters in the box's units (the env
-clips). The deterministic action: the most likely skill and its mean.
-"""
+"""The action distribution of a hybrid action space, one ``Discrete(n)`` skill and a ``Box`` of its ``p``
+parameters (``rollout.actions.hybrid``): ``pi(k, x | s) = pi_hi(k | s) pi_lo(x | s, k)``, a categorical times
+the chosen skill's diagonal Gaussian (state-independent std), with exact log-probability, entropy and KL by the
+chain rules (docs/multi_agent_and_hybrid.md); the KL is registered with torch for CPO's Fisher-vector product.
+By hand: torch has no distribution whose continuous part is conditioned on the discrete one. Stored actions
+are float ``[..., 1 + p]``: the skill index, then the parameters in the box's units (the env clips)."""
 
 from __future__ import annotations
 
@@ -22,7 +13,7 @@ from torch import nn
 from torch.distributions import constraints, kl_divergence, register_kl
 
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.actions import Hybrid
+from cmdp_rl.rollout.actions import Hybrid, action_bounds
 
 
 class SkillParameters(D.Distribution):
@@ -80,8 +71,7 @@ def _kl_skill_parameters(p: SkillParameters, q: SkillParameters) -> torch.Tensor
 
 
 class HybridHead(nn.Module):
-    """``net(features)`` -> ``n`` skill logits and ``n x p`` means in [-1, 1] rescaled to the box, as
-    ``GaussianHead`` does; a log-std per skill and parameter (in units of the box's half-width)."""
+    """``net(features)`` -> ``n`` skill logits and ``n x p`` means rescaled to the box; ``n x p`` log-stds."""
 
     param_keys = (keys.LOGITS, keys.LOC, keys.SCALE)
 
@@ -89,8 +79,7 @@ class HybridHead(nn.Module):
         super().__init__()
         self.net = net
         self.skills = parts.skills
-        low = torch.as_tensor(parts.box.low, dtype=torch.float32).reshape(-1)
-        high = torch.as_tensor(parts.box.high, dtype=torch.float32).reshape(-1)
+        low, high = action_bounds(parts.box)
         self.register_buffer("center", (high + low) / 2)
         self.register_buffer("half_width", (high - low) / 2)
         self.log_std = nn.Parameter(torch.full((parts.skills, low.numel()), init_log_std))

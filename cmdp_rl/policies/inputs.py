@@ -1,9 +1,7 @@
-"""What a policy network reads: the observation and, optionally, the previous action and cost, the parts of
-the history (o_0..o_t, a_0..a_{t-1}) the observation lacks: a memory policy can integrate its own motion and
-notice when it paid a cost (the previous cost as in Stooke, Achiam, Abbeel, 2020, "Responsive Safety in
-Reinforcement Learning by PID Lagrangian Methods", sec. 6). The collector writes them at the root for any
-policy whose ``in_keys`` ask for them (zero on an episode's first step).
-"""
+"""What a policy network reads: the observation and, optionally, the previous action and cost, the parts of the
+history the observation lacks (a memory policy can integrate its own motion and notice when it paid a cost; the
+previous cost as in Stooke, Achiam, Abbeel, 2020, sec. 6). The collector writes them at the root for any policy
+whose ``in_keys`` ask for them (zero on an episode's first step)."""
 
 from __future__ import annotations
 
@@ -20,18 +18,13 @@ from cmdp_rl.rollout.actions import action_bounds, action_dim, categories, is_di
 
 def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
     """The root entries a network reads, in the order :class:`InputEncoder` takes them."""
-    return (
-        [keys.OBS]
-        + ([keys.PREV_ACTION] if include_prev_action else [])
-        + ([keys.PREV_COST] if include_prev_cost else [])
-    )
+    return [keys.OBS] + [keys.PREV_ACTION] * include_prev_action + [keys.PREV_COST] * include_prev_cost
 
 
 class InputEncoder(nn.Module):
-    """``cat(normalized obs, previous action, previous cost vector [K])``. A box's previous action is scaled
-    to ``[-1, 1]`` and clipped, as the env clips it; a discrete one is one-hot per component (all zeros for
-    the index -1 of an episode's first step). ``in_dim``: the raw inputs' width (what a transformer stores
-    per step); ``out_dim``: the encoding's."""
+    """``cat(normalized obs, previous action, previous costs [K])``: a box's action scaled to ``[-1, 1]`` and clipped as
+    the env clips it, a discrete one one-hot per component (all zeros for the first step's -1). ``in_dim``: the raw
+    inputs' width (a transformer's token); ``out_dim``: the encoding's."""
 
     def __init__(
         self,
@@ -59,7 +52,7 @@ class InputEncoder(nn.Module):
 
     @classmethod
     def of(cls, cfg: Any, env: Any, obs_norm: nn.Module | None) -> InputEncoder:
-        """The encoder a policy's options ``cfg`` (``include_prev_action``, ``include_prev_cost``) ask for on ``env``."""
+        """The encoder ``cfg``'s ``include_prev_action`` and ``include_prev_cost`` ask for on ``env``."""
         return cls(
             env.obs_dim, env.action_space, cfg.include_prev_action, cfg.include_prev_cost, obs_norm, env.num_costs
         )

@@ -24,8 +24,7 @@ LogStd = Annotated[float, finite()]
 
 @options
 class PolicyConfig:
-    """``policy=mlp``: the memoryless MLP policy. ``include_prev_*``: every policy may also read
-    the previous step's action and cost (zero on an episode's first step)."""
+    """``policy=mlp``. ``include_prev_*``: also read the previous action and cost (zero at an episode's start)."""
 
     name: str = "mlp"
     hidden_sizes: Annotated[
@@ -53,10 +52,9 @@ class _SigmoidTanh(torch.autograd.Function):
 
 
 class Tanh(nn.Module):
-    """tanh, computed on the CPU as ``2 sigmoid(2x) - 1`` for large inputs: torch's CPU tanh kernel is several
-    times slower than this form (docs/throughput.md), and tanh was the largest single cost of training. The two
-    agree within float32 rounding; the gradient is tanh's, from the output. Small inputs keep torch.tanh (one
-    call beats three plus the autograd function there), and so does CUDA."""
+    """tanh as ``2 sigmoid(2x) - 1`` on large CPU inputs: several times faster than torch's CPU kernel, tanh having been
+    training's largest cost (docs/throughput.md); equal within float32 rounding, with tanh's own gradient. Small
+    inputs (one call beats three plus the autograd function there) and CUDA keep torch.tanh."""
 
     MIN_NUMEL = 1 << 15  # about the break-even
 
@@ -72,8 +70,7 @@ _ACTIVATIONS = {"tanh": Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
 class MLP(nn.Sequential):
-    """``nn.Sequential`` whose forward calls each layer's ``forward`` directly, skipping ``Module.__call__``'s
-    hooks, which these networks never use and which cost about as much as a small layer's kernel."""
+    """``nn.Sequential`` calling each layer's ``forward`` directly: ``Module.__call__``'s unused hooks cost a kernel."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         for layer in self._modules.values():
@@ -97,9 +94,7 @@ def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: str, out_gain:
 
 
 class MLPBody(Body):
-    """The MLP's inputs: the observation (normalized if ``obs_norm``), or ``encoder``'s
-    concatenation of observation, previous action and cost. No state, no parameters: the MLP is the
-    output network after it."""
+    """The MLP's inputs: the observation (normalized if ``obs_norm``) or ``encoder``'s encoding; no parameters."""
 
     def __init__(self, obs_norm: nn.Module | None, encoder: InputEncoder | None, take: int | None = None) -> None:
         super().__init__()

@@ -1,12 +1,7 @@
-"""LSTM and GRU policies (``policy=lstm|gru``): memory in the actor and in both critics.
-
-Under partial observation a policy must act on a statistic of the history, ideally the belief
-``b_t(s) = P(s_t = s | o_0..o_t, a_0..a_{t-1})`` (Kaelbling, Littman, Cassandra, 1998, sec. 3), which a
-recurrent network learns in its state (Wierstra et al., 2007; Hausknecht & Stone, 2015). Each network is a
-:class:`RecurrentBody` with its own state, then an MLP. The critics are stepped in the rollout too, so their
-state at every step is in the batch: a rollout starts mid-episode, and a critic can only be re-run on a
-segment from a stored state (``Agent.rollout_values``).
-"""
+"""LSTM and GRU policies (``policy=lstm|gru``): a memory in the actor and in both critics, which learns a
+statistic of the history such as the belief (Kaelbling, Littman, Cassandra, 1998; docs/guide/policies.md). The
+critics are stepped in the rollout too: a rollout starts mid-episode, and a critic can only be re-run on a
+segment from its stored state (``Agent.rollout_values``)."""
 
 from __future__ import annotations
 
@@ -71,35 +66,29 @@ class RecurrentPolicyConfig:
                 )
 
 
-STATE_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
-    "lstm": {
-        "actor": (keys.ACTOR_HIDDEN, keys.ACTOR_CELL),
-        "critic": (keys.CRITIC_HIDDEN, keys.CRITIC_CELL),
-        "cost_critic": (keys.COST_CRITIC_HIDDEN, keys.COST_CRITIC_CELL),
-    },
-    "gru": {
-        "actor": (keys.ACTOR_HIDDEN,),
-        "critic": (keys.CRITIC_HIDDEN,),
-        "cost_critic": (keys.COST_CRITIC_HIDDEN,),
-    },
+# Each network's state entries: an LSTM's hidden and cell state, a GRU's hidden state alone.
+STATE_KEYS = {
+    "actor": (keys.ACTOR_HIDDEN, keys.ACTOR_CELL),
+    "reward": (keys.CRITIC_HIDDEN, keys.CRITIC_CELL),
+    "cost": (keys.COST_CRITIC_HIDDEN, keys.COST_CRITIC_CELL),
 }
 
 
 def memory_module(cfg: RecurrentPolicyConfig, input_size: int, state: tuple[str, ...]) -> LSTMModule | GRUModule:
     """torchrl's recurrent module from ``keys.NET_INPUT`` to ``keys.FEATURES``, its state under ``state``."""
-    out_state = [(keys.NEXT, k) for k in state]
-    common = dict(input_size=input_size, hidden_size=cfg.hidden_size, num_layers=cfg.num_layers)
-    if cfg.name == "lstm":
-        return LSTMModule(
-            **common, in_keys=[keys.NET_INPUT, *state, keys.IS_INIT], out_keys=[keys.FEATURES, *out_state]
-        )
-    return GRUModule(**common, in_keys=[keys.NET_INPUT, *state, keys.IS_INIT], out_keys=[keys.FEATURES, *out_state])
+    module = LSTMModule if cfg.name == "lstm" else GRUModule
+    return module(
+        input_size=input_size,
+        hidden_size=cfg.hidden_size,
+        num_layers=cfg.num_layers,
+        in_keys=[keys.NET_INPUT, *state, keys.IS_INIT],
+        out_keys=[keys.FEATURES, *((keys.NEXT, k) for k in state)],
+    )
 
 
 class RecurrentBody(Body):
-    """inputs -> encoder -> torchrl LSTM/GRU module. Acting steps its ``nn.LSTM``/``nn.GRU`` once (the state
-    read zeroed where ``is_init``); training runs the module in recurrent mode on ``[B, L]`` segments from
-    their stored first state, restarting wherever ``is_init`` marks an episode start."""
+    """inputs -> encoder -> torchrl LSTM/GRU module, stepped once when acting (state zeroed where ``is_init``), run
+    in recurrent mode on ``[B, L]`` segments from their stored state for training."""
 
     recurrent = True
 
@@ -143,12 +132,11 @@ class RecurrentBody(Body):
 
 def make_recurrent_agent(cfg: RecurrentPolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
     """Actor and critics, each with a memory of its own and an MLP after it."""
-    states = {"actor": "actor", "reward": "critic", "cost": "cost_critic"}
 
     def network(role: str, out_dim: int, out_gain: float) -> tuple[RecurrentBody, nn.Sequential]:
         net = mlp(cfg.hidden_size, cfg.head_sizes, out_dim, cfg.activation, out_gain)  # before the memory: init order
         encoder = InputEncoder.of(cfg, env, normalizers.obs)
-        return RecurrentBody(cfg, encoder, STATE_KEYS[cfg.name][states[role]]), net
+        return RecurrentBody(cfg, encoder, STATE_KEYS[role][: 2 if cfg.name == "lstm" else 1]), net
 
     return actor_and_critics(env, normalizers, cfg.init_log_std, network, segment_length=cfg.segment_length)
 

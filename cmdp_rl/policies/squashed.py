@@ -1,13 +1,6 @@
-"""The off-policy agent: :func:`to_off_policy` turns ``policy=mlp``'s agent into a squashed actor and
-Q-critics, keeping the actor's body (the observation normalizer) and the MLP's widths and activation:
-
-- :class:`TanhGaussianHead` (SAC): ``a = center + half_width * tanh(u)``, ``u ~ N(mu(s), sigma(s))``
-  (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications", appendix C; torchrl's ``TanhNormal``).
-- :class:`DeterministicHead` (TD3): ``a = center + half_width * tanh(net(s))``, acting with Gaussian noise of
-  ``noise * half_width`` clipped to the box (:class:`ClippedNormal`).
-- Q-critics on :class:`QBody` (the observation and the action scaled to [-1, 1]): the twins
-  :data:`Q_REWARD` and :data:`Q_COST` (one output per constraint).
-"""
+"""The off-policy agent (docs/off_policy.md): :func:`to_off_policy` turns ``policy=mlp``'s agent into SAC's
+:class:`TanhGaussianHead` (Haarnoja et al. 2018, appendix C) or TD3's :class:`DeterministicHead` (exploring
+through :class:`ClippedNormal`) and Q-critics on :class:`QBody`, keeping the actor's body and the MLP's shape."""
 
 from __future__ import annotations
 
@@ -21,7 +14,7 @@ from torchrl.modules import IndependentNormal, TanhNormal
 from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
 from cmdp_rl.policies.distributions import GaussianHead
-from cmdp_rl.policies.mlp import MLPBody, mlp
+from cmdp_rl.policies.mlp import _ACTIVATIONS, MLPBody, mlp
 from cmdp_rl.rollout import keys
 
 Q_REWARD = ("q_reward_0", "q_reward_1")  # the twin reward Q-critics (clipped double Q)
@@ -30,8 +23,7 @@ LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # the usual clamp on the pre-tanh log-std
 
 
 class TanhGaussianHead(nn.Module):
-    """``net(features)`` -> ``(mu, log sigma)`` of the pre-tanh Gaussian; the action is its tanh
-    rescaled to the box (``LOC``/``SCALE`` are the pre-tanh parameters)."""
+    """``net(features)`` -> ``(mu, sigma)`` of the pre-tanh Gaussian (torchrl's ``TanhNormal`` on the box)."""
 
     param_keys = (keys.LOC, keys.SCALE)
 
@@ -51,8 +43,7 @@ class TanhGaussianHead(nn.Module):
 
 
 class ClippedNormal(IndependentNormal):
-    """TD3's behaviour policy: the deterministic action plus Gaussian noise, clipped to the box.
-    ``log_prob`` is the unclipped Gaussian's (stored, never trained on)."""
+    """TD3's behaviour policy: the action plus Gaussian noise, clipped to the box (``log_prob``: unclipped)."""
 
     def __init__(self, loc: torch.Tensor, scale: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> None:
         super().__init__(loc, scale)
@@ -67,8 +58,7 @@ class ClippedNormal(IndependentNormal):
 
 
 class DeterministicHead(nn.Module):
-    """``net(features)`` -> the action ``center + half_width * tanh(.)`` (``LOC``), and the
-    exploration noise's std ``noise * half_width`` (``SCALE``)."""
+    """``net(features)`` -> the action ``center + half_width * tanh(.)`` and the noise's std ``noise * half_width``."""
 
     param_keys = (keys.LOC, keys.SCALE)
 
@@ -92,8 +82,7 @@ class DeterministicHead(nn.Module):
 
 
 class QBody(Body):
-    """The Q-critic's inputs: the observation as the actor's body prepares it (normalized if on),
-    and the action scaled to [-1, 1] by the box."""
+    """The Q-critic's inputs: the actor body's observation and the action scaled to [-1, 1]."""
 
     def __init__(self, obs_body: MLPBody, low: torch.Tensor, high: torch.Tensor) -> None:
         super().__init__()
@@ -109,8 +98,6 @@ class QBody(Body):
 
 def _mlp_shape(net: nn.Sequential) -> tuple[int, list[int], str]:
     """(input size, hidden widths, activation) of a network :func:`mlp` built."""
-    from cmdp_rl.policies.mlp import _ACTIVATIONS
-
     linear = [m for m in net if isinstance(m, nn.Linear)]
     act = next(name for name, cls in _ACTIVATIONS.items() if any(isinstance(m, cls) for m in net))
     return linear[0].in_features, [m.out_features for m in linear[:-1]], act
@@ -136,8 +123,7 @@ def check_off_policy_agent(agent: Agent, algo: str) -> None:
 
 
 def check_shaped(agent: Agent, algo: str) -> None:
-    """An off-policy algorithm trains the agent :func:`to_off_policy` made (its options'
-    ``shape_agent``, called by ``make_agent(..., algo=...)``), not the policy's own."""
+    """An off-policy algorithm trains the agent ``make_agent(..., algo=...)`` shapes, not the policy's own."""
     if Q_COST not in agent.critics:
         raise ValueError(f"algo={algo}: build its agent with make_agent(..., algo=<its options>)")
 
@@ -168,16 +154,3 @@ def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> Agent:
         if isinstance(m, nn.ReLU):
             m.inplace = True
     return agent
-
-
-__all__ = [
-    "ClippedNormal",
-    "DeterministicHead",
-    "QBody",
-    "Q_COST",
-    "Q_REWARD",
-    "TanhGaussianHead",
-    "check_off_policy_agent",
-    "check_shaped",
-    "to_off_policy",
-]

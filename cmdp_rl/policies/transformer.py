@@ -1,16 +1,8 @@
-"""Transformer policy (``policy=transformer``): causal self-attention over the last K steps.
-
-Each step is a token ``(observation, previous action, previous cost)``; the policy and both critics attend
-over the last ``K = policy.window`` tokens of the current episode with causal self-attention (Vaswani et al.,
-2017, "Attention Is All You Need", sec. 3.2) and learned or sinusoidal positions (sec. 3.5); Parisotto et
-al. (2020, "Stabilizing Transformers for Reinforcement Learning") use such attention as a POMDP memory.
-torchrl has no online transformer policy, so it is built on ``torch.nn.TransformerEncoderLayer``.
-
-The window is state the collector carries: the raw tokens of the K - 1 steps before this one
-(``keys.HISTORY``) and which belong to the episode (``keys.HISTORY_MASK``). Each step of a batch carries
-its own window, so training uses shuffled single steps. Tokens are stored raw and normalized when read,
-so a stored window always meets the current statistics.
-"""
+"""Transformer policy (``policy=transformer``): causal self-attention (Vaswani et al., 2017, sec. 3.2; learned
+or sinusoidal positions, sec. 3.5) over the last ``K = policy.window`` tokens ``(observation, previous action,
+previous cost)`` of the episode, a POMDP memory as in Parisotto et al. (2020). torchrl has no online
+transformer policy. The window is state the collector carries (``keys.HISTORY``, ``keys.HISTORY_MASK``), so
+training uses shuffled single steps; tokens are stored raw and normalized when read."""
 
 from __future__ import annotations
 
@@ -62,27 +54,6 @@ class TransformerPolicyConfig:
         )
 
 
-class HistoryWindow(nn.Module):
-    """``(obs, [prev action], [prev cost], history, history mask, is_init)`` -> this step's window
-    of K tokens and its mask, and the next step's history (the window's last K - 1 tokens).
-
-    At an episode's first step (``is_init``) the history is ignored: only the current token is valid.
-    """
-
-    def __init__(self, window: int, token_dim: int) -> None:
-        super().__init__()
-        self.window = window
-        self.token_dim = token_dim
-
-    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        *parts, history, history_mask, is_init = inputs
-        token = torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
-        valid = history_mask & ~is_init  # is_init: [..., 1] broadcasts over the K - 1 steps
-        window = torch.cat([history, token.unsqueeze(-2)], dim=-2)
-        mask = torch.cat([valid, torch.ones_like(is_init)], dim=-1)
-        return window, mask, window[..., 1:, :], mask[..., 1:]
-
-
 def sinusoidal_positions(length: int, width: int) -> torch.Tensor:
     """Vaswani et al. (2017), sec. 3.5: ``PE[p, 2i] = sin(p / 10000^(2i/d))``, ``PE[p, 2i+1] = cos(...)``."""
     pos = torch.arange(length, dtype=torch.float32).unsqueeze(1)
@@ -94,11 +65,9 @@ def sinusoidal_positions(length: int, width: int) -> torch.Tensor:
 
 
 class WindowTransformer(nn.Module):
-    """Embeds a window of raw tokens, runs causal self-attention (pre-norm ``nn.TransformerEncoderLayer``s, a
-    final LayerNorm) and returns the last position's features ``[..., width]``. Position i sees positions
-    j <= i of the episode and always itself (a query with no key would give NaN). Only the last position's
-    output is used, so the last layer is evaluated for that query alone (:meth:`_last_query`), which skips
-    the work of K - 1 positions in the slowest head to train."""
+    """A window of raw tokens -> embedding, causal self-attention (pre-norm layers, a final LayerNorm) -> the last
+    position's features ``[..., width]``. Position i sees j <= i of the episode and always itself (a query with no
+    key gives NaN); the last layer runs for the last query alone (:meth:`_last_query`), the only one used."""
 
     def __init__(self, cfg: TransformerPolicyConfig, encoder: InputEncoder, obs_dim: int) -> None:
         super().__init__()
@@ -113,12 +82,7 @@ class WindowTransformer(nn.Module):
 
         def layer() -> nn.TransformerEncoderLayer:
             return nn.TransformerEncoderLayer(
-                cfg.width,
-                cfg.heads,
-                dim_feedforward=cfg.feedforward,
-                dropout=0.0,
-                batch_first=True,
-                norm_first=True,
+                cfg.width, cfg.heads, dim_feedforward=cfg.feedforward, dropout=0.0, batch_first=True, norm_first=True
             )
 
         self.context = nn.ModuleList(layer() for _ in range(cfg.layers - 1))
@@ -129,13 +93,9 @@ class WindowTransformer(nn.Module):
 
     def _split(self, tokens: torch.Tensor) -> torch.Tensor:
         """Raw tokens -> encoded inputs (normalized observation, action in box units, cost)."""
-        obs, prev = tokens[..., : self.obs_dim], tokens[..., self.obs_dim :]
-        sizes = []
-        if self.encoder.include_prev_action:
-            sizes.append(prev.shape[-1] - (self.encoder.num_costs if self.encoder.include_prev_cost else 0))
-        if self.encoder.include_prev_cost:
-            sizes.append(self.encoder.num_costs)
-        return self.encoder(obs, *prev.split(sizes, dim=-1)) if sizes else self.encoder(obs)
+        costs = self.encoder.num_costs if self.encoder.include_prev_cost else 0
+        sizes = [self.obs_dim, tokens.shape[-1] - self.obs_dim - costs, costs]  # the parts not read are empty
+        return self.encoder(*(part for part in tokens.split(sizes, dim=-1) if part.shape[-1]))
 
     def _last_query(self, x: torch.Tensor, key_blocked: torch.Tensor) -> torch.Tensor:
         """``self.last`` (pre-norm: ``x + SA(LN1(x))``, then ``+ FF(LN2(.))``) for the last query only."""
@@ -177,30 +137,32 @@ class _Trunk(nn.Module):
 
 
 class TransformerBody(Body):
-    """The step's window (:class:`HistoryWindow`) and its mask, which the transformer after it reads;
-    acting also returns the next step's history."""
+    """``(obs, [prev action], [prev cost], history, history mask, is_init)`` -> the step's window of K tokens and its
+    mask; acting also returns the next history (the last K - 1). Where ``is_init`` the history is ignored."""
 
     def __init__(self, cfg: TransformerPolicyConfig, token_dim: int) -> None:
         super().__init__()
-        self.inputs = input_keys(cfg.include_prev_action, cfg.include_prev_cost)
-        self.in_keys = [*self.inputs, keys.HISTORY, keys.HISTORY_MASK, keys.IS_INIT]
+        inputs = input_keys(cfg.include_prev_action, cfg.include_prev_cost)
+        self.in_keys = [*inputs, keys.HISTORY, keys.HISTORY_MASK, keys.IS_INIT]
         self.state_keys = (keys.HISTORY, keys.HISTORY_MASK)
-        self.window = HistoryWindow(cfg.window, token_dim)
+        self.window, self.token_dim = cfg.window, token_dim
 
     def forward(self, d: Mapping) -> tuple[torch.Tensor, torch.Tensor]:
-        window, mask, _, _ = self.window(*(d[k] for k in self.in_keys))
-        return window, mask
+        return self.step(d)[0]
 
     def step(self, d: Mapping) -> tuple[tuple[torch.Tensor, torch.Tensor], dict]:
-        window, mask, history, history_mask = self.window(*(d[k] for k in self.in_keys))
-        return (window, mask), {keys.HISTORY: history, keys.HISTORY_MASK: history_mask}
+        *parts, history, history_mask, is_init = (d[k] for k in self.in_keys)
+        token = torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
+        valid = history_mask & ~is_init  # is_init: [..., 1] broadcasts over the K - 1 steps
+        window = torch.cat([history, token.unsqueeze(-2)], dim=-2)
+        mask = torch.cat([valid, torch.ones_like(is_init)], dim=-1)
+        return (window, mask), {keys.HISTORY: window[..., 1:, :], keys.HISTORY_MASK: mask[..., 1:]}
 
     def initial_state(self, num_envs: int, device: torch.device) -> dict:
         """An empty history: no token of the window belongs to the episode yet."""
-        K, dim = self.window.window, self.window.token_dim
         return {
-            keys.HISTORY: torch.zeros(num_envs, K - 1, dim, device=device),
-            keys.HISTORY_MASK: torch.zeros(num_envs, K - 1, dtype=torch.bool, device=device),
+            keys.HISTORY: torch.zeros(num_envs, self.window - 1, self.token_dim, device=device),
+            keys.HISTORY_MASK: torch.zeros(num_envs, self.window - 1, dtype=torch.bool, device=device),
         }
 
 

@@ -7,8 +7,7 @@ named with ``--by``, else by every field but the seed (and bookkeeping such as `
 cost and the violation rate (fraction of evaluation episodes with cost above the budget) the mean and
 the interquartile mean (IQM), each with rliable's 95% stratified-bootstrap interval over runs (Agarwal
 et al. 2021), and a verdict against the budget d from the mean cost's interval. ``--figure`` draws each
-group's learning curves with their 95% bootstrap bands. See docs/evaluation.md.
-"""
+group's learning curves with their 95% bootstrap bands. See docs/evaluation.md."""
 
 from __future__ import annotations
 
@@ -56,8 +55,7 @@ def verdict(low: float | None, high: float | None, cost_limit: float | None) -> 
 
 @dataclass
 class Group:
-    """Runs with the same config but for the seed (or the same ``--by`` values), and their figures:
-    ``stats[metric]`` is :func:`interval_estimates`'s."""
+    """Runs with the same config but for the seed (or ``--by`` values); ``stats`` per :func:`interval_estimates`."""
 
     label: str
     runs: list[RunRecord]
@@ -254,11 +252,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("paths", nargs="+", help="run directories or sweep directories (searched for runs)")
     parser.add_argument(
-        "--by",
-        action="append",
-        default=[],
-        help="config field to group by, dotted (repeat or comma-separate for several); "
-        "default: every field but the seed",
+        "--by", action="append", default=[], help="config fields to group by (dotted; repeat or comma-separate)"
     )
     parser.add_argument("--csv", help="also write the table as CSV, one row per group")
     parser.add_argument("--figure", help="write learning curves with 95%% bands to this PNG")

@@ -1,8 +1,7 @@
 """Interval estimates of one run's final evaluation over its episodes (docs/evaluation.md): mean return and
 cost with a two-sided 95% BCa bootstrap interval (Efron 1987; ``scipy.stats.bootstrap``, a fixed seed) and the
 cost's one-sided upper bound; the violation rate with the exact binomial (Clopper-Pearson 1934) interval and
-bound. Resampling cannot show spread the sample lacks: equal values give ``no_spread``; one episode, ``None``.
-"""
+bound. Resampling cannot show spread the sample lacks: equal values give ``no_spread``; one episode, ``None``."""
 
 from __future__ import annotations
 
@@ -67,14 +66,7 @@ def violation_interval(costs: Sequence[float], cost_limit: float, level: float =
     k = int(np.sum(c > cost_limit + VIOLATION_TOLERANCE * max(1.0, abs(cost_limit))))
     two = stats.binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
     one = stats.binomtest(k, n, alternative="less").proportion_ci(confidence_level=level, method="exact")
-    return {
-        "rate": k / n,
-        "violations": k,
-        "n": n,
-        "low": float(two.low),
-        "high": float(two.high),
-        "upper": float(one.high),
-    }
+    return dict(rate=k / n, violations=k, n=n, low=float(two.low), high=float(two.high), upper=float(one.high))
 
 
 def summarize(

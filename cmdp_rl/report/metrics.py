@@ -1,9 +1,7 @@
-"""Per-iteration metrics: one CSV row each, TensorBoard scalars (``logger=tensorboard``) or a wandb run
-(``logger=wandb``) under the same names against the env step, and the console's progress line. The columns:
-:data:`RUN_COLUMNS`, the algorithm's ``stats``, :data:`SAFETY_COLUMNS`; a name that is no column is an error.
-With K > 1 costs each :data:`PER_CONSTRAINT` quantity has a column per cost, ``<name>/<cost name>``
-(TensorBoard groups tags by the part before the slash); with one cost the plain name.
-"""
+"""Per-iteration metrics: a CSV row each, TensorBoard scalars (``logger=tensorboard``) or a wandb run under the same
+names against the env step, and the progress line. Columns: :data:`RUN_COLUMNS`, the algorithm's ``stats``,
+:data:`SAFETY_COLUMNS` (any other name is an error); with K > 1 costs each :data:`PER_CONSTRAINT` quantity has a
+column per cost, ``<name>/<cost name>`` (TensorBoard groups tags by the part before the slash)."""
 
 from __future__ import annotations
 
@@ -75,9 +73,8 @@ def columns(stats: Sequence[str], cost_names: Sequence[str] = _SINGLE) -> list[s
 
 
 def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
-    """Keep the header and rows 1..``iteration`` of a metrics CSV (a resume from that iteration's checkpoint),
-    dropping later rows and a partly written last line; returns the header. A missing or misordered row is a
-    ``ValueError``: rows are synced before each checkpoint, so the file was edited or lost."""
+    """Keep the header and rows 1..``iteration`` (a resume from there) and return the header; a missing or
+    misordered row is a ``ValueError`` (rows are synced before each checkpoint: the file was edited or lost)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path} is missing; the checkpoint is at iteration {iteration}")
@@ -155,19 +152,17 @@ class MetricsLogger:
                 raise ImportError(TENSORBOARD_MISSING) from exc
             purge = None if resume_step is None else resume_step + 1
             self._tb = SummaryWriter(str(tensorboard_dir), purge_step=purge)
-        if resume_iteration is None:
-            self.columns = list(fieldnames)
-            self._file = open(self.path, "w", newline="")
-            self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
-            self._writer.writeheader()
-        else:
+        self.columns = list(fieldnames)
+        if resume_iteration is not None:
             # The run keeps the columns it started with; one it lacks cannot be added: an error, not a dropped stat.
             self.columns = truncate_metrics(self.path, resume_iteration)
             missing = [c for c in fieldnames if c not in self.columns]
             if missing:
                 raise ValueError(f"{self.path} has no column for {missing}, which this version logs")
-            self._file = open(self.path, "a", newline="")
-            self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
+        self._file = open(self.path, "w" if resume_iteration is None else "a", newline="")
+        self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
+        if resume_iteration is None:
+            self._writer.writeheader()
         self._file.flush()
         self.recent = RecentEpisodes()
         self._wandb = wandb
@@ -214,9 +209,8 @@ class MetricsLogger:
 
 
 class WandbRun:
-    """A wandb run beside metrics.csv (``logger=wandb``): the config at the start, a ``log`` per row against
-    ``step``, the summary at the end. Files in ``<run>/wandb/``; the id in ``<run>/wandb_id.txt``, so a resume
-    continues the same run. Console capture is off: it would wrap stdout, which the progress lines own."""
+    """A wandb run (``logger=wandb``): config, a ``log`` per row against ``step``, summary; its id in ``wandb_id.txt``
+    for a resume. Console capture is off: it would wrap stdout, which the progress lines own."""
 
     def __init__(self, run_dir: Path, project: str, entity: str | None, mode: str, config: dict[str, Any]) -> None:
         self.run_dir, self.project, self.entity, self.mode, self.config = run_dir, project, entity, mode, config
@@ -279,8 +273,7 @@ def _per_constraint(row: dict[str, Any], name: str) -> list:
 
 
 def format_row(row: dict[str, Any], recent: RecentEpisodes | None = None) -> str:
-    """The progress line: the return and cost of ``recent``'s window once it holds an episode, else the
-    row's own. A row without a multiplier has no ``lambda`` part."""
+    """The progress line: ``recent``'s window once it holds an episode, else the row's own (``lambda`` if reported)."""
     window = ""
     if recent is not None and len(recent):
         row, window = recent.over(row), f" | last {len(recent)} episodes"

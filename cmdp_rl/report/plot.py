@@ -3,8 +3,7 @@
 Draws episode return, episode cost (with each config's budget d dashed) and the Lagrange multiplier (a cost
 and a multiplier panel per constraint) against env steps from each run's ``metrics.csv``. Runs whose configs
 differ only in ``seed`` are one curve, the mean with a band of one standard deviation, each run first smoothed
-by a trailing mean over ``K`` iterations that skips those in which no episode ended.
-"""
+by a trailing mean over ``K`` iterations that skips those in which no episode ended."""
 
 from __future__ import annotations
 
@@ -212,9 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("runs", nargs="+", help="run directories (each with metrics.csv and config.yaml)")
     parser.add_argument("-o", "--out", default="curves.png", help="PNG to write (default: curves.png)")
-    parser.add_argument(
-        "--smooth", type=int, default=5, help="trailing mean over this many iterations (default 5; 1: none)"
-    )
+    parser.add_argument("--smooth", type=int, default=5, help="trailing mean over SMOOTH iterations (default 5)")
     args = parser.parse_args(argv)
     if args.smooth < 1:
         parser.error(f"--smooth must be a positive integer, got {args.smooth}")

@@ -5,8 +5,7 @@ unconstrained PPO reference trained on the same env for as many steps,
     normalized violation       max(0, J_c - d) / max(eps, J_c^PPO - d),   eps = 1e-6
     normalized cost rate       rho_c / rho_c^PPO
 (``J_r``, ``J_c`` the final policy's mean return and cost, ``d`` the budget; blank without a reference). With
-K costs they are per constraint, against a reference run's per-cost numbers.
-"""
+K costs they are per constraint, against a reference run's per-cost numbers."""
 
 from __future__ import annotations
 
@@ -134,8 +133,7 @@ def _reference_run(run: str) -> tuple[dict[str, Any], dict[str, Any]]:
 
 
 def reference_run_problem(run: str, cfg: RunConfig) -> str | None:
-    """Why the run at ``run`` cannot serve as this run's reference (a finished run of this version on the same
-    env, the number of envs aside), or None."""
+    """Why ``run`` cannot be this run's reference (a finished run of this version on the same env), or None."""
     try:
         result, ref_cfg = _reference_run(run)
     except (OSError, ValueError, yaml.YAMLError) as exc:

@@ -1,8 +1,6 @@
-"""The end-of-run summary, in words a newcomer can read. What it knows of a task comes from the env's options,
-each optional: ``optimum(cost_limit)`` (an exact solver's best return within the budget; K budgets with K > 1
-costs), ``termination_metric`` (the ``eval.json`` key of the fraction of episodes that terminated) and
-``termination_note()`` (why no episode can terminate with these options, printed instead).
-"""
+"""The end-of-run summary, in words a newcomer can read. From the env's options, each optional: ``optimum(cost_limit)``
+(an exact solver's best return within the budget; K budgets for K > 1 costs), ``termination_metric`` (the
+``eval.json`` key of the share of terminated episodes), ``termination_note()`` (why none can terminate)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """Videos of a trained policy (``evaluate.py run=<dir> video=true``) through gymnasium's ``RecordVideo`` (moviepy:
 ``pip install 'cmdp_rl[video]'``), on the env its options' ``render_env()`` gives. Headless MuJoCo: with no
 ``DISPLAY`` and no ``MUJOCO_GL`` this sets ``MUJOCO_GL=egl`` (software through Mesa without a GPU:
-:data:`HEADLESS_GL`); MuJoCo reads it when imported, so one naming a missing library breaks ``import cmdp_rl``.
-"""
+:data:`HEADLESS_GL`); MuJoCo reads it when imported, so one naming a missing library breaks ``import cmdp_rl``."""
 
 from __future__ import annotations
 
@@ -51,8 +50,7 @@ def _headless_gl() -> None:
 
 
 def make_render_env(env_cfg: Any) -> gym.Env:
-    """One env of ``env_cfg`` that renders ``rgb_array`` frames, one frame rendered already: an env that
-    cannot render, or a renderer that cannot start here, fails now with one line."""
+    """One env of ``env_cfg`` rendering ``rgb_array`` frames, one rendered already: else one line now."""
     if importlib.util.find_spec("moviepy") is None:
         raise ConfigError(f"video: {VIDEO_MISSING}")
     make = getattr(env_cfg, "render_env", None)
