@@ -6,11 +6,11 @@ rule) :mod:`cmdp_rl.run.tune_trial`; the report :mod:`cmdp_rl.run.tune_report`.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 import time
 import warnings
+from types import SimpleNamespace
 from typing import Any, Callable, Mapping, Sequence
 
 from cmdp_rl.config.validation import ConfigError
@@ -25,29 +25,12 @@ class TuneError(ConfigError):
     """Bad input to the search: one line, before anything runs."""
 
 
-@dataclasses.dataclass(frozen=True)
-class Settings:
-    """``hydra.sweeper.*`` (hydra_plugins/cmdp_tune/sweeper.py), checked."""
-
-    study_name: str
-    storage: str | None
-    n_trials: int
-    seeds: int
-    n_jobs: int
-    budget: Any
-    feasible_by: str
-    sampler: dict[str, Any]
-    pruner: dict[str, Any] | None
-    prune_after: float
-    heartbeat_s: int
-    grace_s: int
-    max_failures: int
-    report: bool
+class Settings(SimpleNamespace):
+    """``hydra.sweeper.*`` as hydra_plugins/cmdp_tune/sweeper.py's ``ConstrainedOptunaConf`` declares them, checked."""
 
     @classmethod
     def of(cls, options: Mapping[str, Any]) -> Settings:
-        known = {f.name for f in dataclasses.fields(cls)}
-        s = cls(**{k: v for k, v in options.items() if k in known})
+        s = cls(**options)
         for name in ("n_trials", "seeds", "n_jobs", "heartbeat_s"):
             _require(isinstance(getattr(s, name), int) and getattr(s, name) >= 1, f"hydra.sweeper.{name}", ">= 1", s)
         _require(s.feasible_by in ("upper", "mean"), "hydra.sweeper.feasible_by", "upper or mean", s)
@@ -131,15 +114,8 @@ def override(key: str, dist: Any, value: Any) -> str:
 
 def corners(space: Mapping[str, Any]) -> list[list[str]]:
     """The space's low and high ends, every option at once, as overrides: what a check composes and validates."""
-    ends = []
-    for end in (0, -1):
-        ends.append(
-            [
-                override(k, d, d.choices[end] if hasattr(d, "choices") else (d.low if end == 0 else d.high))
-                for k, d in space.items()
-            ]
-        )
-    return ends
+    ends = {k: (d.choices[0], d.choices[-1]) if hasattr(d, "choices") else (d.low, d.high) for k, d in space.items()}
+    return [[override(k, d, ends[k][end]) for k, d in space.items()] for end in (0, 1)]
 
 
 def check_space(

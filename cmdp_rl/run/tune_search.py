@@ -1,12 +1,10 @@
 """The search's ask-and-tell loop (``hydra/sweeper=cmdp_optuna``, docs/tuning.md): ask Optuna for trials, launch
-each as one Hydra job through whatever ``hydra/launcher`` is configured, tell Optuna each trial's return and, as its
+each as one Hydra job through the configured ``hydra/launcher``, tell Optuna each trial's return and, as its
 constraint, its costs against the budgets (:mod:`cmdp_rl.run.tune`).
 
-Written by hand because Optuna's ``study.optimize`` runs the objective in its own process and threads, and a Hydra
-job runs where its launcher puts it (this process, joblib's workers, a SLURM node). What ``optimize`` does around
-the objective is done here with Optuna's public pieces: heartbeats while a trial runs (so that a killed worker's
-trial is failed and queued again, never counted as finished), ``n_trials`` counted across every worker on the
-storage (``MaxTrialsCallback``'s job, which only ``optimize`` can run).
+Not ``study.optimize``, which runs the objective in its own process and threads while a Hydra job runs where its
+launcher puts it; what ``optimize`` adds is done here with Optuna's public pieces: heartbeats while a trial runs
+(a killed worker's trial is failed and queued again) and ``n_trials`` counted across every worker on the storage.
 """
 
 from __future__ import annotations
@@ -17,8 +15,9 @@ import sys
 import threading
 import time
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from cmdp_rl.run.tune import (
     STORAGE_ENV,
@@ -148,11 +147,10 @@ class Search:
         for key, value in {**mine, "pruner": self.s.pruner, "prune_after": self.s.prune_after}.items():
             self.study.set_user_attr(key, value)
 
-    def _count(self) -> tuple[int, int]:
-        from optuna.trial import TrialState
-
-        trials = self.study.get_trials(deepcopy=False)
-        return sum(t.state.name in SETTLED for t in trials), sum(t.state == TrialState.RUNNING for t in trials)
+    def _count(self, below: int | None = None) -> tuple[int, int]:
+        """The settled (complete or pruned) and the running trials, of those numbered below ``below`` if given."""
+        trials = [t for t in self.study.get_trials(deepcopy=False) if below is None or t.number < below]
+        return sum(t.state.name in SETTLED for t in trials), sum(t.state.name == "RUNNING" for t in trials)
 
     def run(self) -> list[Any]:
         from optuna.storages import fail_stale_trials
@@ -171,7 +169,7 @@ class Search:
                 waited = True
                 time.sleep(self.s.heartbeat_s)
                 continue
-            batch = [self.study.ask() for _ in range(min(self.s.n_jobs, room))]
+            batch = [self.study.ask(self.space) for _ in range(min(self.s.n_jobs, room))]
             batch = [t for t in batch if not self._surplus(t)]
             if not batch:
                 continue
@@ -192,12 +190,7 @@ class Search:
         """Two workers may both see room for the last trial: the later-numbered one is surplus, failed unrun."""
         from optuna.trial import TrialState
 
-        ahead = [
-            t
-            for t in self.study.get_trials(deepcopy=False)
-            if t.number < trial.number and (t.state.name in SETTLED or t.state == TrialState.RUNNING)
-        ]
-        if len(ahead) < self.s.n_trials:
+        if sum(self._count(below=trial.number)) < self.s.n_trials:
             return False
         trial.set_user_attr("error", "surplus: n_trials already asked for by other workers")
         self.study.tell(trial, state=TrialState.FAIL)
@@ -206,8 +199,7 @@ class Search:
     def _launch(self, batch: list[Any]) -> list[Any]:
         jobs = []
         for trial in batch:
-            params = {k: self._suggest(trial, k, d) for k, d in self.space.items()}
-            task = [*self.fixed, *(override(k, self.space[k], v) for k, v in params.items())]
+            task = [*self.fixed, *(override(k, self.space[k], v) for k, v in trial.params.items())]
             task.append(f"population.seeds={self.s.seeds}")
             trial.set_user_attr("overrides", task)
             trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
@@ -218,21 +210,12 @@ class Search:
                 + [f"++hydra.job.env_set.{k}={_quote(v)}" for k, v in env.items()]
             )
         ids = [self._trial_id(t) for t in batch]
-        with _Heartbeat(self.storage, ids, self.s.heartbeat_s):
+        with _heartbeats(self.storage, ids, self.s.heartbeat_s):
             return list(self.launcher.launch(jobs, initial_job_idx=batch[0].number))
 
     def _trial_id(self, trial: Any) -> int:
         study_id = self.storage.get_study_id_from_name(self.s.study_name)
         return self.storage.get_trial_id_from_study_id_trial_number(study_id, trial.number)
-
-    @staticmethod
-    def _suggest(trial: Any, key: str, dist: Any) -> Any:
-        from optuna.distributions import CategoricalDistribution, FloatDistribution
-
-        if isinstance(dist, CategoricalDistribution):
-            return trial.suggest_categorical(key, dist.choices)
-        suggest = trial.suggest_float if isinstance(dist, FloatDistribution) else trial.suggest_int
-        return suggest(key, dist.low, dist.high, step=dist.step, log=dist.log)
 
     def _tell(self, trial: Any, ret: Any) -> bool:
         """Tell Optuna how the trial's job ended; True unless it failed."""
@@ -272,26 +255,22 @@ def _subdir(number: int) -> str:
     return f"trial_{number:04d}"
 
 
-class _Heartbeat:
-    """Record the trials' heartbeats while their jobs run. Optuna beats only inside ``study.optimize``; its storage's
-    ``record_heartbeat`` is the public half, driven here."""
+@contextmanager
+def _heartbeats(storage: Any, trial_ids: list[int], interval: int) -> Iterator[None]:
+    """Record the trials' heartbeats while their jobs run (Optuna beats only inside ``study.optimize``)."""
+    stop = threading.Event()
 
-    def __init__(self, storage: Any, trial_ids: list[int], interval: int) -> None:
-        self.storage, self.ids, self.interval = storage, trial_ids, interval
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._beat, daemon=True)
-
-    def _beat(self) -> None:
+    def beat() -> None:
         while True:
-            for trial_id in self.ids:
-                self.storage.record_heartbeat(trial_id)
-            if self.stop.wait(self.interval):
+            for trial_id in trial_ids:
+                storage.record_heartbeat(trial_id)
+            if stop.wait(interval):
                 return
 
-    def __enter__(self) -> _Heartbeat:
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.stop.set()
-        self.thread.join()
+    thread = threading.Thread(target=beat, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
