@@ -1,13 +1,8 @@
-"""Hydra callbacks of ``train.py`` (``hydra.callbacks`` in ``configs/config.yaml``).
-
-Hydra creates the run (or sweep) directory itself, before ``train.py``'s code runs, and an
-uncreatable one (``hydra.run.dir=/proc/x``) ends in a pathlib traceback there. This callback runs
-just before that, on the same resolved directory (Hydra's ``now`` resolver caches its value in the
-config, so the directory checked is the one Hydra then uses), and stops with one line, exit 2.
-
-A single run also claims its directory there (``run/ownership.py``), before Hydra writes its
-``.hydra/`` record and log into it: a directory holding another run, or one a live run holds, is
-refused with its files untouched. The claim is kept for the life of the process.
+"""Hydra callbacks of ``train.py`` (``hydra.callbacks`` in ``configs/config.yaml``), run before Hydra creates the
+run (or sweep) directory and writes its record there: an uncreatable directory stops in one line (exit 2) instead of
+Hydra's pathlib traceback, and a single run claims its directory (``run/ownership.py``) for the process's life, so
+a directory holding another run, or held by a live one, is refused with its files untouched. (Hydra's ``now``
+resolver caches its value, so the directory checked is the one Hydra then uses.)
 """
 
 from __future__ import annotations

@@ -1,13 +1,6 @@
-"""Recording a run's failure, and reading a Hydra sweep's run directories back.
-
-A run directory (``train.py``'s Hydra output dir; its layout is in ``cmdp_rl/run/rundir.py``) holds
-``.hydra/{config,overrides}.yaml`` (written by Hydra when the job starts), then ``config.yaml``
-and ``metrics.csv`` (training started), then ``eval.json`` (training and evaluation finished) or
-``error.txt`` (the job raised).
-A sweep directory holds Hydra's ``multirun.yaml`` and one run directory per job.
-
-Aggregators read results from here instead of re-training, and report every run that did not
-finish (failed, interrupted, or never started) rather than crash on it.
+"""Recording a run's failure, and reading run directories back (their layout: ``cmdp_rl/run/rundir.py``): an
+aggregator reads results from here instead of re-training, and reports every run that did not finish (failed,
+interrupted, or never started) rather than crash on it.
 """
 
 from __future__ import annotations
@@ -34,13 +27,6 @@ MULTIRUN_FILE = "multirun.yaml"
 
 OK, FAILED, INCOMPLETE, MISSING = "ok", "failed", "incomplete", "missing"
 SUPERSEDED = "superseded"  # the same job ran again (a rerun) and that run is the one kept
-
-
-def clear_outputs(out_dir: str | Path) -> None:
-    """Remove a previous run's result and error from ``out_dir``, so that a rerun into the same
-    directory that dies early cannot be mistaken for a finished one."""
-    for name in (EVAL_FILE, ERROR_FILE):
-        (Path(out_dir) / name).unlink(missing_ok=True)
 
 
 def record_failure(out_dir: str | Path, exc: BaseException) -> None:
