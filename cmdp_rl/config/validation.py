@@ -1,13 +1,9 @@
 """Declared config constraints, and the one-line error a violated one gives.
 
-Every component (an algorithm, an env, a policy head) declares its options as a :func:`options`
-dataclass beside its code, with each field's allowed range in its type annotation, e.g.
-``gamma: Annotated[float, Field(ge=0, lt=1)] = 0.99``. pydantic checks types and ranges; this module
-only turns pydantic's report into the toolkit's one line, which names the field and everything it
-allows (``algo.gamma must be in [0, 1), got 1.0``) rather than the one bound that failed.
-
-Rules that relate several fields stay in the component, as a ``check(self, run)`` method that calls
-:func:`require` (see ``config.validate``).
+A component declares its options as an :func:`options` dataclass beside its code, each field's allowed range in
+its type (``gamma: Annotated[float, Field(ge=0, lt=1)] = 0.99``). pydantic checks them; this module turns its report
+into one line naming the field and everything it allows (``algo.gamma must be in [0, 1), got 1.0``), not the one
+bound that failed. A rule across fields is the component's ``check(self, run)``, calling :func:`require`.
 """
 
 from __future__ import annotations
@@ -188,26 +184,3 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
         values,
     )
     return [float(v) for v in values]
-
-
-__all__ = [
-    "AUTO",
-    "AutoInt",
-    "Bool",
-    "ConfigError",
-    "Discount",
-    "Field",
-    "NonNegativeFloat",
-    "NonNegativeInt",
-    "PositiveFloat",
-    "PositiveInt",
-    "UnitOpen",
-    "allowed",
-    "build",
-    "finite",
-    "is_finite",
-    "options",
-    "per_constraint",
-    "recheck",
-    "require",
-]

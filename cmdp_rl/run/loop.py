@@ -160,6 +160,3 @@ def _iterations(m: Members, first: int, iterations: int, start: float, progress:
             for logger in m.loggers:  # the rows up to this iteration are on disk before the checkpoint names it
                 logger.sync()
             m.checkpoint(it, time.perf_counter() - start)
-
-
-__all__ = ["ITERATION_OBSERVERS", "Members", "contract_options", "metrics_row", "train_iterations"]
