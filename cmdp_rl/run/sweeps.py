@@ -23,7 +23,6 @@ from cmdp_rl.run.rundir import METRICS as METRICS_FILE
 from cmdp_rl.run.rundir import POPULATION_CONFIG
 
 HYDRA_DIR = ".hydra"
-MULTIRUN_FILE = "multirun.yaml"
 
 OK, FAILED, INCOMPLETE, MISSING = "ok", "failed", "incomplete", "missing"
 SUPERSEDED = "superseded"  # the same job ran again (a rerun) and that run is the one kept
@@ -118,20 +117,6 @@ def find_runs(root: str | Path) -> list[RunRecord]:
     dirs |= {p.parent for p in root.rglob(CONFIG_FILE) if not inside_hydra(p)}
     # A population's own directory (cmdp_rl/population/) is not a run: its agents' directories are.
     return [load_run(d) for d in sorted(dirs) if not (d / POPULATION_CONFIG).is_file()]
-
-
-def _runs_holding(sweep_dir: str | Path, name: str) -> list[RunRecord]:
-    return [load_run(p.parent) for p in sorted(Path(sweep_dir).glob(f"*/{name}"))]
-
-
-def finished_runs(sweep_dir: str | Path) -> list[RunRecord]:
-    """The sweep's run directories (one level down) that hold a result (``eval.json``)."""
-    return _runs_holding(sweep_dir, EVAL_FILE)
-
-
-def started_runs(sweep_dir: str | Path) -> list[RunRecord]:
-    """The sweep's run directories (one level down) whose training started (``metrics.csv``)."""
-    return _runs_holding(sweep_dir, METRICS_FILE)
 
 
 def _finished_at(record: RunRecord) -> float:
