@@ -1,11 +1,6 @@
-"""Train a constrained-RL agent: ``cmdp-train algo=ppo_lag env=reach1d [overrides]``.
-
-The same command is ``python -m cmdp_rl`` and, in a checkout, ``python train.py``.
-Options are documented in ``configs/`` (shipped in the package, see :data:`cmdp_rl.config.run_config.CONFIG_SOURCE`);
-outputs go to Hydra's run directory. ``resume=<run dir> [total_steps=...]`` continues that run from its
-last checkpoint, in that directory, with the run's own config (see ``cmdp_rl/run/resume.py`` for what may
-change). Sweeps are Hydra multiruns (``-m``), e.g. ``cmdp-train -m +experiment=penalty_sweep``; see
-``configs/experiment/``.
+"""Train a constrained-RL agent: ``cmdp-train algo=ppo_lag env=reach1d [overrides]`` (also ``python -m cmdp_rl`` and,
+in a checkout, ``python train.py``). Options: ``configs/``; outputs: Hydra's run directory. ``resume=<run dir>``
+continues that run in its directory (``cmdp_rl/run/resume.py``); sweeps are Hydra multiruns (``-m``).
 """
 
 from __future__ import annotations

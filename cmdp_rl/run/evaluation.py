@@ -35,22 +35,15 @@ def evaluate(
     termination_metric: str | None = None,
     cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, float]:
-    """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
-    With K > 1 costs, each constraint's episode cost has its own keys, ``episode_cost/<cost>``,
-    ``episode_cost_std/<cost>``, ... (``metrics.constraint_name``).
+    """Run ``episodes`` whole episodes and return means and spreads of return, cost and length; with K > 1 costs
+    each constraint's keys carry ``/<cost>`` (``episode_cost/<cost>``, ...: ``metrics.constraint_name``).
 
-    Each env of the batch contributes a fixed quota of its first episodes, so short episodes are
-    not over-represented (counting whichever episodes end first would bias towards them).
-    With ``termination_metric`` (an env's name for what termination means, e.g. Reach1D's
-    ``goal_reached``), the result also has the fraction of episodes that ended by termination rather
-    than the time limit, under that name.
-    With ``seed``, a stochastic policy samples from torch's generator seeded with it, inside
-    ``fork_rng``: the same seed gives the same numbers, and the caller's generator is left as it was.
-    With ``cost_limit`` (the budget d), the result also has 95% intervals over the episodes: of mean
-    return and mean cost, cost's upper bound, and the rate of episodes with cost above d
-    (:func:`cmdp_rl.report.intervals.summarize`). With K > 1 costs ``cost_limit`` is one budget for every
-    constraint or a list of K, and each constraint's cost and violation keys carry ``/<cost>``
-    (``episode_cost_ucb95/hazard_a``, ``violation_rate/hazard_a``, ``intervals/hazard_a``).
+    Each env contributes a fixed quota of its first episodes, so short episodes are not over-represented (counting
+    whichever end first would favour them). ``termination_metric`` (an env's name for termination, e.g. Reach1D's
+    ``goal_reached``) adds the fraction of episodes that terminated rather than timed out. ``seed`` seeds a
+    stochastic policy's samples inside ``fork_rng`` (the caller's generator is left as it was). ``cost_limit``
+    (d, one for every constraint or a list of K) adds 95% intervals over the episodes
+    (:func:`cmdp_rl.report.intervals.summarize`): mean return and cost, cost's upper bound, the violation rate.
     """
     with torch.random.fork_rng(devices=[]):
         if seed is not None:

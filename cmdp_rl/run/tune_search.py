@@ -60,6 +60,14 @@ def _compose(sweeper: Any) -> Any:
     return compose
 
 
+def _built(setting: str, build: Any) -> Any:
+    """``build()``, or what it raises (a bad ``_target_`` or arguments) as one line naming the setting."""
+    try:
+        return build()
+    except Exception as exc:  # noqa: BLE001 - whatever the target raises
+        raise TuneError(f"hydra.sweeper.{setting}: {str(exc).splitlines()[0]}") from None
+
+
 def _quote(text: str) -> str:
     """A value of any characters as one Hydra override value."""
     return "'" + text.replace("\\", "\\\\").replace("'", "\\'") + "'"
@@ -86,10 +94,7 @@ class Search:
         self.base_seed = int(raw.get("seed", 0))
         sampler = self._sampler(hydra.utils.instantiate)
         if self.s.pruner is not None:  # built here too, so that a bad spec stops before any job (the job builds it)
-            try:
-                hydra.utils.instantiate(self.s.pruner)
-            except Exception as exc:  # noqa: BLE001 - whatever the target raises
-                raise TuneError(f"hydra.sweeper.pruner: {str(exc).splitlines()[0]}") from None
+            _built("pruner", lambda: hydra.utils.instantiate(self.s.pruner))
         self.url = self.s.storage or f"sqlite:///{self.sweep_dir / 'study.db'}"
         if self.s.storage is None:
             self.sweep_dir.mkdir(parents=True, exist_ok=True)
@@ -111,10 +116,7 @@ class Search:
         from hydra.utils import get_class
 
         spec = dict(self.s.sampler)
-        try:
-            cls = get_class(spec["_target_"])
-        except Exception as exc:  # noqa: BLE001 - a missing _target_ or a class that does not import
-            raise TuneError(f"hydra.sweeper.sampler: {str(exc).splitlines()[0]}") from None
+        cls = _built("sampler", lambda: get_class(spec["_target_"]))
         if "constraints_func" in inspect.signature(cls).parameters:
             spec["constraints_func"] = constraints
         elif cls is not optuna.samplers.RandomSampler:  # random search ignores values and constraints alike
@@ -122,10 +124,7 @@ class Search:
                 f"hydra.sweeper.sampler {cls.__name__} takes no constraints_func, and the budget is a constraint: "
                 "use TPESampler, NSGAIISampler or GPSampler (or RandomSampler)"
             )
-        try:
-            return instantiate(spec)
-        except Exception as exc:  # noqa: BLE001 - whatever the sampler's own checks raise
-            raise TuneError(f"hydra.sweeper.sampler: {str(exc).splitlines()[0]}") from None
+        return _built("sampler", lambda: instantiate(spec))
 
     def _share(self) -> None:
         """Record what the study's trials mean (or check it against what they meant when it began), and what its
