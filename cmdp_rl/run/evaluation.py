@@ -6,6 +6,7 @@ from typing import Any, Sequence
 
 import torch
 
+from cmdp_rl.config.validation import per_constraint
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.intervals import summarize as interval_estimates
@@ -114,38 +115,24 @@ def summarize_episodes(
     termination_metric: str | None = None,
     cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, Any]:
-    """``evaluate``'s result from its episodes' rows ``(return, length, terminated, cost_0, ...)``:
-    spreads of return, each cost and length, the termination rate, and with ``cost_limit`` the
-    intervals."""
+    """``evaluate``'s result from its episodes' rows ``(return, length, terminated, cost_0, ...)``: spreads of
+    return, each cost and length, the termination rate, and with ``cost_limit`` the intervals (with one cost exactly
+    :func:`cmdp_rl.report.intervals.summarize`'s keys; with K > 1 the return's once, the others as ``<key>/<cost>``)."""
+    k = len(names)
+    returns = [row[0] for row in flat]
     result: dict[str, Any] = {"episodes": len(flat), "deterministic": deterministic}
-    result.update(_spread("episode_return", [row[0] for row in flat]))
-    for k, cost_name in enumerate(names):
-        spread = _spread("episode_cost", [row[3 + k] for row in flat])
-        result.update({constraint_name(key, cost_name, len(names)): v for key, v in spread.items()})
+    result.update(_spread("episode_return", returns))
+    for j, cost_name in enumerate(names):
+        spread = _spread("episode_cost", [row[3 + j] for row in flat])
+        result.update({constraint_name(key, cost_name, k): v for key, v in spread.items()})
     result.update(_spread("episode_length", [row[1] for row in flat]))
     if termination_metric:
         result[termination_metric] = sum(row[2] for row in flat) / len(flat)
     if cost_limit is not None:
-        result.update(_intervals(flat, names, cost_limit))
+        for j, (name, d) in enumerate(zip(names, per_constraint(cost_limit, "cost_limit", names))):
+            est = interval_estimates(returns, [row[3 + j] for row in flat], d)
+            if k > 1:
+                return_ci = est.pop("episode_return_ci95")
+                est = {"episode_return_ci95": return_ci, **{f"{key}/{name}": v for key, v in est.items()}}
+            result.update(est)
     return result
-
-
-def _intervals(
-    flat: list[tuple[float, ...]], names: Sequence[str], cost_limit: float | Sequence[float]
-) -> dict[str, Any]:
-    """The interval keys for each constraint (rows: return, length, terminated, cost_0, ...); with
-    one cost exactly :func:`cmdp_rl.report.intervals.summarize`'s keys, with K > 1 the return's interval
-    once and every other key per constraint as ``<key>/<cost>``."""
-    k = len(names)
-    limits = [float(cost_limit)] * k if isinstance(cost_limit, (int, float)) else [float(d) for d in cost_limit]
-    if len(limits) != k:
-        raise ValueError(f"evaluate: {len(limits)} budgets for {k} costs")
-    returns = [row[0] for row in flat]
-    out: dict[str, Any] = {}
-    for j, (name, d) in enumerate(zip(names, limits)):
-        est = interval_estimates(returns, [row[3 + j] for row in flat], d)
-        if k == 1:
-            return est
-        out["episode_return_ci95"] = est.pop("episode_return_ci95")
-        out.update({f"{key}/{name}": v for key, v in est.items()})
-    return out
