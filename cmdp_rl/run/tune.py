@@ -81,11 +81,8 @@ def parse_space(arguments: Sequence[str]) -> tuple[dict[str, Any], list[str]]:
             values = list(ov.sweep_iterator())
             if not values or getattr(value, "shuffle", False):
                 raise TuneError(f"{ov.input_line}: an empty range" if not values else f"{ov.input_line}: shuffle")
-            step = value.step if value.step is not None else 1
-            if all(isinstance(v, int) for v in values):
-                space[key] = IntDistribution(values[0], values[-1], step=step)
-            else:
-                space[key] = FloatDistribution(values[0], values[-1], step=step)
+            kind = IntDistribution if all(isinstance(v, int) for v in values) else FloatDistribution
+            space[key] = kind(values[0], values[-1], step=value.step if value.step is not None else 1)
         else:  # an interval, log-scaled with tag(log, ...)
             low, high, log = value.start, value.end, "log" in value.tags
             if not low < high:
@@ -157,8 +154,8 @@ def budgets(budget: Any, raw: Mapping[str, Any], searched: Sequence[str] = ()) -
     search's budget per cost: ``budget`` (a number, a list of K, or ``{cost: budget}`` naming every cost), or,
     when null, the config's own ``algo.cost_limit`` (the task's unless given), unless that is among the
     ``searched`` options."""
-    from cmdp_rl.algos.base import per_constraint
     from cmdp_rl.config.run_config import load_config
+    from cmdp_rl.config.validation import per_constraint
     from cmdp_rl.envs import make_env
 
     if budget is None and "algo.cost_limit" in searched:
@@ -171,22 +168,22 @@ def budgets(budget: Any, raw: Mapping[str, Any], searched: Sequence[str] = ()) -
         env.close()
     if budget is None:
         return names, per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
+    costs = f"(the env's costs: {', '.join(names)})"
     if isinstance(budget, Mapping):
-        missing = [n for n in names if n not in budget]
         unknown = [n for n in budget if n not in names]
-        if missing or unknown:
-            what = f"no value for cost {missing[0]!r}" if missing else f"a cost the env lacks, {unknown[0]!r}"
-            raise TuneError(f"hydra.sweeper.budget has {what} (the env's costs: {', '.join(names)})")
-        values = [budget[n] for n in names]
+        if unknown:
+            raise TuneError(f"hydra.sweeper.budget has a cost the env lacks, {unknown[0]!r} {costs}")
+        given = dict(budget)
     elif isinstance(budget, (int, float)):
-        values = [budget] * len(names)
+        given = dict.fromkeys(names, budget)
     else:
-        values = list(budget)
-        if len(values) != len(names):
-            raise TuneError(
-                f"hydra.sweeper.budget has {len(values)} values for {len(names)} costs ({', '.join(names)})"
-                + (f": no value for cost {names[len(values)]!r}" if len(values) < len(names) else "")
-            )
+        if len(list(budget)) > len(names):
+            raise TuneError(f"hydra.sweeper.budget has {len(list(budget))} values for {len(names)} costs {costs}")
+        given = dict(zip(names, budget))
+    missing = [n for n in names if n not in given]
+    if missing:
+        raise TuneError(f"hydra.sweeper.budget has no value for cost {missing[0]!r} {costs}")
+    values = [given[n] for n in names]
     if not all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 for v in values):
         raise TuneError(f"hydra.sweeper.budget must be numbers >= 0, got {budget!r}")
     return names, [float(v) for v in values]
