@@ -16,6 +16,7 @@ import threading
 import time
 import warnings
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -48,16 +49,14 @@ def sweep(sweeper: Any, arguments: list[str]) -> list[Any]:
     return search.run()
 
 
-def _compose(sweeper: Any) -> Any:
+def _compose(sweeper: Any, overrides: list[str]) -> dict:
+    """A job's task config as Hydra composes it for ``overrides``, resolved."""
     from omegaconf import OmegaConf, open_dict
 
-    def compose(overrides: list[str]) -> dict:
-        cfg = sweeper.hydra_context.config_loader.load_sweep_config(sweeper.config, overrides)
-        with open_dict(cfg):
-            del cfg["hydra"]
-        return OmegaConf.to_container(cfg, resolve=True)
-
-    return compose
+    cfg = sweeper.hydra_context.config_loader.load_sweep_config(sweeper.config, overrides)
+    with open_dict(cfg):
+        del cfg["hydra"]
+    return OmegaConf.to_container(cfg, resolve=True)
 
 
 def _built(setting: str, build: Any) -> Any:
@@ -89,7 +88,7 @@ class Search:
         self.sweep_dir = Path(str(sweeper.config.hydra.sweep.dir)).absolute()
         params = [f"{k}={v}" for k, v in (options.get("params") or {}).items()]
         self.space, self.fixed = parse_space(params + list(arguments))
-        raw = check_space(self.space, self.fixed, self.s.seeds, _compose(sweeper))
+        raw = check_space(self.space, self.fixed, self.s.seeds, partial(_compose, sweeper))
         self.cost_names, self.budget = budgets(self.s.budget, raw, list(self.space))
         self.base_seed = int(raw.get("seed", 0))
         sampler = self._sampler(hydra.utils.instantiate)
