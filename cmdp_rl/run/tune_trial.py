@@ -2,7 +2,7 @@
 study's pruner, its outcome over its seeds, and the feasibility rule (``constraint = bound - budget`` per cost, the
 bound by ``feasible_by``), which Optuna's samplers take as a constraint (``constraints_func``), never as a penalty.
 
-Inside a job the sweeper (run/tune_search.py) names the trial in ``hydra.job.env_set``; :class:`ReportToTrial`
+Inside a job the search (run/tune.py) names the trial in ``hydra.job.env_set``; :class:`ReportToTrial`
 (``hydra.callbacks`` in configs/config.yaml, a no-op in any other job) then watches the training loop's rows
 (``run/loop.py``'s ITERATION_OBSERVERS). Past the warm-up (``prune_after``) it reports the return only, never the
 cost, and the pruner compares it with the trials within budget only (:class:`FeasibleOnly`).
@@ -19,9 +19,11 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl.run.loop import ITERATION_OBSERVERS
-from cmdp_rl.run.tune import STORAGE_ENV, STUDY_ENV, TRIAL_ENV
 
 LEVEL = 0.95
+TRIAL_ENV = "CMDP_TUNE_TRIAL"  # hydra.job.env_set keys: how a job learns which trial of which study it is
+STUDY_ENV = "CMDP_TUNE_STUDY"
+STORAGE_ENV = "CMDP_TUNE_STORAGE"
 
 
 class ReportToTrial(Callback):
