@@ -397,14 +397,13 @@ class Search:
         for trial in batch:
             task = [*self.fixed, *(override(k, self.space[k], v) for k, v in trial.params.items())]
             task.append(f"population.seeds={self.s.seeds}")
+            subdir = f"trial_{trial.number:04d}"
             trial.set_user_attr("overrides", task)
             trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
-            trial.set_user_attr("job_dir", str(self.sweep_dir / _subdir(trial.number)))
+            trial.set_user_attr("job_dir", str(self.sweep_dir / subdir))
             env = {TRIAL_ENV: str(trial.number), STUDY_ENV: self.s.study_name, STORAGE_ENV: self.url}
-            jobs.append(
-                [*task, f"hydra.sweep.subdir={_subdir(trial.number)}"]
-                + [f"++hydra.job.env_set.{k}={_quote(v)}" for k, v in env.items()]
-            )
+            env_set = [f"++hydra.job.env_set.{k}={_quote(v)}" for k, v in env.items()]
+            jobs.append([*task, f"hydra.sweep.subdir={subdir}", *env_set])
         ids = [self._trial_id(t) for t in batch]
         with _heartbeats(self.storage, ids, self.s.heartbeat_s):
             return list(self.launcher.launch(jobs, initial_job_idx=batch[0].number))
@@ -425,7 +424,7 @@ class Search:
             error = exc
         job_dir = Path(str(ret.hydra_cfg.hydra.runtime.output_dir)) if ret.hydra_cfg else None
         if isinstance(error, optuna.TrialPruned):
-            trial.set_user_attr("constraint", [0.0] * len(self.budget))  # see tune.constraints
+            trial.set_user_attr("constraint", [0.0] * len(self.budget))  # see tune_trial.constraints
             self.study.tell(trial, state=TrialState.PRUNED)
             print(f"tune: trial {trial.number} pruned: {error}")
             return True
@@ -445,10 +444,6 @@ class Search:
 
         print(f"tune: {trial_line(self.storage.get_trial(self._trial_id(trial)), self.budget)}")
         return True
-
-
-def _subdir(number: int) -> str:
-    return f"trial_{number:04d}"
 
 
 @contextmanager
