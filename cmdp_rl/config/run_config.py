@@ -66,6 +66,8 @@ class LoggerConfig:
 
 @options
 class RunConfig:
+    """A run's options, each documented in configs/config.yaml (the components' in configs/<kind>/<name>.yaml)."""
+
     env: Any = _default("env")  # the options class registered under env.name
     policy: Any = _default("policy")  # ... under policy.name
     algo: Any = _default("algo")  # ... under algo.name
@@ -77,23 +79,13 @@ class RunConfig:
     threads: PositiveInt = 1
     eval_episodes: PositiveInt = 20
     eval_deterministic: Bool = True
-    # The early-terminated MDP: a training episode ends (terminated) at the first step after which a
-    # cost's episode sum exceeds its algo.cost_limit (cmdp_rl/envs/early_termination.py); evaluation
-    # episodes are whole.
-    early_terminate: Bool = False
-    # The policy deployed at the end (evaluated, in eval.json, in evaluate.py, its video and cmdp_rl.load),
-    # and how it is chosen: cmdp_rl/deploy/options.py.
-    deploy: DeployConfig = field(default_factory=DeployConfig)
+    early_terminate: Bool = False  # cmdp_rl/envs/early_termination.py
+    deploy: DeployConfig = field(default_factory=DeployConfig)  # the policy deployed at the end: cmdp_rl/deploy/
     checkpoint_every: PositiveInt = 10
     log_interval: PositiveInt = 5
-    # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
     resume: Annotated[Optional[str], Field(pattern=r"\S", description="null or a run directory")] = None
-    # A new run into a directory that already holds a run: replace that run's outputs (false: refuse;
-    # cmdp_rl/run/ownership.py).
-    overwrite: Bool = False
-    # Load the resumed run's checkpoint even if it is of an older format that only Python's full
-    # unpickler reads, which runs code from the file (docs/checkpoints.md). Never saved as true.
-    trust_checkpoint: Bool = False
+    overwrite: Bool = False  # cmdp_rl/run/ownership.py
+    trust_checkpoint: Bool = False  # runs code from an old checkpoint (docs/checkpoints.md); never saved as true
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
 
