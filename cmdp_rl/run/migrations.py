@@ -261,22 +261,9 @@ _RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {
 # constant step.
 _FLAT_MULTIPLIER = {
     "multiplier": "kind",
-    "lambda_lr": "lr",
-    "lambda_init": "init",
-    "lambda_scale": "scale",
-    "lambda_tau": "tau",
-    "lambda_nu": "nu",
-    "kp": "kp",
-    "ki": "ki",
-    "kd": "kd",
-    "p_ema_alpha": "p_ema_alpha",
-    "d_ema_alpha": "d_ema_alpha",
-    "d_delay": "d_delay",
-    "lambda_max": "max",
-    "nu_init": "init",
-    "nu_lr": "lr",
-    "nu_max": "max",
-    "nu_scale": "scale",
+    **{f"lambda_{k}": k for k in ("lr", "init", "scale", "tau", "nu", "max")},
+    **{k: k for k in ("kp", "ki", "kd", "p_ema_alpha", "d_ema_alpha", "d_delay")},
+    **{f"nu_{k}": k for k in ("init", "lr", "max", "scale")},  # FOCOPS's and CUP's cost multiplier
     "anneal_lambda_lr": None,
 }
 # The flat run options that became the ``deploy`` node, each by its name there.
