@@ -92,17 +92,12 @@ def load_run(path: str | Path) -> RunRecord:
     )
     if (path / EVAL_FILE).is_file():
         try:
-            record.eval = json.loads((path / EVAL_FILE).read_text())
-            record.status = OK
-            return record
+            record.eval, record.status = json.loads((path / EVAL_FILE).read_text()), OK
         except (OSError, ValueError) as exc:
             record.status, record.error = FAILED, f"{EVAL_FILE} unreadable: {exc}"
-            return record
-    if (path / ERROR_FILE).is_file():
-        record.status = FAILED
-        record.error = (
-            (path / ERROR_FILE).read_text().splitlines()[0] if (path / ERROR_FILE).stat().st_size else "error"
-        )
+    elif (path / ERROR_FILE).is_file():
+        text = (path / ERROR_FILE).read_text()
+        record.status, record.error = FAILED, text.splitlines()[0] if text else "error"
     return record
 
 
