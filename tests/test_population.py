@@ -16,9 +16,11 @@ from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.config.registry import component
 from cmdp_rl.population import population
 from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
+from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.ownership import RunDirTaken
 from cmdp_rl.run.resume import resume_population
+from cmdp_rl.run.rundir import load_trained
 from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
@@ -279,6 +281,9 @@ def test_population_outputs_are_runs(tmp_path):
     assert sorted((r.get("algo.cost_limit"), r.get("seed")) for r in runs) == [(0.2, 0), (0.2, 1), (0.5, 0), (0.5, 1)]
     summary = yaml.safe_load((pop / "population.json").read_text())
     assert summary["agents"] == 4 and summary["steps_per_agent"] == 256 and summary["summed_steps_per_s"] > 0
+    # its checkpoint is named as a run's, so evaluating its directory as a run's names what it is
+    with pytest.raises(CheckpointError, match="is a population; its agents' runs are under"):
+        load_trained(pop)
 
 
 def test_each_agent_logs_to_its_own_tensorboard_directory(tmp_path):
@@ -318,7 +323,7 @@ def test_population_resumes_after_a_kill(tmp_path, algo, env):
     with pytest.raises(KeyboardInterrupt):
         train(population(raw), killed, echo=kill_at_3)
     assert not list(killed.glob("agents/*/eval.json"))
-    torch.load(killed / "population.pt", weights_only=True)  # plain tensors, numbers and strings
+    torch.load(killed / "checkpoint.pt", weights_only=True)  # plain tensors, numbers and strings
     train(resume_population(killed), killed, echo=lambda s: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(a) == metrics_rows(b)  # same process, same code: bit for bit
@@ -372,7 +377,7 @@ def test_a_population_of_the_stacked_layout_resumes(tmp_path):
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert_close(metrics_rows(b), metrics_rows(a), b.name)
         assert_close(eval_result(b), eval_result(a), b.name)
-    new = torch.load(killed / "population.pt", weights_only=True)
+    new = torch.load(killed / "checkpoint.pt", weights_only=True)
     assert "update" not in new and [e["algo_state"]["iteration"] for e in new["members"]] == [4, 4]
 
 

@@ -24,7 +24,14 @@ from cmdp_rl.config.run_config import ConfigError, RunConfig, flatten_dict, load
 from cmdp_rl.population.spec import Population, population
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.run.migrations import deploy_node, member, migrate, saved_config_defaults, saved_config_nodes
-from cmdp_rl.run.rundir import POPULATION_CHECKPOINT, POPULATION_CONFIG, checkpoint_path, read_yaml, saved_config
+from cmdp_rl.run.rundir import (
+    CHECKPOINT,
+    POPULATION_CHECKPOINT,
+    POPULATION_CONFIG,
+    checkpoint_path,
+    read_yaml,
+    saved_config,
+)
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
 # shape of anything saved. Prefixes: every field under ``logger.``.
@@ -141,16 +148,17 @@ def resume_population(
 ) -> Population:
     """The population in ``out`` to continue, as :func:`resume_config` continues a run: its own config
     (``population.yaml``) with the options named in ``explicit`` taken from ``requested`` where a
-    run's resume may change them, and its checkpoint (``population.pt``; an older format's only with
-    ``trust``, which runs code from the file) migrated to the current layout. A population whose
+    run's resume may change them, and its checkpoint (``checkpoint.pt``, else an older population's
+    ``population.pt``; an older format's only with ``trust``) migrated to the current layout. A population whose
     agents trained one after another has no checkpoint of its own: each agent resumes as a run."""
     out = Path(out)
     if not (out / POPULATION_CONFIG).is_file():
         raise CheckpointError(f"resume: no {POPULATION_CONFIG} in {out}")
     saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
     state, stacked = None, False
-    if (out / POPULATION_CHECKPOINT).is_file():
-        saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust)
+    ckpt = next((out / n for n in (CHECKPOINT, POPULATION_CHECKPOINT) if (out / n).is_file()), None)
+    if ckpt is not None:
+        saved = load_checkpoint(ckpt, trust=trust)
         stacked = "update" in saved
         state = migrate(saved)
     # In the current layout: the stacked layout predates defaults that its config does not name

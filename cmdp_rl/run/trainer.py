@@ -418,7 +418,7 @@ def _train_population(pop: Population, out: Path, echo: Callable[[str], None]) -
         probe.close()
         why = unbatched_head(agent.actor.head)
     if why is None and pop.resume and pop.state is None:
-        raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
+        raise CheckpointError(f"resume: no {CHECKPOINT} in {out}")
     dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(pop.overrides)]
     # The directory is this population's alone while it trains (as a run's: run/ownership.py).
     with owned(out, new_run=not pop.resume, overwrite=bool(pop.raw.get("overwrite"))):
@@ -531,7 +531,8 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
         rng = {"generators": [g.get_state() for g in generators]}
         steps, rollout = collector.total_steps // P, collector.state_dict()
         state = checkpoint_state(cfg, it, steps, time_s, entries(it), rollout, rng, costs=costs)
-        save_checkpoint(out / POPULATION_CHECKPOINT, state)
+        save_checkpoint(out / CHECKPOINT, state)
+        (out / POPULATION_CHECKPOINT).unlink(missing_ok=True)  # an older population's, now superseded
 
     def cost_totals(batch: Any) -> list[list[float]]:
         nonlocal costs
@@ -557,9 +558,7 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
                 f.after_update(a, it, names, lambda line, k=k: echo(f"agent {k}: {line}"))
         return stats
 
-    members = Members(
-        cfgs, loggers, collector, update_step, cost_totals, checkpoint, out / POPULATION_CHECKPOINT, report=report
-    )
+    members = Members(cfgs, loggers, collector, update_step, cost_totals, checkpoint, out / CHECKPOINT, report=report)
     train_time = train_iterations(members, first, iterations, start)
     steps = collector.total_steps // P
 
@@ -573,7 +572,7 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
         results = _evaluate_stacked(stacked_agent, cfgs, N, device)
     for d, c, result, entry, cost, f in zip(dirs, cfgs, results, final_entries, costs.tolist(), finals):
         # The agent's entry of the population's checkpoint, as its own checkpoint.pt (for evaluate.py;
-        # not resumable on its own, no collector or random state: the population resumes from population.pt).
+        # not resumable on its own, no collector or random state: the population resumes from its own).
         save_checkpoint(d / CHECKPOINT, checkpoint_state(c, iterations, steps, train_time, [entry], None, None))
         write_result(d, result, c, steps, train_time, cost, names, None, f.kept)
     return steps, train_time, results
