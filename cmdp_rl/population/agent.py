@@ -1,13 +1,10 @@
-"""Acting and valuing for all agents at once: the collector's and GAE's side of a population.
+"""P agents' networks as stacked parameters, their Adam, and acting and valuing for all at once.
 
-:class:`PopulationAgent` offers what :class:`~cmdp_rl.rollout.collector.Collector` and
-:class:`~cmdp_rl.rollout.advantages.TwinGAE` ask of an :class:`~cmdp_rl.policies.agent.Agent` (``in_keys``,
-``initial_state``, ``act``, ``rollout_values``) on the population's flat env batch ``[P N, ...]``,
-so the single-run collector and torchrl's GAE run unchanged. Inside, entries are viewed as
-``[P, rows, ...]`` and every network is the single-run MLP applied per agent with stacked
-parameters (``params.sequential``). Each agent samples its actions from its own generator, in the
-single run's order (``Normal.rsample``: ``loc + eps * scale``, ``eps`` drawn by ``normal_`` on the
-action's shape), so agent i's actions are those of its single run.
+Each agent's networks are built by the single-run code under its seed, then copied into two leaves,
+``[P, n_actor]`` and ``[P, n_critic]``: Adam is elementwise, so one Adam over ``[P, n]`` is P Adams;
+gradient clipping reduces over dimension 1; a layer is one ``baddbmm`` over the agents (no slower than
+``torch.func.functional_call`` + ``vmap``, docs/population.md). Each agent samples from its own
+generator in its single run's order, so agent i's actions are those of its single run.
 """
 
 from __future__ import annotations
@@ -23,16 +20,132 @@ from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.distributions import GaussianHead
 from cmdp_rl.policies.mlp import Tanh
-from cmdp_rl.population.fused import FusedTanhMLP, layout
-from cmdp_rl.population.params import StackedParams, sequential, template
 from cmdp_rl.population.spec import unbatched_head
 from cmdp_rl.rollout import keys
 
 
+class StackedParams:
+    """The parameters of ``modules`` of P agents (one architecture) as one leaf ``[P, n]``."""
+
+    def __init__(self, per_agent: Sequence[nn.Module], device: torch.device) -> None:
+        self.shapes = {n: p.shape for n, p in per_agent[0].named_parameters()}
+        self.offsets: dict[str, tuple[int, int]] = {}
+        at = 0
+        for n, shape in self.shapes.items():
+            self.offsets[n] = (at, at + shape.numel())
+            at = self.offsets[n][1]
+        rows = [torch.cat([p.detach().reshape(-1) for p in m.parameters()]) for m in per_agent]
+        self.flat = torch.stack(rows).to(device).requires_grad_(True)
+
+    def view(self, name: str) -> torch.Tensor:
+        """Parameter ``name`` of every agent, ``[P, *shape]``."""
+        a, b = self.offsets[name]
+        return self.flat[:, a:b].view(self.flat.shape[0], *self.shapes[name])
+
+    def row(self, t: torch.Tensor, i: int) -> dict[str, torch.Tensor]:
+        """Agent ``i``'s row of ``t`` (``[P, n]``: these parameters or their Adam moments) by name."""
+        return {n: t[i, a:b].view(self.shapes[n]) for n, (a, b) in self.offsets.items()}
+
+    def clip_grad_norm_(self, max_norm: float) -> None:
+        """``nn.utils.clip_grad_norm_`` per agent (torch's coefficient ``min(1, max_norm / (norm + 1e-6))``)."""
+        coef = (max_norm / (torch.linalg.vector_norm(self.flat.grad, dim=1) + 1e-6)).clamp_(max=1.0)
+        self.flat.grad.mul_(coef.unsqueeze(1))
+
+    def sequential(self, net: nn.Sequential, prefix: str, x: torch.Tensor) -> torch.Tensor:
+        """The single-run MLP ``net`` on ``x [P, B, in]``, per agent, with the parameters ``prefix.<i>.*``."""
+        for i, module in enumerate(net):
+            if isinstance(module, nn.Linear):
+                w, b = self.view(f"{prefix}.{i}.weight"), self.view(f"{prefix}.{i}.bias")
+                x = torch.baddbmm(b.unsqueeze(1), x, w.transpose(1, 2))
+            else:  # elementwise activation
+                x = module(x)
+        return x
+
+
+class StackedAdam:
+    """Adam (Kingma & Ba, 2015) on a ``[P, n]`` leaf with one learning rate per agent: torch's Adam
+    takes one per parameter group, and a row cannot be a group. Torch's formulas (bias corrections in
+    float64 on the host, as its fused CPU kernel); equal to the single run's to float rounding."""
+
+    def __init__(self, params: torch.Tensor, lr: Sequence[float], betas=(0.9, 0.999), eps: float = 1e-8) -> None:
+        self.params, self.lr, self.eps = params, torch.tensor(list(lr), dtype=torch.float64), eps
+        self.beta1, self.beta2 = betas
+        self.steps = torch.zeros(params.shape[0], dtype=torch.float64)  # per agent: KL early stopping skips some
+        self.exp_avg = torch.zeros_like(params)
+        self.exp_avg_sq = torch.zeros_like(params)
+
+    @torch.no_grad()
+    def step(self, active: torch.Tensor | None = None) -> None:
+        """One step of every agent, or of those where ``active`` (``[P]`` bool) holds."""
+        g = self.params.grad
+        if active is not None:
+            keep = ~active.unsqueeze(1).to(g.device)
+            old = (self.params.clone(), self.exp_avg.clone(), self.exp_avg_sq.clone())
+        self.steps += 1 if active is None else active.to(torch.float64).cpu()
+        self.exp_avg.lerp_(g, 1 - self.beta1)
+        self.exp_avg_sq.mul_(self.beta2).addcmul_(g, g, value=1 - self.beta2)
+        bias1 = 1 - self.beta1**self.steps
+        bias2_sqrt = (1 - self.beta2**self.steps).sqrt()
+        step_size = (self.lr / bias1).to(self.params.dtype).to(self.params.device).unsqueeze(1)
+        denom = (self.exp_avg_sq.sqrt() / bias2_sqrt.to(self.params.dtype).to(g.device).unsqueeze(1)).add_(self.eps)
+        self.params.sub_(step_size * self.exp_avg / denom)
+        if active is not None:
+            for now, before in zip((self.params, self.exp_avg, self.exp_avg_sq), old):
+                now.copy_(torch.where(keep, before, now))
+
+    def zero_grad(self) -> None:
+        self.params.grad = None
+
+
+class FusedTanhMLP(torch.autograd.Function):
+    """The actor's output network and both critics (tanh MLPs of one shape) as one stack of 3P
+    networks, ``x [3P, B, in] -> [3P, B, out]``, with a hand-written backward that writes each
+    weight's gradient straight into the two flat gradients: through autograd each step built a dozen
+    nodes per layer and the first layer's weight gradient in a slow layout (docs/population.md).
+    ``layout``: per layer, per group (actor, reward, cost) ``(flat index, w_from, w_to, b_from,
+    b_to)`` into ``(actor, critics)``, and the layer's ``(out, in)``."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, actor: torch.Tensor, critics: torch.Tensor, layout: tuple) -> torch.Tensor:
+        flats, p = (actor, critics), actor.shape[0]
+        weights, hs, h = [], [x], x
+        for layer, (groups, (out, inp)) in enumerate(layout):
+            w = torch.cat([flats[f][:, wa:wb].view(p, out, inp) for f, wa, wb, _, _ in groups])
+            b = torch.cat([flats[f][:, ba:bb] for f, _, _, ba, bb in groups])
+            h = torch.baddbmm(b.unsqueeze(1), h, w.transpose(1, 2))
+            weights.append(w)
+            if layer < len(layout) - 1:  # policies.mlp.Tanh, in place on a fresh tensor
+                cpu = h.device.type == "cpu" and h.numel() >= Tanh.MIN_NUMEL
+                h = h.mul_(2).sigmoid_().mul_(2).sub_(1) if cpu else h.tanh_()
+                hs.append(h)
+        ctx.layout, ctx.shapes = layout, (actor.shape, critics.shape)
+        ctx.save_for_backward(*weights, *hs)
+        return h
+
+    @staticmethod
+    def backward(ctx, g: torch.Tensor):
+        n = len(ctx.layout)
+        weights, hs = ctx.saved_tensors[:n], ctx.saved_tensors[n:]
+        grads = (g.new_zeros(ctx.shapes[0]), g.new_zeros(ctx.shapes[1]))
+        p, g = ctx.shapes[0][0], g.contiguous()
+        for layer in range(n - 1, -1, -1):
+            groups, (out, inp) = ctx.layout[layer]
+            gw = torch.bmm(hs[layer].transpose(1, 2), g).transpose(1, 2)  # (h^T g)^T: faster when ``in`` is small
+            gb = g.sum(1)
+            for s, (f, wa, wb, ba, bb) in enumerate(groups):
+                grads[f][:, wa:wb].view(p, out, inp).copy_(gw[s * p : (s + 1) * p])
+                grads[f][:, ba:bb].copy_(gb[s * p : (s + 1) * p])
+            if layer > 0:  # one output: an outer product, the same products as bmm's at a quarter of its time
+                g = g * weights[layer] if out == 1 else torch.bmm(g, weights[layer])
+                g = torch.ops.aten.tanh_backward.grad_input(g, hs[layer], grad_input=g)
+        return None, grads[0], grads[1], None
+
+
 class PopulationAgent:
-    """P MLP agents: ``template`` (agent 0's single-run module) gives the architecture and the
-    distribution head, ``actor`` and ``critics`` the stacked parameters, ``generators`` each
-    agent's random stream."""
+    """What the collector and GAE ask of an :class:`~cmdp_rl.policies.agent.Agent` (``in_keys``,
+    ``initial_state``, ``act``, ``rollout_values``), for P MLP agents on the flat env batch
+    ``[P N, ...]``: ``agents[0]`` gives the architecture and the head, ``actor`` and ``critics`` the
+    stacked parameters, ``generators`` each agent's random stream."""
 
     in_keys = [keys.OBS]
     recurrent = False
@@ -42,17 +155,16 @@ class PopulationAgent:
         why = unbatched_head(self.head)
         if why is not None:  # trainer.train routes such agents to the single-run path first
             raise ConfigError(f"population: {why}")
-        self.actor_net, self.critic_nets = template(agents[0])
+        self.actor_net = self.head.net
+        self.critic_nets = {s: c.net for s, c in agents[0].critics.items()}
         self.actor = StackedParams([a.actor for a in agents], device)
         self.critics = StackedParams([a.critics for a in agents], device)
         self.generators = list(generators)
         self.num_agents = len(agents)
-        # Tanh MLPs of one shape (one action dimension, one cost: Reach1D): the actor and both
-        # critics as one autograd node with a hand-written backward (population/fused.py).
         nets = (self.actor_net, *self.critic_nets.values())
         shapes = [[tuple(p.shape) for p in net.parameters()] for net in nets]
         linears = [i for i, m in enumerate(self.actor_net) if isinstance(m, nn.Linear)]
-        self.layout = None
+        self.layout = None  # the fused pass: Gaussian tanh MLPs of one shape, one cost (Reach1D)
         if (
             isinstance(self.head, GaussianHead)
             and len(nets) == 3
@@ -60,27 +172,29 @@ class PopulationAgent:
             and all(isinstance(m, (nn.Linear, Tanh)) for m in self.actor_net)
             and all(isinstance(self.actor_net[i + 1], Tanh) for i in linears[:-1])
         ):
-            self.layout = layout(
-                self.actor,
-                self.critics,
-                [(0, "head.net"), (1, "reward.net"), (1, "cost.net")],
-                linears,
-                [tuple(self.actor_net[i].weight.shape) for i in linears],
+            stacks = (self.actor, self.critics)
+            groups = [(0, "head.net"), (1, "reward.net"), (1, "cost.net")]
+            self.layout = tuple(
+                (
+                    tuple(
+                        (f, *stacks[f].offsets[f"{pre}.{i}.weight"], *stacks[f].offsets[f"{pre}.{i}.bias"])
+                        for f, pre in groups
+                    ),
+                    tuple(self.actor_net[i].weight.shape),
+                )
+                for i in linears
             )
 
-    # --- the networks on [P, rows, ...] ------------------------------------------------------------
     def params(self, obs: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The head's distribution parameters per agent, as its ``forward`` computes them."""
-        return self._head(sequential(self.actor_net, "head.net", self.actor, obs))
+        """The head's distribution parameters per agent on ``obs [P, rows, obs]``."""
+        return self._head(self.actor.sequential(self.actor_net, "head.net", obs))
 
     def _head(self, out: torch.Tensor) -> dict[str, torch.Tensor]:
         gaussian = isinstance(self.head, GaussianHead)
         return self.head.params(out, self.actor.view("head.log_std").unsqueeze(1) if gaussian else None)
 
     def training_pass(self, obs: torch.Tensor) -> tuple[D.Distribution, torch.Tensor, torch.Tensor]:
-        """The action distribution and both critics' values on a minibatch ``[P, B, obs]``: one
-        batched program over 3P networks where they are fused (the measured effect is in
-        docs/population.md), else each network over the P agents."""
+        """The action distribution and both critics' values on a minibatch ``[P, B, obs]``."""
         if self.layout is None:
             return self.dist(obs), self.value("reward", obs), self.value("cost", obs)
         x = FusedTanhMLP.apply(obs.repeat(3, 1, 1), self.actor.flat, self.critics.flat, self.layout)
@@ -91,7 +205,7 @@ class PopulationAgent:
         return self.head.dist(self.params(obs))
 
     def value(self, signal: str, obs: torch.Tensor) -> torch.Tensor:
-        return sequential(self.critic_nets[signal], f"{signal}.net", self.critics, obs)
+        return self.critics.sequential(self.critic_nets[signal], f"{signal}.net", obs)
 
     def training_units(self, data: dict) -> dict:
         """Entries of the ``[P N, T, ...]`` batch as each agent's training units, ``[P, N T, ...]``."""
@@ -101,7 +215,6 @@ class PopulationAgent:
         """A flat ``[P N, ...]`` (or ``[P N, T, ...]``) entry as ``[P, rows, features]``."""
         return x.reshape(self.num_agents, -1, x.shape[-1])
 
-    # --- what the collector asks ----------------------------------------------------------------
     def initial_state(self, num_envs: int, device: torch.device | str = "cpu") -> dict:
         return {}
 
@@ -117,22 +230,17 @@ class PopulationAgent:
             action = torch.stack(draws).reshape(*probs.shape[:-1], 1)
         else:  # Normal.rsample: loc + eps * scale, eps by normal_ on the action's shape
             loc, scale = params[keys.LOC], params[keys.SCALE]
-            eps = torch.stack(
-                [torch.empty(loc.shape[1:], device=loc.device).normal_(generator=g) for g in self.generators]
-            )
-            action = loc + eps * scale
+            eps = [torch.empty(loc.shape[1:], device=loc.device).normal_(generator=g) for g in self.generators]
+            action = loc + torch.stack(eps) * scale
         log_prob = dist.log_prob(action)
         flat = self.num_agents * action.shape[1]
         out = {k: v.reshape(flat, -1) for k, v in params.items()}
         return {**out, keys.ACTION: action.reshape(flat, -1), keys.LOG_PROB: log_prob.reshape(flat)}
 
-    # --- what GAE asks ---------------------------------------------------------------------------
     @torch.no_grad()
     def rollout_values(self, batch: TensorDictBase, signal: str) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(V(obs), V(next obs))`` of a ``[P N, T]`` batch, as ``Agent.rollout_values`` gives
-        them for each agent's rows: a step's next value is the following step's value unless its
-        episode ended there or it is the last step. Here the critic values every next observation
-        (the fresh steps' count differs per agent, and one batched call is cheaper than P)."""
+        """``(V(obs), V(next obs))`` of a ``[P N, T]`` batch as ``Agent.rollout_values`` gives them per
+        agent; every next observation is valued (one batched call is cheaper than P)."""
         rows, T = batch.shape
         values = self.value(signal, self._agents(batch.get(keys.OBS))).reshape(rows, T, -1)
         next_all = self.value(signal, self._agents(batch.get((keys.NEXT, keys.OBS)))).reshape(rows, T, -1)
@@ -141,8 +249,4 @@ class PopulationAgent:
         next_values = torch.empty_like(values)
         next_values[:, :-1] = values[:, 1:]
         next_values[:, -1] = next_all[:, -1]
-        next_values = torch.where(fresh, next_all, next_values)
-        return values, next_values
-
-
-__all__ = ["PopulationAgent"]
+        return values, torch.where(fresh, next_all, next_values)

@@ -1,9 +1,6 @@
-"""The envs of P agents as one batched env of ``P N`` rows, agent i's rows ``[i N, (i + 1) N)``
-stepping as its single run's envs: the env's own population form where its options declare one
-(``EnvOptions.population_env``: Reach1D's one tensor program, ``envs/reach1d/population.py``), else
-:class:`AgentEnvs`, each agent's own env stepped in turn. :func:`population_env` adds what the
-algorithm's options ask of every env (Sauté's budget state, ``algos/saute.py``) and the
-early-terminated MDP's cut (``early_terminate``, training only), with each agent's own budgets.
+"""The envs of P agents as one env of ``P N`` rows, agent i's rows ``[i N, (i + 1) N)`` stepping as its
+single run's envs: the env's own population form where its options declare one
+(``EnvOptions.population_env``), else :class:`AgentEnvs`.
 """
 
 from __future__ import annotations
@@ -20,10 +17,8 @@ from cmdp_rl.envs.vector import Step, VecEnv
 
 
 class AgentEnvs(VecEnv):
-    """Each agent's own env, built from its config as its single run builds it (its options, its
-    algorithm's ``wrap_env``), seeded as its single run's, stepped one after another as one env of
-    ``P N`` rows: any env with a batched backend, whatever its costs and actions (K > 1 costs, a
-    Discrete action), at the price of P env steps per step where an env's own population form takes one."""
+    """Each agent's own env, built and seeded as its single run's, stepped one after another: any
+    batched env (K costs, a Discrete action), at P env steps per step where a population form takes one."""
 
     def __init__(self, envs: Sequence[VecEnv], seeds: Sequence[int]) -> None:
         self.envs, self.seeds = list(envs), [int(s) for s in seeds]
@@ -42,7 +37,7 @@ class AgentEnvs(VecEnv):
         return self.envs[0].action_space
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
-        """Each agent's envs reset with its own seed (``seed`` is not used: there is no one seed)."""
+        """Each agent's envs reset with its own seed (there is no one ``seed``)."""
         return torch.cat([e.reset(seed=s) for e, s in zip(self.envs, self.seeds)])
 
     def step(self, action: torch.Tensor) -> Step:
@@ -64,24 +59,20 @@ class AgentEnvs(VecEnv):
 def population_env(
     cfgs: Sequence[Any], n: int, seeds: Sequence[int], device: torch.device, evaluation: bool = False
 ) -> VecEnv:
-    """The agents' envs, ``n`` each, seeded per agent, as ``envs.make_env`` builds one agent's: wrapped
-    by ``algo.wrap_env`` where the options declare it, with each agent's budgets in the budget state.
-    """
+    """The agents' envs, ``n`` each, seeded per agent, as ``envs.make_env`` builds one agent's:
+    ``algo.wrap_env`` (Sauté's budget state) and the early-terminated MDP's cut (training only)
+    with each agent's own budgets."""
     env = cfgs[0].env.population_env([c.env for c in cfgs], n, seeds, device, evaluation)
     if env is None:
         if evaluation:
             return AgentEnvs([make_eval_env(c.env, n, device=device, algo=c.algo) for c in cfgs], seeds)
         cuts = [c.algo.cost_limit if c.early_terminate else None for c in cfgs]
         return AgentEnvs([make_env(c.env, n, device, c.algo, cut_at=d) for c, d in zip(cfgs, cuts)], seeds)
-    if cfgs[0].early_terminate and not evaluation:  # one option for all (no grid field); each agent's budgets
-        rows = [per_constraint(c.algo.cost_limit, "algo.cost_limit", env.cost_names) for c in cfgs]
-        env = EarlyTerminated(env, torch.tensor(rows, device=device).repeat_interleave(n, 0))
+    budgets = [per_constraint(c.algo.cost_limit, "algo.cost_limit", env.cost_names) for c in cfgs]
+    if cfgs[0].early_terminate and not evaluation:  # one option for all (no grid field)
+        env = EarlyTerminated(env, torch.tensor(budgets, device=device).repeat_interleave(n, 0))
     wrapped = cfgs[0].algo.wrap_env(env, evaluation=evaluation)
     state = getattr(wrapped, "state", None)
     if isinstance(state, BudgetState):  # one row of budgets per env: its agent's
-        budgets = [per_constraint(c.algo.cost_limit, "algo.cost_limit", env.cost_names) for c in cfgs]
         state.budgets = torch.tensor(budgets, dtype=state.budgets.dtype, device=device).repeat_interleave(n, 0)
     return wrapped
-
-
-__all__ = ["AgentEnvs", "population_env"]

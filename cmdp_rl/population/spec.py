@@ -1,11 +1,6 @@
-"""What a population is: the ``population`` options, each agent's own validated ``RunConfig``, and
-what the batched program refuses.
-
-An agent is the base config with its values of the grid's fields and its seed; agents are the
-grid's cartesian product (fields in the order given), ``population.seeds`` seeds per grid point
-(``seed``, ``seed + 1``, ... innermost). Only :data:`PER_AGENT_FIELDS` may differ between agents:
-each is a number that the batched program reads per agent (a multiplier, a learning rate, an
-option of an agent's own envs); everything else (shapes, schedules, the algorithm) is shared.
+"""What a population is: the ``population`` options, each agent's validated ``RunConfig``, and what
+the batched program refuses. Agents are the grid's cartesian product (fields in the order given),
+``population.seeds`` seeds per point (innermost); only :data:`PER_AGENT_FIELDS` differ between them.
 """
 
 from __future__ import annotations
@@ -26,16 +21,14 @@ from cmdp_rl.config.validation import ConfigError, PositiveInt, build, options, 
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead
 
-# The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed: the
-# grid that configs/population/none.yaml declares (each a number some agent's own object reads).
+# The fields a population may vary per agent, and the seed: configs/population/none.yaml's grid.
 PER_AGENT_FIELDS = tuple(flatten_dict(yaml.safe_load((CONFIG_DIR / "population" / "none.yaml").read_text())["grid"]))
 
 
 def stacked(algo: str, base: str | None = None) -> bool:
     """Whether the population's update of ``algo`` is one batched program: a PPO whose update is
-    ``PPO.update`` (the variant lives in the hooks ``ppo.ppo_update`` calls per agent:
-    multiplier, advantage, surrogate, a second stage), or a composition on such a base (Sauté's
-    ``algo.base``: ``base`` where the config names it, else its default)."""
+    ``PPO.update`` (variants live in ``ppo.ppo_update``'s per-agent hooks), or a composition on such
+    a base (Sauté's ``algo.base``: ``base`` where the config names it, else its default)."""
     comp = component("algo", algo)
     if not isinstance(comp.build, type):
         base = base or getattr(comp.options, "base", None)
@@ -43,17 +36,14 @@ def stacked(algo: str, base: str | None = None) -> bool:
     return issubclass(comp.build, PPO) and comp.build.update is PPO.update
 
 
-# What an algorithm whose update is not PPO's offers for its agents' updates (update.AgentUpdates):
-# its own policy step on an agent's rows after GAE, and a critic regression on any backend.
+# What an algorithm whose update is not PPO's offers for its agents' updates (update.StackedBackend).
 PER_AGENT_HOOKS = ("policy_update", "fit_critics")
 
 
 def batched(algo: str, base: str | None = None) -> bool:
-    """Whether the population trains ``algo``'s agents as one batched program: their envs and acting
-    at once, their update too where :func:`stacked`, else each agent's own policy step and one
-    critic regression for all (an algorithm with :data:`PER_AGENT_HOOKS`: the trust-region family).
-    Not an algorithm that trains on envs of its own kind, nor one whose collector acts at random
-    first (an off-policy warm-up)."""
+    """Whether ``algo``'s agents train as one batched program: envs and acting at once, the update
+    too where :func:`stacked`, else through :data:`PER_AGENT_HOOKS` (the trust-region family). Not
+    an algorithm with envs of its own kind, nor one that acts at random first (off-policy warm-up)."""
     comp = component("algo", algo)
     if comp.options.envs is not None or comp.options.uniform_action_steps is not AlgoConfig.uniform_action_steps:
         return False
@@ -70,16 +60,14 @@ def batched_algos() -> list[str]:
 
 @options
 class PopulationConfig:
-    """``population.seeds``: seeds per grid point; ``population.grid``: field -> list of values
-    (null: not varied). One agent with no grid is an ordinary run."""
+    """``population.seeds``: seeds per grid point; ``population.grid``: field -> list of values (null: not varied)."""
 
     seeds: PositiveInt = 1
     grid: dict = field(default_factory=dict)
 
     def fields(self) -> dict[str, list]:
-        """The varied fields and their values, in the config's order (configs/population/none.yaml)."""
-        grid = flatten_dict(self.grid or {})
-        return {k: v for k, v in grid.items() if v is not None}
+        """The varied fields and their values, in configs/population/none.yaml's order."""
+        return {k: v for k, v in flatten_dict(self.grid or {}).items() if v is not None}
 
 
 def population_spec(raw: Mapping[str, Any] | None) -> PopulationConfig:
@@ -157,10 +145,9 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
 
 @dataclasses.dataclass
 class Population:
-    """What ``trainer.train`` trains as P members: ``raw``, the composed config as ``population.yaml``
-    records it; each agent's ``overrides`` (its directory's label) and validated config; a resume's
-    checkpoint ``state`` (``run/resume.resume_population``), None for a new population or one whose
-    agents keep their own checkpoints."""
+    """What ``trainer.train`` trains as P members: ``raw``, the composed config (``population.yaml``);
+    each agent's ``overrides`` (its directory's label) and config; a resume's checkpoint ``state``
+    (``run/resume.resume_population``; None where the agents keep their own checkpoints)."""
 
     raw: dict[str, Any]
     overrides: list[dict[str, Any]]
@@ -186,9 +173,8 @@ def unbatched(cfg: RunConfig) -> str | None:
     if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
         with_prev = " with include_prev_*" if cfg.policy.name == "mlp" else ""
         return f"policy={cfg.policy.name}{with_prev} is not batched (mlp on the observation is)"
-    # Envs in this process whose state a checkpoint holds: a torch backend's (each agent's own env in
-    # turn, population.env.AgentEnvs, unless its options declare a population form), or an env of one
-    # backend whose options declare its population form (safe_nav's P N worlds).
+    # Envs in this process whose state a checkpoint holds: a torch backend's, or one backend's with
+    # a population form of its own (safe_nav's P N worlds).
     backend = getattr(cfg.env, "backend", None)
     own_form = type(cfg.env).population_env is not EnvOptions.population_env
     if not (backend == "torch" or (backend is None and own_form)):
@@ -212,21 +198,3 @@ def unbatched_head(head: Any) -> str | None:
     if isinstance(head, (GaussianHead, CategoricalHead)) and not getattr(head, "sizes", None):
         return None
     return f"the action head {type(head).__name__} is not batched (a Box or a Discrete action space is)"
-
-
-__all__ = [
-    "PER_AGENT_FIELDS",
-    "Population",
-    "PopulationConfig",
-    "population",
-    "batched",
-    "batched_algos",
-    "stacked",
-    "agent_configs",
-    "agent_overrides",
-    "label",
-    "population_active",
-    "population_spec",
-    "unbatched",
-    "unbatched_head",
-]

@@ -29,7 +29,7 @@ from cmdp_rl.policies import make_agent
 from cmdp_rl.population.agent import PopulationAgent
 from cmdp_rl.population.env import population_env
 from cmdp_rl.population.spec import Population, label, stacked, unbatched, unbatched_head
-from cmdp_rl.population.update import AgentUpdates, PopulationPPO
+from cmdp_rl.population.update import StackedBackend
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
@@ -491,8 +491,7 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
         generators.append(g)
     env = population_env(cfgs, N, [c.seed for c in cfgs], device)
     stacked_agent = PopulationAgent(agents, generators, device)
-    one_update = stacked(cfg.algo.name, getattr(cfg.algo, "base", None))
-    update = PopulationPPO(stacked_agent, algos) if one_update else AgentUpdates(stacked_agent, algos)
+    update = StackedBackend(stacked_agent, algos, stacked(cfg.algo.name, getattr(cfg.algo, "base", None)))
     collector = Collector(env, stacked_agent, T, seed=None)
     names = env.cost_names
     loggers, run_cfgs = open_runs(dirs, cfgs, algos[0].stats, names, state, lambda s: None)
