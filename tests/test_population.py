@@ -23,7 +23,7 @@ from cmdp_rl.run.resume import resume_population
 from cmdp_rl.run.rundir import load_trained
 from cmdp_rl.run.sweeps import find_runs
 
-# Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
+# Not bit for bit: the population's Adam (population/kernel.py) rounds differently from torch's fused
 # kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)
 # sum in another order; training carries these last-bit differences to at most ~5e-4 relative in
 # quantities near zero (loss_pi of 1e-4), so: relative 1e-3 or absolute 1e-6, every other entry
@@ -192,7 +192,7 @@ def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(t
     if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
         pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`")  # as tests/test_safe_nav.py
     from cmdp_rl.envs import make_env
-    from cmdp_rl.population.env import population_env
+    from cmdp_rl.population.kernel import population_env
 
     raw = {
         "env": {"name": "safe_nav", "num_envs": 2, "max_steps": 40},
@@ -513,13 +513,13 @@ def test_the_exercise_grid_as_populations():
 
 
 def test_fused_pass_gradients_equal_autograd_path():
-    """population/fused.py's hand-written backward gives the per-layer autograd path's outputs and
+    """population/kernel.py's hand-written backward (FusedTanhMLP) gives the per-layer autograd path's outputs and
     gradients bit for bit (same kernels, same order), on sizes past the sigmoid-tanh threshold."""
     import torch
 
     from cmdp_rl.envs import make_env
     from cmdp_rl.policies import make_agent
-    from cmdp_rl.population.agent import PopulationAgent
+    from cmdp_rl.population.kernel import PopulationAgent
     from cmdp_rl.rollout.normalization import make_normalizers
     from cmdp_rl.run.rng import seed_everything
 

@@ -26,10 +26,8 @@ from cmdp_rl.deploy.final_policy import FinalPolicy
 from cmdp_rl.deploy.mixture import IterateSnapshots
 from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.policies import make_agent
-from cmdp_rl.population.agent import PopulationAgent
-from cmdp_rl.population.env import population_env
+from cmdp_rl.population.kernel import PopulationAgent, StackedBackend, population_env
 from cmdp_rl.population.spec import Population, label, stacked, unbatched, unbatched_head
-from cmdp_rl.population.update import StackedBackend
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
@@ -504,7 +502,7 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
             fresh = [member_entry(r, a) for r, a in zip(run_cfgs, algos)]
             state = population_from_stacked(state, fresh, {"actor": agents[0].actor, "critics": agents[0].critics})
         first, elapsed = restore(state, update.algos, collector)  # each agent as its run resumes
-        update.stack_agents()
+        update.transfer(to_agents=False)
         for g, s in zip(generators, state["rng"]["generators"]):
             g.set_state(s)
         costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(P, len(names))  # a list of P before K costs
@@ -521,7 +519,7 @@ def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> 
     def entries(it: int) -> list[dict[str, Any]]:
         if it in written:  # the final one is the last checkpoint's: built once
             return written[it]
-        update.unstack_agents()
+        update.transfer(to_agents=True)
         written.clear()
         written[it] = [member_entry(r, a, f) for r, a, f in zip(run_cfgs, algos, finals)]
         return written[it]
