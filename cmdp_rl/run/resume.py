@@ -1,16 +1,10 @@
-"""Continuing a run from its directory: which config it resumes with, and what may change.
+"""Continuing a run (or a population) from its directory: which config it resumes with, and what may change.
 
-A resumed run must end with the same numbers as one that was never stopped, so its config is the
-run's own (``config.yaml`` in the run directory). Options given on the resume command line are
-applied on top only where they cannot change the trajectory so far or the shape of saved state:
-:data:`RESUMABLE` (e.g. ``total_steps`` to extend a run, ``logger``). Any other change, and any
-checkpoint written by another algorithm or policy than the run's, is refused before training.
-
-What is saved, and restored (see ``trainer.py``): the networks, both optimizers and the
-algorithm's own state (lambda) through ``algo.state_dict()``; the collector's state (next
-observations, running episode sums, step counter) and each env's episode and generator through
-``collector.state_dict()``; torch's, numpy's and Python's generators; the iteration and the
-training time so far.
+A resumed run must end with the numbers of one never stopped, so its config is its own (``config.yaml``);
+options on the resume command line apply only where they cannot change the trajectory so far or the
+shape of saved state (:data:`RESUMABLE`: ``total_steps`` to extend a run, ``logger``, ...). Any other
+change, and a checkpoint of another algorithm or policy, is refused before training. What a
+checkpoint holds: docs/checkpoints.md.
 """
 
 from __future__ import annotations
