@@ -208,8 +208,7 @@ class PopulationAgent:
 
     @torch.no_grad()
     def rollout_values(self, batch: TensorDictBase, signal: str) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(V(obs), V(next obs))`` of a ``[P N, T]`` batch as ``Agent.rollout_values`` gives them per
-        agent; every next observation is valued (one batched call is cheaper than P)."""
+        """``(V(obs), V(next obs))`` of ``[P N, T]`` as ``Agent.rollout_values``; every next obs valued (one call, not P)."""
         rows, T = batch.shape
         values = self.value(signal, self._agents(batch.get(keys.OBS))).reshape(rows, T, -1)
         next_all = self.value(signal, self._agents(batch.get((keys.NEXT, keys.OBS)))).reshape(rows, T, -1)

@@ -346,6 +346,7 @@ class Stacked:
         self.env = population_env(cfgs, cfg.env.num_envs, [c.seed for c in cfgs], device)
         self.agent = PopulationAgent(self.agents, self.generators, device)
         self.backend = StackedBackend(self.agent, self.algos, stacked(cfg.algo.name, getattr(cfg.algo, "base", None)))
+        self.update = self.backend.update
         self.collector = Collector(self.env, self.agent, cfg.rollout_steps, seed=None)
         self.per_iter = cfg.rollout_steps * cfg.env.num_envs  # steps per agent
         self.costs = torch.zeros(self.P, len(self.env.cost_names), dtype=torch.float64)  # each agent's so far
@@ -362,9 +363,6 @@ class Stacked:
         # a list of P before K costs
         self.costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(self.P, len(self.env.cost_names))
         return state
-
-    def update(self, batch: Any) -> list[dict[str, Any]]:
-        return self.backend.update(batch)
 
     def cost_totals(self, batch: Any = None) -> list[list[float]]:
         """Each agent's costs so far, ``batch``'s included."""
