@@ -163,7 +163,7 @@ def _fork(name: str) -> dict:
 @pytest.mark.parametrize("name", batched_algos())
 def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_and_two_costs(tmp_path, name):
     """Enumerated from the registry, on the fork (a Discrete action; K = 2 costs where the algorithm
-    takes them, each agent's env its single run's, population.env.AgentEnvs): each agent equal to
+    takes them, each agent's env its single run's, population.kernel.AgentEnvs): each agent equal to
     ``train()`` on its own config.yaml."""
     raw = _fork(name)
     raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}
