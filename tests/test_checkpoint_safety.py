@@ -123,17 +123,19 @@ def test_a_config_yaml_with_a_python_tag_is_refused(run_dir, tmp_path, capsys):
     assert not target.exists() and not (tmp_path / "curves.png").exists()
 
 
-def test_the_population_resume_refuses_a_crafted_checkpoint(tmp_path):
+@pytest.mark.parametrize("name", ["checkpoint.pt", "population.pt"])  # its name before it took a run's
+def test_the_population_resume_refuses_a_crafted_checkpoint(tmp_path, name):
     raw = tiny(env={"backend": "torch", "num_envs": 4, "stagger": True}, total_steps=2 * 64)
     raw["population"] = {"seeds": 2}
     out = tmp_path / "pop"
     train(population(raw), out, echo=lambda _: None)
+    (out / "checkpoint.pt").rename(out / name)
     target = tmp_path / "created_by_the_checkpoint"
-    craft(out / "population.pt", target)
+    craft(out / name, target)
     before = snapshot(out)
     proc = train_py(f"resume={out}", "total_steps=512")
     assert proc.returncode == 2, proc.stderr[-2000:]
-    _one_line_refusal(proc.stderr, out / "population.pt", "holds io.open, which is not data")
+    _one_line_refusal(proc.stderr, out / name, "holds io.open, which is not data")
     assert not target.exists() and snapshot(out) == before
 
 

@@ -119,9 +119,9 @@ def test_a_population_saved_with_the_flat_options_resumes_unchanged(tmp_path):
         train(population(raw), killed, echo=kill_at_3)
     saved = yaml.safe_load((killed / "population.yaml").read_text())
     (killed / "population.yaml").write_text(yaml.safe_dump(flat(saved), sort_keys=False))
-    state = load_checkpoint(killed / "population.pt")
+    state = load_checkpoint(killed / "checkpoint.pt")
     members = [{**m, "config": flat(m["config"])} for m in state["members"]]
-    save_checkpoint(killed / "population.pt", {**state, "members": members})
+    save_checkpoint(killed / "checkpoint.pt", {**state, "members": members})
     train(resume_population(killed), killed, echo=lambda s: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(b) == metrics_rows(a)

@@ -249,5 +249,6 @@ def test_a_format_3_population_resumes_into_an_uninterrupted_population(tmp_path
     train(population({**raw, "total_steps": 256}), whole, echo=lambda _: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((pop / "agents").iterdir())):
         _four_iterations(_rows(b / "metrics.csv"), _rows(a / "metrics.csv"))
-    state = load_checkpoint(pop / "population.pt")
+    state = load_checkpoint(pop / "checkpoint.pt")  # a run's name, the old file superseded
     assert state["format"] == FORMAT_VERSION and len(state["members"]) == 2 and "agents" not in state
+    assert not (pop / "population.pt").exists()

@@ -16,12 +16,14 @@ from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.config.registry import component
 from cmdp_rl.population import population
 from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
+from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.ownership import RunDirTaken
 from cmdp_rl.run.resume import resume_population
+from cmdp_rl.run.rundir import load_trained
 from cmdp_rl.run.sweeps import find_runs
 
-# Not bit for bit: the population's Adam (population/params.py) rounds differently from torch's fused
+# Not bit for bit: the population's Adam (population/kernel.py) rounds differently from torch's fused
 # kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)
 # sum in another order; training carries these last-bit differences to at most ~5e-4 relative in
 # quantities near zero (loss_pi of 1e-4), so: relative 1e-3 or absolute 1e-6, every other entry
@@ -161,7 +163,7 @@ def _fork(name: str) -> dict:
 @pytest.mark.parametrize("name", batched_algos())
 def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_and_two_costs(tmp_path, name):
     """Enumerated from the registry, on the fork (a Discrete action; K = 2 costs where the algorithm
-    takes them, each agent's env its single run's, population.env.AgentEnvs): each agent equal to
+    takes them, each agent's env its single run's, population.kernel.AgentEnvs): each agent equal to
     ``train()`` on its own config.yaml."""
     raw = _fork(name)
     raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}
@@ -190,7 +192,7 @@ def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(t
     if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
         pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`")  # as tests/test_safe_nav.py
     from cmdp_rl.envs import make_env
-    from cmdp_rl.population.env import population_env
+    from cmdp_rl.population.kernel import population_env
 
     raw = {
         "env": {"name": "safe_nav", "num_envs": 2, "max_steps": 40},
@@ -279,6 +281,9 @@ def test_population_outputs_are_runs(tmp_path):
     assert sorted((r.get("algo.cost_limit"), r.get("seed")) for r in runs) == [(0.2, 0), (0.2, 1), (0.5, 0), (0.5, 1)]
     summary = yaml.safe_load((pop / "population.json").read_text())
     assert summary["agents"] == 4 and summary["steps_per_agent"] == 256 and summary["summed_steps_per_s"] > 0
+    # its checkpoint is named as a run's, so evaluating its directory as a run's names what it is
+    with pytest.raises(CheckpointError, match="is a population; its agents' runs are under"):
+        load_trained(pop)
 
 
 def test_each_agent_logs_to_its_own_tensorboard_directory(tmp_path):
@@ -318,7 +323,7 @@ def test_population_resumes_after_a_kill(tmp_path, algo, env):
     with pytest.raises(KeyboardInterrupt):
         train(population(raw), killed, echo=kill_at_3)
     assert not list(killed.glob("agents/*/eval.json"))
-    torch.load(killed / "population.pt", weights_only=True)  # plain tensors, numbers and strings
+    torch.load(killed / "checkpoint.pt", weights_only=True)  # plain tensors, numbers and strings
     train(resume_population(killed), killed, echo=lambda s: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert metrics_rows(a) == metrics_rows(b)  # same process, same code: bit for bit
@@ -372,7 +377,7 @@ def test_a_population_of_the_stacked_layout_resumes(tmp_path):
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
         assert_close(metrics_rows(b), metrics_rows(a), b.name)
         assert_close(eval_result(b), eval_result(a), b.name)
-    new = torch.load(killed / "population.pt", weights_only=True)
+    new = torch.load(killed / "checkpoint.pt", weights_only=True)
     assert "update" not in new and [e["algo_state"]["iteration"] for e in new["members"]] == [4, 4]
 
 
@@ -508,13 +513,13 @@ def test_the_exercise_grid_as_populations():
 
 
 def test_fused_pass_gradients_equal_autograd_path():
-    """population/fused.py's hand-written backward gives the per-layer autograd path's outputs and
+    """population/kernel.py's hand-written backward (FusedTanhMLP) gives the per-layer autograd path's outputs and
     gradients bit for bit (same kernels, same order), on sizes past the sigmoid-tanh threshold."""
     import torch
 
     from cmdp_rl.envs import make_env
     from cmdp_rl.policies import make_agent
-    from cmdp_rl.population.agent import PopulationAgent
+    from cmdp_rl.population.kernel import PopulationAgent
     from cmdp_rl.rollout.normalization import make_normalizers
     from cmdp_rl.run.rng import seed_everything
 

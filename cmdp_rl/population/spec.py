@@ -1,19 +1,12 @@
-"""What a population is: the ``population`` options, each agent's own validated ``RunConfig``, and
-what the batched program refuses.
-
-An agent is the base config with its values of the grid's fields and its seed; agents are the
-grid's cartesian product (fields in the order given), ``population.seeds`` seeds per grid point
-(``seed``, ``seed + 1``, ... innermost). Only :data:`PER_AGENT_FIELDS` may differ between agents:
-each is a number that the batched program reads per agent (a multiplier, a learning rate, an
-option of an agent's own envs); everything else (shapes, schedules, the algorithm) is shared.
-"""
+"""What a population is: the ``population`` options, each agent's validated ``RunConfig``, and what
+the batched program refuses. Agents are the grid's cartesian product (fields in the order given),
+``population.seeds`` seeds per point (innermost); only :data:`PER_AGENT_FIELDS` differ between them."""
 
 from __future__ import annotations
 
 import copy
-import dataclasses
 import itertools
-from dataclasses import field
+from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import yaml
@@ -26,41 +19,29 @@ from cmdp_rl.config.validation import ConfigError, PositiveInt, build, options, 
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead
 
-# The fields a population may vary per agent (`population.grid.<field>=[...]`), and the seed: the
-# grid that configs/population/none.yaml declares (each a number some agent's own object reads).
+# The fields a population may vary per agent, and the seed: configs/population/none.yaml's grid.
 PER_AGENT_FIELDS = tuple(flatten_dict(yaml.safe_load((CONFIG_DIR / "population" / "none.yaml").read_text())["grid"]))
 
 
-def stacked(algo: str, base: str | None = None) -> bool:
-    """Whether the population's update of ``algo`` is one batched program: a PPO whose update is
-    ``PPO.update`` (the variant lives in the hooks ``ppo.ppo_update`` calls per agent:
-    multiplier, advantage, surrogate, a second stage), or a composition on such a base (Sauté's
-    ``algo.base``: ``base`` where the config names it, else its default)."""
-    comp = component("algo", algo)
-    if not isinstance(comp.build, type):
-        base = base or getattr(comp.options, "base", None)
-        return isinstance(base, str) and base != algo and stacked(base)
-    return issubclass(comp.build, PPO) and comp.build.update is PPO.update
-
-
-# What an algorithm whose update is not PPO's offers for its agents' updates (update.AgentUpdates):
-# its own policy step on an agent's rows after GAE, and a critic regression on any backend.
-PER_AGENT_HOOKS = ("policy_update", "fit_critics")
-
-
-def batched(algo: str, base: str | None = None) -> bool:
-    """Whether the population trains ``algo``'s agents as one batched program: their envs and acting
-    at once, their update too where :func:`stacked`, else each agent's own policy step and one
-    critic regression for all (an algorithm with :data:`PER_AGENT_HOOKS`: the trust-region family).
-    Not an algorithm that trains on envs of its own kind, nor one whose collector acts at random
-    first (an off-policy warm-up)."""
+def batched(algo: str, base: str | None = None, whole: bool = False) -> bool:
+    """Whether ``algo``'s agents train as one batched program: envs and acting at once, and the update
+    (``whole``, :func:`stacked`) where it is ``PPO.update`` (variants live in ``ppo.ppo_update``'s
+    per-agent hooks), else each agent's own ``policy_update`` and one ``fit_critics`` (trust region).
+    Not an algorithm with envs of its own kind, nor one that acts at random first (off-policy warm-up);
+    a composition (Sauté) as its ``base`` (where the config names it, else its default)."""
     comp = component("algo", algo)
     if comp.options.envs is not None or comp.options.uniform_action_steps is not AlgoConfig.uniform_action_steps:
         return False
     if not isinstance(comp.build, type):
         base = base or getattr(comp.options, "base", None)
-        return isinstance(base, str) and base != algo and batched(base)
-    return stacked(algo) or all(callable(getattr(comp.build, hook, None)) for hook in PER_AGENT_HOOKS)
+        return isinstance(base, str) and base != algo and batched(base, whole=whole)
+    if issubclass(comp.build, PPO) and comp.build.update is PPO.update:
+        return True
+    return not whole and all(callable(getattr(comp.build, h, None)) for h in ("policy_update", "fit_critics"))
+
+
+def stacked(algo: str, base: str | None = None) -> bool:
+    return batched(algo, base, whole=True)
 
 
 def batched_algos() -> list[str]:
@@ -70,28 +51,22 @@ def batched_algos() -> list[str]:
 
 @options
 class PopulationConfig:
-    """``population.seeds``: seeds per grid point; ``population.grid``: field -> list of values
-    (null: not varied). One agent with no grid is an ordinary run."""
+    """``population.seeds``: seeds per grid point; ``population.grid``: field -> list of values (null: not varied)."""
 
     seeds: PositiveInt = 1
     grid: dict = field(default_factory=dict)
 
     def fields(self) -> dict[str, list]:
-        """The varied fields and their values, in the config's order (configs/population/none.yaml)."""
-        grid = flatten_dict(self.grid or {})
-        return {k: v for k, v in grid.items() if v is not None}
+        """The varied fields and their values, in configs/population/none.yaml's order."""
+        return {k: v for k, v in flatten_dict(self.grid or {}).items() if v is not None}
 
 
 def population_spec(raw: Mapping[str, Any] | None) -> PopulationConfig:
     spec = build(PopulationConfig, dict(raw or {}), "population")
     for name, values in spec.fields().items():
-        require(
-            name in PER_AGENT_FIELDS,
-            f"population.grid.{name}",
-            f"one of the per-agent fields {list(PER_AGENT_FIELDS)}",
-            values,
-        )
-        require(isinstance(values, list) and len(values) > 0, f"population.grid.{name}", "a non-empty list", values)
+        where = f"population.grid.{name}"
+        require(name in PER_AGENT_FIELDS, where, f"one of the per-agent fields {list(PER_AGENT_FIELDS)}", values)
+        require(isinstance(values, list) and len(values) > 0, where, "a non-empty list", values)
     return spec
 
 
@@ -101,27 +76,13 @@ def population_active(raw: Mapping[str, Any] | None) -> bool:
     return spec.seeds > 1 or bool(spec.fields())
 
 
-def _set(raw: dict, dotted: str, value: Any) -> None:
-    *parents, last = dotted.split(".")
-    node = raw
-    for p in parents:
-        node = node.setdefault(p, {})
-    node[last] = copy.deepcopy(value)
-
-
 def agent_overrides(spec: PopulationConfig, base_seed: int) -> list[dict[str, Any]]:
-    """Each agent's values of the varied fields and its seed, in population order."""
+    """Each agent's values of the varied fields and its seed (innermost), in population order."""
     grid = spec.fields()
-    if "seed" in grid:  # seeds innermost, as population.seeds (the yaml declares grid.seed first)
-        grid = {**{k: v for k, v in grid.items() if k != "seed"}, "seed": grid["seed"]}
-    out = []
-    for combo in itertools.product(*grid.values()):
-        point = dict(zip(grid, combo))
-        seeds = [point.pop("seed")] if "seed" in point else [base_seed + j for j in range(spec.seeds)]
-        if "seed" in grid and spec.seeds > 1:
-            raise ConfigError(f"population.seeds must be 1 when population.grid.seed lists the seeds, got {spec.seeds}")
-        out += [{**point, "seed": s} for s in seeds]
-    return out
+    if "seed" in grid and spec.seeds > 1:
+        raise ConfigError(f"population.seeds must be 1 when population.grid.seed lists the seeds, got {spec.seeds}")
+    seeds = grid.pop("seed", [base_seed + j for j in range(spec.seeds)])
+    return [{**dict(zip(grid, combo)), "seed": s} for combo in itertools.product(*grid.values()) for s in seeds]
 
 
 def label(overrides: Mapping[str, Any]) -> str:
@@ -134,18 +95,20 @@ def label(overrides: Mapping[str, Any]) -> str:
 
 
 def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[RunConfig]]:
-    """Each agent's overrides and validated config from a composed config holding ``population``.
-    A value that the field's own rules refuse stops here, in one line naming the grid field."""
-    raw = dict(raw)
-    raw.pop("hydra", None)
+    """Each agent's overrides and validated config from a composed config holding ``population``; a
+    value the field's rules refuse stops here, in one line naming the grid field."""
+    raw = {k: v for k, v in raw.items() if k != "hydra"}
     spec = population_spec(raw.pop("population", None))
-    base_seed = int(raw.get("seed", 0))
-    overrides = agent_overrides(spec, base_seed)
+    overrides = agent_overrides(spec, int(raw.get("seed", 0)))
     cfgs = []
     for i, ov in enumerate(overrides):
         data = copy.deepcopy(raw)
         for name, value in ov.items():
-            _set(data, name, value)
+            *parents, last = name.split(".")
+            node = data
+            for p in parents:
+                node = node.setdefault(p, {})
+            node[last] = copy.deepcopy(value)
         try:
             cfgs.append(load_config(data))
         except ConfigError as exc:
@@ -155,12 +118,10 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
     return overrides, cfgs
 
 
-@dataclasses.dataclass
+@dataclass
 class Population:
-    """What ``trainer.train`` trains as P members: ``raw``, the composed config as ``population.yaml``
-    records it; each agent's ``overrides`` (its directory's label) and validated config; a resume's
-    checkpoint ``state`` (``run/resume.resume_population``), None for a new population or one whose
-    agents keep their own checkpoints."""
+    """What ``trainer.train`` trains as P members: the composed config (``population.yaml``), each agent's
+    ``overrides`` and config, a resume's checkpoint ``state`` (None where agents keep their own)."""
 
     raw: dict[str, Any]
     overrides: list[dict[str, Any]]
@@ -170,25 +131,22 @@ class Population:
 
 
 def population(raw: Mapping[str, Any], resume: bool = False, state: dict | None = None) -> Population:
-    """The population that ``raw`` (a composed config with a ``population`` node) describes, every
-    agent validated. Trusting a checkpoint or resuming is one command's word, not the population's."""
+    """The population ``raw`` (a composed config with a ``population`` node) describes. Trusting a
+    checkpoint or resuming is one command's word, not the population's."""
     raw = {**copy.deepcopy({k: v for k, v in raw.items() if k != "hydra"}), "resume": None, "trust_checkpoint": False}
     return Population(raw, *agent_configs(raw), resume=resume, state=state)
 
 
 def unbatched(cfg: RunConfig) -> str | None:
-    """Why the batched program does not cover agents of ``cfg``, or None: it covers the algorithms of
-    :func:`batched_algos` with the MLP on the observation, on an env with a batched backend, without
-    normalisation (the action space is checked on the built agent: :func:`unbatched_head`). Agents
-    it does not cover train one after another, each as its single run."""
+    """Why the batched program does not cover agents of ``cfg`` (they then train one after another),
+    or None; the action space is checked on the built agent (:func:`unbatched_head`)."""
     if not batched(cfg.algo.name, getattr(cfg.algo, "base", None)):
         return f"algo={cfg.algo.name} is not batched (the batched algorithms: {', '.join(batched_algos())})"
     if cfg.policy.name != "mlp" or cfg.policy.include_prev_action or cfg.policy.include_prev_cost:
         with_prev = " with include_prev_*" if cfg.policy.name == "mlp" else ""
         return f"policy={cfg.policy.name}{with_prev} is not batched (mlp on the observation is)"
-    # Envs in this process whose state a checkpoint holds: a torch backend's (each agent's own env in
-    # turn, population.env.AgentEnvs, unless its options declare a population form), or an env of one
-    # backend whose options declare its population form (safe_nav's P N worlds).
+    # Envs in this process whose state a checkpoint holds: a torch backend's, or one backend's with
+    # a population form of its own (safe_nav's P N worlds).
     backend = getattr(cfg.env, "backend", None)
     own_form = type(cfg.env).population_env is not EnvOptions.population_env
     if not (backend == "torch" or (backend is None and own_form)):
@@ -207,26 +165,7 @@ def unbatched(cfg: RunConfig) -> str | None:
 
 
 def unbatched_head(head: Any) -> str | None:
-    """Why the batched program does not cover an agent's action head, or None (a Box's Gaussian and a
-    Discrete's categorical it covers)."""
+    """Why the batched program does not cover an agent's action head (a Box's or a Discrete's), or None."""
     if isinstance(head, (GaussianHead, CategoricalHead)) and not getattr(head, "sizes", None):
         return None
     return f"the action head {type(head).__name__} is not batched (a Box or a Discrete action space is)"
-
-
-__all__ = [
-    "PER_AGENT_FIELDS",
-    "Population",
-    "PopulationConfig",
-    "population",
-    "batched",
-    "batched_algos",
-    "stacked",
-    "agent_configs",
-    "agent_overrides",
-    "label",
-    "population_active",
-    "population_spec",
-    "unbatched",
-    "unbatched_head",
-]

@@ -1,16 +1,10 @@
-"""Continuing a run from its directory: which config it resumes with, and what may change.
+"""Continuing a run (or a population) from its directory: which config it resumes with, and what may change.
 
-A resumed run must end with the same numbers as one that was never stopped, so its config is the
-run's own (``config.yaml`` in the run directory). Options given on the resume command line are
-applied on top only where they cannot change the trajectory so far or the shape of saved state:
-:data:`RESUMABLE` (e.g. ``total_steps`` to extend a run, ``logger``). Any other change, and any
-checkpoint written by another algorithm or policy than the run's, is refused before training.
-
-What is saved, and restored (see ``trainer.py``): the networks, both optimizers and the
-algorithm's own state (lambda) through ``algo.state_dict()``; the collector's state (next
-observations, running episode sums, step counter) and each env's episode and generator through
-``collector.state_dict()``; torch's, numpy's and Python's generators; the iteration and the
-training time so far.
+A resumed run must end with the numbers of one never stopped, so its config is its own (``config.yaml``);
+options on the resume command line apply only where they cannot change the trajectory so far or the
+shape of saved state (:data:`RESUMABLE`: ``total_steps`` to extend a run, ``logger``, ...). Any other
+change, and a checkpoint of another algorithm or policy, is refused before training. What a
+checkpoint holds: docs/checkpoints.md.
 """
 
 from __future__ import annotations
@@ -24,7 +18,14 @@ from cmdp_rl.config.run_config import ConfigError, RunConfig, flatten_dict, load
 from cmdp_rl.population.spec import Population, population
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.run.migrations import deploy_node, member, migrate, saved_config_defaults, saved_config_nodes
-from cmdp_rl.run.rundir import POPULATION_CHECKPOINT, POPULATION_CONFIG, checkpoint_path, read_yaml, saved_config
+from cmdp_rl.run.rundir import (
+    CHECKPOINT,
+    POPULATION_CHECKPOINT,
+    POPULATION_CONFIG,
+    checkpoint_path,
+    read_yaml,
+    saved_config,
+)
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
 # shape of anything saved. Prefixes: every field under ``logger.``.
@@ -141,16 +142,17 @@ def resume_population(
 ) -> Population:
     """The population in ``out`` to continue, as :func:`resume_config` continues a run: its own config
     (``population.yaml``) with the options named in ``explicit`` taken from ``requested`` where a
-    run's resume may change them, and its checkpoint (``population.pt``; an older format's only with
-    ``trust``, which runs code from the file) migrated to the current layout. A population whose
+    run's resume may change them, and its checkpoint (``checkpoint.pt``, else an older population's
+    ``population.pt``; an older format's only with ``trust``) migrated to the current layout. A population whose
     agents trained one after another has no checkpoint of its own: each agent resumes as a run."""
     out = Path(out)
     if not (out / POPULATION_CONFIG).is_file():
         raise CheckpointError(f"resume: no {POPULATION_CONFIG} in {out}")
     saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
     state, stacked = None, False
-    if (out / POPULATION_CHECKPOINT).is_file():
-        saved = load_checkpoint(out / POPULATION_CHECKPOINT, trust=trust)
+    ckpt = next((out / n for n in (CHECKPOINT, POPULATION_CHECKPOINT) if (out / n).is_file()), None)
+    if ckpt is not None:
+        saved = load_checkpoint(ckpt, trust=trust)
         stacked = "update" in saved
         state = migrate(saved)
     # In the current layout: the stacked layout predates defaults that its config does not name

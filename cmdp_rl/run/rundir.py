@@ -43,10 +43,11 @@ EVAL = "eval.json"
 ERROR = "error.txt"
 RUN_INFO = "run_info.json"
 TENSORBOARD = "tb"
-# A population's directory (cmdp_rl/population/): its composed config, checkpoint and summary.
+# A population's directory (cmdp_rl/population/): its composed config and summary beside its CHECKPOINT.
 POPULATION_CONFIG = "population.yaml"
-POPULATION_CHECKPOINT = "population.pt"
 POPULATION_SUMMARY = "population.json"
+# A population's checkpoint before it took CHECKPOINT's name (same layout): still read by a resume.
+POPULATION_CHECKPOINT = "population.pt"
 
 
 class RunDirError(ConfigError):
@@ -131,6 +132,8 @@ def checkpoint_path(run_dir: str | Path, what: str = "run") -> Path:
     run = Path(run_dir)
     if not run.is_dir():
         raise CheckpointError(f"{what}: no run directory at {run}")
+    if (run / POPULATION_CONFIG).is_file():
+        raise CheckpointError(f"{what}: {run} is a population; its agents' runs are under {run / 'agents'}")
     ckpt = run / CHECKPOINT
     if not ckpt.is_file():
         raise CheckpointError(f"{what}: no {CHECKPOINT} in {run} (did the run stop before its first checkpoint?)")

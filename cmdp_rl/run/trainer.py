@@ -26,10 +26,8 @@ from cmdp_rl.deploy.final_policy import FinalPolicy
 from cmdp_rl.deploy.mixture import IterateSnapshots
 from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.policies import make_agent
-from cmdp_rl.population.agent import PopulationAgent
-from cmdp_rl.population.env import population_env
+from cmdp_rl.population.kernel import PopulationAgent, StackedBackend, population_env
 from cmdp_rl.population.spec import Population, label, stacked, unbatched, unbatched_head
-from cmdp_rl.population.update import AgentUpdates, PopulationPPO
 from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
@@ -70,17 +68,15 @@ def _run_dir(cfg: RunConfig, out_dir: str | Path | None) -> Path:
     return Path(cfg.resume)
 
 
-# The env contract's check before training (envs/contract.py): steps per env, on this many envs
-# built for it alone.
+# The env contract's check before training (envs/contract.py): steps per env, on envs of its own.
 CONTRACT_STEPS = 100
 CONTRACT_ENVS = 2
 
 
 def check_env_contract(cfg: RunConfig) -> None:
     """Step a small env of the run's env config briefly and stop at the first breach of the CMDP
-    contract (:class:`~cmdp_rl.envs.EnvContractError`, one line naming the env, index, step and
-    field). A separate env, so the training env's random streams (and the run's numbers) are those
-    of a run without the check."""
+    contract (:class:`~cmdp_rl.envs.EnvContractError`, one line). A separate env, so the training
+    env's random streams (and the run's numbers) are those of a run without the check."""
     env_cfg = cfg.env
     if getattr(env_cfg, "vector", None) == "async":  # the check reads each env's raw info: in this process
         env_cfg = dataclasses.replace(env_cfg, vector="sync")
@@ -154,10 +150,9 @@ def open_run(
     run_info: Path | None = None,
 ) -> tuple[MetricsLogger, dict[str, Any]]:
     """A run directory's files before its first iteration: the metrics logger (continuing
-    ``metrics.csv`` after a resume's checkpoint), ``config.yaml`` and ``run_info.json`` (copied
-    from ``run_info``, another run's of the same process, when given). Returns the logger and the
-    run's config as written. A ``metrics.csv`` that a resume cannot continue is a
-    :class:`CheckpointError`, raised before anything is written."""
+    ``metrics.csv`` after a resume's checkpoint), ``config.yaml`` and ``run_info.json`` (copied from
+    ``run_info``, another member's, when given); the logger and the config as written. A
+    ``metrics.csv`` a resume cannot continue is a :class:`CheckpointError`, before anything is written."""
     try:
         logger = MetricsLogger(
             out / METRICS,
@@ -197,13 +192,11 @@ def open_runs(
     return [logger for logger, _ in opened], [saved for _, saved in opened]
 
 
-def restore(state: dict[str, Any], algos: Sequence[Any], collector: Collector) -> tuple[int, float]:
-    """A resume's checkpoint into each member's algorithm (from its entry) and into the collector.
-    Returns the first iteration to train and the time trained."""
+def restore(state: dict[str, Any], algos: Sequence[Any], collector: Collector) -> None:
+    """A resume's checkpoint into each member's algorithm (from its entry) and into the collector."""
     for algo, entry in zip(algos, state["members"]):
         algo.load_state_dict(entry["algo_state"])
     collector.load_state_dict(state["collector"])
-    return state["iteration"] + 1, state["time_s"]
 
 
 def write_result(out: Path, result: dict[str, Any], cfg: RunConfig, *args: Any) -> None:
@@ -272,9 +265,9 @@ def train(
     A :class:`~cmdp_rl.population.spec.Population` (``population.population(raw)``, or
     ``resume.resume_population(out_dir)`` to continue one) trains its P agents in this process, each
     into a run directory ``out_dir/agents/<k>_<values>/`` as its single run writes one, and returns
-    the summary written to ``population.json`` (docs/population.md). A run is P = 1, on the
-    one-agent kernel; P agents train as one batched program (population/'s stacked kernel) where it
-    covers them, else one after another.
+    the summary written to ``population.json`` (docs/population.md). Both go through one body,
+    :func:`_train`: a run on :class:`OneAgent`, P agents on :class:`Stacked` where population/'s
+    kernel covers them, else one run after another.
     """
     if isinstance(cfg, Population):
         if out_dir is None:
@@ -297,106 +290,233 @@ def train(
         env.close()
         raise
     try:
-        return _train(cfg, out, state, env, agent, algo, echo)
+        return _train([cfg], out, [out], state, OneAgent(cfg, env, agent, algo), echo)[2][0]
     finally:
         release(out)
 
 
+class OneAgent:
+    """The one-agent kernel of a run (P = 1): its own networks and torch's Adam (``algo.update``), its
+    collector's seed and warm-up, reward and observation scaling; the global random state."""
+
+    def __init__(self, cfg: RunConfig, env: Any, agent: Any, algo: Any) -> None:
+        self.env, self.agents, self.algos = env, [agent], [algo]
+        # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
+        self.collector = Collector(
+            env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=cfg.algo.uniform_action_steps
+        )
+        self.per_iter = cfg.rollout_steps * env.num_envs
+
+    def restore(self, state: dict[str, Any], run_cfgs: list[dict]) -> dict[str, Any]:
+        state = migrate(state, self.agents[0])  # an older format's layout (a trusted file) in the current one
+        restore(state, self.algos, self.collector)
+        load_rng_state(state["rng"])
+        return state
+
+    def update(self, batch: Any) -> list[dict[str, Any]]:
+        normalizers = self.agents[0].normalizers
+        normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
+        stats = self.algos[0].update(batch)
+        normalizers.update_observation_stats(batch)  # after the update: see normalization.py
+        return [stats]
+
+    def cost_totals(self, batch: Any = None) -> list[list[float]]:
+        return [self.collector.total_costs]
+
+    def rng(self) -> dict[str, Any]:
+        return rng_state()
+
+
+class Stacked:
+    """P agents on population/'s stacked kernel: each agent's networks and algorithm state as its
+    single run builds them, under its seed, and the generator it then has (where its single run's
+    action samples and permutations start); their envs, acting and update as one."""
+
+    def __init__(self, cfgs: list[RunConfig], device: torch.device) -> None:
+        self.agents, self.algos, self.generators = [], [], []
+        for c in cfgs:
+            probe, agent, algo = build_run(c)
+            probe.close()
+            self.agents.append(agent)
+            self.algos.append(algo)
+            g = torch.Generator(device=device)
+            g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
+            self.generators.append(g)
+        cfg, self.P = cfgs[0], len(cfgs)
+        self.env = population_env(cfgs, cfg.env.num_envs, [c.seed for c in cfgs], device)
+        self.agent = PopulationAgent(self.agents, self.generators, device)
+        self.backend = StackedBackend(self.agent, self.algos, stacked(cfg.algo.name, getattr(cfg.algo, "base", None)))
+        self.update = self.backend.update
+        self.collector = Collector(self.env, self.agent, cfg.rollout_steps, seed=None)
+        self.per_iter = cfg.rollout_steps * cfg.env.num_envs  # steps per agent
+        self.costs = torch.zeros(self.P, len(self.env.cost_names), dtype=torch.float64)  # each agent's so far
+
+    def restore(self, state: dict[str, Any], run_cfgs: list[dict]) -> dict[str, Any]:
+        if "members" not in state:  # the stacked layout of earlier populations
+            fresh = [member_entry(r, a) for r, a in zip(run_cfgs, self.algos)]
+            modules = {"actor": self.agents[0].actor, "critics": self.agents[0].critics}
+            state = population_from_stacked(state, fresh, modules)
+        restore(state, self.algos, self.collector)  # each agent as its run resumes
+        self.backend.transfer(to_agents=False)
+        for g, s in zip(self.generators, state["rng"]["generators"]):
+            g.set_state(s)
+        # a list of P before K costs
+        self.costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(self.P, len(self.env.cost_names))
+        return state
+
+    def cost_totals(self, batch: Any = None) -> list[list[float]]:
+        """Each agent's costs so far, ``batch``'s included."""
+        if batch is not None:
+            costs = batch.get((keys.NEXT, keys.COST)).reshape(self.P, -1, self.costs.shape[1]).sum(1)
+            self.costs = self.costs + costs.to(self.costs)
+        return self.costs.tolist()
+
+    def rng(self) -> dict[str, Any]:
+        return {"generators": [g.get_state() for g in self.generators]}
+
+    def evaluate(self, cfgs: list[RunConfig], device: torch.device) -> list[dict[str, Any]]:
+        """Each agent's single-run evaluation, side by side: min(eval_episodes, num_envs) envs of its
+        own seeded with its evaluation seed, which also seeds its action samples."""
+        cfg = cfgs[0]
+        self.backend.copy_actors(to_modules=False)  # the deployed actors (an average) into the stacked rows
+        seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
+        eval_env = population_env(cfgs, min(cfg.eval_episodes, cfg.env.num_envs), seeds, device, evaluation=True)
+        self.agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
+        limits = [c.algo.cost_limit for c in cfgs]
+        try:
+            return evaluate_members(
+                self.agent, eval_env, cfg.eval_episodes, cfg.eval_deterministic, limits, cfg.env.termination_metric
+            )
+        finally:
+            self.agent.generators = self.generators
+            eval_env.close()
+
+
 def _train(
-    cfg: RunConfig,
-    out: Path,
-    state: dict | None,
-    env: Any,
-    agent: Any,
-    algo: Any,
-    echo: Callable[[str], None],
-) -> dict[str, Any]:
-    """The rest of :func:`train`, in a run directory this process holds."""
-    names = env.cost_names
-    # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
-    collector = Collector(env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=cfg.algo.uniform_action_steps)
+    cfgs: list[RunConfig], out: Path, dirs: list[Path], state: dict | None, kernel: Any, echo: Callable[[str], None]
+) -> tuple[int, float, list[dict[str, Any]]]:
+    """Train the members ``cfgs`` on ``kernel`` (a run's :class:`OneAgent`, or :class:`Stacked`), each
+    into its directory of ``dirs``, checkpointing into ``out``'s; returns each member's steps, the
+    training time and each member's evaluation."""
+    cfg, P, names, collector = cfgs[0], len(cfgs), kernel.env.cost_names, kernel.collector
+    run = isinstance(kernel, OneAgent)  # else a population (of any P) with its own lines and checkpoint
     try:  # the last check a resume can fail: nothing is written before it
-        (logger,), (run_cfg,) = open_runs([out], [cfg], algo.stats, names, state, echo)
+        loggers, run_cfgs = open_runs(dirs, cfgs, kernel.algos[0].stats, names, state, echo if run else lambda s: None)
     except CheckpointError:
-        env.close()
+        kernel.env.close()
         raise
     first, elapsed = 1, 0.0
     if state is not None:
-        state = migrate(state, agent)  # an older format's layout (a trusted file) in the current one
-        first, elapsed = restore(state, [algo], collector)
-        load_rng_state(state["rng"])
-    per_iter = cfg.rollout_steps * env.num_envs
-    iterations = math.ceil(cfg.total_steps / per_iter)
-    ckpt_path = out / CHECKPOINT
+        state = kernel.restore(state, run_cfgs)
+        first, elapsed = state["iteration"] + 1, state["time_s"]
+    iterations = math.ceil(cfg.total_steps / kernel.per_iter)
     start = time.perf_counter() - elapsed
-    final = FinalPolicy(cfg, iterations, state and state["members"][0])  # what the run deploys: deploy.policy
-
-    reference, warnings = load_reference(cfg)
+    # What each member deploys (deploy.policy), kept on its single-run agent (final_policy.py).
+    finals = [FinalPolicy(c, iterations, e) for c, e in zip(cfgs, state["members"] if state else [None] * P)]
+    reference, warnings = load_reference(cfg) if run else (None, [])
     for warning in warnings:
         echo(f"warning: {warning}")
     cannot_resume: list[str] = []
+    written: dict[int, list[dict[str, Any]]] = {}  # the entries of the last checkpoint, by iteration
 
-    def checkpoint(iteration: int, time_s: float) -> None:
+    def entries(it: int) -> list[dict[str, Any]]:
+        if it not in written:  # the final one is the last checkpoint's: built once
+            if not run:  # the stacked rows into each agent's own objects (its state_dict its single run's)
+                kernel.backend.transfer(to_agents=True)
+            written.clear()
+            written[it] = [member_entry(r, a, f) for r, a, f in zip(run_cfgs, kernel.algos, finals)]
+        return written[it]
+
+    def checkpoint(it: int, time_s: float) -> None:
         try:
             rollout = collector.state_dict()
         except NotImplementedError as exc:  # an env that cannot save itself: evaluable, not resumable
             rollout = None
             if not cannot_resume:
                 cannot_resume.append(str(exc))
-                progress.write(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
-        entry = member_entry(run_cfg, algo, final)
+                say(f"warning: {exc}; checkpoints of this run can be evaluated but not resumed")
+        steps = collector.total_steps // P
+        more = {} if run else {"costs": kernel.costs}
         save_checkpoint(
-            ckpt_path, checkpoint_state(cfg, iteration, collector.total_steps, time_s, [entry], rollout, rng_state())
+            out / CHECKPOINT, checkpoint_state(cfg, it, steps, time_s, entries(it), rollout, kernel.rng(), **more)
+        )
+        (out / POPULATION_CHECKPOINT).unlink(missing_ok=True)  # an older population's, now superseded
+
+    progress, report = None, None
+    if run:
+        if state is not None:
+            echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
+        shape = f"{kernel.per_iter} steps ({cfg.rollout_steps} per env"
+        described = cfg.algo.describe_update()
+        if described:
+            shape += f"; {described}"
+        backend = getattr(cfg.env, "backend", None)  # only envs with several implementations have one
+        where = f"{backend}, " if backend else ""
+        cut = ", training episodes end past it (early_terminate)" if cfg.early_terminate else ""
+        echo(
+            f"training {cfg.algo.name} on {cfg.env.name} ({where}{kernel.env.num_envs} envs): "
+            f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit} ({budget_source(cfg)}){cut}, "
+            f"outputs in {out}"
+        )
+        progress = Progress(iterations * kernel.per_iter, (first - 1) * kernel.per_iter, echo)  # a bar on a terminal
+        loggers[0].echo = progress.row_echo
+    else:
+        if state is not None:
+            echo(f"resuming population {out} from iteration {state['iteration']}")
+        echo(
+            f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({cfg.env.num_envs} envs each): "
+            f"{iterations} iterations of {kernel.per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
         )
 
-    if state is not None:
-        echo(f"resuming {out} from iteration {state['iteration']} (step {collector.total_steps:,})")
-    shape = f"{per_iter} steps ({cfg.rollout_steps} per env"
-    described = cfg.algo.describe_update()
-    if described:
-        shape += f"; {described}"
-    backend = getattr(cfg.env, "backend", None)  # only envs with several implementations have one
-    where = f"{backend}, " if backend else ""
-    cut = ", training episodes end past it (early_terminate)" if cfg.early_terminate else ""
-    echo(
-        f"training {cfg.algo.name} on {cfg.env.name} ({where}{env.num_envs} envs): "
-        f"{iterations} iterations of {shape}), cost limit {cfg.algo.cost_limit} ({budget_source(cfg)}){cut}, "
-        f"outputs in {out}"
-    )
-    progress = Progress(iterations * per_iter, (first - 1) * per_iter, echo)  # a bar on a terminal
-    logger.echo = progress.row_echo
+        def report(it: int, rows: list[dict[str, Any]], dt: float) -> None:
+            if it % cfg.log_interval == 0 or it == first or it == iterations:
+                mean = [
+                    torch.tensor([r[k] for r in rows], dtype=torch.float64).nanmean().item()
+                    for k in ("episode_return", constraint_name("episode_cost", names[0], len(names)))
+                ]
+                echo(
+                    f"iteration {it}/{iterations}: {P} agents, {P * kernel.per_iter / dt:,.0f} steps/s summed, "
+                    f"mean episode return {mean[0]:.3f}, cost {mean[1]:.3f}"
+                )
+
+    say = progress.write if progress is not None else echo
 
     def update(batch: Any, it: int) -> list[dict[str, Any]]:
-        agent.normalizers.scale_batch(batch)  # reward/cost scaling, if on (episode sums stay raw)
-        stats = algo.update(batch)
-        agent.normalizers.update_observation_stats(batch)  # after the update: see normalization.py
-        final.after_update(agent, it, names, echo)
-        return [stats]
+        stats = kernel.update(batch)
+        if any(f.wants(it) for f in finals):  # the actors as their members' modules hold them
+            if not run:
+                kernel.backend.copy_actors(to_modules=True)
+            for k, (f, a) in enumerate(zip(finals, kernel.agents)):
+                f.after_update(a, it, names, echo if run else lambda line, k=k: echo(f"agent {k}: {line}"))
+        return stats
 
     members = Members(
-        [cfg],
-        [logger],
-        collector,
-        update,
-        lambda batch: [collector.total_costs],
-        checkpoint,
-        ckpt_path,
-        reference,
+        cfgs, loggers, collector, update, kernel.cost_totals, checkpoint, out / CHECKPOINT, reference, report
     )
     train_time = train_iterations(members, first, iterations, start, progress)
+    steps = collector.total_steps // P
     if first > iterations:
         echo(f"{out}: training had already finished at iteration {first - 1}; evaluating")
 
-    final.deploy(agent)
-    result = evaluate_run(cfg, agent)
-    write_result(
-        out, result, cfg, collector.total_steps, train_time, collector.total_costs, names, reference, final.kept
-    )
-    logger.finish(result)  # the summary beside the metrics (logger=wandb)
-    header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s; {deployed(result)}"
-    for line in summary_lines(result, cfg.env, cfg.algo.cost_limit, header=header, cost_names=names):
-        echo(line)
-    return result
+    final_entries = [] if run else entries(iterations)  # the last iterates, before the deployed policies
+    for f, a in zip(finals, kernel.agents):
+        f.deploy(a)
+    if run or cfg.deploy.policy == "mixture":  # each member's policy as its run evaluates it
+        results = [evaluate_run(c, a) for c, a in zip(cfgs, kernel.agents)]
+    else:
+        results = kernel.evaluate(cfgs, torch.device(cfg.device))
+    for k, (d, c, result, f) in enumerate(zip(dirs, cfgs, results, finals)):
+        if not run:  # the agent's entry of the last checkpoint as its own (it evaluates; the population resumes)
+            save_checkpoint(
+                d / CHECKPOINT, checkpoint_state(c, iterations, steps, train_time, [final_entries[k]], None, None)
+            )
+        write_result(d, result, c, steps, train_time, kernel.cost_totals()[k], names, reference, f.kept)
+        loggers[k].finish(result)  # the summary beside the metrics (logger=wandb)
+    if run:
+        header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s; {deployed(results[0])}"
+        for line in summary_lines(results[0], cfg.env, cfg.algo.cost_limit, header=header, cost_names=names):
+            echo(line)
+    return steps, train_time, results
 
 
 # --- P agents ------------------------------------------------------------------------------------
@@ -418,7 +538,7 @@ def _train_population(pop: Population, out: Path, echo: Callable[[str], None]) -
         probe.close()
         why = unbatched_head(agent.actor.head)
     if why is None and pop.resume and pop.state is None:
-        raise CheckpointError(f"resume: no {POPULATION_CHECKPOINT} in {out}")
+        raise CheckpointError(f"resume: no {CHECKPOINT} in {out}")
     dirs = [out / AGENTS_DIR / agent_dir_name(k, ov) for k, ov in enumerate(pop.overrides)]
     # The directory is this population's alone while it trains (as a run's: run/ownership.py).
     with owned(out, new_run=not pop.resume, overwrite=bool(pop.raw.get("overwrite"))):
@@ -428,7 +548,9 @@ def _train_population(pop: Population, out: Path, echo: Callable[[str], None]) -
             (out / POPULATION_CONFIG).write_text(yaml.safe_dump(saved, sort_keys=False))
         start = time.perf_counter()
         if why is None:
-            steps, train_time, results = _stacked(pop, dirs, echo)
+            check_env_contracts(*cfgs)
+            kernel = Stacked(cfgs, torch.device(cfgs[0].device))
+            steps, train_time, results = _train(cfgs, out, dirs, pop.state, kernel, echo)
         else:  # the numbers of separate runs, and none of the batched program's speed
             echo(f"population: {why}; its {P} agents train one after another, each as its single run, outputs in {out}")
             results = []
@@ -466,134 +588,3 @@ def _train_population(pop: Population, out: Path, echo: Callable[[str], None]) -
 
 def _iterations(cfg: RunConfig) -> int:
     return math.ceil(cfg.total_steps / (cfg.rollout_steps * cfg.env.num_envs))
-
-
-def _stacked(pop: Population, dirs: list[Path], echo: Callable[[str], None]) -> tuple[int, float, list[dict]]:
-    """The batched program: every agent's env, acting and update as one (population/'s stacked
-    kernel), through the loop a run drives. Returns each agent's steps, the training time and each
-    agent's evaluation."""
-    cfgs, state, out = pop.cfgs, pop.state, dirs[0].parent.parent
-    cfg = cfgs[0]
-    check_env_contracts(*cfgs)
-    device = torch.device(cfg.device)
-    P, N, T = len(cfgs), cfg.env.num_envs, cfg.rollout_steps
-
-    # Each agent's networks and algorithm state as its single run builds them, under its seed; the
-    # generator state after that is where its single run's action samples and permutations start.
-    agents, algos, generators = [], [], []
-    for c in cfgs:
-        probe, agent, algo = build_run(c)
-        probe.close()
-        agents.append(agent)
-        algos.append(algo)
-        g = torch.Generator(device=device)
-        g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
-        generators.append(g)
-    env = population_env(cfgs, N, [c.seed for c in cfgs], device)
-    stacked_agent = PopulationAgent(agents, generators, device)
-    one_update = stacked(cfg.algo.name, getattr(cfg.algo, "base", None))
-    update = PopulationPPO(stacked_agent, algos) if one_update else AgentUpdates(stacked_agent, algos)
-    collector = Collector(env, stacked_agent, T, seed=None)
-    names = env.cost_names
-    loggers, run_cfgs = open_runs(dirs, cfgs, algos[0].stats, names, state, lambda s: None)
-
-    per_iter, iterations = T * N, _iterations(cfg)  # steps per agent per iteration
-    first, elapsed = 1, 0.0
-    costs = torch.zeros(P, len(names), dtype=torch.float64)  # every cost each agent collected so far
-    if state is not None:
-        if "members" not in state:  # the stacked layout of earlier populations
-            fresh = [member_entry(r, a) for r, a in zip(run_cfgs, algos)]
-            state = population_from_stacked(state, fresh, {"actor": agents[0].actor, "critics": agents[0].critics})
-        first, elapsed = restore(state, update.algos, collector)  # each agent as its run resumes
-        update.stack_agents()
-        for g, s in zip(generators, state["rng"]["generators"]):
-            g.set_state(s)
-        costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(P, len(names))  # a list of P before K costs
-        echo(f"resuming population {out} from iteration {state['iteration']}")
-    # What each agent deploys, kept on its single-run agent as its run keeps it (final_policy.py).
-    finals = [FinalPolicy(c, iterations, e) for c, e in zip(cfgs, state["members"] if state else [None] * P)]
-    echo(
-        f"training a population of {P} {cfg.algo.name} agents on {cfg.env.name} ({N} envs each): "
-        f"{iterations} iterations of {per_iter} steps per agent ({cfg.algo.describe_update()}), outputs in {out}"
-    )
-    start = time.perf_counter() - elapsed
-    written: dict[int, list[dict[str, Any]]] = {}  # the entries of the last checkpoint, by iteration
-
-    def entries(it: int) -> list[dict[str, Any]]:
-        if it in written:  # the final one is the last checkpoint's: built once
-            return written[it]
-        update.unstack_agents()
-        written.clear()
-        written[it] = [member_entry(r, a, f) for r, a, f in zip(run_cfgs, algos, finals)]
-        return written[it]
-
-    def checkpoint(it: int, time_s: float) -> None:
-        rng = {"generators": [g.get_state() for g in generators]}
-        steps, rollout = collector.total_steps // P, collector.state_dict()
-        state = checkpoint_state(cfg, it, steps, time_s, entries(it), rollout, rng, costs=costs)
-        save_checkpoint(out / POPULATION_CHECKPOINT, state)
-
-    def cost_totals(batch: Any) -> list[list[float]]:
-        nonlocal costs
-        costs = costs + batch.get((keys.NEXT, keys.COST)).reshape(P, -1, len(names)).sum(1).to(costs)
-        return costs.tolist()
-
-    def report(it: int, rows: list[dict[str, Any]], dt: float) -> None:
-        if it % cfg.log_interval == 0 or it == first or it == iterations:
-            mean = [
-                torch.tensor([r[k] for r in rows], dtype=torch.float64).nanmean().item()
-                for k in ("episode_return", constraint_name("episode_cost", names[0], len(names)))
-            ]
-            echo(
-                f"iteration {it}/{iterations}: {P} agents, {P * per_iter / dt:,.0f} steps/s summed, "
-                f"mean episode return {mean[0]:.3f}, cost {mean[1]:.3f}"
-            )
-
-    def update_step(batch: Any, it: int) -> list[dict[str, Any]]:
-        stats = update.update(batch)
-        if any(f.wants(it) for f in finals):  # the actors as their single runs hold them, then as they do
-            update.copy_actors(to_modules=True)
-            for k, (f, a) in enumerate(zip(finals, agents)):
-                f.after_update(a, it, names, lambda line, k=k: echo(f"agent {k}: {line}"))
-        return stats
-
-    members = Members(
-        cfgs, loggers, collector, update_step, cost_totals, checkpoint, out / POPULATION_CHECKPOINT, report=report
-    )
-    train_time = train_iterations(members, first, iterations, start)
-    steps = collector.total_steps // P
-
-    final_entries = entries(iterations)  # the last iterates, before the deployed policies
-    for f, a in zip(finals, agents):
-        f.deploy(a)
-    if cfg.deploy.policy == "mixture":  # each agent's mixture as its run evaluates it, one after another
-        results = [evaluate_run(c, a) for c, a in zip(cfgs, agents)]
-    else:
-        update.copy_actors(to_modules=False)  # the deployed actors (an average) into the stacked rows
-        results = _evaluate_stacked(stacked_agent, cfgs, N, device)
-    for d, c, result, entry, cost, f in zip(dirs, cfgs, results, final_entries, costs.tolist(), finals):
-        # The agent's entry of the population's checkpoint, as its own checkpoint.pt (for evaluate.py;
-        # not resumable on its own, no collector or random state: the population resumes from population.pt).
-        save_checkpoint(d / CHECKPOINT, checkpoint_state(c, iterations, steps, train_time, [entry], None, None))
-        write_result(d, result, c, steps, train_time, cost, names, None, f.kept)
-    return steps, train_time, results
-
-
-def _evaluate_stacked(
-    stacked_agent: PopulationAgent, cfgs: list[RunConfig], n: int, device: torch.device
-) -> list[dict[str, Any]]:
-    """Each agent's single-run evaluation, side by side: min(eval_episodes, num_envs) envs of its own
-    seeded with its evaluation seed, which also seeds its action samples."""
-    cfg = cfgs[0]
-    seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
-    eval_env = population_env(cfgs, min(cfg.eval_episodes, n), seeds, device, evaluation=True)
-    training = stacked_agent.generators
-    stacked_agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
-    limits = [c.algo.cost_limit for c in cfgs]
-    try:
-        return evaluate_members(
-            stacked_agent, eval_env, cfg.eval_episodes, cfg.eval_deterministic, limits, cfg.env.termination_metric
-        )
-    finally:
-        stacked_agent.generators = training
-        eval_env.close()

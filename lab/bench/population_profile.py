@@ -20,19 +20,19 @@ from pathlib import Path
 import torch
 
 from cmdp_rl import train  # noqa: E402
-from cmdp_rl.population import agent, params, population, update  # noqa: E402
-from cmdp_rl.rollout import collector  # noqa: E402
+from cmdp_rl.population import kernel, population  # noqa: E402
+from cmdp_rl.rollout import advantages, collector  # noqa: E402
 from lab.bench.population_benchmark import base, composed  # noqa: E402
 
 PARTS = [
     (collector.Collector, "collect", "rollout (Collector.collect)"),
-    (update.TwinGAE, "__call__", "GAE (critic values + torchrl GAE)"),
-    (update.PopulationPPO, "update", "update() total (GAE included)"),
-    (agent.PopulationAgent, "training_pass", "  forward: the 3P networks"),
-    (update.StackedBackend, "step", "  optimiser steps total"),
+    (advantages.TwinGAE, "__call__", "GAE (critic values + torchrl GAE)"),
+    (kernel.StackedBackend, "update", "update() total (GAE included)"),
+    (kernel.PopulationAgent, "training_pass", "  forward: the 3P networks"),
+    (kernel.StackedBackend, "step", "  optimiser steps total"),
     (torch.Tensor, "backward", "    backward (losses + networks)"),
-    (params.StackedParams, "clip_grad_norm_", "    grad-norm clipping"),
-    (params.StackedAdam, "step", "    Adam (stacked)"),
+    (kernel.StackedParams, "clip_grad_norm_", "    grad-norm clipping"),
+    (kernel.StackedAdam, "step", "    Adam (stacked)"),
 ]
 
 
