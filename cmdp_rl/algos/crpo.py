@@ -21,12 +21,12 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import single_constraint
+from cmdp_rl.algos.multiplier import EpisodeCost
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeFloat, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 
 @options

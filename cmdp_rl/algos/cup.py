@@ -34,14 +34,13 @@ from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.minibatch import Tally, joined, stopped
-from cmdp_rl.algos.multiplier import MultiplierConfig
+from cmdp_rl.algos.multiplier import EpisodeCost, MultiplierConfig
 from cmdp_rl.algos.ppo import PPO, STATS, OneRun, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import standardized
-from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig

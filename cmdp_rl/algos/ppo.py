@@ -30,6 +30,7 @@ from torch.optim.adam import adam as functional_adam
 from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, minibatches, stopped
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import (
     AUTO,
@@ -44,7 +45,6 @@ from cmdp_rl.config.validation import (
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import TwinGAE, standardized
-from cmdp_rl.rollout.episode_cost import EpisodeCost, EpisodeCostEstimate
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig

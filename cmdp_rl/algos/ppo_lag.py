@@ -27,14 +27,13 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import PerConstraint, per_constraint
-from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig, Multipliers
+from cmdp_rl.algos.multiplier import AdvantageScale, EpisodeCost, MultiplierConfig, Multipliers
 from cmdp_rl.algos.ppo import PPO, PPOConfig, logged_multiplier
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import standardized
-from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
@@ -144,7 +143,7 @@ class PPOLagrangian(PPO):
         # Dual ascent on the Lagrangian J_r - lambda (J_c - d) (Ray, Achiam, Amodei 2019), by default:
         # lambda <- max(0, lambda + lr (J_c - d) / s), s = d with multiplier.scale=budget, else 1
         # (multiplier.DualAscent; PID or a last-iterate update by algo.multiplier.kind), one per constraint,
-        # on the batch's J_c estimate (rollout/episode_cost.py).
+        # on the batch's J_c estimate (multiplier.EpisodeCostEstimate).
         self.multiplier.update(estimate.costs)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:

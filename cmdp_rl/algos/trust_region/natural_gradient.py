@@ -22,12 +22,12 @@ from torch.distributions import kl_divergence
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import Tally
+from cmdp_rl.algos.multiplier import EpisodeCostEstimate
 from cmdp_rl.algos.ppo import OneRun
 from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options, require
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import TwinGAE, standardized
-from cmdp_rl.rollout.episode_cost import EpisodeCostEstimate
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
@@ -165,7 +165,7 @@ class NaturalGradient:
         self.critic_params = list(agent.critics.parameters())
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
         self.critics = CriticRegression(agent)
-        # J_c and the mean episode length the constraint is measured with (rollout/episode_cost.py):
+        # J_c and the mean episode length the constraint is measured with (multiplier.EpisodeCostEstimate):
         # an unfinished episode's cost so far is only a lower bound of its cost, so batches in
         # which no episode ended (1000-step episodes, 256-step rollouts) use the last episodes
         # that did end.
