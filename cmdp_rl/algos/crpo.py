@@ -1,16 +1,10 @@
 """Constraint-Rectified Policy Optimization (Xu, Liang, Lan, 2021, "CRPO: A New Approach for Safe
-Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1). Its steps are cited by name,
-without equation or line numbers (docs/references.md).
+Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1, cited by name: docs/references.md).
 
-Each iteration looks at the constraint's slack: if the estimate ``J_c`` is within the budget plus a
-tolerance, ``J_c <= d + eta``, the policy takes a step that improves the reward (here: PPO's clipped
-surrogate on ``A_r``); otherwise it takes a step that reduces the cost (the same surrogate on
-``-A_c``). No multiplier: the update switches objectives, it never mixes them. The paper's steps are
-natural policy gradient steps; the clipped-PPO step is the practical choice of its later
-implementations and keeps the one PPO loop (``ppo.py``) for every member of the family.
-
-The paper handles several constraints by stepping on any one that is violated; this toolkit has
-one cost signal, so the switch reads that one.
+While ``J_c <= d + eta`` the policy takes a step that improves the reward (PPO's clipped surrogate on
+``A_r``), otherwise one that reduces the cost (the same on ``-A_c``): it switches objectives, never mixes
+them. The paper's natural-gradient steps are replaced by clipped PPO, as its later implementations do,
+which keeps the one PPO loop. One cost signal (the paper steps on any violated constraint).
 """
 
 from __future__ import annotations

@@ -1,26 +1,19 @@
-"""Constrained Update Projection (Yang, Ji, Dai, Zhang, Zhou, Li, Yang, Pan, 2022, "Constrained
-Update Projection Approach to Safe Policy Optimization", NeurIPS; its Algorithm 1). Its stages are
-cited by name, without equation or section numbers (docs/references.md).
+"""Constrained Update Projection (Yang, Ji, Dai, Zhang, Zhou, Li, Yang, Pan, 2022, NeurIPS; Algorithm 1,
+cited by name: docs/references.md). Two stages per iteration:
 
-Two stages per iteration:
-
-1. Policy improvement: ``pi_{k+1/2}`` maximises the reward surrogate near ``pi_k``; as in the
-   paper's practical version, PPO's clipped surrogate on ``A_r`` (the whole PPO update of
-   ``ppo.py``, critics included).
+1. Policy improvement: ``pi_{k+1/2}`` by PPO's clipped surrogate on ``A_r`` (the paper's practical
+   version: the whole PPO update of ``ppo.py``, critics included).
 2. Projection: ``pi_{k+1}`` minimises, from ``pi_{k+1/2}``::
 
        E_s[ KL(pi_theta || pi_{k+1/2})[s] ]
          + nu * (1 - gamma_c gae_lambda) / (1 - gamma_c) * E[ pi_theta(a|s) / pi_k(a|s) A_c(s, a) ]
 
-   the distance to the improved policy plus the multiplier times the cost surrogate around the
-   behaviour policy ``pi_k`` (the factor is the paper's, from its GAE-based bound). With ``nu = 0``
-   the minimiser is ``pi_{k+1/2}`` itself, and the stage leaves it unchanged: it runs its own Adam,
-   fresh every iteration, since momentum from stage 1 or from earlier projections would move the
-   policy with a zero gradient (``tests/test_cup.py``).
+   (the factor is the paper's GAE-based bound). With ``nu = 0`` the minimiser is ``pi_{k+1/2}`` itself,
+   so the stage runs its own Adam, fresh every iteration: earlier momentum would move the policy with a
+   zero gradient (tests/test_cup.py).
 
-``nu`` by projected dual ascent once per iteration, ``nu <- max(0, nu + lr (J_c - d))``
-(``algo.multiplier``, multiplier.py; another ``multiplier.kind`` moves nu its way). ``A_c`` is standardized when
-``algo.normalize_advantage`` is, as PPO's advantage is. One cost signal.
+``nu`` by ``algo.multiplier`` once per iteration; ``A_c`` standardized when ``normalize_advantage`` is.
+One cost signal.
 """
 
 from __future__ import annotations
@@ -57,10 +50,6 @@ class CUPConfig(PPOConfig):
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)  # nu
 
-    def check(self, run: RunConfig) -> None:
-        super().check(run)
-        self.multiplier.check()
-
     projection_epochs: AutoInt = AUTO  # auto: update_epochs
 
     def resolve_auto(self, run: RunConfig) -> None:
@@ -79,10 +68,6 @@ class CUP(PPO):
         super().__init__(cfg, agent)
         self.multiplier = cfg.multiplier.build(cost_limit)
         self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
-
-    @property
-    def lagrange_multiplier(self) -> float:
-        return self.multiplier.value
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.cost)
@@ -146,13 +131,6 @@ class CUP(PPO):
         if isinstance(nu_coef, torch.Tensor):  # a population's, one per agent: over its [P, B, 1] samples
             nu_coef = nu_coef.view(-1, *(1,) * (adv.dim() - 1))
         return kl + nu_coef * ratio * adv, kl
-
-    def state_dict(self) -> dict:
-        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        super().load_state_dict(state)
-        self.multiplier.load_state_dict(state["multiplier"])
 
 
 register("algo", "cup", CUPConfig, CUP)
