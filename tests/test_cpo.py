@@ -11,8 +11,8 @@ from torch.distributions import kl_divergence
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env
 from cmdp_rl.algos.multiplier import FINISHED, RUNNING, WINDOW, EpisodeCost, EpisodeCostEstimate
-from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.trust_region.cpo import CONSTRAINED, RECOVERY, TRPO, fisher_vector_product, solve_dual
+from cmdp_rl.algos.trust_region.natural_gradient import conjugate_gradient
 from cmdp_rl.policies.agent import Actor
 from cmdp_rl.policies.distributions import GaussianHead
 from cmdp_rl.policies.mlp import MLPBody, mlp

@@ -259,6 +259,11 @@ class Multipliers:
             c.load_state_dict(s)
 
 
+def logged_multiplier(values: list[float]) -> float | list[float]:
+    """A multiplier as metrics.csv takes it: a number for one constraint, else a list of K."""
+    return values[0] if len(values) == 1 else list(values)
+
+
 def _ema(old: float, new: float, alpha: float) -> float:
     """Exponential moving average; ``alpha`` is the weight kept on the past."""
     return alpha * old + (1.0 - alpha) * new

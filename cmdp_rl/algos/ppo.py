@@ -22,7 +22,7 @@ from torch.optim.adam import adam as functional_adam
 from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, minibatches, stopped
-from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import (
     AUTO,
@@ -373,11 +373,6 @@ def clip_grad_norm_(params: Sequence[torch.Tensor], max_norm: float) -> None:
     if grads:
         total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads, 2.0)), 2.0)
         torch._foreach_mul_(grads, torch.clamp(max_norm / (total + 1e-6), max=1.0))
-
-
-def logged_multiplier(values: list[float]) -> float | list[float]:
-    """A multiplier as metrics.csv takes it: a number for one constraint, else a list of K."""
-    return values[0] if len(values) == 1 else list(values)
 
 
 register("algo", "ppo", PPOConfig, PPO)

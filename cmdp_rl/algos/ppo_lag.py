@@ -18,8 +18,8 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import PerConstraint, per_constraint
-from cmdp_rl.algos.multiplier import AdvantageScale, EpisodeCost, MultiplierConfig, Multipliers
-from cmdp_rl.algos.ppo import PPO, PPOConfig, logged_multiplier
+from cmdp_rl.algos.multiplier import AdvantageScale, EpisodeCost, MultiplierConfig, Multipliers, logged_multiplier
+from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent

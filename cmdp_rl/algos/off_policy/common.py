@@ -33,10 +33,9 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
-from cmdp_rl.algos.multiplier import MultiplierConfig, Multipliers
+from cmdp_rl.algos.multiplier import MultiplierConfig, Multipliers, logged_multiplier
 from cmdp_rl.algos.off_policy.replay_buffer import Replay
 from cmdp_rl.algos.off_policy.target_networks import TargetCritics, td_target
-from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.config.validation import (
     AUTO,
     Field,

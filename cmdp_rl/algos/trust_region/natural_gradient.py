@@ -1,12 +1,8 @@
-"""What the trust-region algorithms share (CPO, TRPO-Lagrangian, PCPO): the options, the
-importance-weighted surrogates around the policy that collected the batch, the Fisher-vector
-product, the backtracking line search, and the iteration around the policy step (GAE, the J_c
-estimate, critic regression, checkpointing).
-
-Each algorithm is one subclass of :class:`NaturalGradient` that writes ``policy_step``: how the
-reward and cost gradients become a step (CPO's dual, TRPO's step on a Lagrangian, PCPO's
-projection). Natural gradient: Kakade 2001; the trust-region step with conjugate gradient and line
-search: Schulman et al. 2015, "Trust Region Policy Optimization", Appendix C.
+"""What the trust-region algorithms (CPO, TRPO-Lagrangian, PCPO) share: the options, the importance-weighted
+surrogates around the policy that collected the batch, the Fisher-vector product, conjugate gradient, the
+backtracking line search, and the iteration around the policy step (GAE, J_c, critic regression,
+checkpointing). Each algorithm is a :class:`NaturalGradient` that writes ``policy_step``. Natural gradient:
+Kakade 2001; the trust-region step: Schulman et al. 2015, "Trust Region Policy Optimization", Appendix C.
 """
 
 from __future__ import annotations
@@ -22,7 +18,7 @@ from torch.distributions import kl_divergence
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
 from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import Tally
-from cmdp_rl.algos.multiplier import EpisodeCostEstimate
+from cmdp_rl.algos.multiplier import EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.algos.ppo import OneRun
 from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options, require
 from cmdp_rl.policies.agent import Agent
@@ -55,21 +51,19 @@ class NaturalGradientConfig(AlgoConfig):
             f"at most rollout_steps * env.num_envs = {batch}",
             self.critic_minibatches,
         )
+        if hasattr(self, "multiplier"):  # trpo_lag's algo.multiplier node
+            self.multiplier.check()
 
 
 def fisher_vector_product(
     kl: torch.Tensor, params: list[nn.Parameter], damping: float
 ) -> Callable[[torch.Tensor], torch.Tensor]:
-    """``v -> (H + damping I) v`` with ``H`` the Hessian of ``kl`` (the mean KL from the old policy,
-    whose value and gradient are 0 at the old parameters, so its Hessian there is the Fisher
-    matrix). Double backprop: one graph for ``grad kl``, then one backward of ``grad kl . v`` per
-    product; the matrix is never formed."""
-    grads = torch.autograd.grad(kl, params, create_graph=True)
-    flat_grad = torch.cat([g.reshape(-1) for g in grads])
+    """``v -> (H + damping I) v`` with ``H`` the Hessian of ``kl``, the mean KL from the old policy (0 with
+    zero gradient there, so its Hessian is the Fisher matrix), by double backprop: never formed."""
+    flat_grad = flat(torch.autograd.grad(kl, params, create_graph=True))
 
     def fvp(v: torch.Tensor) -> torch.Tensor:
-        hv = torch.autograd.grad(flat_grad @ v, params, retain_graph=True)
-        return torch.cat([h.reshape(-1) for h in hv]) + damping * v
+        return flat(torch.autograd.grad(flat_grad @ v, params, retain_graph=True)) + damping * v
 
     return fvp
 
@@ -78,12 +72,33 @@ def flat(tensors: tuple[torch.Tensor, ...]) -> torch.Tensor:
     return torch.cat([t.reshape(-1) for t in tensors])
 
 
+def conjugate_gradient(
+    matvec: Callable[[torch.Tensor], torch.Tensor], b: torch.Tensor, iters: int, residual_tol: float = 1e-10
+) -> torch.Tensor:
+    """``A^-1 b`` in at most ``iters`` steps of conjugate gradient, ``A`` symmetric positive definite given
+    as a product (Nocedal & Wright, "Numerical Optimization", 2nd ed., Algorithm 5.2): torch's solvers
+    need ``A`` as a matrix, and the Fisher matrix is never formed. Stops once ``|r|^2 < residual_tol``."""
+    x = torch.zeros_like(b)
+    r = b.clone()  # residual b - A x at x = 0
+    p = r.clone()
+    rr = r.dot(r)
+    for _ in range(iters):
+        if rr < residual_tol:
+            break
+        ap = matvec(p)
+        alpha = rr / p.dot(ap)
+        x += alpha * p
+        r -= alpha * ap
+        rr_new = r.dot(r)
+        p = r + (rr_new / rr) * p
+        rr = rr_new
+    return x
+
+
 @torch.no_grad()
 def assign(params: list[nn.Parameter], vector: torch.Tensor) -> None:
-    """Copy a flat vector into the parameters, in place. (``nn.utils.vector_to_parameters``
-    rebinds each parameter to a view of the vector: a different memory alignment, which changes the
-    rounding of the BLAS kernels, so a resumed run, whose parameters are fresh tensors, would drift
-    from an uninterrupted one in the last bits.)"""
+    """Copy a flat vector into the parameters, in place: ``nn.utils.vector_to_parameters`` rebinds them to
+    views of it, whose alignment changes BLAS rounding, so a resumed run would drift in the last bits."""
     offset = 0
     for p in params:
         p.copy_(vector[offset : offset + p.numel()].view_as(p))
@@ -118,6 +133,7 @@ class Surrogates:
         return (ratio * self.adv).mean(), (ratio * self.cost_adv).mean(), kl_divergence(self.old_dist, dist).mean()
 
 
+STATS = ("loss_v", "loss_vc", "entropy", "kl")  # every trust-region algorithm's, first
 NO_STEP = {"step_fraction": 0.0, "kl": 0.0, "surr_reward_change": 0.0, "surr_cost_change": 0.0}
 
 
@@ -156,6 +172,7 @@ class NaturalGradient:
 
     name = "natural_gradient"
     stats: tuple[str, ...] = ()
+    multiplier: Any = None  # trpo_lag's lambda (multiplier.py), logged and checkpointed
 
     def __init__(self, cfg: NaturalGradientConfig, agent: Agent) -> None:
         self.cfg = cfg
@@ -165,15 +182,11 @@ class NaturalGradient:
         self.critic_params = list(agent.critics.parameters())
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
         self.critics = CriticRegression(agent)
-        # J_c and the mean episode length the constraint is measured with (multiplier.EpisodeCostEstimate):
-        # an unfinished episode's cost so far is only a lower bound of its cost, so batches in
-        # which no episode ended (1000-step episodes, 256-step rollouts) use the last episodes
-        # that did end.
         self.episode_cost = EpisodeCostEstimate()
 
     @property
-    def lagrange_multiplier(self) -> float:
-        return 0.0
+    def lagrange_multiplier(self) -> float | list[float]:
+        return 0.0 if self.multiplier is None else logged_multiplier(self.multiplier.values)
 
     def policy_step(
         self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
@@ -255,13 +268,16 @@ class NaturalGradient:
         return tally.means()
 
     def state_dict(self) -> dict:
-        return {
+        state = {
             "networks": self.agent.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
             "episode_cost": self.episode_cost.state_dict(),
         }
+        return state if self.multiplier is None else {**state, "multiplier": self.multiplier.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.episode_cost.load_state_dict(state["episode_cost"])
+        if self.multiplier is not None:
+            self.multiplier.load_state_dict(state["multiplier"])

@@ -1,22 +1,14 @@
-"""Projection-based Constrained Policy Optimization (Yang, Rosca, Narasimhan, Ramadge 2020,
-"Projection-Based Constrained Policy Optimization", ICLR).
+"""Projection-based Constrained Policy Optimization (Yang, Rosca, Narasimhan, Ramadge 2020, ICLR; its
+steps cited by name: docs/references.md). With ``x = theta - theta_k``, ``g``, ``b`` the reward and cost
+surrogates' gradients, ``H`` the Fisher matrix, ``c`` = J_c - d in per-step units
+(natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``, two steps per iteration:
 
-Two steps per iteration, with ``x = theta - theta_k``, ``g`` and ``b`` the gradients of the reward
-and cost surrogates, ``H`` the Fisher matrix, ``c`` the constraint value (J_c - d, in the
-surrogate's per-step units: natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``:
+1. reward improvement: TRPO's ``x_r = sqrt(2 delta / g^T H^-1 g) H^-1 g``;
+2. projection onto ``{x : c + b^T x <= 0}`` in the metric ``L`` (``H`` for ``algo.projection: kl``, ``I``
+   for ``l2``): ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``.
 
-1. the reward improvement step (linearised): the TRPO step
-   ``x_r = sqrt(2 delta / g^T H^-1 g) H^-1 g``, the best point of the KL trust region;
-2. the projection step (linearised): the point of ``{x : c + b^T x <= 0}`` closest to
-   ``x_r`` in the metric ``L``: ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``, with
-   ``L = H`` for the KL projection and ``L = I`` for the L2 projection (``algo.projection``; the
-   paper's closed form of the two steps, in its notation ``a`` for ``b`` and ``b`` for ``c``).
-
-The steps are cited by name, without equation numbers (docs/references.md).
-
-A step already inside the linearised constraint set is not moved by the projection; an infeasible
-iterate is projected back onto its boundary (no separate recovery rule, unlike CPO). The paper
-takes the projected step as it is: there is no line search here.
+A feasible step is not moved; an infeasible iterate is projected back onto the boundary (no recovery
+rule, unlike CPO). As in the paper, no line search.
 """
 
 from __future__ import annotations
@@ -27,11 +19,12 @@ from typing import Callable, ClassVar, Literal
 import torch
 
 from cmdp_rl.algos.base import check_finite, single_constraint
-from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.trust_region.natural_gradient import (
+    STATS,
     NaturalGradient,
     NaturalGradientConfig,
     assign,
+    conjugate_gradient,
     per_step_constraint,
 )
 from cmdp_rl.config.registry import register
@@ -48,7 +41,6 @@ class PCPOConfig(NaturalGradientConfig):
     name: str = "pcpo"
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     projection: Literal["kl", "l2"] = "kl"
-    # The projection compares the cost surrogate with J_c - d in raw units: no cost scaling.
     reads_raw_cost: ClassVar[bool] = True
 
 
@@ -77,9 +69,7 @@ def projected_step(
 
 class PCPO(NaturalGradient):
     name = "pcpo"
-    # Besides lagrange_multiplier (0: PCPO has none): the sampled KL of the step taken, the
-    # projection's coefficient (0: the reward step was feasible), and the changes of the surrogates.
-    stats = ("loss_v", "loss_vc", "entropy", "kl", "projection_coef", "surr_reward_change", "surr_cost_change")
+    stats = (*STATS, "projection_coef", "surr_reward_change", "surr_cost_change")  # projection_coef 0: feasible
 
     def __init__(self, cfg: PCPOConfig, agent: Agent) -> None:
         self.cost_limit = single_constraint(

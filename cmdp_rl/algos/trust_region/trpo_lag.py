@@ -1,41 +1,33 @@
 """TRPO-Lagrangian (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep Reinforcement
-Learning", Section 5: the Lagrangian baselines; that section number is unchecked, see
-docs/references.md. TRPO's numbers below are checked).
+Learning": the Lagrangian baselines, section unchecked: docs/references.md).
 
-TRPO's update (Schulman et al. 2015, "Trust Region Policy Optimization", eq. 14 and Appendix C) on
-the Lagrangian's advantage ``A = (A_r - lambda A_c) / (1 + lambda)``, the same policy advantage as
-PPO-Lagrangian (dividing by ``1 + lambda`` keeps its scale as lambda grows)::
+TRPO's update (Schulman et al. 2015, eq. 14 and Appendix C) on ppo_lag's Lagrangian advantage
+``A = (A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``::
 
     max_x  g^T x   s.t.   1/2 x^T H x <= delta     =>     x = sqrt(2 delta / g^T H^-1 g) H^-1 g
 
-with ``g`` the gradient of the Lagrangian surrogate and ``H`` the Fisher matrix (conjugate
-gradient on Fisher-vector products), then a backtracking line search that keeps the first
-fraction whose sampled KL is within delta and whose Lagrangian surrogate improves. lambda >= 0 by
-projected dual ascent on ``J_c - d`` (multiplier.DualAscent, as ppo_lag; or another
-``algo.multiplier.kind``, multiplier.py), once per iteration, before the step.
-
-K constraints: as ppo_lag, one multiplier per constraint, each moved by its own ``J_c,k - d_k``,
-and the advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)`` (K = 1: the above).
+then a backtracking line search that keeps the first fraction within delta whose Lagrangian surrogate
+improves. One multiplier per constraint by ``algo.multiplier``, once per iteration, before the step.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import field
-from typing import TYPE_CHECKING, ClassVar, Optional, Sequence
+from typing import ClassVar, Optional, Sequence
 
 import torch
 
 from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig, Multipliers
-from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.algos.ppo_lag import lagrangian_advantage
-from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.trust_region.cpo import CPOConfig
 from cmdp_rl.algos.trust_region.natural_gradient import (
     NO_STEP,
+    STATS,
     NaturalGradient,
     Surrogates,
+    conjugate_gradient,
     fisher_vector_product,
     flat,
     line_search,
@@ -45,9 +37,6 @@ from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import standardized
-
-if TYPE_CHECKING:
-    from cmdp_rl.config.run_config import RunConfig
 
 
 @options
@@ -63,26 +52,16 @@ class TRPOLagConfig(CPOConfig):
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[Optional[int]] = None  # one multiplier per cost: any K
 
-    def check(self, run: RunConfig) -> None:
-        super().check(run)
-        self.multiplier.check()
-
 
 class TRPOLagrangian(NaturalGradient):
     name = "trpo_lag"
-    # Besides lagrange_multiplier: the accepted fraction of the full step (0: none), its sampled
-    # KL, the change of the Lagrangian surrogate (surr_reward_change) and of the cost surrogate.
-    stats = ("loss_v", "loss_vc", "entropy", "kl", "step_fraction", "surr_reward_change", "surr_cost_change")
+    # surr_reward_change: of the Lagrangian surrogate; step_fraction: of the full step accepted (0: none).
+    stats = (*STATS, "step_fraction", "surr_reward_change", "surr_cost_change")
 
     def __init__(self, cfg: TRPOLagConfig, agent: Agent) -> None:
         super().__init__(cfg, agent)
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
-        # One multiplier per constraint (multiplier.Multipliers), each with its own budget d_k.
         self.multiplier = Multipliers(cfg.multiplier.build, limits)
-
-    @property
-    def lagrange_multiplier(self) -> float | list[float]:
-        return logged_multiplier(self.multiplier.values)
 
     def policy_step(
         self, units: dict[str, torch.Tensor], episode_cost: float | Sequence[float], episode_length: float
@@ -115,13 +94,6 @@ class TRPOLagrangian(NaturalGradient):
             lambda d_reward, d_cost: d_reward > 0,
         )
         return {"entropy": self.entropy(units), **accepted}
-
-    def state_dict(self) -> dict:
-        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        super().load_state_dict(state)
-        self.multiplier.load_state_dict(state["multiplier"])
 
 
 register("algo", "trpo_lag", TRPOLagConfig, TRPOLagrangian)
