@@ -65,11 +65,9 @@ class SAC(OffPolicy):
         self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=cfg.alpha_lr)
 
     def sample(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """A reparameterised action in the squashed [-1, 1] units, ``tanh(u)``, ``u ~ N(mu, sigma)``,
-        and its log pi ``[B, 1]`` in the same units: ``log N(u) - sum_i log(1 - tanh(u_i)^2)``
-        (Haarnoja et al. 2018b, appendix C, eq. 21). The head's TanhNormal (torchrl) gives the same
-        density; written out here because building it and inverting the tanh for its log-prob cost
-        about 0.7 ms of a 20 ms gradient step, twice (measured: docs/off_policy.md, Speed)."""
+        """A reparameterised action in the squashed [-1, 1] units, ``tanh(u)``, ``u ~ N(mu, sigma)``, and its
+        log pi ``[B, 1]``: ``log N(u) - sum_i log(1 - tanh(u_i)^2)`` (Haarnoja et al. 2018b, eq. 21). The
+        head's TanhNormal gives the same density, slower (docs/off_policy.md, Speed)."""
         params = self.agent.actor.head(x)
         mu, std = params[keys.LOC], params[keys.SCALE]
         eps = torch.randn_like(mu)

@@ -4,7 +4,7 @@ Fujimoto, van Hoof, Meger 2018, "Addressing Function Approximation Error in Acto
 clipped double Q-learning (eq. 10), target policy smoothing (eq. 14: clipped Gaussian noise on the
 target action), delayed policy and target updates (every ``policy_delay`` critic steps, Algorithm
 1), the deterministic policy gradient on Q_1. The ``_lag`` variant ascends
-``Q_1 - sum_k lambda_k Q_c,k`` with the multiplier of SAC-Lagrangian (``off_policy.LagrangeTerm``).
+``Q_1 - sum_k lambda_k Q_c,k`` with the multiplier of SAC-Lagrangian (``off_policy.common``).
 Noise is in units of the box's half-width.
 """
 
