@@ -1,18 +1,13 @@
-"""The action spaces the toolkit supports, and how their actions are stored.
+"""The action spaces the toolkit supports, and how one env's action is stored, a flat vector ``[d]``:
 
-An action of one env is stored as a flat vector ``[d]`` in every batch:
-
-- ``Box`` (any shape): its ``d = prod(shape)`` numbers, float32, reshaped to the box's shape
-  before the env steps (a ``(2, 3)`` box is flattened to 6 numbers, not refused);
-- ``Discrete(n, start)``: one int64 index in ``[0, n)``, ``d = 1`` (``start`` is added for the env);
+- ``Box`` (any shape): its ``d = prod(shape)`` numbers, float32, reshaped to the box's shape for the env;
+- ``Discrete(n, start)``: one int64 index in ``[0, n)``, ``d = 1`` (``start`` added for the env);
 - ``MultiDiscrete(nvec, start)``: one int64 index per component, ``d = nvec.size``;
-- a hybrid space, ``Tuple`` or ``Dict`` of one ``Discrete(n)`` (the skill) and one float ``Box`` (its
-  parameters): float32 ``[skill, params...]``, ``d = 1 + prod(box.shape)``, the skill an exact
-  small integer in a float (:class:`Hybrid`; ``policies/hybrid.py`` is its distribution).
+- hybrid, a ``Tuple`` or ``Dict`` of one ``Discrete(n)`` (the skill) and one float ``Box`` (its
+  parameters): float32 ``[skill, params...]``, ``d = 1 + prod(box.shape)`` (:class:`Hybrid`).
 
-The previous action a policy may read (``keys.PREV_ACTION``) is :func:`no_action` on an episode's
-first step: 0 for a box (as before), -1 for discrete actions, an index no action has, so a one-hot
-encoding of it is all zeros rather than the one-hot of action 0.
+The previous action on an episode's first step (:func:`no_action`) is 0 for a box, -1 for discrete
+actions: an index no action has, so its one-hot encoding is all zeros.
 """
 
 from __future__ import annotations
@@ -34,8 +29,8 @@ class UnsupportedActionSpace(ConfigError):
 
 
 class Hybrid(NamedTuple):
-    """A hybrid action space's parts: ``skills`` choices (``start`` added for the env), the
-    parameters' box, and where each sits in the env's ``Tuple`` (an index) or ``Dict`` (a key)."""
+    """A hybrid space's parts: ``skills`` choices (``start`` added for the env), the parameters' box, and
+    where each sits in the env's ``Tuple`` (an index) or ``Dict`` (a key)."""
 
     skills: int
     start: int
@@ -142,9 +137,8 @@ def to_env(action: torch.Tensor, space: gym.Space) -> np.ndarray:
 
 
 def uniform_actions(space: gym.Space, n: int, device: torch.device | str) -> tuple[torch.Tensor, torch.Tensor]:
-    """``n`` stored actions drawn uniformly from ``space`` (torch's generator) and their log-density
-    ``[n]``: a box's uniform over its bounds (which must be finite), a discrete space's uniform over
-    its choices. An off-policy algorithm's warm-up acts so (``Collector(uniform_steps=...)``)."""
+    """``n`` stored actions drawn uniformly from ``space`` (a box's bounds must be finite; torch's
+    generator) and their log-density ``[n]``: an off-policy algorithm's warm-up."""
     if isinstance(space, spaces.Box):
         low = torch.as_tensor(space.low, dtype=torch.float32, device=device).reshape(-1)
         high = torch.as_tensor(space.high, dtype=torch.float32, device=device).reshape(-1)
@@ -158,20 +152,3 @@ def uniform_actions(space: gym.Space, n: int, device: torch.device | str) -> tup
     sizes = torch.tensor(categories(space), device=device)
     action = (torch.rand(n, sizes.numel(), device=device) * sizes).long()
     return action, (-sizes.float().log().sum()).expand(n)
-
-
-__all__ = [
-    "SUPPORTED",
-    "Hybrid",
-    "action_bounds",
-    "hybrid",
-    "UnsupportedActionSpace",
-    "action_dim",
-    "action_dtype",
-    "categories",
-    "check_action_space",
-    "is_discrete",
-    "no_action",
-    "to_env",
-    "uniform_actions",
-]
