@@ -13,8 +13,7 @@ from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.algos import make_algo
-from cmdp_rl.algos.off_policy.common import discounted_budget
-from cmdp_rl.algos.off_policy.replay_buffer import Replay
+from cmdp_rl.algos.off_policy.common import Replay, discounted_budget
 from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import make_env
 from cmdp_rl.policies import make_agent

@@ -14,17 +14,18 @@ every seed over budget (docs/off_policy.md).
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, Union
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
+from torch import nn
+from torchrl.data import LazyMemmapStorage, LazyTensorStorage, TensorDictReplayBuffer
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.multiplier import MultiplierConfig, Multipliers, logged_multiplier
-from cmdp_rl.algos.off_policy.replay_buffer import Replay
-from cmdp_rl.algos.off_policy.target_networks import TargetCritics, td_target
 from cmdp_rl.config.validation import (
     AUTO,
     Field,
@@ -43,6 +44,87 @@ if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
 
 
+# --- The replay buffer and the target networks ---------------------------------------------
+# What a transition keeps in the buffer: reward and cost are twins, as in the batch. A truncated
+# step keeps its final observation under "next" and bootstraps from it (only termination masks).
+STORED = (keys.OBS, keys.ACTION, *((keys.NEXT, k) for k in (keys.OBS, keys.REWARD, keys.COST, keys.TERMINATED)))
+
+
+class Replay:
+    """torchrl's ``TensorDictReplayBuffer`` of single transitions (:data:`STORED`), uniform sampling
+    from torch's generator (seeded by the run; restored on resume)."""
+
+    def __init__(self, size: int, batch_size: int, storage: str, device: torch.device | str = "cpu") -> None:
+        store = (
+            LazyMemmapStorage(size, device=device) if storage == "memmap" else LazyTensorStorage(size, device=device)
+        )
+        self.buffer = TensorDictReplayBuffer(storage=store, batch_size=batch_size)
+
+    def __len__(self) -> int:
+        return len(self.buffer)
+
+    def add(self, batch: TensorDictBase) -> int:
+        """Add the ``[N, T]`` batch's transitions; returns how many."""
+        flat = batch.select(*STORED).reshape(-1)
+        self.buffer.extend(flat)
+        return flat.shape[0]
+
+    def sample(self) -> TensorDictBase:
+        return self.buffer.sample()
+
+    def newest(self, n: int) -> TensorDictBase:
+        """The ``n`` transitions added last (all, if fewer are stored), oldest first: the writer's
+        cursor is the next row it overwrites, so the newest rows end just before it, modulo capacity."""
+        n = min(n, len(self.buffer))
+        cursor = self.buffer.writer.state_dict()["_cursor"]
+        return self.buffer.storage.get((cursor - n + torch.arange(n)) % self.buffer.storage.max_size)
+
+    def state_dict(self) -> dict:
+        """The stored transitions in storage order (only the filled rows, not the whole capacity)
+        and the writer's cursor: a buffer loading it samples the same indices to the same data."""
+        n = len(self.buffer)
+        data = self.buffer.storage.get(torch.arange(n)).to_dict() if n else {}
+        return {"data": data, "len": n, "writer": self.buffer.writer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["len"]:
+            self.buffer.extend(TensorDict(state["data"], batch_size=[state["len"]]))
+        self.buffer.writer.load_state_dict(state["writer"])
+
+
+class TargetCritics:
+    """Slow copies of critics' output networks (the body is shared: it has no parameters, and the
+    copy reads the live observation statistics), moved by Polyak averaging."""
+
+    def __init__(self, modules: dict[str, nn.Module]) -> None:
+        self.live = modules
+        self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}
+        # Listed once (load_state_dict copies into these tensors): one lerp over all of them a step.
+        self._pairs = (
+            [p for k in modules for p in self.target[k].parameters()],
+            [p for m in modules.values() for p in m.parameters()],
+        )
+
+    @torch.no_grad()
+    def soft_update(self, tau: float) -> None:
+        """``theta' <- tau theta + (1 - tau) theta'`` (Haarnoja et al. 2018b; Fujimoto et al. 2018)."""
+        torch._foreach_lerp_(*self._pairs, tau)
+
+    def state_dict(self) -> dict:
+        return {k: m.state_dict() for k, m in self.target.items()}
+
+    def load_state_dict(self, state: dict) -> None:
+        for k, m in self.target.items():
+            m.load_state_dict(state[k])
+
+
+def td_target(signal: torch.Tensor, terminated: torch.Tensor, gamma: float, next_value: torch.Tensor) -> torch.Tensor:
+    """One-step TD target ``x + gamma (1 - terminated) V'``: a truncated step bootstraps from its
+    final observation; only termination stops the sum."""
+    return signal + gamma * (~terminated).float() * next_value
+
+
+# --- Options, and the update ----------------------------------------------------------------
 def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
     """The episode budget ``d`` on a cost Q-critic's discounted scale (module docstring)."""
     T = episode_length

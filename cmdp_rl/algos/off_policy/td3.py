@@ -14,8 +14,7 @@ from typing import ClassVar
 
 import torch
 
-from cmdp_rl.algos.off_policy.common import STATS, LagrangeFields, OffPolicy, OffPolicyConfig
-from cmdp_rl.algos.off_policy.target_networks import TargetCritics
+from cmdp_rl.algos.off_policy.common import STATS, LagrangeFields, OffPolicy, OffPolicyConfig, TargetCritics
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeFloat, PositiveInt, options
 from cmdp_rl.policies.agent import Agent
