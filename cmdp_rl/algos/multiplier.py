@@ -389,22 +389,22 @@ class MultiplierConfig:
     max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
 
     def build(self, cost_limit: float) -> MultiplierController:
-        """The controller of one constraint with budget ``cost_limit``."""
-        controller = self._controller(cost_limit, violation_scale(cost_limit, self.scale))
-        controller.maximum = self.max
-        return controller
-
-    def _controller(self, cost_limit: float, scale: float) -> MultiplierController:
+        """The controller of one constraint with budget ``cost_limit``. A zero budget has no scale of its own:
+        there the violation stays in the cost's units (the default ``scale: budget`` must serve d = 0 too)."""
+        scale = cost_limit if self.scale == "budget" and cost_limit > 0 else 1.0
         if self.kind == "pid":
             gains = {k: getattr(self, k) for k in ("kp", "ki", "kd", "p_ema_alpha", "d_ema_alpha", "d_delay")}
             return PIDLagrangian(cost_limit, **gains, init=self.init, lambda_max=self.max, scale=scale)
         if self.kind == "regularized":
-            return RegularizedDual(cost_limit, self.lr, self.tau, self.init, scale)
-        if self.kind == "optimistic":
-            return OptimisticDual(cost_limit, self.lr, self.nu, self.init, scale)
-        if self.kind == "augmented":
-            return AugmentedLagrangian(cost_limit, self.lr, self.init, scale)
-        return DualAscent(cost_limit, self.lr, self.init, scale)
+            controller = RegularizedDual(cost_limit, self.lr, self.tau, self.init, scale)
+        elif self.kind == "optimistic":
+            controller = OptimisticDual(cost_limit, self.lr, self.nu, self.init, scale)
+        elif self.kind == "augmented":
+            controller = AugmentedLagrangian(cost_limit, self.lr, self.init, scale)
+        else:
+            controller = DualAscent(cost_limit, self.lr, self.init, scale)
+        controller.maximum = self.max
+        return controller
 
     def check(self, prefix: str = "algo.multiplier") -> None:
         """Options that are valid alone but not together (a one-line ConfigError)."""
@@ -421,12 +421,6 @@ class MultiplierConfig:
         require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
 
 
-def violation_scale(cost_limit: float, scale: str) -> float:
-    """The divisor of ``J_c - d``: 1, or the budget ``d`` itself. A zero budget has no scale of
-    its own, so there the violation stays in the cost's units (the default must serve d = 0 too)."""
-    return cost_limit if scale == "budget" and cost_limit > 0 else 1.0
-
-
 __all__ = [
     "FINISHED",
     "RUNNING",
@@ -437,5 +431,4 @@ __all__ = [
     "Kind",
     "MultiplierConfig",
     "Scale",
-    "violation_scale",
 ]

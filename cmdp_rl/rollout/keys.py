@@ -63,8 +63,6 @@ HISTORY_MASK = "history_mask"
 # Intermediate entries inside one network's forward pass; never stored in a batch.
 NET_INPUT = "net_input"
 FEATURES = "features"
-WINDOW = "window"
-WINDOW_MASK = "window_mask"
 # deploy.policy=mixture (deploy/mixture.py): which of the mixture's member actors each env row
 # follows, drawn on an episode's first step and carried to its end.
 MIXTURE_MEMBER = "mixture_member"

@@ -58,7 +58,6 @@ class CPOConfig(NaturalGradientConfig):
 
 
 TRPO, CONSTRAINED, RECOVERY = 0, 1, 2
-CASE_NAMES = {TRPO: "trpo", CONSTRAINED: "constrained", RECOVERY: "recovery"}
 _EPS = 1e-8
 
 
