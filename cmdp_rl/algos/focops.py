@@ -59,9 +59,8 @@ def focops_terms(
     temperature: float,
     delta: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The projection step's loss per state, ``KL(pi_theta || pi_k)[s] - ratio * adv / temperature``,
-    kept where ``KL <= delta`` (Algorithm 1); the update averages it over all states (a population
-    per agent). ``adv`` is ``A_r - nu A_c``, shaped ``[..., 1]``. Returns the terms and the per-state KL."""
+    """The projection step's loss per state, ``KL(pi_theta || pi_k)[s] - ratio * adv / temperature``, kept
+    where ``KL <= delta`` (Algorithm 1), and the per-state KL; ``adv`` is ``A_r - nu A_c``, ``[..., 1]``."""
     kl = kl_divergence(dist, old_dist).reshape(adv.shape)
     ratio = (dist.log_prob(action) - old_log_prob).reshape(adv.shape).exp()
     inside = (kl.detach() <= delta).to(adv.dtype)
@@ -89,20 +88,12 @@ class FOCOPS(PPO):
         return batch.get(keys.ADVANTAGE) - self.multiplier.value * batch.get(keys.COST_ADVANTAGE)
 
     def policy_terms(self, dist: Distribution, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict]:
-        """The projection step's loss per state (:func:`focops_terms`) in place of PPO's clipped
-        surrogate; the diagnostics: the exact KL from ``pi_k`` (logged, and what the epochs stop
-        on, at ``delta`` itself) and whether a state is outside the trust region."""
+        """The projection step's loss per state (:func:`focops_terms`); the diagnostics: the exact KL from
+        ``pi_k`` (logged, and what the epochs stop on) and whether a state is outside the trust region."""
         head = self.agent.actor.head
         old_dist = head.dist({k: mb[k] for k in head.param_keys})  # pi_k, as it acted
-        terms, kl = focops_terms(
-            dist,
-            old_dist,
-            mb[keys.ACTION],
-            mb[keys.LOG_PROB],
-            mb[keys.POLICY_ADVANTAGE],
-            self.cfg.temperature,
-            self.cfg.target_kl,
-        )
+        taken = (mb[keys.ACTION], mb[keys.LOG_PROB], mb[keys.POLICY_ADVANTAGE])
+        terms, kl = focops_terms(dist, old_dist, *taken, self.cfg.temperature, self.cfg.target_kl)
         with torch.no_grad():
             diagnostics = {"kl": kl, "kl_stop": kl, "outside_fraction": (kl > self.cfg.target_kl).float()}
         return terms, diagnostics

@@ -13,11 +13,9 @@ from tensordict import TensorDictBase
 def minibatches(
     data: Mapping[str, torch.Tensor], num_minibatches: int, epochs: int = 1
 ) -> Iterator[tuple[int, dict[str, torch.Tensor]]]:
-    """Yield ``(epoch, minibatch)`` for ``epochs`` passes over ``data`` (tensors with the same
-    leading size: training units), each pass in a fresh random order (torch's global generator, so
-    a seeded run repeats), split into ``num_minibatches`` equal slices. Units left over by the
-    division are skipped in that pass (as before, so numbers did not move). One gather per pass;
-    each minibatch is then a view. A caller may stop early (e.g. KL early stopping) by breaking."""
+    """Yield ``(epoch, minibatch)`` for ``epochs`` passes over ``data`` (training units), each in a fresh
+    order from torch's global generator, split into ``num_minibatches`` equal slices (the remainder
+    skipped); one gather per pass, each minibatch a view. A caller stops early by breaking."""
     total = next(iter(data.values())).shape[0]
     size = total // num_minibatches
     if size < 1:

@@ -60,11 +60,10 @@ class PPOConfig(AlgoConfig):
     update_epochs: AutoInt = AUTO
     num_minibatches: AutoInt = AUTO
     entropy_coef: NonNegativeFloat = 0.0
-    # KL early stopping: null (off), or stop the epoch loop at the first minibatch whose approximate
-    # KL exceeds 1.5 * target_kl (KL_STOP).
+    # KL early stopping: null (off), or stop at the first minibatch whose approximate KL exceeds 1.5 target_kl.
     target_kl: Optional[PositiveFloat] = None
-    # Linear annealing of the actor's and the critics' learning rates from lr (critic_lr) to 0 over
-    # the run (Huang et al. 2022, "The 37 Implementation Details of PPO", detail 4); false: constant.
+    # Anneal lr and critic_lr linearly to 0 over the run (Huang et al. 2022, "The 37 Implementation Details
+    # of PPO", detail 4).
     anneal_lr: Bool = False
     # The iterations the annealing spans; "auto": the run's, ceil(total_steps / batch).
     anneal_iterations: AutoInt = AUTO
@@ -126,7 +125,6 @@ class PPO:
         return frac * self.cfg.lr, frac * self.cfg.critic_lr
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         if self.cfg.anneal_lr:
             self.actor_opt.param_groups[0]["lr"], self.critic_opt.param_groups[0]["lr"] = self.learning_rates()
         stats = ppo_update([self], batch, OneRun(self.agent, self.cfg.max_grad_norm))[0]
@@ -173,8 +171,7 @@ class PPO:
 
     # --- around the epochs, per member --------------------------------------------------------
     def prepare(self, batch: TensorDictBase) -> torch.Tensor:
-        """After GAE, on this member's rows: J_c, the multiplier, then the policy advantage
-        (standardised if ``normalize_advantage``)."""
+        """After GAE, on this member's rows: J_c, the multiplier, the (standardised) policy advantage."""
         self.update_multiplier(self.episode_cost.update(batch))
         adv = self.policy_advantage(batch)
         if self.cfg.normalize_advantage:
@@ -182,8 +179,7 @@ class PPO:
         return adv
 
     def finish(self, means: dict[str, float]) -> dict[str, float]:
-        """After the minibatches: the logged statistics (``stats`` of the minibatch means, checked
-        finite, the multiplier, the variant's own), and the clock advanced."""
+        """After the minibatches: the logged statistics (checked finite), and the clock advanced."""
         stats = {k: v for k, v in means.items() if k in self.stats}
         check_finite(**stats)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
@@ -192,8 +188,7 @@ class PPO:
         return stats
 
     def update_keys(self, batch: TensorDictBase) -> list:
-        """The batch entries the minibatch loop reads: the networks' inputs, the action and its
-        behaviour log-prob, the policy advantage and the critics' value targets."""
+        """The batch entries the minibatch loop reads."""
         fixed = [keys.ACTION, keys.LOG_PROB, keys.POLICY_ADVANTAGE, *self.critics.target_keys()]
         present = batch.keys(True)
         return [*fixed, *(k for k in self.agent.in_keys if k in present and k not in fixed)]

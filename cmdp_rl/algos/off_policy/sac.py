@@ -5,13 +5,10 @@
   policy loss (eq. 7, reparameterised: eqs. 8-9; tanh squashing: Appendix C), the temperature
   (eq. 18) towards a target entropy (-dim(A) by default, as its Appendix D).
 - SAC-Lagrangian: the policy ascends ``min_j Q_j - alpha log pi - sum_k lambda_k Q_c,k`` (Ha et al.
-  2020, "Learning to Walk in the Real World with Minimal Human Effort": a Lagrangian on the expected
-  discounted cost of a cost Q-critic), lambda_k by a controller of ``multiplier.py`` on
-  ``E[Q_c,k(s, pi(s))] - d_k``, the budget on the discounted scale (``off_policy.discounted_budget``).
+  2020, "Learning to Walk in the Real World with Minimal Human Effort"), lambda_k on
+  ``E[Q_c,k(s, pi(s))] - d_k`` against the discounted budget (``off_policy.common``).
 
-log pi is measured in the squashed [-1, 1] action units (the env-unit density plus
-``sum log half_width``: :meth:`SAC.sample`), so that the target entropy -dim(A) means the same on
-any box; the critics read actions in the same units.
+log pi is in the squashed [-1, 1] action units, so the target entropy -dim(A) means the same on any box.
 """
 
 from __future__ import annotations

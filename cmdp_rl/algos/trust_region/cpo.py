@@ -71,15 +71,14 @@ class DualSolution:
 
 
 def solve_dual(q: float, r: float, s: float, c: float, delta: float) -> DualSolution:
-    """Solve the dual of the CPO subproblem in closed form. The dual (eq. 12, K = 1) is ``max_{lambda >= 0, nu >= 0}  -(q - 2 r nu + s nu^2) / (2 lambda)
-    + nu c - lambda delta`` (the paper prints ``lambda delta / 2``, the dual of Theorem 2's
-    ``x^T H x <= delta``; eq. 11's ``1/2 x^T H x <= delta`` gives ``lambda delta``: Theorem 2's
-    delta is 2 delta here). For fixed lambda its maximiser is ``nu = max(0, (lambda c + r) / s)``.
-    Where that is positive, substituting gives ``f_a(lambda) = -(A / lambda + B lambda) / 2 + r c / s``
-    with ``A = q - r^2 / s``, ``B = 2 delta - c^2 / s``; where it is 0, ``f_b(lambda) =
-    -(q / lambda + 2 delta lambda) / 2``. Both are concave, so their maximisers ``sqrt(A / B)`` and
-    ``sqrt(q / (2 delta))`` projected onto their intervals of lambda give the best point of each
-    piece; the dual optimum is the better of the two.
+    """Solve the dual of the CPO subproblem in closed form. The dual (eq. 12, K = 1) is
+    ``max_{lambda >= 0, nu >= 0}  -(q - 2 r nu + s nu^2) / (2 lambda) + nu c - lambda delta`` (the paper
+    prints ``lambda delta / 2``, the dual of Theorem 2's ``x^T H x <= delta``: its delta is 2 delta here).
+    For fixed lambda the maximiser is ``nu = max(0, (lambda c + r) / s)``. Where that is positive,
+    ``f_a(lambda) = -(A / lambda + B lambda) / 2 + r c / s`` with ``A = q - r^2 / s``, ``B = 2 delta - c^2 / s``;
+    where it is 0, ``f_b(lambda) = -(q / lambda + 2 delta lambda) / 2``. Both are concave: their maximisers
+    ``sqrt(A / B)`` and ``sqrt(q / (2 delta))``, projected onto their intervals, give each piece's best; the
+    dual optimum is the better of the two.
     """
     if s <= _EPS:  # the cost surrogate has no gradient: nothing to trade against; plain TRPO
         return DualSolution(TRPO, math.sqrt(q / (2 * delta)) + _EPS, 0.0)

@@ -106,20 +106,15 @@ def assign(params: list[nn.Parameter], vector: torch.Tensor) -> None:
 
 
 def per_step_constraint(episode_cost: float, cost_limit: float, episode_length: float) -> float:
-    """The constraint value ``c`` in the surrogate's per-step units.
-
-    The budget is on the expected undiscounted episode cost J_c; the surrogate is a per-step mean.
-    Summed over an episode (T steps on average, sampled on-policy), the surrogate's change predicts
-    the change of J_c (the performance-difference identity in its undiscounted episodic form), so
-    J_c + T * dL_c <= d reads dL_c <= -(J_c - d) / T: c = (J_c - d) / T. (The papers' discounted
-    form has 1 / (1 - gamma) where an episodic budget has the mean episode length T.)"""
+    """The constraint value ``c = (J_c - d) / T`` in the surrogate's per-step units: over an episode of T
+    steps the per-step surrogate's change predicts J_c's (the performance-difference identity, episodic),
+    so ``J_c + T dL_c <= d`` reads ``dL_c <= -c``; the papers' discounted form has ``1 / (1 - gamma)``."""
     return (episode_cost - cost_limit) / max(episode_length, 1.0)
 
 
 class Surrogates:
-    """The importance-weighted surrogates of the policy advantage and the cost advantage, and the
-    mean KL from ``pi_k``, the policy that collected the units (its distribution parameters are in
-    them). Calling it evaluates all three at the current parameters."""
+    """Called, the importance-weighted surrogates of the policy and cost advantages and the mean KL from
+    ``pi_k`` (whose distribution parameters the units carry), at the current parameters."""
 
     def __init__(self, agent: Agent, units: dict[str, torch.Tensor], adv: torch.Tensor, cost_adv: torch.Tensor) -> None:
         self.agent, self.units, self.adv, self.cost_adv = agent, units, adv, cost_adv
@@ -148,11 +143,10 @@ def line_search(
     coef: float,
     accept: Callable[[float, float], bool],
 ) -> dict[str, float]:
-    """Backtracking line search (Schulman et al. 2015, Appendix C): try the fractions 1, coef,
-    coef^2, ... of ``step`` and keep the first whose sampled KL is finite and within ``target_kl``
-    and whose changes of the reward and cost surrogates ``accept(d_reward, d_cost)`` takes; if none
-    is, the parameters stay where they were. Returns the accepted fraction (0: none), its KL and
-    the surrogates' changes."""
+    """Backtracking line search (Schulman et al. 2015, Appendix C): the first of the fractions 1, coef,
+    coef^2, ... of ``step`` whose sampled KL is finite and within ``target_kl`` and whose surrogates'
+    changes ``accept(d_reward, d_cost)`` takes, else no step. Returns the fraction (0: none), its KL
+    and the surrogates' changes."""
     theta0 = nn.utils.parameters_to_vector(params).detach()
     old_reward, old_cost = old
     for j in range(steps):
@@ -167,8 +161,7 @@ def line_search(
 
 
 class NaturalGradient:
-    """The iteration of a trust-region algorithm: GAE on both signals, the J_c estimate, the policy
-    step the subclass writes, then the critics' regression on their GAE value targets."""
+    """A trust-region iteration: GAE, J_c, the policy step the subclass writes, the critics' regression."""
 
     name = "natural_gradient"
     stats: tuple[str, ...] = ()
@@ -207,41 +200,28 @@ class NaturalGradient:
         return stats
 
     def policy_update(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
-        """After GAE: the J_c estimate, the training units and the policy step. Returns the units
-        (the critics' regression follows on them) and the step's statistics."""
+        """After GAE: J_c, the training units (steps, or a recurrent policy's segments) and the policy step.
+        Returns the units, which the critics' regression reads next, and the step's statistics."""
         estimate = self.episode_cost.update(batch)
-        # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
-        needed = [
-            *self.agent.in_keys,
-            keys.ACTION,
-            keys.LOG_PROB,
-            *self.agent.actor.head.param_keys,
-            keys.ADVANTAGE,
-            keys.COST_ADVANTAGE,
-            *self.critics.target_keys(),
-        ]
+        needed = [*self.agent.in_keys, keys.ACTION, keys.LOG_PROB, *self.agent.actor.head.param_keys]
+        needed += [keys.ADVANTAGE, keys.COST_ADVANTAGE, *self.critics.target_keys()]
         present = batch.keys(True)
         units = self.agent.training_units({k: batch.get(k) for k in dict.fromkeys(needed) if k in present})
         # J_c, or K numbers with K constraints (only trpo_lag takes K > 1; the others refuse it when built).
         episode_cost = estimate.costs[0] if len(estimate.costs) == 1 else estimate.costs
         return units, self.policy_step(units, episode_cost, estimate.length)
 
-    def advantages(self, units: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """The reward advantage (standardized if ``normalize_advantage``) and the cost advantage,
-        only centred: its scale must stay that of cost, to compare with the budget."""
-        adv = units[keys.ADVANTAGE]
-        if self.cfg.normalize_advantage:
-            adv = standardized(adv)
-        return adv, units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
-
     def linearise(
         self, units: dict[str, torch.Tensor]
     ) -> tuple[Surrogates, tuple[float, float], torch.Tensor, torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
-        """What CPO and PCPO build their subproblem from, at the current policy: the surrogates
-        (for the line search), their values, the gradients ``g`` (reward) and ``b`` (cost) and the
-        Fisher-vector product ``v -> H v``."""
+        """CPO's and PCPO's subproblem at the current policy: the surrogates (for the line search), their
+        values, the gradients ``g`` (reward) and ``b`` (cost) and the Fisher-vector product ``v -> H v``."""
         params = self.policy_params
-        surrogates = Surrogates(self.agent, units, *self.advantages(units))
+        adv, cost_adv = units[keys.ADVANTAGE], units[keys.COST_ADVANTAGE]
+        if self.cfg.normalize_advantage:
+            adv = standardized(adv)
+        # The cost advantage only centred: it stays in cost's units, to compare with the budget.
+        surrogates = Surrogates(self.agent, units, adv, cost_adv - cost_adv.mean())
         reward_surr, cost_surr, kl = surrogates()
         g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
         b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
@@ -253,10 +233,8 @@ class NaturalGradient:
         return self.agent.dist(units).entropy().mean().item()
 
     def fit_critics(self, units: dict[str, torch.Tensor], members: Any, optimisers: list) -> dict[str, torch.Tensor]:
-        """Regress the critics on their GAE value targets, ``(V(s) - V^targ)^2``: ``critic_epochs``
-        passes of ``critic_minibatches`` Adam steps, on one agent's units (``ppo.OneRun``) or P
-        agents' ``[P, U, ...]`` (``population.update.AgentUpdates``, each agent's mean its own).
-        Returns each loss's mean over the minibatches (per agent)."""
+        """``critic_epochs`` passes of ``critic_minibatches`` Adam steps on ``(V(s) - V^targ)^2``, on one
+        agent's units (``ppo.OneRun``) or P agents' (``population.update``): each loss's mean (per agent)."""
         cfg, tally = self.cfg, Tally()
         for _ in range(cfg.critic_epochs):
             for mb in members.minibatches(units, cfg.critic_minibatches):
