@@ -18,15 +18,7 @@ from typing import Annotated, Callable, Literal, NamedTuple, Sequence
 import torch
 from tensordict import TensorDictBase
 
-from cmdp_rl.config.validation import (
-    Field,
-    NonNegativeFloat,
-    PositiveFloat,
-    PositiveInt,
-    finite,
-    options,
-    require,
-)
+from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveFloat, PositiveInt, finite, options, require
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.collector import finished_episodes
 

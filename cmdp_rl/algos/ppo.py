@@ -24,16 +24,7 @@ from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, minibatches, stopped
 from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import (
-    AUTO,
-    AutoInt,
-    Bool,
-    NonNegativeFloat,
-    PositiveFloat,
-    UnitOpen,
-    options,
-    require,
-)
+from cmdp_rl.config.validation import AUTO, AutoInt, Bool, NonNegativeFloat, PositiveFloat, UnitOpen, options, require
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import TwinGAE, standardized

@@ -26,16 +26,7 @@ from torchrl.data import LazyMemmapStorage, LazyTensorStorage, TensorDictReplayB
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
 from cmdp_rl.algos.multiplier import MultiplierConfig, Multipliers, logged_multiplier
-from cmdp_rl.config.validation import (
-    AUTO,
-    Field,
-    NonNegativeInt,
-    PositiveFloat,
-    PositiveInt,
-    finite,
-    options,
-    require,
-)
+from cmdp_rl.config.validation import AUTO, Field, NonNegativeInt, PositiveFloat, PositiveInt, finite, options, require
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, check_shaped, to_off_policy
 from cmdp_rl.rollout import keys
