@@ -19,28 +19,19 @@ if TYPE_CHECKING:
 
 
 Budget = Annotated[float, finite(ge=0)]
-# A number (the same for every constraint) or one number per constraint.
 PerConstraint = Annotated[
     Union[Budget, list[Budget]], Field(description="a number >= 0 or a list of numbers >= 0, one per cost")
 ]
 
 
-def multi_constraint_algorithms() -> list[str]:
-    """The toolkit's algorithms that take any env with K > 1 costs (their options declare
-    ``constraints = None`` and ``envs = None``), by name; a user's own registrations are not listed."""
+def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str, reason: str) -> float:
+    """The budget d of an algorithm that handles one constraint; an env with K > 1 costs is a config error
+    naming ``reason`` and the toolkit's algorithms that take it (options with ``constraints`` and ``envs``
+    None; a user's own registrations are not listed)."""
     from cmdp_rl.config.registry import component, names
 
-    found = [(component("algo", n).options, n) for n in names("algo")]
-    return [
-        n for cls, n in found if cls.constraints is None and cls.envs is None and cls.__module__.startswith("cmdp_rl.")
-    ]
-
-
-def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str, reason: str) -> float:
-    """The budget d of an algorithm that handles one constraint (``agent.num_costs`` must be 1);
-    an env with K > 1 costs is a config error naming the algorithms that take it and ``reason``."""
-    k = agent.num_costs
-    multi = multi_constraint_algorithms()
+    k, found = agent.num_costs, [(component("algo", n).options, n) for n in names("algo")]
+    multi = [n for c, n in found if c.constraints is None and c.envs is None and c.__module__.startswith("cmdp_rl.")]
     require(
         k == 1,
         "algo",

@@ -13,11 +13,7 @@ LOSS_NAMES = {"reward": "loss_v", "cost": "loss_vc"}
 
 
 class CriticRegression:
-    """The squared error of every critic of the agent on a minibatch's value targets.
-
-    A minibatch is a dict of tensors (root keys) over training units: steps, or for recurrent
-    critics segments (``Agent.training_units``).
-    """
+    """The squared error of every critic of the agent on a minibatch of training units' value targets."""
 
     def __init__(self, agent: Agent) -> None:
         self.agent = agent
@@ -25,9 +21,8 @@ class CriticRegression:
     def terms(
         self, mb: dict[str, torch.Tensor], values: dict[str, torch.Tensor] | None = None
     ) -> dict[str, torch.Tensor]:
-        """``{"loss_v": ..., "loss_vc": ...}``: each critic's loss per sample, for the caller to
-        reduce (``torch.mean``, or a population's mean per agent). ``values``: the critics' values
-        by signal where the caller computed them (a population's fused pass), else the agent's."""
+        """``{"loss_v": ..., "loss_vc": ...}``: each critic's loss per sample, for the caller to reduce;
+        ``values``: the critics' values by signal where the caller computed them, else the agent's."""
         out = {}
         for signal in self.agent.critics:
             target = mb[keys.SIGNALS[signal][3]]

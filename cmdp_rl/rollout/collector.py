@@ -22,11 +22,10 @@ Entries = dict  # key (a string, or a tuple for a nested key) -> tensor of one s
 
 
 class PolicyMemory:
-    """What a history-dependent agent carries from one step to the next, for N envs, as torchrl's env
-    transforms would: its initial state (``Agent.initial_state``), the state it returns under ``"next"``
-    (reset to the initial one where an episode ended, as ``TensorDictPrimer`` does), and the previous
-    action and cost if its ``in_keys`` ask (``keys.PREV_ACTION``, ``PREV_COST``; under ``"next"``, this
-    step's). Used by the collector and by ``replay.py``, which steps one plain env."""
+    """What a history-dependent agent carries between steps of N envs, as torchrl's env transforms would:
+    its initial state, the state it returns under ``"next"`` (reset where an episode ended, as
+    ``TensorDictPrimer`` does), and the previous action and cost if its ``in_keys`` ask. The collector's,
+    and ``replay.py``'s, which steps one plain env."""
 
     def __init__(
         self, agent: Agent, num_envs: int, action_space: gym.Space, device: torch.device, num_costs: int = 1

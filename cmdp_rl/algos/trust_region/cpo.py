@@ -42,6 +42,7 @@ from cmdp_rl.algos.trust_region.natural_gradient import (
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import PositiveInt, UnitOpen, options
 from cmdp_rl.policies.agent import Agent
+from cmdp_rl.rollout import keys
 
 __all__ = ["CPO", "CPOConfig", "solve_dual", "fisher_vector_product", "TRPO", "CONSTRAINED", "RECOVERY"]
 
@@ -141,7 +142,7 @@ class CPO(NaturalGradient):
     ) -> dict[str, float]:
         """Solve the CPO subproblem on the units and take the step the line search accepts (or none)."""
         cfg, params = self.cfg, self.policy_params
-        surrogates, surr_values, g, b, fvp = self.linearise(units)
+        surrogates, surr_values, g, b, fvp = self.linearise(units, units[keys.ADVANTAGE])
         h_inv_g = conjugate_gradient(fvp, g, cfg.cg_iters)
         h_inv_b = conjugate_gradient(fvp, b, cfg.cg_iters)
         q, r, s = g.dot(h_inv_g).item(), g.dot(h_inv_b).item(), b.dot(h_inv_b).item()

@@ -212,12 +212,13 @@ class NaturalGradient:
         return units, self.policy_step(units, episode_cost, estimate.length)
 
     def linearise(
-        self, units: dict[str, torch.Tensor]
+        self, units: dict[str, torch.Tensor], adv: torch.Tensor
     ) -> tuple[Surrogates, tuple[float, float], torch.Tensor, torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
-        """CPO's and PCPO's subproblem at the current policy: the surrogates (for the line search), their
-        values, the gradients ``g`` (reward) and ``b`` (cost) and the Fisher-vector product ``v -> H v``."""
+        """The subproblem at the current policy for the policy advantage ``adv`` (standardised if
+        ``normalize_advantage``): the surrogates (for the line search), their values, the gradients ``g``
+        (policy) and ``b`` (cost) and the Fisher-vector product ``v -> H v``."""
         params = self.policy_params
-        adv, cost_adv = units[keys.ADVANTAGE], units[keys.COST_ADVANTAGE]
+        cost_adv = units[keys.COST_ADVANTAGE]
         if self.cfg.normalize_advantage:
             adv = standardized(adv)
         # The cost advantage only centred: it stays in cost's units, to compare with the budget.

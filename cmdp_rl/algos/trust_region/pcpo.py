@@ -30,6 +30,7 @@ from cmdp_rl.algos.trust_region.natural_gradient import (
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent
+from cmdp_rl.rollout import keys
 
 _EPS = 1e-12
 
@@ -81,7 +82,7 @@ class PCPO(NaturalGradient):
         self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
     ) -> dict[str, float]:
         cfg, params = self.cfg, self.policy_params
-        surrogates, surr_values, g, b, fvp = self.linearise(units)
+        surrogates, surr_values, g, b, fvp = self.linearise(units, units[keys.ADVANTAGE])
         c = per_step_constraint(episode_cost, self.cost_limit, episode_length)
         check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), c=c)
         step, coef = projected_step(

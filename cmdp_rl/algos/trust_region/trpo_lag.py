@@ -26,17 +26,12 @@ from cmdp_rl.algos.trust_region.natural_gradient import (
     NO_STEP,
     STATS,
     NaturalGradient,
-    Surrogates,
     conjugate_gradient,
-    fisher_vector_product,
-    flat,
     line_search,
 )
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.advantages import standardized
 
 
 @options
@@ -69,30 +64,17 @@ class TRPOLagrangian(NaturalGradient):
         """``episode_cost``: J_c, or K numbers with K constraints."""
         cfg, params = self.cfg, self.policy_params
         lams = self.multiplier.update([episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost)
+        # The cost surrogate is logged only (with K > 1: the mean over the constraints').
         adv = lagrangian_advantage(units, lams, cfg.advantage_scale)
-        if cfg.normalize_advantage:
-            adv = standardized(adv)
-        # Logged only (with K > 1: the mean over the constraints' cost surrogates).
-        cost_adv = units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
-        surrogates = Surrogates(self.agent, units, adv, cost_adv)
-        surr, cost_surr, kl = surrogates()
-        g = flat(torch.autograd.grad(surr, params, retain_graph=True))
-        h_inv_g = conjugate_gradient(fisher_vector_product(kl, params, cfg.cg_damping), g, cfg.cg_iters)
+        surrogates, surr_values, g, _, fvp = self.linearise(units, adv)
+        h_inv_g = conjugate_gradient(fvp, g, cfg.cg_iters)
         q = g.dot(h_inv_g).item()
         check_finite(gradient=g.norm(), q=q)
         if q <= 0.0:  # no gradient (e.g. all advantages equal): nothing to follow
             return {**NO_STEP, "entropy": self.entropy(units)}
         step = math.sqrt(2 * cfg.target_kl / q) * h_inv_g  # the trust region's boundary along H^-1 g (App. C)
-        accepted = line_search(
-            params,
-            step,
-            surrogates,
-            (surr.item(), cost_surr.item()),
-            cfg.target_kl,
-            cfg.line_search_steps,
-            cfg.backtrack_coef,
-            lambda d_reward, d_cost: d_reward > 0,
-        )
+        search = (cfg.target_kl, cfg.line_search_steps, cfg.backtrack_coef)
+        accepted = line_search(params, step, surrogates, surr_values, *search, lambda d_reward, d_cost: d_reward > 0)
         return {"entropy": self.entropy(units), **accepted}
 
 
