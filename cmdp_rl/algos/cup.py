@@ -73,14 +73,14 @@ class CUP(PPO):
         self.multiplier.update(estimate.cost)
 
     def second_stage(self, algos: Sequence[CUP], rows: Sequence[TensorDictBase], members: OneRun) -> dict:
-        """Stage 2 of every member (``algos``, each on its ``rows``, stage 1 done), in minibatch
-        epochs as PPO's (``ppo.ppo_update``), KL early stopping included: each member's mean loss
-        and KL."""
+        """Stage 2 of every member (``algos``, each on its ``rows``) in minibatch epochs as PPO's, KL early
+        stopping included: each member's mean loss and KL."""
         cfg = self.cfg
         units = members.agent.training_units(joined([a.projection_inputs(r) for a, r in zip(algos, rows)]))
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
             units.update({(HALF, k): v for k, v in members.actor_params(units).items()})
-        nu_coef = members.per_member([a.projection_coef() for a in algos])
+        # The cost surrogate's weight: nu (1 - gamma_c gae_lambda) / (1 - gamma_c), one per member.
+        nu_coef = members.per_member([a.multiplier.value * a.cost_coef for a in algos])
         kl_limit = None if self.kl_limit is None else members.per_member([a.kl_limit for a in algos])
         optimiser = members.fresh_actor_optimiser(algos)  # fresh: see the module's docstring
         tally, active = Tally(), True
@@ -100,29 +100,17 @@ class CUP(PPO):
         return tally.means()
 
     def projection_inputs(self, batch: TensorDictBase) -> dict:
-        """What stage 2 reads of one agent's batch: the actions, their behaviour log-probs, the cost
-        advantage (standardised if ``normalize_advantage``) and the networks' inputs."""
-        cost_adv = batch.get(keys.COST_ADVANTAGE)
-        if self.cfg.normalize_advantage:
-            cost_adv = standardized(cost_adv)
-        present = batch.keys(True)
-        inputs = [k for k in self.agent.in_keys if k in present and k not in (keys.ACTION, keys.LOG_PROB)]
-        return {
-            keys.ACTION: batch.get(keys.ACTION),
-            keys.LOG_PROB: batch.get(keys.LOG_PROB),
-            keys.COST_ADVANTAGE: cost_adv,
-            **{k: batch.get(k) for k in inputs},
-        }
-
-    def projection_coef(self) -> float:
-        """The cost surrogate's weight in stage 2: ``nu (1 - gamma_c gae_lambda) / (1 - gamma_c)``."""
-        return self.multiplier.value * self.cost_coef
+        """What stage 2 reads of one agent's batch: the networks' inputs, the actions, their behaviour
+        log-probs and the cost advantage (standardised if ``normalize_advantage``)."""
+        present, cost_adv = batch.keys(True), batch.get(keys.COST_ADVANTAGE)
+        inputs = {k: batch.get(k) for k in (keys.ACTION, keys.LOG_PROB, *self.agent.in_keys) if k in present}
+        return {**inputs, keys.COST_ADVANTAGE: standardized(cost_adv) if self.cfg.normalize_advantage else cost_adv}
 
     def projection_terms(
         self, dist: Distribution, mb: dict[str, torch.Tensor], nu_coef: float | torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Stage 2's loss per sample, ``KL(pi_theta || pi_{k+1/2}) + nu_coef pi_theta(a|s) /
-        pi_k(a|s) A_c`` (``nu_coef``: :meth:`projection_coef`, one per member), and its KL term."""
+        pi_k(a|s) A_c`` (``nu_coef`` one per member), and its KL term."""
         head = self.agent.actor.head
         half = head.dist({k: mb[(HALF, k)] for k in head.param_keys})
         adv = mb[keys.COST_ADVANTAGE]

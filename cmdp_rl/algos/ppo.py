@@ -318,16 +318,9 @@ def adam_step(opt: torch.optim.Optimizer) -> None:
     wrappers cost more than the kernel on small networks (docs/throughput.md; tests/test_update_loop.py
     checks the two bit for bit)."""
     group, params = opt.param_groups[0], opt.param_groups[0]["params"]
-    plain = not any(group[k] for k in ("amsgrad", "maximize", "weight_decay", "capturable", "differentiable"))
-    if not (
-        type(opt) is torch.optim.Adam
-        and len(opt.param_groups) == 1
-        and group["fused"]
-        and plain
-        and not group.get("decoupled_weight_decay")
-        and len(opt.state) == len(params)
-        and all(p.grad is not None for p in params)
-    ):
+    options = ("amsgrad", "maximize", "weight_decay", "capturable", "differentiable", "decoupled_weight_decay")
+    plain = type(opt) is torch.optim.Adam and len(opt.param_groups) == 1 and not any(group.get(k) for k in options)
+    if not (plain and group["fused"] and len(opt.state) == len(params) and all(p.grad is not None for p in params)):
         opt.step()
         return
     states = [opt.state[p] for p in params]

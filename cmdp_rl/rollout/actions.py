@@ -1,13 +1,9 @@
 """The action spaces the toolkit supports, and how one env's action is stored, a flat vector ``[d]``:
-
-- ``Box`` (any shape): its ``d = prod(shape)`` numbers, float32, reshaped to the box's shape for the env;
-- ``Discrete(n, start)``: one int64 index in ``[0, n)``, ``d = 1`` (``start`` added for the env);
-- ``MultiDiscrete(nvec, start)``: one int64 index per component, ``d = nvec.size``;
-- hybrid, a ``Tuple`` or ``Dict`` of one ``Discrete(n)`` (the skill) and one float ``Box`` (its
-  parameters): float32 ``[skill, params...]``, ``d = 1 + prod(box.shape)`` (:class:`Hybrid`).
-
-The previous action on an episode's first step (:func:`no_action`) is 0 for a box, -1 for discrete
-actions: an index no action has, so its one-hot encoding is all zeros.
+``Box`` (any shape): its ``prod(shape)`` floats; ``Discrete(n, start)``: one int64 index in ``[0, n)``
+(``start`` added for the env); ``MultiDiscrete``: one index per component; hybrid, a ``Tuple`` or ``Dict``
+of one ``Discrete`` skill and one float ``Box`` of its parameters: floats ``[skill, params...]``
+(:class:`Hybrid`). The previous action on an episode's first step (:func:`no_action`) is 0 for a box, -1
+for discrete actions: an index no action has, so its one-hot encoding is all zeros.
 """
 
 from __future__ import annotations

@@ -1,24 +1,17 @@
-"""Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel, 2017, "Constrained Policy
-Optimization", ICML; Section 6 and Algorithm 1).
+"""Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel, 2017, ICML; Section 6, Algorithm 1).
 
 Each iteration solves the approximate CPO update (eq. 11) around the policy ``pi_k`` that collected the
 batch, with ``x = theta - theta_k``::
 
     max_x  g^T x    s.t.   c + b^T x <= 0,    1/2 x^T H x <= delta
 
-``g``, ``b``: the gradients of the reward and cost surrogates; ``H``: the Fisher matrix (through products
-``H v``); ``delta``: ``algo.target_kl``. With ``q = g^T H^-1 g``, ``r = g^T H^-1 b``, ``s = b^T H^-1 b``
-its two-variable dual (eq. 12) has a closed form, :func:`solve_dual` (the supplement's Theorem 2):
-
-- ``TRPO`` (case 0): the whole trust region satisfies the linearised constraint (or the cost has no
-  gradient): TRPO's natural gradient step.
-- ``CONSTRAINED`` (case 1): ``x* = H^-1 (g - nu* b) / lambda*`` (eq. 13).
-- ``RECOVERY`` (case 2): no point of the trust region is feasible: the step purely reduces cost,
-  ``x = -sqrt(2 delta / s) H^-1 b`` (eq. 14).
-
-A backtracking line search then shrinks the step until the sampled KL is within ``delta`` and the cost
-surrogate stays within what the case allows (Algorithm 1). One constraint only: with K the dual is a QP
-in K + 1 variables with no closed form, and the recovery must choose which constraints to restore.
+``g``, ``b``: the reward and cost surrogates' gradients; ``H``: the Fisher matrix; ``delta``:
+``algo.target_kl``. Its two-variable dual (eq. 12) has a closed form, :func:`solve_dual` (the supplement's
+Theorem 2), in three cases: ``TRPO`` (the whole trust region is feasible: TRPO's step), ``CONSTRAINED``
+(``x* = H^-1 (g - nu* b) / lambda*``, eq. 13) and ``RECOVERY`` (no point is feasible: the pure cost step
+``x = -sqrt(2 delta / s) H^-1 b``, eq. 14). A backtracking line search then keeps the step within ``delta``
+and what the case allows the cost (Algorithm 1). One constraint only: with K the dual is a QP in K + 1
+variables with no closed form, and the recovery must choose which constraints to restore.
 """
 
 from __future__ import annotations

@@ -1,14 +1,13 @@
-"""Projection-based Constrained Policy Optimization (Yang, Rosca, Narasimhan, Ramadge 2020, ICLR; its
-steps cited by name: docs/references.md). With ``x = theta - theta_k``, ``g``, ``b`` the reward and cost
-surrogates' gradients, ``H`` the Fisher matrix, ``c`` = J_c - d in per-step units
-(natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``, two steps per iteration:
+"""Projection-based Constrained Policy Optimization (Yang, Rosca, Narasimhan, Ramadge 2020, ICLR; steps
+cited by name: docs/references.md). With ``g``, ``b`` the surrogates' gradients, ``H`` the Fisher matrix,
+``c`` = J_c - d per step (natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``:
 
 1. reward improvement: TRPO's ``x_r = sqrt(2 delta / g^T H^-1 g) H^-1 g``;
 2. projection onto ``{x : c + b^T x <= 0}`` in the metric ``L`` (``H`` for ``algo.projection: kl``, ``I``
    for ``l2``): ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``.
 
-A feasible step is not moved; an infeasible iterate is projected back onto the boundary (no recovery
-rule, unlike CPO). As in the paper, no line search.
+A feasible step is not moved; an infeasible iterate is projected onto the boundary (no recovery rule, no
+line search, as in the paper).
 """
 
 from __future__ import annotations
