@@ -34,8 +34,7 @@ class CRPOConfig(PPOConfig):
 
 class CRPO(PPO):
     name = "crpo"
-    # cost_step: 1 where the iteration took a cost step, else 0 (its mean over a log interval is
-    # the fraction of cost steps).
+    # cost_step: 1 where the iteration took a cost step, else 0 (its mean: the fraction of cost steps).
     stats = (*STATS, "cost_step")
 
     def __init__(self, cfg: CRPOConfig, agent: Agent) -> None:

@@ -1,19 +1,16 @@
 """Constrained Update Projection (Yang, Ji, Dai, Zhang, Zhou, Li, Yang, Pan, 2022, NeurIPS; Algorithm 1,
 cited by name: docs/references.md). Two stages per iteration:
 
-1. Policy improvement: ``pi_{k+1/2}`` by PPO's clipped surrogate on ``A_r`` (the paper's practical
-   version: the whole PPO update of ``ppo.py``, critics included).
+1. ``pi_{k+1/2}`` by PPO's clipped surrogate on ``A_r`` (the paper's practical version; critics included).
 2. Projection: ``pi_{k+1}`` minimises, from ``pi_{k+1/2}``::
 
        E_s[ KL(pi_theta || pi_{k+1/2})[s] ]
          + nu * (1 - gamma_c gae_lambda) / (1 - gamma_c) * E[ pi_theta(a|s) / pi_k(a|s) A_c(s, a) ]
 
-   (the factor is the paper's GAE-based bound). With ``nu = 0`` the minimiser is ``pi_{k+1/2}`` itself,
-   so the stage runs its own Adam, fresh every iteration: earlier momentum would move the policy with a
-   zero gradient (tests/test_cup.py).
+   With ``nu = 0`` the minimiser is ``pi_{k+1/2}`` itself, so the stage runs its own Adam, fresh every
+   iteration: earlier momentum would move the policy with a zero gradient (tests/test_cup.py).
 
-``nu`` by ``algo.multiplier`` once per iteration; ``A_c`` standardized when ``normalize_advantage`` is.
-One cost signal.
+``nu`` by ``algo.multiplier``; ``A_c`` standardized when ``normalize_advantage`` is. One cost signal.
 """
 
 from __future__ import annotations

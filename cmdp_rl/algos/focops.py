@@ -1,22 +1,18 @@
 """First Order Constrained Optimization in Policy Space (Zhang, Vuong, Ross, 2020, NeurIPS; Theorem 1
 and Algorithm 1, cited by name: docs/references.md). Two first-order steps per iteration:
 
-1. The optimal non-parametric update (Theorem 1): the solution of ``max E[A_r]  s.t.  J_c + E[A_c] /
-   (1 - gamma) <= d,  E_s[KL(pi || pi_k)[s]] <= delta`` is ``pi*(a|s) = pi_k(a|s) exp((A_r - nu A_c) /
-   lambda) / Z(s)``, temperature ``lambda > 0``, cost multiplier ``nu >= 0``.
-2. Its projection onto the parametric policies, minimising ``E_s[KL(pi_theta || pi*)[s]]``; ``log Z(s)``
-   does not depend on theta, so the gradient is that of::
+1. The optimal non-parametric update (Theorem 1) of ``max E[A_r]  s.t.  J_c + E[A_c] / (1 - gamma) <= d,
+   E_s[KL(pi || pi_k)[s]] <= delta``: ``pi* = pi_k exp((A_r - nu A_c) / lambda) / Z(s)``.
+2. Its projection onto the parametric policies, by the gradient of (``log Z`` does not depend on theta)::
 
        L(theta) = E_s[ KL(pi_theta || pi_k)[s]
                       - (1 / lambda) E_{a ~ pi_k}[ pi_theta(a|s) / pi_k(a|s) (A_r - nu A_c) ] ]
 
    with the indicator ``1{KL(pi_theta || pi_k)[s] <= delta}``: a state out of the trust region stops
-   pulling. At ``theta_k`` this is the policy gradient ``-(1/lambda) E[grad log pi (A_r - nu A_c)]``
-   (tests/test_focops.py checks it by hand).
+   pulling. At ``theta_k`` this is a policy gradient (tests/test_focops.py checks it by hand).
 
-``nu <- clip(nu + lr (J_c - d), 0, max)`` before the policy update (``algo.multiplier``). The epochs stop
-once a minibatch's mean KL exceeds ``delta`` (Algorithm 1 checks per epoch, the PPO loop per minibatch).
-One cost signal: the paper's several constraints would each have a ``nu``.
+``nu <- clip(nu + lr (J_c - d), 0, max)`` before the policy update (``algo.multiplier``); the epochs stop
+once a minibatch's mean KL exceeds ``delta`` (Algorithm 1 checks per epoch). One cost signal.
 """
 
 from __future__ import annotations

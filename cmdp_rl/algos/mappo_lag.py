@@ -28,8 +28,7 @@ class MAPPOLagConfig(PPOLagConfig):
 
     name: str = "mappo_lag"
     constraint: Literal["team", "per_agent"] = "team"
-    # The team task trains in 40 iterations: 0.5 on relative violations is the raw step of 0.05 it was
-    # measured with, at its budget of 10.
+    # 0.5 on relative violations: the raw step of 0.05 the 40-iteration team task was measured with (d = 10).
     multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.5))
     envs: ClassVar[tuple[str, ...]] = ("pettingzoo",)  # its agents are the rows of that env's batch
     tiny_env: ClassVar[dict] = {"name": "pettingzoo", "num_envs": 1}  # two agents: 2 rows, as TINY's 2 envs

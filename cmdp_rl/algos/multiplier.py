@@ -23,15 +23,10 @@ from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.collector import finished_episodes
 
 # --- The measured J_c ------------------------------------------------------------------------
-# The estimate of J_c, the expected undiscounted episode cost, one definition, so that
-# PPO-Lagrangian's lambda, PID's error and CPO's constraint all read the same number. Per iteration:
-# 1. episodes ended in this batch: the mean cost (and length) of those episodes;
-# 2. none ended (episodes longer than a rollout, as on MuJoCo with 1000-step episodes and 256-step
-#    rollouts): the mean of the last ``window`` episodes that ended in earlier batches (by default
-#    one episode per env);
-# 3. none has ended yet in the run: the mean cost so far of the running episodes, a lower bound.
-# So the estimate exists at every iteration and a multiplier moves every iteration. With K costs it
-# is per constraint, from the same episodes: ``costs`` has K entries.
+# J_c, the expected undiscounted episode cost, one definition for every algorithm, per constraint. Per
+# iteration: 1. the mean cost (and length) of the episodes that ended in this batch; 2. if none did
+# (episodes longer than a rollout), of the last ``window`` that ended before (default: one per env);
+# 3. if none has ended yet, the running episodes' cost so far, a lower bound. So lambda moves every iteration.
 
 FINISHED, WINDOW, RUNNING = "finished", "window", "running"
 
@@ -161,12 +156,10 @@ class PIDLagrangian(MultiplierController):
         D       = max(0, EMA_d(J_c)_k - EMA_d(J_c)_{k - d_delay})
         lambda  = clip(Kp * P + I + Kd * D, 0, lambda_max)
 
-    The integral accumulates ``Ki * Delta``, so ``lambda_init`` is its start and ``Kp = Kd = 0``,
-    ``Ki = lr`` is exactly :class:`DualAscent`. Clamping it at 0 is the paper's anti-windup (a long
-    feasible stretch would otherwise bank negative integral, paid back in cost before lambda can rise);
-    at ``lambda_max``, so it never winds up beyond what lambda may take. Only the derivative's positive
-    part counts (falling cost never pushes lambda down faster than the integral), on a smoothed cost,
-    since single-batch costs are noisy; the first measurement fills the history, so D starts at 0.
+    ``lambda_init`` starts the integral, so ``Kp = Kd = 0``, ``Ki = lr`` is exactly :class:`DualAscent`.
+    Clamping I at 0 is the paper's anti-windup (no negative integral banked over a feasible stretch),
+    at ``lambda_max`` so it never winds up past lambda's range. Only a rise of the smoothed cost counts in
+    D (falling cost never pushes lambda down faster than I); the first measurement fills the history.
     """
 
     state = ("integral", "delta_p", "cost_d")
@@ -296,12 +289,10 @@ class OptimisticDual(MultiplierController):
         xi     = nu * xi_prev + (1 - nu) * g
         lambda <- Pi[lambda + lr * g + lr * (xi - xi_prev)]
 
-    With ``nu = 0`` it is the optimistic gradient step ``lambda <- Pi[lambda + lr (2 g_t - g_{t-1})]``
-    that ReLOAD applies to the multiplier (Moskovitz, O'Donoghue, Veeriah, Flennerhag, Singh,
-    Zahavy, "ReLOAD: Reinforcement Learning with Optimistic Ascent-Descent for Last-Iterate
-    Convergence in Constrained MDPs", ICML 2023, arXiv 2302.01275): the extra ``lr (g_t - g_{t-1})``
-    brakes lambda as soon as the violation turns. As in cooper's nuPI, the first step takes
-    ``xi_prev = xi``: plain dual ascent."""
+    ``nu = 0`` is ReLOAD's optimistic step ``lambda <- Pi[lambda + lr (2 g_t - g_{t-1})]`` (Moskovitz et al.,
+    "ReLOAD: Reinforcement Learning with Optimistic Ascent-Descent for Last-Iterate Convergence in
+    Constrained MDPs", ICML 2023), which brakes lambda as soon as the violation turns. As cooper's nuPI,
+    the first step takes ``xi_prev = xi``: plain dual ascent."""
 
     state = ("xi",)
 

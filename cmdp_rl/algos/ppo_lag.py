@@ -104,17 +104,13 @@ class PPOLagrangian(PPO):
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
         self.multiplier = Multipliers(cfg.multiplier.build, limits)
         if cfg.multiplier.kind == "regularized":
-            # The policy side of Ding et al.'s regularised Lagrangian: an entropy bonus tau
-            # (on the standardised policy advantage, so tau is in its units).
+            # The policy side of Ding et al.'s regularised Lagrangian: an entropy bonus tau.
             self.entropy_coef = cfg.entropy_coef + cfg.multiplier.tau
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
-        # By default dual ascent on J_r - lambda (J_c - d): lambda <- max(0, lambda + lr (J_c - d) / s)
-        # (multiplier.DualAscent), one per constraint, on the batch's J_c (multiplier.EpisodeCostEstimate).
         self.multiplier.update(estimate.costs)
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
-        # (A_r - lambda A_c) / (1 + lambda): the surrogate of the Lagrangian, scaled back to A_r's units.
         return lagrangian_advantage(batch, self.multiplier.values, self.cfg.advantage_scale)
 
 

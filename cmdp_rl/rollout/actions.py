@@ -2,8 +2,7 @@
 ``Box`` (any shape): its ``prod(shape)`` floats; ``Discrete(n, start)``: one int64 index in ``[0, n)``
 (``start`` added for the env); ``MultiDiscrete``: one index per component; hybrid, a ``Tuple`` or ``Dict``
 of one ``Discrete`` skill and one float ``Box`` of its parameters: floats ``[skill, params...]``
-(:class:`Hybrid`). The previous action on an episode's first step (:func:`no_action`) is 0 for a box, -1
-for discrete actions: an index no action has, so its one-hot encoding is all zeros.
+(:class:`Hybrid`).
 """
 
 from __future__ import annotations
@@ -94,10 +93,6 @@ def action_bounds(space: gym.Space) -> tuple[torch.Tensor, torch.Tensor]:
     return low, torch.as_tensor(space.high, dtype=torch.float32).reshape(-1)
 
 
-def action_dtype(space: gym.Space) -> torch.dtype:
-    return torch.int64 if is_discrete(space) else torch.float32
-
-
 def categories(space: gym.Space) -> tuple[int, ...]:
     """The number of choices of each component of a discrete action (``()`` for a box)."""
     if isinstance(space, spaces.Discrete):
@@ -105,11 +100,6 @@ def categories(space: gym.Space) -> tuple[int, ...]:
     if isinstance(space, spaces.MultiDiscrete):
         return tuple(int(n) for n in space.nvec.reshape(-1))
     return ()
-
-
-def no_action(space: gym.Space) -> int | float:
-    """The stored previous action on an episode's first step (module docstring)."""
-    return -1 if is_discrete(space) else 0.0
 
 
 def to_env(action: torch.Tensor, space: gym.Space) -> np.ndarray:

@@ -16,7 +16,7 @@ from tensordict import TensorDict, TensorDictBase
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.actions import action_dim, action_dtype, no_action, uniform_actions
+from cmdp_rl.rollout.actions import action_dim, is_discrete, uniform_actions
 
 Entries = dict  # key (a string, or a tuple for a nested key) -> tensor of one step, batch [N]
 
@@ -36,8 +36,10 @@ class PolicyMemory:
         self.prev_cost = keys.PREV_COST in in_keys
         self.num_envs, self.device = num_envs, device
         self.num_costs = num_costs  # the previous cost is the whole vector of K costs
-        self.action_dim, self.action_dtype = action_dim(action_space), action_dtype(action_space)
-        self.no_action = no_action(action_space)
+        # No previous action on an episode's first step: 0 for a box, -1 for discrete actions, an index no
+        # action has (its one-hot encoding is all zeros).
+        discrete, self.action_dim = is_discrete(action_space), action_dim(action_space)
+        self.action_dtype, self.no_action = (torch.int64, -1) if discrete else (torch.float32, 0.0)
 
     def start(self) -> Entries:
         """The root entries of every env's first step (besides observation and ``is_init``)."""

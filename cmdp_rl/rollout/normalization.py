@@ -1,22 +1,17 @@
-"""Running observation normalization and reward/cost scaling, saved with the networks.
+"""Running observation normalization and reward/cost scaling, saved with the networks. Observations:
+``clip((obs - mean) / std, -c, c)`` by one module in front of the actor and the critics, so evaluation and
+a reloaded checkpoint see training's statistics. Reward and cost: each divided by the running std of its
+discounted sum before GAE (Engstrom et al. 2020, "Implementation Matters in Deep Policy Gradients"), one
+statistic per cost; logged returns, costs and ``J_c <= d`` stay in the env's units.
 
-- Observations: ``clip((obs - mean) / std, -c, c)`` by one module in front of the actor and both critics,
-  so evaluation and a reloaded checkpoint see exactly the statistics training used.
-- Reward and cost: each divided by the running std of its discounted sum before GAE (Engstrom et al. 2020,
-  "Implementation Matters in Deep Policy Gradients", sec. 3), so the critics regress on targets of order
-  one; one statistic per cost (a hazard hit once per episode and a per-step speed cost differ by orders of
-  magnitude). Logged returns and costs, and ``J_c <= d``, stay in the env's units.
-
-The statistics are torchrl's ``RunningMeanStd``, not its ``VecNorm`` transform: that acts on an ``EnvBase``
-on every env step, and would have to be copied into the evaluation env and saved apart from the networks.
-They change only in :meth:`Normalizers.scale_batch` (before the update) and
-:meth:`Normalizers.update_observation_stats` (after it, so the policy that collected the batch and the one
-PPO's ratio compares against see the same statistics: the first ratio of every update is exactly 1).
+torchrl's ``RunningMeanStd``, not its ``VecNorm`` transform: that acts on an ``EnvBase`` every env step and
+would be saved apart from the networks. Statistics change only in :meth:`Normalizers.scale_batch` (before
+the update) and :meth:`Normalizers.update_observation_stats` (after it, so the first PPO ratio is exactly 1).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional
 
 import torch
 from tensordict import TensorDictBase
@@ -76,19 +71,15 @@ class ReturnScaler(nn.Module):
         return signal / (self.stats.var + _EPS).sqrt()
 
 
+Scaler = Optional[ReturnScaler]
+
+
 class Normalizers(nn.Module):
     """The normalizers a run uses, each ``None`` when off; ``make_agent`` places ``obs`` in the networks."""
 
-    def __init__(
-        self,
-        obs: ObservationNormalizer | None = None,
-        reward: ReturnScaler | None = None,
-        cost: ReturnScaler | None = None,
-    ) -> None:
+    def __init__(self, obs: ObservationNormalizer | None = None, reward: Scaler = None, cost: Scaler = None) -> None:
         super().__init__()
-        self.obs = obs
-        self.reward = reward
-        self.cost = cost
+        self.obs, self.reward, self.cost = obs, reward, cost
 
     @classmethod
     def from_config(

@@ -60,9 +60,6 @@ class Replay:
         self.buffer.extend(flat)
         return flat.shape[0]
 
-    def sample(self) -> TensorDictBase:
-        return self.buffer.sample()
-
     def newest(self, n: int) -> TensorDictBase:
         """The ``n`` transitions added last (all, if fewer are stored), oldest first: the writer's
         cursor is the next row it overwrites, so the newest rows end just before it, modulo capacity."""
@@ -88,7 +85,6 @@ class TargetCritics:
     copy reads the live observation statistics), moved by Polyak averaging."""
 
     def __init__(self, modules: dict[str, nn.Module]) -> None:
-        self.live = modules
         self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}
         # Listed once (load_state_dict copies into these tensors): one lerp over all of them a step.
         self._pairs = (
@@ -324,7 +320,7 @@ class OffPolicy:
         sums: dict[str, torch.Tensor] = {}
         counts: dict[str, int] = {}
         for _ in range(n):
-            mb = self.replay.sample()
+            mb = self.replay.buffer.sample()
             x = self.features(mb.get(keys.OBS))
             loss, stats = self.critic_loss(mb, x, self.features(mb.get((keys.NEXT, keys.OBS))))
             self.critic_opt.zero_grad(set_to_none=True)
