@@ -60,6 +60,9 @@ class Replay:
         self.buffer.extend(flat)
         return flat.shape[0]
 
+    def sample(self) -> TensorDictBase:
+        return self.buffer.sample()
+
     def newest(self, n: int) -> TensorDictBase:
         """The ``n`` transitions added last (all, if fewer are stored), oldest first: the writer's
         cursor is the next row it overwrites, so the newest rows end just before it, modulo capacity."""
@@ -320,7 +323,7 @@ class OffPolicy:
         sums: dict[str, torch.Tensor] = {}
         counts: dict[str, int] = {}
         for _ in range(n):
-            mb = self.replay.buffer.sample()
+            mb = self.replay.sample()
             x = self.features(mb.get(keys.OBS))
             loss, stats = self.critic_loss(mb, x, self.features(mb.get((keys.NEXT, keys.OBS))))
             self.critic_opt.zero_grad(set_to_none=True)
