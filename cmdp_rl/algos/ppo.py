@@ -20,7 +20,6 @@ from torch import distributions as D
 from torch.optim.adam import adam as functional_adam
 
 from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite
-from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, minibatches, stopped
 from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.config.registry import register
@@ -84,6 +83,38 @@ class PPOConfig(AlgoConfig):
         )
         if hasattr(self, "multiplier"):  # a constrained variant's algo.multiplier node
             self.multiplier.check()
+
+
+# The statistic each critic's loss is logged as.
+LOSS_NAMES = {"reward": "loss_v", "cost": "loss_vc"}
+
+
+class CriticRegression:
+    """Every critic's squared error on its GAE value targets (lambda-returns), ``L^VF = (V(s) - V^targ)^2``
+    (eq. 9), on a minibatch of training units: every algorithm's critic regression."""
+
+    def __init__(self, agent: Agent) -> None:
+        self.agent = agent
+
+    def terms(
+        self, mb: dict[str, torch.Tensor], values: dict[str, torch.Tensor] | None = None
+    ) -> dict[str, torch.Tensor]:
+        """``{"loss_v": ..., "loss_vc": ...}``: each critic's loss per sample, for the caller to reduce;
+        ``values``: the critics' values by signal where the caller computed them, else the agent's."""
+        out = {}
+        for signal in self.agent.critics:
+            target = mb[keys.SIGNALS[signal][3]]
+            value = self.agent.value(signal, mb) if values is None else values[signal]
+            out[LOSS_NAMES[signal]] = (value - target).pow(2)
+        return out
+
+    def losses(self, mb: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Each critic's mean squared error on the minibatch."""
+        return {name: terms.mean() for name, terms in self.terms(mb).items()}
+
+    def target_keys(self) -> list[str]:
+        """The value targets a minibatch must carry."""
+        return [keys.SIGNALS[signal][3] for signal in self.agent.critics]
 
 
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")

@@ -16,10 +16,9 @@ from torch import nn
 from torch.distributions import kl_divergence
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
-from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import Tally
 from cmdp_rl.algos.multiplier import EpisodeCostEstimate, logged_multiplier
-from cmdp_rl.algos.ppo import OneRun
+from cmdp_rl.algos.ppo import CriticRegression, OneRun
 from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options, require
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
