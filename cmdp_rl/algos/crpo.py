@@ -1,10 +1,7 @@
-"""Constraint-Rectified Policy Optimization (Xu, Liang, Lan, 2021, "CRPO: A New Approach for Safe
-Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1, cited by name: docs/references.md).
-
-While ``J_c <= d + eta`` the policy takes a step that improves the reward (PPO's clipped surrogate on
-``A_r``), otherwise one that reduces the cost (the same on ``-A_c``): it switches objectives, never mixes
-them. The paper's natural-gradient steps are replaced by clipped PPO, as its later implementations do,
-which keeps the one PPO loop. One cost signal (the paper steps on any violated constraint).
+"""Constraint-Rectified Policy Optimization (Xu, Liang, Lan, 2021, ICML; Algorithm 1, cited by name:
+docs/references.md). While ``J_c <= d + eta`` a step that improves the reward (PPO's clipped surrogate on
+``A_r``), else one that reduces the cost (on ``-A_c``): it switches objectives, never mixes them. Clipped
+PPO replaces the paper's natural-gradient steps, as its later implementations do. One cost signal.
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
-"""MAPPO-Lagrangian (``algo=mappo_lag``) on ``env=pettingzoo``: MAPPO (Yu et al., 2022, "The Surprising
-Effectiveness of PPO in Cooperative Multi-Agent Games": a shared actor with the agent's id among its inputs,
-centralised critics) with SafePO's MAPPO-L multipliers (Gu et al., 2023, "Safe Multi-Agent Reinforcement
-Learning for Multi-Robot Control"). The agents are rows of the batch (envs/multi_agent.py), so the update is
-PPO-Lagrangian's; this module adds the constraint's scope: ``team`` (default), one budget per cost on the
-sum over agents; ``per_agent``, a budget per agent and cost (costs ``<agent>/<cost>``, ``cost_limit`` one
-number or M * K).
+"""MAPPO-Lagrangian on ``env=pettingzoo``: MAPPO (Yu et al., 2022, "The Surprising Effectiveness of PPO in
+Cooperative Multi-Agent Games": a shared actor with the agent's id among its inputs, centralised critics)
+with SafePO's MAPPO-L multipliers (Gu et al., 2023). The agents are rows of the batch (envs/multi_agent.py),
+so the update is PPO-Lagrangian's; this module adds the constraint's scope: ``team``, a budget per cost on
+the agents' sum; ``per_agent``, one per agent and cost (costs ``<agent>/<cost>``).
 """
 
 from __future__ import annotations

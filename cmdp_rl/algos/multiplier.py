@@ -404,14 +404,4 @@ class MultiplierConfig:
         require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
 
 
-__all__ = [
-    "FINISHED",
-    "RUNNING",
-    "WINDOW",
-    "AdvantageScale",
-    "EpisodeCost",
-    "EpisodeCostEstimate",
-    "Kind",
-    "MultiplierConfig",
-    "Scale",
-]
+__all__ = ["AdvantageScale", "EpisodeCost", "EpisodeCostEstimate", "Kind", "MultiplierConfig", "Scale"]

@@ -1,12 +1,9 @@
-"""PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms") and the update every
-PPO-family algorithm runs: :func:`ppo_update`, the epochs of minibatch steps on one screen.
-
-A variant changes what the loop reads, never the loop: the multiplier and the policy advantage
-(ppo_lag.py, FOCOPS, CRPO), the per-sample policy loss (FOCOPS), a stage after the epochs (CUP). A
-population of P agents runs the same loop with its own reducer and optimiser step (population/update.py);
-:class:`OneRun` is a run's. The clipped surrogate is written out rather than torchrl's ``ClipPPOLoss``
-(same formulas, tests/test_algos.py checks it), which spent two thirds of each minibatch on TensorDict
-work for features unused here (docs/guide/design.md).
+"""PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms") and the update every PPO-family
+algorithm runs, :func:`ppo_update`, on one screen. A variant changes what the loop reads, never the loop:
+the multiplier and policy advantage (ppo_lag.py, FOCOPS, CRPO), the per-sample loss (FOCOPS), a stage after
+the epochs (CUP). A population runs the same loop with its own reducer and optimiser step
+(population/update.py; :class:`OneRun` is a run's). The clipped surrogate is written out, equal to torchrl's
+``ClipPPOLoss`` (tests/test_algos.py), which spent most of each minibatch on unused TensorDict work.
 """
 
 from __future__ import annotations

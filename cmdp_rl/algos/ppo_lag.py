@@ -1,12 +1,11 @@
 """Reward-penalty PPO and PPO-Lagrangian: PPO's update (``ppo.ppo_update``) on a penalised advantage. As
-in SafePO's PPO-Lag, a variant is two methods: ``update_multiplier`` moves lambda once per iteration from
-the measured J_c (multiplier.py), before the policy update; ``policy_advantage`` is what the surrogate reads.
+in SafePO's PPO-Lag, ``update_multiplier`` moves lambda once per iteration from the measured J_c
+(multiplier.py), before ``policy_advantage`` gives the advantage the surrogate reads.
 
-- Penalty: PPO on ``r - lambda c``, lambda fixed (one for every cost or a list of K). GAE is linear in
-  the reward, so its advantage is exactly ``A_r - sum_k lambda_k A_c,k``; the critics stay separate.
-- Lagrangian: ``A = (A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``, one controller per constraint
-  (``algo.multiplier.kind``); dividing by ``1 + sum lambda`` keeps A in ``A_r``'s scale however many
-  multipliers grow. pid_lag is ppo_lag with ``multiplier.kind: pid``.
+- Penalty: PPO on ``r - lambda c``, lambda fixed (one, or one per cost); GAE is linear in the reward, so
+  its advantage is exactly ``A_r - sum_k lambda_k A_c,k``, the critics kept separate.
+- Lagrangian: ``A = (A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)`` (in ``A_r``'s scale however
+  many multipliers grow), one controller per constraint. pid_lag is ppo_lag with ``multiplier.kind: pid``.
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """Sauté RL (Sootla et al., 2022, "Sauté RL: Almost Surely Safe Reinforcement Learning Using State
 Augmentation", ICML): an unconstrained algorithm on the safety augmented MDP. The constraint goes into the
 env (``envs/saute.py``: the remaining budget joins the state, the reward becomes ``unsafe_reward`` once it
-is spent), so any reward maximiser can be "sautéed"; this module declares that env (``wrap_env``) and builds
-the base algorithm from the options it shares with Sauté's. Evaluation envs keep the task's reward, so
-``eval.json`` reports the same return as other algorithms'. The paper's constraint is almost sure (every
-episode within budget), stricter than the expected-cost budget of the others.
+is spent); this module declares that env (``wrap_env``; evaluation keeps the task's reward) and builds the
+base algorithm from the options it shares with Sauté's. Its constraint is almost sure, stricter than a budget.
 """
 
 from __future__ import annotations

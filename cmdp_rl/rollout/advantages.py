@@ -1,10 +1,7 @@
-"""Twin critics, twin GAEs: advantages and value targets for reward and for cost, by torchrl's GAE on the
-values the critics wrote beforehand (``value_network=None``: one critic pass serves GAE and the logging). A
-truncated step is not terminal: GAE bootstraps from ``V(next observation)`` unless ``terminated``.
-
-With K costs the cost side is ``[N, T, K]``; torchrl's GAE wants inputs of one shape, so it runs on a view
-whose done flags are expanded to ``[N, T, K]``: elementwise in K, exactly each cost's own GAE
-(tests/test_cost_vector.py checks it bit for bit).
+"""Twin critics, twin GAEs: torchrl's GAE for reward and for cost on values the critics wrote beforehand
+(one critic pass serves GAE and the logging); a truncated step bootstraps unless ``terminated``. With K
+costs the cost GAE runs on a view whose done flags are expanded to ``[N, T, K]``: elementwise in K, exactly
+each cost's own GAE (tests/test_cost_vector.py checks it bit for bit).
 """
 
 from __future__ import annotations

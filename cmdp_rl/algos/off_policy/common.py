@@ -1,15 +1,12 @@
 """What SAC(-Lagrangian) and TD3(-Lagrangian) share: the replay buffer, target networks, the TD targets of
-the twin reward critics and the cost critic, the multiplier on the cost critic, and the update loop around
-each algorithm's gradient step. The trainer collects a short rollout (``rollout_steps: auto``, 8 steps of
-8 envs) and :meth:`OffPolicy.update` adds it to the buffer, then takes ``utd_ratio`` gradient steps per
-new transition once the buffer holds ``warmup_steps`` (the collector acts uniformly at random until then).
+the twin reward critics and the cost critic, the multiplier on the cost critic, and the update loop: each
+short rollout (``rollout_steps: auto``) joins the buffer, then ``utd_ratio`` gradient steps per transition
+once it holds ``warmup_steps`` (the collector acts uniformly at random until then).
 
-The budget. The multiplier compares ``E_s[Q_c(s, pi(s))]`` over the newest ``cost_window`` transitions'
-states with the episode budget ``d`` on the discounted scale, :func:`discounted_budget` ``= d (1 - gamma^T)
-/ (T (1 - gamma))`` (``d / T`` per step over an episode of T steps; Safety-Starter-Agents' SAC-Lagrangian
-and WCSAC's conversion), which assumes cost spread evenly over the episode. The newest states and not the
-replayed minibatches': those come mostly from older policies, and on HalfCheetah lambda drifted down with
-every seed over budget (docs/off_policy.md).
+The multiplier compares ``E_s[Q_c(s, pi(s))]`` over the newest ``cost_window`` transitions' states (not the
+replayed ones, mostly older policies': on HalfCheetah lambda drifted down over budget, docs/off_policy.md)
+with :func:`discounted_budget` ``= d (1 - gamma^T) / (T (1 - gamma))``, the episode budget spent evenly over
+T steps on the discounted scale (the conversion of Safety-Starter-Agents' SAC-Lagrangian and WCSAC).
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
-"""SAC and SAC-Lagrangian on a replay buffer (``algo=sac``, ``algo=sac_lag``).
-
-- SAC with automatic entropy tuning: Haarnoja et al. 2018b, "Soft Actor-Critic Algorithms and
-  Applications" (arXiv:1812.05905): twin soft Q-critics (eq. 5, clipped double Q: Section 6), the
-  policy loss (eq. 7, reparameterised: eqs. 8-9; tanh squashing: Appendix C), the temperature
-  (eq. 18) towards a target entropy (-dim(A) by default, as its Appendix D).
-- SAC-Lagrangian: the policy ascends ``min_j Q_j - alpha log pi - sum_k lambda_k Q_c,k`` (Ha et al.
-  2020, "Learning to Walk in the Real World with Minimal Human Effort"), lambda_k on
-  ``E[Q_c,k(s, pi(s))] - d_k`` against the discounted budget (``off_policy.common``).
-
-log pi is in the squashed [-1, 1] action units, so the target entropy -dim(A) means the same on any box.
+"""SAC and SAC-Lagrangian on a replay buffer (``algo=sac``, ``algo=sac_lag``). SAC with automatic entropy
+tuning: Haarnoja et al. 2018b, "Soft Actor-Critic Algorithms and Applications" (arXiv:1812.05905): twin
+soft Q-critics (eq. 5), the policy loss (eq. 7, reparameterised: eqs. 8-9; tanh squashing: Appendix C),
+the temperature (eq. 18) towards -dim(A) by default (Appendix D), log pi in the squashed [-1, 1] units so
+that it means the same on any box. SAC-Lagrangian ascends ``min_j Q_j - alpha log pi - sum_k lambda_k Q_c,k``
+(Ha et al. 2020, "Learning to Walk in the Real World with Minimal Human Effort"), lambda as off_policy.common.
 """
 
 from __future__ import annotations

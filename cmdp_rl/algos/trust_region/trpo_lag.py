@@ -1,13 +1,8 @@
 """TRPO-Lagrangian (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep Reinforcement
-Learning": the Lagrangian baselines, section unchecked: docs/references.md).
-
-TRPO's update (Schulman et al. 2015, eq. 14 and Appendix C) on ppo_lag's Lagrangian advantage
-``A = (A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``::
-
-    max_x  g^T x   s.t.   1/2 x^T H x <= delta     =>     x = sqrt(2 delta / g^T H^-1 g) H^-1 g
-
-then a backtracking line search that keeps the first fraction within delta whose Lagrangian surrogate
-improves. One multiplier per constraint by ``algo.multiplier``, once per iteration, before the step.
+Learning": the Lagrangian baselines, docs/references.md): TRPO's step (Schulman et al. 2015, eq. 14,
+Appendix C) ``x = sqrt(2 delta / g^T H^-1 g) H^-1 g`` on ppo_lag's Lagrangian advantage, then a line search
+for the first fraction within delta whose Lagrangian surrogate improves; one multiplier per constraint
+(``algo.multiplier``), moved once per iteration before the step.
 """
 
 from __future__ import annotations
