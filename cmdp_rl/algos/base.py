@@ -121,8 +121,7 @@ class TrainingDiverged(RuntimeError):
 
 
 def check_finite(**values: torch.Tensor | float) -> None:
-    """Raise :class:`TrainingDiverged` naming the first non-finite value (of a tensor's, e.g. one
-    per agent of a population)."""
+    """Raise :class:`TrainingDiverged` naming the first non-finite value (of a tensor's: one per agent)."""
     for name, value in values.items():
         if isinstance(value, torch.Tensor) and value.numel() > 1:
             finite = torch.isfinite(value)

@@ -70,8 +70,7 @@ class CUP(PPO):
         self.multiplier.update(estimate.cost)
 
     def second_stage(self, algos: Sequence[CUP], rows: Sequence[TensorDictBase], members: OneRun) -> dict:
-        """Stage 2 of every member (``algos``, each on its ``rows``) in minibatch epochs as PPO's, KL early
-        stopping included: each member's mean loss and KL."""
+        """Stage 2 of every member in minibatch epochs as PPO's, KL early stopping included: mean loss and KL."""
         cfg = self.cfg
         units = members.agent.training_units(joined([a.projection_inputs(r) for a, r in zip(algos, rows)]))
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
@@ -97,8 +96,7 @@ class CUP(PPO):
         return tally.means()
 
     def projection_inputs(self, batch: TensorDictBase) -> dict:
-        """What stage 2 reads of one agent's batch: the networks' inputs, the actions, their behaviour
-        log-probs and the cost advantage (standardised if ``normalize_advantage``)."""
+        """Stage 2's inputs from one agent's batch, the cost advantage standardised if ``normalize_advantage``."""
         present, cost_adv = batch.keys(True), batch.get(keys.COST_ADVANTAGE)
         inputs = {k: batch.get(k) for k in (keys.ACTION, keys.LOG_PROB, *self.agent.in_keys) if k in present}
         return {**inputs, keys.COST_ADVANTAGE: standardized(cost_adv) if self.cfg.normalize_advantage else cost_adv}
@@ -106,8 +104,7 @@ class CUP(PPO):
     def projection_terms(
         self, dist: Distribution, mb: dict[str, torch.Tensor], nu_coef: float | torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Stage 2's loss per sample, ``KL(pi_theta || pi_{k+1/2}) + nu_coef pi_theta(a|s) /
-        pi_k(a|s) A_c`` (``nu_coef`` one per member), and its KL term."""
+        """Stage 2's loss per sample, ``KL(pi_theta || pi_{k+1/2}) + nu_coef r A_c``, and its KL term."""
         head = self.agent.actor.head
         half = head.dist({k: mb[(HALF, k)] for k in head.param_keys})
         adv = mb[keys.COST_ADVANTAGE]

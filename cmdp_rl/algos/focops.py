@@ -84,8 +84,7 @@ class FOCOPS(PPO):
         return batch.get(keys.ADVANTAGE) - self.multiplier.value * batch.get(keys.COST_ADVANTAGE)
 
     def policy_terms(self, dist: Distribution, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict]:
-        """The projection step's loss per state (:func:`focops_terms`); the diagnostics: the exact KL from
-        ``pi_k`` (logged, and what the epochs stop on) and whether a state is outside the trust region."""
+        """:func:`focops_terms`, with the exact KL from ``pi_k`` (logged, and stopped on) and the states outside."""
         head = self.agent.actor.head
         old_dist = head.dist({k: mb[k] for k in head.param_keys})  # pi_k, as it acted
         taken = (mb[keys.ACTION], mb[keys.LOG_PROB], mb[keys.POLICY_ADVANTAGE])

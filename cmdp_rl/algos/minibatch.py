@@ -36,8 +36,7 @@ class Tally:
         self.count: Any = 0
 
     def add(self, stats: dict[str, torch.Tensor], evaluated: Any = True) -> None:
-        """``evaluated``: True (every member), or which members evaluated this minibatch (KL early
-        stopping: a population's ``[P]`` mask, a run's one boolean)."""
+        """``evaluated``: True (every member), or which members evaluated this minibatch (a ``[P]`` mask)."""
         self.count = self.count + (1 if evaluated is True else evaluated.float())
         for k, v in stats.items():
             v = v.detach() if evaluated is True else torch.where(evaluated, v.detach(), 0.0)

@@ -135,8 +135,7 @@ class MultiplierController(ABC):
 
 
 class DualAscent(MultiplierController):
-    """Projected gradient ascent on the dual, ``lambda <- max(0, lambda + lr g)``: PPO-Lagrangian's
-    (Ray, Achiam, Amodei 2019), the primal-dual update of Achiam et al. 2017, eq. 16."""
+    """``lambda <- max(0, lambda + lr g)``: PPO-Lagrangian's dual ascent (Achiam et al. 2017, eq. 16)."""
 
     def __init__(self, cost_limit: float, lr: float, init: float = 0.0, scale: float = 1.0) -> None:
         super().__init__(cost_limit, init, scale)

@@ -87,8 +87,7 @@ LOSS_NAMES = {"reward": "loss_v", "cost": "loss_vc"}
 
 
 class CriticRegression:
-    """Every critic's squared error on its GAE value targets (lambda-returns), ``L^VF = (V(s) - V^targ)^2``
-    (eq. 9), on a minibatch of training units: every algorithm's critic regression."""
+    """Every critic's squared error on its GAE value targets, ``L^VF = (V(s) - V^targ)^2`` (eq. 9)."""
 
     def __init__(self, agent: Agent) -> None:
         self.agent = agent
@@ -96,8 +95,7 @@ class CriticRegression:
     def terms(
         self, mb: dict[str, torch.Tensor], values: dict[str, torch.Tensor] | None = None
     ) -> dict[str, torch.Tensor]:
-        """``{"loss_v": ..., "loss_vc": ...}``: each critic's loss per sample, for the caller to reduce;
-        ``values``: the critics' values by signal where the caller computed them, else the agent's."""
+        """``{"loss_v": ..., "loss_vc": ...}`` per sample; ``values``: the critics' values if the caller has them."""
         out = {}
         for signal in self.agent.critics:
             target = mb[keys.SIGNALS[signal][3]]
@@ -123,8 +121,7 @@ class PPO:
     multiplier: Any = None  # a constrained variant's lambda (multiplier.py), logged and checkpointed
 
     def __init__(self, cfg: PPOConfig, agent: Agent) -> None:
-        self.cfg = cfg
-        self.agent = agent
+        self.cfg, self.agent = cfg, agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
         self.episode_cost = EpisodeCostEstimate()  # J_c, for the constrained variants
         self.log_clip = (math.log1p(-cfg.clip_epsilon), math.log1p(cfg.clip_epsilon))
@@ -138,8 +135,7 @@ class PPO:
         self.entropy_coef = cfg.entropy_coef
 
     def learning_rates(self) -> tuple[float, float]:
-        """The actor's and the critics' rates this iteration i: with ``anneal_lr``, ``1 - i / anneal_iterations``
-        of ``lr`` and ``critic_lr``."""
+        """The actor's and critics' rates at iteration i: ``anneal_lr`` scales them by ``1 - i / anneal_iterations``."""
         frac = max(0.0, 1.0 - self.iteration / self.cfg.anneal_iterations) if self.cfg.anneal_lr else 1.0
         return frac * self.cfg.lr, frac * self.cfg.critic_lr
 
@@ -180,8 +176,7 @@ class PPO:
         return -gain, diagnostics
 
     def second_stage(self, algos: Sequence[PPO], rows: Sequence[TensorDictBase], members: OneRun) -> Units:
-        """A stage after the epochs for every member (``algos``, each on its ``rows``): its
-        statistics' means per member (CUP's projection)."""
+        """A stage after the epochs for every member, on its ``rows``: its statistics' means (CUP's projection)."""
         return {}
 
     def iteration_stats(self) -> dict[str, float]:
@@ -285,8 +280,7 @@ def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> 
 
 
 class OneRun:
-    """What the update asks of one run's agent: the reducer ``torch.mean`` and torch's optimiser step.
-    ``population.update.PopulationPPO`` answers the same calls for P agents side by side."""
+    """A run's reducer (``torch.mean``) and optimiser step; ``population.update.PopulationPPO`` is P agents'."""
 
     mean = staticmethod(torch.mean)
 
@@ -326,8 +320,7 @@ class OneRun:
         return [(torch.optim.Adam(a.actor_params, lr=a.actor_opt.param_groups[0]["lr"], fused=True), a.actor_params)]
 
     def step(self, loss: torch.Tensor, optimisers: Sequence[Optimiser], stepping: Any = True) -> None:
-        """Backward, clip each network's gradient norm, step its Adam; nothing once ``stepping`` is false
-        (KL early stopping)."""
+        """Backward, clip each network's gradient norm, step its Adam; nothing once ``stepping`` is false."""
         if not stepping:
             return
         for _, params in optimisers:

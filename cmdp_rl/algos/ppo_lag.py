@@ -73,8 +73,7 @@ class PPOLagConfig(PPOConfig):
 
 @options
 class PIDLagConfig(PPOLagConfig):
-    """pid_lag: ppo_lag with a PID multiplier (Stooke, Achiam, Abbeel 2020; gains: docs/pid_and_cpo.md).
-    A preset, so that a config naming pid_lag without a multiplier node gets configs/algo/pid_lag.yaml's."""
+    """pid_lag: ppo_lag with a PID multiplier (Stooke et al. 2020), the preset of configs/algo/pid_lag.yaml."""
 
     name: str = "pid_lag"
     multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(kind="pid"))

@@ -1,2 +1,1 @@
-"""The rollout and what is computed from it before an update: the batch's keys, action spaces, the
-collector, the advantages of reward and cost, and observation normalisation."""
+"""The rollout: the batch's keys, action spaces, the collector, reward and cost GAE, normalisation."""

@@ -35,8 +35,7 @@ class Hybrid(NamedTuple):
 
 
 def hybrid(space: gym.Space) -> Hybrid | None:
-    """The parts of a hybrid space (a ``Tuple``/``Dict`` of exactly one ``Discrete`` and one float
-    ``Box``, in either order), or None for any other space."""
+    """The parts of a ``Tuple``/``Dict`` of one ``Discrete`` and one float ``Box`` (either order), else None."""
     if isinstance(space, spaces.Tuple):
         items = list(enumerate(space.spaces))
     elif isinstance(space, spaces.Dict):
@@ -123,8 +122,7 @@ def to_env(action: torch.Tensor, space: gym.Space) -> np.ndarray:
 
 
 def uniform_actions(space: gym.Space, n: int, device: torch.device | str) -> tuple[torch.Tensor, torch.Tensor]:
-    """``n`` stored actions drawn uniformly from ``space`` (a box's bounds must be finite; torch's
-    generator) and their log-density ``[n]``: an off-policy algorithm's warm-up."""
+    """``n`` stored actions uniform on ``space`` (finite bounds) and their log-density ``[n]``: a warm-up."""
     if isinstance(space, spaces.Box):
         low = torch.as_tensor(space.low, dtype=torch.float32, device=device).reshape(-1)
         high = torch.as_tensor(space.high, dtype=torch.float32, device=device).reshape(-1)

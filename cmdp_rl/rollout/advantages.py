@@ -28,8 +28,7 @@ class TwinGAE:
 
     @torch.no_grad()
     def __call__(self, batch: TensorDictBase, agent: Agent) -> TensorDictBase:
-        """Write values (``Agent.rollout_values``), advantages and value targets of both critics into
-        ``batch`` ``[N, T]``."""
+        """Write both critics' values, advantages and value targets into ``batch`` ``[N, T]``."""
         for signal in ("reward", "cost"):
             value_key = keys.SIGNALS[signal][1]
             values, next_values = agent.rollout_values(batch, signal)

@@ -86,11 +86,8 @@ class Collector:
         deterministic: bool = False,
         uniform_steps: int = 0,
     ) -> None:
-        self.env = env
-        self.uniform_steps = uniform_steps
-        self.deterministic = deterministic
-        self.agent = agent
-        self.rollout_steps = rollout_steps
+        self.env, self.agent, self.rollout_steps = env, agent, rollout_steps
+        self.deterministic, self.uniform_steps = deterministic, uniform_steps
         n, dev = env.num_envs, env.device
         self._memory = PolicyMemory(agent, n, env.action_space, dev, env.num_costs)
         self._root: Entries = {
@@ -164,8 +161,7 @@ class Collector:
         return self.total_costs[0]
 
     def state_dict(self) -> dict[str, Any]:
-        """Where the rollout stands (next root, running episode sums, counters, the env's state): a collector
-        built anew on the same config and given this continues the same trajectories."""
+        """Where the rollout stands: a collector built anew and given this continues the same trajectories."""
         return {
             "root": dict(self._root),
             "episode_return": self._ep_return.clone(),
@@ -195,8 +191,7 @@ def _reset_where(done: torch.Tensor, value: torch.Tensor, initial: torch.Tensor 
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:
-    """Undiscounted return ``[E]``, cost ``[E, K]`` (one column per constraint) and length ``[E]``
-    of every episode that ended inside ``batch``."""
+    """Return ``[E]``, cost ``[E, K]`` and length ``[E]`` of every episode that ended inside ``batch``."""
     done = batch.get((keys.NEXT, keys.DONE)).squeeze(-1)
     nxt = batch.get(keys.NEXT)
     return {

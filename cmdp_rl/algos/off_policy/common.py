@@ -39,8 +39,7 @@ STORED = (keys.OBS, keys.ACTION, *((keys.NEXT, k) for k in (keys.OBS, keys.REWAR
 
 
 class Replay:
-    """torchrl's ``TensorDictReplayBuffer`` of single transitions (:data:`STORED`), uniform sampling
-    from torch's generator (seeded by the run; restored on resume)."""
+    """torchrl's ``TensorDictReplayBuffer`` of single transitions, sampled with torch's (seeded) generator."""
 
     def __init__(self, size: int, batch_size: int, storage: str, device: torch.device | str = "cpu") -> None:
         store = (
@@ -61,8 +60,7 @@ class Replay:
         return self.buffer.sample()
 
     def newest(self, n: int) -> TensorDictBase:
-        """The ``n`` transitions added last (all, if fewer are stored), oldest first: the writer's
-        cursor is the next row it overwrites, so the newest rows end just before it, modulo capacity."""
+        """The ``n`` transitions added last, oldest first: they end just before the writer's cursor."""
         n = min(n, len(self.buffer))
         cursor = self.buffer.writer.state_dict()["_cursor"]
         return self.buffer.storage.get((cursor - n + torch.arange(n)) % self.buffer.storage.max_size)
@@ -106,8 +104,7 @@ class TargetCritics:
 
 
 def td_target(signal: torch.Tensor, terminated: torch.Tensor, gamma: float, next_value: torch.Tensor) -> torch.Tensor:
-    """One-step TD target ``x + gamma (1 - terminated) V'``: a truncated step bootstraps from its
-    final observation; only termination stops the sum."""
+    """One-step TD target ``x + gamma (1 - terminated) V'``: a truncated step bootstraps."""
     return signal + gamma * (~terminated).float() * next_value
 
 
@@ -198,8 +195,7 @@ STATS = ("loss_q", "loss_qc", "loss_pi", "q_reward", "q_cost", "gradient_steps",
 
 
 class OffPolicy:
-    """The update loop, replay, critics' targets and checkpointing; an algorithm adds its actor head,
-    :meth:`policy_action`, :meth:`next_action` and :meth:`actor_step`."""
+    """The update loop, replay, targets and checkpointing; an algorithm adds the three methods below."""
 
     stats = STATS
 
@@ -287,18 +283,15 @@ class OffPolicy:
 
     # --- what an algorithm provides -------------------------------------------------------------
     def policy_action(self, x: torch.Tensor) -> torch.Tensor:
-        """The current policy's action on features ``x`` (scaled to [-1, 1]): a sample, or the
-        deterministic action of a deterministic policy."""
+        """The current policy's action on features ``x``, in [-1, 1] units (a sample, or the deterministic one)."""
         raise NotImplementedError
 
     def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The TD target's next action (scaled to [-1, 1]) on the next observation's features, and
-        the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
+        """The TD target's next action in [-1, 1] units, and the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
         raise NotImplementedError
 
     def actor_step(self, x: torch.Tensor) -> dict[str, torch.Tensor] | None:
-        """One actor (and temperature) step on features ``x``: its statistics, ``q_cost_k`` ``[K]``
-        among them, or None (a delayed step)."""
+        """One actor (and temperature) step: its statistics, ``q_cost_k`` ``[K]`` among them, or None (delayed)."""
         raise NotImplementedError
 
     @torch.no_grad()

@@ -159,13 +159,8 @@ class CPO(NaturalGradient):
         accepted = line_search(
             params, step, surrogates, surr_values, cfg.target_kl, cfg.line_search_steps, cfg.backtrack_coef, accept
         )
-        return {
-            "cpo_case": sol.case,
-            "dual_lambda": sol.lam,
-            "dual_nu": sol.nu,
-            "entropy": self.entropy(units),
-            **accepted,
-        }
+        dual = {"cpo_case": sol.case, "dual_lambda": sol.lam, "dual_nu": sol.nu}
+        return {**dual, "entropy": self.entropy(units), **accepted}
 
     def state_dict(self) -> dict:
         return {**super().state_dict(), "nu": self.nu}

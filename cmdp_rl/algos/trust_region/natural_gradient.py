@@ -112,8 +112,7 @@ def per_step_constraint(episode_cost: float, cost_limit: float, episode_length: 
 
 
 class Surrogates:
-    """Called, the importance-weighted surrogates of the policy and cost advantages and the mean KL from
-    ``pi_k`` (whose distribution parameters the units carry), at the current parameters."""
+    """Called: the importance-weighted policy and cost surrogates and the mean KL from ``pi_k``."""
 
     def __init__(self, agent: Agent, units: dict[str, torch.Tensor], adv: torch.Tensor, cost_adv: torch.Tensor) -> None:
         self.agent, self.units, self.adv, self.cost_adv = agent, units, adv, cost_adv
@@ -167,8 +166,7 @@ class NaturalGradient:
     multiplier: Any = None  # trpo_lag's lambda (multiplier.py), logged and checkpointed
 
     def __init__(self, cfg: NaturalGradientConfig, agent: Agent) -> None:
-        self.cfg = cfg
-        self.agent = agent
+        self.cfg, self.agent = cfg, agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
         self.policy_params = list(agent.actor.parameters())
         self.critic_params = list(agent.critics.parameters())
@@ -199,8 +197,7 @@ class NaturalGradient:
         return stats
 
     def policy_update(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
-        """After GAE: J_c, the training units (steps, or a recurrent policy's segments) and the policy step.
-        Returns the units, which the critics' regression reads next, and the step's statistics."""
+        """After GAE: J_c, the training units and the policy step; returns the units and the step's statistics."""
         estimate = self.episode_cost.update(batch)
         needed = [*self.agent.in_keys, keys.ACTION, keys.LOG_PROB, *self.agent.actor.head.param_keys]
         needed += [keys.ADVANTAGE, keys.COST_ADVANTAGE, *self.critics.target_keys()]
@@ -233,8 +230,7 @@ class NaturalGradient:
         return self.agent.dist(units).entropy().mean().item()
 
     def fit_critics(self, units: dict[str, torch.Tensor], members: Any, optimisers: list) -> dict[str, torch.Tensor]:
-        """``critic_epochs`` passes of ``critic_minibatches`` Adam steps on ``(V(s) - V^targ)^2``, on one
-        agent's units (``ppo.OneRun``) or P agents' (``population.update``): each loss's mean (per agent)."""
+        """Critic regression, ``critic_epochs`` x ``critic_minibatches`` Adam steps: each loss's mean (per agent)."""
         cfg, tally = self.cfg, Tally()
         for _ in range(cfg.critic_epochs):
             for mb in members.minibatches(units, cfg.critic_minibatches):

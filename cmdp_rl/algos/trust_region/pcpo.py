@@ -91,13 +91,8 @@ class PCPO(NaturalGradient):
             assign(params, torch.nn.utils.parameters_to_vector(params) + step)
             new_reward, new_cost, new_kl = (t.item() for t in surrogates())
         check_finite(kl=new_kl)
-        return {
-            "kl": new_kl,
-            "projection_coef": coef,
-            "surr_reward_change": new_reward - surr_values[0],
-            "surr_cost_change": new_cost - surr_values[1],
-            "entropy": self.entropy(units),
-        }
+        changes = {"surr_reward_change": new_reward - surr_values[0], "surr_cost_change": new_cost - surr_values[1]}
+        return {"kl": new_kl, "projection_coef": coef, **changes, "entropy": self.entropy(units)}
 
 
 register("algo", "pcpo", PCPOConfig, PCPO)
