@@ -67,15 +67,13 @@ class AlgoConfig:
     constraints: ClassVar[Optional[int]] = None
     # True: it compares costs in their own units with the budget, so normalize.cost=true is refused.
     reads_raw_cost: ClassVar[bool] = False
-    # Options for a run of seconds on the tests' tiny Reach1D: the tests every registered algorithm passes
-    # (tests/test_registry_enrolment.py) train it with these.
+    # Options for a run of seconds in the tests every registered algorithm passes (test_registry_enrolment).
     tiny: ClassVar[dict[str, Any]] = {}
     # The envs it trains on, by name (None: any); another env is a one-line config error.
     envs: ClassVar[Optional[tuple[str, ...]]] = None
     # With ``envs``: the env options of its tiny test run, in place of TINY's Reach1D.
     tiny_env: ClassVar[dict[str, Any]] = {}
-    # What ``deploy.policy: auto`` deploys: "mixture" for a primal-dual method, whose last iterate orbits
-    # the saddle point (docs/constraint_satisfaction.md); "last" for the others.
+    # ``deploy.policy: auto``'s choice: "mixture" for a primal-dual method, whose last iterate orbits the saddle.
     deploys: ClassVar[str] = "last"
 
     def check(self, run: RunConfig) -> None:
@@ -108,8 +106,7 @@ class AlgoConfig:
         return agent
 
     def observation_state(self, cost_names: tuple[str, ...]) -> Any:
-        """For paths that step one plain gymnasium env (video.py): a state carried beside the observation,
-        as :meth:`wrap_env`'s env would (Sauté's remaining budget), or None."""
+        """For paths that step one plain env (video.py): a state carried beside the observation (Sauté's), or None."""
         return None
 
 

@@ -55,8 +55,7 @@ def focops_terms(
     temperature: float,
     delta: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The projection step's loss per state, ``KL(pi_theta || pi_k)[s] - ratio * adv / temperature``, kept
-    where ``KL <= delta`` (Algorithm 1), and the per-state KL; ``adv`` is ``A_r - nu A_c``, ``[..., 1]``."""
+    """FOCOPS's loss per state, ``KL(pi_theta || pi_k)[s] - ratio adv / temperature`` where ``KL <= delta``, and KL."""
     kl = kl_divergence(dist, old_dist).reshape(adv.shape)
     ratio = (dist.log_prob(action) - old_log_prob).reshape(adv.shape).exp()
     inside = (kl.detach() <= delta).to(adv.dtype)

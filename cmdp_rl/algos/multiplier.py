@@ -214,8 +214,7 @@ class PIDLagrangian(MultiplierController):
 
 
 class Multipliers:
-    """One controller per constraint, controller k driven by ``J_c,k - d_k`` alone: the dual gradient
-    in lambda_k of ``J_r - sum_k lambda_k (J_c,k - d_k)``. ``make(d_k)`` builds constraint k's."""
+    """One controller per constraint, controller k driven by ``J_c,k - d_k`` alone; ``make(d_k)`` builds it."""
 
     def __init__(self, make: Callable[[float], MultiplierController], cost_limits: Sequence[float]) -> None:
         self.controllers = [make(d) for d in cost_limits]
@@ -352,9 +351,8 @@ class MultiplierConfig:
     ``scale`` and ``max`` are every kind's, the rest one kind's each. ppo_lag, pid_lag, mappo_lag,
     trpo_lag, sac_lag, td3_lag, FOCOPS and CUP (their nu) take the node, each with its own defaults."""
 
-    # dual: lambda <- max(0, lambda + lr g); pid: Stooke et al. 2020; regularized: Ding et al. 2023 (plus
-    # an entropy bonus tau on an on-policy algorithm's policy); optimistic: nuPI / optimistic gradient;
-    # augmented: augmented Lagrangian with rho = lr.
+    # dual: lambda <- max(0, lambda + lr g); pid: Stooke et al. 2020; regularized: Ding et al. 2023;
+    # optimistic: nuPI / optimistic gradient; augmented: augmented Lagrangian with rho = lr.
     kind: Kind = "dual"
     lr: PositiveFloat = 0.05  # the step of dual, regularized and optimistic; augmented's rho; pid: ki instead
     init: NonNegativeFloat = 0.0  # lambda at the start (pid: its integral's)

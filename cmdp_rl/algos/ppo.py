@@ -49,8 +49,7 @@ class PPOConfig(AlgoConfig):
     entropy_coef: NonNegativeFloat = 0.0
     # KL early stopping: null (off), or stop at the first minibatch whose approximate KL exceeds 1.5 target_kl.
     target_kl: Optional[PositiveFloat] = None
-    # Anneal lr and critic_lr linearly to 0 over the run (Huang et al. 2022, "The 37 Implementation Details
-    # of PPO", detail 4).
+    # Anneal lr and critic_lr linearly to 0 (Huang et al. 2022, "The 37 Implementation Details of PPO", 4).
     anneal_lr: Bool = False
     # The iterations the annealing spans; "auto": the run's, ceil(total_steps / batch).
     anneal_iterations: AutoInt = AUTO
@@ -367,8 +366,7 @@ def adam_step(opt: torch.optim.Optimizer) -> None:
 
 @torch.no_grad()
 def clip_grad_norm_(params: Sequence[torch.Tensor], max_norm: float) -> None:
-    """``torch.nn.utils.clip_grad_norm_`` in its arithmetic and ``_foreach`` kernels, for parameters of one
-    device and dtype: without its per-call grouping by device and dtype (docs/throughput.md)."""
+    """``torch.nn.utils.clip_grad_norm_``'s arithmetic without its per-call grouping (docs/throughput.md)."""
     grads = [p.grad for p in params if p.grad is not None]
     if grads:
         total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads, 2.0)), 2.0)

@@ -24,8 +24,7 @@ class UnsupportedActionSpace(ConfigError):
 
 
 class Hybrid(NamedTuple):
-    """A hybrid space's parts: ``skills`` choices (``start`` added for the env), the parameters' box, and
-    where each sits in the env's ``Tuple`` (an index) or ``Dict`` (a key)."""
+    """A hybrid space's parts: ``skills`` choices, the parameters' box, and where each sits in the space."""
 
     skills: int
     start: int
@@ -80,8 +79,7 @@ def action_dim(space: gym.Space) -> int:
 
 
 def action_bounds(space: gym.Space) -> tuple[torch.Tensor, torch.Tensor]:
-    """The range of each entry of a stored action, ``[d]`` each (float32): a box's bounds, a
-    discrete index's ``[0, n - 1]``, a hybrid action's skill index then its box's bounds."""
+    """Each stored entry's range ``[d]``: a box's bounds, an index's ``[0, n - 1]``, a hybrid's skill then box."""
     parts = hybrid(space)
     if parts is not None:
         low, high = action_bounds(parts.box)

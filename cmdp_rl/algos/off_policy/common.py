@@ -79,8 +79,7 @@ class Replay:
 
 
 class TargetCritics:
-    """Slow copies of critics' output networks (the body is shared: it has no parameters, and the
-    copy reads the live observation statistics), moved by Polyak averaging."""
+    """Slow copies of critics' output networks (their body has no parameters), moved by Polyak averaging."""
 
     def __init__(self, modules: dict[str, nn.Module]) -> None:
         self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}

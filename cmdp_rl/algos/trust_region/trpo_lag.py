@@ -31,8 +31,7 @@ from cmdp_rl.policies.agent import Agent
 
 @options
 class TRPOLagConfig(CPOConfig):
-    """TRPO-Lagrangian: CPO's trust region and line search, ppo_lag's multiplier (its
-    ``multiplier.kind: regularized`` regularises the dual only: TRPO's surrogate has no entropy term)."""
+    """CPO's trust region and line search, ppo_lag's multiplier (``regularized`` regularises the dual only)."""
 
     name: str = "trpo_lag"
     multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)
