@@ -228,9 +228,7 @@ class PPO:
 
 
 def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> list[dict[str, float]]:
-    """One iteration of every member on its rows of the ``[N, T]`` batch (a run: ``[self]`` on
-    :class:`OneRun`; a population: its agents on ``population.update.PopulationPPO``); returns each
-    member's statistics to log."""
+    """One iteration of every member on its rows of the ``[N, T]`` batch; returns each member's statistics."""
     ppo, cfg = algos[0], algos[0].cfg
     ppo.gae(batch, members.agent)  # A_r, A_c and the critics' targets V^targ = A + V, every member's rows at once
     rows = member_rows(batch, len(algos))

@@ -73,9 +73,8 @@ class PolicyMemory:
 
 
 class Collector:
-    """Collects ``rollout_steps`` steps from every env per :meth:`collect`; episodes run on across calls
-    (the env is reset once, with ``seed``). Actions are sampled, or the mode if ``deterministic``; the
-    run's first ``uniform_steps`` env steps act uniformly at random (an off-policy algorithm's warm-up)."""
+    """``rollout_steps`` steps of every env per :meth:`collect`, episodes running on across calls (one reset);
+    ``deterministic``: the mode acts; the run's first ``uniform_steps`` env steps act uniformly at random."""
 
     def __init__(
         self,

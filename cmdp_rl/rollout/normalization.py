@@ -45,9 +45,7 @@ class ObservationNormalizer(nn.Module):
 
 
 class ReturnScaler(nn.Module):
-    """Scales a per-step signal by ``1 / std`` of its running discounted sum ``R_t = gamma R_{t-1} + x_t``
-    (reset where an episode ends), per env, carried across batches; one sum and std per channel (K
-    costs; one channel keeps scalar statistics, the checkpoint's shape for K = 1)."""
+    """Scales a signal by ``1 / std`` of its running discounted sum per env (reset at episode ends), per channel."""
 
     def __init__(self, num_envs: int, gamma: float, channels: int = 1) -> None:
         super().__init__()

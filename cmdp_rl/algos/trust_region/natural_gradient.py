@@ -57,8 +57,7 @@ class NaturalGradientConfig(AlgoConfig):
 def fisher_vector_product(
     kl: torch.Tensor, params: list[nn.Parameter], damping: float
 ) -> Callable[[torch.Tensor], torch.Tensor]:
-    """``v -> (H + damping I) v`` with ``H`` the Hessian of ``kl``, the mean KL from the old policy (0 with
-    zero gradient there, so its Hessian is the Fisher matrix), by double backprop: never formed."""
+    """``v -> (H + damping I) v``, ``H`` the Hessian of the mean KL ``kl`` (the Fisher matrix), never formed."""
     flat_grad = flat(torch.autograd.grad(kl, params, create_graph=True))
 
     def fvp(v: torch.Tensor) -> torch.Tensor:

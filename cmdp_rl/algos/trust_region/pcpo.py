@@ -52,9 +52,7 @@ def projected_step(
     h_solve: Callable[[torch.Tensor], torch.Tensor],
     projection: str,
 ) -> tuple[torch.Tensor, float]:
-    """PCPO's step ``x`` and the projection's coefficient (0: the reward step was feasible).
-
-    ``h_solve(v)`` approximates ``H^-1 v`` (conjugate gradient on Fisher-vector products)."""
+    """PCPO's step ``x`` and the projection's coefficient (0: feasible); ``h_solve(v)`` approximates ``H^-1 v``."""
     h_inv_g = h_solve(g)
     q = g.dot(h_inv_g).item()
     x_r = math.sqrt(2 * delta / q) * h_inv_g if q > _EPS else torch.zeros_like(g)  # reward step
