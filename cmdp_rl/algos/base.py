@@ -42,6 +42,12 @@ def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str
     return d
 
 
+def require_minibatches(run: RunConfig, field: str, count: int) -> None:
+    """``algo.<field>``: ``count`` minibatches must fit the batch of ``rollout_steps * env.num_envs`` units."""
+    batch = run.rollout_steps * run.env.num_envs
+    require(batch >= count, f"algo.{field}", f"at most rollout_steps * env.num_envs = {batch}", count)
+
+
 @options
 class AlgoConfig:
     """Options every algorithm shares: discounts, GAE, the critics, the budget."""

@@ -16,11 +16,11 @@ from tensordict import TensorDictBase
 from torch import distributions as D
 from torch.optim.adam import adam as functional_adam
 
-from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite
+from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite, require_minibatches
 from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, minibatches, stopped
 from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import AUTO, AutoInt, Bool, NonNegativeFloat, PositiveFloat, UnitOpen, options, require
+from cmdp_rl.config.validation import AUTO, AutoInt, Bool, NonNegativeFloat, PositiveFloat, UnitOpen, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import TwinGAE, standardized
@@ -70,13 +70,7 @@ class PPOConfig(AlgoConfig):
         return f"{self.update_epochs} x {self.num_minibatches} minibatches"
 
     def check(self, run: RunConfig) -> None:
-        batch = run.rollout_steps * run.env.num_envs
-        require(
-            batch >= self.num_minibatches,
-            "algo.num_minibatches",
-            f"at most rollout_steps * env.num_envs = {batch}",
-            self.num_minibatches,
-        )
+        require_minibatches(run, "num_minibatches", self.num_minibatches)
         if hasattr(self, "multiplier"):  # a constrained variant's algo.multiplier node
             self.multiplier.check()
 

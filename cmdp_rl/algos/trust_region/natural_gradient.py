@@ -15,11 +15,11 @@ from tensordict import TensorDictBase
 from torch import nn
 from torch.distributions import kl_divergence
 
-from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, require_minibatches
 from cmdp_rl.algos.minibatch import Tally
 from cmdp_rl.algos.multiplier import EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.algos.ppo import CriticRegression, OneRun
-from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options, require
+from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import TwinGAE, standardized
@@ -43,13 +43,7 @@ class NaturalGradientConfig(AlgoConfig):
     critic_minibatches: PositiveInt = 8
 
     def check(self, run: RunConfig) -> None:
-        batch = run.rollout_steps * run.env.num_envs
-        require(
-            batch >= self.critic_minibatches,
-            "algo.critic_minibatches",
-            f"at most rollout_steps * env.num_envs = {batch}",
-            self.critic_minibatches,
-        )
+        require_minibatches(run, "critic_minibatches", self.critic_minibatches)
         if hasattr(self, "multiplier"):  # trpo_lag's algo.multiplier node
             self.multiplier.check()
 
