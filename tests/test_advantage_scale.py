@@ -16,10 +16,10 @@ from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config
 from cmdp_rl.algos import make_algo
+from cmdp_rl.algos.multiplier import FINISHED, EpisodeCost
 from cmdp_rl.algos.ppo_lag import lagrangian_advantage
 from cmdp_rl.policies import make_agent
 from cmdp_rl.policies.mlp import PolicyConfig
-from cmdp_rl.rollout.episode_cost import FINISHED, EpisodeCost
 
 
 def _batch(adv: list[float], cost_adv: list[list[float]]) -> TensorDict:

@@ -24,8 +24,8 @@ from tensordict import TensorDictBase
 
 from cmdp_rl import ConfigError, evaluate, keys, load_config, make_agent, make_env, train
 from cmdp_rl.algos.base import AlgoConfig, check_finite
-from cmdp_rl.algos.critics import CriticRegression
 from cmdp_rl.algos.minibatch import minibatches
+from cmdp_rl.algos.ppo import CriticRegression
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import PositiveFloat, PositiveInt, options
 from cmdp_rl.envs.options import EnvOptions

@@ -10,12 +10,12 @@ from tensordict import TensorDict
 from torch.distributions import kl_divergence
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env
-from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
+from cmdp_rl.algos.multiplier import FINISHED, RUNNING, WINDOW, EpisodeCost, EpisodeCostEstimate
 from cmdp_rl.algos.trust_region.cpo import CONSTRAINED, RECOVERY, TRPO, fisher_vector_product, solve_dual
+from cmdp_rl.algos.trust_region.natural_gradient import conjugate_gradient
 from cmdp_rl.policies.agent import Actor
 from cmdp_rl.policies.distributions import GaussianHead
 from cmdp_rl.policies.mlp import MLPBody, mlp
-from cmdp_rl.rollout.episode_cost import FINISHED, RUNNING, WINDOW, EpisodeCost, EpisodeCostEstimate
 from cmdp_rl.run.migrations import migrate
 
 
@@ -229,7 +229,7 @@ def _episode_batch(ends_at: list[int], cost_per_step: float = 1.0, T: int = 8) -
 
 def test_cpo_cost_estimate_carries_the_last_finished_episodes_over_batches_where_none_ended():
     """A long episode spans several batches: its cost so far is a lower bound, not J_c. CPO reads
-    the shared estimate (rollout/episode_cost.py): the episodes that ended in the batch, else the last
+    the shared estimate (algos/multiplier.py): the episodes that ended in the batch, else the last
     ones that ended (a window of one per env), else the running sums."""
     assert EpisodeCostEstimate().update(_episode_batch([3])) == EpisodeCost((104.0,), 104.0, FINISHED)
     assert EpisodeCostEstimate().update(_episode_batch([])) == EpisodeCost((108.0,), 108.0, RUNNING)

@@ -7,8 +7,8 @@ import torch
 from helpers.runs import tail_means
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
+from cmdp_rl.algos.multiplier import EpisodeCostEstimate
 from cmdp_rl.config.run_config import compose_config
-from cmdp_rl.rollout.episode_cost import EpisodeCostEstimate
 
 
 def setup(algo: dict):

@@ -10,9 +10,9 @@ from torchrl.modules import IndependentNormal
 
 from cmdp_rl import Collector, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.focops import focops_terms
+from cmdp_rl.algos.multiplier import FINISHED, EpisodeCost
 from cmdp_rl.config.run_config import compose_config
 from cmdp_rl.config.validation import ConfigError
-from cmdp_rl.rollout.episode_cost import FINISHED, EpisodeCost
 
 A = torch.tensor([[0.4], [0.0], [-0.2]], dtype=torch.float64)  # actions, 3 states, 1-d
 ADV = torch.tensor([[1.0], [-2.0], [0.5]], dtype=torch.float64)  # A_r - nu A_c

@@ -13,8 +13,7 @@ from tensordict import TensorDict
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.algos import make_algo
-from cmdp_rl.algos.off_policy.common import discounted_budget
-from cmdp_rl.algos.off_policy.replay_buffer import Replay
+from cmdp_rl.algos.off_policy.common import Replay, discounted_budget
 from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import make_env
 from cmdp_rl.policies import make_agent
@@ -63,9 +62,9 @@ def test_the_budget_conversion_by_hand():
     # The velocity benchmark's d = 25 over 1000 steps, gamma 0.99: 2.5 (1 - 0.99^1000) = 2.49989...
     assert discounted_budget(25.0, 0.99, 1000) == pytest.approx(2.5 * (1 - math.exp(1000 * math.log(0.99))))
     algo, env = build({"name": "sac_lag", "cost_limit": [3.0], "cost_gamma": 0.9, "episode_length": 3})
-    assert algo.lagrange.budgets == [pytest.approx(2.71)]
+    assert algo.budgets == [pytest.approx(2.71)]
     algo, env = build({"name": "sac_lag", "cost_limit": 1.0, "cost_gamma": 0.9})  # T: Reach1D's max_steps
-    assert algo.lagrange.budgets == [pytest.approx((1 - 0.9**100) / (100 * 0.1))]
+    assert algo.budgets == [pytest.approx((1 - 0.9**100) / (100 * 0.1))]
 
 
 def test_cost_critic_target_masks_termination_and_bootstraps_truncation():
@@ -116,7 +115,7 @@ def test_the_multiplier_rises_above_the_budget_and_falls_below(name):
         },
         rollout_steps=2,
     )
-    d_q = algo.lagrange.budgets[0]
+    d_q = algo.budgets[0]
     from cmdp_rl.rollout.collector import Collector
 
     collector = Collector(env, algo.agent, 2, seed=0)
@@ -376,7 +375,7 @@ def test_the_pid_multiplier_acts_on_the_cost_critic():
     from cmdp_rl.rollout.collector import Collector
 
     collector = Collector(env, algo.agent, 2, seed=0)
-    d_q = algo.lagrange.budgets[0]
+    d_q = algo.budgets[0]
     constant(algo.agent.critics[Q_COST].net, 5.0)
     integral = 0.3 + 0.1 * (5.0 - d_q)
     assert algo.update(collector.collect())["lagrange_multiplier"] == pytest.approx(

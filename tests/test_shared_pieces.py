@@ -7,7 +7,7 @@ from tensordict import TensorDict
 
 from cmdp_rl import keys
 from cmdp_rl.algos.minibatch import minibatches
-from cmdp_rl.rollout.episode_cost import FINISHED, RUNNING, WINDOW, EpisodeCostEstimate
+from cmdp_rl.algos.multiplier import FINISHED, RUNNING, WINDOW, EpisodeCostEstimate
 
 
 def batch(done, cost, length):

@@ -1,5 +1,4 @@
-"""Algorithms. Each module declares its options and registers itself (``cmdp_rl.config.registry``);
-``algo=<name>`` selects one."""
+"""Algorithms: each module declares its options and registers itself; ``algo=<name>`` selects one."""
 
 from __future__ import annotations
 

@@ -19,28 +19,19 @@ if TYPE_CHECKING:
 
 
 Budget = Annotated[float, finite(ge=0)]
-# A number (the same for every constraint) or one number per constraint.
 PerConstraint = Annotated[
     Union[Budget, list[Budget]], Field(description="a number >= 0 or a list of numbers >= 0, one per cost")
 ]
 
 
-def multi_constraint_algorithms() -> list[str]:
-    """The toolkit's algorithms that take any env with K > 1 costs (their options declare
-    ``constraints = None`` and ``envs = None``), by name; a user's own registrations are not listed."""
+def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str, reason: str) -> float:
+    """The budget d of an algorithm that handles one constraint; an env with K > 1 costs is a config error
+    naming ``reason`` and the toolkit's algorithms that take it (options with ``constraints`` and ``envs``
+    None; a user's own registrations are not listed)."""
     from cmdp_rl.config.registry import component, names
 
-    found = [(component("algo", n).options, n) for n in names("algo")]
-    return [
-        n for cls, n in found if cls.constraints is None and cls.envs is None and cls.__module__.startswith("cmdp_rl.")
-    ]
-
-
-def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str, reason: str) -> float:
-    """The budget d of an algorithm that handles one constraint (``agent.num_costs`` must be 1);
-    an env with K > 1 costs is a config error naming the algorithms that take it and ``reason``."""
-    k = agent.num_costs
-    multi = multi_constraint_algorithms()
+    k, found = agent.num_costs, [(component("algo", n).options, n) for n in names("algo")]
+    multi = [n for c, n in found if c.constraints is None and c.envs is None and c.__module__.startswith("cmdp_rl.")]
     require(
         k == 1,
         "algo",
@@ -49,6 +40,12 @@ def single_constraint(cost_limit: float | Sequence[float], agent: Any, algo: str
     )
     (d,) = per_constraint(cost_limit, "algo.cost_limit", agent.cost_names)
     return d
+
+
+def require_minibatches(run: RunConfig, field: str, count: int) -> None:
+    """``algo.<field>``: ``count`` minibatches must fit the batch of ``rollout_steps * env.num_envs`` units."""
+    batch = run.rollout_steps * run.env.num_envs
+    require(batch >= count, f"algo.{field}", f"at most rollout_steps * env.num_envs = {batch}", count)
 
 
 @options
@@ -62,79 +59,60 @@ class AlgoConfig:
     cost_gamma: Discount = 0.99
     max_grad_norm: Annotated[float, Field(gt=0)] = 0.5
     normalize_advantage: Bool = True
-    # The budget d on expected undiscounted episode cost. Only constrained algorithms act on it;
-    # every run reports against it. With K costs: one number for every constraint, or a list of K
-    # budgets in the env's cost order (per_constraint). None: the task's budget (the env options'
-    # budget()), filled in by config.validate before anything is built.
+    # The budget d on expected undiscounted episode cost (every run reports against it): one number, or K
+    # in the env's cost order; None: the task's (the env options' budget()), filled in by config.validate.
     cost_limit: Annotated[
         Optional[Union[Budget, list[Budget]]],
         Field(description="a number >= 0 (the budget d), a list of such numbers (one per cost) or null (the task's)"),
     ] = None
 
-    # The hooks below are all the toolkit asks of an algorithm's options besides its fields; each
-    # has the default an algorithm that needs nothing special gets (docs/architecture.md lists them).
+    # The hooks below are all the toolkit asks of an algorithm's options besides its fields, with the
+    # defaults of one that needs nothing special (docs/architecture.md, "Declared hooks").
 
-    # How many constraints the algorithm takes: None, any number K of costs (one multiplier or
-    # penalty per constraint); 1, one (an env with K > 1 costs is refused, single_constraint).
+    # How many constraints it takes: None, any K; 1, one (an env with K > 1 costs is refused).
     constraints: ClassVar[Optional[int]] = None
-    # True: the algorithm compares costs in their own units with the budget (a constraint's
-    # linearisation, a multiplier's error), so normalize.cost=true is refused (config.validate).
+    # True: it compares costs in their own units with the budget, so normalize.cost=true is refused.
     reads_raw_cost: ClassVar[bool] = False
-    # Options that make a run of seconds on the tests' tiny Reach1D (tests/helpers/runs.py TINY): the
-    # tests that every algorithm passes (tests/test_registry_enrolment.py) train each registered
-    # algorithm with these, so a new algorithm joins them by registering.
+    # Options for a run of seconds in the tests every registered algorithm passes (test_registry_enrolment).
     tiny: ClassVar[dict[str, Any]] = {}
-    # The envs the algorithm trains on, by name (None: any); another env is a one-line config error.
-    # A multi-agent algorithm names env=pettingzoo: its agents are the rows of that env's batch.
+    # The envs it trains on, by name (None: any); another env is a one-line config error.
     envs: ClassVar[Optional[tuple[str, ...]]] = None
-    # With ``envs``: the env options of its tiny test run, in place of TINY's Reach1D (one env of the
-    # first kind it takes; the cross-cutting tests' iteration counts assume 32 rows x 16 steps).
+    # With ``envs``: the env options of its tiny test run, in place of TINY's Reach1D.
     tiny_env: ClassVar[dict[str, Any]] = {}
-    # The policy ``deploy.policy: auto`` deploys: "mixture" for a primal-dual method, whose last
-    # iterate orbits the saddle point instead of converging to it (docs/constraint_satisfaction.md);
-    # "last" for the others.
+    # ``deploy.policy: auto``'s choice: "mixture" for a primal-dual method, whose last iterate orbits the saddle.
     deploys: ClassVar[str] = "last"
 
     def check(self, run: RunConfig) -> None:
         """Rules that relate this algorithm's options to the rest of the run: the envs it takes."""
 
     def resolve_auto(self, run: RunConfig) -> None:
-        """Replace this algorithm's ``"auto"`` options by numbers from the run's batch shape
-        (``run.rollout_steps`` is already a number here); called by ``config.resolve_auto``."""
+        """Replace ``"auto"`` options by numbers from the run's batch shape (``run.rollout_steps`` is one)."""
 
     def auto_rollout_steps(self, run: RunConfig) -> Optional[int]:
-        """``rollout_steps: auto`` for this algorithm: None, the run's rule (2048 / num_envs within
-        [32, 256]); an off-policy algorithm asks for a few steps per iteration."""
+        """``rollout_steps: auto`` for this algorithm; None: the run's rule (2048 / num_envs in [32, 256])."""
         return None
 
     @property
     def uniform_action_steps(self) -> int:
-        """Env steps at the start of the run on which the collector acts uniformly at random
-        (an off-policy algorithm's warm-up); 0: the policy acts from the first step."""
+        """Env steps at the run's start on which the collector acts uniformly at random (a warm-up)."""
         return 0
 
     def describe_update(self) -> Optional[str]:
-        """A few words on the update's shape for the line a run starts with (e.g. "10 x 8
-        minibatches"); None: nothing to add."""
+        """A few words on the update's shape for the run's start line (e.g. "10 x 8 minibatches")."""
         return None
 
     def wrap_env(self, env: VecEnv, evaluation: bool = False) -> VecEnv:
-        """The env this algorithm trains (``evaluation=False``) or is evaluated on: ``env`` itself
-        unless the algorithm changes the MDP (Sauté's budget state, algos/saute.py)."""
+        """The env it trains (``evaluation=False``) or is evaluated on: ``env``, unless it changes the MDP (Sauté)."""
         return env
 
     def shape_agent(self, agent: Agent) -> Agent:
-        """The networks this algorithm trains, made from the agent ``policy=`` builds (an actor
-        over the env's action space, a reward and a cost critic); ``policies.make_agent(...,
-        algo=...)`` calls it, so that training and evaluation get the same networks without
-        building the algorithm. The default: that agent itself. Off-policy: a squashed actor and
-        Q-critics on the policy's MLP body (algos/off_policy.py)."""
+        """The networks it trains, from the agent ``policy=`` builds; ``make_agent(..., algo=...)`` calls it,
+        so training and evaluation get the same networks without building the algorithm (off-policy: a
+        squashed actor and Q-critics)."""
         return agent
 
     def observation_state(self, cost_names: tuple[str, ...]) -> Any:
-        """For paths that step one plain gymnasium env (video.py): a state carried along the
-        episode beside the env's observation, as :meth:`wrap_env`'s env would (Sauté's remaining
-        budget), or None if the observation is the env's alone."""
+        """For paths that step one plain env (video.py): a state carried beside the observation (Sauté's), or None."""
         return None
 
 
@@ -146,8 +124,7 @@ class TrainingDiverged(RuntimeError):
 
 
 def check_finite(**values: torch.Tensor | float) -> None:
-    """Raise :class:`TrainingDiverged` naming the first non-finite value (of a tensor's, e.g. one
-    per agent of a population)."""
+    """Raise :class:`TrainingDiverged` naming the first non-finite value (of a tensor's: one per agent)."""
     for name, value in values.items():
         if isinstance(value, torch.Tensor) and value.numel() > 1:
             finite = torch.isfinite(value)
@@ -160,8 +137,7 @@ def check_finite(**values: torch.Tensor | float) -> None:
 
 
 def check_parameters_finite(module: nn.Module) -> None:
-    """A last step can leave a parameter infinite with every loss finite: never let such a network
-    reach a checkpoint. One check for all parameters, one host sync."""
+    """A last step can leave a parameter infinite with every loss finite: keep it from a checkpoint."""
     params = list(module.named_parameters())
     finite = torch.stack([torch.isfinite(p).all() for _, p in params]).tolist()
     if not all(finite):
@@ -171,13 +147,9 @@ def check_parameters_finite(module: nn.Module) -> None:
 
 @runtime_checkable
 class Algorithm(Protocol):
-    """An algorithm owns its networks' updates; it never touches the env.
-
-    ``update`` takes one ``[num_envs, T]`` batch from the collector and returns scalars to log:
-    ``lagrange_multiplier`` (the lambda in force; 0 if none; with K > 1 costs a list of K, one per
-    constraint, which metrics.csv spreads over one column per cost) and the names it declares in
-    ``stats``, which become metrics.csv's columns (``metrics.columns``).
-    """
+    """An algorithm owns its networks' updates; it never touches the env. ``update`` takes one
+    ``[num_envs, T]`` batch and returns ``lagrange_multiplier`` (the lambda in force, 0 if none, a list of
+    K with K costs) and the names it declares in ``stats``: metrics.csv's columns."""
 
     name: str
     stats: tuple[str, ...]

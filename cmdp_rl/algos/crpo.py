@@ -1,16 +1,7 @@
-"""Constraint-Rectified Policy Optimization (Xu, Liang, Lan, 2021, "CRPO: A New Approach for Safe
-Reinforcement Learning with Convergence Guarantee", ICML; Algorithm 1). Its steps are cited by name,
-without equation or line numbers (docs/references.md).
-
-Each iteration looks at the constraint's slack: if the estimate ``J_c`` is within the budget plus a
-tolerance, ``J_c <= d + eta``, the policy takes a step that improves the reward (here: PPO's clipped
-surrogate on ``A_r``); otherwise it takes a step that reduces the cost (the same surrogate on
-``-A_c``). No multiplier: the update switches objectives, it never mixes them. The paper's steps are
-natural policy gradient steps; the clipped-PPO step is the practical choice of its later
-implementations and keeps the one PPO loop (``ppo.py``) for every member of the family.
-
-The paper handles several constraints by stepping on any one that is violated; this toolkit has
-one cost signal, so the switch reads that one.
+"""Constraint-Rectified Policy Optimization (Xu, Liang, Lan, 2021, ICML; Algorithm 1, cited by name:
+docs/references.md). While ``J_c <= d + eta`` a step that improves the reward (PPO's clipped surrogate on
+``A_r``), else one that reduces the cost (on ``-A_c``): it switches objectives, never mixes them. Clipped
+PPO replaces the paper's natural-gradient steps, as its later implementations do. One cost signal.
 """
 
 from __future__ import annotations
@@ -21,12 +12,12 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import single_constraint
+from cmdp_rl.algos.multiplier import EpisodeCost
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeFloat, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 
 @options
@@ -40,8 +31,7 @@ class CRPOConfig(PPOConfig):
 
 class CRPO(PPO):
     name = "crpo"
-    # cost_step: 1 where the iteration took a cost step, else 0 (its mean over a log interval is
-    # the fraction of cost steps).
+    # cost_step: 1 where the iteration took a cost step, else 0 (its mean: the fraction of cost steps).
     stats = (*STATS, "cost_step")
 
     def __init__(self, cfg: CRPOConfig, agent: Agent) -> None:

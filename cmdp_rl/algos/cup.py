@@ -1,26 +1,16 @@
-"""Constrained Update Projection (Yang, Ji, Dai, Zhang, Zhou, Li, Yang, Pan, 2022, "Constrained
-Update Projection Approach to Safe Policy Optimization", NeurIPS; its Algorithm 1). Its stages are
-cited by name, without equation or section numbers (docs/references.md).
+"""Constrained Update Projection (Yang, Ji, Dai, Zhang, Zhou, Li, Yang, Pan, 2022, NeurIPS; Algorithm 1,
+cited by name: docs/references.md). Two stages per iteration:
 
-Two stages per iteration:
-
-1. Policy improvement: ``pi_{k+1/2}`` maximises the reward surrogate near ``pi_k``; as in the
-   paper's practical version, PPO's clipped surrogate on ``A_r`` (the whole PPO update of
-   ``ppo.py``, critics included).
+1. ``pi_{k+1/2}`` by PPO's clipped surrogate on ``A_r`` (the paper's practical version; critics included).
 2. Projection: ``pi_{k+1}`` minimises, from ``pi_{k+1/2}``::
 
        E_s[ KL(pi_theta || pi_{k+1/2})[s] ]
          + nu * (1 - gamma_c gae_lambda) / (1 - gamma_c) * E[ pi_theta(a|s) / pi_k(a|s) A_c(s, a) ]
 
-   the distance to the improved policy plus the multiplier times the cost surrogate around the
-   behaviour policy ``pi_k`` (the factor is the paper's, from its GAE-based bound). With ``nu = 0``
-   the minimiser is ``pi_{k+1/2}`` itself, and the stage leaves it unchanged: it runs its own Adam,
-   fresh every iteration, since momentum from stage 1 or from earlier projections would move the
-   policy with a zero gradient (``tests/test_cup.py``).
+   With ``nu = 0`` the minimiser is ``pi_{k+1/2}`` itself, so the stage runs its own Adam, fresh every
+   iteration: earlier momentum would move the policy with a zero gradient (tests/test_cup.py).
 
-``nu`` by projected dual ascent once per iteration, ``nu <- max(0, nu + lr (J_c - d))``
-(``algo.multiplier``, multiplier.py; another ``multiplier.kind`` moves nu its way). ``A_c`` is standardized when
-``algo.normalize_advantage`` is, as PPO's advantage is. One cost signal.
+``nu`` by ``algo.multiplier``; ``A_c`` standardized when ``normalize_advantage`` is. One cost signal.
 """
 
 from __future__ import annotations
@@ -34,14 +24,13 @@ from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.minibatch import Tally, joined, stopped
-from cmdp_rl.algos.multiplier import MultiplierConfig
+from cmdp_rl.algos.multiplier import EpisodeCost, MultiplierConfig
 from cmdp_rl.algos.ppo import PPO, STATS, OneRun, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import standardized
-from cmdp_rl.rollout.episode_cost import EpisodeCost
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
@@ -57,10 +46,6 @@ class CUPConfig(PPOConfig):
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)  # nu
-
-    def check(self, run: RunConfig) -> None:
-        super().check(run)
-        self.multiplier.check()
 
     projection_epochs: AutoInt = AUTO  # auto: update_epochs
 
@@ -81,22 +66,17 @@ class CUP(PPO):
         self.multiplier = cfg.multiplier.build(cost_limit)
         self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
 
-    @property
-    def lagrange_multiplier(self) -> float:
-        return self.multiplier.value
-
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.cost)
 
     def second_stage(self, algos: Sequence[CUP], rows: Sequence[TensorDictBase], members: OneRun) -> dict:
-        """Stage 2 of every member (``algos``, each on its ``rows``, stage 1 done), in minibatch
-        epochs as PPO's (``ppo.ppo_update``), KL early stopping included: each member's mean loss
-        and KL."""
+        """Stage 2 of every member in minibatch epochs as PPO's, KL early stopping included: mean loss and KL."""
         cfg = self.cfg
         units = members.agent.training_units(joined([a.projection_inputs(r) for a, r in zip(algos, rows)]))
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
             units.update({(HALF, k): v for k, v in members.actor_params(units).items()})
-        nu_coef = members.per_member([a.projection_coef() for a in algos])
+        # The cost surrogate's weight: nu (1 - gamma_c gae_lambda) / (1 - gamma_c), one per member.
+        nu_coef = members.per_member([a.multiplier.value * a.cost_coef for a in algos])
         kl_limit = None if self.kl_limit is None else members.per_member([a.kl_limit for a in algos])
         optimiser = members.fresh_actor_optimiser(algos)  # fresh: see the module's docstring
         tally, active = Tally(), True
@@ -116,29 +96,15 @@ class CUP(PPO):
         return tally.means()
 
     def projection_inputs(self, batch: TensorDictBase) -> dict:
-        """What stage 2 reads of one agent's batch: the actions, their behaviour log-probs, the cost
-        advantage (standardised if ``normalize_advantage``) and the networks' inputs."""
-        cost_adv = batch.get(keys.COST_ADVANTAGE)
-        if self.cfg.normalize_advantage:
-            cost_adv = standardized(cost_adv)
-        present = batch.keys(True)
-        inputs = [k for k in self.agent.in_keys if k in present and k not in (keys.ACTION, keys.LOG_PROB)]
-        return {
-            keys.ACTION: batch.get(keys.ACTION),
-            keys.LOG_PROB: batch.get(keys.LOG_PROB),
-            keys.COST_ADVANTAGE: cost_adv,
-            **{k: batch.get(k) for k in inputs},
-        }
-
-    def projection_coef(self) -> float:
-        """The cost surrogate's weight in stage 2: ``nu (1 - gamma_c gae_lambda) / (1 - gamma_c)``."""
-        return self.multiplier.value * self.cost_coef
+        """Stage 2's inputs from one agent's batch, the cost advantage standardised if ``normalize_advantage``."""
+        present, cost_adv = batch.keys(True), batch.get(keys.COST_ADVANTAGE)
+        inputs = {k: batch.get(k) for k in (keys.ACTION, keys.LOG_PROB, *self.agent.in_keys) if k in present}
+        return {**inputs, keys.COST_ADVANTAGE: standardized(cost_adv) if self.cfg.normalize_advantage else cost_adv}
 
     def projection_terms(
         self, dist: Distribution, mb: dict[str, torch.Tensor], nu_coef: float | torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Stage 2's loss per sample, ``KL(pi_theta || pi_{k+1/2}) + nu_coef pi_theta(a|s) /
-        pi_k(a|s) A_c`` (``nu_coef``: :meth:`projection_coef`, one per member), and its KL term."""
+        """Stage 2's loss per sample, ``KL(pi_theta || pi_{k+1/2}) + nu_coef r A_c``, and its KL term."""
         head = self.agent.actor.head
         half = head.dist({k: mb[(HALF, k)] for k in head.param_keys})
         adv = mb[keys.COST_ADVANTAGE]
@@ -147,13 +113,6 @@ class CUP(PPO):
         if isinstance(nu_coef, torch.Tensor):  # a population's, one per agent: over its [P, B, 1] samples
             nu_coef = nu_coef.view(-1, *(1,) * (adv.dim() - 1))
         return kl + nu_coef * ratio * adv, kl
-
-    def state_dict(self) -> dict:
-        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        super().load_state_dict(state)
-        self.multiplier.load_state_dict(state["multiplier"])
 
 
 register("algo", "cup", CUPConfig, CUP)

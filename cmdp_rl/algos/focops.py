@@ -1,52 +1,36 @@
-"""First Order Constrained Optimization in Policy Space (Zhang, Vuong, Ross, 2020, NeurIPS;
-Theorem 1 and Algorithm 1). Its steps are cited by name, without equation numbers; the theorem and
-algorithm numbers are unchecked (docs/references.md).
+"""First Order Constrained Optimization in Policy Space (Zhang, Vuong, Ross, 2020, NeurIPS; Theorem 1
+and Algorithm 1, cited by name: docs/references.md). Two first-order steps per iteration:
 
-Two steps per iteration, both first order:
-
-1. The optimal update policy in the non-parametric policy space (Theorem 1): the solution of
-   ``max E[A_r]  s.t.  J_c + E[A_c] / (1 - gamma) <= d,  E_s[KL(pi || pi_k)[s]] <= delta`` is
-   ``pi*(a|s) = pi_k(a|s) exp((A_r(s, a) - nu A_c(s, a)) / lambda) / Z(s)``, with a temperature
-   ``lambda > 0`` and a cost multiplier ``nu >= 0``.
-2. Projection of ``pi*`` onto the parametric policies by minimising ``E_s[KL(pi_theta || pi*)[s]]``.
-   ``log Z(s)`` does not depend on theta, so the gradient is that of (the paper's projection step)::
+1. The optimal non-parametric update (Theorem 1) of ``max E[A_r]  s.t.  J_c + E[A_c] / (1 - gamma) <= d,
+   E_s[KL(pi || pi_k)[s]] <= delta``: ``pi* = pi_k exp((A_r - nu A_c) / lambda) / Z(s)``.
+2. Its projection onto the parametric policies, by the gradient of (``log Z`` does not depend on theta)::
 
        L(theta) = E_s[ KL(pi_theta || pi_k)[s]
                       - (1 / lambda) E_{a ~ pi_k}[ pi_theta(a|s) / pi_k(a|s) (A_r - nu A_c) ] ]
 
-   averaged over the batch with the indicator ``1{KL(pi_theta || pi_k)[s] <= delta}`` (Algorithm 1):
-   a state already out of the trust region stops pulling the policy further. At ``theta = theta_k``
-   the KL term has zero gradient and the gradient is ``-(1/lambda) E[grad log pi (A_r - nu A_c)]``,
-   a policy gradient (``tests/test_focops.py`` checks it by hand).
+   with the indicator ``1{KL(pi_theta || pi_k)[s] <= delta}``: a state out of the trust region stops
+   pulling. At ``theta_k`` this is a policy gradient (tests/test_focops.py checks it by hand).
 
-``nu`` is set before the policy update by ``nu <- clip(nu + lr (J_c - d), 0, max)``
-(Algorithm 1: ``algo.multiplier``'s dual ascent with its clamp ``max``, multiplier.py; another
-``multiplier.kind`` moves nu its way). The minibatch epochs stop early once a minibatch's mean KL from ``pi_k``
-exceeds ``delta`` (Algorithm 1 checks the batch's mean KL per epoch; the shared PPO loop checks
-before each minibatch's step). Everything else (critics, GAE, minibatches) is PPO's loop
-(``ppo.py``). One cost signal: the paper's several constraints would each have a ``nu``.
+``nu <- clip(nu + lr (J_c - d), 0, max)`` before the policy update (``algo.multiplier``); the epochs stop
+once a minibatch's mean KL exceeds ``delta`` (Algorithm 1 checks per epoch). One cost signal.
 """
 
 from __future__ import annotations
 
 from dataclasses import field
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import torch
 from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
-from cmdp_rl.algos.multiplier import MultiplierConfig
+from cmdp_rl.algos.multiplier import EpisodeCost, MultiplierConfig
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import PositiveFloat, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.episode_cost import EpisodeCost
-
-if TYPE_CHECKING:
-    from cmdp_rl.config.run_config import RunConfig
 
 
 @options
@@ -61,10 +45,6 @@ class FOCOPSConfig(PPOConfig):
     # nu, the paper's: a step of 0.01 and a clamp at 2.
     multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.01, max=2.0))
 
-    def check(self, run: RunConfig) -> None:
-        super().check(run)
-        self.multiplier.check()
-
 
 def focops_terms(
     dist: Distribution,
@@ -75,9 +55,7 @@ def focops_terms(
     temperature: float,
     delta: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The projection step's loss per state, ``KL(pi_theta || pi_k)[s] - ratio * adv / temperature``,
-    kept where ``KL <= delta`` (Algorithm 1); the update averages it over all states (a population
-    per agent). ``adv`` is ``A_r - nu A_c``, shaped ``[..., 1]``. Returns the terms and the per-state KL."""
+    """FOCOPS's loss per state, ``KL(pi_theta || pi_k)[s] - ratio adv / temperature`` where ``KL <= delta``, and KL."""
     kl = kl_divergence(dist, old_dist).reshape(adv.shape)
     ratio = (dist.log_prob(action) - old_log_prob).reshape(adv.shape).exp()
     inside = (kl.detach() <= delta).to(adv.dtype)
@@ -98,10 +76,6 @@ class FOCOPS(PPO):
         self.kl_limit = cfg.target_kl  # Algorithm 1 stops at delta itself, not PPO's 1.5 delta
         self.multiplier = cfg.multiplier.build(cost_limit)
 
-    @property
-    def lagrange_multiplier(self) -> float:
-        return self.multiplier.value
-
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.cost)
 
@@ -109,33 +83,17 @@ class FOCOPS(PPO):
         return batch.get(keys.ADVANTAGE) - self.multiplier.value * batch.get(keys.COST_ADVANTAGE)
 
     def policy_terms(self, dist: Distribution, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict]:
-        """The projection step's loss per state (:func:`focops_terms`) in place of PPO's clipped
-        surrogate; the diagnostics: the exact KL from ``pi_k`` (logged, and what the epochs stop
-        on, at ``delta`` itself) and whether a state is outside the trust region."""
+        """:func:`focops_terms`, with the exact KL from ``pi_k`` (logged, and stopped on) and the states outside."""
         head = self.agent.actor.head
         old_dist = head.dist({k: mb[k] for k in head.param_keys})  # pi_k, as it acted
-        terms, kl = focops_terms(
-            dist,
-            old_dist,
-            mb[keys.ACTION],
-            mb[keys.LOG_PROB],
-            mb[keys.POLICY_ADVANTAGE],
-            self.cfg.temperature,
-            self.cfg.target_kl,
-        )
+        taken = (mb[keys.ACTION], mb[keys.LOG_PROB], mb[keys.POLICY_ADVANTAGE])
+        terms, kl = focops_terms(dist, old_dist, *taken, self.cfg.temperature, self.cfg.target_kl)
         with torch.no_grad():
             diagnostics = {"kl": kl, "kl_stop": kl, "outside_fraction": (kl > self.cfg.target_kl).float()}
         return terms, diagnostics
 
     def update_keys(self, batch: TensorDictBase) -> list:
         return [*super().update_keys(batch), *self.agent.actor.head.param_keys]
-
-    def state_dict(self) -> dict:
-        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        super().load_state_dict(state)
-        self.multiplier.load_state_dict(state["multiplier"])
 
 
 register("algo", "focops", FOCOPSConfig, FOCOPS)

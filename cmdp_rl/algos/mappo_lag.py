@@ -1,22 +1,8 @@
-"""MAPPO-Lagrangian (``algo=mappo_lag``): constrained multi-agent PPO on ``env=pettingzoo``.
-
-MAPPO (Yu et al., 2022, "The Surprising Effectiveness of PPO in Cooperative Multi-Agent Games") is
-PPO with the agents' policy shared (parameter sharing, the agent's id among the actor's inputs) and
-a centralised critic that values the state from every agent's observation. The constrained setting
-is SafePO's MAPPO-L (Gu et al., 2023, "Safe Multi-Agent Reinforcement Learning for Multi-Robot
-Control", and the Safe-Policy-Optimization benchmark): a Lagrangian multiplier per constraint, the
-policy advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)``.
-
-Here the agents are rows of the batch (``envs/multi_agent.py``), so MAPPO needs no update of its
-own: the PPO-Lagrangian update (``algos/ppo.py``) with its multipliers (``algos/multiplier.py``, the
-shared machinery) runs on the rows, the MLP policy on a multi-agent env is the decentralised actor
-over ``[own observation | agent id]`` and the critics read the whole row (every agent's
-observation). What this module adds is the constraint's scope:
-
-- ``constraint: team`` (default): one budget per cost on the team's cost, the sum over agents, one
-  lambda per cost;
-- ``constraint: per_agent``: a budget on each agent's cost, one lambda per agent and cost (the
-  env's costs become ``<agent>/<cost>``; ``cost_limit`` one number for all, or a list of M * K).
+"""MAPPO-Lagrangian on ``env=pettingzoo``: MAPPO (Yu et al., 2022, "The Surprising Effectiveness of PPO in
+Cooperative Multi-Agent Games": a shared actor with the agent's id among its inputs, centralised critics)
+with SafePO's MAPPO-L multipliers (Gu et al., 2023). The agents are rows of the batch (envs/multi_agent.py),
+so the update is PPO-Lagrangian's; this module adds the constraint's scope: ``team``, a budget per cost on
+the agents' sum; ``per_agent``, one per agent and cost (costs ``<agent>/<cost>``).
 """
 
 from __future__ import annotations
@@ -40,9 +26,7 @@ class MAPPOLagConfig(PPOLagConfig):
 
     name: str = "mappo_lag"
     constraint: Literal["team", "per_agent"] = "team"
-    # The team task trains in 40 iterations, not hundreds: lambda must cross
-    # the range a relative violation of about 2 gives in that time (0.5 on relative violations is the
-    # raw step of 0.05 that the task was measured with, at its budget of 10).
+    # 0.5 on relative violations: the raw step of 0.05 the 40-iteration team task was measured with (d = 10).
     multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.5))
     envs: ClassVar[tuple[str, ...]] = ("pettingzoo",)  # its agents are the rows of that env's batch
     tiny_env: ClassVar[dict] = {"name": "pettingzoo", "num_envs": 1}  # two agents: 2 rows, as TINY's 2 envs

@@ -13,11 +13,9 @@ from tensordict import TensorDictBase
 def minibatches(
     data: Mapping[str, torch.Tensor], num_minibatches: int, epochs: int = 1
 ) -> Iterator[tuple[int, dict[str, torch.Tensor]]]:
-    """Yield ``(epoch, minibatch)`` for ``epochs`` passes over ``data`` (tensors with the same
-    leading size: training units), each pass in a fresh random order (torch's global generator, so
-    a seeded run repeats), split into ``num_minibatches`` equal slices. Units left over by the
-    division are skipped in that pass (as before, so numbers did not move). One gather per pass;
-    each minibatch is then a view. A caller may stop early (e.g. KL early stopping) by breaking."""
+    """Yield ``(epoch, minibatch)`` for ``epochs`` passes over ``data`` (training units), each in a fresh
+    order from torch's global generator, split into ``num_minibatches`` equal slices (the remainder
+    skipped); one gather per pass, each minibatch a view. A caller stops early by breaking."""
     total = next(iter(data.values())).shape[0]
     size = total // num_minibatches
     if size < 1:
@@ -38,8 +36,7 @@ class Tally:
         self.count: Any = 0
 
     def add(self, stats: dict[str, torch.Tensor], evaluated: Any = True) -> None:
-        """``evaluated``: True (every member), or which members evaluated this minibatch (KL early
-        stopping: a population's ``[P]`` mask, a run's one boolean)."""
+        """``evaluated``: True (every member), or which members evaluated this minibatch (a ``[P]`` mask)."""
         self.count = self.count + (1 if evaluated is True else evaluated.float())
         for k, v in stats.items():
             v = v.detach() if evaluated is True else torch.where(evaluated, v.detach(), 0.0)

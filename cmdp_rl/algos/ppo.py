@@ -1,20 +1,9 @@
-"""PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms") and the update every
-PPO-family algorithm runs: :func:`ppo_update`, the epochs of minibatch steps on one screen.
-
-A variant changes what the loop reads, never the loop: the policy advantage and the multiplier
-behind it (reward-penalty PPO and PPO-Lagrangian, Ray, Achiam, Amodei 2019: ppo_lag.py; FOCOPS,
-CRPO), the per-sample policy loss (FOCOPS), a stage after the epochs (CUP). A population of P
-agents runs the same loop: the losses are per-sample terms, and what it changes is the reducer
-(one mean per agent instead of ``torch.mean``) and the optimiser step (each agent's rows of stacked
-parameters), with its networks' forward pass and each agent's own minibatch order
-(population/update.py); :class:`OneRun` is a run's.
-
-The clipped surrogate is written out here rather than torchrl's ``ClipPPOLoss``: with the same
-formulas (clip in log-ratio space, entropy bonus, ``kl_approx``, ``clip_fraction``;
-``tests/test_algos.py`` checks it equals ``ClipPPOLoss`` on a batch), ``ClipPPOLoss`` spent about
-two thirds of each minibatch on TensorDict work it does for features we do not use (ESS, ratio
-statistics, key resolution, a TensorDict clone), the largest cost of the default gymnasium run's
-training (measured with cProfile, see ``experiments/``).
+"""PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms") and the update every PPO-family
+algorithm runs, :func:`ppo_update`, on one screen. A variant changes what the loop reads, never the loop:
+the multiplier and policy advantage (ppo_lag.py, FOCOPS, CRPO), the per-sample loss (FOCOPS), a stage after
+the epochs (CUP). A population runs the same loop with its own reducer and optimiser step
+(population/update.py; :class:`OneRun` is a run's). The clipped surrogate is written out, equal to torchrl's
+``ClipPPOLoss`` (tests/test_algos.py), which spent most of each minibatch on unused TensorDict work.
 """
 
 from __future__ import annotations
@@ -27,32 +16,19 @@ from tensordict import TensorDictBase
 from torch import distributions as D
 from torch.optim.adam import adam as functional_adam
 
-from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite
-from cmdp_rl.algos.critics import CriticRegression
+from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite, require_minibatches
 from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, minibatches, stopped
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import (
-    AUTO,
-    AutoInt,
-    Bool,
-    NonNegativeFloat,
-    PositiveFloat,
-    UnitOpen,
-    options,
-    require,
-)
+from cmdp_rl.config.validation import AUTO, AutoInt, Bool, NonNegativeFloat, PositiveFloat, UnitOpen, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import TwinGAE, standardized
-from cmdp_rl.rollout.episode_cost import EpisodeCost, EpisodeCostEstimate
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
 
-# KL early stopping (``algo.target_kl``): the update stops at the first minibatch whose approximate
-# KL from the behaviour policy, E[(r - 1) - log r] (never negative), exceeds KL_STOP * target_kl,
-# before that minibatch's step; the logged statistics average the minibatches evaluated. The
-# factor 1.5 is the one Spinning Up's PPO and Stable-Baselines3's PPO use with their target_kl.
+# KL early stopping stops at KL_STOP * target_kl: Spinning Up's and Stable-Baselines3's factor.
 KL_STOP = 1.5
 Units = dict[str, torch.Tensor]
 # An optimiser and the parameters it steps (a run's network; a population's stacked rows).
@@ -71,21 +47,17 @@ class PPOConfig(AlgoConfig):
     update_epochs: AutoInt = AUTO
     num_minibatches: AutoInt = AUTO
     entropy_coef: NonNegativeFloat = 0.0
-    # KL early stopping: null (off), or stop the epoch loop at the first minibatch whose approximate
-    # KL exceeds 1.5 * target_kl (KL_STOP).
+    # KL early stopping: null (off), or stop at the first minibatch whose approximate KL exceeds 1.5 target_kl.
     target_kl: Optional[PositiveFloat] = None
-    # Linear annealing of the actor's and the critics' learning rates from lr (critic_lr) to 0 over
-    # the run (Huang et al. 2022, "The 37 Implementation Details of PPO", detail 4); false: constant.
+    # Anneal lr and critic_lr linearly to 0 (Huang et al. 2022, "The 37 Implementation Details of PPO", 4).
     anneal_lr: Bool = False
     # The iterations the annealing spans; "auto": the run's, ceil(total_steps / batch).
     anneal_iterations: AutoInt = AUTO
 
     def resolve_auto(self, run: RunConfig) -> None:
-        """``num_minibatches`` and ``update_epochs`` from the batch (see ``config.resolve_auto``):
-        8 minibatches while the batch is at most 2048 steps, else one per 512 steps, at most 64;
-        epochs = 80 / minibatches rounded, at least 1 (about 80 minibatch steps per iteration, the
-        gym default's 10 x 8; PPO-Lagrangian moves lambda once per iteration, and with 16 or 32
-        steps per iteration at N = 1024, lambda overshot and the policy collapsed)."""
+        """8 minibatches while the batch is at most 2048 steps, else one per 512 steps, at most 64;
+        epochs = 80 / minibatches: about 80 minibatch steps per iteration, the gym default's 10 x 8
+        (with 16 or 32 at N = 1024, PPO-Lagrangian's once-per-iteration lambda overshot)."""
         batch = run.rollout_steps * run.env.num_envs
         if self.num_minibatches == AUTO:
             self.num_minibatches = 8 if batch <= 2048 else min(64, batch // 512)
@@ -98,13 +70,39 @@ class PPOConfig(AlgoConfig):
         return f"{self.update_epochs} x {self.num_minibatches} minibatches"
 
     def check(self, run: RunConfig) -> None:
-        batch = run.rollout_steps * run.env.num_envs
-        require(
-            batch >= self.num_minibatches,
-            "algo.num_minibatches",
-            f"at most rollout_steps * env.num_envs = {batch}",
-            self.num_minibatches,
-        )
+        require_minibatches(run, "num_minibatches", self.num_minibatches)
+        if hasattr(self, "multiplier"):  # a constrained variant's algo.multiplier node
+            self.multiplier.check()
+
+
+# The statistic each critic's loss is logged as.
+LOSS_NAMES = {"reward": "loss_v", "cost": "loss_vc"}
+
+
+class CriticRegression:
+    """Every critic's squared error on its GAE value targets, ``L^VF = (V(s) - V^targ)^2`` (eq. 9)."""
+
+    def __init__(self, agent: Agent) -> None:
+        self.agent = agent
+
+    def terms(
+        self, mb: dict[str, torch.Tensor], values: dict[str, torch.Tensor] | None = None
+    ) -> dict[str, torch.Tensor]:
+        """``{"loss_v": ..., "loss_vc": ...}`` per sample; ``values``: the critics' values if the caller has them."""
+        out = {}
+        for signal in self.agent.critics:
+            target = mb[keys.SIGNALS[signal][3]]
+            value = self.agent.value(signal, mb) if values is None else values[signal]
+            out[LOSS_NAMES[signal]] = (value - target).pow(2)
+        return out
+
+    def losses(self, mb: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Each critic's mean squared error on the minibatch."""
+        return {name: terms.mean() for name, terms in self.terms(mb).items()}
+
+    def target_keys(self) -> list[str]:
+        """The value targets a minibatch must carry."""
+        return [keys.SIGNALS[signal][3] for signal in self.agent.critics]
 
 
 STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
@@ -113,37 +111,28 @@ STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
 class PPO:
     name = "ppo"
     stats = STATS  # what update() returns besides lagrange_multiplier: metrics.csv's columns
+    multiplier: Any = None  # a constrained variant's lambda (multiplier.py), logged and checkpointed
 
     def __init__(self, cfg: PPOConfig, agent: Agent) -> None:
-        self.cfg = cfg
-        self.agent = agent
+        self.cfg, self.agent = cfg, agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
         self.episode_cost = EpisodeCostEstimate()  # J_c, for the constrained variants
-        # Clip bounds on the log-ratio, as ClipPPOLoss: log(1 - eps) <= log r <= log(1 + eps).
         self.log_clip = (math.log1p(-cfg.clip_epsilon), math.log1p(cfg.clip_epsilon))
         self.critics = CriticRegression(agent)
-        # The KL past which the epoch loop stops (before that minibatch's step); None: never.
         self.kl_limit = None if cfg.target_kl is None else KL_STOP * cfg.target_kl
         self.actor_params = list(agent.actor.parameters())
         self.critic_params = list(agent.critics.parameters())
-        # fused: one kernel per step for all parameters instead of a dozen ops per tensor.
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, fused=True)
         self.iteration = 0  # updates done: the learning-rate schedule's clock (anneal_lr)
         self.entropy_coef = cfg.entropy_coef
 
-    def anneal_fraction(self) -> float:
-        """The annealed rates' fraction of their initial values this iteration (``anneal_lr``):
-        ``1 - i / anneal_iterations`` for iteration i = 0, 1, ..."""
-        return max(0.0, 1.0 - self.iteration / self.cfg.anneal_iterations)
-
     def learning_rates(self) -> tuple[float, float]:
-        """The actor's and the critics' learning rates this iteration (``anneal_lr``: annealed)."""
-        frac = self.anneal_fraction() if self.cfg.anneal_lr else 1.0
+        """The actor's and critics' rates at iteration i: ``anneal_lr`` scales them by ``1 - i / anneal_iterations``."""
+        frac = max(0.0, 1.0 - self.iteration / self.cfg.anneal_iterations) if self.cfg.anneal_lr else 1.0
         return frac * self.cfg.lr, frac * self.cfg.critic_lr
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One PPO iteration on a ``[N, T]`` batch from the collector; returns scalars to log."""
         if self.cfg.anneal_lr:
             self.actor_opt.param_groups[0]["lr"], self.critic_opt.param_groups[0]["lr"] = self.learning_rates()
         stats = ppo_update([self], batch, OneRun(self.agent, self.cfg.max_grad_norm))[0]
@@ -152,8 +141,8 @@ class PPO:
 
     # --- what the variants change -------------------------------------------------------------
     @property
-    def lagrange_multiplier(self) -> float:
-        return 0.0
+    def lagrange_multiplier(self) -> float | list[float]:
+        return 0.0 if self.multiplier is None else logged_multiplier(self.multiplier.values)
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         """Constrained variants adapt lambda here, before the policy update."""
@@ -163,11 +152,9 @@ class PPO:
 
     def policy_terms(self, dist: D.Distribution, mb: Units) -> tuple[torch.Tensor, Units]:
         """The policy loss per sample, ``-min(r A, clip(r, 1 - eps, 1 + eps) A)`` with
-        ``r = pi(a|s) / pi_old(a|s)`` (the clipped surrogate, Schulman et al. 2017, eq. 7; clipped
-        in log-ratio space, as ClipPPOLoss), and per-sample diagnostics, without a graph: the KL
-        estimate ``log pi_old - log pi``, the one early stopping reads, ``(r - 1) - log r`` (never
-        negative: Schulman 2020, "Approximating KL Divergence"; the one Stable-Baselines3 stops
-        on), and whether ``r`` was clipped."""
+        ``r = pi(a|s) / pi_old(a|s)`` (eq. 7, clipped in log-ratio space as ClipPPOLoss), and diagnostics
+        without a graph: the KL estimate ``log pi_old - log pi``, the one early stopping reads,
+        ``(r - 1) - log r`` (never negative: Schulman 2020, "Approximating KL Divergence"), and clipping."""
         log_prob = dist.log_prob(mb[keys.ACTION])
         old_log_prob, adv = mb[keys.LOG_PROB], mb[keys.POLICY_ADVANTAGE]
         log_ratio = (log_prob - old_log_prob).reshape(adv.shape)
@@ -182,8 +169,7 @@ class PPO:
         return -gain, diagnostics
 
     def second_stage(self, algos: Sequence[PPO], rows: Sequence[TensorDictBase], members: OneRun) -> Units:
-        """A stage after the minibatch epochs, for every member (``algos``, each on its ``rows``),
-        before ``finish``: its statistics' means per member (none here; CUP's projection)."""
+        """A stage after the epochs for every member, on its ``rows``: its statistics' means (CUP's projection)."""
         return {}
 
     def iteration_stats(self) -> dict[str, float]:
@@ -192,8 +178,7 @@ class PPO:
 
     # --- around the epochs, per member --------------------------------------------------------
     def prepare(self, batch: TensorDictBase) -> torch.Tensor:
-        """After GAE, on this member's rows: J_c, the multiplier, then the policy advantage
-        (standardised if ``normalize_advantage``)."""
+        """After GAE, on this member's rows: J_c, the multiplier, the (standardised) policy advantage."""
         self.update_multiplier(self.episode_cost.update(batch))
         adv = self.policy_advantage(batch)
         if self.cfg.normalize_advantage:
@@ -201,8 +186,7 @@ class PPO:
         return adv
 
     def finish(self, means: dict[str, float]) -> dict[str, float]:
-        """After the minibatches: the logged statistics (``stats`` of the minibatch means, checked
-        finite, the multiplier, the variant's own), and the clock advanced."""
+        """After the minibatches: the logged statistics (checked finite), and the clock advanced."""
         stats = {k: v for k, v in means.items() if k in self.stats}
         check_finite(**stats)
         stats["lagrange_multiplier"] = self.lagrange_multiplier
@@ -211,21 +195,21 @@ class PPO:
         return stats
 
     def update_keys(self, batch: TensorDictBase) -> list:
-        """The batch entries the minibatch loop reads: the networks' inputs, the action and its
-        behaviour log-prob, the policy advantage and the critics' value targets."""
+        """The batch entries the minibatch loop reads."""
         fixed = [keys.ACTION, keys.LOG_PROB, keys.POLICY_ADVANTAGE, *self.critics.target_keys()]
         present = batch.keys(True)
         return [*fixed, *(k for k in self.agent.in_keys if k in present and k not in fixed)]
 
     # --- checkpointing --------------------------------------------------------------------------
     def state_dict(self) -> dict:
-        return {
+        state = {
             "networks": self.agent.state_dict(),
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
             "episode_cost": self.episode_cost.state_dict(),
             "iteration": self.iteration,
         }
+        return state if self.multiplier is None else {**state, "multiplier": self.multiplier.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
@@ -233,13 +217,12 @@ class PPO:
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.episode_cost.load_state_dict(state["episode_cost"])
         self.iteration = int(state["iteration"])
+        if self.multiplier is not None:
+            self.multiplier.load_state_dict(state["multiplier"])
 
 
 def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> list[dict[str, float]]:
-    """One iteration of every member on its rows of the ``[N, T]`` batch: a run is ``[self]`` on
-    :class:`OneRun`, a population its agents' own objects on ``population.update.PopulationPPO``,
-    whose reducer (``mean``: one mean per agent) and optimiser step plug in where a run's do.
-    Returns each member's statistics to log."""
+    """One iteration of every member on its rows of the ``[N, T]`` batch; returns each member's statistics."""
     ppo, cfg = algos[0], algos[0].cfg
     ppo.gae(batch, members.agent)  # A_r, A_c and the critics' targets V^targ = A + V, every member's rows at once
     rows = member_rows(batch, len(algos))
@@ -288,9 +271,7 @@ def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> 
 
 
 class OneRun:
-    """What the update asks of one run's agent: its reducer is ``torch.mean`` and its optimiser
-    step is torch's (one backward pass, each network's gradient norm clipped, fused Adam).
-    ``population.update.PopulationPPO`` answers the same calls for P agents side by side."""
+    """A run's reducer (``torch.mean``) and optimiser step; ``population.update.PopulationPPO`` is P agents'."""
 
     mean = staticmethod(torch.mean)
 
@@ -299,7 +280,7 @@ class OneRun:
 
     @staticmethod
     def per_member(values: Sequence[Any]) -> Any:
-        """One number per member, as the losses weigh a member's terms by it: a run's one."""
+        """One number per member (a run's one)."""
         return values[0]
 
     def minibatches(self, units: Units, num_minibatches: int, active: Any = True) -> Iterator[Units]:
@@ -330,15 +311,13 @@ class OneRun:
         return [(torch.optim.Adam(a.actor_params, lr=a.actor_opt.param_groups[0]["lr"], fused=True), a.actor_params)]
 
     def step(self, loss: torch.Tensor, optimisers: Sequence[Optimiser], stepping: Any = True) -> None:
-        """Backward, clip each network's gradient norm, step its Adam; nothing once KL early
-        stopping ended the update (``stepping`` false)."""
+        """Backward, clip each network's gradient norm, step its Adam; nothing once ``stepping`` is false."""
         if not stepping:
             return
         for _, params in optimisers:
             for p in params:  # optimizer.zero_grad(set_to_none=True), without its per-call profiling
                 p.grad = None
-        # One backward pass: the networks share no parameter, so each one's gradient is its own loss's.
-        loss.backward()
+        loss.backward()  # one pass: the networks share no parameter
         for _, params in optimisers:
             clip_grad_norm_(params, self.max_grad_norm)
         for opt, _ in optimisers:
@@ -346,23 +325,14 @@ class OneRun:
 
 
 def adam_step(opt: torch.optim.Optimizer) -> None:
-    """``opt.step()``. For torch's fused Adam with one parameter group, default options and its
-    moments created (after its first step), the same fused kernel through torch's documented
-    functional API, ``torch.optim.adam.adam``, on the optimiser's own state: ``Optimizer.step``'s
-    wrappers (profiling record, hooks, the per-parameter state scan) cost more than the kernel on
-    these small networks: they added 9% to ``make train``'s update (docs/throughput.md).
-    tests/test_update_loop.py checks the two bit for bit."""
+    """``opt.step()``; for torch's fused Adam with one parameter group, default options and its moments
+    created, the same kernel through torch's functional ``torch.optim.adam.adam``: ``Optimizer.step``'s
+    wrappers cost more than the kernel on small networks (docs/throughput.md; tests/test_update_loop.py
+    checks the two bit for bit)."""
     group, params = opt.param_groups[0], opt.param_groups[0]["params"]
-    plain = not any(group[k] for k in ("amsgrad", "maximize", "weight_decay", "capturable", "differentiable"))
-    if not (
-        type(opt) is torch.optim.Adam
-        and len(opt.param_groups) == 1
-        and group["fused"]
-        and plain
-        and not group.get("decoupled_weight_decay")
-        and len(opt.state) == len(params)
-        and all(p.grad is not None for p in params)
-    ):
+    options = ("amsgrad", "maximize", "weight_decay", "capturable", "differentiable", "decoupled_weight_decay")
+    plain = type(opt) is torch.optim.Adam and len(opt.param_groups) == 1 and not any(group.get(k) for k in options)
+    if not (plain and group["fused"] and len(opt.state) == len(params) and all(p.grad is not None for p in params)):
         opt.step()
         return
     states = [opt.state[p] for p in params]
@@ -388,19 +358,11 @@ def adam_step(opt: torch.optim.Optimizer) -> None:
 
 @torch.no_grad()
 def clip_grad_norm_(params: Sequence[torch.Tensor], max_norm: float) -> None:
-    """``torch.nn.utils.clip_grad_norm_`` in its own arithmetic (per-tensor norms, their 2-norm,
-    the coefficient ``max_norm / (norm + 1e-6)`` clamped at 1) for parameters of one device and
-    dtype, with the ``torch._foreach_*`` kernels torch's uses: without its grouping of the
-    gradients by device and dtype on every call (docs/throughput.md)."""
+    """``torch.nn.utils.clip_grad_norm_``'s arithmetic without its per-call grouping (docs/throughput.md)."""
     grads = [p.grad for p in params if p.grad is not None]
     if grads:
         total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads, 2.0)), 2.0)
         torch._foreach_mul_(grads, torch.clamp(max_norm / (total + 1e-6), max=1.0))
-
-
-def logged_multiplier(values: list[float]) -> float | list[float]:
-    """A multiplier as metrics.csv takes it: a number for one constraint, else a list of K."""
-    return values[0] if len(values) == 1 else list(values)
 
 
 register("algo", "ppo", PPOConfig, PPO)

@@ -1,17 +1,8 @@
 """Sauté RL (Sootla et al., 2022, "Sauté RL: Almost Surely Safe Reinforcement Learning Using State
-Augmentation", ICML): an unconstrained algorithm trained on the safety augmented MDP.
-
-The constraint leaves the algorithm and goes into the env (``envs/saute.py``): the remaining budget
-joins the state and the reward is replaced by ``unsafe_reward`` once it is spent, so any algorithm
-that maximises reward can be "sautéed" (the paper's plug-and-play point). This module is the
-composition: its options declare the env transform (``wrap_env``, which ``envs.make_env`` applies
-to every env an algorithm's options ask it to) and its factory builds the base algorithm, with the
-options it shares with Sauté's, on the agent that sees the augmented state.
-
-Evaluation envs augment the state but keep the task's reward, so ``eval.json`` reports the same
-return as every other algorithm's; ``metrics.csv``'s training ``episode_return`` is the reshaped
-return the base algorithm optimises. The paper's constraint is almost sure (every episode within
-budget), stricter than the expected-cost constraint the budget means for the other algorithms.
+Augmentation", ICML): an unconstrained algorithm on the safety augmented MDP. The constraint goes into the
+env (``envs/saute.py``: the remaining budget joins the state, the reward becomes ``unsafe_reward`` once it
+is spent); this module declares that env (``wrap_env``; evaluation keeps the task's reward) and builds the
+base algorithm from the options it shares with Sauté's. Its constraint is almost sure, stricter than a budget.
 """
 
 from __future__ import annotations
@@ -36,8 +27,7 @@ class SauteConfig(PPOConfig):
     """Sauté RL on a base algorithm (``base``), whose options are these (PPO's)."""
 
     name: str = "saute"
-    # The algorithm trained on the augmented MDP; it must optimise reward alone. Its options are
-    # the ones it shares with these (PPO's); a base with options of its own needs them added here.
+    # The algorithm trained on the augmented MDP, with the options it shares with these (PPO's).
     base: Literal["ppo"] = "ppo"
     unsafe_reward: Annotated[float, finite()] = -1.0  # the reward of a step taken with a budget spent
     # gamma_c of z's update (envs/saute.py); 1 counts the undiscounted episode cost that cost_limit budgets

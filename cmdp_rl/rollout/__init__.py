@@ -1,3 +1,1 @@
-"""The rollout and what is computed from it before an update: the batch's keys, action spaces, the
-collector, the advantages of reward and cost, observation normalisation, and the episode-cost
-estimate J_c the multipliers read."""
+"""The rollout: the batch's keys, action spaces, the collector, reward and cost GAE, normalisation."""

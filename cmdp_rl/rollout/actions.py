@@ -1,18 +1,8 @@
-"""The action spaces the toolkit supports, and how their actions are stored.
-
-An action of one env is stored as a flat vector ``[d]`` in every batch:
-
-- ``Box`` (any shape): its ``d = prod(shape)`` numbers, float32, reshaped to the box's shape
-  before the env steps (a ``(2, 3)`` box is flattened to 6 numbers, not refused);
-- ``Discrete(n, start)``: one int64 index in ``[0, n)``, ``d = 1`` (``start`` is added for the env);
-- ``MultiDiscrete(nvec, start)``: one int64 index per component, ``d = nvec.size``;
-- a hybrid space, ``Tuple`` or ``Dict`` of one ``Discrete(n)`` (the skill) and one float ``Box`` (its
-  parameters): float32 ``[skill, params...]``, ``d = 1 + prod(box.shape)``, the skill an exact
-  small integer in a float (:class:`Hybrid`; ``policies/hybrid.py`` is its distribution).
-
-The previous action a policy may read (``keys.PREV_ACTION``) is :func:`no_action` on an episode's
-first step: 0 for a box (as before), -1 for discrete actions, an index no action has, so a one-hot
-encoding of it is all zeros rather than the one-hot of action 0.
+"""The action spaces the toolkit supports, and how one env's action is stored, a flat vector ``[d]``:
+``Box`` (any shape): its ``prod(shape)`` floats; ``Discrete(n, start)``: one int64 index in ``[0, n)``
+(``start`` added for the env); ``MultiDiscrete``: one index per component; hybrid, a ``Tuple`` or ``Dict``
+of one ``Discrete`` skill and one float ``Box`` of its parameters: floats ``[skill, params...]``
+(:class:`Hybrid`).
 """
 
 from __future__ import annotations
@@ -34,8 +24,7 @@ class UnsupportedActionSpace(ConfigError):
 
 
 class Hybrid(NamedTuple):
-    """A hybrid action space's parts: ``skills`` choices (``start`` added for the env), the
-    parameters' box, and where each sits in the env's ``Tuple`` (an index) or ``Dict`` (a key)."""
+    """A hybrid space's parts: ``skills`` choices, the parameters' box, and where each sits in the space."""
 
     skills: int
     start: int
@@ -45,8 +34,7 @@ class Hybrid(NamedTuple):
 
 
 def hybrid(space: gym.Space) -> Hybrid | None:
-    """The parts of a hybrid space (a ``Tuple``/``Dict`` of exactly one ``Discrete`` and one float
-    ``Box``, in either order), or None for any other space."""
+    """The parts of a ``Tuple``/``Dict`` of one ``Discrete`` and one float ``Box`` (either order), else None."""
     if isinstance(space, spaces.Tuple):
         items = list(enumerate(space.spaces))
     elif isinstance(space, spaces.Dict):
@@ -91,8 +79,7 @@ def action_dim(space: gym.Space) -> int:
 
 
 def action_bounds(space: gym.Space) -> tuple[torch.Tensor, torch.Tensor]:
-    """The range of each entry of a stored action, ``[d]`` each (float32): a box's bounds, a
-    discrete index's ``[0, n - 1]``, a hybrid action's skill index then its box's bounds."""
+    """Each stored entry's range ``[d]``: a box's bounds, an index's ``[0, n - 1]``, a hybrid's skill then box."""
     parts = hybrid(space)
     if parts is not None:
         low, high = action_bounds(parts.box)
@@ -103,10 +90,6 @@ def action_bounds(space: gym.Space) -> tuple[torch.Tensor, torch.Tensor]:
     return low, torch.as_tensor(space.high, dtype=torch.float32).reshape(-1)
 
 
-def action_dtype(space: gym.Space) -> torch.dtype:
-    return torch.int64 if is_discrete(space) else torch.float32
-
-
 def categories(space: gym.Space) -> tuple[int, ...]:
     """The number of choices of each component of a discrete action (``()`` for a box)."""
     if isinstance(space, spaces.Discrete):
@@ -114,11 +97,6 @@ def categories(space: gym.Space) -> tuple[int, ...]:
     if isinstance(space, spaces.MultiDiscrete):
         return tuple(int(n) for n in space.nvec.reshape(-1))
     return ()
-
-
-def no_action(space: gym.Space) -> int | float:
-    """The stored previous action on an episode's first step (module docstring)."""
-    return -1 if is_discrete(space) else 0.0
 
 
 def to_env(action: torch.Tensor, space: gym.Space) -> np.ndarray:
@@ -142,9 +120,7 @@ def to_env(action: torch.Tensor, space: gym.Space) -> np.ndarray:
 
 
 def uniform_actions(space: gym.Space, n: int, device: torch.device | str) -> tuple[torch.Tensor, torch.Tensor]:
-    """``n`` stored actions drawn uniformly from ``space`` (torch's generator) and their log-density
-    ``[n]``: a box's uniform over its bounds (which must be finite), a discrete space's uniform over
-    its choices. An off-policy algorithm's warm-up acts so (``Collector(uniform_steps=...)``)."""
+    """``n`` stored actions uniform on ``space`` (finite bounds) and their log-density ``[n]``: a warm-up."""
     if isinstance(space, spaces.Box):
         low = torch.as_tensor(space.low, dtype=torch.float32, device=device).reshape(-1)
         high = torch.as_tensor(space.high, dtype=torch.float32, device=device).reshape(-1)
@@ -158,20 +134,3 @@ def uniform_actions(space: gym.Space, n: int, device: torch.device | str) -> tup
     sizes = torch.tensor(categories(space), device=device)
     action = (torch.rand(n, sizes.numel(), device=device) * sizes).long()
     return action, (-sizes.float().log().sum()).expand(n)
-
-
-__all__ = [
-    "SUPPORTED",
-    "Hybrid",
-    "action_bounds",
-    "hybrid",
-    "UnsupportedActionSpace",
-    "action_dim",
-    "action_dtype",
-    "categories",
-    "check_action_space",
-    "is_discrete",
-    "no_action",
-    "to_env",
-    "uniform_actions",
-]

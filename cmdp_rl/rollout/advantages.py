@@ -1,15 +1,7 @@
-"""Twin critics, twin GAEs: advantages and value targets for reward and for cost.
-
-Both GAEs are torchrl's, reading values the critics wrote beforehand (``value_network=None``), so
-one critic pass serves both the estimate and the logging. A truncated step (time limit) is not
-terminal: GAE bootstraps from ``V(next observation)`` unless ``("next", "terminated")`` is set,
-for the reward critic and the cost critic alike.
-
-K costs: the cost critic's values, the costs, and so the cost advantages and targets are
-``[N, T, K]``. torchrl's GAE wants every input of one shape, so the cost GAE runs batched over K
-on a view whose done/terminated flags are expanded to ``[N, T, K]``: the recursion is elementwise
-in K, so each constraint's advantage is exactly the one GAE gives on that cost alone
-(``tests/test_cost_vector.py`` checks this bit for bit). K = 1 calls GAE on the batch as before.
+"""Twin critics, twin GAEs: torchrl's GAE for reward and for cost on values the critics wrote beforehand
+(one critic pass serves GAE and the logging); a truncated step bootstraps unless ``terminated``. With K
+costs the cost GAE runs on a view whose done flags are expanded to ``[N, T, K]``: elementwise in K, exactly
+each cost's own GAE (tests/test_cost_vector.py checks it bit for bit).
 """
 
 from __future__ import annotations
@@ -22,32 +14,21 @@ from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 
 
+def _gae(gamma: float, lmbda: float, signal: str) -> GAE:
+    gae = GAE(gamma=gamma, lmbda=lmbda, value_network=None)
+    reward, value, advantage, target = keys.SIGNALS[signal]
+    gae.set_keys(reward=reward, value=value, advantage=advantage, value_target=target, done=keys.DONE)
+    gae.set_keys(terminated=keys.TERMINATED)
+    return gae
+
+
 class TwinGAE:
     def __init__(self, gamma: float, cost_gamma: float, lmbda: float) -> None:
-        self.reward = GAE(gamma=gamma, lmbda=lmbda, value_network=None)
-        self.reward.set_keys(
-            reward=keys.REWARD,
-            value=keys.VALUE,
-            advantage=keys.ADVANTAGE,
-            value_target=keys.VALUE_TARGET,
-            done=keys.DONE,
-            terminated=keys.TERMINATED,
-        )
-        self.cost = GAE(gamma=cost_gamma, lmbda=lmbda, value_network=None)
-        self.cost.set_keys(
-            reward=keys.COST,
-            value=keys.COST_VALUE,
-            advantage=keys.COST_ADVANTAGE,
-            value_target=keys.COST_VALUE_TARGET,
-            done=keys.DONE,
-            terminated=keys.TERMINATED,
-        )
+        self.reward, self.cost = _gae(gamma, lmbda, "reward"), _gae(cost_gamma, lmbda, "cost")
 
     @torch.no_grad()
     def __call__(self, batch: TensorDictBase, agent: Agent) -> TensorDictBase:
-        """Write values, advantages and value targets of both critics of ``agent`` into ``batch``
-        ([N, T]); the values of the observations and next observations come from
-        ``Agent.rollout_values``."""
+        """Write both critics' values, advantages and value targets into ``batch`` ``[N, T]``."""
         for signal in ("reward", "cost"):
             value_key = keys.SIGNALS[signal][1]
             values, next_values = agent.rollout_values(batch, signal)
@@ -80,8 +61,7 @@ class TwinGAE:
 
 
 def standardized(x: torch.Tensor, dim: tuple[int, ...] | None = None) -> torch.Tensor:
-    """``(x - mean) / (std + 1e-8)``: over all of ``x``, or over ``dim`` (each remaining column on
-    its own). The advantages' normalisation, written once."""
+    """``(x - mean) / (std + 1e-8)``: over all of ``x``, or over ``dim`` (each remaining column on its own)."""
     if dim is None:
         return (x - x.mean()) / (x.std() + 1e-8)
     return (x - x.mean(dim=dim)) / (x.std(dim=dim) + 1e-8)

@@ -1,24 +1,8 @@
-"""The one rollout collector every algorithm shares.
-
-It steps a :class:`~cmdp_rl.envs.VecEnv` with an :class:`~cmdp_rl.policies.agent.Agent` and returns
-one ``[num_envs, T]`` TensorDict in torchrl's layout, reward and cost side by side under ``"next"``,
-with the running undiscounted episode return and cost written on every step.
-
-Why not torchrl's ``Collector``: it costs about 1.3 ms per step here (measured, see
-``../shared/notes``), more than stepping eight Reach1D envs; this loop does only what the batch
-needs. It keeps torchrl's conventions (``is_init``, ``"next"``), so torchrl's GAE reads its output
-unchanged.
-
-Per step it handles plain tensors: the agent acts on a dict of the step's entries
-(``Agent.act``), each step's entries are kept in a dict, and they are stacked into the batch once at
-the end.
-
-History-dependent agents (policies/recurrent.py, transformer.py) get, as torchrl's env transforms
-would give them: their initial state at the root (``Agent.initial_state``: zeros), the state they
-return under ``"next"`` carried to the next step and reset to the initial state where an episode
-ended (as torchrl's ``TensorDictPrimer`` does on reset), and, if their ``in_keys`` ask, the
-previous step's action and cost (``keys.PREV_ACTION``, ``keys.PREV_COST``; zero at an episode's
-first step; under ``"next"``, this step's).
+"""The one rollout collector every algorithm shares: it steps a :class:`~cmdp_rl.envs.VecEnv` with an
+:class:`~cmdp_rl.policies.agent.Agent` on plain tensors and returns one ``[num_envs, T]`` TensorDict in
+torchrl's layout (``is_init``, ``"next"``, so torchrl's GAE reads it), reward and cost side by side under
+``"next"``, with the running undiscounted episode sums on every step. Not torchrl's ``Collector``: it cost
+more per step than stepping eight Reach1D envs (docs/guide/design.md).
 """
 
 from __future__ import annotations
@@ -32,17 +16,16 @@ from tensordict import TensorDict, TensorDictBase
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.actions import action_dim, action_dtype, no_action, uniform_actions
+from cmdp_rl.rollout.actions import action_dim, is_discrete, uniform_actions
 
 Entries = dict  # key (a string, or a tuple for a nested key) -> tensor of one step, batch [N]
 
 
 class PolicyMemory:
-    """What an agent carries from one step to the next besides the observation, for N envs: its
-    initial state (``Agent.initial_state``), the state it returns under ``"next"`` (reset to the
-    initial one where an episode ended, as torchrl's ``TensorDictPrimer`` does on reset), and the
-    previous action and cost if its ``in_keys`` ask for them. Used by the collector and by
-    ``replay.py``, which steps one plain env."""
+    """What a history-dependent agent carries between steps of N envs, as torchrl's env transforms would:
+    its initial state, the state it returns under ``"next"`` (reset where an episode ended, as
+    ``TensorDictPrimer`` does), and the previous action and cost if its ``in_keys`` ask. The collector's,
+    and ``replay.py``'s, which steps one plain env."""
 
     def __init__(
         self, agent: Agent, num_envs: int, action_space: gym.Space, device: torch.device, num_costs: int = 1
@@ -53,10 +36,10 @@ class PolicyMemory:
         self.prev_cost = keys.PREV_COST in in_keys
         self.num_envs, self.device = num_envs, device
         self.num_costs = num_costs  # the previous cost is the whole vector of K costs
-        # An episode's first step has no previous action: 0 for a box, -1 (no index) for discrete
-        # actions, stored in the action's own dtype (cmdp_rl/rollout/actions.py).
-        self.action_dim, self.action_dtype = action_dim(action_space), action_dtype(action_space)
-        self.no_action = no_action(action_space)
+        # No previous action on an episode's first step: 0 for a box, -1 for discrete actions, an index no
+        # action has (its one-hot encoding is all zeros).
+        discrete, self.action_dim = is_discrete(action_space), action_dim(action_space)
+        self.action_dtype, self.no_action = (torch.int64, -1) if discrete else (torch.float32, 0.0)
 
     def start(self) -> Entries:
         """The root entries of every env's first step (besides observation and ``is_init``)."""
@@ -90,14 +73,8 @@ class PolicyMemory:
 
 
 class Collector:
-    """Collects ``rollout_steps`` steps from every env of ``env`` per call to :meth:`collect`.
-
-    Episodes run on across calls; the env is reset once, at construction, with ``seed``. Actions
-    are sampled, or the distribution's mode if ``deterministic``; the run's first ``uniform_steps``
-    env steps (over all envs) act uniformly at random instead (an off-policy algorithm's warm-up).
-    The state the agent returns under ``"next"`` (a recurrent state, a transformer's history) is
-    carried to the next step's root.
-    """
+    """``rollout_steps`` steps of every env per :meth:`collect`, episodes running on across calls (one reset);
+    ``deterministic``: the mode acts; the run's first ``uniform_steps`` env steps act uniformly at random."""
 
     def __init__(
         self,
@@ -108,11 +85,8 @@ class Collector:
         deterministic: bool = False,
         uniform_steps: int = 0,
     ) -> None:
-        self.env = env
-        self.uniform_steps = uniform_steps
-        self.deterministic = deterministic
-        self.agent = agent
-        self.rollout_steps = rollout_steps
+        self.env, self.agent, self.rollout_steps = env, agent, rollout_steps
+        self.deterministic, self.uniform_steps = deterministic, uniform_steps
         n, dev = env.num_envs, env.device
         self._memory = PolicyMemory(agent, n, env.action_space, dev, env.num_costs)
         self._root: Entries = {
@@ -124,7 +98,6 @@ class Collector:
         self._ep_cost = torch.zeros(n, env.num_costs, device=dev)  # one running sum per constraint
         self._ep_length = torch.zeros(n, 1, dtype=torch.int64, device=dev)
         self.total_steps = 0
-        # Every cost collected so far, per constraint: the numerators of the cost rates.
         self.total_costs = [0.0] * env.num_costs
 
     @torch.no_grad()
@@ -174,7 +147,7 @@ class Collector:
             device=self.env.device,
         )
         cost = batch.get((keys.NEXT, keys.COST))
-        # K = 1 sums the whole batch in one reduction, exactly as before costs became vectors.
+        # K = 1 sums the whole batch in one reduction (same rounding as a scalar cost).
         sums = [cost.sum().item()] if cost.shape[-1] == 1 else cost.sum((0, 1)).tolist()
         self.total_costs = [t + s for t, s in zip(self.total_costs, sums)]
         return batch
@@ -187,16 +160,13 @@ class Collector:
         return self.total_costs[0]
 
     def state_dict(self) -> dict[str, Any]:
-        """Where the rollout stands: the next root (observation, ``is_init``, carried recurrent
-        state), the running episode sums, the step and cost counters, and the env's own state. A collector
-        built anew on the same config and given this continues the same trajectories."""
+        """Where the rollout stands: a collector built anew and given this continues the same trajectories."""
         return {
             "root": dict(self._root),
             "episode_return": self._ep_return.clone(),
             "episode_cost": self._ep_cost.clone(),
             "episode_length": self._ep_length.clone(),
             "total_steps": self.total_steps,
-            # A number for one constraint (as before costs became vectors), else a list of K.
             "total_cost": self.total_costs[0] if len(self.total_costs) == 1 else list(self.total_costs),
             "env": self.env.state_dict(),
         }
@@ -220,8 +190,7 @@ def _reset_where(done: torch.Tensor, value: torch.Tensor, initial: torch.Tensor 
 
 
 def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:
-    """Undiscounted return ``[E]``, cost ``[E, K]`` (one column per constraint) and length ``[E]``
-    of every episode that ended inside ``batch``."""
+    """Return ``[E]``, cost ``[E, K]`` and length ``[E]`` of every episode that ended inside ``batch``."""
     done = batch.get((keys.NEXT, keys.DONE)).squeeze(-1)
     nxt = batch.get(keys.NEXT)
     return {

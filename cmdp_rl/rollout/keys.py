@@ -1,9 +1,6 @@
-"""Every TensorDict key the toolkit reads or writes, in one place.
-
-A rollout batch has shape ``[num_envs, time]`` and follows torchrl's layout: what the agent saw and
-did at step t sits at the root, what the env returned sits under ``"next"``. Reward and cost are
-twins: whatever one has (a critic value, a GAE advantage, a value target, an episode sum), the other
-has too, under the paired name below.
+"""Every TensorDict key the toolkit reads or writes. A batch ``[num_envs, time]`` follows torchrl's layout:
+what the agent saw and did at step t at the root, what the env returned under ``"next"``. Reward and cost
+are twins: whatever one has (critic value, advantage, value target, episode sum), the other has too.
 """
 
 OBS = "observation"
@@ -21,8 +18,7 @@ DONE = "done"
 TERMINATED = "terminated"
 TRUNCATED = "truncated"
 
-# Running undiscounted sums of the episode so far, written under "next" on every step;
-# read where ("next", DONE) is True they are the finished episodes' totals.
+# Running undiscounted sums of the episode so far, under "next" every step (where DONE: the episode's totals).
 EPISODE_RETURN = "episode_return"
 EPISODE_COST = "episode_cost"
 EPISODE_LENGTH = "episode_length"
@@ -43,13 +39,11 @@ SIGNALS = {
 POLICY_ADVANTAGE = "policy_advantage"
 
 # --- What a history-dependent policy reads and carries (policies/recurrent.py, transformer.py) ---
-# The previous step's action and cost, written at the root by the collector when the policy reads
-# them (zero on an episode's first step); under "next" they are this step's action and cost.
+# The previous step's action and cost at the root when the policy reads them; under "next", this step's.
 PREV_ACTION = "prev_action"
 PREV_COST = "prev_cost"
-# Recurrent state of each network (torchrl LSTMModule/GRUModule; a GRU has no cell). The network
-# writes ("next", key); the collector carries it to the next step's root, reset to the initial
-# (zero) state where an episode ended, as torchrl's TensorDictPrimer does on reset.
+# Recurrent state of each network (torchrl LSTMModule/GRUModule; a GRU has no cell), written under "next"
+# and carried to the next step's root by the collector (rollout/collector.PolicyMemory).
 ACTOR_HIDDEN = "actor_hidden"
 ACTOR_CELL = "actor_cell"
 CRITIC_HIDDEN = "critic_hidden"
@@ -63,8 +57,5 @@ HISTORY_MASK = "history_mask"
 # Intermediate entries inside one network's forward pass; never stored in a batch.
 NET_INPUT = "net_input"
 FEATURES = "features"
-WINDOW = "window"
-WINDOW_MASK = "window_mask"
-# deploy.policy=mixture (deploy/mixture.py): which of the mixture's member actors each env row
-# follows, drawn on an episode's first step and carried to its end.
+# deploy.policy=mixture: the member actor each env row follows, drawn at an episode's start (deploy/mixture.py).
 MIXTURE_MEMBER = "mixture_member"

@@ -1,34 +1,17 @@
-"""Running observation normalization and reward/cost scaling, saved with the networks.
+"""Running observation normalization and reward/cost scaling, saved with the networks. Observations:
+``clip((obs - mean) / std, -c, c)`` by one module in front of the actor and the critics, so evaluation and
+a reloaded checkpoint see training's statistics. Reward and cost: each divided by the running std of its
+discounted sum before GAE (Engstrom et al. 2020, "Implementation Matters in Deep Policy Gradients"), one
+statistic per cost; logged returns, costs and ``J_c <= d`` stay in the env's units.
 
-- Observations: ``clip((obs - mean) / std, -c, c)`` by a module placed in front of the actor and
-  both critics (one shared instance), so evaluation and a reloaded checkpoint see exactly the
-  statistics training used.
-- Reward and cost: each divided by the running std of its discounted sum before GAE ("reward
-  scaling", Engstrom et al. 2020, "Implementation Matters in Deep Policy Gradients", sec. 3), so
-  the critics regress on targets of order one. Logged returns and costs, and the constraint
-  ``J_c <= d``, stay in the env's units: the collector's episode sums are taken before scaling.
-  With K costs each constraint has its own running discounted sum and std (a hazard hit once per
-  episode and a speed cost paid every step differ by orders of magnitude).
-
-The running statistics are torchrl's ``RunningMeanStd`` (Welford's parallel update, buffers in the
-``state_dict``). Why not torchrl's ``VecNorm``/``ObservationNorm`` transforms: they act on an
-``EnvBase`` and update on every env step, while our envs are plain tensors-in/tensors-out
-``VecEnv``s (see ``envs/vector.py``); and a transform on the env side would have to be copied into
-the evaluation env and saved apart from the networks. Statistics change only through the two calls
-the training loop makes:
-
-1. :meth:`Normalizers.scale_batch` before the update: reward/cost statistics take in the batch, then
-   the batch's rewards and costs are divided in place.
-2. :meth:`Normalizers.update_observation_stats` after the update: the observation statistics take
-   in the batch's observations. Updating them only after the update keeps the policy that
-   collected the batch and the one PPO's ratio compares against identical (same statistics), so
-   the first ratio of every update is exactly 1. The first rollout therefore runs with the
-   initial statistics (mean 0, std 1), i.e. on raw observations.
+torchrl's ``RunningMeanStd``, not its ``VecNorm`` transform: that acts on an ``EnvBase`` every env step and
+would be saved apart from the networks. Statistics change only in :meth:`Normalizers.scale_batch` (before
+the update) and :meth:`Normalizers.update_observation_stats` (after it, so the first PPO ratio is exactly 1).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional
 
 import torch
 from tensordict import TensorDictBase
@@ -62,10 +45,7 @@ class ObservationNormalizer(nn.Module):
 
 
 class ReturnScaler(nn.Module):
-    """Scales a per-step signal by ``1 / std`` of its running discounted sum ``R_t = gamma R_{t-1} + x_t``
-    (reset where an episode ends), per env; the sums carry over from one batch to the next.
-    ``channels`` > 1 (K costs): one sum and one std per channel. One channel keeps scalar
-    statistics, as before costs became vectors (same reductions, same numbers, same checkpoint)."""
+    """Scales a signal by ``1 / std`` of its running discounted sum per env (reset at episode ends), per channel."""
 
     def __init__(self, num_envs: int, gamma: float, channels: int = 1) -> None:
         super().__init__()
@@ -89,20 +69,15 @@ class ReturnScaler(nn.Module):
         return signal / (self.stats.var + _EPS).sqrt()
 
 
-class Normalizers(nn.Module):
-    """The normalizers a run uses; each is ``None`` when off. ``obs`` is also placed inside the
-    actor and critics by :func:`~cmdp_rl.policies.make_agent`."""
+Scaler = Optional[ReturnScaler]
 
-    def __init__(
-        self,
-        obs: ObservationNormalizer | None = None,
-        reward: ReturnScaler | None = None,
-        cost: ReturnScaler | None = None,
-    ) -> None:
+
+class Normalizers(nn.Module):
+    """The normalizers a run uses, each ``None`` when off; ``make_agent`` places ``obs`` in the networks."""
+
+    def __init__(self, obs: ObservationNormalizer | None = None, reward: Scaler = None, cost: Scaler = None) -> None:
         super().__init__()
-        self.obs = obs
-        self.reward = reward
-        self.cost = cost
+        self.obs, self.reward, self.cost = obs, reward, cost
 
     @classmethod
     def from_config(

@@ -1,2 +1,1 @@
-"""Off-policy algorithms: what SAC and TD3 (and their Lagrangian variants) share (``common``), the replay
-buffer and the target networks."""
+"""Off-policy algorithms: SAC and TD3 with their Lagrangian variants, and what they share (``common``)."""

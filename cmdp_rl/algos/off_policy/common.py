@@ -1,52 +1,29 @@
-"""What SAC(-Lagrangian) and TD3(-Lagrangian) share: the replay buffer, target networks, the TD
-targets of the twin reward critics and the cost critic, the multiplier on the cost critic, and the
-update loop around each algorithm's gradient step.
+"""What SAC(-Lagrangian) and TD3(-Lagrangian) share: the replay buffer, target networks, the TD targets of
+the twin reward critics and the cost critic, the multiplier on the cost critic, and the update loop: each
+short rollout (``rollout_steps: auto``) joins the buffer, then ``utd_ratio`` gradient steps per transition
+once it holds ``warmup_steps`` (the collector acts uniformly at random until then).
 
-The one execution path stays: the trainer collects a short rollout (``rollout_steps`` "auto": 8
-steps of 8 envs, :meth:`OffPolicyConfig.auto_rollout_steps`) and :meth:`OffPolicy.update` adds its
-transitions to the buffer, then runs ``utd_ratio`` gradient steps per new transition once the buffer
-holds ``warmup_steps`` (the trainer's collector acts uniformly at random until then:
-``uniform_action_steps``).
-
-The cost budget. The multiplier compares the cost critic's estimate ``E_s[Q_c(s, pi(s))]`` over the
-states of the newest ``cost_window`` transitions (:meth:`OffPolicy.cost_estimate`) with a budget on
-the discounted scale: an episode budget ``d`` spent uniformly over
-an episode of ``T`` steps is ``d / T`` per step, whose discounted sum from the episode's start is
-:func:`discounted_budget` ``= d (1 - gamma^T) / (T (1 - gamma))``; the conversion of the
-Safety-Starter-Agents SAC-Lagrangian and of WCSAC (Yang et al. 2021). For ``T >> 1/(1 - gamma)``
-it is the per-step-rate form ``d / (T (1 - gamma))`` (Q_c of a stationary cost rate ``d / T``).
-What it assumes: cost spread evenly over the episode (docs/off_policy.md).
-
-Why the newest states and not the replayed minibatches': a uniform sample of the buffer comes mostly
-from older, different policies. On HalfCheetah at 100k steps the replayed-state estimate sat at the
-budget while the current policy's cost on its own states was about 1.7 times it, and lambda drifted
-down with every seed over budget (docs/off_policy.md, "HalfCheetah velocity: the benchmark").
+The multiplier compares ``E_s[Q_c(s, pi(s))]`` over the newest ``cost_window`` transitions' states (not the
+replayed ones, mostly older policies': on HalfCheetah lambda drifted down over budget, docs/off_policy.md)
+with :func:`discounted_budget` ``= d (1 - gamma^T) / (T (1 - gamma))``, the episode budget spent evenly over
+T steps on the discounted scale (the conversion of Safety-Starter-Agents' SAC-Lagrangian and WCSAC).
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, Union
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
+from torch import nn
+from torchrl.data import LazyMemmapStorage, LazyTensorStorage, TensorDictReplayBuffer
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
-from cmdp_rl.algos.multiplier import MultiplierConfig, Multipliers
-from cmdp_rl.algos.off_policy.replay_buffer import Replay
-from cmdp_rl.algos.off_policy.target_networks import TargetCritics, td_target
-from cmdp_rl.algos.ppo import logged_multiplier
-from cmdp_rl.config.validation import (
-    AUTO,
-    Field,
-    NonNegativeInt,
-    PositiveFloat,
-    PositiveInt,
-    finite,
-    options,
-    require,
-)
+from cmdp_rl.algos.multiplier import MultiplierConfig, Multipliers, logged_multiplier
+from cmdp_rl.config.validation import AUTO, Field, NonNegativeInt, PositiveFloat, PositiveInt, finite, options, require
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, check_shaped, to_off_policy
 from cmdp_rl.rollout import keys
@@ -55,9 +32,84 @@ if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
 
 
+# --- The replay buffer and the target networks ---------------------------------------------
+# What a transition keeps in the buffer: reward and cost are twins, as in the batch. A truncated
+# step keeps its final observation under "next" and bootstraps from it (only termination masks).
+STORED = (keys.OBS, keys.ACTION, *((keys.NEXT, k) for k in (keys.OBS, keys.REWARD, keys.COST, keys.TERMINATED)))
+
+
+class Replay:
+    """torchrl's ``TensorDictReplayBuffer`` of single transitions, sampled with torch's (seeded) generator."""
+
+    def __init__(self, size: int, batch_size: int, storage: str, device: torch.device | str = "cpu") -> None:
+        store = (
+            LazyMemmapStorage(size, device=device) if storage == "memmap" else LazyTensorStorage(size, device=device)
+        )
+        self.buffer = TensorDictReplayBuffer(storage=store, batch_size=batch_size)
+
+    def __len__(self) -> int:
+        return len(self.buffer)
+
+    def add(self, batch: TensorDictBase) -> int:
+        """Add the ``[N, T]`` batch's transitions; returns how many."""
+        flat = batch.select(*STORED).reshape(-1)
+        self.buffer.extend(flat)
+        return flat.shape[0]
+
+    def sample(self) -> TensorDictBase:
+        return self.buffer.sample()
+
+    def newest(self, n: int) -> TensorDictBase:
+        """The ``n`` transitions added last, oldest first: they end just before the writer's cursor."""
+        n = min(n, len(self.buffer))
+        cursor = self.buffer.writer.state_dict()["_cursor"]
+        return self.buffer.storage.get((cursor - n + torch.arange(n)) % self.buffer.storage.max_size)
+
+    def state_dict(self) -> dict:
+        """The stored transitions in storage order (only the filled rows, not the whole capacity)
+        and the writer's cursor: a buffer loading it samples the same indices to the same data."""
+        n = len(self.buffer)
+        data = self.buffer.storage.get(torch.arange(n)).to_dict() if n else {}
+        return {"data": data, "len": n, "writer": self.buffer.writer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["len"]:
+            self.buffer.extend(TensorDict(state["data"], batch_size=[state["len"]]))
+        self.buffer.writer.load_state_dict(state["writer"])
+
+
+class TargetCritics:
+    """Slow copies of critics' output networks (their body has no parameters), moved by Polyak averaging."""
+
+    def __init__(self, modules: dict[str, nn.Module]) -> None:
+        self.target = {k: copy.deepcopy(m).requires_grad_(False) for k, m in modules.items()}
+        # Listed once (load_state_dict copies into these tensors): one lerp over all of them a step.
+        self._pairs = (
+            [p for k in modules for p in self.target[k].parameters()],
+            [p for m in modules.values() for p in m.parameters()],
+        )
+
+    @torch.no_grad()
+    def soft_update(self, tau: float) -> None:
+        """``theta' <- tau theta + (1 - tau) theta'`` (Haarnoja et al. 2018b; Fujimoto et al. 2018)."""
+        torch._foreach_lerp_(*self._pairs, tau)
+
+    def state_dict(self) -> dict:
+        return {k: m.state_dict() for k, m in self.target.items()}
+
+    def load_state_dict(self, state: dict) -> None:
+        for k, m in self.target.items():
+            m.load_state_dict(state[k])
+
+
+def td_target(signal: torch.Tensor, terminated: torch.Tensor, gamma: float, next_value: torch.Tensor) -> torch.Tensor:
+    """One-step TD target ``x + gamma (1 - terminated) V'``: a truncated step bootstraps."""
+    return signal + gamma * (~terminated).float() * next_value
+
+
+# --- Options, and the update ----------------------------------------------------------------
 def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
-    """The episode budget ``d`` on the discounted scale of a cost Q-critic:
-    ``d (1 - gamma^T) / (T (1 - gamma))`` (module docstring); ``d`` when ``gamma = 0`` and T = 1."""
+    """The episode budget ``d`` on a cost Q-critic's discounted scale (module docstring)."""
     T = episode_length
     return d * (1.0 - gamma**T) / (T * (1.0 - gamma))
 
@@ -66,11 +118,9 @@ def discounted_budget(d: float, gamma: float, episode_length: int) -> float:
 class LagrangeFields:
     """The multiplier of the ``_lag`` variants (mixed into their options)."""
 
-    # The multiplier.py node, on the violation Q_c - d_Q (budget: (Q_c - d_Q) / d_Q), with the off-policy
-    # defaults: a step of 0.01 per iteration and, for kind: pid, the integral alone (ki = 0.01, kp = kd = 0).
+    # On the violation Q_c - d_Q; off-policy defaults: a step of 0.01, for kind: pid the integral alone.
     multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.01, kp=0.0, ki=0.01))
-    # The multiplier's Q_c estimate averages over the states of the newest cost_window transitions
-    # (the current policy's own); 0 averages over the replayed minibatches' states instead (module docstring).
+    # Q_c is averaged over the newest cost_window transitions' states; 0: over the replayed minibatches'.
     cost_window: NonNegativeInt = 1000
     # T of the budget conversion: "auto" reads the env's time limit (env.max_steps).
     episode_length: Annotated[
@@ -80,8 +130,7 @@ class LagrangeFields:
 
 @options
 class OffPolicyConfig(AlgoConfig):
-    """Options of every off-policy algorithm (gae_lambda, normalize_advantage and max_grad_norm
-    are not read)."""
+    """Options of every off-policy algorithm (gae_lambda, normalize_advantage, max_grad_norm: unread)."""
 
     name: str = "sac"
     tiny: ClassVar[dict] = {"warmup_steps": 16, "batch_size": 16, "buffer_size": 1000, "utd_ratio": 0.25}
@@ -141,46 +190,11 @@ class OffPolicyConfig(AlgoConfig):
             self.multiplier.check()
 
 
-class LagrangeTerm:
-    """Lambda per constraint on the cost critic's estimate against the discounted budget (a
-    controller of multiplier.py per constraint), or none for the unconstrained variants (lambda 0)."""
-
-    def __init__(self, cfg: OffPolicyConfig, agent: Agent) -> None:
-        limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
-        self.num_costs = len(limits)
-        self.multipliers = None
-        if isinstance(cfg, LagrangeFields):
-            self.budgets = [discounted_budget(d, cfg.cost_gamma, cfg.episode_length) for d in limits]
-            self.multipliers = Multipliers(cfg.multiplier.build, self.budgets)
-
-    @property
-    def values(self) -> list[float]:
-        return self.multipliers.values if self.multipliers is not None else [0.0] * self.num_costs
-
-    def weights(self, device: torch.device) -> torch.Tensor | None:
-        """``[K]`` lambdas for the actor loss, None when unconstrained."""
-        if self.multipliers is None:
-            return None
-        return torch.tensor(self.multipliers.values, device=device)
-
-    def update(self, q_cost: list[float]) -> None:
-        if self.multipliers is not None:
-            self.multipliers.update(q_cost)
-
-    def state_dict(self) -> dict:
-        return {} if self.multipliers is None else self.multipliers.state_dict()
-
-    def load_state_dict(self, state: dict) -> None:
-        if self.multipliers is not None:
-            self.multipliers.load_state_dict(state)
-
-
 STATS = ("loss_q", "loss_qc", "loss_pi", "q_reward", "q_cost", "gradient_steps", "buffer_size")
 
 
 class OffPolicy:
-    """The update loop, replay, critics' targets and checkpointing; an algorithm adds its actor
-    head, its TD target's next action (:meth:`next_action`) and its actor step (:meth:`actor_step`)."""
+    """The update loop, replay, targets and checkpointing; an algorithm adds the three methods below."""
 
     stats = STATS
 
@@ -189,19 +203,25 @@ class OffPolicy:
         self.cfg, self.agent = cfg, agent
         device = agent.actor.head.low.device
         self.replay = Replay(cfg.buffer_size, cfg.batch_size, cfg.storage, device)
-        self.lagrange = LagrangeTerm(cfg, agent)
+        limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
+        self.num_costs, self.multiplier = len(limits), None
+        if isinstance(cfg, LagrangeFields):  # lambda per constraint on Q_c against the discounted budget
+            self.budgets = [discounted_budget(d, cfg.cost_gamma, cfg.episode_length) for d in limits]
+            self.multiplier = Multipliers(cfg.multiplier.build, self.budgets)
         self.targets = TargetCritics({name: agent.critics[name].net for name in (*Q_REWARD, Q_COST)})
         self.actor_params = list(agent.actor.parameters())
         self.critic_params = list(agent.critics.parameters())
-        # fused: one kernel per step for all parameters (as ppo.py).
         self.actor_opt = torch.optim.Adam(self.actor_params, lr=cfg.lr, fused=True)
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr, fused=True)
         self.steps_due = 0.0  # fractional gradient steps carried over (utd_ratio < 1)
         self.gradient_steps = 0
 
-    # The critics are called on their output networks with the inputs prepared once per gradient
-    # step (the observation normalized once, the action scaled to [-1, 1] once, one concatenation
-    # for all critics) rather than through Critic/QBody per call (docs/off_policy.md, "Speed").
+    @property
+    def lambdas(self) -> list[float]:
+        return [0.0] * self.num_costs if self.multiplier is None else self.multiplier.values
+
+    # The critics' output networks are called on inputs prepared once per gradient step, not through
+    # Critic/QBody per call (docs/off_policy.md, "Speed").
     def features(self, obs: torch.Tensor) -> torch.Tensor:
         """The observation as the actor's body (and every Q-critic's) prepares it."""
         return self.agent.actor.body({keys.OBS: obs})[0]
@@ -222,10 +242,10 @@ class OffPolicy:
     def critic_loss(
         self, mb: TensorDictBase, x: torch.Tensor | None = None, x_next: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """Both reward twins and the cost critic regress on one-step TD targets with the same next
-        action a' (the algorithm's): ``r + gamma (1 - term) (min_j Q'_j(s', a') + bonus)`` and
-        ``c + gamma_c (1 - term) Q'_c(s', a')`` (Haarnoja et al. 2018b eq. 5; Fujimoto et al. 2018 eq. 10).
-        ``x``, ``x_next``: the batch's observation features if already computed."""
+        """Both reward twins and the cost critic regress on one-step TD targets with the algorithm's next
+        action a': ``r + gamma (1 - term) (min_j Q'_j(s', a') + bonus)`` and ``c + gamma_c (1 - term)
+        Q'_c(s', a')`` (Haarnoja et al. 2018b eq. 5; Fujimoto et al. 2018 eq. 10). ``x``, ``x_next``: the
+        observation features, if already computed."""
         cfg = self.cfg
         x = self.features(mb.get(keys.OBS)) if x is None else x
         x_next = self.features(mb.get((keys.NEXT, keys.OBS))) if x_next is None else x_next
@@ -250,37 +270,32 @@ class OffPolicy:
         """``(min_j Q_j(s, a) - sum_k lambda_k Q_c,k(s, a), Q_c(s, a))`` on features ``x`` and a
         scaled action: what the actor ascends (the Lagrangian of Ha et al. 2020), and the cost
         estimate the multiplier reads."""
-        if not any(self.lagrange.values):
-            # lambda = 0 (or unconstrained): the cost term adds nothing to the actor's gradient; Q_c is read without a
-            # graph, which spares its backward (a third of the actor step's critic backward).
+        if not any(self.lambdas):
+            # lambda = 0: Q_c adds nothing to the actor's gradient; read without a graph, it spares its backward.
             q_r = self.q_values(reward_critics, x, action)
             with torch.no_grad():
                 (q_c,) = self.q_values((Q_COST,), x, action)
             return (q_r[0] if len(q_r) == 1 else torch.min(*q_r)), q_c
         *q_r, q_c = self.q_values((*reward_critics, Q_COST), x, action)
         q_r = q_r[0] if len(q_r) == 1 else torch.min(*q_r)
-        return q_r - (q_c * self.lagrange.weights(x.device)).sum(-1, keepdim=True), q_c
+        return q_r - (q_c * torch.tensor(self.lambdas, device=x.device)).sum(-1, keepdim=True), q_c
 
     # --- what an algorithm provides -------------------------------------------------------------
     def policy_action(self, x: torch.Tensor) -> torch.Tensor:
-        """The current policy's action on features ``x`` (scaled to [-1, 1]): a sample, or the
-        deterministic action of a deterministic policy."""
+        """The current policy's action on features ``x``, in [-1, 1] units (a sample, or the deterministic one)."""
         raise NotImplementedError
 
     def next_action(self, x_next: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The TD target's next action (scaled to [-1, 1]) on the next observation's features, and
-        the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
+        """The TD target's next action in [-1, 1] units, and the bonus added to ``min Q'`` (SAC: ``-alpha log pi``)."""
         raise NotImplementedError
 
     def actor_step(self, x: torch.Tensor) -> dict[str, torch.Tensor] | None:
-        """One actor (and temperature) step on the observation features ``x``; returns its statistics with ``q_cost`` ``[K]``, or None
-        (a delayed step)."""
+        """One actor (and temperature) step: its statistics, ``q_cost_k`` ``[K]`` among them, or None (delayed)."""
         raise NotImplementedError
 
     @torch.no_grad()
     def cost_estimate(self) -> torch.Tensor:
-        """``[K]`` ``E[Q_c(s, pi(s))]`` over the states of the newest ``cost_window`` transitions,
-        the estimate the multiplier reads (module docstring)."""
+        """``[K]`` ``E[Q_c(s, pi(s))]`` over the newest ``cost_window`` transitions' states (module docstring)."""
         x = self.features(self.replay.newest(self.cfg.cost_window).get(keys.OBS))
         (q_c,) = self.q_values((Q_COST,), x, self.policy_action(x))
         return q_c.mean(0)
@@ -313,10 +328,10 @@ class OffPolicy:
                 counts[k] = counts.get(k, 0) + 1
         means = {k: v / counts[k] for k, v in sums.items()}
         q_cost = means.pop("q_cost_k", None)  # over the replayed states
-        if q_cost is not None and self.lagrange.multipliers is not None and self.cfg.cost_window:
-            q_cost = self.cost_estimate()  # over the current policy's own states
-        if q_cost is not None:
-            self.lagrange.update(q_cost.tolist())  # once per iteration, as ppo_lag's lambda
+        if q_cost is not None and self.multiplier is not None:
+            if self.cfg.cost_window:
+                q_cost = self.cost_estimate()  # over the current policy's own states
+            self.multiplier.update(q_cost.tolist())  # once per iteration, as ppo_lag's lambda
         out = {k: v.item() for k, v in means.items()}
         out["q_cost"] = q_cost.mean().item() if q_cost is not None else float("nan")
         check_finite(**{k: v for k, v in out.items() if not math.isnan(v)})
@@ -326,7 +341,7 @@ class OffPolicy:
     def _stats(self, out: dict[str, float], steps: int) -> dict[str, float]:
         row = {k: out.get(k, float("nan")) for k in self.stats}
         row.update(gradient_steps=steps, buffer_size=len(self.replay))
-        row["lagrange_multiplier"] = logged_multiplier(self.lagrange.values)
+        row["lagrange_multiplier"] = logged_multiplier(self.lambdas)
         return row
 
     # --- checkpointing: networks, targets, optimizers, multiplier and the buffer -----------------
@@ -336,7 +351,7 @@ class OffPolicy:
             "targets": self.targets.state_dict(),
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
-            "multiplier": self.lagrange.state_dict(),
+            "multiplier": {} if self.multiplier is None else self.multiplier.state_dict(),
             "replay": self.replay.state_dict(),
             "steps_due": self.steps_due,
             "gradient_steps": self.gradient_steps,
@@ -347,7 +362,8 @@ class OffPolicy:
         self.targets.load_state_dict(state["targets"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
-        self.lagrange.load_state_dict(state["multiplier"])
+        if self.multiplier is not None:
+            self.multiplier.load_state_dict(state["multiplier"])
         if "replay" in state:
             self.replay.load_state_dict(state["replay"])
         self.steps_due, self.gradient_steps = float(state["steps_due"]), int(state["gradient_steps"])

@@ -1,17 +1,9 @@
-"""SAC and SAC-Lagrangian on a replay buffer (``algo=sac``, ``algo=sac_lag``).
-
-- SAC with automatic entropy tuning: Haarnoja et al. 2018b, "Soft Actor-Critic Algorithms and
-  Applications" (arXiv:1812.05905): twin soft Q-critics (eq. 5, clipped double Q: Section 6), the
-  policy loss (eq. 7, reparameterised: eqs. 8-9; tanh squashing: Appendix C), the temperature
-  (eq. 18) towards a target entropy (-dim(A) by default, as its Appendix D).
-- SAC-Lagrangian: the policy ascends ``min_j Q_j - alpha log pi - sum_k lambda_k Q_c,k`` (Ha et al.
-  2020, "Learning to Walk in the Real World with Minimal Human Effort": a Lagrangian on the expected
-  discounted cost of a cost Q-critic), lambda_k by a controller of ``multiplier.py`` on
-  ``E[Q_c,k(s, pi(s))] - d_k``, the budget on the discounted scale (``off_policy.discounted_budget``).
-
-log pi is measured in the squashed [-1, 1] action units (the env-unit density plus
-``sum log half_width``: :meth:`SAC.sample`), so that the target entropy -dim(A) means the same on
-any box; the critics read actions in the same units.
+"""SAC and SAC-Lagrangian on a replay buffer (``algo=sac``, ``algo=sac_lag``). SAC with automatic entropy
+tuning: Haarnoja et al. 2018b, "Soft Actor-Critic Algorithms and Applications" (arXiv:1812.05905): twin
+soft Q-critics (eq. 5), the policy loss (eq. 7, reparameterised: eqs. 8-9; tanh squashing: Appendix C),
+the temperature (eq. 18) towards -dim(A) by default (Appendix D), log pi in the squashed [-1, 1] units so
+that it means the same on any box. SAC-Lagrangian ascends ``min_j Q_j - alpha log pi - sum_k lambda_k Q_c,k``
+(Ha et al. 2020, "Learning to Walk in the Real World with Minimal Human Effort"), lambda as off_policy.common.
 """
 
 from __future__ import annotations
@@ -65,11 +57,9 @@ class SAC(OffPolicy):
         self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=cfg.alpha_lr)
 
     def sample(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """A reparameterised action in the squashed [-1, 1] units, ``tanh(u)``, ``u ~ N(mu, sigma)``,
-        and its log pi ``[B, 1]`` in the same units: ``log N(u) - sum_i log(1 - tanh(u_i)^2)``
-        (Haarnoja et al. 2018b, appendix C, eq. 21). The head's TanhNormal (torchrl) gives the same
-        density; written out here because building it and inverting the tanh for its log-prob cost
-        about 0.7 ms of a 20 ms gradient step, twice (measured: docs/off_policy.md, Speed)."""
+        """A reparameterised action in the squashed [-1, 1] units, ``tanh(u)``, ``u ~ N(mu, sigma)``, and its
+        log pi ``[B, 1]``: ``log N(u) - sum_i log(1 - tanh(u_i)^2)`` (Haarnoja et al. 2018b, eq. 21). The
+        head's TanhNormal gives the same density, slower (docs/off_policy.md, Speed)."""
         params = self.agent.actor.head(x)
         mu, std = params[keys.LOC], params[keys.SCALE]
         eps = torch.randn_like(mu)

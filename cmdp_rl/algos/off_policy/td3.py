@@ -1,11 +1,8 @@
-"""TD3 and TD3-Lagrangian on a replay buffer (``algo=td3``, ``algo=td3_lag``).
-
-Fujimoto, van Hoof, Meger 2018, "Addressing Function Approximation Error in Actor-Critic Methods":
-clipped double Q-learning (eq. 10), target policy smoothing (eq. 14: clipped Gaussian noise on the
-target action), delayed policy and target updates (every ``policy_delay`` critic steps, Algorithm
-1), the deterministic policy gradient on Q_1. The ``_lag`` variant ascends
-``Q_1 - sum_k lambda_k Q_c,k`` with the multiplier of SAC-Lagrangian (``off_policy.LagrangeTerm``).
-Noise is in units of the box's half-width.
+"""TD3 and TD3-Lagrangian (``algo=td3``, ``algo=td3_lag``): Fujimoto, van Hoof, Meger 2018, "Addressing
+Function Approximation Error in Actor-Critic Methods": clipped double Q-learning (eq. 10), target policy
+smoothing (eq. 14), delayed policy and target updates (Algorithm 1), the deterministic policy gradient on
+Q_1. The ``_lag`` variant ascends ``Q_1 - sum_k lambda_k Q_c,k`` with SAC-Lagrangian's multiplier. Noise
+is in units of the box's half-width.
 """
 
 from __future__ import annotations
@@ -14,8 +11,7 @@ from typing import ClassVar
 
 import torch
 
-from cmdp_rl.algos.off_policy.common import STATS, LagrangeFields, OffPolicy, OffPolicyConfig
-from cmdp_rl.algos.off_policy.target_networks import TargetCritics
+from cmdp_rl.algos.off_policy.common import STATS, LagrangeFields, OffPolicy, OffPolicyConfig, TargetCritics
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeFloat, PositiveInt, options
 from cmdp_rl.policies.agent import Agent

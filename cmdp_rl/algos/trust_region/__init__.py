@@ -1,2 +1,1 @@
-"""The trust-region family: the natural-gradient step (conjugate gradient, line search), CPO, PCPO and
-TRPO-Lagrangian."""
+"""The trust-region family: the natural-gradient step (``natural_gradient``), CPO, PCPO, TRPO-Lagrangian."""

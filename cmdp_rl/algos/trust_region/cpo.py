@@ -1,38 +1,17 @@
-"""Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel, 2017, "Constrained Policy
-Optimization", ICML; Section 6 and Algorithm 1).
+"""Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel, 2017, ICML; Section 6, Algorithm 1).
 
-Each iteration solves the approximate CPO update (eq. 11, Section 6.1) around the policy ``pi_k``
-that collected the batch, with ``x = theta - theta_k``::
+Each iteration solves the approximate CPO update (eq. 11) around the policy ``pi_k`` that collected the
+batch, with ``x = theta - theta_k``::
 
     max_x  g^T x    s.t.   c + b^T x <= 0,    1/2 x^T H x <= delta
 
-``g`` and ``b`` are the gradients of the reward and cost surrogates (importance-weighted GAE
-advantages), ``H`` is the Fisher information of the policy (the Hessian of the mean KL, used only
-through products ``H v``) and ``delta`` is ``algo.target_kl``. With ``q = g^T H^-1 g``,
-``r = g^T H^-1 b``, ``s = b^T H^-1 b`` the problem has a two-variable dual (eq. 12 with one
-constraint), solved in closed form by :func:`solve_dual` (the supplement's Theorem 2); three cases:
-
-- ``TRPO`` (case 0): the whole trust region satisfies the linearised constraint (or the cost has
-  no gradient): the constraint is inactive and the step is the natural gradient step of TRPO.
-- ``CONSTRAINED`` (case 1): feasible, and the constraint may bind:
-  ``x* = H^-1 (g - nu* b) / lambda*`` (eq. 13).
-- ``RECOVERY`` (case 2): no point of the trust region satisfies the linearised constraint: the
-  step purely reduces cost, ``x = -sqrt(2 delta / s) H^-1 b`` (the paper's recovery rule for
-  infeasible iterates, eq. 14, Section 6.2).
-
-A backtracking line search then shrinks the step until the sampled KL is within ``delta`` and the
-cost surrogate stays within what the case allows (Algorithm 1). Both critics regress on their GAE
-value targets, as in the paper's experiments.
-
-Signs: ``g`` and ``b`` are gradients of quantities that increase (reward, cost), so maximising the
-dual over nu gives ``nu* = max(0, (lambda c + r) / s)`` (derived in :func:`solve_dual`; the tests
-check the step against a brute-force solution of the subproblem).
-
-One constraint only: an env with K > 1 costs is refused with a config error. With K linearised
-constraints the dual is a QP in K + 1 variables (lambda and nu_1..nu_K, Achiam et al. 2017, eq. 12
-with B = [b_1 .. b_K]) with no closed form like Theorem 2's, and the recovery step must choose which
-constraints to restore; solving it (and testing it against a brute-force solution as the K = 1
-case is) is future work, not a guess to ship.
+``g``, ``b``: the reward and cost surrogates' gradients; ``H``: the Fisher matrix; ``delta``:
+``algo.target_kl``. Its two-variable dual (eq. 12) has a closed form, :func:`solve_dual` (the supplement's
+Theorem 2), in three cases: ``TRPO`` (the whole trust region is feasible: TRPO's step), ``CONSTRAINED``
+(``x* = H^-1 (g - nu* b) / lambda*``, eq. 13) and ``RECOVERY`` (no point is feasible: the pure cost step
+``x = -sqrt(2 delta / s) H^-1 b``, eq. 14). A backtracking line search then keeps the step within ``delta``
+and what the case allows the cost (Algorithm 1). One constraint only: with K the dual is a QP in K + 1
+variables with no closed form, and the recovery must choose which constraints to restore.
 """
 
 from __future__ import annotations
@@ -44,10 +23,11 @@ from typing import ClassVar
 import torch
 
 from cmdp_rl.algos.base import check_finite, single_constraint
-from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.trust_region.natural_gradient import (
+    STATS,
     NaturalGradient,
     NaturalGradientConfig,
+    conjugate_gradient,
     fisher_vector_product,
     line_search,
     per_step_constraint,
@@ -55,6 +35,7 @@ from cmdp_rl.algos.trust_region.natural_gradient import (
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import PositiveInt, UnitOpen, options
 from cmdp_rl.policies.agent import Agent
+from cmdp_rl.rollout import keys
 
 __all__ = ["CPO", "CPOConfig", "solve_dual", "fisher_vector_product", "TRPO", "CONSTRAINED", "RECOVERY"]
 
@@ -67,12 +48,10 @@ class CPOConfig(NaturalGradientConfig):
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     line_search_steps: PositiveInt = 10
     backtrack_coef: UnitOpen = 0.8
-    # The constraint step compares the cost surrogate with J_c - d in raw units: no cost scaling.
     reads_raw_cost: ClassVar[bool] = True
 
 
 TRPO, CONSTRAINED, RECOVERY = 0, 1, 2
-CASE_NAMES = {TRPO: "trpo", CONSTRAINED: "constrained", RECOVERY: "recovery"}
 _EPS = 1e-8
 
 
@@ -86,17 +65,14 @@ class DualSolution:
 
 
 def solve_dual(q: float, r: float, s: float, c: float, delta: float) -> DualSolution:
-    """Solve the dual of the CPO subproblem in closed form.
-
-    The dual (eq. 12, K = 1) is ``max_{lambda >= 0, nu >= 0}  -(q - 2 r nu + s nu^2) / (2 lambda)
-    + nu c - lambda delta`` (the paper prints ``lambda delta / 2``, the dual of Theorem 2's
-    ``x^T H x <= delta``; eq. 11's ``1/2 x^T H x <= delta`` gives ``lambda delta``: Theorem 2's
-    delta is 2 delta here). For fixed lambda its maximiser is ``nu = max(0, (lambda c + r) / s)``.
-    Where that is positive, substituting gives ``f_a(lambda) = -(A / lambda + B lambda) / 2 + r c / s``
-    with ``A = q - r^2 / s``, ``B = 2 delta - c^2 / s``; where it is 0, ``f_b(lambda) =
-    -(q / lambda + 2 delta lambda) / 2``. Both are concave, so their maximisers ``sqrt(A / B)`` and
-    ``sqrt(q / (2 delta))`` projected onto their intervals of lambda give the best point of each
-    piece; the dual optimum is the better of the two.
+    """Solve the dual of the CPO subproblem in closed form. The dual (eq. 12, K = 1) is
+    ``max_{lambda >= 0, nu >= 0}  -(q - 2 r nu + s nu^2) / (2 lambda) + nu c - lambda delta`` (the paper
+    prints ``lambda delta / 2``, the dual of Theorem 2's ``x^T H x <= delta``: its delta is 2 delta here).
+    For fixed lambda the maximiser is ``nu = max(0, (lambda c + r) / s)``. Where that is positive,
+    ``f_a(lambda) = -(A / lambda + B lambda) / 2 + r c / s`` with ``A = q - r^2 / s``, ``B = 2 delta - c^2 / s``;
+    where it is 0, ``f_b(lambda) = -(q / lambda + 2 delta lambda) / 2``. Both are concave: their maximisers
+    ``sqrt(A / B)`` and ``sqrt(q / (2 delta))``, projected onto their intervals, give each piece's best; the
+    dual optimum is the better of the two.
     """
     if s <= _EPS:  # the cost surrogate has no gradient: nothing to trade against; plain TRPO
         return DualSolution(TRPO, math.sqrt(q / (2 * delta)) + _EPS, 0.0)
@@ -139,22 +115,8 @@ def solve_dual(q: float, r: float, s: float, c: float, delta: float) -> DualSolu
 
 class CPO(NaturalGradient):
     name = "cpo"
-    # What update() returns besides lagrange_multiplier (metrics.csv's columns): the subproblem's
-    # case (0 trpo, 1 constrained, 2 recovery), the accepted fraction of the full step (0: none
-    # accepted), the dual's trust-region and cost multipliers, the accepted step's change of the
-    # reward and cost surrogates, and the critics' losses.
-    stats = (
-        "loss_v",
-        "loss_vc",
-        "entropy",
-        "kl",
-        "cpo_case",
-        "step_fraction",
-        "dual_lambda",
-        "dual_nu",
-        "surr_reward_change",
-        "surr_cost_change",
-    )
+    # cpo_case: 0 trpo, 1 constrained, 2 recovery; step_fraction: of the full step accepted (0: none).
+    stats = (*STATS, "cpo_case", "step_fraction", "dual_lambda", "dual_nu", "surr_reward_change", "surr_cost_change")
 
     def __init__(self, cfg: CPOConfig, agent: Agent) -> None:
         self.cost_limit = single_constraint(
@@ -171,10 +133,9 @@ class CPO(NaturalGradient):
     def policy_step(
         self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
     ) -> dict[str, float]:
-        """Solve the CPO subproblem on training units (steps, or segments for a recurrent policy)
-        carrying GAE advantages and take the step the line search accepts (or none)."""
+        """Solve the CPO subproblem on the units and take the step the line search accepts (or none)."""
         cfg, params = self.cfg, self.policy_params
-        surrogates, surr_values, g, b, fvp = self.linearise(units)
+        surrogates, surr_values, g, b, fvp = self.linearise(units, units[keys.ADVANTAGE])
         h_inv_g = conjugate_gradient(fvp, g, cfg.cg_iters)
         h_inv_b = conjugate_gradient(fvp, b, cfg.cg_iters)
         q, r, s = g.dot(h_inv_g).item(), g.dot(h_inv_b).item(), b.dot(h_inv_b).item()
@@ -188,11 +149,8 @@ class CPO(NaturalGradient):
             step = (h_inv_g - sol.nu * h_inv_b) / sol.lam  # eq. 13
         self.nu = sol.nu
 
-        # Backtracking line search (Section 6.1, Algorithm 1): accept the first fraction whose
-        # sampled KL is within delta and whose cost surrogate change is what the case allows: in
-        # RECOVERY it must fall; otherwise it may rise by the slack -c if there is one, and must
-        # not rise when the current policy is over budget. Where the current policy is feasible (c < 0) the
-        # optimum improves the reward surrogate, so the step must do that too.
+        # Algorithm 1's line search: in RECOVERY the cost surrogate must fall; otherwise it may rise by the
+        # slack -c, if any; and a feasible policy's (c < 0) step must improve the reward surrogate too.
         def accept(d_reward: float, d_cost: float) -> bool:
             if sol.case == RECOVERY:
                 return d_cost < 0
@@ -201,13 +159,8 @@ class CPO(NaturalGradient):
         accepted = line_search(
             params, step, surrogates, surr_values, cfg.target_kl, cfg.line_search_steps, cfg.backtrack_coef, accept
         )
-        return {
-            "cpo_case": sol.case,
-            "dual_lambda": sol.lam,
-            "dual_nu": sol.nu,
-            "entropy": self.entropy(units),
-            **accepted,
-        }
+        dual = {"cpo_case": sol.case, "dual_lambda": sol.lam, "dual_nu": sol.nu}
+        return {**dual, "entropy": self.entropy(units), **accepted}
 
     def state_dict(self) -> dict:
         return {**super().state_dict(), "nu": self.nu}

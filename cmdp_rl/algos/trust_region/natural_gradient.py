@@ -1,12 +1,8 @@
-"""What the trust-region algorithms share (CPO, TRPO-Lagrangian, PCPO): the options, the
-importance-weighted surrogates around the policy that collected the batch, the Fisher-vector
-product, the backtracking line search, and the iteration around the policy step (GAE, the J_c
-estimate, critic regression, checkpointing).
-
-Each algorithm is one subclass of :class:`NaturalGradient` that writes ``policy_step``: how the
-reward and cost gradients become a step (CPO's dual, TRPO's step on a Lagrangian, PCPO's
-projection). Natural gradient: Kakade 2001; the trust-region step with conjugate gradient and line
-search: Schulman et al. 2015, "Trust Region Policy Optimization", Appendix C.
+"""What the trust-region algorithms (CPO, TRPO-Lagrangian, PCPO) share: the options, the importance-weighted
+surrogates around the policy that collected the batch, the Fisher-vector product, conjugate gradient, the
+backtracking line search, and the iteration around the policy step (GAE, J_c, critic regression,
+checkpointing). Each algorithm is a :class:`NaturalGradient` that writes ``policy_step``. Natural gradient:
+Kakade 2001; the trust-region step: Schulman et al. 2015, "Trust Region Policy Optimization", Appendix C.
 """
 
 from __future__ import annotations
@@ -19,15 +15,14 @@ from tensordict import TensorDictBase
 from torch import nn
 from torch.distributions import kl_divergence
 
-from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite
-from cmdp_rl.algos.critics import CriticRegression
+from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, require_minibatches
 from cmdp_rl.algos.minibatch import Tally
-from cmdp_rl.algos.ppo import OneRun
-from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options, require
+from cmdp_rl.algos.multiplier import EpisodeCostEstimate, logged_multiplier
+from cmdp_rl.algos.ppo import CriticRegression, OneRun
+from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import TwinGAE, standardized
-from cmdp_rl.rollout.episode_cost import EpisodeCostEstimate
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
@@ -48,28 +43,19 @@ class NaturalGradientConfig(AlgoConfig):
     critic_minibatches: PositiveInt = 8
 
     def check(self, run: RunConfig) -> None:
-        batch = run.rollout_steps * run.env.num_envs
-        require(
-            batch >= self.critic_minibatches,
-            "algo.critic_minibatches",
-            f"at most rollout_steps * env.num_envs = {batch}",
-            self.critic_minibatches,
-        )
+        require_minibatches(run, "critic_minibatches", self.critic_minibatches)
+        if hasattr(self, "multiplier"):  # trpo_lag's algo.multiplier node
+            self.multiplier.check()
 
 
 def fisher_vector_product(
     kl: torch.Tensor, params: list[nn.Parameter], damping: float
 ) -> Callable[[torch.Tensor], torch.Tensor]:
-    """``v -> (H + damping I) v`` with ``H`` the Hessian of ``kl`` (the mean KL from the old policy,
-    whose value and gradient are 0 at the old parameters, so its Hessian there is the Fisher
-    matrix). Double backprop: one graph for ``grad kl``, then one backward of ``grad kl . v`` per
-    product; the matrix is never formed."""
-    grads = torch.autograd.grad(kl, params, create_graph=True)
-    flat_grad = torch.cat([g.reshape(-1) for g in grads])
+    """``v -> (H + damping I) v``, ``H`` the Hessian of the mean KL ``kl`` (the Fisher matrix), never formed."""
+    flat_grad = flat(torch.autograd.grad(kl, params, create_graph=True))
 
     def fvp(v: torch.Tensor) -> torch.Tensor:
-        hv = torch.autograd.grad(flat_grad @ v, params, retain_graph=True)
-        return torch.cat([h.reshape(-1) for h in hv]) + damping * v
+        return flat(torch.autograd.grad(flat_grad @ v, params, retain_graph=True)) + damping * v
 
     return fvp
 
@@ -78,12 +64,33 @@ def flat(tensors: tuple[torch.Tensor, ...]) -> torch.Tensor:
     return torch.cat([t.reshape(-1) for t in tensors])
 
 
+def conjugate_gradient(
+    matvec: Callable[[torch.Tensor], torch.Tensor], b: torch.Tensor, iters: int, residual_tol: float = 1e-10
+) -> torch.Tensor:
+    """``A^-1 b`` in at most ``iters`` steps of conjugate gradient, ``A`` symmetric positive definite given
+    as a product (Nocedal & Wright, "Numerical Optimization", 2nd ed., Algorithm 5.2): torch's solvers
+    need ``A`` as a matrix, and the Fisher matrix is never formed. Stops once ``|r|^2 < residual_tol``."""
+    x = torch.zeros_like(b)
+    r = b.clone()  # residual b - A x at x = 0
+    p = r.clone()
+    rr = r.dot(r)
+    for _ in range(iters):
+        if rr < residual_tol:
+            break
+        ap = matvec(p)
+        alpha = rr / p.dot(ap)
+        x += alpha * p
+        r -= alpha * ap
+        rr_new = r.dot(r)
+        p = r + (rr_new / rr) * p
+        rr = rr_new
+    return x
+
+
 @torch.no_grad()
 def assign(params: list[nn.Parameter], vector: torch.Tensor) -> None:
-    """Copy a flat vector into the parameters, in place. (``nn.utils.vector_to_parameters``
-    rebinds each parameter to a view of the vector: a different memory alignment, which changes the
-    rounding of the BLAS kernels, so a resumed run, whose parameters are fresh tensors, would drift
-    from an uninterrupted one in the last bits.)"""
+    """Copy a flat vector into the parameters, in place: ``nn.utils.vector_to_parameters`` rebinds them to
+    views of it, whose alignment changes BLAS rounding, so a resumed run would drift in the last bits."""
     offset = 0
     for p in params:
         p.copy_(vector[offset : offset + p.numel()].view_as(p))
@@ -91,20 +98,14 @@ def assign(params: list[nn.Parameter], vector: torch.Tensor) -> None:
 
 
 def per_step_constraint(episode_cost: float, cost_limit: float, episode_length: float) -> float:
-    """The constraint value ``c`` in the surrogate's per-step units.
-
-    The budget is on the expected undiscounted episode cost J_c; the surrogate is a per-step mean.
-    Summed over an episode (T steps on average, sampled on-policy), the surrogate's change predicts
-    the change of J_c (the performance-difference identity in its undiscounted episodic form), so
-    J_c + T * dL_c <= d reads dL_c <= -(J_c - d) / T: c = (J_c - d) / T. (The papers' discounted
-    form has 1 / (1 - gamma) where an episodic budget has the mean episode length T.)"""
+    """The constraint value ``c = (J_c - d) / T`` in the surrogate's per-step units: over an episode of T
+    steps the per-step surrogate's change predicts J_c's (the performance-difference identity, episodic),
+    so ``J_c + T dL_c <= d`` reads ``dL_c <= -c``; the papers' discounted form has ``1 / (1 - gamma)``."""
     return (episode_cost - cost_limit) / max(episode_length, 1.0)
 
 
 class Surrogates:
-    """The importance-weighted surrogates of the policy advantage and the cost advantage, and the
-    mean KL from ``pi_k``, the policy that collected the units (its distribution parameters are in
-    them). Calling it evaluates all three at the current parameters."""
+    """Called: the importance-weighted policy and cost surrogates and the mean KL from ``pi_k``."""
 
     def __init__(self, agent: Agent, units: dict[str, torch.Tensor], adv: torch.Tensor, cost_adv: torch.Tensor) -> None:
         self.agent, self.units, self.adv, self.cost_adv = agent, units, adv, cost_adv
@@ -118,6 +119,7 @@ class Surrogates:
         return (ratio * self.adv).mean(), (ratio * self.cost_adv).mean(), kl_divergence(self.old_dist, dist).mean()
 
 
+STATS = ("loss_v", "loss_vc", "entropy", "kl")  # every trust-region algorithm's, first
 NO_STEP = {"step_fraction": 0.0, "kl": 0.0, "surr_reward_change": 0.0, "surr_cost_change": 0.0}
 
 
@@ -132,11 +134,10 @@ def line_search(
     coef: float,
     accept: Callable[[float, float], bool],
 ) -> dict[str, float]:
-    """Backtracking line search (Schulman et al. 2015, Appendix C): try the fractions 1, coef,
-    coef^2, ... of ``step`` and keep the first whose sampled KL is finite and within ``target_kl``
-    and whose changes of the reward and cost surrogates ``accept(d_reward, d_cost)`` takes; if none
-    is, the parameters stay where they were. Returns the accepted fraction (0: none), its KL and
-    the surrogates' changes."""
+    """Backtracking line search (Schulman et al. 2015, Appendix C): the first of the fractions 1, coef,
+    coef^2, ... of ``step`` whose sampled KL is finite and within ``target_kl`` and whose surrogates'
+    changes ``accept(d_reward, d_cost)`` takes, else no step. Returns the fraction (0: none), its KL
+    and the surrogates' changes."""
     theta0 = nn.utils.parameters_to_vector(params).detach()
     old_reward, old_cost = old
     for j in range(steps):
@@ -151,29 +152,24 @@ def line_search(
 
 
 class NaturalGradient:
-    """The iteration of a trust-region algorithm: GAE on both signals, the J_c estimate, the policy
-    step the subclass writes, then the critics' regression on their GAE value targets."""
+    """A trust-region iteration: GAE, J_c, the policy step the subclass writes, the critics' regression."""
 
     name = "natural_gradient"
     stats: tuple[str, ...] = ()
+    multiplier: Any = None  # trpo_lag's lambda (multiplier.py), logged and checkpointed
 
     def __init__(self, cfg: NaturalGradientConfig, agent: Agent) -> None:
-        self.cfg = cfg
-        self.agent = agent
+        self.cfg, self.agent = cfg, agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
         self.policy_params = list(agent.actor.parameters())
         self.critic_params = list(agent.critics.parameters())
         self.critic_opt = torch.optim.Adam(self.critic_params, lr=cfg.critic_lr)
         self.critics = CriticRegression(agent)
-        # J_c and the mean episode length the constraint is measured with (rollout/episode_cost.py):
-        # an unfinished episode's cost so far is only a lower bound of its cost, so batches in
-        # which no episode ended (1000-step episodes, 256-step rollouts) use the last episodes
-        # that did end.
         self.episode_cost = EpisodeCostEstimate()
 
     @property
-    def lagrange_multiplier(self) -> float:
-        return 0.0
+    def lagrange_multiplier(self) -> float | list[float]:
+        return 0.0 if self.multiplier is None else logged_multiplier(self.multiplier.values)
 
     def policy_step(
         self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
@@ -194,41 +190,28 @@ class NaturalGradient:
         return stats
 
     def policy_update(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
-        """After GAE: the J_c estimate, the training units and the policy step. Returns the units
-        (the critics' regression follows on them) and the step's statistics."""
+        """After GAE: J_c, the training units and the policy step; returns the units and the step's statistics."""
         estimate = self.episode_cost.update(batch)
-        # Training units: steps, or segments [U, L] for a recurrent policy (run in recurrent mode).
-        needed = [
-            *self.agent.in_keys,
-            keys.ACTION,
-            keys.LOG_PROB,
-            *self.agent.actor.head.param_keys,
-            keys.ADVANTAGE,
-            keys.COST_ADVANTAGE,
-            *self.critics.target_keys(),
-        ]
+        needed = [*self.agent.in_keys, keys.ACTION, keys.LOG_PROB, *self.agent.actor.head.param_keys]
+        needed += [keys.ADVANTAGE, keys.COST_ADVANTAGE, *self.critics.target_keys()]
         present = batch.keys(True)
         units = self.agent.training_units({k: batch.get(k) for k in dict.fromkeys(needed) if k in present})
         # J_c, or K numbers with K constraints (only trpo_lag takes K > 1; the others refuse it when built).
         episode_cost = estimate.costs[0] if len(estimate.costs) == 1 else estimate.costs
         return units, self.policy_step(units, episode_cost, estimate.length)
 
-    def advantages(self, units: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """The reward advantage (standardized if ``normalize_advantage``) and the cost advantage,
-        only centred: its scale must stay that of cost, to compare with the budget."""
-        adv = units[keys.ADVANTAGE]
+    def linearise(
+        self, units: dict[str, torch.Tensor], adv: torch.Tensor
+    ) -> tuple[Surrogates, tuple[float, float], torch.Tensor, torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
+        """The subproblem at the current policy for the policy advantage ``adv`` (standardised if
+        ``normalize_advantage``): the surrogates (for the line search), their values, the gradients ``g``
+        (policy) and ``b`` (cost) and the Fisher-vector product ``v -> H v``."""
+        params = self.policy_params
+        cost_adv = units[keys.COST_ADVANTAGE]
         if self.cfg.normalize_advantage:
             adv = standardized(adv)
-        return adv, units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
-
-    def linearise(
-        self, units: dict[str, torch.Tensor]
-    ) -> tuple[Surrogates, tuple[float, float], torch.Tensor, torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
-        """What CPO and PCPO build their subproblem from, at the current policy: the surrogates
-        (for the line search), their values, the gradients ``g`` (reward) and ``b`` (cost) and the
-        Fisher-vector product ``v -> H v``."""
-        params = self.policy_params
-        surrogates = Surrogates(self.agent, units, *self.advantages(units))
+        # The cost advantage only centred: it stays in cost's units, to compare with the budget.
+        surrogates = Surrogates(self.agent, units, adv, cost_adv - cost_adv.mean())
         reward_surr, cost_surr, kl = surrogates()
         g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
         b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
@@ -240,10 +223,7 @@ class NaturalGradient:
         return self.agent.dist(units).entropy().mean().item()
 
     def fit_critics(self, units: dict[str, torch.Tensor], members: Any, optimisers: list) -> dict[str, torch.Tensor]:
-        """Regress the critics on their GAE value targets, ``(V(s) - V^targ)^2``: ``critic_epochs``
-        passes of ``critic_minibatches`` Adam steps, on one agent's units (``ppo.OneRun``) or P
-        agents' ``[P, U, ...]`` (``population.update.AgentUpdates``, each agent's mean its own).
-        Returns each loss's mean over the minibatches (per agent)."""
+        """Critic regression, ``critic_epochs`` x ``critic_minibatches`` Adam steps: each loss's mean (per agent)."""
         cfg, tally = self.cfg, Tally()
         for _ in range(cfg.critic_epochs):
             for mb in members.minibatches(units, cfg.critic_minibatches):
@@ -255,13 +235,16 @@ class NaturalGradient:
         return tally.means()
 
     def state_dict(self) -> dict:
-        return {
+        state = {
             "networks": self.agent.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
             "episode_cost": self.episode_cost.state_dict(),
         }
+        return state if self.multiplier is None else {**state, "multiplier": self.multiplier.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.episode_cost.load_state_dict(state["episode_cost"])
+        if self.multiplier is not None:
+            self.multiplier.load_state_dict(state["multiplier"])

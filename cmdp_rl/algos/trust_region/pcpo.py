@@ -1,22 +1,13 @@
-"""Projection-based Constrained Policy Optimization (Yang, Rosca, Narasimhan, Ramadge 2020,
-"Projection-Based Constrained Policy Optimization", ICLR).
+"""Projection-based Constrained Policy Optimization (Yang, Rosca, Narasimhan, Ramadge 2020, ICLR; steps
+cited by name: docs/references.md). With ``g``, ``b`` the surrogates' gradients, ``H`` the Fisher matrix,
+``c`` = J_c - d per step (natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``:
 
-Two steps per iteration, with ``x = theta - theta_k``, ``g`` and ``b`` the gradients of the reward
-and cost surrogates, ``H`` the Fisher matrix, ``c`` the constraint value (J_c - d, in the
-surrogate's per-step units: natural_gradient.per_step_constraint) and ``delta`` = ``target_kl``:
+1. reward improvement: TRPO's ``x_r = sqrt(2 delta / g^T H^-1 g) H^-1 g``;
+2. projection onto ``{x : c + b^T x <= 0}`` in the metric ``L`` (``H`` for ``algo.projection: kl``, ``I``
+   for ``l2``): ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``.
 
-1. the reward improvement step (linearised): the TRPO step
-   ``x_r = sqrt(2 delta / g^T H^-1 g) H^-1 g``, the best point of the KL trust region;
-2. the projection step (linearised): the point of ``{x : c + b^T x <= 0}`` closest to
-   ``x_r`` in the metric ``L``: ``x = x_r - max(0, (c + b^T x_r) / (b^T L^-1 b)) L^-1 b``, with
-   ``L = H`` for the KL projection and ``L = I`` for the L2 projection (``algo.projection``; the
-   paper's closed form of the two steps, in its notation ``a`` for ``b`` and ``b`` for ``c``).
-
-The steps are cited by name, without equation numbers (docs/references.md).
-
-A step already inside the linearised constraint set is not moved by the projection; an infeasible
-iterate is projected back onto its boundary (no separate recovery rule, unlike CPO). The paper
-takes the projected step as it is: there is no line search here.
+A feasible step is not moved; an infeasible iterate is projected onto the boundary (no recovery rule, no
+line search, as in the paper).
 """
 
 from __future__ import annotations
@@ -27,16 +18,18 @@ from typing import Callable, ClassVar, Literal
 import torch
 
 from cmdp_rl.algos.base import check_finite, single_constraint
-from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.trust_region.natural_gradient import (
+    STATS,
     NaturalGradient,
     NaturalGradientConfig,
     assign,
+    conjugate_gradient,
     per_step_constraint,
 )
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent
+from cmdp_rl.rollout import keys
 
 _EPS = 1e-12
 
@@ -48,7 +41,6 @@ class PCPOConfig(NaturalGradientConfig):
     name: str = "pcpo"
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
     projection: Literal["kl", "l2"] = "kl"
-    # The projection compares the cost surrogate with J_c - d in raw units: no cost scaling.
     reads_raw_cost: ClassVar[bool] = True
 
 
@@ -60,9 +52,7 @@ def projected_step(
     h_solve: Callable[[torch.Tensor], torch.Tensor],
     projection: str,
 ) -> tuple[torch.Tensor, float]:
-    """PCPO's step ``x`` and the projection's coefficient (0: the reward step was feasible).
-
-    ``h_solve(v)`` approximates ``H^-1 v`` (conjugate gradient on Fisher-vector products)."""
+    """PCPO's step ``x`` and the projection's coefficient (0: feasible); ``h_solve(v)`` approximates ``H^-1 v``."""
     h_inv_g = h_solve(g)
     q = g.dot(h_inv_g).item()
     x_r = math.sqrt(2 * delta / q) * h_inv_g if q > _EPS else torch.zeros_like(g)  # reward step
@@ -77,9 +67,7 @@ def projected_step(
 
 class PCPO(NaturalGradient):
     name = "pcpo"
-    # Besides lagrange_multiplier (0: PCPO has none): the sampled KL of the step taken, the
-    # projection's coefficient (0: the reward step was feasible), and the changes of the surrogates.
-    stats = ("loss_v", "loss_vc", "entropy", "kl", "projection_coef", "surr_reward_change", "surr_cost_change")
+    stats = (*STATS, "projection_coef", "surr_reward_change", "surr_cost_change")  # projection_coef 0: feasible
 
     def __init__(self, cfg: PCPOConfig, agent: Agent) -> None:
         self.cost_limit = single_constraint(
@@ -91,7 +79,7 @@ class PCPO(NaturalGradient):
         self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
     ) -> dict[str, float]:
         cfg, params = self.cfg, self.policy_params
-        surrogates, surr_values, g, b, fvp = self.linearise(units)
+        surrogates, surr_values, g, b, fvp = self.linearise(units, units[keys.ADVANTAGE])
         c = per_step_constraint(episode_cost, self.cost_limit, episode_length)
         check_finite(reward_gradient=g.norm(), cost_gradient=b.norm(), c=c)
         step, coef = projected_step(
@@ -101,13 +89,8 @@ class PCPO(NaturalGradient):
             assign(params, torch.nn.utils.parameters_to_vector(params) + step)
             new_reward, new_cost, new_kl = (t.item() for t in surrogates())
         check_finite(kl=new_kl)
-        return {
-            "kl": new_kl,
-            "projection_coef": coef,
-            "surr_reward_change": new_reward - surr_values[0],
-            "surr_cost_change": new_cost - surr_values[1],
-            "entropy": self.entropy(units),
-        }
+        changes = {"surr_reward_change": new_reward - surr_values[0], "surr_cost_change": new_cost - surr_values[1]}
+        return {"kl": new_kl, "projection_coef": coef, **changes, "entropy": self.entropy(units)}
 
 
 register("algo", "pcpo", PCPOConfig, PCPO)

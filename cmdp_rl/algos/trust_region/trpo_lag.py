@@ -1,59 +1,37 @@
 """TRPO-Lagrangian (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep Reinforcement
-Learning", Section 5: the Lagrangian baselines; that section number is unchecked, see
-docs/references.md. TRPO's numbers below are checked).
-
-TRPO's update (Schulman et al. 2015, "Trust Region Policy Optimization", eq. 14 and Appendix C) on
-the Lagrangian's advantage ``A = (A_r - lambda A_c) / (1 + lambda)``, the same policy advantage as
-PPO-Lagrangian (dividing by ``1 + lambda`` keeps its scale as lambda grows)::
-
-    max_x  g^T x   s.t.   1/2 x^T H x <= delta     =>     x = sqrt(2 delta / g^T H^-1 g) H^-1 g
-
-with ``g`` the gradient of the Lagrangian surrogate and ``H`` the Fisher matrix (conjugate
-gradient on Fisher-vector products), then a backtracking line search that keeps the first
-fraction whose sampled KL is within delta and whose Lagrangian surrogate improves. lambda >= 0 by
-projected dual ascent on ``J_c - d`` (multiplier.DualAscent, as ppo_lag; or another
-``algo.multiplier.kind``, multiplier.py), once per iteration, before the step.
-
-K constraints: as ppo_lag, one multiplier per constraint, each moved by its own ``J_c,k - d_k``,
-and the advantage ``(A_r - sum_k lambda_k A_c,k) / (1 + sum_k lambda_k)`` (K = 1: the above).
+Learning": the Lagrangian baselines, docs/references.md): TRPO's step (Schulman et al. 2015, eq. 14,
+Appendix C) ``x = sqrt(2 delta / g^T H^-1 g) H^-1 g`` on ppo_lag's Lagrangian advantage, then a line search
+for the first fraction within delta whose Lagrangian surrogate improves; one multiplier per constraint
+(``algo.multiplier``), moved once per iteration before the step.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import field
-from typing import TYPE_CHECKING, ClassVar, Optional, Sequence
+from typing import ClassVar, Optional, Sequence
 
 import torch
 
 from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig, Multipliers
-from cmdp_rl.algos.ppo import logged_multiplier
 from cmdp_rl.algos.ppo_lag import lagrangian_advantage
-from cmdp_rl.algos.trust_region.conjugate_gradient import conjugate_gradient
 from cmdp_rl.algos.trust_region.cpo import CPOConfig
 from cmdp_rl.algos.trust_region.natural_gradient import (
     NO_STEP,
+    STATS,
     NaturalGradient,
-    Surrogates,
-    fisher_vector_product,
-    flat,
+    conjugate_gradient,
     line_search,
 )
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.advantages import standardized
-
-if TYPE_CHECKING:
-    from cmdp_rl.config.run_config import RunConfig
 
 
 @options
 class TRPOLagConfig(CPOConfig):
-    """TRPO-Lagrangian: CPO's trust region and line search, ppo_lag's multiplier (its
-    ``multiplier.kind: regularized`` regularises the dual only: TRPO's surrogate has no entropy term)."""
+    """CPO's trust region and line search, ppo_lag's multiplier (``regularized`` regularises the dual only)."""
 
     name: str = "trpo_lag"
     multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)
@@ -63,26 +41,16 @@ class TRPOLagConfig(CPOConfig):
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[Optional[int]] = None  # one multiplier per cost: any K
 
-    def check(self, run: RunConfig) -> None:
-        super().check(run)
-        self.multiplier.check()
-
 
 class TRPOLagrangian(NaturalGradient):
     name = "trpo_lag"
-    # Besides lagrange_multiplier: the accepted fraction of the full step (0: none), its sampled
-    # KL, the change of the Lagrangian surrogate (surr_reward_change) and of the cost surrogate.
-    stats = ("loss_v", "loss_vc", "entropy", "kl", "step_fraction", "surr_reward_change", "surr_cost_change")
+    # surr_reward_change: of the Lagrangian surrogate; step_fraction: of the full step accepted (0: none).
+    stats = (*STATS, "step_fraction", "surr_reward_change", "surr_cost_change")
 
     def __init__(self, cfg: TRPOLagConfig, agent: Agent) -> None:
         super().__init__(cfg, agent)
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
-        # One multiplier per constraint (multiplier.Multipliers), each with its own budget d_k.
         self.multiplier = Multipliers(cfg.multiplier.build, limits)
-
-    @property
-    def lagrange_multiplier(self) -> float | list[float]:
-        return logged_multiplier(self.multiplier.values)
 
     def policy_step(
         self, units: dict[str, torch.Tensor], episode_cost: float | Sequence[float], episode_length: float
@@ -90,38 +58,18 @@ class TRPOLagrangian(NaturalGradient):
         """``episode_cost``: J_c, or K numbers with K constraints."""
         cfg, params = self.cfg, self.policy_params
         lams = self.multiplier.update([episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost)
+        # The cost surrogate is logged only (with K > 1: the mean over the constraints').
         adv = lagrangian_advantage(units, lams, cfg.advantage_scale)
-        if cfg.normalize_advantage:
-            adv = standardized(adv)
-        # Logged only (with K > 1: the mean over the constraints' cost surrogates).
-        cost_adv = units[keys.COST_ADVANTAGE] - units[keys.COST_ADVANTAGE].mean()
-        surrogates = Surrogates(self.agent, units, adv, cost_adv)
-        surr, cost_surr, kl = surrogates()
-        g = flat(torch.autograd.grad(surr, params, retain_graph=True))
-        h_inv_g = conjugate_gradient(fisher_vector_product(kl, params, cfg.cg_damping), g, cfg.cg_iters)
+        surrogates, surr_values, g, _, fvp = self.linearise(units, adv)
+        h_inv_g = conjugate_gradient(fvp, g, cfg.cg_iters)
         q = g.dot(h_inv_g).item()
         check_finite(gradient=g.norm(), q=q)
         if q <= 0.0:  # no gradient (e.g. all advantages equal): nothing to follow
             return {**NO_STEP, "entropy": self.entropy(units)}
         step = math.sqrt(2 * cfg.target_kl / q) * h_inv_g  # the trust region's boundary along H^-1 g (App. C)
-        accepted = line_search(
-            params,
-            step,
-            surrogates,
-            (surr.item(), cost_surr.item()),
-            cfg.target_kl,
-            cfg.line_search_steps,
-            cfg.backtrack_coef,
-            lambda d_reward, d_cost: d_reward > 0,
-        )
+        search = (cfg.target_kl, cfg.line_search_steps, cfg.backtrack_coef)
+        accepted = line_search(params, step, surrogates, surr_values, *search, lambda d_reward, d_cost: d_reward > 0)
         return {"entropy": self.entropy(units), **accepted}
-
-    def state_dict(self) -> dict:
-        return {**super().state_dict(), "multiplier": self.multiplier.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        super().load_state_dict(state)
-        self.multiplier.load_state_dict(state["multiplier"])
 
 
 register("algo", "trpo_lag", TRPOLagConfig, TRPOLagrangian)
