@@ -2,7 +2,7 @@
 algorithm runs, :func:`ppo_update`, on one screen. A variant changes what the loop reads, never the loop:
 the multiplier and policy advantage (ppo_lag.py, FOCOPS, CRPO), the per-sample loss (FOCOPS), a stage after
 the epochs (CUP). A population runs the same loop with its own reducer and optimiser step
-(population/update.py; :class:`OneRun` is a run's). The clipped surrogate is written out, equal to torchrl's
+(``population.kernel.StackedBackend``; :class:`OneRun` is a run's). The clipped surrogate is written out, equal to torchrl's
 ``ClipPPOLoss`` (tests/test_algos.py), which spent most of each minibatch on unused TensorDict work.
 """
 
@@ -271,7 +271,7 @@ def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> 
 
 
 class OneRun:
-    """A run's reducer (``torch.mean``) and optimiser step; ``population.update.PopulationPPO`` is P agents'."""
+    """A run's reducer (``torch.mean``) and optimiser step; ``population.kernel.StackedBackend`` is P agents'."""
 
     mean = staticmethod(torch.mean)
 
