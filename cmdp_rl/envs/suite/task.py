@@ -12,10 +12,11 @@ from typing import ClassVar, Literal, Sequence
 
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeInt, PositiveInt, options
+from cmdp_rl.envs.grid.optimum import ConstrainedOptimum
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.suite.env import TorchSuite
 from cmdp_rl.envs.suite.model import FiniteCMDP, generate
-from cmdp_rl.envs.suite.optimum import FiniteOptimum, solve
+from cmdp_rl.envs.suite.optimum import solve
 from cmdp_rl.envs.vector import VecEnv
 
 
@@ -45,7 +46,7 @@ class SuiteConfig(EnvOptions):
         d = [float(x) for x in self.model().budgets]
         return d[0] if len(d) == 1 else d
 
-    def solve(self, cost_limit: float | Sequence[float] | None = None) -> FiniteOptimum:
+    def solve(self, cost_limit: float | Sequence[float] | None = None) -> ConstrainedOptimum:
         """The exact constrained optimum at these budgets (None: the instance's), by the finite-horizon
         occupancy LP (``optimum.py``)."""
         return solve(self.model(), cost_limit)
