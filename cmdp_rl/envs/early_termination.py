@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-import gymnasium as gym
 import torch
 
 from cmdp_rl.config.validation import ConfigError
@@ -33,37 +32,23 @@ class EarlyTerminated(VecEnv):
     ``[N, K]`` (a row's own, as a population's agents have). Reward, cost and observations pass
     through; the cut rows restart through ``env.reset_rows``."""
 
+    saved = ("env", "spent")
+
     def __init__(self, env: VecEnv, budgets: Sequence[float] | torch.Tensor) -> None:
         if type(env).reset_rows is VecEnv.reset_rows:
             raise ConfigError(
                 f"early_terminate: true needs an env that can restart single episodes (VecEnv.reset_rows); "
                 f"{type(env).__name__} has none: false, or give it one"
             )
-        self.env = env
-        self.num_envs, self.num_costs, self.device = env.num_envs, env.num_costs, env.device
-        self.obs_dim = env.obs_dim
-        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
+        self.wrap(env)
         b = torch.as_tensor(budgets, dtype=torch.float32, device=self.device)
         self.budgets = b.view(1, -1) if b.dim() == 1 else b
         self.spent = torch.zeros(self.num_envs, self.num_costs, device=self.device)  # running episode costs
 
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.env.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return self.env.action_space
-
     def __getattr__(self, name: str) -> Any:
         # What an env declares besides the VecEnv interface (a team env's agents_per_env, which
         # evaluation and the multi-agent algorithm read) is the wrapped env's.
-        if name == "env":  # not yet set: no recursion
-            raise AttributeError(name)
         return getattr(self.env, name)
-
-    def check_action(self, action: torch.Tensor) -> None:
-        self.env.check_action(action)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         self.spent = torch.zeros_like(self.spent)
@@ -88,16 +73,6 @@ class EarlyTerminated(VecEnv):
         terminated = s.terminated | over
         # A step that both times out and passes the budget ends by the budget: no bootstrap.
         return s._replace(terminated=terminated, truncated=s.truncated & ~terminated, obs=obs)
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"env": self.env.state_dict(), "spent": self.spent.clone()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.env.load_state_dict(state["env"])
-        self.spent = state["spent"].to(self.device).clone()
-
-    def close(self) -> None:
-        self.env.close()
 
 
 __all__ = ["EarlyTerminated"]

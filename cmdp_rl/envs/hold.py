@@ -19,9 +19,6 @@ unchanged.
 
 from __future__ import annotations
 
-from typing import Any
-
-import gymnasium as gym
 import torch
 
 from cmdp_rl.envs.vector import Step, VecEnv
@@ -31,24 +28,16 @@ from cmdp_rl.rollout.actions import hybrid
 class HeldSkill(VecEnv):
     """``env`` with each skill held for ``k`` steps (module docstring)."""
 
+    saved = ("env", "held", "phase")
+
     def __init__(self, env: VecEnv, k: int) -> None:
         parts = hybrid(env.action_space)
         if parts is None:
             raise ValueError(f"hold: the env's action space {env.action_space} is not a hybrid skill space")
-        self.env, self.k, self.skills = env, k, parts.skills
-        self.num_envs, self.device, self.num_costs = env.num_envs, env.device, env.num_costs
-        self.obs_dim = env.obs_dim + parts.skills + 1
-        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
+        self.k, self.skills = k, parts.skills
+        self.wrap(env, obs_dim=env.obs_dim + parts.skills + 1)
         self.held = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
         self.phase = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.env.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return self.env.action_space
 
     def _obs(self, obs: torch.Tensor, held: torch.Tensor, phase: torch.Tensor) -> torch.Tensor:
         onehot = torch.nn.functional.one_hot(held, self.skills).float() * (phase > 0).unsqueeze(-1)
@@ -77,17 +66,6 @@ class HeldSkill(VecEnv):
         self.held = skill.masked_fill(done, 0)
         self.phase = phase.masked_fill(done, 0)
         return step._replace(next_obs=next_obs, obs=self._obs(step.obs, self.held, self.phase))
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"env": self.env.state_dict(), "held": self.held.clone(), "phase": self.phase.clone()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.env.load_state_dict(state["env"])
-        self.held = state["held"].to(self.device).clone()
-        self.phase = state["phase"].to(self.device).clone()
-
-    def close(self) -> None:
-        self.env.close()
 
 
 __all__ = ["HeldSkill"]

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-import gymnasium as gym
 import torch
 
 from cmdp_rl.envs.vector import Step, VecEnv
@@ -82,27 +81,12 @@ class BudgetStateEnv(VecEnv):
         if len(budgets) != env.num_costs:
             raise ValueError(f"budget state: one budget > 0 per cost ({env.num_costs}) needed, got {list(budgets)}")
         self.state = BudgetState(budgets, discount, env.num_envs, env.device)
-        self.env = env
-        self.num_envs, self.num_costs = env.num_envs, env.num_costs
-        self.obs_dim = env.obs_dim + env.num_costs
-        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
-        self.device = env.device
+        self.wrap(env, obs_dim=env.obs_dim + env.num_costs)
         self.unsafe_reward, self.reshape_reward = float(unsafe_reward), reshape_reward
 
     @property
     def z(self) -> torch.Tensor:
         return self.state.z
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.env.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return self.env.action_space
-
-    def check_action(self, action: torch.Tensor) -> None:
-        self.env.check_action(action)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         obs = self.env.reset(seed=seed)
@@ -118,13 +102,8 @@ class BudgetStateEnv(VecEnv):
             reward = torch.where(spent, torch.full_like(reward, self.unsafe_reward), reward)
         done = s.terminated | s.truncated
         self.state.z = torch.where(done, self.state.full(), z_next)  # a new episode starts with the whole budget
-        return Step(
-            next_obs=self.state.augment(s.next_obs, z_next),
-            reward=reward,
-            cost=s.cost,
-            terminated=s.terminated,
-            truncated=s.truncated,
-            obs=self.state.observation(s.obs),
+        return s._replace(
+            next_obs=self.state.augment(s.next_obs, z_next), reward=reward, obs=self.state.observation(s.obs)
         )
 
     def state_dict(self) -> dict[str, Any]:
@@ -133,9 +112,3 @@ class BudgetStateEnv(VecEnv):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.env.load_state_dict(state["env"])
         self.state.z = state["z"].to(self.device).clone()
-
-    def close(self) -> None:
-        self.env.close()
-
-
-__all__ = ["BudgetState", "BudgetStateEnv"]

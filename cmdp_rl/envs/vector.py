@@ -1,9 +1,5 @@
-"""The batched env interface the collector drives, and its gymnasium implementation.
-
-Why not torchrl's ``EnvBase``/``GymWrapper``: on this machine torchrl's env + collector machinery
-costs about 1.3 ms per step (specs, step_mdp, info readers), several times the cost of stepping
-8 Reach1D envs. The collector only needs tensors in and tensors out, so envs expose exactly that.
-"""
+"""The batched env interface the collector drives, tensors in and tensors out (torchrl's env machinery
+would cost more than the envs' steps: docs/guide/design.md), and its gymnasium implementation."""
 
 from __future__ import annotations
 
@@ -41,7 +37,12 @@ def default_cost_names(num_costs: int) -> tuple[str, ...]:
 
 class VecEnv(ABC):
     """N environments stepped together, with per-env auto-reset. ``num_costs`` (K) costs per step,
-    named ``cost_names`` (the env's names, else :func:`default_cost_names`)."""
+    named ``cost_names`` (the env's names, else :func:`default_cost_names`).
+
+    A wrapper (Sauté's budget state, the held skill, the early-terminated MDP) keeps the env it wraps
+    as ``env`` (:meth:`wrap`): its cost names, action space and ``close`` are that env's. ``saved``
+    names the attributes a resume restores (:meth:`state_dict`): tensors, ``torch.Generator``\ s, and
+    objects with a ``state_dict`` (a wrapper's ``env``)."""
 
     num_envs: int
     num_costs: int = 1
@@ -50,6 +51,8 @@ class VecEnv(ABC):
     action_low: torch.Tensor
     action_high: torch.Tensor
     device: torch.device
+    env: VecEnv | None = None
+    saved: tuple[str, ...] = ()
 
     @abstractmethod
     def reset(self, seed: int | None = None) -> torch.Tensor:
@@ -59,9 +62,15 @@ class VecEnv(ABC):
     def step(self, action: torch.Tensor) -> Step:
         """Apply ``action`` ``[N, action_dim]``; envs whose episode ended are reset."""
 
+    def wrap(self, env: VecEnv, obs_dim: int | None = None) -> None:
+        """Wrap ``env``: take its interface, with ``obs_dim`` where the wrapper adds to the observation."""
+        self.env, self.num_envs, self.num_costs, self.device = env, env.num_envs, env.num_costs, env.device
+        self.obs_dim = env.obs_dim if obs_dim is None else obs_dim
+        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
+
     @property
     def cost_names(self) -> tuple[str, ...]:
-        return default_cost_names(self.num_costs)
+        return default_cost_names(self.num_costs) if self.env is None else self.env.cost_names
 
     def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
         """Start a new episode in each env where ``rows`` (``[N]`` bool) is set, between steps, as the
@@ -69,29 +78,56 @@ class VecEnv(ABC):
         Optional: the early-terminated MDP (``envs/early_termination.py``) needs it to cut an episode."""
         raise NotImplementedError(f"{type(self).__name__} cannot restart single episodes")
 
-    def close(self) -> None:  # noqa: B027 - optional hook
-        pass
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
 
     def state_dict(self) -> dict[str, Any]:
         """Everything a resumed run needs to continue exactly where this env stands: the episodes
         in progress and the envs' random generators. ``load_state_dict`` on a fresh env built from
         the same config restores it."""
-        raise NotImplementedError(f"{type(self).__name__} cannot save its state, so a run on it cannot resume")
+        if not self.saved:
+            raise NotImplementedError(f"{type(self).__name__} cannot save its state, so a run on it cannot resume")
+        return {"num_envs": self.num_envs, **{name: _saved(getattr(self, name)) for name in self.saved}}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        raise NotImplementedError(f"{type(self).__name__} cannot restore a saved state")
+        if not self.saved:
+            raise NotImplementedError(f"{type(self).__name__} cannot restore a saved state")
+        if state.get("num_envs", self.num_envs) != self.num_envs:
+            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
+        for name in self.saved:
+            value = getattr(self, name)
+            if isinstance(value, torch.Tensor):
+                setattr(self, name, state[name].to(self.device).clone())
+            elif isinstance(value, torch.Generator):
+                value.set_state(state[name])
+            else:
+                value.load_state_dict(state[name])
 
     @property
     def action_space(self) -> gym.Space:
         """One env's action space, which the agent's action distribution is chosen from
         (``policies/distributions.py``): the box ``[action_low, action_high]`` unless the env says
         otherwise."""
+        if self.env is not None:
+            return self.env.action_space
         return gym.spaces.Box(self.action_low.cpu().numpy(), self.action_high.cpu().numpy(), dtype=np.float32)
 
     def check_action(self, action: torch.Tensor) -> None:
         expected = (self.num_envs, self.action_dim)
         if tuple(action.shape) != expected:
             raise ValueError(f"action: expected shape {expected} (num_envs, action_dim), got {tuple(action.shape)}")
+
+
+def _saved(value: Any) -> Any:
+    """One of ``VecEnv.saved``'s attributes as a checkpoint holds it."""
+    if isinstance(value, torch.Tensor):
+        return value.clone()
+    if isinstance(value, torch.Generator):
+        return value.get_state()
+    if not hasattr(value, "state_dict"):
+        raise NotImplementedError(f"{type(value).__name__} cannot save its state")
+    return value.state_dict()
 
 
 def _probe_num_costs(make_one: Callable[[], gym.Env]) -> int:

@@ -10,8 +10,6 @@ takes seconds and its time is the update's.
 
 from __future__ import annotations
 
-from typing import Any
-
 import gymnasium as gym
 import torch
 
@@ -22,6 +20,8 @@ from cmdp_rl.envs.vector import Step, VecEnv
 class TorchFork(VecEnv):
     """N forks in tensors. Observation: one-hot over the model's states and the goal (float32,
     ``[N, S + 1]``); action: one index in ``[0, 3)``; cost ``[N, K]`` named ``model.cost_names``."""
+
+    saved = ("state", "generator")
 
     def __init__(self, model: ForkCMDP, num_envs: int, device: str | torch.device = "cpu") -> None:
         self.model = model
@@ -80,15 +80,6 @@ class TorchFork(VecEnv):
             truncated=torch.zeros_like(terminated).unsqueeze(-1),
             obs=self._eye[self.state],
         )
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"num_envs": self.num_envs, "state": self.state.clone(), "generator": self.generator.get_state()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["num_envs"] != self.num_envs:
-            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
-        self.state = state["state"].to(self.device).clone()
-        self.generator.set_state(state["generator"])
 
 
 __all__ = ["TorchFork"]

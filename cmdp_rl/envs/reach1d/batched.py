@@ -81,6 +81,8 @@ class TorchReach1D(VecEnv):
     gymnasium's ``info["true_x"]``) and ``x`` the position the next step starts from.
     """
 
+    saved = ("x", "final_x", "steps", "last_probe", "noise")
+
     def __init__(
         self,
         num_envs: int,
@@ -120,27 +122,6 @@ class TorchReach1D(VecEnv):
         self.steps = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
         self.last_probe = torch.full((num_envs,), -1.0, **f64)
         self._goal32 = torch.full((num_envs,), self.goal, dtype=torch.float32, device=self.device)
-
-    # --- resume ------------------------------------------------------------------------------------
-    def state_dict(self) -> dict[str, Any]:
-        """The episodes in progress and the noise generator's state (see ``VecEnv.state_dict``)."""
-        if not hasattr(self.noise, "state_dict"):
-            raise NotImplementedError(f"{type(self.noise).__name__} (the noise source) cannot save its state")
-        return {
-            "num_envs": self.num_envs,
-            "x": self.x.clone(),
-            "final_x": self.final_x.clone(),
-            "steps": self.steps.clone(),
-            "last_probe": self.last_probe.clone(),
-            "noise": self.noise.state_dict(),
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["num_envs"] != self.num_envs:
-            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
-        for name in ("x", "final_x", "steps", "last_probe"):
-            setattr(self, name, state[name].to(self.device).clone())
-        self.noise.load_state_dict(state["noise"])
 
     # --- the gymnasium env's arithmetic, elementwise -------------------------------------------
     def _start_x(self, where: torch.Tensor | None) -> torch.Tensor:

@@ -20,8 +20,6 @@ observation of an episode, which nothing bootstraps from: the end at ``H`` is a 
 
 from __future__ import annotations
 
-from typing import Any
-
 import gymnasium as gym
 import torch
 
@@ -38,6 +36,8 @@ def observations(cmdp: FiniteCMDP, states: torch.Tensor, steps: torch.Tensor) ->
 
 class TorchSuite(VecEnv):
     """N copies of one suite instance in tensors: Discrete(A) actions, K costs ``cost_0..``."""
+
+    saved = ("state", "t", "generator")
 
     def __init__(self, cmdp: FiniteCMDP, num_envs: int, device: str | torch.device = "cpu") -> None:
         self.cmdp = cmdp
@@ -116,21 +116,6 @@ class TorchSuite(VecEnv):
             truncated=torch.zeros_like(terminated).unsqueeze(-1),
             obs=self._obs(self.state, self.t),
         )
-
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "num_envs": self.num_envs,
-            "state": self.state.clone(),
-            "t": self.t.clone(),
-            "generator": self.generator.get_state(),
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["num_envs"] != self.num_envs:
-            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
-        self.state = state["state"].to(self.device).clone()
-        self.t = state["t"].to(self.device).clone()
-        self.generator.set_state(state["generator"])
 
 
 __all__ = ["TorchSuite", "observations"]
