@@ -10,21 +10,12 @@ from cmdp_rl.config.registry import component
 from cmdp_rl.config.validation import per_constraint
 from cmdp_rl.envs.contract import EnvContractError, check_env
 from cmdp_rl.envs.early_termination import EarlyTerminated
-from cmdp_rl.envs.grid.env import GRID_ID, GridWorld
-from cmdp_rl.envs.grid.task import GridEnvConfig
 from cmdp_rl.envs.gym_cost import make_cost_env
-from cmdp_rl.envs.reach1d.batched import NoiseSource, TorchNoise, TorchReach1D
+from cmdp_rl.envs.reach1d.batched import TorchReach1D
 from cmdp_rl.envs.reach1d.env import Reach1D
-from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.envs.vector import GymVecEnv, Step, VecEnv
-from cmdp_rl.envs.velocity import make_velocity_env
 
 REACH1D_ID = "cmdp_rl/Reach1D-v0"
-
-
-def reach1d_kwargs(cfg: Reach1DConfig) -> dict:
-    """The Reach1D constructor arguments a :class:`Reach1DConfig` asks for."""
-    return cfg.env_kwargs()
 
 
 def make_env(
@@ -59,24 +50,16 @@ def make_eval_env(cfg: Any, num_envs: int | None = None, device: str = "cpu", al
 
 
 __all__ = [
-    "GRID_ID",
     "REACH1D_ID",
     "EarlyTerminated",
     "EnvContractError",
-    "GridEnvConfig",
-    "GridWorld",
     "GymVecEnv",
-    "NoiseSource",
     "Reach1D",
-    "Reach1DConfig",
     "Step",
-    "TorchNoise",
     "TorchReach1D",
     "VecEnv",
     "check_env",
     "make_cost_env",
     "make_env",
     "make_eval_env",
-    "make_velocity_env",
-    "reach1d_kwargs",
 ]

@@ -1,19 +1,9 @@
 """The early-terminated MDP: a training episode ends at the first step after which its cost passes the
-budget (Sun et al., 2021, "Safe Exploration by Solving Early Terminated MDP", arXiv 2107.04200; cited
-by name, docs/references.md).
-
-The paper's point: ending the episode where the constraint is broken turns the CMDP into an MDP
-whose plain return already pays for the violation (every reward the rest of the episode would have
-brought is lost), so maximising return favours staying within budget, with or without a multiplier
-(not always: the step that passes the budget keeps its own reward, so a violation that pays at once
-can still be worth it). Here the cut is a termination (``terminated``: no bootstrap from the value after it),
-with the running undiscounted episode cost of each constraint compared with its budget d
-(``algo.cost_limit``): the episode ends when *any* constraint's sum exceeds its budget, strictly
-(a cost exactly at d is within budget, as the evaluation's verdict counts it).
-
-The cut is the env's, applied to training envs only (``run.early_terminate``, ``envs.make_env``'s
-``cut_at``): the evaluation env, the mixture's valuation and ``evaluate.py`` step whole episodes.
-It needs an env that can start one row's episode afresh, :meth:`VecEnv.reset_rows`.
+budget (Sun et al., 2021, "Safe Exploration by Solving Early Terminated MDP", arXiv 2107.04200), so
+its plain return already pays for a violation. The cut is a termination (no bootstrap after it), when
+*any* constraint's undiscounted episode sum exceeds its budget d strictly (a sum at d is within
+budget, as the evaluation's verdict counts it); training envs only (``envs.make_env``'s ``cut_at``).
+Why, and what it does with each algorithm and env: docs/constraint_satisfaction.md.
 """
 
 from __future__ import annotations
@@ -73,6 +63,3 @@ class EarlyTerminated(VecEnv):
         terminated = s.terminated | over
         # A step that both times out and passes the budget ends by the budget: no bootstrap.
         return s._replace(terminated=terminated, truncated=s.truncated & ~terminated, obs=obs)
-
-
-__all__ = ["EarlyTerminated"]

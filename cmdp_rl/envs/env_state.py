@@ -27,25 +27,10 @@ import gymnasium as gym
 import numpy as np
 
 # Attributes that hold configuration or plumbing, never episode state.
-_SKIPPED_NAMES = {
-    "env",
-    "spec",
-    "metadata",
-    "_saved_kwargs",
-    "_ezpickle_args",
-    "_ezpickle_kwargs",
-    "_cached_spec",
-    "_metadata",
-    "_action_space",
-    "_observation_space",
-    "_np_random_seed",
-    "mujoco_renderer",
-    "screen",
-    "clock",
-    "model",
-    "np_random",
-    "_np_random",
-}
+_SKIPPED_NAMES = set(
+    "env spec metadata _saved_kwargs _ezpickle_args _ezpickle_kwargs _cached_spec _metadata _action_space "
+    "_observation_space _np_random_seed mujoco_renderer screen clock model np_random _np_random".split()
+)
 
 
 def _plain(value: Any) -> bool:

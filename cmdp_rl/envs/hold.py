@@ -1,20 +1,12 @@
 """Hold each chosen skill for ``k`` steps: the seed's ``pi = pi_hi o pi_lo`` with two time scales.
 
 :class:`HeldSkill` wraps a batched env whose actions are hybrid (``[skill, params...]``,
-``cmdp_rl.rollout.actions.hybrid``). On a decision step (an episode's first step, then every ``k``-th) the
-skill the policy emits is taken and held; on the ``k - 1`` steps after it the env steps with the
-held skill whatever the policy emits, and the policy's parameters every step. The observation
-gains what the low-level policy needs to know: a one-hot of the held skill (zeros on a decision
-step, where a new one is chosen) and the hold's phase ``j / k`` (0 on a decision step).
-
-Credit (docs/multi_agent_and_hybrid.md): the batch stays one row per env step, so GAE runs as for
-any env. The skill chosen at a decision step t is credited through that step's advantage
-``A_t = sum_l (gamma lambda)^l delta_{t+l}``, whose TD errors include the rewards and costs of the
-held steps that follow it; the parameters at each step are credited with their own step's
-advantage, as for a plain Box. The skill the policy emits on a held step has no effect on the env;
-its log-probability still enters the loss, with an expected gradient of zero (the advantage does
-not depend on it) but some variance: the price of keeping the distribution and the algorithms
-unchanged.
+``cmdp_rl.rollout.actions.hybrid``). On a decision step (an episode's first step, then every
+``k``-th) the skill the policy emits is taken and held; on the ``k - 1`` steps after it the env steps
+with the held skill whatever the policy emits, and the policy's parameters every step. The
+observation gains a one-hot of the held skill (zeros on a decision step) and the hold's phase
+``j / k`` (0 on a decision step). The batch stays one row per env step, so GAE runs as for any env;
+how the held steps' rewards and costs are credited: docs/multi_agent_and_hybrid.md.
 """
 
 from __future__ import annotations
@@ -66,6 +58,3 @@ class HeldSkill(VecEnv):
         self.held = skill.masked_fill(done, 0)
         self.phase = phase.masked_fill(done, 0)
         return step._replace(next_obs=next_obs, obs=self._obs(step.obs, self.held, self.phase))
-
-
-__all__ = ["HeldSkill"]

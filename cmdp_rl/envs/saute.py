@@ -1,7 +1,6 @@
 """Sauté's env transform: the remaining safety budget joins the state and the reward is replaced once
-the budget is spent (Sootla, Cowen-Rivers, Jafferjee, Wang, Mguni, Wang, Bou-Ammar, 2022, "Sauté RL:
-Almost Surely Safe Reinforcement Learning Using State Augmentation", ICML: its safety augmented
-MDP, cited by name; docs/references.md says why without equation numbers).
+the budget is spent: the safety augmented MDP of Sootla et al. (2022, "Sauté RL: Almost Surely Safe
+Reinforcement Learning Using State Augmentation", ICML; docs/references.md).
 
 The paper's safety state starts at the budget, ``z_0 = d``, and moves by ``z_{t+1} = (z_t - c_t) /
 gamma_c`` (dividing by the safety discount keeps ``z_t >= 0`` equivalent to

@@ -53,6 +53,9 @@ class VecEnv(ABC):
     device: torch.device
     env: VecEnv | None = None
     saved: tuple[str, ...] = ()
+    # What an env declares instead of the defaults below: its cost names, its action space.
+    _cost_names: tuple[str, ...] = ()
+    _action_space: gym.Space | None = None
 
     @abstractmethod
     def reset(self, seed: int | None = None) -> torch.Tensor:
@@ -67,10 +70,11 @@ class VecEnv(ABC):
         self.env, self.num_envs, self.num_costs, self.device = env, env.num_envs, env.num_costs, env.device
         self.obs_dim = env.obs_dim if obs_dim is None else obs_dim
         self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
+        self._cost_names, self._action_space = env.cost_names, env.action_space
 
     @property
     def cost_names(self) -> tuple[str, ...]:
-        return default_cost_names(self.num_costs) if self.env is None else self.env.cost_names
+        return self._cost_names or default_cost_names(self.num_costs)
 
     def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
         """Start a new episode in each env where ``rows`` (``[N]`` bool) is set, between steps, as the
@@ -109,8 +113,8 @@ class VecEnv(ABC):
         """One env's action space, which the agent's action distribution is chosen from
         (``policies/distributions.py``): the box ``[action_low, action_high]`` unless the env says
         otherwise."""
-        if self.env is not None:
-            return self.env.action_space
+        if self._action_space is not None:
+            return self._action_space
         return gym.spaces.Box(self.action_low.cpu().numpy(), self.action_high.cpu().numpy(), dtype=np.float32)
 
     def check_action(self, action: torch.Tensor) -> None:
@@ -148,12 +152,12 @@ def _probe_num_costs(make_one: Callable[[], gym.Env]) -> int:
         env.close()
 
 
-def _declared_cost_names(env: gym.Env) -> tuple[str, ...] | None:
+def declared_cost_names(env: gym.Env) -> Any:
+    """The ``cost_names`` a gymnasium env (or one of its wrappers) declares, as it declares them; else None."""
     try:
-        names = env.get_wrapper_attr("cost_names")
+        return env.get_wrapper_attr("cost_names")
     except AttributeError:
         return None
-    return None if names is None else tuple(names)
 
 
 class GymVecEnv(VecEnv):
@@ -201,9 +205,9 @@ class GymVecEnv(VecEnv):
         self.action_low, self.action_high = low.to(self.device), high.to(self.device)
         # an async vector env keeps its envs in worker processes: ask a local probe copy instead
         local = getattr(self.envs, "envs", None)
-        names = _declared_cost_names(local[0]) if local else None
+        names = declared_cost_names(local[0]) if local else None
         self.num_costs = len(names) if names is not None else _probe_num_costs(make_one)
-        self._cost_names = names if names is not None else default_cost_names(self.num_costs)
+        self._cost_names = tuple(names) if names is not None else default_cost_names(self.num_costs)
         if cost_names is not None:  # the user's names (env.cost_names), one per cost the env reports
             if len(cost_names) != self.num_costs:
                 self.envs.close()
@@ -214,18 +218,9 @@ class GymVecEnv(VecEnv):
             self._cost_names = tuple(cost_names)
         self._zeros = np.zeros((num_envs, self.num_costs), dtype=np.float32)
 
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self._cost_names
-
     def _cost(self, info: dict) -> np.ndarray:
         """``info["cost"]`` of the N envs as ``[N, K]`` float32 (a fresh array)."""
         return np.array(info.get("cost", self._zeros), dtype=np.float32).reshape(self.num_envs, self.num_costs)
-
-    @property
-    def action_space(self) -> gym.Space:
-        """The env's own action space (a box, or discrete actions)."""
-        return self._action_space
 
     def _obs(self, obs: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.asarray(obs, dtype=np.float32).reshape(self.num_envs, self.obs_dim)).to(self.device)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from cmdp_rl.envs import Reach1D, reach1d_kwargs
+from cmdp_rl.envs import Reach1D
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.plot import pyplot, save_figure
@@ -50,7 +50,7 @@ def record_reach1d(
 ) -> list[Reach1DEpisode]:
     """Run ``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once, as env 0 of
     a vector env is), recording the true position beside the reading the agent saw."""
-    env = Reach1D(**reach1d_kwargs(env_cfg))
+    env = Reach1D(**env_cfg.env_kwargs())
     memory = PolicyMemory(agent, 1, env.action_space, torch.device("cpu"))
     out: list[Reach1DEpisode] = []
     with torch.random.fork_rng(devices=[]):

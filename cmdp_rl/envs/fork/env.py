@@ -1,12 +1,7 @@
-"""The fork CMDP (``model.py``) as one tensor program over N envs (``env=fork``).
-
-Each step looks up the next state, reward and costs of every env's (state, action) in the model's
-tables and draws one uniform number per env for the random end, whether or not the episode could
-end there, so a seed fixes one stream whatever the policy does. Envs whose episode ended restart
-at the fork in the same step (gymnasium's SAME_STEP autoreset, as every ``VecEnv``). No Python loop
-over envs and no host sync: thousands of envs step in microseconds, so a learning run on the fork
-takes seconds and its time is the update's.
-"""
+"""The fork CMDP (``model.py``) as one tensor program over N envs (``env=fork``): each step looks up
+every env's next state, reward and costs in the model's tables and draws one uniform number per env
+for the random end, whether or not the episode could end there, so a seed fixes one stream whatever
+the policy does; envs whose episode ended restart at the fork in the same step."""
 
 from __future__ import annotations
 
@@ -32,6 +27,7 @@ class TorchFork(VecEnv):
         self.action_dim = 1
         self.action_low = torch.zeros(1, device=self.device)
         self.action_high = torch.full((1,), NUM_ACTIONS - 1.0, device=self.device)
+        self._cost_names, self._action_space = model.cost_names, gym.spaces.Discrete(NUM_ACTIONS)
         self.end_prob = 1.0 - model.gamma
         goal_index = model.num_states  # the goal's entry of the one-hot observation
         nxt = torch.as_tensor(model.next_state, device=self.device)
@@ -42,14 +38,6 @@ class TorchFork(VecEnv):
         self.goal_index = goal_index
         self.generator = torch.Generator(device=self.device)
         self.state = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.model.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return gym.spaces.Discrete(NUM_ACTIONS)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         if seed is not None:
@@ -80,6 +68,3 @@ class TorchFork(VecEnv):
             truncated=torch.zeros_like(terminated).unsqueeze(-1),
             obs=self._eye[self.state],
         )
-
-
-__all__ = ["TorchFork"]

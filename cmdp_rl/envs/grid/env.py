@@ -1,8 +1,7 @@
 """A slippery gridworld with two kinds of hazard: a small CMDP with discrete actions and K = 2
-costs whose exact constrained optimum is known (``tabular.py`` writes it as arrays, ``grid_lp.py``
-solves it).
-
-The gymnasium env is ``cmdp_rl/Grid-v0`` (registered when this module is imported). One step:
+costs whose exact constrained optimum is known (``tabular.py`` writes it as arrays, ``optimum.py``
+solves it). The gymnasium env is ``cmdp_rl/Grid-v0`` (registered when this module is imported).
+One step:
 
 1. the action picks a direction (0 up, 1 right, 2 down, 3 left); with probability ``slip`` the
    agent moves instead in one of the two perpendicular directions (``slip / 2`` each);
@@ -11,16 +10,12 @@ The gymnasium env is ``cmdp_rl/Grid-v0`` (registered when this module is importe
    hazard cell costs 1 of its kind: ``info["cost"] = [on an 'a' cell, on a 'b' cell]``;
 4. otherwise the episode ends with probability ``end_prob``.
 
-Why the random end: with it, an episode's expected undiscounted return and cost, which the toolkit
-logs and budgets, are exactly the ``gamma = 1 - end_prob`` discounted return and cost of the same
-grid without the random end, the quantities of Altman's discounted CMDP and its linear program.
-So the LP's optimum is directly the number a trained policy's ``eval.json`` should approach. Such
-an end is a true termination (nothing is bootstrapped past it), not a truncation, and there is no
-time limit: episodes last ``1 / end_prob`` steps on average, longer with probability ``< (1 -
-end_prob)^t``.
-
-The observation is a one-hot float32 vector over the grid's open cells (goal included), so a
-policy network can represent any state-dependent, randomised policy, the LP's included.
+Why the random end: an episode's expected undiscounted return and cost, which the toolkit logs and
+budgets, are then exactly the ``gamma = 1 - end_prob`` discounted return and cost of the same grid
+without it, the quantities of Altman's discounted CMDP and its linear program, so the LP's optimum
+is the number a trained policy's ``eval.json`` should approach. The end is a true termination (no
+bootstrap past it), and there is no time limit. The observation is a one-hot over the open cells, so
+a policy network can represent any state-dependent, randomised policy, the LP's included.
 """
 
 from __future__ import annotations
@@ -37,7 +32,6 @@ COST_NAMES = ("hazard_a", "hazard_b")
 HAZARD_CHARS = ("a", "b")  # the layout character of each cost, in COST_NAMES order
 # Directions as (row, col) offsets: up, right, down, left. Perpendicular to d: (d + 1) % 4, (d + 3) % 4.
 MOVES = ((-1, 0), (0, 1), (1, 0), (0, -1))
-ACTION_NAMES = ("up", "right", "down", "left")
 
 # The default grid (docs/grid.md has its optima). From S, three ways to G: straight along the
 # middle row (6 moves) through one 'a' cell, where a slip up lands on the 'b' strip; over the top
@@ -219,18 +213,3 @@ def render_grid(layout: Layout, cell: int, cost: np.ndarray) -> np.ndarray:
 
 if GRID_ID not in gym.registry:
     gym.register(id=GRID_ID, entry_point="cmdp_rl.envs.grid.env:GridWorld")
-
-__all__ = [
-    "ACTION_NAMES",
-    "COST_NAMES",
-    "DEFAULT_BUDGETS",
-    "DEFAULT_END_PROB",
-    "DEFAULT_LAYOUT",
-    "DEFAULT_SLIP",
-    "GRID_ID",
-    "GridWorld",
-    "Layout",
-    "MOVES",
-    "parse_layout",
-    "render_grid",
-]

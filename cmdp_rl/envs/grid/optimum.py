@@ -1,9 +1,8 @@
-"""The exact constrained optimum of a tabular CMDP, by the occupancy-measure linear program.
-
-Altman, "Constrained Markov Decision Processes" (1999), ch. 3: for the discounted criterion a
-stationary policy's discounted state-action occupancy ``rho(s, a) = sum_t gamma^t P(s_t = s, a_t = a)``
-turns return and costs into linear functions, ``J = sum rho r`` and ``J_c[k] = sum rho c_k``, and
-the occupancies of all policies are exactly the non-negative solutions of the flow equations
+"""The exact constrained optimum of a tabular CMDP, by the occupancy-measure linear program (Altman,
+"Constrained Markov Decision Processes", 1999, ch. 3). A stationary policy's discounted occupancy
+``rho(s, a) = sum_t gamma^t P(s_t = s, a_t = a)`` makes return and costs linear, ``J = sum rho r``
+and ``J_c[k] = sum rho c_k``, and the occupancies of all policies are exactly the non-negative
+solutions of the flow equations
 
     sum_a rho(s', a) - gamma sum_{s, a} P(s' | s, a) rho(s, a) = mu0(s')   for every state s'.
 
@@ -11,12 +10,10 @@ So the CMDP ``max J s.t. J_c[k] <= d_k`` is the LP ``max r.rho`` over that polyt
 rows ``c_k.rho <= d_k``, and ``pi(a | s) = rho(s, a) / sum_a rho(s, a)`` is an optimal policy,
 randomised in general (at a vertex, in at most K states). We do not scale by ``1 - gamma`` as
 Altman does, so the LP's value is ``J`` itself. A finite horizon is the same LP over the states
-(t, s), with ``gamma = 1`` and step t's ``P`` leading to step t + 1 (``suite/optimum.py``).
+(t, s), with ``gamma = 1`` and step t's ``P`` leading to step t + 1 (``suite/model.solve``).
 
-The LP's dual variables are the rest of the answer: the multipliers ``lambda_k >= 0`` of the cost
-rows (``d J* / d d_k``, zero where a constraint does not bind) and, on the flow rows, the optimal
-values of the Lagrangian MDP with reward ``r - lambda . c``, for which the LP's policy is optimal
-(in the states that policy visits; elsewhere the dual only bounds them from above).
+The duals: the cost rows' multipliers ``lambda_k = d J* / d d_k >= 0`` and, on the flow rows, the
+optimal values of the Lagrangian MDP with reward ``r - lambda . c`` where the LP's policy goes.
 """
 
 from __future__ import annotations

@@ -1,15 +1,8 @@
 """A finite discounted CMDP as explicit arrays, with exact policy evaluation and the unconstrained
-optimum; :func:`grid_cmdp` writes the gridworld of ``grid.py`` in this form.
-
-Conventions (those of Altman 1999, discounted criterion, with the goal as an absorbing end):
-
-- ``P[s, a, s']`` is the probability of moving from ``s`` to the non-terminal state ``s'``. Rows
-  may sum to less than 1: the missing mass ends the episode (the grid's goal).
-- ``r[s, a]`` and ``c[k, s, a]`` are the expected reward and costs of one step from ``s`` under ``a``.
-- ``J(pi) = E[sum_t gamma^t r(s_t, a_t)]`` with ``s_0 ~ mu0``, and ``J_c[k]`` likewise.
-
-On the grid, ``gamma = 1 - end_prob``: there these discounted values are the expected undiscounted
-episode totals the gym env produces (see ``grid.py``).
+optimum; :func:`grid_cmdp` writes the gridworld of ``env.py`` in this form. Conventions (Altman 1999,
+discounted criterion): ``P[s, a, s']`` moves to the non-terminal state ``s'``, and a row's missing
+mass ends the episode (the grid's goal); ``r[s, a]`` and ``c[k, s, a]`` are one step's expected
+reward and costs; ``J(pi) = E[sum_t gamma^t r(s_t, a_t)]`` with ``s_0 ~ mu0``, ``J_c[k]`` likewise.
 """
 
 from __future__ import annotations
@@ -162,6 +155,3 @@ def grid_cmdp(
         state_cells=state_cells,
         arrive=arrive,
     )
-
-
-__all__ = ["GridCMDP", "Optimum", "PolicyValue", "TabularCMDP", "evaluate", "grid_cmdp", "value_iteration"]

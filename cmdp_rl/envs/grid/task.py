@@ -1,8 +1,6 @@
 """The slippery two-hazard gridworld as a component (``env=grid``): its options, checked before
-anything is built, and its vector env (gymnasium's, one :class:`~cmdp_rl.envs.grid.env.GridWorld` per
-env). Discrete actions (4 directions) and K = 2 costs (``hazard_a``, ``hazard_b``): train it with an
-algorithm that takes several constraints; the budgets default to ``grid.env.DEFAULT_BUDGETS``
-(hazard_a 0.3, hazard_b 0.15), e.g. ``python train.py env=grid algo=ppo_lag``."""
+anything is built, and its vector env (one gymnasium :class:`~cmdp_rl.envs.grid.env.GridWorld` per
+env). K = 2 costs by default, each with its budget from ``DEFAULT_BUDGETS``."""
 
 from __future__ import annotations
 
@@ -32,7 +30,7 @@ if TYPE_CHECKING:
 @options
 class GridEnvConfig(EnvOptions):
     """``env=grid``: layout rows ('S' start, 'G' goal, '#' wall, 'a'/'b' hazards, '.' open), the
-    slip probability and the per-step end probability (grid.py says why the episodes end at random)."""
+    slip probability and the per-step end probability (``env.py`` says why the episodes end at random)."""
 
     name: str = "grid"
     values_snapshots: ClassVar[bool] = True  # deploy.policy=auto (EnvOptions.values_snapshots)

@@ -1,17 +1,11 @@
 """Reach1D as one tensor program over N environments: the batched backend (``env.backend=torch``).
 
 The state is a float64 tensor ``x[N]``, so every step does the gymnasium :class:`Reach1D`'s float64
-arithmetic elementwise and, fed the same noise draws, produces the same observations, rewards,
-costs, flags and positions to the last bit (``tests/test_reach1d_torch.py`` checks this step for
-step, episode resets included). Actions are cast to float32 and clipped to the float32 bound
-first, as the gymnasium path does, so the seed's float64 wall edge (see ``envs/reach1d/env.py``) is
-out of reach here too. One vectorized step moves all N envs; envs whose episode ended are reset
-in the same step (gymnasium's SAME_STEP autoreset), with no Python loop over envs and no host
-sync, so it runs on CPU or CUDA alike.
-
-Noise comes from a :class:`NoiseSource`. The default, :class:`TorchNoise`, is a ``torch.Generator``
-on the env's device seeded by ``reset(seed)``; a test can inject a source that replays another
-generator's draws.
+arithmetic elementwise and, fed the same noise draws, gives the same observations, rewards, costs,
+flags and positions to the last bit (``tests/test_reach1d_torch.py``), episode resets included
+(SAME_STEP, in the gymnasium env's draw order). Actions are cast to float32 and clipped to the
+float32 bound first, as the gymnasium path does, so the seed's float64 wall edge (``env.py``) is out
+of reach here too. No Python loop over envs and no host sync: CPU or CUDA alike.
 """
 
 from __future__ import annotations
@@ -41,8 +35,9 @@ class NoiseSource(Protocol):
 
 
 class TorchNoise:
-    """The default source: one ``torch.Generator`` on the env's device, drawing for all N envs at
-    every call (cheaper than gathering the envs that need a draw, and sync-free on CUDA)."""
+    """The default source: one ``torch.Generator`` on the env's device (seeded by ``reset(seed)``),
+    drawing for all N envs at every call (cheaper than gathering the envs that need a draw, and
+    sync-free on CUDA). A test injects a source that replays another generator's draws instead."""
 
     def __init__(self, num_envs: int, device: torch.device) -> None:
         self.num_envs = num_envs
@@ -68,14 +63,12 @@ class TorchNoise:
 class TorchReach1D(VecEnv):
     """N Reach1D envs in tensors; the options and their meaning are :class:`~cmdp_rl.envs.Reach1D`'s.
 
-    ``stagger``: at ``reset``, each env's step counter starts at a random value in
-    ``[0, max_steps)``, so its first episode is cut short by a random amount and the envs' episodes
-    end at different steps from then on, as in massively parallel PPO (Rudin et al., 2022,
+    ``stagger``: at ``reset``, each env's step counter starts at a random value in ``[0, max_steps)``,
+    so the envs' episodes end at different steps, as in massively parallel PPO (Rudin et al., 2022,
     "Learning to Walk in Minutes Using Massively Parallel Deep RL"). Without it, N envs started
-    together from a fixed start all time out at the same step: with rollouts shorter than an
-    episode, most batches then hold no finished episode (no new cost estimate for the Lagrange
-    multiplier) and each batch covers one phase of the episode only. Off by default (the
-    gymnasium env's behaviour); evaluation always runs without it.
+    together all time out at once: with rollouts shorter than an episode, most batches hold no
+    finished episode (no new cost estimate for the multiplier) and cover one phase of the episode
+    only. Off by default (the gymnasium env's behaviour); evaluation always runs without it.
 
     After each step, ``final_x`` holds every env's true position after the move (before any reset,
     gymnasium's ``info["true_x"]``) and ``x`` the position the next step starts from.

@@ -3,14 +3,11 @@
 A point effector at true position ``x`` (hidden) moves by a box-bounded velocity command towards a
 goal, with a wall between the start and the goal. The agent sees ``[clip(x + noise, 0, 1), goal]``.
 Reward is shaped progress plus 1 on reaching the goal; a move across the wall costs 1 in
-``info["cost"]`` and is never subtracted from the reward.
-
-With default options the arithmetic is the seed's to the last bit (tests/test_reach1d.py checks
-hand-computed trajectories), including one float edge the seed's crossing test has: it is strict,
-``(prev - wall) * (proposed - wall) < 0``, so an effector that lands on the wall exactly passes on
-its next move at no cost. Float32 actions at the bound (0.10000000149...) never land there from the
-default start; float64 actions of exactly 0.1 do (0.1 + 4 * 0.1 == 0.5 in float64). The toolkit's
-own action path always sends float32 actions (see ``envs/vector.py``).
+``info["cost"]`` and is never subtracted from the reward. With default options the arithmetic is
+the seed's to the last bit, including its strict crossing test, ``(prev - wall) * (proposed - wall)
+< 0``: an effector that lands on the wall exactly passes on its next move at no cost. float64
+actions of exactly 0.1 land there (0.1 + 4 * 0.1 == 0.5), the float32 actions the toolkit always
+sends never do from the default start.
 """
 
 from __future__ import annotations
@@ -27,24 +24,14 @@ GOAL_TOLERANCE = 0.02  # the episode terminates when |goal - x| < this
 
 
 class Reach1D(gym.Env):
-    """Seed-exact Reach1D with options.
+    """Seed-exact Reach1D with options: ``obs_noise`` the position sensor's std; ``wall_x``; ``goal``
+    (the episode terminates within ``GOAL_TOLERANCE`` of it); ``max_steps`` the time limit; ``wall``
+    ``"block"`` (the seed's: a crossing move is cancelled and costs 1) or ``"pass"`` (it goes through
+    and costs 1); ``start`` a position (the seed's 0.1) or a ``[low, high]`` pair drawn uniformly at
+    every reset; ``probe`` adds a second action entry, > 0 making the step a probe (no motion, half
+    the noise) and a third observation entry, the last probe reading (-1 until the first)."""
 
-    Args:
-        obs_noise: std of the position sensor.
-        wall_x: wall position.
-        goal: goal position; the episode terminates within 0.02 of it.
-        max_steps: time limit (truncation).
-        wall: ``"block"`` (seed): a crossing move is cancelled and costs 1. ``"pass"``: the move
-            goes through and costs 1, so reaching the goal has to be paid for.
-        start: the start state, a float (seed: 0.1) or a ``[low, high]`` pair drawn uniformly
-            at every reset.
-        probe: adds a second action dimension; when it is > 0 the step is a probe: no motion, and
-            the reading is taken with half the noise. The observation gains a third entry, the last
-            probe reading (-1 until the first probe of the episode).
-    """
-
-    # rgb_array: a drawn frame (render_reach1d below), for gymnasium's RecordVideo; 8 steps a second
-    # (a power of two: see cmdp_rl/report/video.py's exact_fps).
+    # 8 steps a second: a power of two (cmdp_rl/report/video.py's exact_fps)
     metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
 
     def __init__(
@@ -135,10 +122,8 @@ class Reach1D(gym.Env):
         reading, cost = self._seen
         return render_reach1d(self.x, reading, cost > 0, self.steps / self.max_steps, self.wall_x, self.goal)
 
-    # --- saving and restoring a running episode (for resuming training) ---------------------------
     def state_dict(self) -> dict[str, Any]:
-        """The episode in progress and the env's generator: restoring them continues the same
-        stream of readings and starts as if the process had never stopped."""
+        """The episode in progress and the env's generator (``env_state.py`` saves it this way)."""
         return {
             "np_random": self.np_random.bit_generator.state,
             "x": getattr(self, "x", None),

@@ -76,19 +76,8 @@ class PopulationReach1D(TorchReach1D):
         p, n = len(env_cfgs), envs_per_agent
         dev = torch.device(device)
         noise = PopulationNoise(p, n, dev)
-        super().__init__(
-            p * n,
-            obs_noise=first.obs_noise,
-            wall_x=first.wall_x,
-            max_steps=first.max_steps,
-            goal=first.goal,
-            wall=first.wall,
-            start=first.start,
-            probe=False,
-            stagger=stagger,
-            device=dev,
-            noise=noise,
-        )
+        kwargs = {**first.env_kwargs(), "probe": False}
+        super().__init__(p * n, **kwargs, stagger=stagger, device=dev, noise=noise)
         self.num_agents, self.envs_per_agent = p, n
 
         def per_env(values: list[float]) -> torch.Tensor:
@@ -124,6 +113,3 @@ class PopulationReach1D(TorchReach1D):
         # numpy's Generator.uniform(lo, hi) is lo + (hi - lo) * u, as the single env computes it.
         drawn = self.start_lo + (self.start_hi - self.start_lo) * self.noise.uniform(where, self.range_agents)
         return torch.where(self.start_is_range, drawn, fixed)
-
-
-__all__ = ["PopulationNoise", "PopulationReach1D"]

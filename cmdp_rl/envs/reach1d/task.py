@@ -1,6 +1,6 @@
 """Reach1D as a component (``env=reach1d``): its options, checked before anything is built, and
-the backend that runs them: the seed-exact gymnasium env (``reach1d.py``) in a synchronous vector
-env, or its batched torch twin (``reach1d_torch.py``)."""
+the backend that runs them: the seed-exact gymnasium env (``env.py``) in a synchronous vector
+env, or its batched torch twin (``batched.py``)."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ class Reach1DConfig(EnvOptions):
     """``env=reach1d``: Reach1D's options, on the gymnasium backend or the batched torch twin."""
 
     name: str = "reach1d"
-    # gym: gymnasium envs in a synchronous vector env; torch: one batched tensor program (reach1d_torch.py)
+    # gym: gymnasium envs in a synchronous vector env; torch: one batched tensor program (batched.py)
     backend: Literal["gym", "torch"] = "gym"
     num_envs: PositiveInt = 8
     obs_noise: NonNegativeFloat = 0.02
@@ -38,8 +38,7 @@ class Reach1DConfig(EnvOptions):
     wall: Literal["block", "pass"] = "block"
     start: Annotated[Union[float, list[float]], Field(description=ALLOWED_START)] = 0.1
     probe: Bool = False
-    # torch backend only: the first episode of each env starts at a random step count, so that
-    # episodes end at different iterations (the envs would otherwise all time out together).
+    # torch backend only: the first episodes end at random steps (TorchReach1D says why)
     stagger: Bool = False
     # Evaluation reports the fraction of episodes that terminated under this name: in Reach1D an
     # episode terminates only at the goal.
@@ -48,15 +47,7 @@ class Reach1DConfig(EnvOptions):
 
     def env_kwargs(self) -> dict[str, Any]:
         """The :class:`Reach1D` constructor arguments these options ask for."""
-        return dict(
-            obs_noise=self.obs_noise,
-            wall_x=self.wall_x,
-            max_steps=self.max_steps,
-            goal=self.goal,
-            wall=self.wall,
-            start=self.start,
-            probe=self.probe,
-        )
+        return {k: getattr(self, k) for k in ("obs_noise", "wall_x", "max_steps", "goal", "wall", "start", "probe")}
 
     def render_env(self) -> Reach1D:
         """One gymnasium Reach1D of these options drawing ``rgb_array`` frames (for video; the torch
@@ -64,8 +55,7 @@ class Reach1DConfig(EnvOptions):
         return Reach1D(**self.env_kwargs(), render_mode="rgb_array")
 
     def optimum(self, cost_limit: float) -> float:
-        """The constrained optimum of the eval return at budget ``cost_limit`` (undiscounted, as
-        ``eval.json`` reports it), by dynamic programming on the true state (``reach1d_dp.py``): an
+        """The constrained optimum of the eval return at budget ``cost_limit`` (``optimum.py``): an
         upper bound for a policy that sees noisy readings. Read by the end-of-run summary."""
         return constrained_optimum(self, cost_limit).value
 
@@ -84,9 +74,8 @@ class Reach1DConfig(EnvOptions):
         return None
 
     def valuation_options(self) -> Reach1DConfig:
-        """The torch twin: the same CMDP to the last bit (batched.py), one tensor program over the
-        valuation's thousand-odd episodes instead of as many gymnasium envs stepped in Python
-        (on the gym backend the valuation took longer than 120k steps of training)."""
+        """The torch twin: the same CMDP to the last bit (``batched.py``), one tensor program over the
+        valuation's thousand-odd episodes instead of as many gymnasium envs stepped in Python."""
         return dataclasses.replace(self, backend="torch", stagger=False)
 
     def population_env(

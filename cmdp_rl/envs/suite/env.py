@@ -2,20 +2,14 @@
 
 Each step looks up every env's reward and costs in the instance's tables, draws its next state
 from ``P[s, a]`` by inverting the cumulative row with one uniform number, and ends the episode
-after ``H`` steps; envs whose episode ended restart (a start state drawn from ``mu0``) in the same
-step (gymnasium's SAME_STEP autoreset, as every ``VecEnv``). Two uniform numbers per env per step,
-used or not, so a seed fixes one stream whatever the policy does. No Python loop over envs.
+after ``H`` steps, a true termination (time is part of the state); envs whose episode ended restart
+(a start state drawn from ``mu0``) in the same step. Two uniform numbers per env per step, used or
+not, so a seed fixes one stream whatever the policy does.
 
-The observation is ``[one-hot(s) (S entries), one-hot(t) (H + 1 entries)]``. Why the time step:
-the optimum of a finite-horizon CMDP is not stationary (near the end, an action whose pay-off
-comes later is worth less, and the LP's optimum randomises at particular (t, s) pairs), so a
-policy that sees the state alone cannot represent it, and its critic could not value "k steps
-left". Why one-hot and side by side: an MLP's first layer then computes ``W_s + W_t``, which
-holds what is common to all steps in the state's columns (shared across time, so learnt from every
-step) and the time's effect in its own; a hidden unit over both can pick out one (t, s) pair, so
-any table ``pi[t, s, a]`` is representable. Entry ``H`` of the time part appears only in the final
-observation of an episode, which nothing bootstraps from: the end at ``H`` is a true termination
-(time is part of the state), not a truncation.
+The observation is ``[one-hot(s) (S entries), one-hot(t) (H + 1 entries)]``: the finite-horizon
+optimum is not stationary, so a policy that sees the state alone cannot represent it, nor its critic
+value "k steps left". Side by side, an MLP's first layer computes ``W_s + W_t``, what is common to
+all steps learnt from every step, and a hidden unit over both can pick out one (t, s) pair.
 """
 
 from __future__ import annotations
@@ -25,13 +19,6 @@ import torch
 
 from cmdp_rl.envs.suite.model import FiniteCMDP
 from cmdp_rl.envs.vector import Step, VecEnv
-
-
-def observations(cmdp: FiniteCMDP, states: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
-    """The observations ``[N, S + H + 1]`` of states ``[N]`` at time steps ``[N]`` (module docstring)."""
-    eye_s = torch.eye(cmdp.num_states, device=states.device)
-    eye_t = torch.eye(cmdp.horizon + 1, device=states.device)
-    return torch.cat([eye_s[states], eye_t[steps]], dim=-1)
 
 
 class TorchSuite(VecEnv):
@@ -49,6 +36,7 @@ class TorchSuite(VecEnv):
         self.action_dim = 1
         self.action_low = torch.zeros(1, device=self.device)
         self.action_high = torch.full((1,), cmdp.num_actions - 1.0, device=self.device)
+        self._cost_names, self._action_space = cmdp.cost_names, gym.spaces.Discrete(cmdp.num_actions)
         f64 = dict(dtype=torch.float64, device=self.device)
         # float64 cumulative rows, so that the sampled transitions are those of P to ~1e-16
         self._cdf = torch.as_tensor(cmdp.P, **f64).cumsum(-1)  # [S, A, S]
@@ -60,14 +48,6 @@ class TorchSuite(VecEnv):
         self.generator = torch.Generator(device=self.device)
         self.state = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
         self.t = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.cmdp.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return gym.spaces.Discrete(self.cmdp.num_actions)
 
     def _obs(self, states: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
         return torch.cat([self._eye_s[states], self._eye_t[steps]], dim=-1)
@@ -116,6 +96,3 @@ class TorchSuite(VecEnv):
             truncated=torch.zeros_like(terminated).unsqueeze(-1),
             obs=self._obs(self.state, self.t),
         )
-
-
-__all__ = ["TorchSuite", "observations"]
