@@ -26,15 +26,11 @@ def make_env(
     evaluation: bool = False,
     cut_at: float | Sequence[float] | None = None,
 ) -> VecEnv:
-    """Build the batched env a config names (``num_envs`` overrides ``cfg.num_envs``).
-
-    ``device`` is where the env's tensors live: a torch backend steps there; a gymnasium backend
-    steps on the CPU and moves its tensors there. ``algo``: the algorithm's options; the env their
-    ``wrap_env(env, evaluation)`` returns (``AlgoConfig``'s: the env itself; Sauté's budget state).
-    ``cut_at``: the budget(s) of the early-terminated MDP (``early_terminate: true``, a training env
-    only): each episode ends once a cost's sum passes its budget (``envs/early_termination.py``),
-    inside the algorithm's wrapper, so Sauté's budget state restarts with the cut episode.
-    """
+    """Build the batched env a config names (``num_envs`` overrides ``cfg.num_envs``), its tensors on
+    ``device`` (a gymnasium backend steps on the CPU). ``algo``: the algorithm's options, whose
+    ``wrap_env(env, evaluation)`` gives the env returned (Sauté's budget state). ``cut_at``: the
+    budget(s) of the early-terminated MDP (``envs/early_termination.py``, training envs only), inside
+    the algorithm's wrapper, so Sauté's budget state restarts with the cut episode."""
     n = cfg.num_envs if num_envs is None else num_envs
     env = component("env", cfg.name).build(cfg, n, device)
     if cut_at is not None:

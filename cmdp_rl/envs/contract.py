@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -17,7 +17,7 @@ import torch
 from gymnasium import spaces
 
 from cmdp_rl.config.validation import ConfigError
-from cmdp_rl.envs.vector import declared_cost_names
+from cmdp_rl.envs.vector import declared_cost_names, default_cost_names
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.actions import SUPPORTED, hybrid
 
@@ -27,8 +27,7 @@ COST = 'info["cost"]'
 
 
 class EnvContractError(ConfigError):
-    """An env breaks the CMDP contract. A :class:`ConfigError`, so ``train.py`` reports it in one
-    line and exits with status 2."""
+    """An env breaks the CMDP contract (a :class:`ConfigError`: ``train.py`` says so in one line)."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +71,6 @@ class Checker:
             self.fail(None, "cost_names", f"must be distinct, got {_short(tuple(names))}")
         return tuple(names)
 
-    # --- the spaces ---
     def spaces(self, action_space: Any, observation_space: Any) -> None:
         if not isinstance(action_space, ACTION_SPACES) and hybrid(action_space) is None:
             self.fail(None, "action_space", f"{action_space} is not supported; supported: {SUPPORTED}")
@@ -83,7 +81,6 @@ class Checker:
                 f"{observation_space} is not supported; supported: Box, Discrete, MultiDiscrete, MultiBinary",
             )
 
-    # --- one env's values ---
     def observation(self, where: tuple[int, int], obs: Any, space: gym.Space, field: str = "observation") -> None:
         if isinstance(space, spaces.Box):
             if not isinstance(obs, np.ndarray):
@@ -116,23 +113,20 @@ class Checker:
             self.fail(
                 where, COST, f"is missing (info keys: {sorted(map(str, info))}); a CMDP env reports its cost there"
             )
-        value = info["cost"]
+        value, wanted = info["cost"], "must be a number or a 1-D array of numbers, got"
         if isinstance(value, (bool, np.bool_)):
-            self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {value!r}")
+            self.fail(where, COST, f"{wanted} {value!r}")
         if isinstance(value, numbers.Real):
             cost = np.array([float(value)])
         elif isinstance(value, (np.ndarray, list, tuple, torch.Tensor)):
             cost = np.asarray(value)
             if cost.dtype.kind not in "iuf":
-                self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {_short(value)}")
-            if cost.ndim == 0:
-                cost = cost.reshape(1)
+                self.fail(where, COST, f"{wanted} {_short(value)}")
+            cost = cost.reshape(1) if cost.ndim == 0 else cost
             if cost.ndim != 1 or cost.size == 0:
-                self.fail(where, COST, f"must be a number or a 1-D array of numbers, got shape {cost.shape}")
+                self.fail(where, COST, f"{wanted} shape {cost.shape}")
         else:
-            self.fail(
-                where, COST, f"must be a number or a 1-D array of numbers, got {_short(value)} ({type(value).__name__})"
-            )
+            self.fail(where, COST, f"{wanted} {_short(value)} ({type(value).__name__})")
         self.cost_vector(where, cost)
 
     def cost_vector(self, where: tuple[int, int], cost: np.ndarray) -> None:
@@ -159,7 +153,7 @@ class Checker:
 
     def result(self) -> EnvContract:
         k = self.num_costs or 1
-        return EnvContract(k, self.cost_names or tuple(f"cost_{i}" for i in range(k)))
+        return EnvContract(k, self.cost_names or default_cost_names(k))
 
 
 def _check_gym_envs(
@@ -207,37 +201,31 @@ def _check_tensor_env(env: Any, steps: int, seed: int, allow_negative_cost: bool
     def first_bad(bad: torch.Tensor) -> int:
         return int(torch.nonzero(bad.reshape(n, -1).any(-1))[0, 0])
 
-    def batch(
-        t: int,
-        field: str,
-        value: torch.Tensor,
-        shape: tuple[int, ...],
-        finite: bool = True,
-        dtype_check: Callable[[torch.dtype], bool] | None = None,
-    ) -> None:
+    def batch(t: int, field: str, value: torch.Tensor, shape: tuple[int, ...], kind: str = "") -> None:
+        """``kind``: the dtype wanted, "float" (and finite), "bool", or any (and finite)."""
         if tuple(value.shape) != shape:
             check.fail((0, t), field, f"has shape {tuple(value.shape)} over the batch, expected {shape}")
-        if dtype_check is not None and not dtype_check(value.dtype):
+        if (kind == "float" and not value.dtype.is_floating_point) or (kind == "bool" and value.dtype != torch.bool):
             check.fail((0, t), field, f"has dtype {value.dtype}")
-        if finite and not torch.isfinite(value).all():
+        if kind != "bool" and not torch.isfinite(value).all():
             i = first_bad(~torch.isfinite(value))
             check.fail((i, t), field, f"is not finite: {_short(value[i].cpu())}")
 
     obs = env.reset(seed=seed)
-    batch(0, "observation", obs, (n, env.obs_dim), dtype_check=lambda d: d.is_floating_point)
+    batch(0, "observation", obs, (n, env.obs_dim), "float")
     low, high = env.action_low, env.action_high
     for t in range(1, steps + 1):
         u = torch.rand((n, env.action_dim), generator=gen, device=env.device)
         step = env.step(low + (high - low) * u)
         for field, value in (("observation", step.next_obs), ("observation after reset", step.obs)):
-            batch(t, field, value, (n, env.obs_dim), dtype_check=lambda d: d.is_floating_point)
+            batch(t, field, value, (n, env.obs_dim), "float")
         batch(t, "reward", step.reward, (n, 1))
         for name in ("terminated", "truncated"):
-            batch(t, name, getattr(step, name), (n, 1), finite=False, dtype_check=lambda d: d == torch.bool)
+            batch(t, name, getattr(step, name), (n, 1), "bool")
         cost = step.cost
         if cost.dim() != 2 or cost.shape[0] != n:
             check.fail((0, t), COST, f"has shape {tuple(cost.shape)} over the batch, expected ({n}, K)")
-        bad = ~torch.isfinite(cost) | (torch.zeros_like(cost, dtype=torch.bool) if allow_negative_cost else cost < 0)
+        bad = ~torch.isfinite(cost) | ((cost < 0) & (not allow_negative_cost))
         i = first_bad(bad) if bad.any() else 0
         check.cost_vector((i, t), cost[i].detach().cpu().numpy().astype(np.float64))
     return check.result()
@@ -266,7 +254,7 @@ def check_rollout(batch: Any, env_id: str, allow_negative_cost: bool = False, fi
         hits = torch.nonzero(bad.reshape(n, t_len, -1).any(-1).T)  # rows (t, i), in order of t then i
         return None if hits.numel() == 0 else (int(hits[0, 0]), int(hits[0, 1]))
 
-    bad_cost = ~torch.isfinite(cost) | (torch.zeros_like(cost, dtype=torch.bool) if allow_negative_cost else cost < 0)
+    bad_cost = ~torch.isfinite(cost) | ((cost < 0) & (not allow_negative_cost))
     # (t offset of the env step the entry came from, entry, breach mask); root observations at t
     # were returned by step t - 1 (by the reset at step 0).
     found = []

@@ -17,10 +17,8 @@ from cmdp_rl.envs.vector import Step, VecEnv
 
 
 class EarlyTerminated(VecEnv):
-    """``env`` whose episodes end (``terminated``) at the first step after which some cost's running
-    episode sum exceeds its budget (module docstring). ``budgets``: ``[K]`` (every row the same) or
-    ``[N, K]`` (a row's own, as a population's agents have). Reward, cost and observations pass
-    through; the cut rows restart through ``env.reset_rows``."""
+    """``env`` cut at its budgets (module docstring): ``[K]``, or ``[N, K]`` (a row's own, as a
+    population's agents have). The cut rows restart through ``env.reset_rows``."""
 
     saved = ("env", "spent")
 
@@ -36,8 +34,7 @@ class EarlyTerminated(VecEnv):
         self.spent = torch.zeros(self.num_envs, self.num_costs, device=self.device)  # running episode costs
 
     def __getattr__(self, name: str) -> Any:
-        # What an env declares besides the VecEnv interface (a team env's agents_per_env, which
-        # evaluation and the multi-agent algorithm read) is the wrapped env's.
+        # What an env declares besides the VecEnv interface (a team env's agents_per_env) is the wrapped env's.
         return getattr(self.env, name)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:

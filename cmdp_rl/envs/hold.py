@@ -4,9 +4,8 @@
 ``cmdp_rl.rollout.actions.hybrid``). On a decision step (an episode's first step, then every
 ``k``-th) the skill the policy emits is taken and held; on the ``k - 1`` steps after it the env steps
 with the held skill whatever the policy emits, and the policy's parameters every step. The
-observation gains a one-hot of the held skill (zeros on a decision step) and the hold's phase
-``j / k`` (0 on a decision step). The batch stays one row per env step, so GAE runs as for any env;
-how the held steps' rewards and costs are credited: docs/multi_agent_and_hybrid.md.
+observation gains a one-hot of the held skill and the hold's phase ``j / k`` (both 0 on a decision
+step). How the held steps are credited: docs/multi_agent_and_hybrid.md.
 """
 
 from __future__ import annotations

@@ -3,16 +3,12 @@ the budget is spent: the safety augmented MDP of Sootla et al. (2022, "Sauté RL
 Reinforcement Learning Using State Augmentation", ICML; docs/references.md).
 
 The paper's safety state starts at the budget, ``z_0 = d``, and moves by ``z_{t+1} = (z_t - c_t) /
-gamma_c`` (dividing by the safety discount keeps ``z_t >= 0`` equivalent to
-``sum_{k<t} gamma_c^k c_k <= d``); the policy sees ``(s_t, z_t)``, and the objective is reshaped so
-that any step taken with the budget spent is worth a fixed penalty instead of the task's reward.
-Here ``z`` is normalised by ``d`` (``z_0 = 1``, as the paper's experiments feed it to the networks),
-one ``z`` per constraint (the construction is per constraint; the reward is replaced when any of
-them is spent), and the check reads the state *after* the step: a step's reward is replaced exactly
-when the costs up to and including it exceed the budget, so the step that overspends is penalised
-itself (with a finite penalty the pre-step reading would let the overspending step keep its reward).
-``gamma_c = 1`` (the default of ``algo.budget_discount``) counts this toolkit's budget, the
-undiscounted episode cost.
+gamma_c`` (so ``z_t >= 0`` is ``sum_{k<t} gamma_c^k c_k <= d``); the policy sees ``(s_t, z_t)``, and
+a step taken with the budget spent is worth a fixed penalty instead of the task's reward. Here ``z``
+is normalised by ``d`` (``z_0 = 1``, as the paper's experiments feed it to the networks), one per
+constraint (the reward is replaced when any is spent), and read *after* the step, so the step that
+overspends is penalised itself (the pre-step reading would let it keep its reward). ``gamma_c = 1``,
+``algo.budget_discount``'s default, counts this toolkit's budget, the undiscounted episode cost.
 """
 
 from __future__ import annotations
@@ -63,11 +59,9 @@ class BudgetState:
 
 
 class BudgetStateEnv(VecEnv):
-    """``env`` with each observation followed by the K normalised remaining budgets ``z`` (module
-    docstring) and, if ``reshape_reward``, every reward replaced by ``unsafe_reward`` on steps after
-    which some ``z_k < 0``. Costs, flags and everything else pass through unchanged; an episode's
-    end (terminated or truncated) restores the full budget, ``z = 1``, in the observation the agent
-    acts on next."""
+    """``env`` with each observation followed by the K budgets ``z`` (``z = 1`` again in the
+    observation after an episode's end) and, if ``reshape_reward``, every reward replaced by
+    ``unsafe_reward`` on steps after which some ``z_k < 0``; everything else passes through."""
 
     def __init__(
         self,

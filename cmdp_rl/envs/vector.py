@@ -41,8 +41,8 @@ class VecEnv(ABC):
 
     A wrapper (Sauté's budget state, the held skill, the early-terminated MDP) keeps the env it wraps
     as ``env`` (:meth:`wrap`): its cost names, action space and ``close`` are that env's. ``saved``
-    names the attributes a resume restores (:meth:`state_dict`): tensors, ``torch.Generator``\ s, and
-    objects with a ``state_dict`` (a wrapper's ``env``)."""
+    names the attributes a resume restores (:meth:`state_dict`): tensors, torch generators, objects
+    with a ``state_dict`` (a wrapper's ``env``)."""
 
     num_envs: int
     num_costs: int = 1
@@ -87,9 +87,8 @@ class VecEnv(ABC):
             self.env.close()
 
     def state_dict(self) -> dict[str, Any]:
-        """Everything a resumed run needs to continue exactly where this env stands: the episodes
-        in progress and the envs' random generators. ``load_state_dict`` on a fresh env built from
-        the same config restores it."""
+        """Everything a resumed run needs to continue exactly where this env stands (episodes in
+        progress, random generators), for ``load_state_dict`` on a fresh env of the same config."""
         if not self.saved:
             raise NotImplementedError(f"{type(self).__name__} cannot save its state, so a run on it cannot resume")
         return {"num_envs": self.num_envs, **{name: _saved(getattr(self, name)) for name in self.saved}}
@@ -134,12 +133,33 @@ def _saved(value: Any) -> Any:
     return value.state_dict()
 
 
+def tabular(env: VecEnv, model: Any, num_envs: int, device: str | torch.device) -> None:
+    """Set ``env`` up as N batched copies of a tabular ``model`` (the suite's, the fork's): one action,
+    an index of ``Discrete(A)``; K costs named ``model.cost_names``; the reward ``[S, A]`` and costs
+    ``[S, A, K]`` as float32 tables; a generator; every env in state 0."""
+    env.num_envs, env.device, env.num_costs, env.action_dim = num_envs, torch.device(device), model.num_costs, 1
+    env.action_low = torch.zeros(1, device=env.device)
+    env.action_high = torch.full((1,), model.num_actions - 1.0, device=env.device)
+    env._cost_names, env._action_space = model.cost_names, gym.spaces.Discrete(model.num_actions)
+    env._reward = torch.as_tensor(model.r, dtype=torch.float32, device=env.device)
+    env._cost = torch.as_tensor(model.c, dtype=torch.float32, device=env.device).permute(1, 2, 0)
+    env.generator = torch.Generator(device=env.device)
+    env.state = torch.zeros(num_envs, dtype=torch.int64, device=env.device)
+
+
+def table_actions(env: VecEnv, action: torch.Tensor, name: str) -> torch.Tensor:
+    """A :func:`tabular` env's actions ``[N, 1]`` as indices ``[N]``, each checked to be an action."""
+    env.check_action(action)
+    a = action[:, 0].to(device=env.device, dtype=torch.int64)
+    if bool(((a < 0) | (a >= env.action_space.n)).any()):
+        raise ValueError(f"{name} action must be in 0..{env.action_space.n - 1}, got {action.flatten().tolist()}")
+    return a
+
+
 def _probe_num_costs(make_one: Callable[[], gym.Env]) -> int:
-    """K of an env that does not declare ``cost_names``: the length of ``info["cost"]`` on one step
-    of a throwaway instance (seeded, random action; the training envs and every global random
-    generator are left untouched). A missing cost, or a probe step that fails, counts as one
-    constraint: the training env's own steps then report the problem where they always did (the
-    contract check, or the env's wrappers, name it)."""
+    """K of an env that does not declare ``cost_names``: the length of ``info["cost"]`` on one seeded
+    step of a throwaway instance. A missing cost, or a probe step that fails, counts as one
+    constraint: the training env's own steps then report the problem (the contract check names it)."""
     env = make_one()
     try:
         env.reset(seed=0)
@@ -161,18 +181,13 @@ def declared_cost_names(env: gym.Env) -> Any:
 
 
 class GymVecEnv(VecEnv):
-    """Gymnasium envs that report cost in ``info["cost"]``, in gymnasium's synchronous vector env.
-    ``info["cost"]`` is a number (K = 1) or a 1-D array of K numbers; K comes from the env's
-    ``cost_names`` if it declares them, else from one probe step (:func:`_probe_num_costs`).
-
-    SAME_STEP autoreset: the done step's final observation and info (its cost) come in
-    ``final_obs``/``final_info``. Never NEXT_STEP, the default, which would give a phantom step at
-    every episode end.
-
-    ``asynchronous=True`` steps the envs in worker processes (gymnasium's ``AsyncVectorEnv``): worth
-    it only where one env step costs far more than the inter-process round trip (milliseconds, as
-    Safety-Gymnasium's navigation tasks do; docs/benchmarks.md). Its envs live in other processes,
-    so :meth:`state_dict` is left to subclasses that know how to fetch their envs' state.
+    """Gymnasium envs that report cost in ``info["cost"]`` (a number, or a 1-D array of K numbers),
+    in gymnasium's synchronous vector env; K from the env's ``cost_names`` if it declares them, else
+    from one probe step. SAME_STEP autoreset (the done step's final observation and cost come in
+    ``final_obs``/``final_info``), never NEXT_STEP, the default, which gives a phantom step at every
+    episode end. ``asynchronous=True`` steps the envs in worker processes (``AsyncVectorEnv``): worth
+    it only where a step costs far more than the round trip (docs/benchmarks.md); its envs' state is
+    then left to subclasses that know how to fetch it.
     """
 
     def __init__(
@@ -198,7 +213,6 @@ class GymVecEnv(VecEnv):
         self.obs_dim = int(np.prod(obs_space.shape))
         # Actions are stored flat (cmdp_rl/rollout/actions.py): a box's numbers, or one index per component.
         self.action_dim = action_dim(act_space)
-        # Gymnasium steps on the CPU; tensors handed out live on ``device``.
         self.device = torch.device(device)
         # the range of each stored entry: a box's bounds, a discrete index's [0, n - 1]
         low, high = action_bounds(act_space)

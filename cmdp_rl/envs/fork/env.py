@@ -5,11 +5,10 @@ the policy does; envs whose episode ended restart at the fork in the same step."
 
 from __future__ import annotations
 
-import gymnasium as gym
 import torch
 
-from cmdp_rl.envs.fork.model import GOAL, NUM_ACTIONS, ForkCMDP
-from cmdp_rl.envs.vector import Step, VecEnv
+from cmdp_rl.envs.fork.model import GOAL, ForkCMDP
+from cmdp_rl.envs.vector import Step, VecEnv, table_actions, tabular
 
 
 class TorchFork(VecEnv):
@@ -19,25 +18,13 @@ class TorchFork(VecEnv):
     saved = ("state", "generator")
 
     def __init__(self, model: ForkCMDP, num_envs: int, device: str | torch.device = "cpu") -> None:
-        self.model = model
-        self.num_envs = num_envs
-        self.device = torch.device(device)
-        self.num_costs = model.num_costs
-        self.obs_dim = model.obs_dim
-        self.action_dim = 1
-        self.action_low = torch.zeros(1, device=self.device)
-        self.action_high = torch.full((1,), NUM_ACTIONS - 1.0, device=self.device)
-        self._cost_names, self._action_space = model.cost_names, gym.spaces.Discrete(NUM_ACTIONS)
+        tabular(self, model, num_envs, device)
+        self.model, self.obs_dim = model, model.obs_dim
         self.end_prob = 1.0 - model.gamma
-        goal_index = model.num_states  # the goal's entry of the one-hot observation
+        self.goal_index = model.num_states  # the goal's entry of the one-hot observation
         nxt = torch.as_tensor(model.next_state, device=self.device)
-        self._next = torch.where(nxt == GOAL, torch.full_like(nxt, goal_index), nxt)  # [S, A]
-        self._reward = torch.as_tensor(model.r, dtype=torch.float32, device=self.device)  # [S, A]
-        self._cost = torch.as_tensor(model.c, dtype=torch.float32, device=self.device).permute(1, 2, 0)  # [S, A, K]
+        self._next = torch.where(nxt == GOAL, torch.full_like(nxt, self.goal_index), nxt)  # [S, A]
         self._eye = torch.eye(model.obs_dim, device=self.device)
-        self.goal_index = goal_index
-        self.generator = torch.Generator(device=self.device)
-        self.state = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         if seed is not None:
@@ -50,10 +37,7 @@ class TorchFork(VecEnv):
         return self._eye[self.state[rows]]
 
     def step(self, action: torch.Tensor) -> Step:
-        self.check_action(action)
-        a = action[:, 0].to(device=self.device, dtype=torch.int64)
-        if bool(((a < 0) | (a >= NUM_ACTIONS)).any()):
-            raise ValueError(f"fork action must be in 0..{NUM_ACTIONS - 1}, got {action.flatten().tolist()}")
+        a = table_actions(self, action, "fork")
         s = self.state
         nxt = self._next[s, a]
         at_goal = nxt == self.goal_index

@@ -6,10 +6,9 @@ cells lead to the goal in ``lengths[r]`` moves: route 0 (the short one) runs ove
 route 1 over hazard ``b`` cells, route 2 (the long one) is hazard-free. On a route cell, action 0
 advances one cell and actions 1 and 2 wait. Arriving at (or waiting on) a hazard cell costs 1 of its
 kind; arriving at the goal pays ``goal_reward`` and ends the episode. After every other step the
-episode ends with probability ``end_prob``: as on env=grid (``grid/env.py`` says why), the expected
-undiscounted episode totals are the discounted values with ``gamma = 1 - end_prob`` of the occupancy
-LP. ``num_costs=2`` reports ``hazard_a`` and ``hazard_b``; ``num_costs=1`` one cost, ``hazard``, the
-two kinds together.
+episode ends with probability ``end_prob``, so the discounted values with ``gamma = 1 - end_prob``
+are the episode totals (``grid/env.py`` says why). ``num_costs=2`` reports ``hazard_a`` and
+``hazard_b``; ``num_costs=1`` one cost, ``hazard``, the two kinds together.
 """
 
 from __future__ import annotations

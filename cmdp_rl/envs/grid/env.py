@@ -10,12 +10,10 @@ One step:
    hazard cell costs 1 of its kind: ``info["cost"] = [on an 'a' cell, on a 'b' cell]``;
 4. otherwise the episode ends with probability ``end_prob``.
 
-Why the random end: an episode's expected undiscounted return and cost, which the toolkit logs and
-budgets, are then exactly the ``gamma = 1 - end_prob`` discounted return and cost of the same grid
-without it, the quantities of Altman's discounted CMDP and its linear program, so the LP's optimum
-is the number a trained policy's ``eval.json`` should approach. The end is a true termination (no
-bootstrap past it), and there is no time limit. The observation is a one-hot over the open cells, so
-a policy network can represent any state-dependent, randomised policy, the LP's included.
+Why the random end (a termination, and no time limit): an episode's expected undiscounted return and
+cost, which the toolkit logs and budgets, are then exactly the ``gamma = 1 - end_prob`` discounted
+ones of the grid without it, those of Altman's discounted CMDP and its LP, whose optimum is then what
+``eval.json`` should approach. The one-hot observation lets a network represent any randomised policy.
 """
 
 from __future__ import annotations
@@ -33,11 +31,7 @@ HAZARD_CHARS = ("a", "b")  # the layout character of each cost, in COST_NAMES or
 # Directions as (row, col) offsets: up, right, down, left. Perpendicular to d: (d + 1) % 4, (d + 3) % 4.
 MOVES = ((-1, 0), (0, 1), (1, 0), (0, -1))
 
-# The default grid (docs/grid.md has its optima). From S, three ways to G: straight along the
-# middle row (6 moves) through one 'a' cell, where a slip up lands on the 'b' strip; over the top
-# (10 moves), where a slip down lands on the 'b' strip; or round the bottom (12 moves), which no
-# slip can turn into a hazard. The walls beside S's row keep the start itself out of every
-# hazard's reach, so the hazard-free route is a plain detour, not a wait for a lucky slip.
+# The default grid: three routes from S to G, two past hazards (docs/grid.md, with its optima).
 DEFAULT_LAYOUT = (
     ".......",
     ".#bbbb.",
@@ -97,8 +91,8 @@ def parse_layout(layout: Sequence[str]) -> Layout:
 
 
 class GridWorld(gym.Env):
-    """The slippery two-hazard gridworld (module docstring). ``cost_names`` names ``info["cost"]``'s
-    entries; ``default_budgets`` are budgets at which both constraints matter on the default grid."""
+    """The slippery two-hazard gridworld (module docstring); ``default_budgets``: budgets at which both
+    constraints matter on the default grid."""
 
     # rgb_array: a drawn frame (render_grid below), for gymnasium's RecordVideo; 4 steps a second
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}

@@ -61,7 +61,6 @@ class GridEnvConfig(EnvOptions):
         return GRID_ID
 
     def budget(self) -> list[float]:
-        """Each reported cost's budget from ``DEFAULT_BUDGETS`` (in ``COST_NAMES`` order), in ``costs`` order."""
         budgets = dict(zip(COST_NAMES, DEFAULT_BUDGETS))
         return [budgets[name] for name in self.costs]
 

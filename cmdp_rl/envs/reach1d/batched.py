@@ -10,7 +10,7 @@ of reach here too. No Python loop over envs and no host sync: CPU or CUDA alike.
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Any
 
 import torch
 
@@ -18,26 +18,14 @@ from cmdp_rl.envs.reach1d.env import WALL_MODES
 from cmdp_rl.envs.vector import Step, VecEnv
 
 
-class NoiseSource(Protocol):
-    """Standard normal and standard uniform [0, 1) draws for the N envs, float64, shape ``[N]``.
-
-    ``where`` (bool ``[N]`` or None for all envs) says which envs consume a draw in this call; the
-    entries of the others are ignored by the env, so a source may fill them with anything. Per env,
-    the draws are consumed in the gymnasium env's order: at a step, one normal (the reading); at a
-    reset, one uniform if the start is a range, then one normal.
-    """
-
-    def seed(self, seed: int) -> None: ...
-
-    def normal(self, where: torch.Tensor | None) -> torch.Tensor: ...
-
-    def uniform(self, where: torch.Tensor | None) -> torch.Tensor: ...
-
-
 class TorchNoise:
-    """The default source: one ``torch.Generator`` on the env's device (seeded by ``reset(seed)``),
-    drawing for all N envs at every call (cheaper than gathering the envs that need a draw, and
-    sync-free on CUDA). A test injects a source that replays another generator's draws instead."""
+    """The noise source of the N envs: standard normal and standard uniform [0, 1) draws, float64
+    ``[N]``; ``where`` (bool ``[N]``, None for all) says which envs consume this call's draw, the
+    others' entries being ignored. Per env, draws come in the gymnasium env's order: at a step, one
+    normal (the reading); at a reset, one uniform if the start is a range, then one normal. This one,
+    the default, is a ``torch.Generator`` on the env's device (seeded by ``reset(seed)``) drawing for
+    all N envs at every call (cheaper than gathering the envs that need a draw, and sync-free on
+    CUDA); a test injects a source with the same methods that replays another generator's draws."""
 
     def __init__(self, num_envs: int, device: torch.device) -> None:
         self.num_envs = num_envs
@@ -88,7 +76,7 @@ class TorchReach1D(VecEnv):
         probe: bool = False,
         stagger: bool = False,
         device: str | torch.device = "cpu",
-        noise: NoiseSource | None = None,
+        noise: Any = None,
     ) -> None:
         if wall not in WALL_MODES:
             raise ValueError(f"env.wall must be one of {WALL_MODES}, got {wall!r}")

@@ -3,11 +3,9 @@
 A point effector at true position ``x`` (hidden) moves by a box-bounded velocity command towards a
 goal, with a wall between the start and the goal. The agent sees ``[clip(x + noise, 0, 1), goal]``.
 Reward is shaped progress plus 1 on reaching the goal; a move across the wall costs 1 in
-``info["cost"]`` and is never subtracted from the reward. With default options the arithmetic is
-the seed's to the last bit, including its strict crossing test, ``(prev - wall) * (proposed - wall)
-< 0``: an effector that lands on the wall exactly passes on its next move at no cost. float64
-actions of exactly 0.1 land there (0.1 + 4 * 0.1 == 0.5), the float32 actions the toolkit always
-sends never do from the default start.
+``info["cost"]``. With default options the arithmetic is the seed's to the last bit, including its
+strict crossing test: an effector that lands on the wall exactly passes on its next move at no cost
+(float64 actions of 0.1 land there, 0.1 + 4 * 0.1 == 0.5; the toolkit's float32 actions never do).
 """
 
 from __future__ import annotations
@@ -58,18 +56,11 @@ class Reach1D(gym.Env):
         self.wall = wall
         self.start = tuple(start) if isinstance(start, (tuple, list)) else float(start)
         self.probe = probe
-        act_dim = 2 if probe else 1
         # float32 bounds as in the seed: np.clip against them keeps a float32 action float32.
-        self.action_space = spaces.Box(low=-MAX_SPEED, high=MAX_SPEED, shape=(act_dim,), dtype=np.float32)
-        if probe:
-            self.action_space = spaces.Box(
-                low=np.array([-MAX_SPEED, -1.0], dtype=np.float32),
-                high=np.array([MAX_SPEED, 1.0], dtype=np.float32),
-                dtype=np.float32,
-            )
-        low = [0.0, 0.0] + ([-1.0] if probe else [])
-        high = [1.0, 1.0] + ([1.0] if probe else [])
-        self.observation_space = spaces.Box(low=np.array(low, dtype=np.float32), high=np.array(high, dtype=np.float32))
+        low, high = [-MAX_SPEED] + ([-1.0] if probe else []), [MAX_SPEED] + ([1.0] if probe else [])
+        self.action_space = spaces.Box(np.array(low, dtype=np.float32), np.array(high, dtype=np.float32))
+        low, high = [0.0, 0.0] + ([-1.0] if probe else []), [1.0, 1.0] + ([1.0] if probe else [])
+        self.observation_space = spaces.Box(np.array(low, dtype=np.float32), np.array(high, dtype=np.float32))
 
     def _reading(self, noise_std: float) -> float:
         return float(np.clip(self.x + self.np_random.normal(0.0, noise_std), 0.0, 1.0))
@@ -140,14 +131,7 @@ FRAME_H, FRAME_W = 128, 512  # multiples of 16: video encoders want even sizes, 
 _MARGIN = 16
 
 
-def render_reach1d(
-    x: float,
-    reading: float,
-    collided: bool,
-    elapsed: float,
-    wall_x: float,
-    goal: float,
-) -> np.ndarray:
+def render_reach1d(x: float, reading: float, collided: bool, elapsed: float, wall_x: float, goal: float) -> np.ndarray:
     """A ``FRAME_H x FRAME_W`` RGB frame of Reach1D drawn with numpy: the track [0, 1] left to right,
     the wall (dark bar), the goal (green line in its reach band), the true position (blue disc),
     the noisy reading the agent saw (orange tick above the track), a red border on a step that

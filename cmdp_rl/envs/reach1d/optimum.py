@@ -63,9 +63,8 @@ class ConstrainedOptimum:
 def best_returns_by_crossings(
     env: Any, max_crossings: int, gamma: float = 1.0, resolution: float = 1e-3
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``V[k, i]``: the best return (discount ``gamma``) from grid start ``x[i]`` of a path with at
-    most ``k`` crossings, ``k = 0 .. max_crossings``; by backward induction over ``env.max_steps``
-    steps on the state (position, crossings left). Returns ``(x, V)``."""
+    """``(x, V)``, ``V[k, i]`` the best return (discount ``gamma``) from grid start ``x[i]`` of a path
+    with at most ``k <= max_crossings`` crossings, by backward induction on (position, crossings left)."""
     x, crossed, nxt, terminal, reward = grid_tables(env, resolution)
     cont = ~terminal
     value = np.zeros((max_crossings + 1, len(x)))

@@ -40,8 +40,7 @@ class Reach1DConfig(EnvOptions):
     probe: Bool = False
     # torch backend only: the first episodes end at random steps (TorchReach1D says why)
     stagger: Bool = False
-    # Evaluation reports the fraction of episodes that terminated under this name: in Reach1D an
-    # episode terminates only at the goal.
+    # In Reach1D an episode terminates only at the goal.
     termination_metric: ClassVar[str] = "goal_reached"
     values_snapshots: ClassVar[bool] = True  # deploy.policy=auto (EnvOptions.values_snapshots)
 
@@ -90,14 +89,8 @@ class Reach1DConfig(EnvOptions):
         return env
 
     def check(self, run: RunConfig) -> None:
-        if isinstance(self.start, list):
-            ok = (
-                len(self.start) == 2
-                and all(is_finite(s) for s in self.start)
-                and 0 <= self.start[0] <= self.start[1] <= 1
-            )
-        else:
-            ok = 0.0 <= self.start <= 1.0
+        s = self.start if isinstance(self.start, list) else [self.start, self.start]
+        ok = len(s) == 2 and all(is_finite(x) for x in s) and 0 <= s[0] <= s[1] <= 1
         require(ok, "env.start", ALLOWED_START, self.start)
         require(
             not self.stagger or self.backend == "torch", "env.stagger", "false unless env.backend=torch", self.stagger

@@ -6,19 +6,17 @@ after ``H`` steps, a true termination (time is part of the state); envs whose ep
 (a start state drawn from ``mu0``) in the same step. Two uniform numbers per env per step, used or
 not, so a seed fixes one stream whatever the policy does.
 
-The observation is ``[one-hot(s) (S entries), one-hot(t) (H + 1 entries)]``: the finite-horizon
-optimum is not stationary, so a policy that sees the state alone cannot represent it, nor its critic
-value "k steps left". Side by side, an MLP's first layer computes ``W_s + W_t``, what is common to
-all steps learnt from every step, and a hidden unit over both can pick out one (t, s) pair.
+The observation is ``[one-hot(s), one-hot(t)]`` (S + H + 1 entries): the finite-horizon optimum is
+not stationary, nor is "k steps left" for a critic. Side by side, an MLP's first layer computes
+``W_s + W_t`` (what all steps share, learnt from every step), and a unit can pick out one (t, s).
 """
 
 from __future__ import annotations
 
-import gymnasium as gym
 import torch
 
 from cmdp_rl.envs.suite.model import FiniteCMDP
-from cmdp_rl.envs.vector import Step, VecEnv
+from cmdp_rl.envs.vector import Step, VecEnv, table_actions, tabular
 
 
 class TorchSuite(VecEnv):
@@ -27,26 +25,14 @@ class TorchSuite(VecEnv):
     saved = ("state", "t", "generator")
 
     def __init__(self, cmdp: FiniteCMDP, num_envs: int, device: str | torch.device = "cpu") -> None:
-        self.cmdp = cmdp
-        self.num_envs = num_envs
-        self.device = torch.device(device)
-        self.num_costs = cmdp.num_costs
-        self.horizon = cmdp.horizon
-        self.obs_dim = cmdp.num_states + cmdp.horizon + 1
-        self.action_dim = 1
-        self.action_low = torch.zeros(1, device=self.device)
-        self.action_high = torch.full((1,), cmdp.num_actions - 1.0, device=self.device)
-        self._cost_names, self._action_space = cmdp.cost_names, gym.spaces.Discrete(cmdp.num_actions)
+        tabular(self, cmdp, num_envs, device)
+        self.cmdp, self.horizon, self.obs_dim = cmdp, cmdp.horizon, cmdp.num_states + cmdp.horizon + 1
         f64 = dict(dtype=torch.float64, device=self.device)
         # float64 cumulative rows, so that the sampled transitions are those of P to ~1e-16
         self._cdf = torch.as_tensor(cmdp.P, **f64).cumsum(-1)  # [S, A, S]
         self._cdf0 = torch.as_tensor(cmdp.mu0, **f64).cumsum(-1)  # [S]
-        self._reward = torch.as_tensor(cmdp.r, dtype=torch.float32, device=self.device)  # [S, A]
-        self._cost = torch.as_tensor(cmdp.c, dtype=torch.float32, device=self.device).permute(1, 2, 0)  # [S, A, K]
         self._eye_s = torch.eye(cmdp.num_states, device=self.device)
         self._eye_t = torch.eye(cmdp.horizon + 1, device=self.device)
-        self.generator = torch.Generator(device=self.device)
-        self.state = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
         self.t = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
 
     def _obs(self, states: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
@@ -76,10 +62,7 @@ class TorchSuite(VecEnv):
         return self._obs(self.state[rows], self.t[rows])
 
     def step(self, action: torch.Tensor) -> Step:
-        self.check_action(action)
-        a = action[:, 0].to(device=self.device, dtype=torch.int64)
-        if bool(((a < 0) | (a >= self.cmdp.num_actions)).any()):
-            raise ValueError(f"suite action must be in 0..{self.cmdp.num_actions - 1}, got {action.flatten().tolist()}")
+        a = table_actions(self, action, "suite")
         s = self.state
         u = torch.rand(2, self.num_envs, dtype=torch.float64, device=self.device, generator=self.generator)
         nxt = self._draw(self._cdf[s, a], u[0])

@@ -60,28 +60,22 @@ class FiniteCMDP(Sizes):
 
 @dataclass(frozen=True, eq=False)
 class Values:
-    """A policy's exact values; a batch of policies adds its leading dimensions to each field."""
+    """A policy's exact values (a batch of policies adds its leading dimensions)."""
 
     ret: np.ndarray  # [...] J(pi)
     costs: np.ndarray  # [..., K] J_c(pi)
 
 
-def as_table(cmdp: FiniteCMDP, policy: np.ndarray) -> np.ndarray:
-    """``policy`` as ``[..., H, S, A]``: a stationary ``[S, A]`` table is repeated over the steps."""
+def evaluate(cmdp: FiniteCMDP, policy: np.ndarray) -> Values:
+    """Exact ``J`` and ``J_c`` of ``policy[..., t, s, a] = pi_t(a | s)`` (a stationary ``[S, A]`` table:
+    the same at every step) by backward induction: ``V_H = 0``, ``V_t(s) = sum_a pi_t(a | s) (g(s, a) +
+    sum_s' P(s' | s, a) V_{t+1}(s'))`` for the reward and each cost ``g`` at once; then ``J = mu0 . V_0``."""
     pi = np.asarray(policy, dtype=np.float64)
     shape = (cmdp.num_states, cmdp.num_actions)
     if pi.shape == shape:
-        return np.broadcast_to(pi, (cmdp.horizon, *shape))
+        pi = np.broadcast_to(pi, (cmdp.horizon, *shape))
     if pi.shape[-3:] != (cmdp.horizon, *shape):
         raise ValueError(f"policy: expected shape [..., {cmdp.horizon}, {shape[0]}, {shape[1]}], got {pi.shape}")
-    return pi
-
-
-def evaluate(cmdp: FiniteCMDP, policy: np.ndarray) -> Values:
-    """Exact ``J`` and ``J_c`` of ``policy[..., t, s, a] = pi_t(a | s)`` by backward induction:
-    ``V_H = 0``, ``V_t(s) = sum_a pi_t(a | s) (g(s, a) + sum_s' P(s' | s, a) V_{t+1}(s'))`` for the
-    reward and each cost ``g`` at once; then ``J = mu0 . V_0``."""
-    pi = as_table(cmdp, policy)
     signals = np.concatenate([cmdp.r[None], cmdp.c])  # [1 + K, S, A]
     v = np.zeros((*pi.shape[:-3], 1 + cmdp.num_costs, cmdp.num_states))
     for t in reversed(range(cmdp.horizon)):

@@ -4,7 +4,7 @@ compares with."""
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal, Sequence
+from typing import Literal, Sequence
 
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeInt, PositiveInt, options
@@ -20,8 +20,6 @@ class SuiteConfig(EnvOptions):
     """``env=suite``: instance ``instance`` of the generated finite-horizon CMDPs (``model.py``)."""
 
     name: str = "suite"
-    # The suite stands for a user's own env, so its snapshots are valued as any env's (EnvOptions)
-    values_snapshots: ClassVar[bool] = False
     backend: Literal["torch"] = "torch"  # one tensor program over the envs (env.py), on `device`
     num_envs: PositiveInt = 16
     instance: NonNegativeInt = 0
@@ -40,13 +38,11 @@ class SuiteConfig(EnvOptions):
         return d[0] if len(d) == 1 else d
 
     def solve(self, cost_limit: float | Sequence[float] | None = None) -> ConstrainedOptimum:
-        """The exact constrained optimum at these budgets (None: the instance's), by the finite-horizon
-        occupancy LP (``model.solve``)."""
+        """The exact constrained optimum at these budgets (None: the instance's), ``model.solve``."""
         return solve(self.model(), cost_limit)
 
     def optimum(self, cost_limit: float | Sequence[float]) -> float:
-        """J* within the budgets: the optimal expected episode return (undiscounted, as ``eval.json``
-        reports it). Read by the end-of-run summary."""
+        """The optimal expected episode return within the budgets, read by the end-of-run summary."""
         return self.solve(cost_limit).ret
 
 
