@@ -9,7 +9,7 @@ from functools import partial
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import ConfigError, Field, PositiveInt, finite, options
+from cmdp_rl.config.validation import ConfigError, Field, PositiveInt, finite, options, require
 from cmdp_rl.envs.grid.env import (
     COST_NAMES,
     DEFAULT_BUDGETS,
@@ -48,10 +48,8 @@ class GridEnvConfig(EnvOptions):
     ] = field(default_factory=lambda: list(COST_NAMES))
 
     def check(self, run: RunConfig) -> None:
-        if len(set(self.costs)) != len(self.costs):
-            raise ConfigError(
-                f"env.costs must be a non-empty list of distinct names from hazard_a, hazard_b, got {self.costs!r}"
-            )
+        allowed = "a non-empty list of distinct names from hazard_a, hazard_b"
+        require(len(set(self.costs)) == len(self.costs), "env.costs", allowed, self.costs)
         try:
             parse_layout(self.layout)
         except ValueError as exc:  # the layout's own words: which row or character is wrong

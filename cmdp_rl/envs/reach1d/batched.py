@@ -104,7 +104,6 @@ class TorchReach1D(VecEnv):
         self.last_probe = torch.full((num_envs,), -1.0, **f64)
         self._goal32 = torch.full((num_envs,), self.goal, dtype=torch.float32, device=self.device)
 
-    # --- the gymnasium env's arithmetic, elementwise -------------------------------------------
     def _start_x(self, where: torch.Tensor | None) -> torch.Tensor:
         if isinstance(self.start, tuple):
             lo, hi = self.start
