@@ -19,7 +19,7 @@ from helpers.runs import eval_result, metrics_rows  # noqa: E402
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.config.run_config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
-from cmdp_rl.envs.safe_nav.world import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
+from cmdp_rl.envs.safe_nav.spec import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
 from cmdp_rl.envs.safety_gym.env import make_task  # noqa: E402
 from lab.fidelity.safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the fidelity table's steering)
 
@@ -36,7 +36,7 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int
         np.testing.assert_array_equal(env.worlds.models[i].body_pos, model.body_pos)
         np.testing.assert_array_equal(env.worlds.models[i].body_quat, model.body_quat)
     np.testing.assert_allclose(
-        env._obs(list(range(num_envs)), env._gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12
+        env._obs(list(range(num_envs)), env.worlds.gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12
     )
     rng = np.random.default_rng(0)
     seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0, "reward": 0.0, "cost_kinds": set()}
@@ -133,7 +133,7 @@ def test_layouts_keep_their_distances(task):
     extent = env.spec.extent
     for i, layout in enumerate(env.layouts):
         objects = (
-            [(layout["agent"], AGENT_KEEPOUT), (env.goal[i], GOAL_KEEPOUT)]
+            [(layout["agent"], AGENT_KEEPOUT), (env.logic.goal[i], GOAL_KEEPOUT)]
             + [(xy, HAZARD_KEEPOUT) for xy in layout["hazards"]]
             + [(xy, VASE_KEEPOUT) for xy in layout["vases"]]
         )
@@ -144,8 +144,8 @@ def test_layouts_keep_their_distances(task):
     # 64 different layouts, drawn again identically from the same seed
     again = SafeNavVecEnv(task, 64)
     again.reset(seed=5)
-    assert len({tuple(np.round(g, 9)) for g in env.goal}) == 64
-    np.testing.assert_array_equal(again.goal, env.goal)
+    assert len({tuple(np.round(g, 9)) for g in env.logic.goal}) == 64
+    np.testing.assert_array_equal(again.logic.goal, env.logic.goal)
 
 
 def test_tasks_not_implemented_are_refused_in_one_line():

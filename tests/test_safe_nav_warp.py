@@ -27,8 +27,9 @@ from helpers.runs import eval_result, metrics_rows  # noqa: E402
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.config.run_config import ConfigError, compose_config  # noqa: E402
 from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
+from cmdp_rl.envs.safe_nav.spec import nav_spec  # noqa: E402
 from cmdp_rl.envs.safe_nav.warp_world import PER_WORLD, WARP_TASKS  # noqa: E402
-from cmdp_rl.envs.safe_nav.world import NavWorlds, nav_spec  # noqa: E402
+from cmdp_rl.envs.safe_nav.world import NavWorlds  # noqa: E402
 from lab.fidelity.physics_compare import compare_physics, tolerance_breaches  # noqa: E402
 from lab.fidelity.safe_nav_fidelity import steer  # noqa: E402  (the steering the fidelity table uses)
 

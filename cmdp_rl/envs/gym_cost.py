@@ -1,24 +1,17 @@
-"""Any registered gymnasium env that reports a cost, for ``env=gym env.id=<id>``.
+"""Any registered gymnasium env that reports a cost, for ``env=gym env.id=<id>`` (``"module:EnvId-v0"``
+imports ``module`` first, so that it can register its envs, as ``gymnasium.make`` does).
 
-Two step protocols are accepted:
-
-- ``five`` (gymnasium's): ``(obs, reward, terminated, truncated, info)`` with the cost in
-  ``info["cost"]``, as Reach1D, the velocity tasks and Safety-Gymnasium's ``...Gymnasium-v0`` ids do.
-  The env is built by ``gymnasium.make``, with its wrappers and checks.
-- ``six`` (Safety-Gymnasium's native one): ``(obs, reward, cost, terminated, truncated, info)``.
-  ``gymnasium.make`` cannot build such an env (its wrappers unpack five values), so it is built from
-  its registered entry point, converted by :class:`SixValueStep`, and given gymnasium's ``TimeLimit``.
-
-An id of the form ``"module:EnvId-v0"`` imports ``module`` first (so it can register its envs), as
-``gymnasium.make`` does.
-"""
+``env.step_api=five`` (gymnasium's step, the cost in ``info["cost"]``): built by ``gymnasium.make``.
+``six`` (Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)``, which gymnasium's
+wrappers cannot unpack): built from its registered entry point, converted by :class:`SixValueStep`,
+given gymnasium's ``TimeLimit``."""
 
 from __future__ import annotations
 
 import importlib
 from dataclasses import field
 from functools import partial
-from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional
 
 import gymnasium as gym
 import numpy as np
@@ -29,14 +22,11 @@ from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import ConfigError, Field, NonNegativeInt, PositiveInt, options
 from cmdp_rl.envs.contract import EnvContractError
 from cmdp_rl.envs.options import EnvOptions
-
-if TYPE_CHECKING:
-    from cmdp_rl.envs.vector import VecEnv
+from cmdp_rl.envs.vector import GymVecEnv, VecEnv
 
 
 class SixValueStep(gym.Wrapper):
-    """Adapts a six-value step ``(obs, reward, cost, terminated, truncated, info)`` to gymnasium's
-    five values, with the cost in ``info["cost"]`` (it replaces any cost the info already held)."""
+    """A six-value step ``(obs, reward, cost, terminated, truncated, info)`` as gymnasium's five (cost in info)."""
 
     def step(self, action):
         out = self.env.step(action)
@@ -53,8 +43,7 @@ class SixValueStep(gym.Wrapper):
 
 
 class RequireCost(gym.Wrapper):
-    """Fails on the first step that reports no ``info["cost"]``: an env without a cost would
-    otherwise train as if it were perfectly safe."""
+    """Fails on the first step without ``info["cost"]``: such an env would train as if perfectly safe."""
 
     def __init__(self, env: gym.Env, env_id: str) -> None:
         super().__init__(env)
@@ -70,26 +59,22 @@ class RequireCost(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
-def _resolve(env_id: str) -> str:
+def _registered(env_id: str):
+    """``env_id``'s gymnasium spec and constructor (its module imported first, if it names one)."""
     module, _, name = env_id.rpartition(":")
     if module:
         importlib.import_module(module)
-    return name
+    spec = gym.spec(name)
+    return spec, load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
 
 
 def make_cost_env(env_id: str, step_api: str = "five", max_steps: int = 0, **kwargs: Any) -> gym.Env:
-    """Build one env of ``env_id`` reporting its cost in ``info["cost"]``.
-
-    ``max_steps``: the time limit (0: the one the env was registered with, if any).
-    ``kwargs`` go to the env's constructor.
-    """
-    name = _resolve(env_id)
+    """One env of ``env_id`` reporting its cost in ``info["cost"]``; ``max_steps``: the time limit
+    (0: the registered one, if any); ``kwargs`` go to the env's constructor."""
+    spec, creator = _registered(env_id)
     if step_api == "five":
-        env = gym.make(name, max_episode_steps=max_steps or None, **kwargs)
-        return RequireCost(env, env_id)
+        return RequireCost(gym.make(spec.id, max_episode_steps=max_steps or None, **kwargs), env_id)
     if step_api == "six":
-        spec = gym.spec(name)
-        creator = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
         env = SixValueStep(creator(**{**spec.kwargs, **kwargs}))
         limit = max_steps or spec.max_episode_steps
         return TimeLimit(env, limit) if limit else env
@@ -108,8 +93,7 @@ class GymEnvConfig(EnvOptions):
     step_api: Literal["five", "six"] = "five"
     max_steps: Annotated[NonNegativeInt, Field(description="an integer >= 0 (0: the registered limit)")] = 0
     kwargs: Annotated[dict, Field(description="a mapping of constructor arguments")] = field(default_factory=dict)
-    # The names of the env's K costs, in info["cost"]'s order (metrics.csv's and eval.json's
-    # per-cost columns); None: the names the env declares, else cost_0 ... cost_{K-1}.
+    # The K costs' names in info["cost"]'s order; None: the env's own, else cost_0 ... cost_{K-1}.
     cost_names: Annotated[
         Optional[list[Annotated[str, Field(pattern=r"^[^/\s]+$")]]],
         Field(description="null or a list of distinct names without '/' or spaces, one per cost"),
@@ -122,8 +106,7 @@ class GymEnvConfig(EnvOptions):
 
     def render_env(self) -> gym.Env:
         """One env of this id drawing ``rgb_array`` frames (for video), if its class offers them."""
-        spec = gym.spec(_resolve(self.id))
-        creator = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
+        _, creator = _registered(self.id)
         modes = list(getattr(creator, "metadata", {}).get("render_modes", []))
         if "rgb_array" not in modes:
             raise ConfigError(
@@ -133,8 +116,6 @@ class GymEnvConfig(EnvOptions):
 
 
 def make_gym_vec_env(cfg: GymEnvConfig, num_envs: int, device: str = "cpu") -> VecEnv:
-    from cmdp_rl.envs.vector import GymVecEnv
-
     return GymVecEnv(
         partial(make_cost_env, cfg.id, cfg.step_api, cfg.max_steps, **cfg.kwargs),
         num_envs,

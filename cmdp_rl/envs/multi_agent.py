@@ -1,30 +1,13 @@
-"""``env=pettingzoo env.factory=<module>:<callable>``: a PettingZoo ``ParallelEnv`` as a batched CMDP.
+"""``env=pettingzoo env.factory=<module>:<callable>``: a PettingZoo ``ParallelEnv`` as a batched CMDP
+(docs/multi_agent_and_hybrid.md).
 
-Agents join the batch as rows: N envs of M agents are ``N * M`` rows, row ``i * M + j`` agent ``j``
-of env ``i``. So the collector, the episode sums, GAE, the critics' regression and the J_c estimate
-run unchanged on them (each is per row), and an agent is as much a batch entry as an env is. The
-rows of one env start and end their episodes together: the team's episode ends when any agent's
-``terminated`` or ``truncated`` is set (or the env has no agents left), and the env is then reset.
-
-A row carries (docs/multi_agent_and_hybrid.md):
-
-- observation ``[own | one-hot agent id | every agent's]``: the agent's own observation (flattened,
-  zero-padded to the largest agent's), its id, then all M observations in the env's agent order.
-  The first ``actor_obs_dim`` entries are what a decentralised actor may read (``policy=mlp`` reads
-  only those on this env: parameter sharing with an agent-id input); the critics read the whole row
-  (a centralised critic over all agents' observations, MAPPO's);
-- reward: the agent's own (a cooperative env gives every agent the team reward);
-- cost: each agent's ``info[agent]["cost"]`` is a number or K numbers. ``constraint="team"`` (the
-  default): every row of the env carries the team's cost, the sum over agents, K entries named as
-  the env names them; ``"per_agent"``: every row carries all agents' costs, M * K entries named
-  ``<agent>/<cost>``, so the budget applies to each agent. Every row of an env carries the same
-  vector, so an episode sum on any row is the team's (or that agent's) episode cost and the mean
-  over rows is its expectation.
-
-Action spaces must be the same for every agent (one shared policy); any space the heads know
-(``cmdp_rl.rollout.actions``). Why not PettingZoo's vectorisation wrappers (SuperSuit): they concatenate
-agents the same way but are a separate package, drop ``info``, and reset agents independently.
-"""
+N envs of M agents are ``N * M`` rows, row ``i * M + j`` agent ``j`` of env ``i``, so everything per
+row (collector, GAE, critics, J_c) runs unchanged; an env's rows share its episode (it ends when any
+agent's does). A row's observation is ``[own | one-hot agent id | every agent's]`` (a decentralised
+actor reads the first ``actor_obs_dim`` entries, the critics all); its reward the agent's own; its
+cost, from each agent's ``info[agent]["cost"]``, the team's sum (``constraint="team"``) or every
+agent's (``"per_agent"``, named ``<agent>/<cost>``). Every agent has the same action space (one
+shared policy). Not SuperSuit: it drops ``info`` and resets agents independently."""
 
 from __future__ import annotations
 
@@ -45,6 +28,11 @@ from cmdp_rl.envs.vector import Step, VecEnv, default_cost_names
 from cmdp_rl.rollout.actions import action_bounds, action_dim, check_action_space, to_env
 
 Constraint = Literal["team", "per_agent"]
+
+try:  # the registry imports every env module; PettingZoo is the multi_agent extra
+    from pettingzoo import ParallelEnv
+except ImportError:  # pragma: no cover - without the extra the class still has ParallelEnv's API
+    ParallelEnv = object
 
 
 def load_factory(spec: str) -> Callable[..., Any]:
@@ -132,8 +120,7 @@ class PettingZooVecEnv(VecEnv):
 
     @property
     def num_costs(self) -> int:
-        k = len(self.agent_cost_names)
-        return k if self.constraint == "team" else k * self.num_agents
+        return len(self.cost_names)
 
     @property
     def cost_names(self) -> tuple[str, ...]:
@@ -159,11 +146,8 @@ class PettingZooVecEnv(VecEnv):
         return torch.from_numpy(np.concatenate(rows).astype(np.float32)).to(self.device)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
-        rows = []
-        for i, env in enumerate(self.envs):
-            obs, _ = env.reset(seed=None if seed is None else seed + i)
-            rows.append(self._rows(obs))
-        return self._tensor(rows)
+        seeds = [None if seed is None else seed + i for i in range(self.num_teams)]
+        return self._tensor([self._rows(env.reset(seed=s)[0]) for env, s in zip(self.envs, seeds)])
 
     def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
         """A team's rows restart together (its agents share the episode): ``rows`` holds whole teams."""
@@ -183,12 +167,8 @@ class PettingZooVecEnv(VecEnv):
             obs, reward, terminated, truncated, infos = env.step(actions)
             term = any(bool(terminated.get(a, False)) for a in self.agents)
             done = term or any(bool(truncated.get(a, False)) for a in self.agents) or not env.agents
-            rows = self._rows(obs)
-            next_rows.append(rows)
-            if done:
-                obs, _ = env.reset()
-                rows = self._rows(obs)
-            obs_rows.append(rows)
+            next_rows.append(self._rows(obs))
+            obs_rows.append(self._rows(env.reset()[0]) if done else next_rows[-1])
             rewards.append(np.array([float(reward.get(a, 0.0)) for a in self.agents], dtype=np.float32))
             costs.append(self._team_cost(infos))
             terms.append(np.full(m, term))
@@ -204,8 +184,7 @@ class PettingZooVecEnv(VecEnv):
         )
 
     def check_contract(self, steps: int, seed: int, allow_negative_cost: bool, env_id: str | None) -> EnvContract:
-        """The CMDP contract on each agent of each env (``envs/contract.py``'s rules), a breach named
-        by its agent: random actions, ``steps`` per env, a reset after every team episode end."""
+        """``envs/contract.py``'s rules on each agent of each env (random actions, ``steps`` per env)."""
         name = env_id or self.env_id
         checks = {a: Checker(f"{name} agent {a!r}", None, allow_negative_cost) for a in self.agents}
         for index, env in enumerate(self.envs):
@@ -253,8 +232,7 @@ def _state(env: Any) -> dict[str, Any]:
 
 @options
 class PettingZooConfig(EnvOptions):
-    """``env=pettingzoo``: a PettingZoo ``ParallelEnv`` from ``factory`` (``"module:callable"``,
-    called with ``kwargs``), each agent's cost in ``info[agent]["cost"]`` (module docstring)."""
+    """``env=pettingzoo``: ``factory(**kwargs)`` builds a ``ParallelEnv`` (``factory``: ``"module:callable"``)."""
 
     name: str = "pettingzoo"
     num_envs: PositiveInt = 8
@@ -271,8 +249,7 @@ class PettingZooConfig(EnvOptions):
 
     @property
     def optimum(self) -> Callable[[Any], float] | None:
-        """The factory's exact constrained optimum, where it offers one (``<callable>.optimum(
-        cost_limit, **kwargs)``; ``report/summary.py`` reads it), else None."""
+        """The factory's exact constrained optimum (``<callable>.optimum(cost_limit, **kwargs)``), or None."""
         solver = getattr(load_factory(self.factory), "optimum", None)
         return None if solver is None else (lambda cost_limit: solver(cost_limit, **self.kwargs))
 

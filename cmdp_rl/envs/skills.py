@@ -1,25 +1,11 @@
-"""``env=skills``: a point on a line reaches a goal with two skills that differ in cost; a hybrid
-(hierarchical) action space, the skill and its parameter (``docs/multi_agent_and_hybrid.md``).
+"""``env=skills``: a point on a line reaches a goal with two skills that differ in cost, a hybrid action
+space (the skill and its parameter; docs/multi_agent_and_hybrid.md gives the returns of each policy).
 
-The point starts at ``x = 0`` and must reach ``x >= goal`` (0.92) within ``max_steps`` (20). Each
-step it picks a skill and that skill's parameter ``a`` in ``[-1, 1]``:
-
-- skill 0, ``walk``: ``x += walk_step * a`` (0.1 a), free;
-- skill 1, ``dash``: ``x -= dash_step * a`` (0.35 a), cost 1. Its parameter points the other way
-  (a rear-facing thruster), so the best parameter depends on the skill: a Gaussian over the
-  parameters that ignored the skill could not serve both.
-
-``x`` stays in ``[0, 1]``. Reward: the progress ``x' - x``, minus ``step_penalty`` (0.1) a step, plus
-``goal_reward`` (1) on arrival. Deterministic policies with full-strength parameters: walking only
-reaches the goal in 10 steps (return 1.0, cost 0), one dash then walks in 7 (1.25, cost 1), two
-dashes in 5 (1.5, cost 2), dashing only in 3 (1.7, cost 3): the reward wants dashes, a budget of
-1 allows one per episode on average.
-
-Observation ``[x, t / max_steps]``; with ``hold = k > 1``, :class:`~cmdp_rl.envs.hold.HeldSkill`
-keeps each chosen skill for ``k`` steps and adds the held skill and the hold's phase.
-
-One tensor program over the N envs (no Python loop over envs), so a learning run takes seconds.
-"""
+The point starts at ``x = 0`` and must reach ``x >= goal`` within ``max_steps``. ``walk``: ``x +=
+walk_step * a``, free; ``dash``: ``x -= dash_step * a``, cost 1 (its parameter points the other way,
+so the best parameter depends on the skill); ``x`` stays in ``[0, 1]``. Reward: the progress, minus
+``step_penalty`` a step, plus ``goal_reward`` on arrival. Observation ``[x, t / max_steps]``;
+``hold = k > 1``: :class:`~cmdp_rl.envs.hold.HeldSkill`."""
 
 from __future__ import annotations
 
@@ -58,6 +44,8 @@ class SkillsConfig(EnvOptions):
 class TorchSkills(VecEnv):
     """N envs of the module docstring in tensors; actions ``[N, 2]``: skill index, parameter."""
 
+    cost_names = ("dash",)
+
     def __init__(self, cfg: SkillsConfig, num_envs: int, device: str | torch.device = "cpu") -> None:
         self.cfg = cfg
         self.num_envs = num_envs
@@ -65,12 +53,7 @@ class TorchSkills(VecEnv):
         self.obs_dim, self.action_dim = 2, 2
         self.action_low = torch.tensor([0.0, -1.0], device=self.device)
         self.action_high = torch.tensor([len(SKILLS) - 1.0, 1.0], device=self.device)
-        self.x = torch.zeros(num_envs, device=self.device)
-        self.t = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return ("dash",)
+        self.reset()
 
     @property
     def action_space(self) -> gym.Space:

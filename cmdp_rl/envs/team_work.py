@@ -1,19 +1,10 @@
-"""Team work: a two-agent cooperative CMDP with an exact constrained optimum (``env=pettingzoo``'s default).
-
-Two workers act for ``horizon`` steps (10). Each step each picks ``idle``, ``work`` or ``sprint``;
-the team is paid ``1`` per worker working, ``1.5`` per worker sprinting, plus ``synergy`` (0.5) when
-both are busy; every worker receives that team reward. Each worker's own cost is its strain:
-``0``, ``0.5``, ``1.5``. A worker observes ``t / horizon``; the env is deterministic.
-
-The optimum is the occupancy-measure LP over the *joint* action distribution at every step
-(:func:`constrained_optimum`, scipy's HiGHS): correlated policies included, so it bounds any pair
-of decentralised policies from above. With the team budget ``d = horizon`` (1 a step) it is
-``2.5 horizon`` (25), reached by both working every step, at exactly the budget: both agents'
-deterministic policy, so a decentralised learner can reach it. Why it is robust to a Lagrangian
-learner: at every lambda in (0.5, 2.5) both working maximises ``r - lambda c`` alone (sprinting
-pays 0.5 more reward for 1 more cost, idling saves 0.5 cost for 1 less reward), so the greedy
-policy does not flip as lambda jitters. Unconstrained, both sprint: 35 at cost 30.
-"""
+"""Team work: a two-agent cooperative CMDP with an exact constrained optimum (``env=pettingzoo``'s default;
+docs/multi_agent_and_hybrid.md). Two workers act for ``horizon`` steps; each picks ``idle``, ``work`` or
+``sprint``; the team is paid ``PAY`` per worker plus ``synergy`` when both are busy, every worker
+receives that team reward, and each worker's cost is its own ``STRAIN``. A worker observes
+``t / horizon``. :func:`constrained_optimum` solves the occupancy LP over the *joint* action, an upper
+bound for any pair of decentralised policies; with the budget ``d = horizon`` it is both working every
+step (25), the greedy policy at every lambda in (0.5, 2.5)."""
 
 from __future__ import annotations
 
@@ -24,10 +15,7 @@ import gymnasium as gym
 import numpy as np
 from scipy.optimize import linprog
 
-try:  # the registry imports every env module; PettingZoo is the multi_agent extra
-    from pettingzoo import ParallelEnv
-except ImportError:  # pragma: no cover - without the extra the class still has ParallelEnv's API
-    ParallelEnv = object
+from cmdp_rl.envs.multi_agent import ParallelEnv
 
 AGENTS = ("worker_0", "worker_1")
 ACTIONS = ("idle", "work", "sprint")
@@ -46,15 +34,11 @@ def joint_tables(synergy: float) -> tuple[np.ndarray, np.ndarray]:
 def constrained_optimum(
     cost_limit: float | Sequence[float], horizon: int = 10, synergy: float = 0.5
 ) -> tuple[float, np.ndarray]:
-    """The best expected team return within the budget, and the optimal joint action distribution
-    ``[horizon, 3, 3]``. ``cost_limit``: a number, the team's budget on the summed cost; or one per
-    agent (``algo.constraint=per_agent``). The LP's variables are the occupancy of
-    ``(t, a0, a1)``: time is the only state and moves deterministically, so the flow constraints
-    are one unit of probability per step."""
+    """The best expected team return within ``cost_limit`` (the team's budget, or one per agent) and the
+    optimal joint action distribution ``[horizon, 3, 3]``: the LP over the occupancy of ``(t, a0, a1)``."""
     reward, cost = joint_tables(synergy)
-    per_step = 9
     c = -np.tile(reward.reshape(-1), horizon)
-    a_eq = np.kron(np.eye(horizon), np.ones((1, per_step)))
+    a_eq = np.kron(np.eye(horizon), np.ones((1, 9)))  # one unit of probability over the 9 joint actions a step
     if isinstance(cost_limit, (int, float)):
         a_ub, b_ub = np.tile(cost.sum(0).reshape(-1), horizon)[None, :], [float(cost_limit)]
     else:
@@ -96,18 +80,14 @@ class TeamWork(ParallelEnv):
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         a0, a1 = (int(actions[a]) for a in AGENTS)
-        team = float(self.reward_table[a0, a1])
-        strain = {a: float(self.cost_table[i, a0, a1]) for i, a in enumerate(AGENTS)}
         self.t += 1
         end = self.t >= self.horizon
-        obs = self._obs()
-        rewards = {a: team for a in self.agents}
-        terminations = {a: end for a in self.agents}
-        truncations = {a: False for a in self.agents}
-        infos = {a: {"cost": strain[a]} for a in self.agents}
+        obs, agents = self._obs(), self.agents
         if end:
             self.agents = []
-        return obs, rewards, terminations, truncations, infos
+        team = float(self.reward_table[a0, a1])
+        infos = {a: {"cost": float(self.cost_table[i, a0, a1])} for i, a in enumerate(agents)}
+        return obs, {a: team for a in agents}, {a: end for a in agents}, {a: False for a in agents}, infos
 
     def state_dict(self) -> dict[str, Any]:
         return {"t": self.t, "agents": list(self.agents)}

@@ -405,7 +405,7 @@ def warm_kernels(device: str, tiny: bool) -> dict:
 
 def correctness(device: str, tiny: bool) -> dict:
     """Item 1: each task on the device against MuJoCo, each step from MuJoCo's state."""
-    from cmdp_rl.envs.safe_nav.world import nav_spec
+    from cmdp_rl.envs.safe_nav.spec import nav_spec
     from lab.fidelity.physics_compare import compare_physics, tolerance_breaches
     from lab.fidelity.safe_nav_fidelity import steer
 
@@ -494,7 +494,7 @@ def env_row(task: str, n: int, device: str, max_steps: int, seconds: float) -> d
         "host_place_ms_per_env": reset / n * 1e3,
         "first_step_s": first,
         "env_steps_since_reset": int(env.steps.max()),
-        "overflow_worlds": int((worlds.overflow() != 0).sum()),
+        "overflow_worlds": int((worlds.data.overflow.numpy() != 0).sum()),
     }
     if before:
         row["device_bytes_per_world"] = (before["free"] - after["free"]) / n

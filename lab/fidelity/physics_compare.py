@@ -61,8 +61,8 @@ def compare_physics(
             state = ref.state_dict()
             warp.load_state_dict({**state, "physics": "mjwarp"})
         a, b = ref.step(action), warp.step(action_warp)
-        pos_ref = ref._gather(range(num_envs))["agent_pos"][:, :2]
-        pos_warp = warp._gather(slice(None))["agent_pos"][:, :2].double().cpu().numpy()
+        pos_ref = ref.worlds.gather(range(num_envs))["agent_pos"][:, :2]
+        pos_warp = warp.worlds.gather(slice(None))["agent_pos"][:, :2].double().cpu().numpy()
         out["pos"].append(float(np.abs(pos_ref - pos_warp).max()))
         lidar = (a.next_obs[:, lidar_from:] - b.next_obs[:, lidar_from:].cpu()).abs().max()
         out["lidar"].append(float(lidar))
@@ -81,7 +81,7 @@ def compare_physics(
                     sums[name][k, i] = 0.0
         counts["episode_ends"] += int(ends[0].sum())
     out.update(counts)
-    out["overflow"] = int(np.count_nonzero(warp.worlds.overflow()))
+    out["overflow"] = int(np.count_nonzero(warp.worlds.data.overflow.numpy()))
     for name in ("return", "cost"):
         pairs = list(zip(*episodes[name]))
         out[f"episode_{name}s"] = pairs

@@ -45,8 +45,8 @@ def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
         phi = np.arctan2(pos[:, 1], pos[:, 0]) + 0.6
         return 1.5 * np.c_[np.cos(phi), np.sin(phi)]
     if env.spec.family == "Push":  # round the box to behind it (seen from the goal), then through it
-        box = env._gather(range(env.num_envs))["xpos"][:, env.worlds.push_box, :2]
-        ahead = env.goal - box
+        box = env.worlds.gather(range(env.num_envs))["xpos"][:, env.worlds.push_box, :2]
+        ahead = env.logic.goal - box
         ahead /= np.linalg.norm(ahead, axis=-1, keepdims=True) + 1e-9
         rel = pos[:, :2] - box
         normal = np.c_[-ahead[:, 1], ahead[:, 0]]
@@ -59,13 +59,13 @@ def target(env: SafeNavVecEnv, pos: np.ndarray) -> np.ndarray:
         logic = env.logic
         pick = (logic.goal_button + (env.steps // 80) % 2) % env.spec.buttons
         return logic.buttons[np.arange(env.num_envs), pick]
-    return env.goal
+    return env.logic.goal
 
 
 def steer(env: SafeNavVecEnv, rng: np.random.Generator) -> np.ndarray:
     """Actions that mostly steer each robot to its :func:`target` (so that goals are reached and
     hazards crossed on the way), with some noise; also tests/test_safe_nav.py's actions."""
-    world = env._gather(range(env.num_envs))
+    world = env.worlds.gather(range(env.num_envs))
     pos, mat = world["agent_pos"], world["agent_mat"]
     ego = np.einsum("ni,nij->nj", np.c_[target(env, pos) - pos[:, :2], -pos[:, 2:]], mat)
     if env.spec.robot == "point":

@@ -1,11 +1,6 @@
-"""One definition of the task logic for both physics backends of ``env=safe_nav``.
-
-The reward, cost and lidar functions are written once against the operations numpy and torch
-share (``sqrt``, ``sum(..., axis=)``, ``clip``, ``where``, ``arctan2``, ...): on ``env.physics=mujoco``
-they run on numpy float64 arrays, exactly the arithmetic the reference uses; on
-``env.physics=mjwarp`` on torch tensors on the simulation's device. These helpers cover the few
-places where the two libraries differ (allocation, the host copy the layout sampler needs).
-"""
+"""The task logic of ``env=safe_nav`` is written once for both physics backends, against the operations
+numpy and torch share: numpy float64 on ``env.physics=mujoco`` (the reference's arithmetic), torch on
+the device on ``mjwarp``. These helpers cover where the two libraries differ."""
 
 from __future__ import annotations
 
@@ -31,16 +26,15 @@ def zeros(like: Array, shape: tuple[int, ...], dtype: str = "float") -> Array:
     return np.zeros(shape, dtype=bool if dtype == "bool" else like.dtype)
 
 
-def arange(like: Array, n: int) -> Array:
-    """``0, 1, ..., n - 1`` in ``like``'s library, device and float type."""
-    if isinstance(like, torch.Tensor):
-        return torch.arange(n, dtype=like.dtype, device=like.device)
-    return np.arange(n, dtype=like.dtype)
-
-
 def to_host(x: Array) -> np.ndarray:
     """A numpy view or copy of ``x`` (on the CPU), for the host-side layout sampler."""
     return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+
+
+def distance(a: Array, b: Array) -> Array:
+    """Euclidean distance over the last axis: the reference's ``sqrt(sum(square(a - b)))``."""
+    xp = namespace(a)
+    return xp.sqrt(xp.sum(xp.square(a - b), axis=-1))
 
 
 def like(values: Any, ref: Array) -> Array:
@@ -50,4 +44,4 @@ def like(values: Any, ref: Array) -> Array:
     return np.asarray(values, dtype=ref.dtype)
 
 
-__all__ = ["Array", "arange", "like", "namespace", "to_host", "zeros"]
+__all__ = ["Array", "distance", "like", "namespace", "to_host", "zeros"]

@@ -1,24 +1,11 @@
 """Safety-Gymnasium's navigation tasks, N at a time: ``env=safe_nav env.task=PointGoal1``.
 
-The same tasks as ``env=safety_gym`` (Safety-Gymnasium 1.0.0's), rebuilt for speed: there, one
-navigation step costs a few milliseconds of Python (lidar object by object, name look-ups) and every
-reset recompiles the MuJoCo model; physics is a tenth of it. Here:
-
-- physics: the robot's own MuJoCo model and the same world, compiled once, N copies stepped in one
-  loop (``safe_nav_world.py``); integrating the same state with the same controls gives the same
-  numbers, bit for bit (tests/test_safe_nav.py);
-- layouts: drawn as the reference draws them, from one random stream per env seeded as gymnasium
-  seeds a vector env, so a seed gives the reference's layouts (``safe_nav_layout.py``);
-- the task family's logic (reward, cost, lidar observations, goal reached, time limit), numpy over
-  the N envs: one module per family (``safe_nav_goal.py``, ``safe_nav_circle.py``,
-  ``safe_nav_button.py``, ``safe_nav_push.py``), in ``FAMILIES``.
-
-``env.physics=mjwarp`` steps the same world on MuJoCo Warp instead (``warp_world.py``: Warp's CPU
-device or a GPU), with the same layouts and the same task logic run in torch on that device.
-
-This module: the batch itself (physics step, the robot's sensors, which every family observes
-first: accelerometer, velocimeter, gyro and magnetometer, Car's rear ball joint's angular velocity
-and rotation matrix), the time limit, per-env automatic reset, and resume.
+The same tasks as ``env=safety_gym`` (Safety-Gymnasium 1.0.0's), rebuilt for speed and equal to
+them step for step (tests/test_safe_nav.py; docs/safe_nav.md): physics compiled once, N worlds
+stepped in one loop (``world.py``, or MuJoCo Warp with ``env.physics=mjwarp``: ``warp_world.py``);
+layouts drawn from the reference's random streams (``layout.py``); each family's reward, cost and
+lidar written once over the N envs (``FAMILIES``). This module: the batch itself (physics step, the
+robot's sensors, time limit, per-env automatic reset, resume).
 """
 
 from __future__ import annotations
@@ -46,18 +33,18 @@ from cmdp_rl.envs.vector import Step, VecEnv
 # task family -> its logic (a module each)
 FAMILIES = {"Goal": GoalTask, "Circle": CircleTask, "Button": ButtonTask, "Push": PushTask}
 TASKS = tuple(f"{robot}{family}{level}" for family in FAMILIES for robot in ROBOTS for level in (0, 1, 2))
-_NOT_YET = ("Run",)
-_OTHER_ROBOTS = ("Racecar", "Doggo", "Ant")
 
 
-def task_problem(task: str) -> str | None:
-    """None if ``env=safe_nav`` offers ``task``, else the one-line config error saying why not."""
+def task_problem(task: str, physics: str = "mujoco") -> str | None:
+    """None if ``env=safe_nav`` offers ``task`` on ``physics``, else the one-line config error saying why not."""
+    if task in TASKS and physics == "mjwarp" and task not in WARP_TASKS:
+        return f"env.physics: mjwarp offers {', '.join(WARP_TASKS)}, not {task} (env.physics=mujoco runs it)"
     if task in TASKS:
-        return None
+        return warp_problem() if physics == "mjwarp" else None
     plain = task.removeprefix("Safety").split("-v")[0]
     if plain in TASKS:
         return f"env.task: safe_nav names tasks without prefix and version: use env.task={plain}"
-    if any(f in plain for f in _NOT_YET) or any(plain.startswith(r) for r in _OTHER_ROBOTS):
+    if "Run" in plain or plain.startswith(("Racecar", "Doggo", "Ant")):
         return (
             f"env.task: {plain!r} is not implemented in safe_nav yet (offered: {', '.join(TASKS)}); "
             f"env=safety_gym runs it (slowly) as Safety{plain}-v0"
@@ -65,19 +52,9 @@ def task_problem(task: str) -> str | None:
     return f"env.task must be one of {', '.join(TASKS)}, got {task!r}"
 
 
-def physics_problem(physics: str, task: str) -> str | None:
-    """None if ``env.physics`` can run ``task`` here, else the one-line config error saying why not."""
-    if physics != "mjwarp":
-        return None
-    if task not in WARP_TASKS:
-        return f"env.physics: mjwarp offers {', '.join(WARP_TASKS)}, not {task} (env.physics=mujoco runs it)"
-    return warp_problem()
-
-
 def _sensor_plan(model) -> list[tuple[str, int, int]]:
-    """(how, address, size) of each observed sensor, in the reference's observation order: the four
-    named sensors, hinge velocities, ball angular velocities, then hinge angles (as sin, cos) and
-    ball joints (as rotation matrices)."""
+    """(how, address, size) of each observed sensor, in the reference's order: the four named sensors,
+    hinge and ball velocities, hinge angles (as sin, cos) and ball joints (as rotation matrices)."""
     import mujoco
 
     s = mujoco.mjtSensor
@@ -95,26 +72,14 @@ def _sensor_plan(model) -> list[tuple[str, int, int]]:
 def _quat_mat(q):
     """Rotation matrices ``[N, 9]`` (row-major) of unit quaternions ``[N, 4]`` (w, x, y, z)."""
     w, x, y, z = q.T
-    return namespace(q).stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        axis=-1,
-    )
+    row0 = [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]
+    row1 = [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]
+    row2 = [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]
+    return namespace(q).stack(row0 + row1 + row2, axis=-1)
 
 
 class SafeNavVecEnv(VecEnv):
-    """N instances of one navigation task (module docstring), stepped as one batch: on the CPU
-    (``physics="mujoco"``) or on MuJoCo Warp on ``device`` (``physics="mjwarp"``); tensors handed
-    out live on ``device``."""
+    """N instances of one navigation task, one batch: on the CPU or on MuJoCo Warp (``physics``) on ``device``."""
 
     def __init__(
         self,
@@ -125,7 +90,7 @@ class SafeNavVecEnv(VecEnv):
         threads: int = 1,
         physics: str = "mujoco",
     ) -> None:
-        problem = task_problem(task) or physics_problem(physics, task)
+        problem = task_problem(task, physics)
         if problem:
             raise ConfigError(problem)
         self.task = task
@@ -151,18 +116,8 @@ class SafeNavVecEnv(VecEnv):
         self.layouts: list[dict[str, Any]] = [{} for _ in range(num_envs)]
         self.steps = np.zeros(num_envs, dtype=np.int64)
 
-    @property
-    def goal(self) -> np.ndarray:
-        """Each env's goal xy ``[N, 2]`` (Goal tasks)."""
-        return self.logic.goal
-
     def close(self) -> None:
         self.worlds.close()
-
-    # --- reading the worlds -------------------------------------------------------------------
-    def _gather(self, envs) -> dict:
-        """The state of worlds ``envs`` (copies), as the task logic reads it."""
-        return self.worlds.gather(envs) if self.physics == "mjwarp" else self.worlds.read(envs)
 
     def _obs(self, envs, world: dict):
         sd = world["sensordata"]
@@ -178,7 +133,6 @@ class SafeNavVecEnv(VecEnv):
         cols += self.logic.lidars(envs, world)
         return xp.concatenate(cols, axis=1)
 
-    # --- episodes ------------------------------------------------------------------------------
     def _start(self, envs: list[int], layouts: list[dict[str, Any]] | None = None):
         """New episodes for ``envs`` (from new layouts, or the ones given); their first observations."""
         if layouts is None:
@@ -187,14 +141,12 @@ class SafeNavVecEnv(VecEnv):
             self.layouts[i] = layout
             self.worlds.place(i, layout)
         self.steps[envs] = 0
-        world = self._gather(envs)
+        world = self.worlds.gather(envs)
         self.logic.start(envs, layouts, world)
         return self._obs(envs, world)
 
     def start_from(self, i: int, layout: dict[str, Any]) -> torch.Tensor:
-        """Env ``i`` starts a new episode from ``layout`` (``safe_nav_layout.py``'s keys: xy of the
-        robot, goal, hazards and vases and their rotations), e.g. one read from a reference env;
-        its first observation. Later episodes draw their layouts as usual."""
+        """Env ``i`` starts a new episode from ``layout`` (e.g. a reference env's); its first observation."""
         return self._tensor(self._start([i], [layout]))[0]
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
@@ -221,7 +173,7 @@ class SafeNavVecEnv(VecEnv):
         warp = self.physics == "mjwarp"
         self.worlds.step(action.detach() if warp else action.detach().cpu().numpy().astype(np.float64))
         self.sampler.pending += 1  # the reference's per-step draw
-        world = self.worlds.gather(every) if warp else self.worlds.gathered()
+        world = self.worlds.gather(every)
         reward, cost, terminated = self.logic.step(world)
         self.steps += 1
         truncated = self.steps >= self.max_steps
@@ -249,27 +201,15 @@ class SafeNavVecEnv(VecEnv):
             obs=obs_t,
         )
 
-    # --- resume --------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        """Each env's layout, task state (e.g. its goal) and MuJoCo integration state, the step
-        counters and the random streams: a fresh env restored from it continues bit for bit."""
-        if self.physics == "mjwarp":
-            states = list(self.worlds.get_states())
-        else:
-            mj = self.worlds.mj
-            spec = mj.mjtState.mjSTATE_INTEGRATION
-            states = []
-            for m, d in zip(self.worlds.models, self.worlds.datas):
-                state = np.empty(mj.mj_stateSize(m, spec))
-                mj.mj_getState(m, d, state, spec)
-                states.append(state)
+        """Layouts, task state, MuJoCo states, step counters and random streams: a restored env continues exactly."""
         return {
             "num_envs": self.num_envs,
             "task": self.task,
             "physics": self.physics,
             "layouts": self.layouts,
             "steps": self.steps.copy(),
-            "mujoco": states,
+            "mujoco": list(self.worlds.get_states()),
             "sampler": self.sampler.state_dict(),
             **self.logic.state_dict(),
         }
@@ -281,19 +221,11 @@ class SafeNavVecEnv(VecEnv):
                 f"env: saved state is for {state['num_envs']} envs of {state['task']} on {saved_physics}, "
                 f"this one has {self.num_envs} of {self.task} on {self.physics}"
             )
-        mj = self.worlds.mj
         for i, layout in enumerate(state["layouts"]):
             self.layouts[i] = layout
             self.worlds.place(i, layout)
         self.logic.load_state_dict(state, self.layouts)
-        if self.physics == "mjwarp":
-            self.worlds.set_states(np.stack(state["mujoco"]))
-            self.steps[:] = state["steps"]
-            self.sampler.load_state_dict(state["sampler"])
-            return
-        for m, d, saved in zip(self.worlds.models, self.worlds.datas, state["mujoco"]):
-            mj.mj_setState(m, d, saved, mj.mjtState.mjSTATE_INTEGRATION)
-            mj.mj_forward(m, d)
+        self.worlds.set_states(state["mujoco"])
         self.steps[:] = state["steps"]
         self.sampler.load_state_dict(state["sampler"])
 
@@ -320,7 +252,7 @@ class SafeNavEnvConfig(EnvOptions):
         return self.max_steps or (FAMILIES[nav_spec(self.task).family].episode if not task_problem(self.task) else None)
 
     def check(self, run: Any) -> None:
-        problem = task_problem(self.task) or physics_problem(self.physics, self.task)
+        problem = task_problem(self.task, self.physics)
         if problem:
             raise ConfigError(problem)
         episode = FAMILIES[nav_spec(self.task).family].episode
@@ -335,16 +267,14 @@ class SafeNavEnvConfig(EnvOptions):
     def population_env(
         self, env_cfgs: Sequence[Any], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
     ) -> SafeNavVecEnv:
-        """P agents' worlds, ``num_envs`` each, as one batch of P N worlds (stepped by the same
-        threads): agent i's world j seeded ``seeds[i] + j``, as ``reset(seeds[i])`` seeds its single
-        run's worlds; every world draws from its own stream, so each agent's worlds are its run's."""
+        """P agents' worlds as one batch of P N worlds, agent i's world j seeded ``seeds[i] + j`` as
+        ``reset(seeds[i])`` seeds its single run's: each world draws from its own stream."""
         env = make_safe_nav_vec_env(self, num_envs * len(env_cfgs), device)
         env.world_seeds = [int(s) + j for s in seeds for j in range(num_envs)]
         return env
 
     def render_env(self):
-        """The reference task drawing ``rgb_array`` frames (for video): its layouts and trajectories
-        are this env's (docs/safe_nav.md), and it has the renderer's textures, lights and cameras."""
+        """The reference task drawing ``rgb_array`` frames (video): the same layouts and trajectories."""
         from cmdp_rl.envs.safety_gym.env import make_task
 
         return make_task(f"Safety{self.task}-v0", self.max_steps, render_mode="rgb_array")

@@ -1,17 +1,5 @@
-"""The Goal tasks of ``env=safe_nav`` (``PointGoal0`` ... ``CarGoal2``): reward, cost, goal lidar.
-
-As Safety-Gymnasium 1.0.0 defines them (facts from its source, our code): reward = (last distance
-to goal - distance now) + 1 on reaching it (distance <= 0.3), clipped to [-10, 10]; a goal reached
-is replaced by a new one (the episode goes on; if no place is found the episode terminates). Cost =
-1 on a step where the robot is inside a hazard (xy distance < 0.2) or, at level 2, touches a vase
-or a vase moves (speed >= 1e-4); else 0. Observation after the robot's sensors: a 16-bin
-pseudo-lidar (range 3) of the goal, then (levels 1, 2) of the hazards and of the vases. Episodes
-truncate at 1000 steps.
-
-Written once for both physics backends (``arrays.py``): numpy float64 on ``env.physics=mujoco``,
-torch on the simulation's device on ``env.physics=mjwarp``; only the new goal's draw (the layout
-sampler's random stream) runs on the host.
-"""
+"""The Goal tasks of ``env=safe_nav`` (``PointGoal0`` ... ``CarGoal2``) as Safety-Gymnasium 1.0.0 defines
+them (docs/safe_nav.md, "How it works"), and :class:`NavTask`, what every family's logic shares."""
 
 from __future__ import annotations
 
@@ -20,41 +8,78 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav.arrays import like, namespace, to_host, zeros
+from cmdp_rl.envs.safe_nav.arrays import distance, like, namespace, to_host, zeros
 from cmdp_rl.envs.safe_nav.layout import LayoutSampler
 from cmdp_rl.envs.safe_nav.lidar import pseudo_lidars
-from cmdp_rl.envs.safe_nav.spec import AGENT_KEEPOUT, GOAL_SIZE, HAZARD_KEEPOUT, HAZARD_SIZE, VASE_KEEPOUT
+from cmdp_rl.envs.safe_nav.spec import GOAL_SIZE, REWARD_CLIP
 from cmdp_rl.envs.safe_nav.world import NavWorlds
 
-EPISODE = 1000
-REWARD_CLIP = 10.0
 VASE_SPEED = 1e-4  # a vase moving at least this fast costs (level 2)
 
 
-class GoalTask:
+class NavTask:
+    """What every family shares: the arrays each layout gives (``from_layout``) and a state saves (``saved``),
+    the goal's distance, the hazard cost; a family adds ``step(world) -> (reward, cost, terminated)``, ``lidars``."""
+
+    episode = 1000
+    from_layout: tuple[str, ...] = ()
+    saved: tuple[str, ...] = ()
+
+    def __init__(self, worlds: NavWorlds, sampler: LayoutSampler, lidar_groups: int) -> None:
+        self.worlds, self.sampler, self.spec = worlds, sampler, worlds.spec
+        self.lidar_groups = lidar_groups
+        self.keepout = {kind: k for kind, k, _ in sampler.objects}  # each kind's, as placed
+
+    def start(self, envs: list[int], layouts: list[dict[str, Any]], world: dict) -> None:
+        """New episodes for ``envs`` (their worlds already placed from ``layouts``)."""
+        for i, layout in zip(envs, layouts):
+            for key in self.from_layout:
+                getattr(self, key)[i] = like(layout[key], getattr(self, key))
+
+    def _dist_goal(self, envs, world):
+        return distance(self.goal[envs], world["agent_pos"][:, :2])
+
+    def _in_hazard(self, world):
+        near = distance(self.hazards, world["agent_pos"][:, None, :2]) < self.spec.hazard_size
+        return namespace(near).any(near, axis=-1)  # the reference's cost > 0, as an indicator
+
+    def _new_goal(self, i: int, others: dict[str, Any]) -> bool:
+        """Env ``i``'s goal was reached: a new one clear of ``others`` (each kind's xys now), or False if none."""
+        clear_of = [(*xy, self.keepout[kind]) for kind, places in others.items() for xy in places]
+        goal = self.sampler.goal(i, clear_of, self.keepout["goal"])
+        if goal is None:
+            return False
+        self.goal[i] = like(goal, self.goal)
+        self.worlds.move_goal(i, goal)
+        return True
+
+    def state_dict(self) -> dict[str, Any]:
+        return {key: to_host(getattr(self, key)).copy() for key in self.saved}
+
+    def load_state_dict(self, state: dict[str, Any], layouts: list[dict[str, Any]]) -> None:
+        """After the worlds were placed from ``layouts``: the saved arrays (the goals moved since)."""
+        NavTask.start(self, range(len(layouts)), layouts, {})
+        for key in self.saved:
+            getattr(self, key)[:] = like(state[key], getattr(self, key))
+        for i in range(len(layouts) if "goal" in self.saved else 0):
+            self.worlds.move_goal(i, state["goal"][i])
+
+
+class GoalTask(NavTask):
     """The Goal task's state and logic for N envs (goal, hazards, last distance to goal)."""
 
-    episode = EPISODE
+    from_layout = ("goal", "hazards")
+    saved = ("goal", "last_dist")
 
     def __init__(self, worlds: NavWorlds, sampler: LayoutSampler) -> None:
-        self.worlds, self.sampler, self.spec = worlds, sampler, worlds.spec
-        n = worlds.num_envs
-        self.lidar_groups = 1 + (self.spec.level > 0) * 2
-        proto = worlds.proto  # numpy, or torch on the simulation's device
+        super().__init__(worlds, sampler, 1 + (worlds.spec.level > 0) * 2)
+        n, proto = worlds.num_envs, worlds.proto  # numpy, or torch on the simulation's device
         self.goal = zeros(proto, (n, 2))
         self.hazards = zeros(proto, (n, self.spec.hazards, 2))
         self.last_dist = zeros(proto, (n,))
 
-    def _dist_goal(self, envs, world):
-        xp = namespace(self.goal)
-        d = self.goal[envs] - world["agent_pos"][:, :2]
-        return xp.sqrt(xp.sum(xp.square(d), axis=-1))
-
-    def start(self, envs: list[int], layouts: list[dict[str, Any]], world: dict[str, np.ndarray]) -> None:
-        """New episodes for ``envs`` (their worlds already placed from ``layouts``)."""
-        for i, layout in zip(envs, layouts):
-            self.goal[i] = like(layout["goal"], self.goal)
-            self.hazards[i] = like(layout["hazards"], self.goal)
+    def start(self, envs: list[int], layouts: list[dict[str, Any]], world: dict) -> None:
+        super().start(envs, layouts, world)
         self.last_dist[envs] = self._dist_goal(envs, world)
 
     def lidars(self, envs, world: dict) -> list:
@@ -71,28 +96,13 @@ class GoalTask:
         speed = np.sqrt(np.sum(np.square(w.qvel(w.vase_dof[:, None] + np.arange(3))), axis=-1))  # [N, vases]
         return hit | np.any(speed >= VASE_SPEED, axis=-1)
 
-    def _new_goal(self, i: int, agent_xy: np.ndarray, hazards: np.ndarray, vases: np.ndarray) -> bool:
-        """Env ``i`` reached its goal: a new one, clear of where everything is now (host arrays of
-        env ``i``), or False if none is found."""
-        others = [(*agent_xy, AGENT_KEEPOUT)]
-        others += [(*xy, HAZARD_KEEPOUT) for xy in hazards]
-        others += [(*xy, VASE_KEEPOUT) for xy in vases]
-        goal = self.sampler.goal(i, others)
-        if goal is None:
-            return False
-        self.goal[i] = like(goal, self.goal)
-        self.worlds.move_goal(i, goal)
-        return True
-
     def step(self, world: dict) -> tuple:
         """Reward, cost and terminated of every env after a physics step (``world``: all envs)."""
-        every, xp = slice(None), namespace(self.goal)
-        dist = self._dist_goal(every, world)
+        xp = namespace(self.goal)
+        dist = self._dist_goal(slice(None), world)
         reached = dist <= GOAL_SIZE
         reward = xp.clip(self.last_dist - dist + reached * 1.0, -REWARD_CLIP, REWARD_CLIP)
-        agent_xy = world["agent_pos"][:, None, :2]
-        hazard_dist = xp.sqrt(xp.sum(xp.square(self.hazards - agent_xy), axis=-1))
-        cost = xp.any(hazard_dist < HAZARD_SIZE, axis=-1)  # the reference's cost > 0, as an indicator
+        cost = self._in_hazard(world)
         if self.spec.vases_constrained:
             cost |= self._vase_cost()
         terminated = zeros(dist, (len(dist),), "bool")
@@ -103,20 +113,9 @@ class GoalTask:
             hazards = to_host(self.hazards[hit])
             vases = to_host(world["xpos"][hit][:, self.worlds.vases, :2])
         for k, i in enumerate(hit):
-            if self._new_goal(i, agent[k], hazards[k], vases[k]):
+            if self._new_goal(i, {"agent": agent[k : k + 1], "hazards": hazards[k], "vases": vases[k]}):
                 offset = to_host(self.goal[i]) - agent[k]
                 self.last_dist[i] = math.sqrt(float(np.sum(np.square(offset))))
             else:
                 terminated[i] = True
         return reward, cost, terminated
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"goal": to_host(self.goal).copy(), "last_dist": to_host(self.last_dist).copy()}
-
-    def load_state_dict(self, state: dict[str, Any], layouts: list[dict[str, Any]]) -> None:
-        """After the worlds were placed from ``layouts``: the goals (moved since) and distances."""
-        for i, layout in enumerate(layouts):
-            self.hazards[i] = like(layout["hazards"], self.goal)
-            self.worlds.move_goal(i, state["goal"][i])
-        self.goal[:] = like(state["goal"], self.goal)
-        self.last_dist[:] = like(state["last_dist"], self.goal)

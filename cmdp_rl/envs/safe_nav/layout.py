@@ -1,23 +1,6 @@
-"""Layouts of ``env=safe_nav``, drawn as Safety-Gymnasium draws them, one random stream per env.
-
-Safety-Gymnasium places the robot and then each object in turn (goal, hazards, vases), each
-uniformly in the task's square shrunk by the object's keep-out radius, redrawing an object up to
-100 times until it keeps clear of every object placed before it (distance >= the sum of the two
-keep-out radii), and starting the whole layout over (up to 10,000 times) when one cannot be
-placed. Then it draws the rotations (robot, goal, each hazard, each vase) and, at once, a new goal
-place, kept clear of everything else the same way (up to 10,000 draws). Each env step it draws one
-more number (its physics step count, a binomial that is always 10 here). An object with a fixed
-location (the Circle tasks' circle and sigwalls) is still drawn, within 1e-9 of it; the Circle
-tasks' robot is drawn in its own square, ``[-0.8, 0.8]^2``, with no keep-out, and they draw no goal.
-The Button tasks place the robot, buttons, goal, hazards and gremlins, draw no new goal place (the
-goal is a button, chosen with ``choice``); the Push tasks place the robot, goal, hazards, pillars
-and the box, then draw a goal place as the Goal tasks do.
-
-Each env here has its own ``numpy.random.RandomState``, seeded as gymnasium seeds a vector env's
-envs (``seed + i``), and makes the same draws in the same order, so a seed gives the same layouts
-as the reference env: the tests check this. Drawing is plain Python per env: it happens once per
-episode and once per goal reached, not per step.
-"""
+"""Layouts of ``env=safe_nav``, drawn as Safety-Gymnasium draws them (docs/safe_nav.md, "How it works"):
+one ``RandomState`` per env seeded ``seed + i`` as gymnasium seeds a vector env, making the reference's
+draws in its order, so a seed gives the reference's layouts (tested)."""
 
 from __future__ import annotations
 
@@ -56,8 +39,7 @@ def _fixed(x: float, y: float, keepout: float) -> Box:
 
 
 def placements(spec: NavSpec) -> list[tuple[str, float, Box | None]]:
-    """The objects a layout places, in the reference's order: (kind, keep-out radius, the box it is
-    drawn in, or None for the task's square)."""
+    """The objects a layout places, in the reference's order: (kind, keep-out, box drawn in or None: the square)."""
     if spec.family == "Circle":
         walls = [(SIGWALL_AT, 0.0), (-SIGWALL_AT, 0.0), (0.0, SIGWALL_AT), (0.0, -SIGWALL_AT)]
         return [("agent", 0.0, (-0.8, -0.8, 0.8, 0.8)), ("circle", 0.0, _fixed(0.0, 0.0, 0.0))] + [
@@ -99,9 +81,8 @@ def _clear(xy: tuple[float, float], keepout: float, placed: list[tuple[float, fl
 
 
 class LayoutSampler:
-    """Layouts for one task; ``rngs[i]`` is env ``i``'s stream. ``pending[i]`` counts the per-step
-    draws env ``i`` has not yet made: they are made (and discarded) before its next real draw,
-    which keeps the stream in step with the reference at no per-step cost."""
+    """Layouts for one task; ``rngs[i]`` is env ``i``'s stream, ``pending[i]`` the per-step draws it has not
+    yet made (made, and discarded, before its next real draw: in step with the reference at no cost)."""
 
     def __init__(self, spec: NavSpec, num_envs: int) -> None:
         self.spec = spec
@@ -127,8 +108,7 @@ class LayoutSampler:
         return rng.uniform(xmin + keepout, xmax - keepout), rng.uniform(ymin + keepout, ymax - keepout)
 
     def layout(self, i: int) -> dict[str, Any]:
-        """A new layout for env ``i``: xy of each object (``hazards``, ``vases``, ``sigwalls``:
-        ``[count, 2]``) and its rotation (``<kind>_rot``)."""
+        """A new layout for env ``i``: each kind's xy (``[count, 2]`` where several) and rotation (``<kind>_rot``)."""
         rng = self._rng(i)
         for _ in range(LAYOUT_TRIES):
             placed: list[tuple[float, float, float]] = []
@@ -145,8 +125,7 @@ class LayoutSampler:
         else:
             raise LayoutError(f"safe_nav: no layout found in {LAYOUT_TRIES} tries")
         xy = np.array([p[:2] for p in placed])
-        two_pi = 2 * np.pi
-        rots = [rng.uniform(0, two_pi) for _ in self.objects]
+        rots = [rng.uniform(0, 2 * np.pi) for _ in self.objects]
         layout: dict[str, Any] = {}
         for kind in self.kinds:
             at = [k for k, (name, _, _) in enumerate(self.objects) if name == kind]
@@ -156,8 +135,7 @@ class LayoutSampler:
                 layout[kind], layout[f"{kind}_rot"] = xy[at].reshape(-1, 2), [rots[k] for k in at]
         if self.spec.family not in ("Goal", "Push"):
             return layout
-        # The goal drawn with the layout only reserved room; the episode's goal is drawn anew,
-        # clear of the others (keep-outs as placed).
+        # The goal drawn with the layout only reserved room; the episode's goal is drawn anew, clear of the others.
         keepout = {kind: k for kind, k, _ in self.objects}
         others = [(*p, k) for (kind, k, _), p in zip(self.objects, xy) if kind != "goal"]
         goal = self.goal(i, others, keepout["goal"])
@@ -170,11 +148,8 @@ class LayoutSampler:
         """One ``RandomState.choice(n)`` from env ``i``'s stream (the Button tasks' goal button)."""
         return int(self._rng(i).choice(n))
 
-    def goal(
-        self, i: int, others: list[tuple[float, float, float]], keepout: float = GOAL_KEEPOUT
-    ) -> np.ndarray | None:
-        """A goal place for env ``i`` clear of ``others`` (x, y, keep-out), or None if none was
-        found (the reference then ends the episode)."""
+    def goal(self, i: int, others: list[tuple[float, float, float]], keepout: float) -> np.ndarray | None:
+        """A goal place for env ``i`` clear of ``others`` (x, y, keep-out); None if none is found."""
         rng = self._rng(i)
         for _ in range(LAYOUT_TRIES):
             xy = self._draw(rng, keepout)

@@ -1,19 +1,14 @@
-"""Safety-Gymnasium's pseudo-lidar, batched: ``env=safe_nav``'s observation of each object group.
-
-Each object lights the bin of its egocentric angle (16 bins around the robot) with
-``max(0, range - d) / range`` (d its xy distance), and its two neighbours in proportion to where in
-the bin it lies; the closest object wins. The range is 3 (the Circle tasks: 6).
-
-Written once for numpy and torch (``arrays.py``): each object's 16-bin reading is built whole and
-the maximum taken over objects, which is the reference's bin-by-bin maximum, value for value (a
-maximum does no arithmetic), without a scatter that the two libraries spell differently.
-"""
+"""Safety-Gymnasium's 16-bin pseudo-lidar, batched over envs and object groups. Each object's 16 bins are
+built whole and the maximum taken over objects: the reference's bin-by-bin maximum, value for value,
+with no scatter (which numpy and torch spell differently)."""
 
 from __future__ import annotations
 
 import math
 
-from cmdp_rl.envs.safe_nav.arrays import Array, arange, namespace, zeros
+import numpy as np
+
+from cmdp_rl.envs.safe_nav.arrays import Array, like, namespace, zeros
 
 LIDAR_BINS, LIDAR_MAX = 16, 3.0
 
@@ -25,11 +20,8 @@ def pseudo_lidar(objects_xy: Array, agent_pos: Array, agent_mat: Array, max_dist
 
 
 def pseudo_lidars(groups: list[Array], agent_pos: Array, agent_mat: Array, max_dist: float = LIDAR_MAX) -> list[Array]:
-    """:func:`pseudo_lidar` of each group of objects (``[N, M_g, 2]`` each), computed over all the
-    groups' objects at once: one pass of array operations per env step instead of one per group
-    (each a few microseconds of call overhead on arrays of a few hundred numbers). Each object's
-    arithmetic is the same whatever it is batched with (checked bit for bit: the batched
-    ``matmul`` rows included), and each group's reading is the maximum over its own objects."""
+    """:func:`pseudo_lidar` of each group of objects (``[N, M_g, 2]`` each), in one pass over all the groups'
+    objects (an object's arithmetic is the same whatever it is batched with: tested bit for bit)."""
     xp = namespace(agent_pos)
     n, sizes = agent_pos.shape[0], [g.shape[1] for g in groups]
     if sum(sizes):
@@ -57,7 +49,7 @@ def _lit(objects_xy: Array, agent_pos: Array, agent_mat: Array, max_dist: float)
     bins = xp.floor(angle / width) % LIDAR_BINS  # whole numbers (as floats), angle >= 0
     reading = xp.clip(max_dist - dist, 0.0, None) / max_dist
     alias = (angle - width * bins) / width  # where in its bin: it lights the neighbours in proportion
-    k = arange(angle, LIDAR_BINS)
+    k = like(np.arange(LIDAR_BINS), angle)
     at = (bins[..., None] == k, (bins[..., None] + 1) % LIDAR_BINS == k, (bins[..., None] - 1) % LIDAR_BINS == k)
     lit = xp.where(at[0], reading[..., None], 0.0)
     lit = xp.maximum(lit, xp.where(at[1], (alias * reading)[..., None], 0.0))

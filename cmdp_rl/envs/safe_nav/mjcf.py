@@ -1,8 +1,5 @@
-"""A navigation task's world as MJCF text, and rotations as MuJoCo's compiler stores them.
-
-The robot's XML is read from the installed Safety-Gymnasium package at run time; the objects are
-added in the reference's body order, with the same geoms (``world.py`` compiles it once).
-"""
+"""A navigation task's world as MJCF text (the robot's XML from the installed Safety-Gymnasium, then
+the objects in the reference's body order, with its geoms), and rotations as MuJoCo's compiler stores them."""
 
 from __future__ import annotations
 
@@ -27,10 +24,11 @@ from cmdp_rl.envs.safe_nav.spec import (
     NavSpec,
 )
 
+CORNERS = ((1, 1), (-1, 1), (1, -1), (-1, -1))  # the push box's four smaller boxes
+
 
 def package_dir() -> str:
-    """The installed Safety-Gymnasium package's folder (found, not imported: its import needs our
-    compatibility layer, and only its data files are read here)."""
+    """The installed Safety-Gymnasium package's folder (found, not imported: only its data files are read)."""
     spec = importlib.util.find_spec("safety_gymnasium")
     if spec is None or not spec.submodule_search_locations:
         raise ImportError("env=safe_nav reads the robots' models from Safety-Gymnasium: run `make setup-safety-gym`")
@@ -42,66 +40,41 @@ def _fmt(values) -> str:
 
 
 def world_xml(spec: NavSpec) -> str:
-    """The task's MJCF: the robot's XML with the floor resized as Safety-Gymnasium does, then, in
-    its body order, the free bodies (box, vases, gremlins), the gremlins' mocap bodies (and their
-    welds), and the fixed ones (circle and sigwalls; or buttons, goal, hazards, pillars).
-    Positions are placeholders; layouts are set on the compiled model."""
+    """The task's MJCF, in the reference's body order: free bodies, the gremlins' mocap bodies (and
+    welds), fixed bodies. Positions are placeholders: layouts are set on the compiled model."""
     root = ET.parse(os.path.join(package_dir(), "assets", "xmls", f"{spec.robot}.xml")).getroot()
     worldbody = root.find("worldbody")
     for geom in worldbody.findall("geom"):
         if geom.get("name") == "floor":
             geom.set("size", "3.5 3.5 0.1")
+    # free bodies: (name, its box geoms (name, half sizes, offset or None), density, group)
+    frees = []
     if spec.push_box:
         size, density = PUSH_BOX[spec.robot]
-        body = ET.SubElement(worldbody, "body", name="push_box", pos="0 0 0", quat="1 0 0 0")
-        ET.SubElement(body, "freejoint", name="push_box")
-        ET.SubElement(
-            body, "geom", name="push_box", type="box", size=_fmt([size] * 3), density=repr(density), group="1"
-        )
-        for k, (sx, sy) in enumerate(((1, 1), (-1, 1), (1, -1), (-1, -1))):
-            ET.SubElement(
-                body,
-                "geom",
-                name=f"col{k + 1}",
-                type="box",
-                size=_fmt([size / 2, size / 2, size]),
-                density=repr(density),
-                group="1",
-                pos=_fmt([sx * size, sy * size, 0.0]),
-            )
-    frees = [(f"vase{i}", VASE_SIZE, VASE_DENSITY, "4") for i in range(spec.vases)]
-    frees += [(f"gremlin{i}obj", GREMLIN_SIZE, GREMLIN_DENSITY, "5") for i in range(spec.gremlins)]
-    for name, size, density, group in frees:
+        corners = [
+            (f"col{k + 1}", [size / 2, size / 2, size], [x * size, y * size, 0.0]) for k, (x, y) in enumerate(CORNERS)
+        ]
+        frees.append(("push_box", [("push_box", [size] * 3, None), *corners], density, "1"))
+    frees += [(f"vase{i}", [(f"vase{i}", [VASE_SIZE] * 3, None)], VASE_DENSITY, "4") for i in range(spec.vases)]
+    for i in range(spec.gremlins):
+        frees.append((f"gremlin{i}obj", [(f"gremlin{i}obj", [GREMLIN_SIZE] * 3, None)], GREMLIN_DENSITY, "5"))
+    for name, geoms, density, group in frees:
         body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
         ET.SubElement(body, "freejoint", name=name)
-        ET.SubElement(body, "geom", name=name, type="box", size=_fmt([size] * 3), density=repr(density), group=group)
+        for geom, size, pos in geoms:
+            box = dict(name=geom, type="box", size=_fmt(size), density=repr(density), group=group)
+            ET.SubElement(body, "geom", box if pos is None else {**box, "pos": _fmt(pos)})
     if spec.gremlins:
         equality = root.find("equality")
         equality = ET.SubElement(root, "equality") if equality is None else equality
     for i in range(spec.gremlins):
-        # The mocap body stays at the origin; its geom sits at the gremlin's place (placeholder
-        # pose off the body frame, so that the compiler does not mark the two frames as one).
-        body = ET.SubElement(worldbody, "body", name=f"gremlin{i}mocap", mocap="true")
-        ET.SubElement(
-            body,
-            "geom",
-            name=f"gremlin{i}mocap",
-            type="box",
-            size=_fmt([GREMLIN_SIZE] * 3),
-            pos="0.5 0.5 0.1",
-            quat=_fmt(rot_quat(1.0)),
-            contype="0",
-            conaffinity="0",
-            group="5",
-        )
-        ET.SubElement(
-            equality,
-            "weld",
-            name=f"gremlin{i}mocap",
-            body1=f"gremlin{i}mocap",
-            body2=f"gremlin{i}obj",
-            solref=".02 1.5",
-        )
+        # The mocap body stays at the origin, its geom at the gremlin's place (a placeholder pose off the body
+        # frame, so that the compiler does not merge the two frames).
+        name = f"gremlin{i}mocap"
+        body = ET.SubElement(worldbody, "body", name=name, mocap="true")
+        box = dict(name=name, type="box", size=_fmt([GREMLIN_SIZE] * 3), pos="0.5 0.5 0.1", quat=_fmt(rot_quat(1.0)))
+        ET.SubElement(body, "geom", box, contype="0", conaffinity="0", group="5")
+        ET.SubElement(equality, "weld", name=name, body1=name, body2=f"gremlin{i}obj", solref=".02 1.5")
     # (name, type, size, group, has contacts)
     if spec.family == "Circle":
         statics = [("circle", "cylinder", [CIRCLE_RADIUS, 1e-2], "6", False)]
@@ -113,15 +86,9 @@ def world_xml(spec: NavSpec) -> str:
         statics += [(f"pillar{i}", "cylinder", [PILLAR_SIZE, PILLAR_HEIGHT], "2", True) for i in range(spec.pillars)]
     for name, kind, size, group, touch in statics:
         body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
+        contacts = "1" if touch else "0"
         ET.SubElement(
-            body,
-            "geom",
-            name=name,
-            type=kind,
-            size=_fmt(size),
-            group=group,
-            contype="1" if touch else "0",
-            conaffinity="1" if touch else "0",
+            body, "geom", name=name, type=kind, size=_fmt(size), group=group, contype=contacts, conaffinity=contacts
         )
     return ET.tostring(root, encoding="unicode")
 

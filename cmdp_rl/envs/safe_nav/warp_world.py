@@ -1,21 +1,7 @@
-"""The MuJoCo Warp side of ``env=safe_nav`` (``env.physics=mjwarp``): the same world, N at once.
-
-The world is ``world.py``'s: the same MJCF compiled once by MuJoCo, with the reference's body order
-and geoms, then put on MuJoCo Warp (``mujoco_warp.put_model``) with one world per env, on the env's
-device (Warp's CPU device, or a CUDA GPU). A layout is placed exactly as on ``env.physics=mujoco``:
-by :class:`NavWorlds`' ``place`` on one host copy of the model (bodies moved, ``mj_setConst``,
-``mj_resetData``, ``mj_forward``), whose per-world fields (the ones placing changes: body poses,
-initial joint poses, what ``mj_setConst`` derives from them) and integration state are then copied
-into that env's world. An env step is ten ``mujoco_warp.step`` and one ``mujoco_warp.forward`` over
-every world, recorded once as a graph and replayed (a CUDA graph on a GPU; on the CPU, Warp's own
-graph replayed in C++): launched from Python one by one, the step's thousand-odd kernel launches
-cost about 15 times more than the physics on the CPU device.
-
-Observations are read from Warp's arrays as torch tensors without a copy (``warp.to_torch``), so
-the task logic (``goal.py``, ``lidar.py``: the same functions as on ``mujoco``) runs in torch on
-the same device. MuJoCo Warp computes in float32, with its own solver implementation: trajectories
-are close to ``mujoco``'s, not equal (docs/safe_nav.md gives the measured differences).
-"""
+"""The MuJoCo Warp side of ``env=safe_nav`` (``env.physics=mjwarp``, docs/safe_nav.md): ``world.py``'s
+model with one Warp world per env; layouts placed on a host copy, then copied into that env's world;
+an env step recorded once as a graph and replayed (kernel launches one by one cost far more than the
+physics). MuJoCo Warp's float32 solver gives trajectories close to ``mujoco``'s, not equal."""
 
 from __future__ import annotations
 
@@ -27,23 +13,12 @@ import torch
 from cmdp_rl.envs.safe_nav.spec import FRAMESKIP, NavSpec
 from cmdp_rl.envs.safe_nav.world import NavWorlds
 
-# What env.physics=mjwarp offers: the Goal tasks without vase costs (a level-2 vase cost reads
-# MuJoCo's contact list, which MuJoCo Warp lays out differently), Point and Car.
+# The Goal tasks without vase costs (those read MuJoCo's contact list, which MuJoCo Warp lays out differently).
 WARP_TASKS = ("PointGoal0", "PointGoal1", "CarGoal0", "CarGoal1")
 
-# Model fields that placing a layout changes (checked against every MjModel field in
-# tests/test_safe_nav_warp.py), one row per world; the rest are shared by all worlds.
-PER_WORLD = (
-    "body_pos",
-    "body_quat",
-    "qpos0",
-    "qpos_spring",
-    "body_invweight0",
-    "dof_invweight0",
-    "actuator_acc0",
-)
-# Constraint capacity per world: contacts, and constraint rows (condim 6 in a pyramidal cone is 10
-# rows per contact; a robot, a vase and the floor stay well below).
+# Model fields that placing a layout changes (tested against every MjModel field): one row per world.
+PER_WORLD = ("body_pos", "body_quat", "qpos0", "qpos_spring", "body_invweight0", "dof_invweight0", "actuator_acc0")
+# Capacity per world: contacts, constraint rows (10 per condim-6 contact; a robot, a vase, the floor stay below).
 NCONMAX, NJMAX = 48, 256
 
 
@@ -54,15 +29,8 @@ def warp_problem() -> str | None:
     return None
 
 
-def warp_device(device: torch.device) -> str:
-    """Warp's name for a torch device: ``cpu`` or ``cuda:<index>``."""
-    return "cpu" if device.type == "cpu" else f"cuda:{device.index or 0}"
-
-
 class WarpWorlds:
-    """N worlds of one navigation task on MuJoCo Warp (module docstring); the same interface as
-    :class:`NavWorlds` where the env and the task logic use it (``place``, ``step``, ``move_goal``,
-    the body indices), plus :meth:`gather` (the arrays the task logic reads, as torch tensors)."""
+    """N worlds of one task on MuJoCo Warp: :class:`NavWorlds`' interface, torch tensors on ``device``."""
 
     def __init__(self, spec: NavSpec, num_envs: int, device: torch.device) -> None:
         import mujoco
@@ -77,7 +45,7 @@ class WarpWorlds:
         self.ctrl_low, self.ctrl_high, self.goal_z = h.ctrl_low, h.ctrl_high, h.goal_z
         self.models = h.models  # the host model: names and sizes (one, not N)
         self.device = torch.device(device)
-        self.wp_device = warp_device(self.device)
+        self.wp_device = "cpu" if self.device.type == "cpu" else f"cuda:{self.device.index or 0}"
         self._n = num_envs
         m, d = h.models[0], h.datas[0]
         self.state_kind = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -91,7 +59,8 @@ class WarpWorlds:
         self.fields = {f: view(getattr(self.model, f)) for f in PER_WORLD}
         self.states, self.active = view(self._states), view(self._active)
         self.ctrl = view(self.data.ctrl)
-        self.sensordata, self.xpos, self.xmat = view(self.data.sensordata), view(self.data.xpos), view(self.data.xmat)
+        self.sensordata, self.xpos = view(self.data.sensordata), view(self.data.xpos)
+        self.agent_mat = view(self.data.xmat)[:, self.agent]  # a view: [N, 3, 3]
         self.proto = self.xpos.new_zeros(0)  # the task logic's arrays: this library, device, dtype
         self.low = torch.as_tensor(self.ctrl_low, dtype=self.ctrl.dtype, device=self.device)
         self.high = torch.as_tensor(self.ctrl_high, dtype=self.ctrl.dtype, device=self.device)
@@ -102,7 +71,6 @@ class WarpWorlds:
     def num_envs(self) -> int:
         return self._n
 
-    # --- layouts -------------------------------------------------------------------------------
     def place(self, i: int, layout: dict) -> None:
         """Env ``i`` starts over from ``layout``; written to the device at the next read or step."""
         h, mj = self.host, self.mj
@@ -113,8 +81,7 @@ class WarpWorlds:
         self._staged[i] = ({f: getattr(m, f).copy() for f in PER_WORLD}, state)
 
     def _flush(self) -> None:
-        """Write the staged layouts' fields and fresh states to their worlds, then recompute what
-        follows from a state (positions, sensors) for every world (idempotent for the others)."""
+        """Write the staged layouts to their worlds, then recompute positions and sensors (all worlds)."""
         if not self._staged:
             return
         envs = sorted(self._staged)
@@ -133,7 +100,6 @@ class WarpWorlds:
         """A new goal mid-episode: the goal has no contacts, so only its position changes."""
         self.fields["body_pos"][i, self.goal, :2] = torch.as_tensor(xy, dtype=self.xpos.dtype, device=self.device)
 
-    # --- stepping ------------------------------------------------------------------------------
     def step(self, ctrl: torch.Tensor) -> None:
         """One env step of every world: ``ctrl`` ``[N, nu]`` (clipped to the actuators' range)."""
         self._flush()
@@ -141,10 +107,8 @@ class WarpWorlds:
         self._replay("step", self._physics)
 
     def _replay(self, name: str, launches) -> None:
-        """Run ``launches`` (always on the same arrays) as a graph: recorded on the first call
-        (recording runs nothing), replayed on every call. On a GPU, Warp's stream first waits for
-        torch's (which wrote the controls and states) and torch's then waits for Warp's (which
-        wrote what torch reads next): events on the device, no host synchronisation."""
+        """Run ``launches`` (always on the same arrays) as a graph, recorded on the first call. On a GPU,
+        Warp's stream waits for torch's and then torch's for Warp's: events, no host synchronisation."""
         wp = self.wp
         cuda = self.device.type == "cuda"
         with wp.ScopedDevice(self.wp_device):
@@ -169,22 +133,10 @@ class WarpWorlds:
         self.mjw.forward(self.model, self.data)
 
     def gather(self, envs) -> dict[str, torch.Tensor]:
-        """What the task logic reads of ``envs`` (``slice(None)``: all), as torch tensors on the
-        device, read from Warp's arrays without a host copy."""
+        """:meth:`NavWorlds.gather`, of Warp's arrays viewed as torch tensors on the device."""
         self._flush()
-        xpos = self.xpos[envs]
-        return {
-            "sensordata": self.sensordata[envs],
-            "xpos": xpos,
-            "agent_pos": xpos[:, self.agent],
-            "agent_mat": self.xmat[envs][:, self.agent],
-        }
+        return NavWorlds.gather(self, envs)
 
-    def overflow(self) -> np.ndarray:
-        """Each world's overflow bits (contacts or constraint rows beyond capacity; 0: none)."""
-        return self.data.overflow.numpy()
-
-    # --- resume --------------------------------------------------------------------------------
     def get_states(self) -> np.ndarray:
         """Every world's MuJoCo integration state ``[N, size]`` (float32 on Warp)."""
         self._flush()
@@ -197,7 +149,7 @@ class WarpWorlds:
     def set_states(self, states: np.ndarray) -> None:
         """Every world continues from ``states`` (after its layout was placed)."""
         self._flush()
-        self.states.copy_(torch.as_tensor(np.asarray(states), dtype=self.states.dtype))
+        self.states.copy_(torch.as_tensor(np.stack(states), dtype=self.states.dtype))
         self.active.fill_(True)
         self._replay("start", self._set_states)
 
@@ -205,4 +157,4 @@ class WarpWorlds:
         self.host.close()
 
 
-__all__ = ["NCONMAX", "NJMAX", "PER_WORLD", "WARP_TASKS", "WarpWorlds", "warp_device", "warp_problem"]
+__all__ = ["NCONMAX", "NJMAX", "PER_WORLD", "WARP_TASKS", "WarpWorlds", "warp_problem"]

@@ -1,18 +1,11 @@
-"""Safety-Gymnasium's own tasks (``env=safety_gym env.task=SafetyPointGoal1-v0``).
+"""Safety-Gymnasium's own tasks (``env=safety_gym env.task=SafetyPointGoal1-v0``), unchanged.
 
-The task is Safety-Gymnasium 1.0.0's, unchanged: built from its registered entry point and kwargs
-(``safety_gym_compat.py`` says why not by ``safety_gymnasium.make``, and what it takes to import the
-package on our stack). :class:`SafetyGymTask` adapts it to gymnasium's five-value step: the cost,
-the third value of Safety-Gymnasium's six-value step, goes to ``info["cost"]``, where every env of
-this toolkit reports it. From there it is an env like any other: :class:`GymVecEnv` steps N of them
-(in this process or, with ``env.vector=async``, in worker processes), and the collector keeps the
-reward and cost twins, bootstraps truncated episodes from their final observation and sums episodes.
-
-Episode ends, as the package defines them: navigation tasks truncate at their step limit (1000;
-Circle and Run 500) and terminate only when the robot dies (Ant, Doggo falling over) or a task
-says so; a goal reached is rewarded and a new goal placed, the episode goes on. Velocity tasks are
-gymnasium's MuJoCo v4 envs with the package's cost, terminating as those envs do.
-"""
+Built from the registered entry point and kwargs (``compat.py`` says why not by
+``safety_gymnasium.make``); :class:`SafetyGymTask` turns its six-value step into gymnasium's five,
+the cost in ``info["cost"]``, and :class:`GymVecEnv` steps N of them (``env.vector=async``: in worker
+processes). Navigation tasks truncate at their step limit and terminate only when the robot dies or
+the task says so (a goal reached is rewarded and replaced); velocity tasks terminate as gymnasium's
+MuJoCo envs do."""
 
 from __future__ import annotations
 
@@ -31,20 +24,13 @@ from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium
 from cmdp_rl.envs.safety_gym.tasks import TASKS, task_problem
 from cmdp_rl.envs.safety_gym.world_state import load_world_state, world_state
 from cmdp_rl.envs.vector import GymVecEnv, default_cost_names
-
-INSTALL = "env=safety_gym needs Safety-Gymnasium: run `make setup-safety-gym`"
+from cmdp_rl.envs.velocity import RENDER_SIZE
 
 
 class SafetyGymTask(gym.Env):
-    """One Safety-Gymnasium task with gymnasium's step: ``(obs, reward, terminated, truncated,
-    info)``, the step's cost in ``info["cost"]``.
+    """One Safety-Gymnasium task with gymnasium's five-value step (the cost in ``info["cost"]``)."""
 
-    ``max_steps`` (0: the task's registered limit) truncates episodes; a navigation task also
-    truncates itself at its own limit, so a larger value has no effect (the config refuses it).
-    """
-
-    # One cost per task. Declared, so that the vector env need not build a throwaway world to
-    # count them (a world build is about 0.5 s: a probe env cost each make_env that much).
+    # Declared, so that the vector env builds no throwaway world to count the costs.
     cost_names = default_cost_names(1)
 
     def __init__(self, task: str, max_steps: int = 0, render_mode: str | None = None, **render_kwargs: Any) -> None:
@@ -56,21 +42,15 @@ class SafetyGymTask(gym.Env):
         if render_mode is not None:
             kwargs.update(render_mode=render_mode, **render_kwargs)
         with warnings.catch_warnings():
-            # Its Box spaces declare float32 observations with float64 infinite bounds: numpy warns
-            # about the cast, which is exact (inf stays inf).
+            # Its float32 Box spaces have float64 infinite bounds: numpy warns about the exact cast.
             warnings.filterwarnings("ignore", "overflow encountered in cast", RuntimeWarning)
             self.inner = load_env_creator(spec.entry_point)(**kwargs)
-        self.task_id = task
         self.limit = max_steps or spec.max_episode_steps
         self.steps = 0
         self.observation_space = self.inner.observation_space
         self.action_space = self.inner.action_space
         self.render_mode = render_mode
         self.metadata = dict(getattr(self.inner, "metadata", {}))
-
-    @property
-    def navigation(self) -> bool:
-        return hasattr(self.inner, "task")  # safety_gymnasium.builder.Builder
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self.steps = 0
@@ -89,13 +69,9 @@ class SafetyGymTask(gym.Env):
     def close(self) -> None:
         self.inner.close()
 
-    # -- saving an episode in progress (resume) -------------------------------------------------
-    # A navigation task's world is saved as its fields and MuJoCo's arrays (world_state.py): restored
-    # runs continue bit for bit (tests/test_safety_gym.py). Velocity tasks are plain gymnasium
-    # MuJoCo envs: envs/env_state.py saves them.
-
+    # Resume: a navigation task's world through world_state.py, a velocity task through envs/env_state.py.
     def state_dict(self) -> dict[str, Any]:
-        if not self.navigation:
+        if not hasattr(self.inner, "task"):  # a velocity task (a navigation task is a Builder)
             return {"steps": self.steps, "velocity": env_state(self.inner)}
         import mujoco
 
@@ -119,25 +95,20 @@ class SafetyGymTask(gym.Env):
 
 
 def make_task(task: str, max_steps: int = 0, render_mode: str | None = None, **render_kwargs: Any) -> SafetyGymTask:
-    """One env of ``task`` (a Safety-Gymnasium id this module offers); ``render_kwargs`` (frame
-    ``width``, ``height``, ``camera_name``) go to the task with a ``render_mode``."""
+    """One env of ``task``; ``render_kwargs`` (``width``, ``height``, ``camera_name``) go with a ``render_mode``."""
     problem = task_problem(task)
     if problem:
         raise ConfigError(problem)
     return SafetyGymTask(task, max_steps, render_mode, **render_kwargs)
 
 
-# Video frames (width, height): multiples of 16, as video encoders like. Navigation tasks film from
-# the package's "track" camera (behind and above the robot, following it); its default, "vision",
-# is the robot's own front camera, which shows little of the hazards around it.
-RENDER_SIZE = (320, 240)
+# Navigation tasks film from behind and above the robot; the default camera, its own, shows little of the hazards.
 NAVIGATION_CAMERA = "track"
 
 
 @options
 class SafetyGymEnvConfig(EnvOptions):
-    """``env=safety_gym``: a Safety-Gymnasium 1.0.0 task (navigation or velocity), as the package
-    defines it; cost 1 on each step that violates the task's constraint."""
+    """``env=safety_gym``: a Safety-Gymnasium 1.0.0 task (navigation or velocity), unchanged."""
 
     name: str = "safety_gym"
     backend: Literal["gym"] = "gym"
@@ -167,19 +138,14 @@ class SafetyGymEnvConfig(EnvOptions):
         if problem:
             raise ConfigError(problem)
         limit = TASKS[self.task]
-        require(
-            self.max_steps <= limit,
-            "env.max_steps",
-            f"in [0, {limit}] for {self.task} (0: its limit, {limit})",
-            self.max_steps,
-        )
+        allowed = f"in [0, {limit}] for {self.task} (0: its limit, {limit})"
+        require(self.max_steps <= limit, "env.max_steps", allowed, self.max_steps)
         if importlib.util.find_spec("safety_gymnasium") is None:
-            raise ConfigError(f"env.name: {INSTALL}")
+            raise ConfigError("env.name: env=safety_gym needs Safety-Gymnasium: run `make setup-safety-gym`")
 
 
 class SafetyGymVecEnv(GymVecEnv):
-    """:class:`GymVecEnv` whose envs' state goes through gymnasium's ``get_attr``/``set_attr``, so
-    that envs in worker processes (``env.vector=async``) save and restore theirs too."""
+    """:class:`GymVecEnv` saving its envs' state through ``get_attr``/``set_attr``: worker processes too."""
 
     def state_dict(self) -> dict[str, Any]:
         return {"num_envs": self.num_envs, "envs": list(self.envs.get_attr("saved_state"))}

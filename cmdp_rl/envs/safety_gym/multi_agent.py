@@ -1,24 +1,12 @@
-"""Safety-Gymnasium's multi-agent velocity tasks (Safety-MaMuJoCo) as a factory for ``env=pettingzoo``.
+"""Safety-Gymnasium's multi-agent velocity tasks (Safety-MaMuJoCo) as a factory for ``env=pettingzoo``:
 
     python train.py env=pettingzoo env.factory=cmdp_rl.envs.safety_gym.multi_agent:SafetyMaMuJoCo \\
         +env.kwargs.scenario=HalfCheetah +env.kwargs.agent_conf=2x3 algo=mappo_lag algo.constraint=per_agent
 
-:class:`SafetyMaMuJoCo` builds ``safety_gymnasium.make_ma(scenario, agent_conf)`` (a ``SafeMAEnv``
-over gymnasium-robotics' ``MultiAgentMujocoEnv``) through ``compat.py`` and adapts it to the
-``ParallelEnv`` protocol ``env=pettingzoo`` reads:
-
-- its step returns six values, the costs as their own per-agent dict; here each agent's cost goes
-  to ``infos[agent]["cost"]``;
-- gymnasium-robotics wraps the single-agent MuJoCo env in gymnasium's ``TimeLimit``, which on
-  gymnasium 1.x no longer forwards attribute reads, and ``SafeMAEnv`` reads ``.model`` and
-  ``.mujoco_renderer`` through it (an ``AttributeError`` at construction). Its ``gym_env`` argument
-  takes the single-agent env instead: the unwrapped ``<scenario>-v5``, and the time limit
-  (``max_steps``, 1000 as the v5 tasks) is kept here.
-
-Every agent receives the same velocity cost (1 on a step faster than the task's threshold), as in
-Safety-Gymnasium. So ``algo.constraint=team`` sums M copies of it (a budget of ``M * d``);
-``per_agent`` puts a budget on each agent's copy, the convention of SafePO's MAPPO-L.
-"""
+Each agent's cost goes to ``infos[agent]["cost"]``. ``make_ma`` gets the unwrapped ``<scenario>-v5`` and
+the time limit is kept here: gymnasium 1.x's ``TimeLimit`` no longer forwards the attributes
+``SafeMAEnv`` reads. Every agent receives the same velocity cost, so ``algo.constraint=team`` sums M
+copies of it; ``per_agent`` budgets each agent's copy (SafePO's MAPPO-L)."""
 
 from __future__ import annotations
 
@@ -27,12 +15,8 @@ from typing import Any
 import gymnasium as gym
 
 from cmdp_rl.envs.env_state import env_state, load_env_state
+from cmdp_rl.envs.multi_agent import ParallelEnv
 from cmdp_rl.envs.safety_gym.compat import import_safety_gymnasium
-
-try:  # the registry imports every env module; PettingZoo is the multi_agent extra
-    from pettingzoo import ParallelEnv
-except ImportError:  # pragma: no cover - without the extra the class still has ParallelEnv's API
-    ParallelEnv = object
 
 
 class SafetyMaMuJoCo(ParallelEnv):

@@ -1,9 +1,5 @@
-"""The Safety-Gymnasium tasks ``env=safety_gym`` offers, and why the others are refused.
-
-Plain data (no Safety-Gymnasium import): the config check runs without the package.
-Every offered id was built and stepped on our stack (tests/test_safety_gym.py; the full grid with
-``SAFETY_GYM_ALL_TASKS=1``). Episode limits are the ones Safety-Gymnasium registers.
-"""
+"""The Safety-Gymnasium tasks ``env=safety_gym`` offers with their registered episode limits, and why the
+others are refused. Plain data (no Safety-Gymnasium import): the config check runs without the package."""
 
 from __future__ import annotations
 
@@ -36,26 +32,14 @@ ALLOWED = (
     f"or Safety{{{','.join(VELOCITY_ROBOTS)}}}Velocity-v{{0,1}}"
 )
 
-# Registered ids we refuse, with the reason (first match wins).
+# Registered ids we refuse: (pattern, why, the infix whose removal names an offered task); first match wins.
 _REFUSED = (
+    (r"^Safety\w+Vision-v\d+$", "observes camera images (our policies take flat vectors)", "Vision"),
+    (r"^Safety\w+Debug-v\d+$", "is Safety-Gymnasium's keyboard-controlled debug variant", "Debug"),
+    (r"^Safety\w+(Race|FadingEasy|FadingHard)\d-v\d+$", "is a vision-only task (camera images)", None),
+    (r"^Safety\w+Gymnasium-v\d+$", "is Safety-Gymnasium's gymnasium-API copy of a task", "Gymnasium"),
     (
-        re.compile(r"^Safety\w+Vision-v\d+$"),
-        "observes camera images (our policies take flat vectors)",
-        lambda t: t.replace("Vision-", "-"),
-    ),
-    (
-        re.compile(r"^Safety\w+Debug-v\d+$"),
-        "is Safety-Gymnasium's keyboard-controlled debug variant",
-        lambda t: t.replace("Debug-", "-"),
-    ),
-    (re.compile(r"^Safety\w+(Race|FadingEasy|FadingHard)\d-v\d+$"), "is a vision-only task (camera images)", None),
-    (
-        re.compile(r"^Safety\w+Gymnasium-v\d+$"),
-        "is Safety-Gymnasium's gymnasium-API copy of a task",
-        lambda t: t.replace("Gymnasium-", "-"),
-    ),
-    (
-        re.compile(r"^Safety\w+MultiGoal\d-v\d+$|^Safety\w+\d+x\d+\w*Velocity-v\d+$|^Safety\w*Multi\w*"),
+        r"^Safety\w+MultiGoal\d-v\d+$|^Safety\w+\d+x\d+\w*Velocity-v\d+$|^Safety\w*Multi\w*",
         "is a multi-agent task (needs gymnasium_robotics; not offered)",
         None,
     ),
@@ -66,9 +50,9 @@ def task_problem(task: str) -> str | None:
     """None if ``task`` is offered, else the one-line config error saying why not."""
     if task in TASKS:
         return None
-    for pattern, why, plain in _REFUSED:
-        if pattern.match(task):
-            hint = plain(task) if plain else None
+    for pattern, why, infix in _REFUSED:
+        if re.match(pattern, task):
+            hint = task.replace(f"{infix}-", "-") if infix else None
             instead = f"; use {hint}" if hint in TASKS else ""
             return f"env.task must be an offered Safety-Gymnasium task, got {task!r}: it {why}{instead}"
     return f"env.task must be one of {ALLOWED}, got {task!r}"
