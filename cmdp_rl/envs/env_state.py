@@ -37,10 +37,14 @@ def _plain(value: Any) -> bool:
     return False
 
 
+def _static(value: Any) -> bool:
+    return isinstance(value, (gym.spaces.Space, gym.envs.registration.EnvSpec))
+
+
 def _attributes(obj: Any, where: str) -> dict[str, Any]:
     out = {}
     for name, value in vars(obj).items():
-        if name in _SKIPPED_NAMES or isinstance(value, (gym.spaces.Space, gym.envs.registration.EnvSpec)):
+        if name in _SKIPPED_NAMES or _static(value):
             continue
         if name == "data" and _is_mujoco_data(value):
             continue  # saved whole, below

@@ -54,10 +54,9 @@ class EnvOptions:
     def population_env(
         self, env_cfgs: Sequence[Any], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
     ) -> Any:
-        """The envs of P agents (``env_cfgs``, each agent's options of this env, these first),
-        ``num_envs`` each, agent i's seeded with ``seeds[i]``, as one batched env whose agent i's rows
-        step exactly as its single run's envs (``cmdp_rl/population/``); None: the population steps
-        each agent's own env in turn (``population.env.AgentEnvs``)."""
+        """The envs of P agents (``env_cfgs``, these options first), ``num_envs`` each, agent i's seeded
+        with ``seeds[i]``, as one batched env whose agent i's rows step exactly as its single run's envs;
+        None: the population steps each agent's own env in turn (``population.env.AgentEnvs``)."""
         return None
 
 

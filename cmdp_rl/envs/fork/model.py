@@ -32,9 +32,8 @@ GOAL = -1  # next_state's entry for a move that arrives at the goal
 
 @dataclass(frozen=True, eq=False)
 class ForkCMDP(TabularCMDP):
-    """The fork as a :class:`TabularCMDP` (transitions deterministic, the random end in ``gamma``),
-    with what the batched env steps: ``next_state[s, a]`` (``GOAL`` at the goal) and, per state,
-    its route and position (``-1`` for the fork)."""
+    """The fork as a :class:`TabularCMDP` (the random end in ``gamma``), with what the batched env
+    steps: ``next_state[s, a]`` (``GOAL`` at the goal), and each state's route (``-1``: the fork)."""
 
     next_state: np.ndarray = None  # type: ignore[assignment]  # [S, A] int
     route: np.ndarray = None  # type: ignore[assignment]  # [S] int, -1 at the fork

@@ -1,6 +1,5 @@
 """The slippery two-hazard gridworld as a component (``env=grid``): its options, checked before
-anything is built, and its vector env (one gymnasium :class:`~cmdp_rl.envs.grid.env.GridWorld` per
-env). K = 2 costs by default, each with its budget from ``DEFAULT_BUDGETS``."""
+anything is built, and its vector env of gymnasium ``GridWorld`` envs, each cost's budget its default."""
 
 from __future__ import annotations
 

@@ -49,18 +49,15 @@ class Reach1DConfig(EnvOptions):
         return {k: getattr(self, k) for k in ("obs_noise", "wall_x", "max_steps", "goal", "wall", "start", "probe")}
 
     def render_env(self) -> Reach1D:
-        """One gymnasium Reach1D of these options drawing ``rgb_array`` frames (for video; the torch
-        backend renders through this gym twin)."""
+        """One gymnasium Reach1D of these options drawing ``rgb_array`` frames (either backend's video)."""
         return Reach1D(**self.env_kwargs(), render_mode="rgb_array")
 
     def optimum(self, cost_limit: float) -> float:
-        """The constrained optimum of the eval return at budget ``cost_limit`` (``optimum.py``): an
-        upper bound for a policy that sees noisy readings. Read by the end-of-run summary."""
+        """The end-of-run summary's constrained optimum at ``cost_limit`` (``optimum.py``: true state)."""
         return constrained_optimum(self, cost_limit).value
 
     def termination_note(self) -> str | None:
-        """Why no episode can reach the goal with these options, if none can: with the blocking
-        wall between every start and the goal. Read by the end-of-run summary."""
+        """For the end-of-run summary: why no episode can reach the goal (a blocking wall in the way), if so."""
         lo, hi = (self.start[0], self.start[-1]) if isinstance(self.start, list) else (self.start, self.start)
         goal_right = self.goal > self.wall_x
         starts_opposite = hi < self.wall_x if goal_right else lo > self.wall_x
@@ -80,8 +77,7 @@ class Reach1DConfig(EnvOptions):
     def population_env(
         self, env_cfgs: Sequence[Reach1DConfig], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
     ) -> VecEnv | None:
-        """On the torch backend: one :class:`~cmdp_rl.envs.reach1d.population.PopulationReach1D` of
-        every agent's envs, each agent's options as tensors (evaluation: no staggered start)."""
+        """On the torch backend: one ``PopulationReach1D`` of every agent's envs (evaluation: no stagger)."""
         if self.backend != "torch":
             return None
         env = PopulationReach1D(env_cfgs, num_envs, stagger=self.stagger and not evaluation, device=device)
