@@ -17,7 +17,24 @@ from typing import Any
 
 import yaml
 
-from cmdp_rl.run.sweeps import MULTIRUN_FILE, RunRecord, _read_yaml, find_runs, mark_superseded
+from cmdp_rl.run.rundir import EVAL, METRICS
+from cmdp_rl.run.sweeps import RunRecord, _read_yaml, find_runs, load_run, mark_superseded
+
+MULTIRUN_FILE = "multirun.yaml"
+
+
+def _runs_holding(sweep_dir: str | Path, name: str) -> list[RunRecord]:
+    return [load_run(p.parent) for p in sorted(Path(sweep_dir).glob(f"*/{name}"))]
+
+
+def finished_runs(sweep_dir: str | Path) -> list[RunRecord]:
+    """The sweep's run directories (one level down) that hold a result (``eval.json``)."""
+    return _runs_holding(sweep_dir, EVAL)
+
+
+def started_runs(sweep_dir: str | Path) -> list[RunRecord]:
+    """The sweep's run directories (one level down) whose training started (``metrics.csv``)."""
+    return _runs_holding(sweep_dir, METRICS)
 
 
 def _expand(overrides: list[str]) -> list[list[str]]:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from cmdp_rl.run.sweeps import FAILED, MISSING, OK, finished_runs, started_runs
+from cmdp_rl.run.sweeps import FAILED, MISSING, OK
 from lab.studies.penalty_constraint import (
     GroupKey,
     Run,
@@ -19,7 +19,7 @@ from lab.studies.penalty_constraint import (
 )
 from lab.studies.stats import count_finite, population_mean_std, sample_mean_std, tail_mean
 from lab.studies.tables import markdown_table, pm, write_csv
-from lab.sweeps import MissingJob, job_values, read_sweeps
+from lab.sweeps import MissingJob, finished_runs, job_values, read_sweeps, started_runs
 
 
 def test_sample_mean_std_is_over_finite_seeds_with_ddof_1():

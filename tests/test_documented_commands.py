@@ -251,7 +251,7 @@ def _jobs(sweeper, overrides: list[str]) -> list[list[str]]:
 
 def _check_search(hydra_compose, sweeper, overrides: list[str]) -> None:
     """A hyperparameter search (hydra/sweeper=cmdp_optuna, docs/tuning.md) checked as its sweeper checks it before
-    its first trial (cmdp_rl/run/tune_search.py): the settings, the space, and a job composed and validated at
+    its first trial (cmdp_rl/run/tune.py): the settings, the space, and a job composed and validated at
     each end of the space (``check_space``)."""
     options = OmegaConf.to_container(sweeper, resolve=True)
     settings = Settings.of(options)

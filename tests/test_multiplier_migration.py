@@ -107,6 +107,8 @@ def test_a_population_grid_over_flat_options_moves_into_the_node():
     out = saved_config_nodes(raw)
     assert out["algo"] == {"name": "pid_lag", "multiplier": {"kind": "pid", "kp": 1.0}}
     assert out["population"]["grid"]["algo"] == {"lr": [1e-3], "multiplier": {"ki": [0.1, 0.2]}}
+    current = {"algo": {"name": "ppo_lag"}, "population": {"grid": {"algo": {"multiplier": {"lr": [0.1, 0.2]}}}}}
+    assert saved_config_nodes(current) == current  # a grid over the node itself is left as it is
 
 
 def test_a_moved_config_keeps_its_node_values_over_flat_defaults():

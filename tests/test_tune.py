@@ -20,10 +20,9 @@ from omegaconf import OmegaConf
 from optuna.distributions import FloatDistribution
 from optuna.trial import TrialState, create_trial
 
-from cmdp_rl.run.tune import Settings, TuneError, budgets, check_space, open_storage, parse_space
+from cmdp_rl.run.tune import Settings, TuneError, budgets, check_space, open_storage, parse_space, sweep
 from cmdp_rl.run.tune_report import main as report_main
 from cmdp_rl.run.tune_report import report
-from cmdp_rl.run.tune_search import sweep
 from cmdp_rl.run.tune_trial import FeasibleOnly, Observer, best_feasible, outcome
 
 ROOT = Path(__file__).resolve().parents[1]

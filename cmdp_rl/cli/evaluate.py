@@ -42,7 +42,8 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from cmdp_rl.config.run_config import ConfigError, EvalConfig, load_eval_config
+from cmdp_rl.config.run_config import ConfigError, EvalConfig
+from cmdp_rl.config.validation import build
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
 from cmdp_rl.report.summary import interval_summary
@@ -80,7 +81,7 @@ def parse_options(argv: list[str]) -> EvalConfig:
         raw = OmegaConf.to_container(OmegaConf.from_dotlist(list(argv)))
     except OmegaConfBaseException as exc:
         raise ConfigError(f"evaluate: cannot parse {argv}: {exc}") from exc
-    return load_eval_config(raw)
+    return build(EvalConfig, raw, "evaluate")
 
 
 def main(argv: list[str] | None = None) -> int:

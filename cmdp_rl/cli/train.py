@@ -1,11 +1,6 @@
-"""Train a constrained-RL agent: ``cmdp-train algo=ppo_lag env=reach1d [overrides]``.
-
-The same command is ``python -m cmdp_rl`` and, in a checkout, ``python train.py``.
-Options are documented in ``configs/`` (shipped in the package, see :data:`cmdp_rl.config.run_config.CONFIG_SOURCE`);
-outputs go to Hydra's run directory. ``resume=<run dir> [total_steps=...]`` continues that run from its
-last checkpoint, in that directory, with the run's own config (see ``cmdp_rl/run/resume.py`` for what may
-change). Sweeps are Hydra multiruns (``-m``), e.g. ``cmdp-train -m +experiment=penalty_sweep``; see
-``configs/experiment/``.
+"""Train a constrained-RL agent: ``cmdp-train algo=ppo_lag env=reach1d [overrides]`` (also ``python -m cmdp_rl`` and,
+in a checkout, ``python train.py``). Options: ``configs/``; outputs: Hydra's run directory. ``resume=<run dir>``
+continues that run in its directory (``cmdp_rl/run/resume.py``); sweeps are Hydra multiruns (``-m``).
 """
 
 from __future__ import annotations
@@ -23,10 +18,10 @@ from cmdp_rl import ConfigError, TrainingDiverged, load_config
 from cmdp_rl.config.run_config import CONFIG_SOURCE
 from cmdp_rl.population.spec import population, population_active
 from cmdp_rl.run.checkpoint import CheckpointError
-from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, resumable
+from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, remove_outputs, resumable
 from cmdp_rl.run.resume import resume_config, resume_population
-from cmdp_rl.run.rundir import POPULATION_CONFIG, RunDirError
-from cmdp_rl.run.sweeps import clear_outputs, record_failure
+from cmdp_rl.run.rundir import ERROR, EVAL, POPULATION_CONFIG, RunDirError
+from cmdp_rl.run.sweeps import record_failure
 from cmdp_rl.run.trainer import train
 
 # How a single run ends on each error (inside a sweep the command raises instead: see _fail).
@@ -112,7 +107,7 @@ def _main(raw: dict, new_dir: str | None) -> None:
         _fail(exc, new_dir)
     try:
         if new_dir is not None:
-            clear_outputs(new_dir)  # an earlier failure's error.txt must not outlive this run
+            remove_outputs(new_dir, (EVAL, ERROR))  # an earlier result or error must not outlive this run
         # A resumed run writes into its own directory, whatever hydra.run.dir says.
         train(run_cfg, new_dir or raw.get("resume"))
     except Exception as exc:  # noqa: BLE001 - every failure is recorded, then handled by _fail

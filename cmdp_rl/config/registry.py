@@ -1,13 +1,6 @@
-"""Components by name: what ``algo=``, ``env=`` and ``policy=`` select.
-
-A component module declares its options dataclass and registers itself when imported::
-
-    register("algo", "ppo", PPOConfig, PPO)
-
-``config.load_config`` builds ``cfg.algo`` from the options class registered under ``algo.name``,
-and the trainer builds the component with the registered factory. Nothing central lists the
-components: :func:`load_builtins` imports every module of ``cmdp_rl.algos``, ``cmdp_rl.envs`` and
-``cmdp_rl.policies``, so a new algorithm, env or policy head is one module (plus its yaml), and a
+"""Components by name: what ``algo=``, ``env=`` and ``policy=`` select. A component module declares its options and
+registers itself when imported (``register("algo", "ppo", PPOConfig, PPO)``); nothing central lists them:
+:func:`load_builtins` imports every module of ``cmdp_rl.algos``, ``cmdp_rl.envs`` and ``cmdp_rl.policies``, and a
 user's own component is one ``register`` call in the user's code.
 """
 
@@ -34,9 +27,8 @@ class Component:
 
 
 _REGISTRY: dict[str, dict[str, Component]] = {k: {} for k in KINDS}
-# The base class whose hooks the toolkit calls on a kind's options (AlgoConfig, EnvOptions), declared
-# by the module that defines it, so that config.validate can check a component against it without
-# importing the algorithms' or envs' packages (they import the config).
+# The base class whose hooks the toolkit calls on a kind's options (AlgoConfig, EnvOptions), declared by the module
+# that defines it, so that config.validate checks against it without importing those packages (they import this).
 _BASES: dict[str, type] = {}
 _loaded = False
 
@@ -88,6 +80,3 @@ def component(kind: str, name: Any) -> Component:
 def names(kind: str) -> list[str]:
     load_builtins()
     return sorted(_REGISTRY[kind])
-
-
-__all__ = ["KINDS", "Component", "component", "load_builtins", "names", "register"]

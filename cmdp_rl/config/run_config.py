@@ -1,10 +1,7 @@
-"""The run-level configuration, and loading: the one place a run's options are put together.
-
-The YAML files under ``configs/`` document every option; Hydra composes them and
-:func:`load_config` turns the result into a :class:`RunConfig`. Each component (``env``, ``algo``,
-``policy``) declares its own options beside its code and registers itself (``cmdp_rl.config.registry``);
-this module picks the options class by name, and :func:`validate` runs the checks every part
-declares. Every error names the field and what is allowed, before a single environment step.
+"""The run-level options (:class:`RunConfig`) and loading, the one place a run's options are put together: Hydra
+composes ``configs/`` (every option documented there), :func:`load_config` builds each component's part from the
+options class registered under its name (``cmdp_rl.config.registry``), and :func:`validate` runs every part's checks.
+Every error names the field and what is allowed, before a single environment step.
 """
 
 from __future__ import annotations
@@ -69,6 +66,8 @@ class LoggerConfig:
 
 @options
 class RunConfig:
+    """A run's options, each documented in configs/config.yaml (the components' in configs/<kind>/<name>.yaml)."""
+
     env: Any = _default("env")  # the options class registered under env.name
     policy: Any = _default("policy")  # ... under policy.name
     algo: Any = _default("algo")  # ... under algo.name
@@ -80,23 +79,13 @@ class RunConfig:
     threads: PositiveInt = 1
     eval_episodes: PositiveInt = 20
     eval_deterministic: Bool = True
-    # The early-terminated MDP: a training episode ends (terminated) at the first step after which a
-    # cost's episode sum exceeds its algo.cost_limit (cmdp_rl/envs/early_termination.py); evaluation
-    # episodes are whole.
-    early_terminate: Bool = False
-    # The policy deployed at the end (evaluated, in eval.json, in evaluate.py, its video and cmdp_rl.load),
-    # and how it is chosen: cmdp_rl/deploy/options.py.
-    deploy: DeployConfig = field(default_factory=DeployConfig)
+    early_terminate: Bool = False  # cmdp_rl/envs/early_termination.py
+    deploy: DeployConfig = field(default_factory=DeployConfig)  # the policy deployed at the end: cmdp_rl/deploy/
     checkpoint_every: PositiveInt = 10
     log_interval: PositiveInt = 5
-    # A run directory to continue from its last checkpoint (see cmdp_rl/run/resume.py); None: a new run.
     resume: Annotated[Optional[str], Field(pattern=r"\S", description="null or a run directory")] = None
-    # A new run into a directory that already holds a run: replace that run's outputs (false: refuse;
-    # cmdp_rl/run/ownership.py).
-    overwrite: Bool = False
-    # Load the resumed run's checkpoint even if it is of an older format that only Python's full
-    # unpickler reads, which runs code from the file (docs/checkpoints.md). Never saved as true.
-    trust_checkpoint: Bool = False
+    overwrite: Bool = False  # cmdp_rl/run/ownership.py
+    trust_checkpoint: Bool = False  # runs code from an old checkpoint (docs/checkpoints.md); never saved as true
     normalize: NormalizeConfig = field(default_factory=NormalizeConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
 
@@ -108,13 +97,15 @@ class RunConfig:
 class EvalConfig:
     """Options of ``cmdp-evaluate`` (``cmdp-evaluate run=<run dir> [key=value ...]``)."""
 
-    run: Optional[str] = None  # the run directory (required)
+    run: Annotated[str, Field(pattern=r"\S", description="a run directory (run=<dir>)")]
     checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
-    episodes: Optional[int] = None  # default: the run's eval_episodes
+    # default: the run's eval_episodes
+    episodes: Annotated[Optional[PositiveInt], Field(description="a positive integer")] = None
     deterministic: Optional[Bool] = None  # mean action; default: the run's eval_deterministic
     seed: Optional[int] = None  # default: the run's evaluation seed (reproduces its eval.json)
-    plot: Optional[str] = None  # Reach1D: write a PNG of replayed episodes to this path
-    plot_episodes: int = 3  # episodes drawn in the PNG
+    # Reach1D: write a PNG of replayed episodes to this path
+    plot: Annotated[Optional[str], Field(pattern=r"(?i)\.png$", description="a path ending in .png")] = None
+    plot_episodes: PositiveInt = 3  # episodes drawn in the PNG
     output: Optional[str] = None  # also write the results as JSON to this path
     video: Bool = False  # write mp4s of the policy (cmdp_rl/report/video.py): Reach1D, the velocity tasks
     video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
@@ -161,31 +152,10 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
     parts: dict[str, Any] = {}
     for kind in KINDS:
         data = dict(raw.pop(kind, {}) or {})
-        options_cls = component(kind, data.get("name", DEFAULTS[kind])).options
-        parts[kind] = build(options_cls, data, kind)
-    nested = {
-        "logger": LoggerConfig,
-        "normalize": NormalizeConfig,
-        "reference": ReferenceConfig,
-        "deploy": DeployConfig,
-    }
-    for name, cls in nested.items():
-        parts[name] = build(cls, dict(raw.pop(name, {}) or {}), name)
-    cfg = build(RunConfig, raw, "")
-    for name, value in parts.items():
-        setattr(cfg, name, value)
+        parts[kind] = build(component(kind, data.get("name", DEFAULTS[kind])).options, data, kind)
+    cfg = build(RunConfig, {**raw, **parts}, "")  # its nested nodes (logger, deploy, ...) built field by field
     validate(cfg)
     apply_threads(cfg)  # as train() does: a script building its own pieces runs as fast (threads.py)
-    return cfg
-
-
-def load_eval_config(raw: Mapping[str, Any]) -> EvalConfig:
-    """Build and check ``evaluate.py``'s options."""
-    cfg = build(EvalConfig, dict(raw), "evaluate")
-    require(bool(cfg.run), "run", "a run directory (run=<dir>)", cfg.run)
-    require(cfg.episodes is None or cfg.episodes >= 1, "episodes", "a positive integer", cfg.episodes)
-    require(cfg.plot_episodes >= 1, "plot_episodes", "a positive integer", cfg.plot_episodes)
-    require(cfg.plot is None or cfg.plot.lower().endswith(".png"), "plot", "a path ending in .png", cfg.plot)
     return cfg
 
 
@@ -201,17 +171,12 @@ def flatten_dict(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def resolve_auto(cfg: RunConfig) -> None:
-    """Replace the ``"auto"`` batch-shape options by numbers that follow ``env.num_envs``.
-
-    A few envs (the gymnasium default of 8) want long rollouts and many passes over a small batch;
-    a thousand batched envs want short rollouts and one pass over a large one, as in massively
-    parallel PPO (Rudin et al., 2022, "Learning to Walk in Minutes Using Massively Parallel Deep RL").
-    The rules keep what the gym default does at N <= 8 exactly and scale from there:
-    ``rollout_steps`` = 2048 / N, within [32, 256]: 256 for N <= 8, 32 for N >= 64; the algorithm
-    resolves its own ``"auto"`` options from the batch (e.g. ``PPOConfig.resolve_auto``).
-    Numbers given in the config are kept. ``deploy.policy: auto`` becomes ``mixture`` or ``last``
-    (``cmdp_rl/deploy/options.py``). Works in place; called by :func:`validate`.
-    """
+    """Replace the ``"auto"`` batch-shape options by numbers that follow ``env.num_envs``, in place (numbers given
+    are kept). A few envs want long rollouts and many passes over a small batch, a thousand batched envs short
+    rollouts and one pass over a large one, as in massively parallel PPO (Rudin et al., 2022, "Learning to Walk in
+    Minutes Using Massively Parallel Deep RL"): ``rollout_steps`` = 2048 / N within [32, 256], the gym default's 256
+    at N <= 8; the algorithm resolves its own (``PPOConfig.resolve_auto``), ``deploy.policy: auto`` becomes
+    ``mixture`` or ``last`` (``cmdp_rl/deploy/options.py``)."""
     if cfg.rollout_steps == AUTO:
         auto = cfg.algo.auto_rollout_steps(cfg)  # an off-policy algorithm's few steps
         cfg.rollout_steps = auto if auto is not None else min(256, max(32, 2048 // cfg.env.num_envs))
@@ -249,9 +214,7 @@ def validate(cfg: RunConfig) -> None:
             type(part).__name__,
         )
         recheck(part, kind)
-    for name in ("logger", "normalize", "reference", "deploy"):
-        recheck(getattr(cfg, name), name)
-    recheck(cfg, "")
+    recheck(cfg, "")  # and its nested nodes, each under its own name
     envs = cfg.algo.envs  # an algorithm that trains on some envs only (AlgoConfig.envs)
     require(
         envs is None or cfg.env.name in envs,
@@ -262,7 +225,8 @@ def validate(cfg: RunConfig) -> None:
     resolve_budget(cfg)
     resolve_auto(cfg)
     for kind in KINDS:
-        getattr(cfg, kind).check(cfg) if hasattr(getattr(cfg, kind), "check") else None
+        if hasattr(getattr(cfg, kind), "check"):
+            getattr(cfg, kind).check(cfg)
     if cfg.device == "cuda":
         import torch
 
@@ -271,37 +235,11 @@ def validate(cfg: RunConfig) -> None:
         raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
     if cfg.logger.name == "wandb" and importlib.util.find_spec("wandb") is None:
         raise ConfigError(f"logger.name: {WANDB_MISSING}")
-    _validate_normalize(cfg)
-    cfg.deploy.check(cfg)
-    cfg.reference.check(cfg)
-
-
-def _validate_normalize(cfg: RunConfig) -> None:
     require(
         not (cfg.normalize.cost and cfg.algo.reads_raw_cost),
         "normalize.cost",
         f"false with algo={cfg.algo.name} (it reads costs in their own units)",
         cfg.normalize.cost,
     )
-
-
-__all__ = [
-    "AUTO",
-    "CONFIG_DIR",
-    "CONFIG_SOURCE",
-    "ConfigError",
-    "DeployConfig",
-    "EvalConfig",
-    "LoggerConfig",
-    "NormalizeConfig",
-    "ReferenceConfig",
-    "RunConfig",
-    "budget_source",
-    "compose_config",
-    "flatten_dict",
-    "load_config",
-    "load_eval_config",
-    "resolve_auto",
-    "resolve_budget",
-    "validate",
-]
+    cfg.deploy.check(cfg)
+    cfg.reference.check(cfg)

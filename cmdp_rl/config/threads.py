@@ -1,8 +1,5 @@
-"""torch's intra-op thread count, from the run config's ``threads``.
-
-torch's default is one thread per core; for this toolkit's small networks that oversubscribes the
-cores as soon as anything else runs beside it (docs/guide/design.md). ``load_config`` applies it, so
-a script that builds its pieces from a loaded config runs as ``train.py`` does."""
+"""torch's intra-op thread count from the run config's ``threads``: torch's default of one per core oversubscribes
+the cores for this toolkit's small networks as soon as anything runs beside it (docs/guide/design.md)."""
 
 from __future__ import annotations
 

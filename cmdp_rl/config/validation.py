@@ -1,13 +1,9 @@
 """Declared config constraints, and the one-line error a violated one gives.
 
-Every component (an algorithm, an env, a policy head) declares its options as a :func:`options`
-dataclass beside its code, with each field's allowed range in its type annotation, e.g.
-``gamma: Annotated[float, Field(ge=0, lt=1)] = 0.99``. pydantic checks types and ranges; this module
-only turns pydantic's report into the toolkit's one line, which names the field and everything it
-allows (``algo.gamma must be in [0, 1), got 1.0``) rather than the one bound that failed.
-
-Rules that relate several fields stay in the component, as a ``check(self, run)`` method that calls
-:func:`require` (see ``config.validate``).
+A component declares its options as an :func:`options` dataclass beside its code, each field's allowed range in
+its type (``gamma: Annotated[float, Field(ge=0, lt=1)] = 0.99``). pydantic checks them; this module turns its report
+into one line naming the field and everything it allows (``algo.gamma must be in [0, 1), got 1.0``), not the one
+bound that failed. A rule across fields is the component's ``check(self, run)``, calling :func:`require`.
 """
 
 from __future__ import annotations
@@ -16,7 +12,6 @@ import dataclasses
 import math
 from typing import Annotated, Any, Literal, Mapping, Sequence, TypeVar, Union, get_args, get_origin
 
-import annotated_types as at
 from pydantic import ConfigDict, Field, StrictBool, ValidationError
 from pydantic.dataclasses import dataclass as _pydantic_dataclass
 
@@ -77,33 +72,26 @@ def _describe(annotation: Any, metadata: list) -> str:
     if origin is list:
         (item,) = get_args(annotation) or (Any,)
         return f"a list of {_describe(item, []).removeprefix('a ').removeprefix('an ')}s"
-    bounds = {}
-    for m in metadata:
-        for name in ("ge", "gt", "le", "lt"):
-            if isinstance(m, getattr(at, name.capitalize())):
-                bounds[name] = getattr(m, name)
-        if isinstance(m, at.Interval):
-            bounds.update({k: v for k, v in vars(m).items() if v is not None})
+    # annotated_types' Ge, Gt, Le, Lt and Interval, each holding its bound under its own name
+    bounds = {k: getattr(m, k) for m in metadata for k in ("ge", "gt", "le", "lt") if getattr(m, k, None) is not None}
     if hasattr(annotation, "__pydantic_fields__"):  # a nested node (build's _nodes)
         return f"a mapping of its options ({', '.join(annotation.__pydantic_fields__)})"
     if annotation is bool:
         return "true or false"
     if annotation is str:
         return "a string"
-    noun = {int: "integer", float: "number"}.get(annotation)
+    noun = {int: "an integer", float: "a number"}.get(annotation)
     if noun is None:
         return f"a {getattr(annotation, '__name__', annotation)}"
     lo = ("[", bounds["ge"]) if "ge" in bounds else ("(", bounds["gt"]) if "gt" in bounds else None
     hi = (bounds["le"], "]") if "le" in bounds else (bounds["lt"], ")") if "lt" in bounds else None
     if lo and hi:
         return f"in {lo[0]}{_fmt(lo[1])}, {_fmt(hi[0])}{hi[1]}"
+    if lo == ("(", 0) or (annotation is int and lo == ("[", 1)):
+        return f"a positive {noun.split()[1]}"
     if lo:
-        if (lo == ("(", 0)) or (noun == "integer" and lo == ("[", 1)):
-            return f"a positive {noun}"
-        return f"a{'n' if noun == 'integer' else ''} {noun} {'>=' if lo[0] == '[' else '>'} {_fmt(lo[1])}"
-    if hi:
-        return f"a{'n' if noun == 'integer' else ''} {noun} {'<=' if hi[1] == ']' else '<'} {_fmt(hi[0])}"
-    return f"a{'n' if noun == 'integer' else ''} {noun}"
+        return f"{noun} {'>=' if lo[0] == '[' else '>'} {_fmt(lo[1])}"
+    return f"{noun} {'<=' if hi[1] == ']' else '<'} {_fmt(hi[0])}" if hi else noun
 
 
 def allowed(cls: type, name: str) -> str:
@@ -188,26 +176,3 @@ def per_constraint(value: float | Sequence[float], field: str, cost_names: Seque
         values,
     )
     return [float(v) for v in values]
-
-
-__all__ = [
-    "AUTO",
-    "AutoInt",
-    "Bool",
-    "ConfigError",
-    "Discount",
-    "Field",
-    "NonNegativeFloat",
-    "NonNegativeInt",
-    "PositiveFloat",
-    "PositiveInt",
-    "UnitOpen",
-    "allowed",
-    "build",
-    "finite",
-    "is_finite",
-    "options",
-    "per_constraint",
-    "recheck",
-    "require",
-]

@@ -1,21 +1,11 @@
-"""The deployed policy of ``deploy.policy: average``: the uniform (Polyak-Ruppert) average of the
-actor's parameters over the last ``deploy.window`` fraction of the training iterations.
-
-Why an average at all: a Lagrangian method's guarantees are for the average of its iterates
-(the policy and lambda orbit the saddle point; the last iterate is wherever the orbit ends). Why
-of the parameters, rather than a mixture of the last M actors with one drawn per episode (whose
-occupancy measure is exactly the average of theirs): the average is one network of the same
-architecture, so every consumer of a trained agent (the evaluation, evaluate.py, the Reach1D plot,
-the video, a deterministic evaluation, a recurrent policy's carried state) runs it unchanged, and
-the checkpoint grows by one actor instead of M. The price: near a randomised optimum the iterates
-differ mostly in the few logits that pick between the mixed actions, and averaging those logits
-gives a policy between the iterates' choices, not their exact mixture (docs/constraint_satisfaction.md
-measures how close it ends). Buffers (none in the toolkit's actors today) are the last iterate's.
-"""
+"""The deployed policy of ``deploy.policy: average``: the uniform (Polyak-Ruppert) average of the actor's
+parameters over the last ``deploy.window`` of the iterations: one network any consumer runs unchanged, but near a
+randomised optimum a policy between the iterates' choices, not their mixture (docs/constraint_satisfaction.md)."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import nn
@@ -27,50 +17,39 @@ def first_averaged_iteration(iterations: int, window: float) -> int:
 
 
 def deployed(result: dict) -> str:
-    """Which policy an evaluation ran, from its ``final_policy`` (the run's ``deploy.policy``),
-    ``averaged_iterations`` and ``mixture_iterations`` keys (a result from before they existed: the last iterate)."""
-    if result.get("final_policy") == "mixture" and result.get("mixture_deployed"):
-        chosen = ", ".join(f"iteration {int(it)} ({w:.2f})" for it, w in result["mixture_deployed"])
+    """Which policy an evaluation ran, from its ``final_policy`` and ``averaged_iterations`` and ``mixture_*`` keys."""
+    policy, n = result.get("final_policy", "last"), result.get("averaged_iterations")
+    chosen = result.get("mixture_deployed") if policy == "mixture" else None
+    if chosen:
         margin = f", costs + {result['mixture_margin']:g} standard errors" if "mixture_margin" in result else ""
-        within = (
-            f"within budget on their values{margin}"
-            if result.get("mixture_feasible")
-            else "none within budget: the least violating"
-        )
-        if len(result["mixture_deployed"]) == 1:
-            which = (
-                f"the best within budget{margin}"
-                if result.get("mixture_feasible")
-                else "none within budget: the least violating"
-            )
-            return (
-                f"deployed policy: iteration {int(result['mixture_deployed'][0][0])}'s actor, of "
-                f"{result.get('averaged_iterations')} snapshots valued ({which} on their values)"
-            )
-        return (
-            f"deployed policy: a weighted mixture of {result.get('averaged_iterations')} iterates' actors "
-            f"({within}): {chosen}, one drawn per episode"
-        )
-    if result.get("final_policy") == "mixture":
-        return (
-            f"deployed policy: a uniform mixture of {result.get('averaged_iterations')} iterates' actors "
-            f"(iterations {result.get('mixture_iterations')}), one drawn per episode"
-        )
-    if result.get("final_policy", "last") == "average":
-        return f"deployed policy: the average of the last {result.get('averaged_iterations')} iterates' parameters"
+        feasible = result.get("mixture_feasible")
+        if len(chosen) == 1:
+            which = f"the best within budget{margin}" if feasible else "none within budget: the least violating"
+            which = f"{n} snapshots valued ({which} on their values)"
+            return f"deployed policy: iteration {int(chosen[0][0])}'s actor, of {which}"
+        within = f"within budget on their values{margin}" if feasible else "none within budget: the least violating"
+        pairs = ", ".join(f"iteration {int(it)} ({w:.2f})" for it, w in chosen)
+        return f"deployed policy: a weighted mixture of {n} iterates' actors ({within}): {pairs}, one drawn per episode"
+    if policy == "mixture":
+        iterations = f"iterations {result.get('mixture_iterations')}"
+        return f"deployed policy: a uniform mixture of {n} iterates' actors ({iterations}), one drawn per episode"
+    if policy == "average":
+        return f"deployed policy: the average of the last {n} iterates' parameters"
     return "deployed policy: the last iterate"
 
 
 class ParameterAverage:
-    """Running mean of a module's parameters, one sample per :meth:`update`. Its state holds plain
-    tensors and an int, so a checkpoint with it loads with ``torch.load(weights_only=True)``."""
+    """Running mean of a module's parameters, one sample per :meth:`update` (plain tensors and an int)."""
 
-    def __init__(self) -> None:
-        self.count = 0
+    def __init__(self, first_iteration: int = 1) -> None:
+        self.first_iteration, self.count = first_iteration, 0
         self.mean: dict[str, torch.Tensor] = {}
 
+    def wants(self, iteration: int) -> bool:
+        return iteration >= self.first_iteration
+
     @torch.no_grad()
-    def update(self, module: nn.Module) -> None:
+    def update(self, module: nn.Module, iteration: int | None = None) -> None:
         self.count += 1
         for name, p in module.named_parameters():
             if name not in self.mean:
@@ -85,8 +64,12 @@ class ParameterAverage:
             if name in self.mean:
                 p.copy_(self.mean[name])
 
+    def deploy(self, agent: Any) -> None:
+        self.apply(agent.actor)
+
     def state_dict(self) -> dict:
-        return {"count": self.count, "mean": {k: v.clone() for k, v in self.mean.items()}}
+        mean = {k: v.clone() for k, v in self.mean.items()}
+        return {"first_iteration": self.first_iteration, "count": self.count, "mean": mean}
 
     def load_state_dict(self, state: dict) -> None:
         self.count = int(state["count"])

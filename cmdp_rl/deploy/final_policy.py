@@ -1,9 +1,5 @@
-"""What a run deploys (``deploy.policy``; the node's options in ``options.py``), kept beside its training:
-the last iterate, the average of the actor's parameters over the last iterations (``average.py``) or a
-mixture of snapshots of the actor (``mixture.py``). One per run, and one per agent of a population, each
-on its own single-run agent, so both deploy by the same code; :func:`deploy_saved` puts the same policy
-back from a checkpoint (evaluate, video, ``cmdp_rl.load``).
-"""
+"""What a run (or population agent) deploys, kept beside its training: the last iterate, the parameter average
+(``average.py``) or a mixture of snapshots (``mixture.py``); :func:`deploy_saved` puts it back from a checkpoint."""
 
 from __future__ import annotations
 
@@ -15,76 +11,60 @@ from cmdp_rl.deploy.mixture import IterateSnapshots
 from cmdp_rl.deploy.selection import choose_weights
 from cmdp_rl.policies.agent import Agent
 
+# The checkpoint's entry of each deployed policy that keeps something, and what the entry holds.
+ENTRIES = {"average": ("policy_average", "averaged policy"), "mixture": ("policy_mixture", "policy mixture")}
+
 
 class FinalPolicy:
-    """``cfg.deploy.policy`` over a run of ``iterations``, continuing what ``saved`` (a checkpoint's
-    entry) holds of it."""
+    """``cfg.deploy.policy`` over a run of ``iterations``, continuing a checkpoint entry's ``saved``."""
 
     def __init__(self, cfg: RunConfig, iterations: int, saved: dict[str, Any] | None = None) -> None:
         self.cfg, self.iterations = cfg, iterations
-        self.first = first_averaged_iteration(iterations, cfg.deploy.window)
-        self.average = ParameterAverage() if cfg.deploy.policy == "average" else None
-        previous = (saved or {}).get("policy_average")
-        # (a resume that moved the window, e.g. more total_steps, restarts it)
-        if self.average is not None and previous is not None and previous["first_iteration"] == self.first:
-            self.average.load_state_dict(previous)
-        self.mixture = None
-        if cfg.deploy.policy == "mixture":
-            self.mixture = IterateSnapshots(self.first, iterations, cfg.deploy.snapshots)
-            if (saved or {}).get("policy_mixture") is not None:
-                self.mixture.adopt(saved["policy_mixture"])
-
-    @property
-    def kept(self) -> ParameterAverage | IterateSnapshots | None:
-        """What ``eval.json`` describes the deployed policy from (``trainer.complete_result``)."""
-        return self.average or self.mixture
+        first = first_averaged_iteration(iterations, cfg.deploy.window)
+        previous = (saved or {}).get(ENTRIES.get(cfg.deploy.policy, ("",))[0])
+        self.kept: ParameterAverage | IterateSnapshots | None = None  # what eval.json describes it from
+        if cfg.deploy.policy == "average":
+            self.kept = ParameterAverage(first)
+            # (a resume that moved the window, e.g. more total_steps, restarts it)
+            if previous is not None and previous["first_iteration"] == first:
+                self.kept.load_state_dict(previous)
+        elif cfg.deploy.policy == "mixture":
+            self.kept = IterateSnapshots(first, iterations, cfg.deploy.snapshots)
+            if previous is not None:
+                self.kept.adopt(previous)
 
     def wants(self, iteration: int) -> bool:
         """Whether :meth:`after_update` reads the actor after this iteration's update."""
-        return (self.average is not None and iteration >= self.first) or (
-            self.mixture is not None and self.mixture.wants(iteration)
-        )
+        return self.kept is not None and self.kept.wants(iteration)
 
     def after_update(self, agent: Agent, iteration: int, names: Sequence[str], echo: Callable[[str], None]) -> None:
-        if self.average is not None and iteration >= self.first:
-            self.average.update(agent.actor)
-        if self.mixture is not None and self.mixture.wants(iteration):
-            self.mixture.update(agent.actor, iteration)
-            if iteration == self.iterations and self.cfg.deploy.weights == "feasible":  # before the last checkpoint
-                echo(choose_weights(self.mixture, agent, self.cfg, names))
+        if not self.wants(iteration):
+            return
+        self.kept.update(agent.actor, iteration)
+        last = iteration == self.iterations and self.cfg.deploy.weights == "feasible"  # before the last checkpoint
+        if isinstance(self.kept, IterateSnapshots) and last:
+            echo(choose_weights(self.kept, agent, self.cfg, names))
 
     def state_dict(self) -> dict[str, Any]:
         """The checkpoint's entries for it (none for the last iterate)."""
-        out = {}
-        if self.average is not None:
-            out["policy_average"] = {"first_iteration": self.first, **self.average.state_dict()}
-        if self.mixture is not None:
-            out["policy_mixture"] = self.mixture.state_dict()
-        return out
+        return {} if self.kept is None else {ENTRIES[self.cfg.deploy.policy][0]: self.kept.state_dict()}
 
     def deploy(self, agent: Agent) -> None:
         """Put the deployed policy into ``agent`` (a checkpoint keeps the last iterate to resume from)."""
-        if self.average is not None:
-            self.average.apply(agent.actor)
-        if self.mixture is not None:
-            self.mixture.deploy(agent)
+        if self.kept is not None:
+            self.kept.deploy(agent)
 
 
 def deploy_saved(cfg: RunConfig, state: dict[str, Any], agent: Agent) -> None:
-    """Put into ``agent`` (holding the checkpoint's last iterate) the policy the run deployed, from the
-    checkpoint ``state``'s entries for it; a ValueError names what the checkpoint lacks."""
-    if cfg.deploy.policy == "average":
-        if "policy_average" not in state:
-            raise ValueError("the checkpoint has no averaged policy, but the run has deploy.policy=average")
-        average = ParameterAverage()
-        average.load_state_dict(state["policy_average"])
-        average.apply(agent.actor)
-    if cfg.deploy.policy == "mixture":
-        if "policy_mixture" not in state:
-            raise ValueError("the checkpoint has no policy mixture, but the run has deploy.policy=mixture")
-        mixture = IterateSnapshots(1, 1, 1)
-        mixture.load_state_dict(state["policy_mixture"])
-        mixture.deploy(agent)
+    """Put into ``agent`` (the checkpoint's last iterate) the policy the run deployed, from ``state``."""
+    if cfg.deploy.policy not in ENTRIES:
+        return
+    key, what = ENTRIES[cfg.deploy.policy]
+    if key not in state:
+        raise ValueError(f"the checkpoint has no {what}, but the run has deploy.policy={cfg.deploy.policy}")
+    kept = ParameterAverage() if cfg.deploy.policy == "average" else IterateSnapshots(1, 1, 1)
+    kept.load_state_dict(state[key])
+    kept.deploy(agent)
 
 
 __all__ = ["FinalPolicy", "deploy_saved"]

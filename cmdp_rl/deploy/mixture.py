@@ -1,24 +1,8 @@
-"""The deployed policy of ``deploy.policy: mixture``: a uniform mixture of snapshots of the actor
-taken over the last ``deploy.window`` fraction of the iterations (at most ``deploy.snapshots`` of
-them), one snapshot drawn per EPISODE and followed until the episode ends.
-
-Why a mixture drawn per episode: the guarantees of primal-dual (Lagrangian) methods are for the
-average of the iterates' occupancy measures, and a policy that draws iterate i with probability
-1/M at the start of an episode and follows it has exactly that occupancy, so its expected return
-and costs are the mean of the iterates' (Le, Voloshin, Yue, "Batch policy learning under
-constraints", ICML 2019, Sec. 3-4: the returned policy is the uniform mixture of the iterates;
-Calvo-Fullana, Paternain, Ribeiro, Chamon, IEEE TAC 2023, Sec. III: the last iterate of a
-primal-dual method need not be feasible, its iterates' mixture is). Drawing per step instead would
-mix the actions, which is a different (and generally not averaged) policy. A parameter average
-(``policy_average.py``) is one network, but near a randomised optimum it is a policy between the
-iterates, not their mixture.
-
-The draw is a carried state of the actor's body (``keys.MIXTURE_MEMBER``): on an episode's first
-step (``is_init``) each env row draws a member from torch's generator (the evaluation seeds it) and
-keeps it until its episode ends, as a recurrent state is kept. So the collector, the evaluation,
-``evaluate.py``, the Reach1D plot and the video run a mixture unchanged. Its members are memoryless
-actors (``policy=mlp``; config.py refuses the others, whose own states would collide).
-"""
+"""The deployed policy of ``deploy.policy: mixture``: at most ``deploy.snapshots`` snapshots of the actor over
+the last ``deploy.window`` of the iterations, one drawn per EPISODE and followed until it ends, whose occupancy
+is the iterates' average, what a primal-dual method's guarantees are about (docs/constraint_satisfaction.md).
+The draw is a carried state of the actor's body (``keys.MIXTURE_MEMBER``), drawn where ``is_init``, so
+everything that runs an agent runs a mixture unchanged; its members are memoryless (``policy=mlp``)."""
 
 from __future__ import annotations
 
@@ -33,17 +17,14 @@ from cmdp_rl.rollout import keys
 
 
 class IterateSnapshots:
-    """Copies of the actor's state taken every ``stride`` iterations, ending with the last: with a
-    window of W iterations and at most ``size`` members, ``stride = ceil(W / size)``. Its state is
-    plain tensors and ints, so a checkpoint with it loads with ``torch.load(weights_only=True)``."""
+    """The actor's state every ``stride = ceil(W / size)`` iterations of a window of W, ending with the last."""
 
     def __init__(self, first_iteration: int, iterations: int, size: int) -> None:
         self.first_iteration, self.iterations = first_iteration, iterations
         self.stride = math.ceil((iterations - first_iteration + 1) / size)
         self.taken: list[int] = []
         self.members: list[dict[str, torch.Tensor]] = []
-        # deploy.weights=feasible: each member's weight and measured value (mixture_selection.py);
-        # None: a uniform mixture.
+        # deploy.weights=feasible: each member's weight and measured value (selection.py); None: uniform.
         self.weights: list[float] | None = None
         self.values: list[dict] | None = None
         self.feasible: bool | None = None
@@ -62,15 +43,9 @@ class IterateSnapshots:
         self.taken.append(iteration)
         self.members.append({k: v.detach().clone() for k, v in module.state_dict().items()})
 
-    def matches(self, state: dict) -> bool:
-        """Whether a saved state was taken on this window and stride (a resume may have moved them)."""
-        return (state["first_iteration"], state["stride"]) == (self.first_iteration, self.stride)
-
     def adopt(self, state: dict) -> None:
-        """Resume from a saved state: all of it on the same window, else the saved snapshots that
-        this window's schedule also takes (a run extended with more total_steps keeps the ones
-        that still count); weights chosen at the saved run's end are dropped unless nothing moved."""
-        if self.matches(state):
+        """Resume from a saved state; on a moved window, only the snapshots this window also takes, unweighted."""
+        if (state["first_iteration"], state["stride"]) == (self.first_iteration, self.stride):
             self.load_state_dict(state)
             return
         kept = [(it, m) for it, m in zip(state["taken"], state["members"]) if self.wants(int(it))]
@@ -78,15 +53,9 @@ class IterateSnapshots:
         self.members = [{k: v.clone() for k, v in m.items()} for _, m in kept]
 
     def state_dict(self) -> dict:
-        return {
-            "first_iteration": self.first_iteration,
-            "stride": self.stride,
-            "taken": list(self.taken),
-            "members": [{k: v.clone() for k, v in m.items()} for m in self.members],
-            "weights": self.weights,
-            "values": self.values,
-            "feasible": self.feasible,
-        }
+        members = [{k: v.clone() for k, v in m.items()} for m in self.members]
+        out = dict(first_iteration=self.first_iteration, stride=self.stride, taken=list(self.taken), members=members)
+        return out | dict(weights=self.weights, values=self.values, feasible=self.feasible)
 
     def load_state_dict(self, state: dict) -> None:
         self.taken = [int(i) for i in state["taken"]]
@@ -95,8 +64,7 @@ class IterateSnapshots:
         self.values, self.feasible = state.get("values"), state.get("feasible")
 
     def result_keys(self, weighting: str) -> dict:
-        """What ``eval.json`` records of the deployed mixture: the snapshots' iterations, and with
-        chosen weights the deployed (iteration, weight) pairs, feasibility and every snapshot's values."""
+        """What ``eval.json`` records of the deployed mixture (its iterations; weights, feasibility, values)."""
         out = {"mixture_iterations": list(self.taken), "mixture_weights": weighting}
         if self.weights is not None:
             out.update(
@@ -129,14 +97,13 @@ class IterateSnapshots:
         actors = self.actors(agent.actor)
         if self.weights is None:
             agent.actor = mixture_actor(actors)
-        else:  # only the members with weight: at most K + 1 of them (mixture_selection.py)
+        else:  # only the members with weight: at most K + 1 of them (selection.py)
             chosen = [(a, w) for a, w in zip(actors, self.weights) if w > 0]
             agent.actor = mixture_actor([a for a, _ in chosen], [w for _, w in chosen])
 
 
 class MixtureBody(Body):
-    """Runs every member actor on the step and keeps, per row, the distribution parameters of the
-    row's member (``keys.MIXTURE_MEMBER``, drawn afresh where ``is_init``)."""
+    """Runs the member actors and keeps each row's member's parameters (``keys.MIXTURE_MEMBER``)."""
 
     state_keys = (keys.MIXTURE_MEMBER,)
 
@@ -149,7 +116,7 @@ class MixtureBody(Body):
         self.members = nn.ModuleList(members)
         # Not buffers: the mixture is rebuilt from its snapshots, never loaded from a state dict.
         self.weights = None if weights is None else torch.tensor(weights, dtype=torch.float64)
-        # A fixed member per env row instead of a draw: every member valued in one batch (mixture_selection.py).
+        # A fixed member per env row instead of a draw: every member valued in one batch (selection.py).
         self.assigned = assigned
         seen = dict.fromkeys(k for m in members for k in m.body.in_keys)
         self.in_keys = list({**seen, keys.IS_INIT: None, keys.MIXTURE_MEMBER: None})
@@ -193,27 +160,15 @@ def _grid(member: torch.Tensor) -> tuple[torch.Tensor, ...]:
     return torch.meshgrid(*[torch.arange(s, device=member.device) for s in member.shape], indexing="ij")
 
 
-class _Chosen(nn.Module):
-    """The mixture's head: the body already gives the chosen member's parameters; their
-    distribution is the members' own (every member has the same head)."""
-
-    def __init__(self, head: nn.Module) -> None:
-        super().__init__()
-        self._dist = head.dist  # a bound method, not a second registration of the member's head
-
-    def forward(self, params: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return params
-
-    def dist(self, params: dict[str, torch.Tensor]) -> torch.distributions.Distribution:
-        return self._dist(params)
-
-
 def mixture_actor(
     members: list[Actor], weights: list[float] | None = None, assigned: torch.Tensor | None = None
 ) -> Actor:
-    """An actor that draws one of ``members`` per episode (uniformly, or with ``weights``) and
-    follows it; with ``assigned`` (a member index per env row) each row always acts with its own."""
-    return Actor(MixtureBody(members, weights, assigned), _Chosen(members[0].head))
+    """An actor drawing one of ``members`` per episode (with ``weights``), or each row's ``assigned`` one."""
+    # The body gives the chosen member's parameters; the distribution is the members' own (a bound method:
+    # not a second registration of the member's head).
+    head = nn.Identity()
+    head.dist = members[0].head.dist
+    return Actor(MixtureBody(members, weights, assigned), head)
 
 
 def members_of(actor: Actor) -> list[Actor]:

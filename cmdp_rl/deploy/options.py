@@ -1,10 +1,5 @@
-"""The ``deploy:`` node: which policy a run hands back at its end, and how it is chosen.
-
-One node for every consumer of the deployed policy: the end of training (``final_policy.FinalPolicy``),
-a checkpoint loaded again (``final_policy.deploy_saved``: evaluate, video, ``cmdp_rl.load``) and the
-snapshot valuation (``selection.py``, within :func:`valuation_plan`'s share of the run). The run config
-holds it as ``RunConfig.deploy``; :func:`resolve_auto` turns ``policy: auto`` into what the run deploys.
-"""
+"""The ``deploy:`` node (``RunConfig.deploy``): which policy a run hands back, read by ``final_policy.py`` and
+``selection.py``; :func:`resolve_auto` turns ``policy: auto`` into what the run deploys."""
 
 from __future__ import annotations
 
@@ -17,10 +12,8 @@ RunConfig = Any  # cmdp_rl.config.run_config.RunConfig, which imports this modul
 
 @options
 class DeployConfig:
-    """``deploy:`` (configs/config.yaml documents each field): the last iterate, the average of the actor's
-    parameters over the last ``window`` of the iterations (``average.py``), or a mixture of at most
-    ``snapshots`` snapshots of the actor over that window, one drawn per episode (``mixture.py``), weighted
-    uniformly or as the best mixture within every budget on their measured values (``selection.py``)."""
+    """``deploy:`` (configs/config.yaml documents each field): the last iterate, the parameter average
+    (``average.py``) or a mixture of snapshots (``mixture.py``), weighted uniformly or by ``selection.py``."""
 
     policy: Literal["auto", "last", "average", "mixture"] = "auto"
     window: Annotated[float, finite(gt=0, le=1)] = 0.5
@@ -40,19 +33,16 @@ class DeployConfig:
 
 
 # The snapshot valuation's price where episodes are not declared cheap: at most this share of the run's env
-# steps, spent on at least MIN_VALUED_EPISODES episodes per snapshot valued (fewer snapshots rather than
-# fewer episodes each: a cost measured on a handful of episodes has a standard error of the budget's order
-# on the navigation tasks, and the margin then rules every snapshot out). A run too short to give one
-# snapshot that many deploys its last iterate. The share is what the issue of deployment on any env
-# allows to be "bounded and stated"; 10% keeps the valuation below the measurement noise of a run's time.
+# steps, on at least MIN_VALUED_EPISODES episodes per snapshot (fewer snapshots rather than fewer episodes: a
+# cost measured on a handful has a standard error of the budget's order on the navigation tasks, and the
+# margin then rules every snapshot out). A run too short for one such snapshot deploys its last iterate.
 VALUATION_SHARE = 0.1
 MIN_VALUED_EPISODES = 20
 
 
 def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
-    """(snapshots, episodes each) of ``deploy.policy: auto``'s mixture on an env not declared cheap to value,
-    within :data:`VALUATION_SHARE` of ``total_steps``; None where the share does not buy one snapshot
-    :data:`MIN_VALUED_EPISODES` episodes, or the env's episode length is unknown."""
+    """(snapshots, episodes each) of ``auto``'s mixture within :data:`VALUATION_SHARE` of ``total_steps`` where
+    episodes are not declared cheap; None where that buys no snapshot :data:`MIN_VALUED_EPISODES` episodes."""
     steps = cfg.env.episode_steps()
     if not steps:
         return None
@@ -64,10 +54,8 @@ def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
 
 
 def resolve_auto(cfg: RunConfig) -> None:
-    """``deploy.policy: auto`` becomes ``mixture`` for a primal-dual algorithm (``AlgoConfig.deploys``)
-    with a memoryless policy, where the env's episodes are cheap to value (``EnvOptions.values_snapshots``)
-    or :func:`valuation_plan` buys a valuation (whose snapshots and episodes it then sets), else ``last``.
-    A policy given in the config is kept, with its numbers. Works in place."""
+    """``deploy.policy: auto`` becomes ``mixture`` for a primal-dual algorithm with a memoryless policy where the
+    env's episodes are cheap to value or :func:`valuation_plan` buys a valuation (setting it), else ``last``."""
     deploy = cfg.deploy
     if deploy.policy != AUTO:
         return

@@ -1,12 +1,6 @@
 """The deployed policy as a user acts with it: ``cmdp_rl.load(run_dir).predict(obs)``, Stable-Baselines3's
-convention (``predict(observation, state, episode_start, deterministic) -> (action, state)``).
-
-It wraps the run's agent with the deployed actor already in place (deploy/final_policy.py: the last iterate,
-the average or the mixture) and carries between calls what the collector carries between steps
-(rollout/collector.PolicyMemory): a recurrent state, a transformer's window, the previous action and cost, a
-mixture's member for the episode. ``predict`` reads numpy or torch observations, one ``[obs_dim]`` or a batch
-``[n, obs_dim]``, and answers in kind.
-"""
+``predict(observation, state, episode_start, deterministic) -> (action, state)``, carrying between calls what the
+collector carries between steps; numpy or torch observations, ``[obs_dim]`` or ``[n, obs_dim]``, answered in kind."""
 
 from __future__ import annotations
 
@@ -21,8 +15,7 @@ from cmdp_rl.rollout.collector import PolicyMemory
 
 
 class DeployedPolicy:
-    """``agent`` (holding the deployed actor) acting on observations of an env with ``action_space`` and
-    ``num_costs`` costs. ``cfg`` is the run's config (what it trained and deployed)."""
+    """``agent`` (holding the deployed actor) acting on an env with ``action_space`` and ``num_costs`` costs."""
 
     def __init__(self, agent: Agent, action_space: Any, num_costs: int, cfg: Any = None) -> None:
         self.agent, self.action_space, self.num_costs, self.cfg = agent.eval(), action_space, num_costs, cfg
@@ -42,9 +35,8 @@ class DeployedPolicy:
         deterministic: bool = True,
         cost: Any = None,
     ) -> tuple[np.ndarray, dict]:
-        """The action for ``observation`` and the state to pass with the next call. ``state=None`` starts
-        every env's episode; ``episode_start`` (a bool per env) starts some of them again. ``cost`` is the
-        cost vector the previous action incurred, needed only by a policy that reads it."""
+        """The action and the state for the next call: ``state=None`` or ``episode_start`` (per env) start
+        episodes; ``cost``: the previous action's costs, for a policy that reads them."""
         single = np.ndim(observation) == 1
         obs = torch.as_tensor(np.asarray(observation), dtype=torch.float32, device=self.device)
         obs = obs.unsqueeze(0) if single else obs
@@ -57,11 +49,8 @@ class DeployedPolicy:
             if memory.prev_cost and cost is None:
                 raise ValueError("predict: this policy reads the previous step's cost: pass cost=[n, K] (or [K])")
             step_cost = torch.zeros(n, self.num_costs) if cost is None else torch.as_tensor(cost, dtype=torch.float32)
-            done = (
-                torch.zeros(n, 1, dtype=torch.bool)
-                if episode_start is None
-                else torch.as_tensor(np.asarray(episode_start), dtype=torch.bool).reshape(n, 1)
-            )
+            starts = np.zeros(n, dtype=bool) if episode_start is None else np.asarray(episode_start)
+            done = torch.as_tensor(starts, dtype=torch.bool).reshape(n, 1)
             _, carried = memory.step(state["out"], step_cost.reshape(n, self.num_costs).to(self.device), done)
             state = {**state, "root": {**state["root"], **carried}, "is_init": done}
         root = {**state["root"], keys.OBS: obs, keys.IS_INIT: state["is_init"].to(self.device)}

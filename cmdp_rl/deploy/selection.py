@@ -1,28 +1,16 @@
-"""The weights of ``deploy.weights: feasible``: the best mixture of the run's snapshots that is
-within every budget on the snapshots' measured values.
+"""The weights of ``deploy.weights: feasible``: the best mixture of the run's snapshots within every budget on
+their measured values, the linear programme (scipy's HiGHS)
 
-Why: a mixture drawn once per episode has the weighted mean of its members' expected return and
-costs (policy_mixture.py), so choosing its weights is a linear programme over the members' values,
+    max_w  sum_i w_i R_i   s.t.  sum_i w_i (C_ik + m se_ik) <= d_k  for every cost k,  sum_i w_i = 1,  w >= 0,
 
-    max_w  sum_i w_i R_i   s.t.  sum_i w_i (C_ik + m se_ik) <= d_k  for every cost k,
-           sum_i w_i = 1,  w >= 0,
-
-whose solution puts weight on at most K + 1 members. This is the "shrinking" step of Cotter,
-Jiang, Sridharan, "Two-player games for efficient non-convex constrained optimization" (ALT 2019,
-Sec. 4, Lemma 2): from the iterates of a Lagrangian game, the best stochastic solution supported on
-at most m + 1 of them. A uniform mixture inherits the dual dynamics' average violation, which is
-O(1/sqrt(T)) and of either sign; the programme instead aims inside the budget by ``m`` standard
-errors of the members' measured costs.
-
-Each member is valued on its own evaluation episodes, seeded apart from the run's final evaluation:
-the final evaluation then measures the chosen mixture on fresh episodes, so the number a run
-reports is not the one its weights were chosen on. scipy's HiGHS solves the programme.
-"""
+Cotter, Jiang, Sridharan's "shrinking" step (ALT 2019, Sec. 4): at most K + 1 members, ``m`` standard errors
+inside the budget (docs/constraint_satisfaction.md). Members are valued on episodes seeded apart from the
+final evaluation, which then measures the chosen mixture afresh."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
@@ -56,34 +44,20 @@ class MemberValue:
     steps: int = 0  # the env steps its episodes took: what valuing it cost
 
     def as_dict(self) -> dict:
-        return {
-            "episode_return": self.episode_return,
-            "episode_cost": list(self.episode_cost),
-            "cost_se": list(self.cost_se),
-            "episodes": self.episodes,
-        }
+        """What a checkpoint and eval.json keep of it (not its cost in steps)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items() if k != "steps"}
 
 
 def feasible_weights(
     values: Sequence[MemberValue], budgets: Sequence[float], margin: float
 ) -> tuple[list[float], bool]:
-    """The mixture weights over ``values`` (see the module docstring) and whether the programme was
-    feasible. When no mixture is within the budgets on the members' values, all the weight goes to
-    the member with the smallest largest violation (relative to each budget; ties: higher return),
-    and the second item is False."""
+    """The mixture weights over ``values`` and whether the programme was feasible; if not, all the weight goes
+    to the member with the smallest largest violation relative to each budget (ties: higher return)."""
     returns = np.array([v.episode_return for v in values])
     upper = np.array([[c + margin * s for c, s in zip(v.episode_cost, v.cost_se)] for v in values])  # [M, K]
     d = np.asarray(budgets, dtype=float)
     m = len(values)
-    solved = linprog(
-        -returns,
-        A_ub=upper.T,
-        b_ub=d,
-        A_eq=np.ones((1, m)),
-        b_eq=[1.0],
-        bounds=[(0.0, 1.0)] * m,
-        method="highs",
-    )
+    solved = linprog(-returns, A_ub=upper.T, b_ub=d, A_eq=np.ones((1, m)), b_eq=[1.0], bounds=(0, 1), method="highs")
     if solved.status == 0:
         w = np.where(solved.x > 1e-9, solved.x, 0.0)
         return (w / w.sum()).tolist(), True
@@ -94,12 +68,8 @@ def feasible_weights(
 
 
 def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: int) -> list[MemberValue]:
-    """Each of ``actors``' mean return and costs over at least ``cfg.deploy.episodes`` episodes of
-    the evaluation env, sampled or deterministic as the final evaluation is, seeded with the run's
-    seed plus ``VALUATION_SEED_OFFSET``. All members step in one batch, each on its own env rows
-    (as many rows per member as ``env.num_envs`` shares out, or 64 on a batched torch env, where a
-    row is a tensor row and not an env object), because one evaluation per member pays the
-    per-step overhead M times."""
+    """Each of ``actors``' mean return and costs over at least ``cfg.deploy.episodes`` evaluation episodes
+    (seed + ``VALUATION_SEED_OFFSET``), all in one batch, each on its own env rows."""
     m = len(actors)
     env_cfg = cfg.env.valuation_options()  # the same CMDP, batched where the env has a batched twin
     batched = getattr(env_cfg, "backend", None) == "torch"
@@ -123,21 +93,13 @@ def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: 
         mine = np.array([row for r in rows[i::m] for row in r], dtype=float)
         costs = mine[:, 3 : 3 + num_costs]
         se = costs.std(axis=0, ddof=1) / math.sqrt(len(mine)) if len(mine) > 1 else np.zeros(num_costs)
-        values.append(
-            MemberValue(
-                float(mine[:, 0].mean()),
-                tuple(costs.mean(0).tolist()),
-                tuple(se.tolist()),
-                len(mine),
-                int(mine[:, 1].sum()),
-            )
-        )
+        ret, steps = float(mine[:, 0].mean()), int(mine[:, 1].sum())
+        values.append(MemberValue(ret, tuple(costs.mean(0).tolist()), tuple(se.tolist()), len(mine), steps))
     return values
 
 
 def choose_weights(snapshots: IterateSnapshots, agent: Agent, cfg: RunConfig, names: Sequence[str]) -> str:
-    """Value ``snapshots``' members (:func:`value_members`), set their weights to the best mixture
-    within ``cfg.algo.cost_limit`` and return one line that says what was chosen."""
+    """Value ``snapshots``' members, weight them as the best mixture within budget; one line saying what."""
     budgets = per_constraint(cfg.algo.cost_limit, "algo.cost_limit", names)
     values = value_members(snapshots.actors(agent.actor), agent, cfg, len(names))
     weights, feasible = feasible_weights(values, budgets, cfg.deploy.margin)

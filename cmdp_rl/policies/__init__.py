@@ -1,7 +1,4 @@
-"""Policy heads: ``policy=mlp`` (memoryless), ``lstm``/``gru`` (recurrent state,
-policies/recurrent.py) or ``transformer`` (a window of the last K steps, policies/transformer.py).
-Each builds an :class:`~cmdp_rl.policies.agent.Agent`: an actor and critics keyed by signal,
-differing from one head to another only in their networks (``Body``)."""
+"""Policy heads (``policy=mlp|lstm|gru|transformer``), each building an :class:`~cmdp_rl.policies.agent.Agent`."""
 
 from __future__ import annotations
 

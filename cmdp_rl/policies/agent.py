@@ -1,33 +1,8 @@
-"""The agent every algorithm trains: an actor and a bank of critics keyed by signal.
-
-- :class:`Actor`: a network (:class:`Body`) whose output a distribution head
-  (``policies/distributions.py``, chosen from the env's action space) turns into the action
-  distribution's parameters.
-- ``critics``: an ``nn.ModuleDict`` of :class:`Critic` keyed by signal, ``"reward"`` and
-  ``"cost"`` (``keys.SIGNALS`` names their entries in a batch); a Q-critic is one more entry.
-
-Several constraints (an env reporting K costs): the ``"cost"`` critic is one network with K outputs,
-``[..., K]``, one value per constraint, not K critics in the bank. Why: every layer downstream keeps
-the cost as one tensor with a trailing K (the collector's sums, GAE batched over K, the scalers,
-the multipliers' advantage ``sum_k lambda_k A_c,k``), one forward pass values all constraints, a
-recurrent cost critic keeps one state, and K = 1 is exactly the network it was before (same
-parameters, same initialisation, same checkpoint keys). What it gives up: the K values share their
-hidden layers; costs that need unrelated features could learn more slowly than with K networks.
-
-All of it is plain ``nn.Module``s on dicts of tensors (root keys of a batch, as in ``keys.py``).
-The policy heads (``policy=mlp|lstm|gru|transformer``) differ only in their networks: the
-:class:`Body` (what it reads, what state it carries from one step to the next, whether it trains on
-single steps or on segments of consecutive steps) and the stateless output network after it.
-
-Two modes, one computation:
-
-- acting (:meth:`Agent.act`, the collector): one step of N envs, ``[N, ...]`` entries; a body with
-  memory reads its state at the root and returns the next one, which the agent returns under
-  ``("next", key)`` and the collector carries to the next step (``collector.PolicyMemory``);
-- training (:meth:`Agent.dist`, :meth:`Agent.value`): training units, single steps ``[B, ...]``
-  or, for recurrent bodies, segments ``[B, L, ...]`` (:meth:`Agent.training_units`), run from the
-  state stored at each segment's first step.
-"""
+"""The agent every algorithm trains: an :class:`Actor` (a :class:`Body`, then a distribution head) and critics
+keyed by signal (``keys.SIGNALS``), plain ``nn.Module``s on dicts of tensors; the heads
+(``policy=mlp|lstm|gru|transformer``) differ only in their bodies and output networks (docs/architecture.md).
+With K costs the ``"cost"`` critic is one network with K outputs, not K critics: downstream the cost is one
+tensor with a trailing K, one pass values all, and K = 1 is the same network; the K values share hidden layers."""
 
 from __future__ import annotations
 
@@ -38,15 +13,14 @@ from tensordict import TensorDictBase
 from torch import distributions as D
 from torch import nn
 
-from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead, sample
+from cmdp_rl.policies.distributions import CategoricalHead, GaussianHead, action_outputs, make_action_head, sample
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.normalization import Normalizers
 
 Entries = Mapping[Any, torch.Tensor]  # key -> tensor with leading batch dims
 
-# Rows per critic call when valuing a whole batch. Larger calls were slower per row here: their
-# activations leave the cache, and glibc hands blocks of several MB back to the OS on free and
-# page-faults them in again.
+# Rows per critic call when valuing a whole batch: larger calls' activations leave the cache, and glibc
+# hands blocks of several MB back to the OS on free and page-faults them in again.
 CHUNK_ROWS = 8192
 
 
@@ -54,15 +28,9 @@ Features = tuple  # what a body gives the network after it: one tensor or severa
 
 
 class Body(nn.Module):
-    """The part of an actor or a critic that reads the step's entries and carries its history:
-    nothing but the input encoding for the MLP, the LSTM/GRU for the recurrent heads, the window of
-    the last K steps for the transformer. What follows it (the output network) is a stateless
-    function of its features.
-
-    ``in_keys``: the root entries it reads (its own carried state included); ``state_keys``: the
-    entries of its state, which :meth:`step` returns the next value of; ``recurrent``: trains on
-    segments ``[B, L]`` run in sequence (else any grouping of steps gives the same outputs).
-    """
+    """The part of an actor or critic that reads a step's entries and carries its history. ``in_keys``: what it
+    reads, its state included; ``state_keys``: its state, whose next value :meth:`step` returns; ``recurrent``:
+    trains on segments ``[B, L]`` in sequence (else any grouping of steps gives the same outputs)."""
 
     in_keys: list
     state_keys: tuple = ()
@@ -116,10 +84,8 @@ class Critic(nn.Module):
 
 
 class Agent(nn.Module):
-    """Actor, critics keyed by signal, and the normalization statistics they use (no parameters;
-    saved with them, see ``normalization.py``). ``segment_length``: steps per training segment of
-    a recurrent agent (0, or not shorter than the rollout: the whole rollout row). ``cost_names``:
-    the env's K costs, which the cost critic's K outputs value in that order."""
+    """Actor, critics keyed by signal and the normalization statistics they use. ``segment_length``: steps per
+    training segment of a recurrent agent (0: the whole row); ``cost_names``: the cost critic's K outputs."""
 
     def __init__(
         self,
@@ -140,7 +106,6 @@ class Agent(nn.Module):
     def num_costs(self) -> int:
         return len(self.cost_names)
 
-    # --- what the agent reads and carries ------------------------------------------------------
     @property
     def recurrent(self) -> bool:
         return self.actor.body.recurrent or any(c.body.recurrent for c in self.critics.values())
@@ -148,32 +113,22 @@ class Agent(nn.Module):
     @property
     def in_keys(self) -> list:
         """Every root entry the actor or a critic reads, each once, in order of first use."""
-        seen: dict = {}
-        for body in self._bodies():
-            seen.update(dict.fromkeys(body.in_keys))
-        return list(seen)
-
-    def _bodies(self) -> list[Body]:
-        return [self.actor.body, *(c.body for c in self.critics.values())]
+        bodies = [self.actor.body, *(c.body for c in self.critics.values())]
+        return list(dict.fromkeys(k for body in bodies for k in body.in_keys))
 
     def _stepped(self) -> list[tuple[str | None, Body]]:
-        """The networks :meth:`act` steps: the actor, and critics with a state of their own (their
-        state at every step must be in the batch: a segment is re-run from its stored state)."""
+        """The bodies :meth:`act` steps: the actor's and those of critics with a state (re-run from it)."""
         critics = [(name, c.body) for name, c in self.critics.items() if c.body.recurrent]
         return [(None, self.actor.body), *critics]
 
     def initial_state(self, num_envs: int, device: torch.device | str = "cpu") -> dict:
-        state: dict = {}
-        for _, body in self._stepped():
-            state.update(body.initial_state(num_envs, torch.device(device)))
-        return state
+        device = torch.device(device)
+        return {k: v for _, body in self._stepped() for k, v in body.initial_state(num_envs, device).items()}
 
-    # --- acting ----------------------------------------------------------------------------------
     @torch.no_grad()
     def act(self, d: Entries, deterministic: bool = False) -> dict:
-        """One step: the distribution's parameters, the action (sampled, or the mode if
-        ``deterministic``) and its log-prob, and every carried state's next value under
-        ``("next", key)``."""
+        """One step: the distribution's parameters, the action (the mode if ``deterministic``), its log-prob
+        and each carried state's next value under ``("next", key)``."""
         out: dict = {}
         for name, body in self._stepped():
             features, state = body.step(d)
@@ -184,12 +139,10 @@ class Agent(nn.Module):
             out[keys.ACTION], out[keys.LOG_PROB] = self.actor.head.act(out, deterministic)
             return out
         dist = self.actor.head.dist(out)
-        action = sample(dist, deterministic)
-        out[keys.ACTION] = action
-        out[keys.LOG_PROB] = dist.log_prob(action)
+        out[keys.ACTION] = sample(dist, deterministic)
+        out[keys.LOG_PROB] = dist.log_prob(out[keys.ACTION])
         return out
 
-    # --- training --------------------------------------------------------------------------------
     def dist(self, units: Entries) -> D.Distribution:
         """The action distribution on training units."""
         return self.actor.dist(units)
@@ -199,8 +152,7 @@ class Agent(nn.Module):
         return self.critics[signal](units)
 
     def training_units(self, data: Mapping[Any, torch.Tensor]) -> dict:
-        """Entries of a ``[N, T, ...]`` batch as training units ``[U, ...]``: steps (``U = N T``) or,
-        for a recurrent agent, segments ``[U, L, ...]`` with ``U = N T / L``, never single steps."""
+        """A ``[N, T, ...]`` batch as steps ``[N T, ...]``, or a recurrent agent's segments ``[N T / L, L, ...]``."""
         if not self.recurrent:
             return {k: v.flatten(0, 1) for k, v in data.items()}
         out = {}
@@ -212,27 +164,12 @@ class Agent(nn.Module):
 
     @torch.no_grad()
     def rollout_values(self, batch: TensorDictBase, signal: str) -> tuple[torch.Tensor, torch.Tensor]:
-        """The ``signal`` critic's values of the observations and of the next observations of a
-        collector batch ``[N, T]``: ``(V(obs), V(next obs))``, each ``[N, T, 1]``.
+        """``(V(obs), V(next obs))`` of the ``signal`` critic on a collector batch ``[N, T]``, each ``[N, T, 1]``.
 
-        A step's next observation is the following step's observation unless the episode ended
-        there (then it is the final one, and the following step starts from a reset one), so
-        ``V(next obs)`` is the following step's ``V(obs)`` except at episode ends and on the last
-        step ("fresh" steps), where it is computed. This halves the critic work of GAE, and for a
-        critic with memory it is also what makes the values consistent:
-
-        - Root values: one pass over the batch; a recurrent critic runs each row from its state
-          stored at the row's first step, restarting from the stored (zero) state at every episode
-          start (``is_init``): exactly the values it gives stepping through the rollout.
-        - Next values at fresh steps: one more step of the critic from the state it reached after
-          the step (a recurrent pass's own next state; a transformer's window from the batch), on
-          the next observation and this step's action and cost, without a reset. ``V(final obs)``
-          thus conditions on the episode's whole history, which a truncated episode bootstraps from.
-
-        (torchrl's ``GAE(..., shifted=True)`` on a recurrent critic would take ``V(next obs)`` at an
-        episode end from the row's next step, the next episode's reset observation: wrong for a
-        truncated episode's bootstrap.)
-        """
+        ``V(next obs)`` is the following step's ``V(obs)`` except at episode ends and the last step, where it is one
+        more step of the critic from the state it reached, without a reset: ``V(final obs)`` then conditions on the
+        episode's history (torchrl's shifted GAE would read the next episode's reset observation). A recurrent
+        critic's values are one pass over each row from its stored state, restarting at every ``is_init``."""
         critic = self.critics[signal]
         body = critic.body
         N, T = batch.shape
@@ -247,8 +184,7 @@ class Agent(nn.Module):
             after = {}
         next_values = torch.empty_like(values)
         next_values[:, :-1] = values[:, 1:]
-        # The inputs one step on, at the fresh steps: the next observation, this step's action and
-        # cost as "previous", the state after this step.
+        # The inputs one step on: the next observation, this step's action and cost, the state after it.
         nxt = {
             k: (after[k] if k in after else batch.get((keys.NEXT, k)))[fresh] for k in body.in_keys if k != keys.IS_INIT
         }
@@ -263,6 +199,15 @@ def critic_outputs(signal: str, env: Any) -> int:
     return getattr(env, "num_costs", 1) if signal == "cost" else 1
 
 
+def actor_and_critics(env: Any, normalizers: Normalizers, init_log_std: float, network: Any, **kwargs: Any) -> Agent:
+    """The agent of a policy head: ``network(role, outputs, out_gain) -> (body, output net)`` for the actor
+    (``role`` "actor", gain 0.01) and the reward and cost critics (gain 1), built in that order."""
+    body, net = network("actor", action_outputs(env.action_space), 0.01)
+    actor = Actor(body, make_action_head(env.action_space, net, init_log_std))
+    critics = {signal: Critic(*network(signal, critic_outputs(signal, env), 1.0)) for signal in ("reward", "cost")}
+    return Agent(actor, critics, normalizers, cost_names=env.cost_names, **kwargs)
+
+
 def _chunked(critic: Critic, flat: dict) -> torch.Tensor:
     rows = next(iter(flat.values())).shape[0]
     if rows <= CHUNK_ROWS:
@@ -272,9 +217,8 @@ def _chunked(critic: Critic, flat: dict) -> torch.Tensor:
 
 
 def make_agent(cfg: Any, env: Any, normalizers: Normalizers | None = None, algo: Any = None) -> Agent:
-    """The agent ``policy=<cfg.name>`` builds for ``env`` (its observation and action spaces);
-    ``normalizers``' observation normalizer, if any, goes in front of every network. ``algo``: the
-    algorithm's options; the agent is then the one it trains (``AlgoConfig.shape_agent``)."""
+    """The agent ``policy=<cfg.name>`` builds for ``env`` (behind ``normalizers``' observation normalizer), or,
+    given ``algo``'s options, the one it trains (``AlgoConfig.shape_agent``)."""
     from cmdp_rl.config.registry import component  # the registry imports the policy modules, which import this one
 
     agent = component("policy", cfg.name).build(cfg, env, normalizers if normalizers is not None else Normalizers())
@@ -282,4 +226,4 @@ def make_agent(cfg: Any, env: Any, normalizers: Normalizers | None = None, algo:
     return agent if algo is None else algo.shape_agent(agent)
 
 
-__all__ = ["Actor", "Agent", "Body", "CHUNK_ROWS", "Critic", "critic_outputs", "make_agent"]
+__all__ = ["Actor", "Agent", "Body", "CHUNK_ROWS", "Critic", "actor_and_critics", "critic_outputs", "make_agent"]

@@ -1,29 +1,7 @@
-"""The actor's action distribution, chosen from the env's action space.
-
-A distribution head holds the actor's output network (a stateless function of the features the
-actor's body computes) and maps its output to the distribution's parameters (entries a batch
-stores, so the behaviour policy of a step can be rebuilt: CPO's KL to it); it builds the
-distribution from them:
-
-- ``gymnasium.spaces.Box``: :class:`GaussianHead`, a diagonal Gaussian in the env's action units
-  with a state-independent log-std (the network works in [-1, 1]; the mean is rescaled to the box,
-  the std is a fraction of the box's half-width). Samples are not squashed: the env clips them, so
-  the log-probability of a stored action never meets a tanh saturation.
-- ``gymnasium.spaces.Discrete``: :class:`CategoricalHead`, a categorical over the ``n`` actions on
-  the network's logits. Its actions are stored as ``[..., 1]`` integer indices, like a box action
-  of one dimension.
-- ``gymnasium.spaces.MultiDiscrete``: :class:`CategoricalHead` too, on ``sum(nvec)`` logits split
-  into one independent categorical per component (:class:`MultiCategorical`): the log-probability
-  and the entropy are the components' sums, the KL between two of them the sum of the components'
-  KLs (so CPO's Fisher-vector product needs nothing else). Actions are ``[..., m]`` indices.
-
-- a hybrid ``Tuple``/``Dict`` of one ``Discrete`` and one ``Box`` (a skill and its parameters):
-  :class:`~cmdp_rl.policies.hybrid.HybridHead`, a categorical over the skills times a Gaussian over
-  the parameters conditioned on the skill (``policies/hybrid.py``).
-
-Every head samples by ``rsample`` where the distribution has one, else ``sample``, and its
-deterministic action is the mode (the Gaussian's mean, the categorical's most likely action).
-"""
+"""The actor's action distribution, chosen from the env's action space: :class:`GaussianHead` on a ``Box`` (in
+the env's units, unsquashed: the env clips, so a stored action's log-probability never meets a tanh saturation),
+:class:`CategoricalHead` on ``Discrete``/``MultiDiscrete`` (indices), ``HybridHead`` on a skill and its
+parameters. A head maps its output network's output to the parameters a batch stores (CPO's KL reads them)."""
 
 from __future__ import annotations
 
@@ -38,7 +16,7 @@ from torchrl.modules import IndependentNormal
 
 from cmdp_rl.policies.hybrid import HybridHead
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.actions import categories, check_action_space, hybrid
+from cmdp_rl.rollout.actions import action_bounds, categories, check_action_space, hybrid
 
 _LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))  # Normal.log_prob's constant, computed as it computes it
 
@@ -59,8 +37,7 @@ class GaussianHead(nn.Module):
         return self.params(self.net(*features), self.log_std)
 
     def params(self, out: torch.Tensor, log_std: torch.Tensor) -> dict[str, torch.Tensor]:
-        """``(loc, scale)`` from the output network's ``out`` and ``log_std`` (a population's stacked
-        ones, ``[P, 1, A]``)."""
+        """``(loc, scale)`` from ``out`` and ``log_std`` (a population's stacked ones, ``[P, 1, A]``)."""
         loc = self.center + self.half_width * out
         return {keys.LOC: loc, keys.SCALE: (self.half_width * log_std.exp()).expand_as(loc)}
 
@@ -70,12 +47,8 @@ class GaussianHead(nn.Module):
 
     @staticmethod
     def act(params: dict[str, torch.Tensor], deterministic: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """The acting step's action and log-probability: what ``sample(dist(params), deterministic)``
-        and its ``log_prob`` give, op for op and draw for draw (``Normal.rsample``'s one
-        ``normal_`` of the loc's shape, ``Normal.log_prob``'s formula, summed over the action).
-        Written out because building the distribution costs more than the network itself at
-        every step of a rollout (argument validation, ``Independent``'s wrapping: about 100 µs
-        of 250 per step of 16 envs, measured 2026-11-28); the update still uses :meth:`dist`."""
+        """The action and log-probability ``sample(dist(params), deterministic)`` gives, op for op and draw for draw,
+        without building the distribution (its validation and wrapping cost more than the network every step)."""
         loc, scale = params[keys.LOC], params[keys.SCALE]
         action = loc if deterministic else loc + torch.empty_like(loc).normal_() * scale
         log_prob = -((action - loc) ** 2) / (2 * scale**2) - scale.log() - _LOG_SQRT_2PI
@@ -97,8 +70,7 @@ class Categorical(D.Categorical):
 
 
 class MultiCategorical(D.Distribution):
-    """Independent categoricals, one per component of a ``MultiDiscrete`` action, on logits
-    ``[..., sum(sizes)]`` split into ``sizes``; values are ``[..., m]`` indices (``m = len(sizes)``)."""
+    """Independent categoricals on logits ``[..., sum(sizes)]`` split by ``sizes``; values ``[..., m]`` indices."""
 
     arg_constraints = {"logits": constraints.real_vector}
     has_rsample = False
@@ -135,8 +107,7 @@ def _kl_multi_categorical(p: MultiCategorical, q: MultiCategorical) -> torch.Ten
 
 
 class CategoricalHead(nn.Module):
-    """``net(features)`` -> logits of a categorical over the actions, or of ``len(sizes)``
-    independent categoricals (a ``MultiDiscrete`` space)."""
+    """``net(features)`` -> the logits of one categorical, or of ``len(sizes)`` (a ``MultiDiscrete``)."""
 
     param_keys = (keys.LOGITS,)
 
@@ -158,9 +129,7 @@ class CategoricalHead(nn.Module):
 
 
 def action_outputs(space: gym.Space) -> int:
-    """How many outputs the actor's network needs for ``space``: the box's dimension (the mean), or
-    one logit per action (per choice of each component of a ``MultiDiscrete``), or a hybrid
-    space's logits and per-skill means."""
+    """How many outputs the actor's network needs for ``space``: the box's means, the logits, or both."""
     check_action_space(space)
     if hybrid(space) is not None:
         return HybridHead.outputs(hybrid(space))
@@ -172,15 +141,12 @@ def action_outputs(space: gym.Space) -> int:
 def make_action_head(
     space: gym.Space, net: nn.Module, init_log_std: float = -0.5
 ) -> GaussianHead | CategoricalHead | HybridHead:
-    """The distribution head for ``space`` around the output network ``net`` (``init_log_std``: the
-    Gaussian's initial log-std, in units of the box's half-width)."""
+    """The head for ``space`` around ``net`` (``init_log_std`` in units of the box's half-width)."""
     check_action_space(space)
     if hybrid(space) is not None:
         return HybridHead(net, hybrid(space), init_log_std)
     if isinstance(space, gym.spaces.Box):
-        low = torch.as_tensor(space.low, dtype=torch.float32).reshape(-1)
-        high = torch.as_tensor(space.high, dtype=torch.float32).reshape(-1)
-        return GaussianHead(net, low, high, init_log_std)
+        return GaussianHead(net, *action_bounds(space), init_log_std)
     if isinstance(space, gym.spaces.Discrete):
         return CategoricalHead(net)
     return CategoricalHead(net, categories(space))
@@ -191,14 +157,3 @@ def sample(dist: D.Distribution, deterministic: bool) -> torch.Tensor:
     if deterministic:
         return dist.deterministic_sample
     return dist.rsample() if dist.has_rsample else dist.sample()
-
-
-__all__ = [
-    "Categorical",
-    "CategoricalHead",
-    "GaussianHead",
-    "MultiCategorical",
-    "action_outputs",
-    "make_action_head",
-    "sample",
-]

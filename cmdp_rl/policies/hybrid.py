@@ -1,30 +1,9 @@
-"""The action distribution of a hybrid (hierarchical) action space: a skill and its parameters.
-
-The space is a gymnasium ``Tuple``/``Dict`` of one ``Discrete(n)`` (which skill) and one ``Box``
-(its ``p`` continuous parameters), ``cmdp_rl.rollout.actions.hybrid``. The seed's factoring
-``pi = pi_hi o pi_lo`` is the distribution's own product rule,
-
-    pi(k, x | s) = pi_hi(k | s) * pi_lo(x | s, k),
-
-``pi_hi`` a categorical over the ``n`` skills and ``pi_lo`` a diagonal Gaussian whose mean and std
-belong to the chosen skill (the network outputs ``n`` logits and ``n x p`` means; the log-stds are
-``n x p`` state-independent parameters, as :class:`~cmdp_rl.policies.distributions.GaussianHead`'s).
-Everything the algorithms read is exact, in closed form over the ``n`` skills:
-
-- ``log pi(k, x) = log pi_hi(k) + log N(x; mu_k, sigma_k)``;
-- ``H(pi) = H(pi_hi) + sum_k pi_hi(k) H(N_k)`` (the chain rule of entropy);
-- ``KL(pi || pi') = KL(pi_hi || pi_hi') + sum_k pi_hi(k) KL(N_k || N'_k)`` (the chain rule of
-  relative entropy), registered with torch, so CPO's and TRPO's Fisher-vector product (the Hessian
-  of this KL, by double backprop) and FOCOPS/CUP's per-state KL need nothing else.
-
-Why by hand: torch.distributions and torchrl have no mixed discrete-continuous distribution whose
-continuous part is conditioned on the discrete one, and a ``MixtureSameFamily`` would marginalise
-the skill out (the env needs to be told which one was chosen).
-
-Stored actions are float ``[..., 1 + p]``: the skill index (an exact small integer), then the
-parameters, in the box's units (not squashed: the env clips). The deterministic action, for greedy
-evaluation, takes the most likely skill and that skill's mean.
-"""
+"""The action distribution of a hybrid action space, one ``Discrete(n)`` skill and a ``Box`` of its ``p``
+parameters (``rollout.actions.hybrid``): ``pi(k, x | s) = pi_hi(k | s) pi_lo(x | s, k)``, a categorical times
+the chosen skill's diagonal Gaussian (state-independent std), with exact log-probability, entropy and KL by the
+chain rules (docs/multi_agent_and_hybrid.md); the KL is registered with torch for CPO's Fisher-vector product.
+By hand: torch has no distribution whose continuous part is conditioned on the discrete one. Stored actions
+are float ``[..., 1 + p]``: the skill index, then the parameters in the box's units (the env clips)."""
 
 from __future__ import annotations
 
@@ -34,7 +13,7 @@ from torch import nn
 from torch.distributions import constraints, kl_divergence, register_kl
 
 from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.actions import Hybrid
+from cmdp_rl.rollout.actions import Hybrid, action_bounds
 
 
 class SkillParameters(D.Distribution):
@@ -92,9 +71,7 @@ def _kl_skill_parameters(p: SkillParameters, q: SkillParameters) -> torch.Tensor
 
 
 class HybridHead(nn.Module):
-    """``net(features)`` -> ``n`` skill logits and ``n x p`` parameter means in [-1, 1], rescaled to
-    the box as :class:`~cmdp_rl.policies.distributions.GaussianHead` does; a log-std per skill and
-    parameter (in units of the box's half-width)."""
+    """``net(features)`` -> ``n`` skill logits and ``n x p`` means rescaled to the box; ``n x p`` log-stds."""
 
     param_keys = (keys.LOGITS, keys.LOC, keys.SCALE)
 
@@ -102,8 +79,7 @@ class HybridHead(nn.Module):
         super().__init__()
         self.net = net
         self.skills = parts.skills
-        low = torch.as_tensor(parts.box.low, dtype=torch.float32).reshape(-1)
-        high = torch.as_tensor(parts.box.high, dtype=torch.float32).reshape(-1)
+        low, high = action_bounds(parts.box)
         self.register_buffer("center", (high + low) / 2)
         self.register_buffer("half_width", (high - low) / 2)
         self.log_std = nn.Parameter(torch.full((parts.skills, low.numel()), init_log_std))

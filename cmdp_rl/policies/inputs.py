@@ -1,13 +1,7 @@
-"""What a policy network reads: the observation and, optionally, the previous action and cost.
-
-A POMDP policy should act on its history (o_0..o_t, a_0..a_{t-1}); the previous action and cost
-are the parts of that history the observation lacks. The collector writes them at the root
-(``keys.PREV_ACTION``, ``keys.PREV_COST``; zero on an episode's first step) for any policy whose
-``in_keys`` ask for them, so a memory policy can integrate its own motion (dead reckoning) and
-notice when it paid a cost. Feeding the previous cost to a recurrent policy follows the
-PID-Lagrangian experiments (Stooke, Achiam, Abbeel, 2020, "Responsive Safety in Reinforcement
-Learning by PID Lagrangian Methods", sec. 6).
-"""
+"""What a policy network reads: the observation and, optionally, the previous action and cost, the parts of the
+history the observation lacks (a memory policy can integrate its own motion and notice when it paid a cost; the
+previous cost as in Stooke, Achiam, Abbeel, 2020, sec. 6). The collector writes them at the root for any policy
+whose ``in_keys`` ask for them (zero on an episode's first step)."""
 
 from __future__ import annotations
 
@@ -24,23 +18,13 @@ from cmdp_rl.rollout.actions import action_bounds, action_dim, categories, is_di
 
 def input_keys(include_prev_action: bool, include_prev_cost: bool) -> list[str]:
     """The root entries a network reads, in the order :class:`InputEncoder` takes them."""
-    return (
-        [keys.OBS]
-        + ([keys.PREV_ACTION] if include_prev_action else [])
-        + ([keys.PREV_COST] if include_prev_cost else [])
-    )
+    return [keys.OBS] + [keys.PREV_ACTION] * include_prev_action + [keys.PREV_COST] * include_prev_cost
 
 
 class InputEncoder(nn.Module):
-    """``cat(normalized obs, previous action, previous cost vector [K])``.
-
-    A box's previous action is mapped to the action box as ``[-1, 1]`` and clipped there, as the
-    env clips it: what the policy sees is the command the env executed. A discrete previous action
-    is one-hot per component (all zeros for "none yet", the index -1 of an episode's first step,
-    ``cmdp_rl/rollout/actions.py``). ``obs_norm`` (a running normalizer, normalization.py) is applied to the
-    observation only. ``in_dim``: the width of the raw inputs concatenated (what a transformer
-    stores per step); ``out_dim``: the width of the encoding.
-    """
+    """``cat(normalized obs, previous action, previous costs [K])``: a box's action scaled to ``[-1, 1]`` and clipped as
+    the env clips it, a discrete one one-hot per component (all zeros for the first step's -1). ``in_dim``: the raw
+    inputs' width (a transformer's token); ``out_dim``: the encoding's."""
 
     def __init__(
         self,
@@ -68,7 +52,7 @@ class InputEncoder(nn.Module):
 
     @classmethod
     def of(cls, cfg: Any, env: Any, obs_norm: nn.Module | None) -> InputEncoder:
-        """The encoder a policy's options ``cfg`` (``include_prev_action``, ``include_prev_cost``) ask for on ``env``."""
+        """The encoder ``cfg``'s ``include_prev_action`` and ``include_prev_cost`` ask for on ``env``."""
         return cls(
             env.obs_dim, env.action_space, cfg.include_prev_action, cfg.include_prev_cost, obs_norm, env.num_costs
         )

@@ -10,8 +10,7 @@ from torch import nn
 
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import Bool, ConfigError, Field, finite, options
-from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
-from cmdp_rl.policies.distributions import action_outputs, make_action_head
+from cmdp_rl.policies.agent import Agent, Body, actor_and_critics
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.normalization import Normalizers
@@ -25,8 +24,7 @@ LogStd = Annotated[float, finite()]
 
 @options
 class PolicyConfig:
-    """``policy=mlp``: the memoryless MLP policy. ``include_prev_*``: every policy may also read
-    the previous step's action and cost (zero on an episode's first step)."""
+    """``policy=mlp``. ``include_prev_*``: also read the previous action and cost (zero at an episode's start)."""
 
     name: str = "mlp"
     hidden_sizes: Annotated[
@@ -54,16 +52,11 @@ class _SigmoidTanh(torch.autograd.Function):
 
 
 class Tanh(nn.Module):
-    """tanh, computed on the CPU as ``2 sigmoid(2x) - 1`` for large inputs.
+    """tanh as ``2 sigmoid(2x) - 1`` on large CPU inputs: several times faster than torch's CPU kernel, tanh having been
+    training's largest cost (docs/throughput.md); equal within float32 rounding, with tanh's own gradient. Small
+    inputs (one call beats three plus the autograd function there) and CUDA keep torch.tanh."""
 
-    Why: torch's CPU tanh kernel (torch 2.13, AVX-512) takes about 2.6 ns per element here against
-    0.7 ns for this form (measured on [8192, 64], forward; forward + backward 1.7 vs 0.9 ms), and
-    tanh was the largest single cost of training. The two agree within 2e-7 (float32 rounding);
-    the gradient is tanh's exactly, from the output. Small inputs (a rollout step over a few envs)
-    keep torch.tanh: one call beats three plus the Python autograd function there; so does CUDA.
-    """
-
-    MIN_NUMEL = 1 << 15  # break-even measured here: about 20k elements
+    MIN_NUMEL = 1 << 15  # about the break-even
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.device.type != "cpu" or x.numel() < self.MIN_NUMEL:
@@ -77,10 +70,7 @@ _ACTIVATIONS = {"tanh": Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
 class MLP(nn.Sequential):
-    """``nn.Sequential`` whose forward calls each layer's ``forward`` directly. The same layers,
-    parameters, names and arithmetic; what is skipped is ``Module.__call__``'s hook and tracing
-    machinery, which these networks never use and which cost about as much Python time per call as
-    a small layer's kernel (five calls a network, three networks, 64 minibatch steps an iteration)."""
+    """``nn.Sequential`` calling each layer's ``forward`` directly: ``Module.__call__``'s unused hooks cost a kernel."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         for layer in self._modules.values():
@@ -104,9 +94,7 @@ def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: str, out_gain:
 
 
 class MLPBody(Body):
-    """The MLP's inputs: the observation (normalized if ``obs_norm``), or ``encoder``'s
-    concatenation of observation, previous action and cost. No state, no parameters: the MLP is the
-    output network after it."""
+    """The MLP's inputs: the observation (normalized if ``obs_norm``) or ``encoder``'s encoding; no parameters."""
 
     def __init__(self, obs_norm: nn.Module | None, encoder: InputEncoder | None, take: int | None = None) -> None:
         super().__init__()
@@ -125,27 +113,21 @@ class MLPBody(Body):
 def make_mlp_agent(cfg: PolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
     """Actor and critics, each an MLP of its own on the same inputs."""
     obs_norm = normalizers.obs
-    # An encoder only if the policy reads more than the observation.
     encoder = InputEncoder.of(cfg, env, obs_norm) if cfg.include_prev_action or cfg.include_prev_cost else None
     in_dim = env.obs_dim if encoder is None else encoder.out_dim
-
-    def net(out_dim: int, out_gain: float) -> nn.Sequential:
-        return mlp(in_dim, cfg.hidden_sizes, out_dim, cfg.activation, out_gain=out_gain)
-
     # A multi-agent env (envs/multi_agent.py): the shared actor reads its agent's own observation
     # and id, the critics every agent's (MAPPO's decentralised actor and centralised critic).
     local = getattr(env, "actor_obs_dim", None)
     if local is not None and encoder is not None:
         raise ConfigError("policy.include_prev_action and policy.include_prev_cost must be false on a multi-agent env")
-    actor_net = mlp(local or in_dim, cfg.hidden_sizes, action_outputs(env.action_space), cfg.activation, 0.01)
-    actor = Actor(
-        MLPBody(obs_norm, encoder, take=local), make_action_head(env.action_space, actor_net, cfg.init_log_std)
-    )
-    critics = {
-        signal: Critic(MLPBody(obs_norm, encoder), net(critic_outputs(signal, env), 1.0))
-        for signal in ("reward", "cost")
-    }
-    return Agent(actor, critics, normalizers, cost_names=env.cost_names)
+
+    def network(role: str, out_dim: int, out_gain: float) -> tuple[MLPBody, nn.Sequential]:
+        take = local if role == "actor" else None
+        return MLPBody(obs_norm, encoder, take), mlp(
+            take or in_dim, cfg.hidden_sizes, out_dim, cfg.activation, out_gain
+        )
+
+    return actor_and_critics(env, normalizers, cfg.init_log_std, network)
 
 
 register("policy", "mlp", PolicyConfig, make_mlp_agent)

@@ -1,25 +1,7 @@
-"""LSTM and GRU policies (``policy=lstm|gru``): memory in the actor and in both critics.
-
-Under partial observation a policy on ``o_t`` alone is suboptimal wherever states share
-observations; it must act on a statistic of the history, ideally the belief
-``b_t(s) = P(s_t = s | o_0..o_t, a_0..a_{t-1})`` (Kaelbling, Littman, Cassandra, 1998, "Planning and
-Acting in Partially Observable Stochastic Domains", sec. 3). A recurrent network learns such a
-statistic in its state (Wierstra et al., 2007, "Solving Deep Memory POMDPs with Recurrent Policy
-Gradients"; Hausknecht & Stone, 2015, "Deep Recurrent Q-Learning for POMDPs").
-
-The actor and each critic is a :class:`RecurrentBody`, ``inputs -> torchrl LSTMModule/GRUModule ->
-MLP head``, with its own recurrent state (``keys.ACTOR_HIDDEN`` ... ``keys.COST_CRITIC_CELL``):
-
-- Acting (the collector, evaluation): one step. The body reads the state at the root and returns
-  the next one, which the agent writes under ``"next"``; the collector carries it to the next step
-  and resets it to the initial state (zeros) where an episode ended; ``is_init`` (torchrl's
-  InitTracker convention) also makes the body zero the state it reads.
-- Training: recurrent mode on ``[B, L]`` segments of the batch (see :class:`RecurrentBody`).
-
-The critics are stepped in the rollout too (``Agent.act``) so that their state at every step is in
-the batch as well: a rollout of 32 steps starts mid-episode, and a critic can only be re-run on a
-segment from a stored state (see ``Agent.rollout_values``).
-"""
+"""LSTM and GRU policies (``policy=lstm|gru``): a memory in the actor and in both critics, which learns a
+statistic of the history such as the belief (Kaelbling, Littman, Cassandra, 1998; docs/guide/policies.md). The
+critics are stepped in the rollout too: a rollout starts mid-episode, and a critic can only be re-run on a
+segment from its stored state (``Agent.rollout_values``)."""
 
 from __future__ import annotations
 
@@ -33,8 +15,7 @@ from torchrl.modules import GRUModule, LSTMModule, set_recurrent_mode
 
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import Bool, Field, NonNegativeInt, PositiveInt, options, require
-from cmdp_rl.policies.agent import Actor, Agent, Body, Critic, critic_outputs
-from cmdp_rl.policies.distributions import action_outputs, make_action_head
+from cmdp_rl.policies.agent import Agent, Body, actor_and_critics
 from cmdp_rl.policies.inputs import InputEncoder, input_keys
 from cmdp_rl.policies.mlp import Activation, LogStd, mlp
 from cmdp_rl.rollout import keys
@@ -85,41 +66,29 @@ class RecurrentPolicyConfig:
                 )
 
 
-STATE_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
-    "lstm": {
-        "actor": (keys.ACTOR_HIDDEN, keys.ACTOR_CELL),
-        "critic": (keys.CRITIC_HIDDEN, keys.CRITIC_CELL),
-        "cost_critic": (keys.COST_CRITIC_HIDDEN, keys.COST_CRITIC_CELL),
-    },
-    "gru": {
-        "actor": (keys.ACTOR_HIDDEN,),
-        "critic": (keys.CRITIC_HIDDEN,),
-        "cost_critic": (keys.COST_CRITIC_HIDDEN,),
-    },
+# Each network's state entries: an LSTM's hidden and cell state, a GRU's hidden state alone.
+STATE_KEYS = {
+    "actor": (keys.ACTOR_HIDDEN, keys.ACTOR_CELL),
+    "reward": (keys.CRITIC_HIDDEN, keys.CRITIC_CELL),
+    "cost": (keys.COST_CRITIC_HIDDEN, keys.COST_CRITIC_CELL),
 }
 
 
 def memory_module(cfg: RecurrentPolicyConfig, input_size: int, state: tuple[str, ...]) -> LSTMModule | GRUModule:
     """torchrl's recurrent module from ``keys.NET_INPUT`` to ``keys.FEATURES``, its state under ``state``."""
-    out_state = [(keys.NEXT, k) for k in state]
-    common = dict(input_size=input_size, hidden_size=cfg.hidden_size, num_layers=cfg.num_layers)
-    if cfg.name == "lstm":
-        return LSTMModule(
-            **common, in_keys=[keys.NET_INPUT, *state, keys.IS_INIT], out_keys=[keys.FEATURES, *out_state]
-        )
-    return GRUModule(**common, in_keys=[keys.NET_INPUT, *state, keys.IS_INIT], out_keys=[keys.FEATURES, *out_state])
+    module = LSTMModule if cfg.name == "lstm" else GRUModule
+    return module(
+        input_size=input_size,
+        hidden_size=cfg.hidden_size,
+        num_layers=cfg.num_layers,
+        in_keys=[keys.NET_INPUT, *state, keys.IS_INIT],
+        out_keys=[keys.FEATURES, *((keys.NEXT, k) for k in state)],
+    )
 
 
 class RecurrentBody(Body):
-    """inputs -> encoder -> torchrl LSTM/GRU module, with a recurrent state of its own (the MLP
-    after it is the network's output network).
-
-    Acting steps the module's ``nn.LSTM``/``nn.GRU`` once on ``[N, ...]`` entries (the state read is
-    zeroed where ``is_init``). Training runs torchrl's module in recurrent mode
-    (``set_recurrent_mode``) on ``[B, L]`` segments, through a TensorDict: the one place torchrl
-    needs one. It starts each segment from the state stored at its first step and restarts from
-    that step's stored (zero) state wherever ``is_init`` marks an episode start inside it.
-    """
+    """inputs -> encoder -> torchrl LSTM/GRU module, stepped once when acting (state zeroed where ``is_init``), run
+    in recurrent mode on ``[B, L]`` segments from their stored state for training."""
 
     recurrent = True
 
@@ -163,22 +132,13 @@ class RecurrentBody(Body):
 
 def make_recurrent_agent(cfg: RecurrentPolicyConfig, env: VecEnv, normalizers: Normalizers) -> Agent:
     """Actor and critics, each with a memory of its own and an MLP after it."""
-    states = STATE_KEYS[cfg.name]
 
-    def body(net: str) -> RecurrentBody:
-        return RecurrentBody(cfg, InputEncoder.of(cfg, env, normalizers.obs), states[net])
+    def network(role: str, out_dim: int, out_gain: float) -> tuple[RecurrentBody, nn.Sequential]:
+        net = mlp(cfg.hidden_size, cfg.head_sizes, out_dim, cfg.activation, out_gain)  # before the memory: init order
+        encoder = InputEncoder.of(cfg, env, normalizers.obs)
+        return RecurrentBody(cfg, encoder, STATE_KEYS[role][: 2 if cfg.name == "lstm" else 1]), net
 
-    def head_mlp(out_dim: int, out_gain: float = 1.0) -> nn.Sequential:
-        return mlp(cfg.hidden_size, cfg.head_sizes, out_dim, cfg.activation, out_gain=out_gain)
-
-    # Each network's output MLP is built before its memory: the parameters' init order.
-    net = head_mlp(action_outputs(env.action_space), 0.01)
-    actor = Actor(body("actor"), make_action_head(env.action_space, net, cfg.init_log_std))
-    critics = {}
-    for signal, name in (("reward", "critic"), ("cost", "cost_critic")):
-        net = head_mlp(critic_outputs(signal, env))
-        critics[signal] = Critic(body(name), net)
-    return Agent(actor, critics, normalizers, segment_length=cfg.segment_length, cost_names=env.cost_names)
+    return actor_and_critics(env, normalizers, cfg.init_log_std, network, segment_length=cfg.segment_length)
 
 
 register("policy", "lstm", RecurrentPolicyConfig, make_recurrent_agent)

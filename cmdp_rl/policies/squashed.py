@@ -1,22 +1,6 @@
-"""The off-policy agent: a squashed actor and Q-critics, in the agent model's actor/critics bank.
-
-The policy factory (``policy=mlp``) builds an on-policy agent: a Gaussian actor with a
-state-independent std and V-critics. An off-policy algorithm turns it into its own with
-:func:`to_off_policy` before training, keeping the actor's body (the observation normalizer) and
-the MLP's shape (widths, activation):
-
-- :class:`TanhGaussianHead` (SAC): ``a = center + half_width * tanh(u)``, ``u ~ N(mu(s), sigma(s))``
-  with a state-dependent std (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and
-  Applications", appendix C), torchrl's ``TanhNormal``; deterministic action ``tanh(mu)`` rescaled.
-- :class:`DeterministicHead` (TD3): ``a = center + half_width * tanh(net(s))``; acting adds
-  Gaussian exploration noise of ``noise * half_width`` and clips to the box (:class:`ClippedNormal`),
-  the deterministic action is the noiseless one.
-- Q-critics: :class:`Critic` on :class:`QBody`, which reads the observation and the action (scaled
-  to [-1, 1]). The bank holds ``"q_reward_0"``, ``"q_reward_1"`` (the twins) and ``"q_cost"`` (one
-  output per constraint, as the V cost critic).
-
-Evaluation and the collector need nothing else: both act through ``Agent.act`` on the head.
-"""
+"""The off-policy agent (docs/off_policy.md): :func:`to_off_policy` turns ``policy=mlp``'s agent into SAC's
+:class:`TanhGaussianHead` (Haarnoja et al. 2018, appendix C) or TD3's :class:`DeterministicHead` (exploring
+through :class:`ClippedNormal`) and Q-critics on :class:`QBody`, keeping the actor's body and the MLP's shape."""
 
 from __future__ import annotations
 
@@ -30,7 +14,7 @@ from torchrl.modules import IndependentNormal, TanhNormal
 from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.policies.agent import Actor, Agent, Body, Critic
 from cmdp_rl.policies.distributions import GaussianHead
-from cmdp_rl.policies.mlp import MLPBody, mlp
+from cmdp_rl.policies.mlp import _ACTIVATIONS, MLPBody, mlp
 from cmdp_rl.rollout import keys
 
 Q_REWARD = ("q_reward_0", "q_reward_1")  # the twin reward Q-critics (clipped double Q)
@@ -39,8 +23,7 @@ LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # the usual clamp on the pre-tanh log-std
 
 
 class TanhGaussianHead(nn.Module):
-    """``net(features)`` -> ``(mu, log sigma)`` of the pre-tanh Gaussian; the action is its tanh
-    rescaled to the box (``LOC``/``SCALE`` are the pre-tanh parameters)."""
+    """``net(features)`` -> ``(mu, sigma)`` of the pre-tanh Gaussian (torchrl's ``TanhNormal`` on the box)."""
 
     param_keys = (keys.LOC, keys.SCALE)
 
@@ -60,8 +43,7 @@ class TanhGaussianHead(nn.Module):
 
 
 class ClippedNormal(IndependentNormal):
-    """TD3's behaviour policy: the deterministic action plus Gaussian noise, clipped to the box.
-    ``log_prob`` is the unclipped Gaussian's (stored, never trained on)."""
+    """TD3's behaviour policy: the action plus Gaussian noise, clipped to the box (``log_prob``: unclipped)."""
 
     def __init__(self, loc: torch.Tensor, scale: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> None:
         super().__init__(loc, scale)
@@ -76,8 +58,7 @@ class ClippedNormal(IndependentNormal):
 
 
 class DeterministicHead(nn.Module):
-    """``net(features)`` -> the action ``center + half_width * tanh(.)`` (``LOC``), and the
-    exploration noise's std ``noise * half_width`` (``SCALE``)."""
+    """``net(features)`` -> the action ``center + half_width * tanh(.)`` and the noise's std ``noise * half_width``."""
 
     param_keys = (keys.LOC, keys.SCALE)
 
@@ -101,8 +82,7 @@ class DeterministicHead(nn.Module):
 
 
 class QBody(Body):
-    """The Q-critic's inputs: the observation as the actor's body prepares it (normalized if on),
-    and the action scaled to [-1, 1] by the box."""
+    """The Q-critic's inputs: the actor body's observation and the action scaled to [-1, 1]."""
 
     def __init__(self, obs_body: MLPBody, low: torch.Tensor, high: torch.Tensor) -> None:
         super().__init__()
@@ -118,8 +98,6 @@ class QBody(Body):
 
 def _mlp_shape(net: nn.Sequential) -> tuple[int, list[int], str]:
     """(input size, hidden widths, activation) of a network :func:`mlp` built."""
-    from cmdp_rl.policies.mlp import _ACTIVATIONS
-
     linear = [m for m in net if isinstance(m, nn.Linear)]
     act = next(name for name, cls in _ACTIVATIONS.items() if any(isinstance(m, cls) for m in net))
     return linear[0].in_features, [m.out_features for m in linear[:-1]], act
@@ -145,16 +123,14 @@ def check_off_policy_agent(agent: Agent, algo: str) -> None:
 
 
 def check_shaped(agent: Agent, algo: str) -> None:
-    """An off-policy algorithm trains the agent :func:`to_off_policy` made (its options'
-    ``shape_agent``, called by ``make_agent(..., algo=...)``), not the policy's own."""
+    """An off-policy algorithm trains the agent ``make_agent(..., algo=...)`` shapes, not the policy's own."""
     if Q_COST not in agent.critics:
         raise ValueError(f"algo={algo}: build its agent with make_agent(..., algo=<its options>)")
 
 
 def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> Agent:
-    """Give ``agent`` (an MLP agent, :func:`check_off_policy_agent`) the off-policy actor head
-    (``actor``: ``"tanh_gaussian"`` or ``"deterministic"``) and the Q-critics, in place. The MLP's
-    widths and activation are the policy's (``policy.hidden_sizes``, ``policy.activation``). Returns it."""
+    """Give ``agent`` (an MLP agent, :func:`check_off_policy_agent`) the off-policy actor head (``actor``:
+    ``"tanh_gaussian"`` or ``"deterministic"``) and the Q-critics, in place; returns it."""
     head = agent.actor.head
     low, high = head.center - head.half_width, head.center + head.half_width
     in_dim, hidden, activation = _mlp_shape(head.net)
@@ -173,22 +149,8 @@ def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> Agent:
     critics = {name: q(1) for name in Q_REWARD}
     critics[Q_COST] = q(agent.num_costs)
     agent.critics = nn.ModuleDict(critics).to(device)
-    # ReLU in place: the same values without a fresh [B, width] tensor per layer (the layer before,
-    # a Linear, keeps nothing of its output for its backward); measured in docs/off_policy.md, Speed.
+    # ReLU in place: no fresh [B, width] tensor per layer (the Linear before it keeps nothing of its output).
     for m in (*agent.actor.modules(), *agent.critics.modules()):
         if isinstance(m, nn.ReLU):
             m.inplace = True
     return agent
-
-
-__all__ = [
-    "ClippedNormal",
-    "DeterministicHead",
-    "QBody",
-    "Q_COST",
-    "Q_REWARD",
-    "TanhGaussianHead",
-    "check_off_policy_agent",
-    "check_shaped",
-    "to_off_policy",
-]

@@ -4,19 +4,10 @@
 Finished runs (an ``eval.json``) under the given directories are grouped by config: by the fields
 named with ``--by``, else by every field but the seed (and bookkeeping such as ``total_steps``,
 ``threads``, ``logger``). Per group, over its runs' final evaluations, the table gives for return,
-cost and the violation rate (fraction of evaluation episodes with cost above the budget):
-
-- the mean and the interquartile mean (IQM: the mean of the middle half of the runs, robust to one
-  outlying seed), each with a 95% stratified-bootstrap interval over runs, as the rliable library
-  computes them (Agarwal et al. 2021, "Deep Reinforcement Learning at the Edge of the Statistical
-  Precipice");
-- a verdict against the budget d, from the 95% interval of the mean cost: "within budget with 95%
-  confidence" only if its upper end is at most d, "violates the budget with 95% confidence" if its
-  lower end is above d, else "inconclusive".
-
-``--figure`` draws learning curves from each run's ``metrics.csv``: per group the mean over runs
-with its 95% bootstrap band, return and cost (with the budget). See docs/evaluation.md.
-"""
+cost and the violation rate (fraction of evaluation episodes with cost above the budget) the mean and
+the interquartile mean (IQM), each with rliable's 95% stratified-bootstrap interval over runs (Agarwal
+et al. 2021), and a verdict against the budget d from the mean cost's interval. ``--figure`` draws each
+group's learning curves with their 95% bootstrap bands. See docs/evaluation.md."""
 
 from __future__ import annotations
 
@@ -32,7 +23,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from cmdp_rl.config.run_config import flatten_dict
-from cmdp_rl.report.plot import IGNORED, pyplot, save_figure, smooth
+from cmdp_rl.report.plot import IGNORED, PANELS, Curve, config_key, draw, smooth, varying
 from cmdp_rl.run.sweeps import OK, RunRecord, find_runs, mark_superseded
 
 # (eval.json key, table name, number format)
@@ -41,13 +32,11 @@ METRICS = (
     ("episode_cost", "cost", ".3f"),
     ("violation_rate", "violation rate", ".1%"),
 )
-CURVES = (("episode_return", "episode return"), ("episode_cost", "episode cost"))
 WITHIN = "within budget with 95% confidence"
 VIOLATES = "violates the budget with 95% confidence"
 INCONCLUSIVE = "inconclusive"
 LEVEL = 0.95
-RESAMPLES = 2000  # rliable's bootstrap calls the statistic once per resample in Python: ~0.5 s per
-# group and metric at 2000 on a busy core; raise it (--resamples 50000, rliable's default) for a paper
+RESAMPLES = 2000  # rliable calls the statistic once per resample in Python; a paper: 50000, its default
 CURVE_POINTS = 100  # learning curves are bootstrapped at most at this many iterations
 
 
@@ -66,9 +55,7 @@ def verdict(low: float | None, high: float | None, cost_limit: float | None) -> 
 
 @dataclass
 class Group:
-    """Runs with the same config but for the seed (or the same ``--by`` values), and their figures.
-    ``stats[metric]`` has ``n`` (runs with that number), ``mean``, ``mean_low``, ``mean_high``,
-    ``iqm``, ``iqm_low``, ``iqm_high`` (bounds None with fewer than 2 runs)."""
+    """Runs with the same config but for the seed (or ``--by`` values); ``stats`` per :func:`interval_estimates`."""
 
     label: str
     runs: list[RunRecord]
@@ -78,8 +65,7 @@ class Group:
 
 
 def _quietly(fn: Callable[[], Any]) -> Any:
-    """Quiet the warnings that say nothing here: arch's about rliable's ``random_state`` argument
-    (deprecated there), numpy's about an iteration in which no run ended an episode (all NaN)."""
+    """Quiet arch's warning about rliable's ``random_state`` and numpy's about an all-NaN iteration."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -89,9 +75,8 @@ def _quietly(fn: Callable[[], Any]) -> Any:
 def _bootstrap(
     scores: dict[str, np.ndarray], func: Callable[[np.ndarray], np.ndarray], resamples: int, seed: int
 ) -> dict[str, np.ndarray]:
-    """rliable's stratified-bootstrap intervals, reproducible: rliable 1.2's StratifiedBootstrap
-    draws its resamples from numpy's global generator (``np.random.choice``), not from the
-    ``random_state`` it is given, so the global one is seeded for the call and then put back."""
+    """rliable's stratified-bootstrap intervals, reproducible: rliable 1.2 draws from numpy's global
+    generator, not the ``random_state`` it is given, so that one is seeded for the call and put back."""
     from rliable import library as rly
 
     state = np.random.get_state()
@@ -108,34 +93,26 @@ def _bootstrap(
 
 
 def interval_estimates(scores: np.ndarray, resamples: int = RESAMPLES, seed: int = 0) -> dict[str, Any]:
-    """Mean and IQM of one score per run, with 95% stratified-bootstrap intervals (rliable)."""
+    """``n``, mean and IQM of one score per run, with 95% stratified-bootstrap intervals (rliable):
+    ``mean_low``, ``mean_high``, ``iqm_low``, ``iqm_high``, None with fewer than 2 runs."""
     from rliable import metrics
 
     x = np.asarray(scores, dtype=np.float64)
     x = x[np.isfinite(x)].reshape(-1, 1)  # (runs, tasks = 1), rliable's layout
-    out: dict[str, Any] = {"n": len(x)}
-    if len(x) == 0:
-        return out | {k: None for k in ("mean", "mean_low", "mean_high", "iqm", "iqm_low", "iqm_high")}
-    point = {"mean": metrics.aggregate_mean(x), "iqm": metrics.aggregate_iqm(x)}
-    out |= {k: float(v) for k, v in point.items()}
-    if len(x) < 2:
-        return out | {k: None for k in ("mean_low", "mean_high", "iqm_low", "iqm_high")}
-    agg = lambda s: np.array([metrics.aggregate_mean(s), metrics.aggregate_iqm(s)])  # noqa: E731
-    (mean_low, iqm_low), (mean_high, iqm_high) = _bootstrap({"g": x}, agg, resamples, seed)["g"]
-    return {
-        "n": out["n"],
-        "mean": out["mean"],
-        "mean_low": float(mean_low),
-        "mean_high": float(mean_high),
-        "iqm": out["iqm"],
-        "iqm_low": float(iqm_low),
-        "iqm_high": float(iqm_high),
-    }
+    out: dict[str, Any] = dict.fromkeys(("mean", "mean_low", "mean_high", "iqm", "iqm_low", "iqm_high"))
+    if len(x):
+        out.update(mean=float(metrics.aggregate_mean(x)), iqm=float(metrics.aggregate_iqm(x)))
+    if len(x) > 1:
+        agg = lambda s: np.array([metrics.aggregate_mean(s), metrics.aggregate_iqm(s)])  # noqa: E731
+        (mean_low, iqm_low), (mean_high, iqm_high) = _bootstrap({"g": x}, agg, resamples, seed)["g"]
+        out.update(
+            mean_low=float(mean_low), mean_high=float(mean_high), iqm_low=float(iqm_low), iqm_high=float(iqm_high)
+        )
+    return {"n": len(x), **out}
 
 
 def load_runs(paths: Sequence[str | Path]) -> tuple[list[RunRecord], list[RunRecord]]:
-    """``(finished, not finished)`` runs under ``paths`` (run or sweep directories); a rerun
-    supersedes the run it repeats (:func:`cmdp_rl.run.sweeps.mark_superseded`)."""
+    """``(finished, not finished)`` runs under ``paths``; a rerun supersedes the run it repeats."""
     records: dict[Path, RunRecord] = {}
     for p in paths:
         if not Path(p).is_dir():
@@ -155,18 +132,16 @@ def _value(v: Any) -> str:
 
 
 def group_runs(runs: Sequence[RunRecord], by: Sequence[str] = ()) -> list[Group]:
-    """Group by the ``by`` fields' values, else by the whole config but :data:`IGNORED` (labelled
-    by the fields that tell the groups apart)."""
+    """Group by the ``by`` fields' values, else by the whole config but :data:`IGNORED`."""
     flat = [flatten_dict(r.config) for r in runs]
     if by:
         keys = [tuple(_value(f.get(b, "?")) for b in by) for f in flat]
         labels = {k: ", ".join(f"{b}={v}" for b, v in zip(by, k)) for k in keys}
     else:
-        keys = [json.dumps({k: v for k, v in f.items() if k not in IGNORED}, sort_keys=True, default=str) for f in flat]
+        keys = [config_key(f, IGNORED.__contains__) for f in flat]
         firsts = {k: f for k, f in zip(keys, flat)}
-        shared = set.intersection(*(set(f) for f in firsts.values())) - set(IGNORED) if firsts else set()
-        varying = sorted(k for k in shared if len({_value(f[k]) for f in firsts.values()}) > 1)
-        labels = {k: ", ".join(f"{v}={_value(f[v])}" for v in varying) or "all runs" for k, f in firsts.items()}
+        names = varying(list(firsts.values()), IGNORED.__contains__)
+        labels = {k: ", ".join(f"{v}={_value(f[v])}" for v in names) or "all runs" for k, f in firsts.items()}
     groups: dict[Any, Group] = {}
     for key, run in zip(keys, runs):
         groups.setdefault(key, Group(labels[key], [])).runs.append(run)
@@ -181,8 +156,7 @@ def _budget(run: RunRecord) -> float | None:
 def compare(
     paths: Sequence[str | Path], by: Sequence[str] = (), resamples: int = RESAMPLES, seed: int = 0
 ) -> tuple[list[Group], list[RunRecord]]:
-    """Groups of the finished runs under ``paths`` with their figures and verdicts, and the runs
-    that did not finish."""
+    """Groups of the finished runs under ``paths`` with their figures and verdicts, and the unfinished runs."""
     done, unfinished = load_runs(paths)
     groups = group_runs(done, by)
     for g in groups:
@@ -201,20 +175,19 @@ def _fmt(v: float | None, fmt: str) -> str:
     return "n/a" if v is None else format(v, fmt)
 
 
+def _cell(s: dict[str, Any], p: str, fmt: str) -> str:
+    """``p`` (mean or iqm) of the stats ``s`` with its interval."""
+    return f"{_fmt(s[p], fmt)} [{_fmt(s[p + '_low'], fmt)}, {_fmt(s[p + '_high'], fmt)}]" if s["n"] else "n/a"
+
+
 def format_table(groups: Sequence[Group]) -> str:
-    """The comparison as aligned text: one block of rows per group."""
+    """The comparison as aligned text, a block of rows per group."""
     head = ("group", "runs", "metric", "mean [95% CI]", "IQM [95% CI]")
     rows = []
     for g in groups:
         for i, (name, title, fmt) in enumerate(METRICS):
             s = g.stats[name]
-
-            def cell(p: str, s: dict = s, fmt: str = fmt) -> str:
-                return (
-                    f"{_fmt(s[p], fmt)} [{_fmt(s[p + '_low'], fmt)}, {_fmt(s[p + '_high'], fmt)}]" if s["n"] else "n/a"
-                )
-
-            rows.append((g.label if i == 0 else "", str(s["n"]), title, cell("mean"), cell("iqm")))
+            rows.append((g.label if i == 0 else "", str(s["n"]), title, _cell(s, "mean", fmt), _cell(s, "iqm", fmt)))
         budget = "n/a (budgets differ)" if g.cost_limit is None else f"{g.cost_limit:g}"
         rows.append(("", "", "budget d", budget, g.verdict))
     widths = [max(len(r[j]) for r in [head, *rows]) for j in range(len(head))]
@@ -222,20 +195,13 @@ def format_table(groups: Sequence[Group]) -> str:
     return "\n".join([line(head), line(tuple("-" * w for w in widths)), *map(line, rows)])
 
 
-def csv_rows(groups: Sequence[Group]) -> list[dict[str, Any]]:
-    """One row per group: runs, budget, verdict, and for each metric n, mean, IQM and their bounds."""
-    rows = []
-    for g in groups:
-        row: dict[str, Any] = {"group": g.label, "runs": len(g.runs), "cost_limit": g.cost_limit, "verdict": g.verdict}
-        for name, _, _ in METRICS:
-            for k, v in g.stats[name].items():
-                row[f"{name}_{k}"] = v
-        rows.append(row)
-    return rows
-
-
 def write_csv(groups: Sequence[Group], path: str | Path) -> Path:
-    rows = csv_rows(groups)
+    """One row per group: runs, budget, verdict, and for each metric n, mean, IQM and their bounds."""
+    rows = [
+        {"group": g.label, "runs": len(g.runs), "cost_limit": g.cost_limit, "verdict": g.verdict}
+        | {f"{name}_{k}": v for name, _, _ in METRICS for k, v in g.stats[name].items()}
+        for g in groups
+    ]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as f:
@@ -248,9 +214,8 @@ def write_csv(groups: Sequence[Group], path: str | Path) -> Path:
 def curve_band(
     runs: Sequence[RunRecord], name: str, k: int = 5, resamples: int = RESAMPLES, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(step, mean, low, high)`` of metric ``name`` over ``runs``' metrics.csv: each run smoothed
-    (trailing mean over ``k`` iterations), cut to the iterations every run reached, thinned to
-    :data:`CURVE_POINTS`; the band is the 95% stratified bootstrap over runs (none for one run)."""
+    """``(step, mean, low, high)`` of metric ``name`` over ``runs``' metrics.csv, each smoothed over ``k``
+    iterations, cut to those every run reached and thinned to :data:`CURVE_POINTS`; the band: rliable's."""
     n = min(len(r.metrics) for r in runs)
     idx = np.unique(np.linspace(0, n - 1, min(n, CURVE_POINTS)).round().astype(int)) if n else np.array([], int)
     step = np.array([runs[0].metrics[i]["step"] for i in idx])
@@ -265,35 +230,21 @@ def curve_band(
 def plot_groups(
     groups: Sequence[Group], out: str | Path, k: int = 5, resamples: int = RESAMPLES, seed: int = 0
 ) -> Path:
-    """Learning curves of each group with their 95% bands into the PNG ``out``."""
-    plt = pyplot()
-    fig, axes = plt.subplots(1, len(CURVES), figsize=(5.5 * len(CURVES), 3.8))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    limits: set[float] = set()
-    for i, g in enumerate(groups):
+    """Learning curves of each group's return and cost with their 95% bands into the PNG ``out``."""
+    curves = []
+    for g in groups:
         runs = [r for r in g.runs if r.metrics]
-        if not runs:
-            continue
-        color = colors[i % len(colors)]
-        for ax, (name, _) in zip(axes, CURVES):
-            step, mean, low, high = curve_band(runs, name, k, resamples, seed)
-            ax.plot(step, mean, color=color, lw=1.6, label=f"{g.label} ({len(runs)} runs)")
-            ax.fill_between(step, low, high, color=color, alpha=0.2, lw=0)
-        if g.cost_limit is not None and g.cost_limit not in limits:
-            limits.add(g.cost_limit)
-            axes[1].axhline(g.cost_limit, color="black", ls="--", lw=1, label=f"budget d = {g.cost_limit:g}")
-    for ax, (_, title) in zip(axes, CURVES):
-        ax.set_title(title)
-        ax.set_xlabel("env steps")
-        ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=7, loc="best")
-    fig.suptitle(f"mean over runs, 95% stratified-bootstrap band; trailing mean over {k} iterations", fontsize=9)
-    return save_figure(fig, out)
+        if runs:
+            bands = {name: curve_band(runs, name, k, resamples, seed) for name, _ in PANELS[:2]}
+            mean, band = {n: b[1] for n, b in bands.items()}, {n: b[2:] for n, b in bands.items()}
+            limits = {} if g.cost_limit is None else {"episode_cost": g.cost_limit}
+            label = f"{g.label} ({len(runs)} runs)"
+            curves.append(Curve(label, bands["episode_cost"][0], mean, band, len(runs), limits, list(PANELS[:2])))
+    return draw(curves, out, f"mean over runs, 95% stratified-bootstrap band; trailing mean over {k} iterations")
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    """The command's arguments (``argv``; default: the process's), checked: a bad one exits with argparse's
-    usage line, status 2."""
+    """The command's arguments (``argv``; default: the process's); a bad one exits with status 2."""
     parser = argparse.ArgumentParser(
         prog="python -m cmdp_rl.report.compare",
         description=__doc__.split("\n\n")[1],
@@ -301,11 +252,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("paths", nargs="+", help="run directories or sweep directories (searched for runs)")
     parser.add_argument(
-        "--by",
-        action="append",
-        default=[],
-        help="config field to group by, dotted (repeat or comma-separate for several); "
-        "default: every field but the seed",
+        "--by", action="append", default=[], help="config fields to group by (dotted; repeat or comma-separate)"
     )
     parser.add_argument("--csv", help="also write the table as CSV, one row per group")
     parser.add_argument("--figure", help="write learning curves with 95%% bands to this PNG")

@@ -1,24 +1,7 @@
-"""Interval estimates of one run's final evaluation, over its evaluation episodes.
-
-A mean over 20 episodes says nothing about how far the policy's true mean may be from it, and
-"cost 0.00" says nothing about how often the policy would break its budget. This module gives:
-
-- mean return and mean cost with a two-sided 95% confidence interval: the bias-corrected and
-  accelerated (BCa) bootstrap (Efron 1987, "Better Bootstrap Confidence Intervals";
-  ``scipy.stats.bootstrap``), resampling the episodes with a fixed seed so a rerun gives the same
-  numbers;
-- mean cost's one-sided 95% upper confidence bound, from the same bootstrap distribution;
-- the violation rate, the fraction of episodes whose cost exceeded the budget ``d``, with the exact
-  binomial (Clopper-Pearson 1934) two-sided 95% interval and one-sided 95% upper bound. This one
-  needs no distributional assumption: with 0 violations in n episodes the upper bound is
-  ``1 - 0.05**(1/n)`` (14% for n = 20, 3% for n = 100).
-
-What resampling cannot do: show spread that the sample did not have. When every episode had the
-same value (a deterministic policy on a deterministic task, or no episode with any cost), the
-bootstrap interval is that value alone; the result says so (``no_spread``), and for cost the
-violation-rate bound is then the claim to rest on. With a single episode there is no interval at all
-(``None``).
-"""
+"""Interval estimates of one run's final evaluation over its episodes (docs/evaluation.md): mean return and
+cost with a two-sided 95% BCa bootstrap interval (Efron 1987; ``scipy.stats.bootstrap``, a fixed seed) and the
+cost's one-sided upper bound; the violation rate with the exact binomial (Clopper-Pearson 1934) interval and
+bound. Resampling cannot show spread the sample lacks: equal values give ``no_spread``; one episode, ``None``."""
 
 from __future__ import annotations
 
@@ -29,8 +12,8 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import stats
 
-LEVEL = 0.95  # the key names below say "95"; one level for every interval of eval.json
-RESAMPLES = 9999  # scipy's default; 20-1000 episodes resample in milliseconds
+LEVEL = 0.95  # the key names below say "95"
+RESAMPLES = 9999  # scipy's default
 SEED = 0  # the bootstrap's own generator, independent of torch's: intervals never move training
 BOOTSTRAP_METHOD = "BCa bootstrap over episodes (scipy.stats.bootstrap)"
 BINOMIAL_METHOD = "exact binomial, Clopper-Pearson (scipy.stats.binomtest)"
@@ -42,24 +25,14 @@ VIOLATION_TOLERANCE = 1e-9
 def mean_interval(
     values: Sequence[float], level: float = LEVEL, resamples: int = RESAMPLES, seed: int = SEED
 ) -> dict[str, Any]:
-    """Mean of ``values`` with a two-sided BCa bootstrap interval at ``level`` (``low``, ``high``)
-    and the one-sided upper bound at ``level`` (``upper``).
-
-    ``no_spread`` is True when all values are equal (the interval is then the value itself: the
-    bootstrap has nothing to resample); with one value the bounds are None.
-    """
+    """Mean of ``values`` with a two-sided BCa bootstrap interval at ``level`` (``low``, ``high``) and the
+    one-sided upper bound (``upper``); ``no_spread`` when all values are equal; None bounds for one value."""
     x = np.asarray(values, dtype=np.float64)
     if x.ndim != 1 or x.size == 0:
         raise ValueError(f"mean_interval: need a non-empty 1-D sample, got shape {x.shape}")
     mean = float(x.mean())
-    out: dict[str, Any] = {
-        "mean": mean,
-        "n": int(x.size),
-        "low": None,
-        "high": None,
-        "upper": None,
-        "no_spread": bool(np.ptp(x) == 0),
-    }
+    out: dict[str, Any] = {"mean": mean, "n": int(x.size), **dict.fromkeys(("low", "high", "upper"))}
+    out["no_spread"] = bool(np.ptp(x) == 0)
     if x.size < 2:
         return out
     if out["no_spread"]:
@@ -84,8 +57,8 @@ def mean_interval(
 
 
 def violation_interval(costs: Sequence[float], cost_limit: float, level: float = LEVEL) -> dict[str, Any]:
-    """The fraction of episodes with cost above ``cost_limit``, with the exact (Clopper-Pearson)
-    two-sided interval (``low``, ``high``) and one-sided upper bound (``upper``) at ``level``."""
+    """The fraction of episodes with cost above ``cost_limit``, with its Clopper-Pearson two-sided interval
+    (``low``, ``high``) and one-sided upper bound (``upper``)."""
     c = np.asarray(costs, dtype=np.float64)
     if c.ndim != 1 or c.size == 0:
         raise ValueError(f"violation_interval: need a non-empty 1-D sample, got shape {c.shape}")
@@ -93,21 +66,13 @@ def violation_interval(costs: Sequence[float], cost_limit: float, level: float =
     k = int(np.sum(c > cost_limit + VIOLATION_TOLERANCE * max(1.0, abs(cost_limit))))
     two = stats.binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
     one = stats.binomtest(k, n, alternative="less").proportion_ci(confidence_level=level, method="exact")
-    return {
-        "rate": k / n,
-        "violations": k,
-        "n": n,
-        "low": float(two.low),
-        "high": float(two.high),
-        "upper": float(one.high),
-    }
+    return dict(rate=k / n, violations=k, n=n, low=float(two.low), high=float(two.high), upper=float(one.high))
 
 
 def summarize(
     returns: Sequence[float], costs: Sequence[float], cost_limit: float, resamples: int = RESAMPLES, seed: int = SEED
 ) -> dict[str, Any]:
-    """The interval keys eval.json carries, for one run's evaluation episodes (JSON-ready:
-    intervals are ``[low, high]`` lists, unknown bounds are None)."""
+    """The interval keys eval.json carries (``[low, high]`` lists; None for unknown bounds)."""
     ret = mean_interval(returns, LEVEL, resamples, seed)
     cost = mean_interval(costs, LEVEL, resamples, seed)
     viol = violation_interval(costs, cost_limit, LEVEL)
@@ -142,13 +107,7 @@ def _ci(pair: list[float] | None, fmt: str) -> str:
 
 
 def summary_lines(result: dict[str, Any], cost_limit: float) -> list[str]:
-    """Human-readable lines for a result holding :func:`summarize`'s keys (and ``episode_return``,
-    ``episode_cost``, ``episodes``), e.g.::
-
-        return 0.356, 95% CI [0.351, 0.361]
-        cost   0.00, 95% CI [0.00, 0.00], 95% upper bound 0.00 (limit 1.0); no spread over 20 episodes
-        violations 0/20 episodes (cost > 1): rate 0%, 95% CI [0%, 17%], 95% upper bound 14%
-    """
+    """The return's, the cost's and the violations' interval lines of a result holding :func:`summarize`'s keys."""
     n = result["episodes"]
     flat = result["intervals"]["no_spread"]
     ucb = result["episode_cost_ucb95"]

@@ -1,15 +1,7 @@
-"""Per-iteration metrics: one CSV row each (always), TensorBoard scalars (``logger=tensorboard``)
-or a Weights & Biases run (``logger=wandb``), and a progress line on the console. The columns are
-the run's own (:data:`RUN_COLUMNS`), then the statistics the algorithm declares (its ``stats``),
-then the field's safety metrics; the TensorBoard tags and wandb keys are those names, against the
-env step. A row with a name that is not a column is an error, never dropped.
-
-Several constraints (an env with K > 1 costs): every per-constraint quantity
-(:data:`PER_CONSTRAINT`: episode cost, multiplier, budget, cost rate, normalized violation and
-cost rate) has one column per cost, named ``<name>/<cost name>`` (``episode_cost/hazard_a``;
-TensorBoard groups tags by the part before the slash). With one cost the columns keep their plain
-names (``episode_cost``, ``lagrange_multiplier``), as before costs became vectors.
-"""
+"""Per-iteration metrics: a CSV row each, TensorBoard scalars (``logger=tensorboard``) or a wandb run under the same
+names against the env step, and the progress line. Columns: :data:`RUN_COLUMNS`, the algorithm's ``stats``,
+:data:`SAFETY_COLUMNS` (any other name is an error); with K > 1 costs each :data:`PER_CONSTRAINT` quantity has a
+column per cost, ``<name>/<cost name>`` (TensorBoard groups tags by the part before the slash)."""
 
 from __future__ import annotations
 
@@ -24,12 +16,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 from cmdp_rl.config.run_config import TENSORBOARD_MISSING, WANDB_MISSING, RunConfig
 
-WANDB_DIR = "wandb"  # wandb's files, under the run directory
 WANDB_ID = "wandb_id.txt"  # the wandb run's id, for a resume to continue the same run
 _SINGLE = ("cost_0",)  # the cost names of an env with one cost (its columns keep plain names)
 
-# What the loop measures every iteration, for every algorithm. lagrange_multiplier is the lambda in
-# force (0 for unconstrained PPO); every algorithm reports it.
+# lagrange_multiplier: the lambda in force (0 for unconstrained PPO).
 RUN_COLUMNS = [
     "iteration",
     "step",
@@ -42,11 +32,7 @@ RUN_COLUMNS = [
     "sps",
     "time_s",
 ]
-# The field's metrics (safety_metrics.py): blank where no reference is given.
 SAFETY_COLUMNS = ["cost_rate", "normalized_return", "normalized_violation", "normalized_cost_rate"]
-
-
-# Quantities with one value per constraint.
 PER_CONSTRAINT = (
     "episode_cost",
     "lagrange_multiplier",
@@ -58,25 +44,12 @@ PER_CONSTRAINT = (
 
 
 def constraint_name(name: str, cost_name: str, num_costs: int) -> str:
-    """The column (or eval.json key) of ``name`` for one constraint: ``name`` itself when the env
-    has one cost, else ``name/cost_name``."""
+    """The column (or eval.json key) of ``name`` for one constraint: ``name`` with one cost, else ``name/cost_name``."""
     return name if num_costs == 1 else f"{name}/{cost_name}"
 
 
-def expand(names: Sequence[str], cost_names: Sequence[str] = _SINGLE) -> list[str]:
-    """``names`` with each per-constraint one replaced by its columns, one per cost."""
-    out: list[str] = []
-    for name in names:
-        if name in PER_CONSTRAINT:
-            out += [constraint_name(name, c, len(cost_names)) for c in cost_names]
-        else:
-            out.append(name)
-    return out
-
-
 def spread(row: dict[str, Any], cost_names: Sequence[str] = _SINGLE) -> dict[str, Any]:
-    """A row whose per-constraint values are lists of K (or one number for every constraint) as
-    columns, one per cost (:func:`expand`); other values as they are."""
+    """``row`` with each per-constraint value (a list of K, or one number for all) as its K columns."""
     k = len(cost_names)
     out: dict[str, Any] = {}
     for name, value in row.items():
@@ -91,19 +64,17 @@ def spread(row: dict[str, Any], cost_names: Sequence[str] = _SINGLE) -> dict[str
 
 
 def columns(stats: Sequence[str], cost_names: Sequence[str] = _SINGLE) -> list[str]:
-    """A run's metrics.csv columns, for an algorithm that declares ``stats``, on an env whose costs
-    are ``cost_names`` (one column per cost for :data:`PER_CONSTRAINT`)."""
+    """A run's metrics.csv columns, for an algorithm that declares ``stats``, on an env with ``cost_names``."""
     names = [*RUN_COLUMNS, *(s for s in stats if s not in RUN_COLUMNS and s not in SAFETY_COLUMNS), *SAFETY_COLUMNS]
-    return expand(names, cost_names)
+    out: list[str] = []
+    for n in names:
+        out += [constraint_name(n, c, len(cost_names)) for c in cost_names] if n in PER_CONSTRAINT else [n]
+    return out
 
 
 def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
-    """Keep the header and rows 1..``iteration`` of a metrics CSV (a resume from the checkpoint of
-    ``iteration``), dropping later rows and a partly written last line. Returns the header.
-
-    Raises ``ValueError`` if a row up to ``iteration`` is missing or out of order: rows are written
-    and synced before each checkpoint, so that would mean the file was edited or lost.
-    """
+    """Keep the header and rows 1..``iteration`` (a resume from there) and return the header; a missing or
+    misordered row is a ``ValueError`` (rows are synced before each checkpoint: the file was edited or lost)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path} is missing; the checkpoint is at iteration {iteration}")
@@ -125,9 +96,8 @@ def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
     return header
 
 
-# The progress line's window: the mean over the last this many finished episodes, as SB3's ep_rew_mean and
-# OmniSafe's window_lens do, so that a task whose episodes end only every few iterations (safe_nav's 1000
-# steps) never shows n/a once one has ended. metrics.csv keeps each iteration's own episodes.
+# The progress line's window of finished episodes (SB3's ep_rew_mean, OmniSafe's window_lens): a task whose
+# episodes end every few iterations never shows n/a once one has ended. metrics.csv keeps each iteration's own.
 RECENT_EPISODES = 100
 
 
@@ -145,32 +115,20 @@ class RecentEpisodes:
     def __len__(self) -> int:
         return len(self.returns)
 
-    def means(self) -> tuple[float, list[float]]:
-        """The window's mean return and mean cost per constraint."""
-        n = len(self.returns)
-        return sum(self.returns) / n, [sum(col) / n for col in zip(*self.costs)]
-
     def over(self, row: dict[str, Any]) -> dict[str, Any]:
-        """``row`` with its return and cost columns replaced by the window's means (``row`` itself while the
-        window is empty)."""
+        """``row`` with its return and cost columns replaced by the window's means (as it is while empty)."""
         if not len(self):
             return row
-        mean_return, mean_costs = self.means()
-        return {**row, "episode_return": mean_return, **recent_costs(row, mean_costs)}
+        n = len(self.returns)
+        names = ["episode_cost"] if "episode_cost" in row else [k for k in row if k.startswith("episode_cost/")]
+        costs = dict(zip(names, (sum(col) / n for col in zip(*self.costs))))
+        return {**row, "episode_return": sum(self.returns) / n, **costs}
 
 
 class MetricsLogger:
-    """Writes one CSV row per iteration (flushed at once) and echoes a progress line every
-    ``log_interval`` iterations. With ``resume_iteration`` it continues an existing file after
-    that iteration's row (see :func:`truncate_metrics`) instead of starting a new one.
-
-    With ``tensorboard_dir`` it also writes every numeric column but ``iteration`` and ``step`` as
-    a TensorBoard scalar at ``global_step = step``. On a resume, ``resume_step`` (the checkpoint's
-    step) hides the events a killed run wrote after its checkpoint (``SummaryWriter``'s purge_step).
-
-    With ``wandb`` (:func:`wandb_for`) it also logs every row to a wandb run, which :meth:`finish`
-    ends with the run's summary.
-    """
+    """One CSV row per iteration and a progress line every ``log_interval``. ``resume_iteration``: continue the
+    file (:func:`truncate_metrics`); ``tensorboard_dir``: the numbers as scalars at ``step``, ``resume_step``
+    hiding what a killed run wrote after its checkpoint; ``wandb``: :func:`wandb_for`."""
 
     def __init__(
         self,
@@ -194,20 +152,17 @@ class MetricsLogger:
                 raise ImportError(TENSORBOARD_MISSING) from exc
             purge = None if resume_step is None else resume_step + 1
             self._tb = SummaryWriter(str(tensorboard_dir), purge_step=purge)
-        if resume_iteration is None:
-            self.columns = list(fieldnames)
-            self._file = open(self.path, "w", newline="")
-            self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
-            self._writer.writeheader()
-        else:
-            # The run keeps the columns it started with (a run from an older version may have more);
-            # a column it lacks cannot be added to the file, so it is an error here, not a dropped stat.
+        self.columns = list(fieldnames)
+        if resume_iteration is not None:
+            # The run keeps the columns it started with; one it lacks cannot be added: an error, not a dropped stat.
             self.columns = truncate_metrics(self.path, resume_iteration)
             missing = [c for c in fieldnames if c not in self.columns]
             if missing:
                 raise ValueError(f"{self.path} has no column for {missing}, which this version logs")
-            self._file = open(self.path, "a", newline="")
-            self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
+        self._file = open(self.path, "w" if resume_iteration is None else "a", newline="")
+        self._writer = csv.DictWriter(self._file, fieldnames=self.columns, lineterminator="\n")
+        if resume_iteration is None:
+            self._writer.writeheader()
         self._file.flush()
         self.recent = RecentEpisodes()
         self._wandb = wandb
@@ -215,8 +170,7 @@ class MetricsLogger:
             wandb.start(resume_iteration is not None)  # last: a resume refused above starts no wandb run
 
     def log(self, row: dict[str, Any], force_echo: bool = False, episodes: Mapping[str, Any] | None = None) -> None:
-        """Write ``row``; ``episodes`` (the iteration's finished episodes: ``return`` [E], ``cost`` [E, K])
-        feed the progress line's window of recent episodes."""
+        """Write ``row``; ``episodes`` (finished ones: ``return`` [E], ``cost`` [E, K]) feed the progress line."""
         if episodes is not None:
             self.recent.add(episodes["return"].tolist(), episodes["cost"].tolist())
         unknown = [k for k in row if k not in self.columns]
@@ -228,18 +182,15 @@ class MetricsLogger:
         self._writer.writerow(row)
         self._file.flush()
         if self._tb is not None:
-            for name in self.columns[2:]:
-                value = row.get(name)
-                if isinstance(value, (int, float)) and math.isfinite(value):
-                    self._tb.add_scalar(name, value, global_step=row["step"])
+            for name, value in scalars(row, self.columns).items():
+                self._tb.add_scalar(name, value, global_step=row["step"])
         if self._wandb is not None:
             self._wandb.log(row, self.columns)
         if force_echo or row["iteration"] == 1 or row["iteration"] % self.log_interval == 0:
             self.echo(format_row(row, self.recent))
 
     def sync(self) -> None:
-        """Force the rows written so far to disk; called before each checkpoint, so a checkpoint
-        never refers to a row that a machine crash could still lose."""
+        """Force the rows to disk before each checkpoint: it never refers to a row a crash could lose."""
         self._file.flush()
         os.fsync(self._file.fileno())
         if self._tb is not None:
@@ -252,17 +203,14 @@ class MetricsLogger:
             self._tb.close()
 
     def finish(self, summary: Mapping[str, Any]) -> None:
-        """The end-of-run summary (eval.json's contents): attached to the wandb run, which ends here."""
+        """Attach the run's summary (eval.json) to the wandb run, which ends here."""
         if self._wandb is not None:
             self._wandb.finish(summary)
 
 
 class WandbRun:
-    """A Weights & Biases run beside metrics.csv (``logger=wandb``): the run's config attached at the
-    start, one ``log`` per metrics row with ``step`` (the env step) as every metric's x axis, the
-    summary at the end. Its files go to ``<run>/wandb/``; its id is kept in ``<run>/wandb_id.txt``
-    so a resume continues the same wandb run (``resume="allow"``). wandb's console capture is off:
-    it would wrap stdout, which the progress lines own."""
+    """A wandb run (``logger=wandb``): config, a ``log`` per row against ``step``, summary; its id in ``wandb_id.txt``
+    for a resume. Console capture is off: it would wrap stdout, which the progress lines own."""
 
     def __init__(self, run_dir: Path, project: str, entity: str | None, mode: str, config: dict[str, Any]) -> None:
         self.run_dir, self.project, self.entity, self.mode, self.config = run_dir, project, entity, mode, config
@@ -280,7 +228,6 @@ class WandbRun:
             run_id = secrets.token_hex(4)  # as wandb makes them: 8 characters of [0-9a-z]
             id_file.write_text(run_id + "\n")
         self.run = wandb.init(
-            # dir: wandb writes its files to <dir>/wandb (WANDB_DIR)
             project=self.project,
             entity=self.entity,
             mode=self.mode,
@@ -296,12 +243,7 @@ class WandbRun:
         self.run.define_metric("*", step_metric="step")
 
     def log(self, row: Mapping[str, Any], columns: Sequence[str]) -> None:
-        values = {"step": row["step"]}
-        for name in columns[2:]:
-            value = row.get(name)
-            if isinstance(value, (int, float)) and math.isfinite(value):
-                values[name] = value
-        self.run.log(values)
+        self.run.log({"step": row["step"], **scalars(row, columns)})
 
     def finish(self, summary: Mapping[str, Any]) -> None:
         self.run.summary.update(dict(summary))
@@ -316,39 +258,32 @@ def wandb_for(cfg: RunConfig, run_dir: str | Path) -> WandbRun | None:
     return WandbRun(Path(run_dir), cfg.logger.project, cfg.logger.entity, cfg.logger.mode, config)
 
 
+def scalars(row: Mapping[str, Any], columns: Sequence[str]) -> dict[str, float]:
+    """The row's finite numbers but ``iteration`` and ``step``: what TensorBoard and wandb plot."""
+    return {k: v for k in columns[2:] if isinstance(v := row.get(k), (int, float)) and math.isfinite(v)}
+
+
 def _fmt(x: float, spec: str) -> str:
     return "   n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
 
 
 def _per_constraint(row: dict[str, Any], name: str) -> list:
     """``name``'s values in a row: its one column, or its ``name/<cost>`` columns in order."""
-    if name in row:
-        return [row[name]]
-    return [v for k, v in row.items() if k.startswith(name + "/")]
+    return [row[name]] if name in row else [v for k, v in row.items() if k.startswith(name + "/")]
 
 
 def format_row(row: dict[str, Any], recent: RecentEpisodes | None = None) -> str:
-    """The progress line. With ``recent`` (and an episode in it) the return and cost are the means of
-    its window, with its size; else the row's own. A row without a multiplier (an algorithm that reports
-    none) has no ``lambda`` part, rather than a KeyError halfway through a run."""
+    """The progress line: ``recent``'s window once it holds an episode, else the row's own (``lambda`` if reported)."""
     window = ""
     if recent is not None and len(recent):
         row, window = recent.over(row), f" | last {len(recent)} episodes"
     cost = "/".join(_fmt(c, ".2f") for c in _per_constraint(row, "episode_cost"))
     lams = _per_constraint(row, "lagrange_multiplier")
     lam = "/".join(_fmt(x, ".3f") for x in lams)
-    if "episode_cost" in row:  # one constraint: the fixed-width line it always had
+    if "episode_cost" in row:  # one constraint: fixed width
         cost = _fmt(row["episode_cost"], "6.2f")
         lam = _fmt(row["lagrange_multiplier"], "6.3f") if "lagrange_multiplier" in row else ""
     return (
         f"iter {row['iteration']:4d} | step {row['step']:>9,d} | {row['sps']:>8,.0f} steps/s"
         f" | return {_fmt(row['episode_return'], '7.3f')} | cost {cost}" + (f" | lambda {lam}" if lams else "") + window
     )
-
-
-def recent_costs(row: dict[str, Any], mean_costs: Sequence[float]) -> dict[str, float]:
-    """``mean_costs`` under the row's cost column names (one ``episode_cost``, or ``episode_cost/<cost>``)."""
-    if "episode_cost" in row:
-        return {"episode_cost": mean_costs[0]}
-    names = [k for k in row if k.startswith("episode_cost/")]
-    return dict(zip(names, mean_costs))

@@ -1,15 +1,9 @@
 """Learning curves of runs: ``python -m cmdp_rl.report.plot <run dirs...> [-o curves.png] [--smooth K]``.
 
-Draws episode return, episode cost (with each config's budget d as a dashed line) and the Lagrange
-multiplier against env steps, from each run's ``metrics.csv``. Runs whose configs differ only in
-``seed`` are one curve: the mean over seeds, with a band of one standard deviation across seeds
-(none for a single seed). Each run's curve is first smoothed with a trailing mean over ``K``
-iterations that skips iterations in which no episode ended (NaN in the CSV).
-
-Runs on an env with K > 1 costs (columns ``episode_cost/<cost>``, ``lagrange_multiplier/<cost>``,
-``cost_limit/<cost>``, see ``metrics.py``) get one cost panel (with that constraint's budget) and
-one multiplier panel per constraint.
-"""
+Draws episode return, episode cost (with each config's budget d dashed) and the Lagrange multiplier (a cost
+and a multiplier panel per constraint) against env steps from each run's ``metrics.csv``. Runs whose configs
+differ only in ``seed`` are one curve, the mean with a band of one standard deviation, each run first smoothed
+by a trailing mean over ``K`` iterations that skips those in which no episode ended."""
 
 from __future__ import annotations
 
@@ -20,7 +14,7 @@ import sys
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -33,12 +27,11 @@ PANELS = (
     ("episode_return", "episode return"),
     ("episode_cost", "episode cost"),
     ("lagrange_multiplier", "Lagrange multiplier λ"),
-)  # with one cost
+)
 
 
 def panels(columns: Sequence[str]) -> list[tuple[str, str]]:
-    """(column, title) of each panel for a run with these metrics.csv columns: return, then each
-    constraint's episode cost, then each constraint's multiplier."""
+    """(column, title) of each panel for a run with these metrics.csv columns: return, costs, multipliers."""
     out = [PANELS[0]]
     for name, title in PANELS[1:]:
         if name in columns:
@@ -48,33 +41,41 @@ def panels(columns: Sequence[str]) -> list[tuple[str, str]]:
     return out
 
 
-def _limit_column(panel: str) -> str:
-    """The budget column of an episode-cost panel: ``cost_limit`` or ``cost_limit/<cost>``."""
-    return "cost_limit" + panel[len("episode_cost") :]
-
-
 IGNORED = ("seed", "resume", "total_steps", "log_interval", "checkpoint_every", "threads", "logger")
-# What a run deploys at its end does not change its training curves: a plot of curves groups across it
-# (deploy.policy: auto gives a primal-dual algorithm the mixture and the others the last iterate).
-DEPLOYMENT = "deploy."  # the node's fields, flattened
 
 
 def _grouped_across(key: str) -> bool:
-    return key in IGNORED or key.startswith(DEPLOYMENT)
+    """What a run deploys does not change its training curves: a plot groups across the deploy node too."""
+    return key in IGNORED or key.startswith("deploy.")
+
+
+def config_key(flat: dict[str, Any], skip: Callable[[str], bool]) -> str:
+    """A group's key: the flat config but the fields ``skip`` names."""
+    return json.dumps({k: v for k, v in flat.items() if not skip(k)}, sort_keys=True, default=str)
+
+
+def varying(cfgs: Sequence[dict[str, Any]], skip: Callable[[str], bool]) -> list[str]:
+    """The fields every one of ``cfgs`` has, but those ``skip`` names, whose values differ: a group's label."""
+    shared = set.intersection(*(set(c) for c in cfgs)) if cfgs else set()
+    return sorted(k for k in shared if not skip(k) and len({json.dumps(c[k], default=str) for c in cfgs}) > 1)
 
 
 @dataclass
 class Curve:
-    """One group of runs (configs equal but for the seed): the mean and spread across them."""
+    """One group of runs: mean and band ``(low, high)`` per panel (none for one run), each cost panel's budget."""
 
     label: str
     step: np.ndarray
     mean: dict[str, np.ndarray]
-    std: dict[str, np.ndarray]
+    band: dict[str, tuple[np.ndarray, np.ndarray]]
     seeds: int
-    cost_limit: float  # the first constraint's budget
-    cost_limits: dict[str, float]  # episode-cost panel -> its budget d
+    cost_limits: dict[str, float]
     panels: list[tuple[str, str]]
+
+    @property
+    def cost_limit(self) -> float:
+        """The first constraint's budget."""
+        return next(iter(self.cost_limits.values()), float("nan"))
 
 
 def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -82,7 +83,6 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]
     run = Path(run_dir)
     if not (run / METRICS).is_file():
         raise FileNotFoundError(f"plot: no {METRICS} in {run}")
-    # (a config saved with the flat deployment options has them as the deploy node: migrations.py)
     cfg = flatten_dict(deploy_node(read_yaml(run / CONFIG, "plot"))) if (run / CONFIG).is_file() else {}
     with open(run / METRICS) as f:
         rows = list(csv.DictReader(f))
@@ -93,7 +93,7 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]
 
 
 def smooth(x: np.ndarray, k: int) -> np.ndarray:
-    """Trailing mean over the last ``k`` finite values in a window of ``k`` entries."""
+    """Trailing mean over the finite values in a window of ``k`` entries."""
     if k <= 1:
         return x
     out = np.full_like(x, np.nan)
@@ -119,54 +119,43 @@ def aggregate(runs: Sequence[dict[str, np.ndarray]], k: int = 1) -> tuple[np.nda
 
 
 def group_runs(run_dirs: Sequence[str | Path], k: int = 1) -> list[Curve]:
-    """Group runs whose configs agree on everything but :data:`IGNORED` and average each group."""
-    loaded = [read_run(d) for d in run_dirs]
+    """Group runs whose configs agree but for :data:`IGNORED` and the deploy node, and average each group."""
     groups: dict[str, list[tuple[dict, dict]]] = {}
-    for cfg, cols in loaded:
-        key = json.dumps({k_: v for k_, v in cfg.items() if not _grouped_across(k_)}, sort_keys=True, default=str)
-        groups.setdefault(key, []).append((cfg, cols))
-    # Label each group by its algorithm and whatever else tells the groups apart (among options all
-    # of them have: one algorithm's own options are implied by its name).
-    cfgs = [members[0][0] for members in groups.values()]
-    shared = {k_ for k_ in set.intersection(*(set(c) for c in cfgs)) if not _grouped_across(k_)} - {"algo.name"}
-    varying = sorted(k_ for k_ in shared if len({json.dumps(c[k_], default=str) for c in cfgs}) > 1)
+    for cfg, cols in map(read_run, run_dirs):
+        groups.setdefault(config_key(cfg, _grouped_across), []).append((cfg, cols))
+    # Labels: the algorithm and what else tells the groups apart (its own options are implied by its name).
+    labels = varying([m[0][0] for m in groups.values()], lambda k_: _grouped_across(k_) or k_ == "algo.name")
     curves = []
     for members in groups.values():
-        cfg = members[0][0]
-        extra = ", ".join(f"{k_}={cfg.get(k_)}" for k_ in varying)
+        cfg, cols = members[0]
+        extra = ", ".join(f"{k_}={cfg.get(k_)}" for k_ in labels)
         label = cfg.get("algo.name", "run") + (f" ({extra})" if extra else "")
-        step, mean, std = aggregate([cols for _, cols in members], k)
-        cols = members[0][1]
+        step, mean, std = aggregate([c for _, c in members], k)
+        band = {n: (mean[n] - std[n], mean[n] + std[n]) for n in mean} if len(members) > 1 else {}
+        given = cfg.get("algo.cost_limit", np.nan)
+        given = np.array([np.nan if isinstance(given, list) else given])
         shown = panels(list(cols))
-        limits = {}
-        for name, _ in shown:
-            if name.startswith("episode_cost"):
-                given = cfg.get("algo.cost_limit", np.nan)
-                limits[name] = float(
-                    cols.get(_limit_column(name), np.array([given if not isinstance(given, list) else np.nan]))[0]
-                )
-        first = next(iter(limits.values()), float("nan"))
-        curves.append(
-            Curve(
-                f"{label}, {len(members)} seed{'s' if len(members) > 1 else ''}",
-                step,
-                mean,
-                std,
-                len(members),
-                first,
-                limits,
-                shown,
-            )
-        )
+        limits = {
+            n: float(cols.get("cost_limit" + n.removeprefix("episode_cost"), given)[0])
+            for n, _ in shown
+            if n.startswith("episode_cost")
+        }
+        seeds = f"{len(members)} seed{'s' if len(members) > 1 else ''}"
+        curves.append(Curve(f"{label}, {seeds}", step, mean, band, len(members), limits, shown))
     return curves
 
 
 def plot_runs(run_dirs: Sequence[str | Path], out: str | Path, k: int = 5) -> Path:
     """Draw :data:`PANELS` for the runs in ``run_dirs`` into the PNG ``out``."""
-    plt = pyplot()
     curves = group_runs(run_dirs, k)
-    # The panels of every run, in order of first appearance (runs with different K side by side).
-    shown = list(dict.fromkeys(p for c in curves for p in c.panels))
+    band = "mean ± 1 std over seeds" if any(c.seeds > 1 for c in curves) else "one seed per curve"
+    return draw(curves, out, f"{band}; trailing mean over {k} iterations")
+
+
+def draw(curves: Sequence[Curve], out: str | Path, title: str) -> Path:
+    """Each curve's panels (every curve's, in order of first appearance), its band and budgets, into ``out``."""
+    plt = pyplot()
+    shown = list(dict.fromkeys(p for c in curves for p in c.panels)) or list(PANELS[:2])
     fig, axes = plt.subplots(1, len(shown), figsize=(5 * len(shown), 3.8), squeeze=False)
     axes = axes[0]
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -177,10 +166,8 @@ def plot_runs(run_dirs: Sequence[str | Path], out: str | Path, k: int = 5) -> Pa
             if name not in c.mean:
                 continue
             ax.plot(c.step, c.mean[name], color=color, lw=1.6, label=c.label)
-            if c.seeds > 1:
-                ax.fill_between(
-                    c.step, c.mean[name] - c.std[name], c.mean[name] + c.std[name], color=color, alpha=0.2, lw=0
-                )
+            if name in c.band:
+                ax.fill_between(c.step, *c.band[name], color=color, alpha=0.2, lw=0)
             limit = c.cost_limits.get(name, np.nan)
             if np.isfinite(limit) and (name, limit) not in limits_drawn:
                 limits_drawn.add((name, limit))
@@ -190,8 +177,7 @@ def plot_runs(run_dirs: Sequence[str | Path], out: str | Path, k: int = 5) -> Pa
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
     axes[min(1, len(shown) - 1)].legend(fontsize=7, loc="best")
-    band = "mean ± 1 std over seeds" if any(c.seeds > 1 for c in curves) else "one seed per curve"
-    fig.suptitle(f"{band}; trailing mean over {k} iterations", fontsize=9)
+    fig.suptitle(title, fontsize=9)
     return save_figure(fig, out)
 
 
@@ -225,9 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("runs", nargs="+", help="run directories (each with metrics.csv and config.yaml)")
     parser.add_argument("-o", "--out", default="curves.png", help="PNG to write (default: curves.png)")
-    parser.add_argument(
-        "--smooth", type=int, default=5, help="trailing mean over this many iterations (default 5; 1: none)"
-    )
+    parser.add_argument("--smooth", type=int, default=5, help="trailing mean over SMOOTH iterations (default 5)")
     args = parser.parse_args(argv)
     if args.smooth < 1:
         parser.error(f"--smooth must be a positive integer, got {args.smooth}")

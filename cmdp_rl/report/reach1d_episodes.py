@@ -1,11 +1,5 @@
-"""Replaying Reach1D episodes with what the agent could not see, and drawing them.
-
-The collector keeps only what learning needs; the true position lives in the env's ``info`` and
-never reaches a batch. Replay steps one plain Reach1D per episode and records it, away from the
-collector's hot path. It sends actions in the env's own dtype, as ``GymVecEnv`` does.
-
-Videos of a policy (Reach1D's drawn frame, the MuJoCo velocity tasks) are ``cmdp_rl/report/video.py``'s.
-"""
+"""Replaying Reach1D episodes with what the agent could not see, and drawing them: the true position lives in
+the env's ``info`` and never reaches a batch, so replay steps one plain Reach1D away from the collector."""
 
 from __future__ import annotations
 
@@ -48,8 +42,7 @@ class Reach1DEpisode:
 def record_reach1d(
     agent: Agent, env_cfg: Reach1DConfig, episodes: int, deterministic: bool = True, seed: int = 0
 ) -> list[Reach1DEpisode]:
-    """Run ``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once, as env 0 of
-    a vector env is), recording the true position beside the reading the agent saw."""
+    """``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once), with the true positions."""
     env = Reach1D(**env_cfg.env_kwargs())
     memory = PolicyMemory(agent, 1, env.action_space, torch.device("cpu"))
     out: list[Reach1DEpisode] = []
@@ -64,7 +57,7 @@ def record_reach1d(
                     {**carried, keys.OBS: torch.as_tensor(obs).unsqueeze(0), keys.IS_INIT: torch.tensor([[is_init]])},
                     deterministic,
                 )
-                action = wrote[keys.ACTION][0].numpy().astype(env.action_space.dtype)
+                action = wrote[keys.ACTION][0].numpy().astype(env.action_space.dtype)  # as GymVecEnv sends it
                 obs, reward, terminated, truncated, info = env.step(action)
                 # as in the collector: the policy's next state, previous action and cost
                 _, carried = memory.step(wrote, torch.tensor([[float(info["cost"])]]), torch.tensor([[False]]))
@@ -84,8 +77,7 @@ def record_reach1d(
 
 
 def plot_reach1d(episodes: list[Reach1DEpisode], env_cfg: Reach1DConfig, path: str | Path, title: str = "") -> Path:
-    """One panel per episode: true position and noisy reading against time, the wall, the goal
-    (with its 0.02 reach band), and a red cross at every step that crossed the wall (cost 1)."""
+    """A panel per episode: true position and reading over time, the wall, the goal (its 0.02 band), crossings."""
     plt = pyplot()
     n = len(episodes)
     fig, axes = plt.subplots(n, 1, figsize=(9.5, 2.4 * n), sharex=True, squeeze=False)

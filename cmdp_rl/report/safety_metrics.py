@@ -1,19 +1,11 @@
-"""The safe-RL field's run metrics (Ray, Achiam, Amodei 2019, "Benchmarking Safe Exploration in Deep
-Reinforcement Learning", sec. 5; Safety Gym's ``bench/bench_utils.py`` has the same formulas).
-
-- cost rate ``rho_c``: all costs incurred during training divided by the env steps taken so far,
-  safety *during* training rather than of the final policy.
-- Normalized by an unconstrained PPO reference trained on the same env for the same number of steps:
+"""The safe-RL field's run metrics (Ray, Achiam, Amodei 2019, sec. 5; Safety Gym's ``bench/bench_utils.py``):
+the cost rate ``rho_c`` (all costs incurred in training over the env steps so far), and, against an
+unconstrained PPO reference trained on the same env for as many steps,
     normalized return          J_r / J_r^PPO
     normalized violation       max(0, J_c - d) / max(eps, J_c^PPO - d),   eps = 1e-6
     normalized cost rate       rho_c / rho_c^PPO
-  with ``J_r``, ``J_c`` the final policy's mean episode return and cost and ``d`` this run's budget.
-  0 violation is within budget; 1 is as far over budget as PPO. Without a reference, blank (None).
-- K costs: the cost rate, the violation and the normalized cost rate are per constraint, against
-  the reference's number for that constraint (a reference run on the same env has them in its
-  eval.json as ``episode_cost/<cost>``, ``cost_rate/<cost>``); a single reference number given in
-  the config cannot say which constraint it is for, so with K > 1 those metrics stay blank.
-"""
+(``J_r``, ``J_c`` the final policy's mean return and cost, ``d`` the budget; blank without a reference). With
+K costs they are per constraint, against a reference run's per-cost numbers."""
 
 from __future__ import annotations
 
@@ -49,8 +41,7 @@ FiniteOrNull = Optional[Annotated[float, finite()]]
 
 @options
 class ReferenceConfig:
-    """``reference:``: the unconstrained-PPO reference of the normalized metrics, as a finished
-    run's directory or as its numbers."""
+    """``reference:``: the normalized metrics' PPO reference, a finished run's directory or its numbers."""
 
     run: Optional[str] = None
     episode_return: FiniteOrNull = None
@@ -58,11 +49,7 @@ class ReferenceConfig:
     cost_rate: FiniteOrNull = None
 
     def check(self, run: RunConfig) -> None:
-        numbers = {
-            "episode_return": self.episode_return,
-            "episode_cost": self.episode_cost,
-            "cost_rate": self.cost_rate,
-        }
+        numbers = {k: getattr(self, k) for k in ("episode_return", "episode_cost", "cost_rate")}
         if self.run is not None:
             require(
                 all(v is None for v in numbers.values()),
@@ -102,9 +89,8 @@ def _listed(x: Any, k: int) -> list:
 
 def _reference_values(x: Any, k: int) -> list:
     """A reference's per-constraint numbers: a list of K as it is; a single number only for K = 1."""
-    if isinstance(x, (list, tuple)):
-        return list(x) if len(x) == k else [None] * k
-    return [x] if k == 1 else [None] * k
+    ok = len(x) == k if isinstance(x, (list, tuple)) else k == 1
+    return _listed(x, 1) if ok else [None] * k
 
 
 def normalized_scores(
@@ -114,9 +100,7 @@ def normalized_scores(
     cost_limit: float | list[float],
     ref: Reference | None,
 ) -> dict[str, Any]:
-    """The three normalized metrics; None where the reference lacks the number (or it is 0 where it
-    divides: a reference return of 0, a reference that never incurred a cost). With lists of K
-    costs and rates (K constraints) the violation and cost rate are lists of K."""
+    """The normalized metrics (lists of K for K costs); None where the reference lacks a number or divides by 0."""
     single = not isinstance(episode_cost, (list, tuple))
     if ref is None:
         return dict.fromkeys(NORMALIZED)
@@ -149,9 +133,7 @@ def _reference_run(run: str) -> tuple[dict[str, Any], dict[str, Any]]:
 
 
 def reference_run_problem(run: str, cfg: RunConfig) -> str | None:
-    """Why the run at ``run`` cannot serve as this run's reference, or None. A reference must be a
-    finished run of this version (its eval.json has ``cost_rate``) on the same env (the number of
-    parallel envs aside)."""
+    """Why ``run`` cannot be this run's reference (a finished run of this version on the same env), or None."""
     try:
         result, ref_cfg = _reference_run(run)
     except (OSError, ValueError, yaml.YAMLError) as exc:

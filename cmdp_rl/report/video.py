@@ -1,21 +1,7 @@
-"""Videos of a trained policy (``python evaluate.py run=<dir> video=true``), through gymnasium's own
-``RecordVideo`` wrapper (which writes the mp4 with moviepy: ``pip install 'cmdp_rl[video]'``).
-
-An env component that can render declares ``render_env()`` on its options: one gymnasium env of its
-config with ``render_mode="rgb_array"``. Reach1D draws its frame with numpy (``envs/reach1d/env.py``;
-the batched torch backend renders through this gym twin of the same config), the velocity tasks use
-MuJoCo's camera (``env=safety_gym``'s navigation tasks: its "track" camera, following the robot),
-and ``env=gym`` offers its env's own frames when it has an ``rgb_array`` mode.
-
-Headless MuJoCo: with no ``DISPLAY`` and no ``MUJOCO_GL`` set, this module sets ``MUJOCO_GL=egl``
-(gymnasium would otherwise try GLFW first, which needs a display). Without a GPU, EGL renders in
-software through Mesa (llvmpipe): Debian's ``libegl1`` (which brings ``libegl-mesa0``),
-``libopengl0`` and ``libgl1-mesa-dri``. In software a frame takes about 0.1 s (docs/evaluation.md
-gives the measurements), so a whole 1000-step episode takes a few minutes; ``video_steps`` cuts it short. Without them the video fails with
-one line that names them. ``MUJOCO_GL=osmesa`` needs ``libosmesa6`` instead; note that MuJoCo reads
-``MUJOCO_GL`` when it is imported (torchrl imports it), so a ``MUJOCO_GL`` naming a missing library
-breaks ``import cmdp_rl`` itself, before this module can say anything.
-"""
+"""Videos of a trained policy (``evaluate.py run=<dir> video=true``) through gymnasium's ``RecordVideo`` (moviepy:
+``pip install 'cmdp_rl[video]'``), on the env its options' ``render_env()`` gives. Headless MuJoCo: with no
+``DISPLAY`` and no ``MUJOCO_GL`` this sets ``MUJOCO_GL=egl`` (software through Mesa without a GPU:
+:data:`HEADLESS_GL`); MuJoCo reads it when imported, so one naming a missing library breaks ``import cmdp_rl``."""
 
 from __future__ import annotations
 
@@ -34,10 +20,9 @@ import numpy as np
 import torch
 
 from cmdp_rl.config.validation import ConfigError
+from cmdp_rl.deploy.policy import DeployedPolicy
 from cmdp_rl.policies.agent import Agent
-from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.actions import to_env
-from cmdp_rl.rollout.collector import PolicyMemory
 
 VIDEO_MISSING = "video=true needs moviepy (gymnasium's RecordVideo writes with it): pip install 'cmdp_rl[video]'"
 HEADLESS_GL = (
@@ -65,8 +50,7 @@ def _headless_gl() -> None:
 
 
 def make_render_env(env_cfg: Any) -> gym.Env:
-    """One env of ``env_cfg`` that renders ``rgb_array`` frames, with one frame rendered already:
-    an env that cannot render, or a renderer that cannot start here, fails now with one line."""
+    """One env of ``env_cfg`` rendering ``rgb_array`` frames, one rendered already: else one line now."""
     if importlib.util.find_spec("moviepy") is None:
         raise ConfigError(f"video: {VIDEO_MISSING}")
     make = getattr(env_cfg, "render_env", None)
@@ -108,54 +92,19 @@ def make_render_env(env_cfg: Any) -> gym.Env:
 
 
 def exact_fps(fps: float) -> int:
-    """The power of two nearest ``fps`` (within a factor of 1.42 of it). moviepy counts a clip's
-    frames as ``int(sum(n * [1 / fps]) * fps)``, which for most rates rounds some counts down and
-    drops the last frame (at 10 fps: 393 of the counts 1..1001; moviepy issue #2507); with a power
-    of two the sum is exact and every frame is written."""
+    """The power of two nearest ``fps``: moviepy counts a clip's frames as ``int(sum(n * [1 / fps]) * fps)``,
+    which for most rates drops the last frame (moviepy issue #2507); with a power of two the sum is exact."""
     return 2 ** max(0, round(math.log2(fps)))
 
 
 @contextlib.contextmanager
 def _unraisable_ignored() -> Iterator[None]:
-    """Drop the errors raised in ``__del__`` meanwhile: after a renderer failed to start, Python
-    would print them as tracebacks after the one-line error."""
+    """Drop the errors raised in ``__del__`` meanwhile (a failed renderer's tracebacks after the one-line error)."""
     hook, sys.unraisablehook = sys.unraisablehook, lambda _: None
     try:
         yield
     finally:
         sys.unraisablehook = hook
-
-
-class _PolicyOnOneEnv:
-    """The trained actor driving one plain env, carrying its memory from step to step as the
-    collector does. ``act`` is the one place the policy is called (as ``replay.record_reach1d`` does)."""
-
-    def __init__(self, agent: Agent, action_space: gym.Space, deterministic: bool, extra: Any = None) -> None:
-        self.agent, self.deterministic, self.extra = agent, deterministic, extra
-        self.memory = PolicyMemory(agent, 1, action_space, torch.device("cpu"))
-
-    def start(self) -> None:
-        self.carried, self.is_init = self.memory.start(), True
-        if self.extra is not None:
-            self.extra.start()
-
-    def act(self, obs: np.ndarray) -> torch.Tensor:
-        # as GymVecEnv hands observations to the collector: float32, flat
-        obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))
-        if self.extra is not None:  # what the algorithm's env transform adds (Sauté's remaining budget)
-            obs_t = self.extra.observation(obs_t)
-        self.wrote = self.agent.act(
-            {**self.carried, keys.OBS: obs_t, keys.IS_INIT: torch.tensor([[self.is_init]])}, self.deterministic
-        )
-        return self.wrote[keys.ACTION][0]
-
-    def observe(self, cost: np.ndarray) -> None:
-        """After the env's step: the policy's next state, previous action and cost (all K of them)."""
-        cost_t = torch.as_tensor(cost, dtype=torch.float32).view(1, -1)
-        if self.extra is not None:
-            self.extra.observe(cost_t)
-        _, self.carried = self.memory.step(self.wrote, cost_t, torch.tensor([[False]]))
-        self.is_init = False
 
 
 @torch.no_grad()
@@ -170,13 +119,8 @@ def record_video(
     name_prefix: str = "policy",
     algo: Any = None,
 ) -> list[VideoEpisode]:
-    """Record ``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with
-    ``seed`` once, as env 0 of an evaluation's vector env is), one mp4 each in ``video_dir``
-    (``<name_prefix>-episode-<i>.mp4``: the reset frame and one per step). ``max_steps`` cuts each
-    episode short (MuJoCo renders about 10 frames a second in software). ``algo``: the run's
-    algorithm options; the state their ``observation_state(cost_names)`` gives (an env transform's
-    state the policy sees beside the env's observation: Sauté's budget), if any, is carried along
-    the episode."""
+    """``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with ``seed`` once), one mp4
+    each in ``video_dir``, cut at ``max_steps``; ``algo``'s ``observation_state`` (Sauté's budget) carried along."""
     from gymnasium.wrappers import RecordVideo
 
     env = make_render_env(env_cfg)
@@ -187,23 +131,29 @@ def record_video(
         name_prefix=name_prefix,
         fps=exact_fps(env.metadata.get("render_fps", 30)),
     )
-    policy = _PolicyOnOneEnv(
-        agent, env.action_space, deterministic, None if algo is None else algo.observation_state(agent.cost_names)
-    )
+    policy = DeployedPolicy(agent, env.action_space, agent.num_costs)
+    extra = None if algo is None else algo.observation_state(agent.cost_names)
     out: list[VideoEpisode] = []
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         obs, _ = env.reset(seed=seed)
         for i in range(episodes):
-            policy.start()
+            state = step_cost = None
             ret = cost = 0.0
             steps = 0
+            if extra is not None:
+                extra.start()
             while True:
-                action = to_env(policy.act(obs).view(1, -1), env.action_space)[0]  # as the vector env steps it
+                obs_t = torch.as_tensor(np.asarray(obs, dtype=np.float32).reshape(1, -1))  # as GymVecEnv gives it
+                if extra is not None:
+                    obs_t = extra.observation(obs_t)
+                action, state = policy.predict(obs_t, state, deterministic=deterministic, cost=step_cost)
+                action = to_env(torch.as_tensor(action).view(1, -1), env.action_space)[0]  # as the vector env steps
                 obs, reward, terminated, truncated, info = env.step(action)
-                step_cost = np.asarray(info.get("cost", 0.0), dtype=np.float64).reshape(-1)  # [K]
-                policy.observe(step_cost)
-                ret, cost, steps = ret + float(reward), cost + step_cost, steps + 1
+                step_cost = np.asarray(info.get("cost", 0.0), dtype=np.float64).reshape(1, -1)  # [1, K]
+                if extra is not None:
+                    extra.observe(torch.as_tensor(step_cost, dtype=torch.float32))
+                ret, cost, steps = ret + float(reward), cost + step_cost[0], steps + 1
                 if terminated or truncated or (max_steps is not None and steps >= max_steps):
                     break
             episode_cost = float(cost[0]) if np.size(cost) == 1 else tuple(float(c) for c in cost)

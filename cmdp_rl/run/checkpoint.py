@@ -1,21 +1,10 @@
-"""Checkpoints: written atomically, loaded without running anything from the file.
+"""Checkpoints: written atomically, loaded without running anything from the file (docs/checkpoints.md).
 
-A checkpoint holds tensors, numbers, strings and plain containers of them (dict, list, tuple) and
-nothing else, so torch's safe unpickler (``torch.load(weights_only=True)``) reads it: loading
-someone else's run directory cannot run their code. No type is allow-listed
-(``torch.serialization.add_safe_globals`` is never called): what is not a tensor or a plain value
-when saved is written as tensors and plain values by :func:`encode` and read back by
-:func:`decode`:
-
-- a numpy array as a tensor of its dtype and shape (``torch.from_numpy``: the same bytes), under
-  the key :data:`NDARRAY`; a numpy scalar as a 0-d tensor under :data:`NUMPY_SCALAR`;
-- a ``collections.deque`` as its items and ``maxlen`` under :data:`DEQUE`.
-
-Anything else (a live object, pickled bytes) is refused when saving, naming where it sits, so a
-component cannot slip code into a checkpoint. Files of an older format (numpy objects pickled
-whole, which only the full unpickler reads) are refused unless the caller trusts them
-(``trust=True``, the user's ``trust_checkpoint=true``); :mod:`cmdp_rl.run.migrations` brings their
-contents to this format, and converts a run directory once. docs/checkpoints.md.
+A checkpoint holds tensors, numbers, strings and plain containers of them, so torch's safe unpickler
+(``torch.load(weights_only=True)``) reads it and loading someone else's run cannot run their code. No type is
+allow-listed: numpy values and deques are written as tagged tensors and lists (:func:`encode`, :func:`decode`), and
+anything else is refused when saving, naming where it sits. Older formats, which only the full unpickler reads, load
+only when trusted (``trust_checkpoint=true``); :mod:`cmdp_rl.run.migrations` brings them to this one.
 """
 
 from __future__ import annotations
@@ -30,26 +19,18 @@ from typing import Any
 import numpy as np
 import torch
 
-# 4: one layout for a run and a population of P: the shared state (iteration, each member's steps,
-#    training time, the collector, the random state; a population's costs) and under "members" one
-#    entry per member (its config, its algorithm's state_dict, what it deploys). A run has one.
-# 3: loads with torch's safe unpickler: numpy values and deques as tagged tensors and lists (encode),
-#    env state as arrays (MuJoCo's integration state, no pickled bytes), one multiplier state per
-#    constraint, networks under the agent's names (cmdp_rl.run.migrations brings older files here).
-# 2: adds what a resume needs (collector and env state, generators, training time).
+# 4: one layout for a run and a population of P (the shared state, one entry per member under "members");
+# 3: data only (the safe unpickler reads it); 2: adds what a resume needs. docs/checkpoints.md has each layout.
 FORMAT_VERSION = 4
-# The first format whose files hold data only (read by the safe unpickler, no trust asked).
-SAFE_FORMAT = 3
-# The oldest format cmdp_rl.run.migrations can bring to FORMAT_VERSION.
-OLDEST_FORMAT = 2
+SAFE_FORMAT = 3  # the first format of data only: read without asking for trust
+OLDEST_FORMAT = 2  # the oldest cmdp_rl.run.migrations brings to FORMAT_VERSION
 
 NDARRAY = "__ndarray__"
 NUMPY_SCALAR = "__numpy_scalar__"
 DEQUE = "__deque__"
 
-# What the older formats pickled whole (numpy's array and scalar reconstruction, deques, the bytes of a
-# pickled MuJoCo data or Safety-Gymnasium world): a file whose only non-data globals are these is taken
-# for an old cmdp_rl checkpoint in the refusal's wording.
+# What the older formats pickled whole (numpy objects, deques, a pickled MuJoCo data or Safety-Gymnasium world's
+# bytes): a file whose only non-data globals are these is refused as an old cmdp_rl checkpoint.
 _OLD_FORMAT_GLOBALS = re.compile(r"^(numpy\.|collections\.deque$|builtins\.bytes$|_codecs\.encode$)")
 
 
@@ -62,8 +43,9 @@ class UnsafeCheckpointError(CheckpointError):
 
 
 def encode(value: Any, where: str = "state") -> Any:
-    """``value`` as tensors, numbers, strings and plain containers (see the module docstring);
-    ``TypeError`` naming ``where`` for anything that is none of these."""
+    """``value`` as tensors, numbers, strings and plain containers: a numpy array as ``{NDARRAY: tensor}`` (the same
+    bytes), a numpy scalar as ``{NUMPY_SCALAR: 0-d tensor}``, a deque as ``{DEQUE: items, "maxlen": n}``;
+    ``TypeError`` naming ``where`` for anything else."""
     if isinstance(value, np.generic):  # first: numpy's float64 is also a Python float
         return {NUMPY_SCALAR: encode(np.asarray(value), where)[NDARRAY]}
     if value is None or isinstance(value, (bool, int, float, str, torch.Tensor, torch.dtype, torch.Size)):
@@ -100,10 +82,8 @@ def decode(value: Any) -> Any:
             return value[NUMPY_SCALAR].numpy()[()]
         if DEQUE in value and len(value) == 2:
             return collections.deque((decode(v) for v in value[DEQUE]), maxlen=value["maxlen"])
-        out = collections.OrderedDict() if isinstance(value, collections.OrderedDict) else {}
-        for k, v in value.items():
-            out[k] = decode(v)
-        return out
+        mapping = collections.OrderedDict if isinstance(value, collections.OrderedDict) else dict
+        return mapping((k, decode(v)) for k, v in value.items())
     if isinstance(value, list):
         return [decode(v) for v in value]
     if isinstance(value, tuple):
@@ -148,6 +128,10 @@ def _old_format(path: Path, how: str) -> UnsafeCheckpointError:
     )
 
 
+def _corrupt(path: Path, reason: object) -> CheckpointError:
+    return CheckpointError(f"checkpoint: {path} is corrupt or not a cmdp_rl checkpoint ({reason})")
+
+
 def _refusal(path: Path, found: list[str]) -> UnsafeCheckpointError:
     if all(_OLD_FORMAT_GLOBALS.match(g) for g in found):
         return _old_format(path, "numpy objects pickled whole, which only Python's full unpickler reads")
@@ -171,17 +155,15 @@ def load_checkpoint(
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:  # torch's safe unpickler stopped: at something not data?
-        if not trust:
+        if not trust:  # refused: what it would call, or nothing (a damaged or foreign file)
             found, reason = _what_it_holds(path, exc)
-            if not found:  # nothing it would call: a damaged or foreign file
-                raise CheckpointError(f"checkpoint: {path} is corrupt or not a cmdp_rl checkpoint ({reason})") from None
-            raise _refusal(path, found) from None
+            raise (_refusal(path, found) if found else _corrupt(path, reason)) from None
         try:
             state = torch.load(path, map_location="cpu", weights_only=False)
         except Exception as inner:  # noqa: BLE001 - torch raises several types for a foreign file
-            raise CheckpointError(f"checkpoint: {path} is corrupt or not a cmdp_rl checkpoint ({inner})") from None
+            raise _corrupt(path, inner) from None
     except Exception as exc:  # torch raises several types for a truncated or foreign file
-        raise CheckpointError(f"checkpoint: {path} is corrupt or not a cmdp_rl checkpoint ({exc})") from None
+        raise _corrupt(path, exc) from None
     version = state.get("format") if isinstance(state, dict) else None
     if not isinstance(version, int) or not OLDEST_FORMAT <= version <= FORMAT_VERSION:
         raise CheckpointError(

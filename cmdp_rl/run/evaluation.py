@@ -6,6 +6,7 @@ from typing import Any, Sequence
 
 import torch
 
+from cmdp_rl.config.validation import per_constraint
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.intervals import summarize as interval_estimates
@@ -35,22 +36,15 @@ def evaluate(
     termination_metric: str | None = None,
     cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, float]:
-    """Run ``episodes`` whole episodes and return means and spreads of return, cost and length.
-    With K > 1 costs, each constraint's episode cost has its own keys, ``episode_cost/<cost>``,
-    ``episode_cost_std/<cost>``, ... (``metrics.constraint_name``).
+    """Run ``episodes`` whole episodes and return means and spreads of return, cost and length; with K > 1 costs
+    each constraint's keys carry ``/<cost>`` (``episode_cost/<cost>``, ...: ``metrics.constraint_name``).
 
-    Each env of the batch contributes a fixed quota of its first episodes, so short episodes are
-    not over-represented (counting whichever episodes end first would bias towards them).
-    With ``termination_metric`` (an env's name for what termination means, e.g. Reach1D's
-    ``goal_reached``), the result also has the fraction of episodes that ended by termination rather
-    than the time limit, under that name.
-    With ``seed``, a stochastic policy samples from torch's generator seeded with it, inside
-    ``fork_rng``: the same seed gives the same numbers, and the caller's generator is left as it was.
-    With ``cost_limit`` (the budget d), the result also has 95% intervals over the episodes: of mean
-    return and mean cost, cost's upper bound, and the rate of episodes with cost above d
-    (:func:`cmdp_rl.report.intervals.summarize`). With K > 1 costs ``cost_limit`` is one budget for every
-    constraint or a list of K, and each constraint's cost and violation keys carry ``/<cost>``
-    (``episode_cost_ucb95/hazard_a``, ``violation_rate/hazard_a``, ``intervals/hazard_a``).
+    Each env contributes a fixed quota of its first episodes, so short episodes are not over-represented (counting
+    whichever end first would favour them). ``termination_metric`` (an env's name for termination, e.g. Reach1D's
+    ``goal_reached``) adds the fraction of episodes that terminated rather than timed out. ``seed`` seeds a
+    stochastic policy's samples inside ``fork_rng`` (the caller's generator is left as it was). ``cost_limit``
+    (d, one for every constraint or a list of K) adds 95% intervals over the episodes
+    (:func:`cmdp_rl.report.intervals.summarize`): mean return and cost, cost's upper bound, the violation rate.
     """
     with torch.random.fork_rng(devices=[]):
         if seed is not None:
@@ -121,38 +115,24 @@ def summarize_episodes(
     termination_metric: str | None = None,
     cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, Any]:
-    """``evaluate``'s result from its episodes' rows ``(return, length, terminated, cost_0, ...)``:
-    spreads of return, each cost and length, the termination rate, and with ``cost_limit`` the
-    intervals."""
+    """``evaluate``'s result from its episodes' rows ``(return, length, terminated, cost_0, ...)``: spreads of
+    return, each cost and length, the termination rate, and with ``cost_limit`` the intervals (with one cost exactly
+    :func:`cmdp_rl.report.intervals.summarize`'s keys; with K > 1 the return's once, the others as ``<key>/<cost>``)."""
+    k = len(names)
+    returns = [row[0] for row in flat]
     result: dict[str, Any] = {"episodes": len(flat), "deterministic": deterministic}
-    result.update(_spread("episode_return", [row[0] for row in flat]))
-    for k, cost_name in enumerate(names):
-        spread = _spread("episode_cost", [row[3 + k] for row in flat])
-        result.update({constraint_name(key, cost_name, len(names)): v for key, v in spread.items()})
+    result.update(_spread("episode_return", returns))
+    for j, cost_name in enumerate(names):
+        spread = _spread("episode_cost", [row[3 + j] for row in flat])
+        result.update({constraint_name(key, cost_name, k): v for key, v in spread.items()})
     result.update(_spread("episode_length", [row[1] for row in flat]))
     if termination_metric:
         result[termination_metric] = sum(row[2] for row in flat) / len(flat)
     if cost_limit is not None:
-        result.update(_intervals(flat, names, cost_limit))
+        for j, (name, d) in enumerate(zip(names, per_constraint(cost_limit, "cost_limit", names))):
+            est = interval_estimates(returns, [row[3 + j] for row in flat], d)
+            if k > 1:
+                return_ci = est.pop("episode_return_ci95")
+                est = {"episode_return_ci95": return_ci, **{f"{key}/{name}": v for key, v in est.items()}}
+            result.update(est)
     return result
-
-
-def _intervals(
-    flat: list[tuple[float, ...]], names: Sequence[str], cost_limit: float | Sequence[float]
-) -> dict[str, Any]:
-    """The interval keys for each constraint (rows: return, length, terminated, cost_0, ...); with
-    one cost exactly :func:`cmdp_rl.report.intervals.summarize`'s keys, with K > 1 the return's interval
-    once and every other key per constraint as ``<key>/<cost>``."""
-    k = len(names)
-    limits = [float(cost_limit)] * k if isinstance(cost_limit, (int, float)) else [float(d) for d in cost_limit]
-    if len(limits) != k:
-        raise ValueError(f"evaluate: {len(limits)} budgets for {k} costs")
-    returns = [row[0] for row in flat]
-    out: dict[str, Any] = {}
-    for j, (name, d) in enumerate(zip(names, limits)):
-        est = interval_estimates(returns, [row[3 + j] for row in flat], d)
-        if k == 1:
-            return est
-        out["episode_return_ci95"] = est.pop("episode_return_ci95")
-        out.update({f"{key}/{name}": v for key, v in est.items()})
-    return out

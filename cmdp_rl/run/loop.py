@@ -1,8 +1,6 @@
-"""The training loop every run drives: collect, check the rollout, update, one ``metrics.csv`` row
-per member, checkpoint. A run has one member (``trainer.train``); a population has P, side by side
-in one batch (``trainer.train`` on population/'s stacked kernel), member i's envs the rows ``[i N, (i + 1) N)`` of the batch and
-its statistics the i-th of the update's list. What differs between the two (how the update steps
-the networks, what a checkpoint holds, how costs are counted) is in the :class:`Members` they give.
+"""The training loop every run drives: collect, check the rollout, update, one ``metrics.csv`` row per member,
+checkpoint. A run has one member; a population has P side by side in one batch (member i's envs the rows
+``[i N, (i + 1) N)``); what differs between them (the update, the checkpoint, the cost counts) is in :class:`Members`.
 """
 
 from __future__ import annotations
@@ -24,10 +22,9 @@ from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
 from cmdp_rl.rollout.collector import Collector, finished_episodes
 from cmdp_rl.run.progress import Progress
 
-# Who else reads each iteration's rows, in this process: a hyperparameter search's trial (run/tune_trial.py) reports
-# the training curve to its study and raises optuna.TrialPruned to stop a hopeless trial. A Hydra job gets nothing
-# from its sweeper but its config, so the trial registers itself here (from a Hydra callback) instead of being passed
-# down. Each is called as ``observe(iteration, iterations, rows)``, rows one per member.
+# Who else reads each iteration's rows, as ``observe(iteration, iterations, rows)``: a search's trial
+# (run/tune_trial.py), which may raise optuna.TrialPruned. A Hydra job gets nothing from its sweeper but its config,
+# so the trial registers itself here from a Hydra callback instead of being passed down.
 ITERATION_OBSERVERS: list[Callable[[int, int, list[dict[str, Any]]], None]] = []
 
 
@@ -160,6 +157,3 @@ def _iterations(m: Members, first: int, iterations: int, start: float, progress:
             for logger in m.loggers:  # the rows up to this iteration are on disk before the checkpoint names it
                 logger.sync()
             m.checkpoint(it, time.perf_counter() - start)
-
-
-__all__ = ["ITERATION_OBSERVERS", "Members", "contract_options", "metrics_row", "train_iterations"]

@@ -1,27 +1,8 @@
-"""Checkpoints of older formats, brought to :data:`cmdp_rl.run.checkpoint.FORMAT_VERSION`
-(``python -m cmdp_rl.run.convert <run dir> [...]`` applies these rules to a run's files once).
-
-Every compatibility rule lives here, keyed on the format a checkpoint was written in
-(:data:`STEPS`); the algorithms, envs and the trainer read only the current layout. Format 2 files
-pickle numpy objects whole and may hold pickled bytes (a MuJoCo ``MjData``, a Safety-Gymnasium
-world), so reading one runs code from the file: they load only on the user's word
-(``trust_checkpoint=true``, or the converter), never by default (``cmdp_rl/run/checkpoint.py``).
-
-What changed from format 2 to 3 (:func:`_from_2`):
-
-- networks written before the agent model (the ``ActorCritic`` triple, up to commit 6e31f3c) get the
-  :class:`~cmdp_rl.policies.agent.Agent`'s names (:func:`convert_networks`);
-- an algorithm state from before the shared J_c estimate gets one: empty for the PPO family, CPO's
-  last J_c (``episode_estimate``) as its window; PPO's learning-rate clock starts at 0 if absent;
-- the multipliers of the algorithms that keep one per constraint (:data:`_PER_CONSTRAINT`, the
-  format 2 writers: with one constraint they saved the bare controller) under ``constraints``;
-- a gymnasium MuJoCo env's pickled ``MjData`` becomes MuJoCo's integration state (``mj_getState``);
-  a Safety-Gymnasium navigation world's pickled object graph becomes its saved fields
-  (``envs/safety_gym/world_state.py``), through a task built from the run's config.
-
-From format 3 to 4 (:func:`_from_3`): one layout for a run and a population, the members' shared
-state at the top level and one entry per member under ``members`` (a run's entry was the checkpoint
-itself, a population's under ``agents``). Format 3 holds data only: it needs no trust.
+"""Checkpoints and saved configs of older formats, brought to the current layout: every compatibility rule lives
+here, keyed on the format a checkpoint was written in (:data:`STEPS`), so the algorithms, envs and trainer read only
+the current one. What each step changes, and why format 2 loads only on the user's word (its files pickle numpy
+objects and may hold pickled bytes): docs/checkpoints.md, "Old run directories". ``python -m cmdp_rl.run.convert``
+applies these rules to a run's files once.
 """
 
 from __future__ import annotations
@@ -37,20 +18,15 @@ from cmdp_rl.envs.env_state import mujoco_data_state
 from cmdp_rl.run.checkpoint import FORMAT_VERSION
 
 # --- networks of the ActorCritic triple (before the agent model) ---------------------------------
-# The networks are the same modules, built in the same order, under other names: the old actor was a
-# ``ProbabilisticActor`` around TensorDict modules (``actor.module.0.module.net.0.weight``), the
-# critics were ``critic.`` and ``cost_critic.`` (now ``critics.reward.`` and ``critics.cost.``), and
-# the observation normalizer sat inside each network (``...net.0.stats.mean``) as well as under
-# ``normalizers.``. So, network by network, the old entries other than the normalizer's statistics
-# are the new ones in the same order; each pair must agree in shape and in its last name, else the
-# checkpoint is refused. The normalizer's statistics come from ``normalizers.``, the one copy every
-# network shares. One exception to the order: the old MLP actor's input encoder, which now comes
-# first. Optimizer states need no change: each optimizer's parameters are in the same order.
+# The same modules built in the same order under other names (the actor was a ProbabilisticActor around TensorDict
+# modules, the critics ``critic.`` and ``cost_critic.``), so network by network the old entries are the new ones in
+# order, each pair agreeing in shape and last name; the observation statistics, which sat inside every network, come
+# from ``normalizers.``, the one copy the agent's networks share. Optimizer states, in the same order, need no change.
 NETWORKS = {"actor.": "actor.", "critic.": "critics.reward.", "cost_critic.": "critics.cost."}
 NORMALIZERS = "normalizers."
 
-# Format 2's writers of one multiplier state per constraint (multiplier.Multipliers), which saved a
-# single constraint's as the bare controller state. A closed list: format 2 is no longer written.
+# Format 2's writers of one multiplier state per constraint, which saved a single constraint's as the bare
+# controller state (a closed list: format 2 is no longer written).
 _PER_CONSTRAINT = ("ppo_lag", "pid_lag", "trpo_lag", "sac_lag", "td3_lag")
 
 
@@ -60,8 +36,7 @@ def is_legacy(networks: dict) -> bool:
 
 
 def _is_statistic(key: str) -> bool:
-    """A running statistic of an observation normalizer (``...stats.mean``), which every network
-    shares with ``normalizers.obs``."""
+    """A running statistic of an observation normalizer (``...stats.mean``), shared with ``normalizers.obs``."""
     return ".stats." in key or key.startswith("stats.")
 
 
@@ -112,10 +87,13 @@ def _algo_state_from_2(algo: str | None, state: dict[str, Any], agent: nn.Module
             estimate = state.pop("episode_estimate", None)  # CPO's last J_c, before the shared estimate
             state["episode_cost"] = {"recent": [tuple(estimate)]} if estimate is not None else {}
         state.setdefault("iteration", 0)
-    multiplier = state.get("multiplier")
-    if algo in _PER_CONSTRAINT and multiplier and "constraints" not in multiplier:
-        state["multiplier"] = {"constraints": [multiplier]}
-    return state
+    return _per_constraint_from_2(state) if algo in _PER_CONSTRAINT else state
+
+
+def _per_constraint_from_2(state: dict[str, Any]) -> dict[str, Any]:
+    """A single constraint's multiplier state, saved bare, under ``constraints`` as with K > 1."""
+    bare = state.get("multiplier")
+    return {**state, "multiplier": {"constraints": [bare]}} if bare and "constraints" not in bare else state
 
 
 def _mujoco_from_2(env: dict[str, Any]) -> dict[str, Any]:
@@ -180,14 +158,7 @@ def _from_2(state: dict[str, Any], agent: nn.Module | None) -> dict[str, Any]:
         if state.get("collector") is not None:
             state["collector"] = _envs_from_2(state["collector"], state.get("config") or {})
     if "update" in state:  # a population's (cmdp_rl/population/): PPO family, Multipliers where any
-        update = dict(state["update"])
-        update["algos"] = [
-            {**a, "multiplier": {"constraints": [a["multiplier"]]}}
-            if "multiplier" in a and "constraints" not in a["multiplier"]
-            else a
-            for a in update["algos"]
-        ]
-        state["update"] = update
+        state["update"] = {**state["update"], "algos": [_per_constraint_from_2(a) for a in state["update"]["algos"]]}
     return state
 
 
@@ -275,48 +246,50 @@ def population_from_stacked(
     return {**shared, "rng": {"generators": state["generators"]}, "members": out}
 
 
-__all__ = ["STEPS", "convert_networks", "is_legacy", "member", "migrate"]
-
-
-# Defaults that a run's saved config does not record because it was written before they existed
-# or changed: a config saved before ``mixture_weights`` existed ran with these values wherever it
-# names none (run options, then the algorithm's options where the algorithm has the field; its
-# multiplier's scale where it has a multiplier node, written flat as such a config wrote it).
+# --- saved configs -------------------------------------------------------------------------------
+# The defaults a config saved before ``mixture_weights`` existed ran with, wherever it names none.
 _RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {
     "final_policy": "last",
     "average_last": 0.25,
     "mixture_size": 8,
     "mixture_weights": "uniform",
 }
-_ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS = {"lambda_scale": "none", "nu_scale": "none"}
 
-# The multiplier's options before they became the node ``algo.multiplier`` (cmdp_rl/algos/multiplier.py):
-# flat fields of the algorithm, each the node's field named here (FOCOPS's nu was PID's integral term
-# clamped at nu_max: the node's dual ascent with max, the same numbers; its saved state's "value" is nu). ``multiplier`` was the update's name (a
-# string; pid_lag had none: it was always PID); ``anneal_lambda_lr`` is gone (no run that set it improved,
-# and nothing else did): a config that names it loads without it, so a run saved with it true resumes
-# with a constant step.
+# The multiplier's flat options before the node ``algo.multiplier``, each by its name there. ``multiplier`` was the
+# update's name (pid_lag had none: always PID); FOCOPS's nu was PID's integral term clamped at nu_max, the node's dual
+# ascent with max, the same numbers. ``anneal_lambda_lr`` (None) is gone: a run saved with it true resumes with a
+# constant step.
 _FLAT_MULTIPLIER = {
     "multiplier": "kind",
-    "lambda_lr": "lr",
-    "lambda_init": "init",
-    "lambda_scale": "scale",
-    "lambda_tau": "tau",
-    "lambda_nu": "nu",
-    "kp": "kp",
-    "ki": "ki",
-    "kd": "kd",
-    "p_ema_alpha": "p_ema_alpha",
-    "d_ema_alpha": "d_ema_alpha",
-    "d_delay": "d_delay",
-    "lambda_max": "max",
-    # FOCOPS's and CUP's cost multiplier nu
-    "nu_init": "init",
-    "nu_lr": "lr",
-    "nu_max": "max",
-    "nu_scale": "scale",
+    **{f"lambda_{k}": k for k in ("lr", "init", "scale", "tau", "nu", "max")},
+    **{k: k for k in ("kp", "ki", "kd", "p_ema_alpha", "d_ema_alpha", "d_delay")},
+    **{f"nu_{k}": k for k in ("init", "lr", "max", "scale")},  # FOCOPS's and CUP's cost multiplier
+    "anneal_lambda_lr": None,
 }
-_DROPPED = ("anneal_lambda_lr",)
+# The flat run options that became the ``deploy`` node, each by its name there.
+_DEPLOY_FIELDS = {
+    "final_policy": "policy",
+    "average_last": "window",
+    "mixture_size": "snapshots",
+    "mixture_weights": "weights",
+    "mixture_episodes": "episodes",
+    "mixture_margin": "margin",
+}
+
+
+def _flat(config: dict[str, Any], names: dict[str, Any], node: str) -> list[str]:
+    """The keys of ``config`` that are flat options of ``node`` (a mapping under ``node`` is the node itself)."""
+    return [k for k in config if k in names and not (k == node and isinstance(config[k], dict))]
+
+
+def _into_node(config: dict[str, Any], names: dict[str, Any], node: str, **fixed: Any) -> dict[str, Any]:
+    """``config`` with its :func:`_flat` keys moved into the node under their names there (None: dropped), and
+    ``fixed``; a value the node already holds wins (a flat default added to a config already moved)."""
+    flat = _flat(config, names, node)
+    own = config.get(node) if isinstance(config.get(node), dict) else {}
+    out = {k: v for k, v in config.items() if k not in flat}
+    out[node] = {**{names[k]: config[k] for k in flat if names[k]}, **fixed, **own}
+    return out
 
 
 def _has_multiplier_node(name: Any) -> bool:
@@ -330,40 +303,27 @@ def _has_multiplier_node(name: Any) -> bool:
 
 
 def multiplier_node(algo: dict[str, Any]) -> dict[str, Any]:
-    """An algorithm's saved options with the flat multiplier options of older configs moved into the
-    node (:data:`_FLAT_MULTIPLIER`). A value the node already holds wins over a flat one (a flat default
-    that :func:`saved_config_defaults` adds to a config already moved). Fields the old config does not
-    name take the algorithm's defaults of the node when it is built."""
+    """An algorithm's saved options with the flat multiplier options of older configs moved into the node
+    (:data:`_FLAT_MULTIPLIER`). Fields the old config does not name take the algorithm's defaults when it is built."""
     name = algo.get("name", "ppo_lag")
-    if not _has_multiplier_node(name):
+    kindless_pid = name == "pid_lag" and not isinstance(algo.get("multiplier"), dict)
+    if not _has_multiplier_node(name) or not (_flat(algo, _FLAT_MULTIPLIER, "multiplier") or kindless_pid):
         return algo
-    node = algo.get("multiplier")
-    node = dict(node) if isinstance(node, dict) else None
-    flat = [k for k in (*_FLAT_MULTIPLIER, *_DROPPED) if k in algo and not (k == "multiplier" and node is not None)]
-    if not flat and (node is not None or name != "pid_lag"):
-        return algo
-    moved = {_FLAT_MULTIPLIER[k]: algo[k] for k in flat if k in _FLAT_MULTIPLIER}
-    if name == "pid_lag":
-        moved["kind"] = "pid"  # pid_lag had no kind: it was always PID
-    out = {k: v for k, v in algo.items() if k not in flat}
-    out["multiplier"] = {**moved, **(node or {})}
-    return out
+    return _into_node(algo, _FLAT_MULTIPLIER, "multiplier", **({"kind": "pid"} if name == "pid_lag" else {}))
 
 
 def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
-    """A saved config (a run's, or a population's with its grid) with the options that became nodes
-    in the nodes (:func:`multiplier_node`; a population's ``grid.algo.<flat>`` as ``grid.algo.multiplier.<field>``)."""
+    """A saved config (a run's, or a population's with its grid) with the options that became nodes in the nodes
+    (:func:`multiplier_node`; a population's ``grid.algo.<flat>`` as ``grid.algo.multiplier.<field>``)."""
     out = dict(config)
     if isinstance(out.get("algo"), dict):
         out["algo"] = multiplier_node(out["algo"])
     grid = (out.get("population") or {}).get("grid") or {}
     varied = grid.get("algo") if isinstance(grid, dict) else None
     name = (out.get("algo") or {}).get("name", "ppo_lag")
-    if isinstance(varied, dict) and _has_multiplier_node(name) and any(k in varied for k in _FLAT_MULTIPLIER):
-        node = dict(varied.get("multiplier") or {})
-        node.update({_FLAT_MULTIPLIER[k]: v for k, v in varied.items() if k in _FLAT_MULTIPLIER})
-        varied = {k: v for k, v in varied.items() if k not in _FLAT_MULTIPLIER}
-        out["population"] = {**out["population"], "grid": {**grid, "algo": {**varied, "multiplier": node}}}
+    if isinstance(varied, dict) and _has_multiplier_node(name) and _flat(varied, _FLAT_MULTIPLIER, "multiplier"):
+        varied = _into_node(varied, _FLAT_MULTIPLIER, "multiplier")
+        out["population"] = {**out["population"], "grid": {**grid, "algo": varied}}
     return out
 
 
@@ -371,37 +331,14 @@ def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
     """A saved run config with the defaults it ran with made explicit (a run config written since
     ``mixture_weights`` existed records every option), in the current layout (:func:`saved_config_nodes`,
     :func:`deploy_node`)."""
-    return deploy_node(saved_config_nodes(_defaults_before_mixture_weights(config)))
-
-
-def _defaults_before_mixture_weights(config: dict[str, Any]) -> dict[str, Any]:
-    import dataclasses
-
-    from cmdp_rl.config.registry import component
-
-    if "mixture_weights" in config or "deploy" in config:
-        return config
-    out = {**_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS, **config}
-    algo = dict(out.get("algo") or {})
-    name = algo.get("name", "ppo_lag")
-    if isinstance(name, str):
-        fields = {f.name for f in dataclasses.fields(component("algo", name).options)}
-        if _has_multiplier_node(name):  # flat, as the config's other multiplier options (multiplier_node)
-            fields.add("nu_scale" if name in ("focops", "cup") else "lambda_scale")
-        algo = {**{k: v for k, v in _ALGO_DEFAULTS_BEFORE_MIXTURE_WEIGHTS.items() if k in fields}, **algo}
-        out["algo"] = algo
-    return out
-
-
-# The flat run options that became the ``deploy`` node, each by its name there.
-_DEPLOY_FIELDS = {
-    "final_policy": "policy",
-    "average_last": "window",
-    "mixture_size": "snapshots",
-    "mixture_weights": "weights",
-    "mixture_episodes": "episodes",
-    "mixture_margin": "margin",
-}
+    if "mixture_weights" not in config and "deploy" not in config:
+        config = {**_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS, **config}
+        algo = dict(config.get("algo") or {})
+        name = algo.get("name", "ppo_lag")
+        if _has_multiplier_node(name):  # its scale was none then; flat, as the config's other multiplier options
+            algo.setdefault("nu_scale" if name in ("focops", "cup") else "lambda_scale", "none")
+        config["algo"] = algo
+    return deploy_node(saved_config_nodes(config))
 
 
 def deploy_node(config: Any) -> Any:
@@ -409,7 +346,4 @@ def deploy_node(config: Any) -> Any:
     with them as the ``deploy`` node, the same values under their new names; any other config as it is."""
     if not isinstance(config, dict) or not _DEPLOY_FIELDS.keys() & config.keys():
         return config
-    out = {k: v for k, v in config.items() if k not in _DEPLOY_FIELDS}
-    flat = {new: config[old] for old, new in _DEPLOY_FIELDS.items() if old in config}
-    out["deploy"] = {**flat, **(config.get("deploy") or {})}
-    return out
+    return _into_node(config, _DEPLOY_FIELDS, "deploy")

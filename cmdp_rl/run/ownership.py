@@ -1,14 +1,8 @@
-"""A run directory belongs to one run.
-
-A new run into a directory that already holds a run (finished or not) stops before it writes
-anything, with one line saying how to continue that run (``resume=<dir>``) or replace it
-(``overwrite=true``). While a run lives, it holds an advisory lock on ``<dir>/.run.lock``
-(``fcntl.flock``): a second process into the same directory, new run or resume, is refused, and the
-kernel drops the lock when the holder dies, killed or not, so a crashed run never blocks its resume.
-
-Within one process the lock is counted: ``train.py``'s Hydra callback claims the directory before
-Hydra writes into it and keeps it for the process's life; ``train()`` claims it again (a no-op then),
-as a script calling ``train()`` directly needs.
+"""A run directory belongs to one run (docs/architecture.md, "Run directories"): a new run into a directory that
+holds a run stops before it writes anything, naming ``resume=<dir>`` and ``overwrite=true``; while a run lives it
+holds ``fcntl.flock`` on ``<dir>/.run.lock``, which the kernel drops when the process ends, killed or not, so a
+crashed run never blocks its resume. Claims within one process are counted (``train.py``'s Hydra callback's, then
+``train()``'s).
 """
 
 from __future__ import annotations
@@ -62,41 +56,22 @@ def holds_run(run_dir: str | Path) -> bool:
     return any((Path(run_dir) / name).exists() for name in RUN_FILES)
 
 
-def _finished(run_dir: Path) -> bool:
-    """Whether a run (its ``eval.json``) or a population (its ``population.json``) finished there."""
-    return (run_dir / EVAL).is_file() or (run_dir / POPULATION_SUMMARY).is_file()
-
-
-def _key(run_dir: str | Path) -> Path:
-    return Path(run_dir).resolve()
-
-
-def _busy(path: Path, fd: int) -> RunDirTaken:
-    holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "another process"
-    os.close(fd)
-    return RunDirTaken(
-        f"run directory {path} is in use by a running run (process {holder}); wait for it to end, "
-        "or start this run in another directory"
-    )
-
-
 def _lock(path: Path, create: bool) -> int | None:
     """Take ``path``'s lock without waiting; None if there is no lock file and ``create`` is false."""
-    flags = os.O_RDWR | (os.O_CREAT if create else 0)
     try:
-        fd = os.open(path / LOCK, flags, 0o644)
+        fd = os.open(path / LOCK, os.O_RDWR | (os.O_CREAT if create else 0), 0o644)
     except FileNotFoundError:
         return None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        raise _busy(path, fd) from None
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "another process"
+        os.close(fd)
+        raise RunDirTaken(
+            f"run directory {path} is in use by a running run (process {holder}); wait for it to end, "
+            "or start this run in another directory"
+        ) from None
     return fd
-
-
-def _record_holder(fd: int) -> None:
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, str(os.getpid()).encode(), 0)
 
 
 def acquire(run_dir: str | Path, new_run: bool, overwrite: bool = False, hydra_record: bool = False) -> Path:
@@ -105,7 +80,7 @@ def acquire(run_dir: str | Path, new_run: bool, overwrite: bool = False, hydra_r
     are removed first); a resume (``new_run=False``) only takes the lock. Nothing in a refused
     directory is created or changed. Claiming a directory this process holds counts one more.
     ``hydra_record``: overwrite removes Hydra's record and log as well (:data:`HYDRA_RECORD`)."""
-    path = _key(run_dir)
+    path = Path(run_dir).resolve()
     if path in _held:
         fd, count = _held[path]
         _held[path] = (fd, count + 1)
@@ -113,8 +88,9 @@ def acquire(run_dir: str | Path, new_run: bool, overwrite: bool = False, hydra_r
     fd = _lock(path, create=False) if path.is_dir() else None  # a live run holds it: refuse first
     try:
         if new_run and holds_run(path) and not overwrite:
+            finished = (path / EVAL).is_file() or (path / POPULATION_SUMMARY).is_file()
             raise RunDirTaken(
-                f"run directory {path} already holds {'a finished' if _finished(path) else 'an unfinished'} "
+                f"run directory {path} already holds {'a finished' if finished else 'an unfinished'} "
                 f"run: continue it with resume={run_dir}, or replace it with overwrite=true"
             )
         ensure_writable(path)
@@ -124,7 +100,8 @@ def acquire(run_dir: str | Path, new_run: bool, overwrite: bool = False, hydra_r
         if fd is not None:
             os.close(fd)
         raise
-    _record_holder(fd)
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, str(os.getpid()).encode(), 0)  # the holder, named when another process is refused
     if new_run and overwrite:
         remove_outputs(path, OUTPUTS + (HYDRA_RECORD if hydra_record else ()))
     _held[path] = (fd, 1)
@@ -133,7 +110,7 @@ def acquire(run_dir: str | Path, new_run: bool, overwrite: bool = False, hydra_r
 
 def release(run_dir: str | Path) -> None:
     """Give back one claim; the last one unlocks the directory (the lock file stays)."""
-    path = _key(run_dir)
+    path = Path(run_dir).resolve()
     fd, count = _held[path]
     if count > 1:
         _held[path] = (fd, count - 1)

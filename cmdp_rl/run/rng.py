@@ -1,8 +1,5 @@
-"""The process-wide random number generators: seeding them, and saving them for a resume.
-
-Three generators can be drawn from during training: torch's (action sampling, minibatch
-permutations), numpy's global one and Python's ``random``. The envs' generators are not here: each
-env owns its own and saves it with its state (see ``VecEnv.state_dict``).
+"""The process-wide random number generators (torch's, numpy's global one, Python's ``random``): seeding them, and
+saving them for a resume. Each env owns and saves its own generator (``VecEnv.state_dict``).
 """
 
 from __future__ import annotations

@@ -1,13 +1,6 @@
-"""Recording a run's failure, and reading a Hydra sweep's run directories back.
-
-A run directory (``train.py``'s Hydra output dir; its layout is in ``cmdp_rl/run/rundir.py``) holds
-``.hydra/{config,overrides}.yaml`` (written by Hydra when the job starts), then ``config.yaml``
-and ``metrics.csv`` (training started), then ``eval.json`` (training and evaluation finished) or
-``error.txt`` (the job raised).
-A sweep directory holds Hydra's ``multirun.yaml`` and one run directory per job.
-
-Aggregators read results from here instead of re-training, and report every run that did not
-finish (failed, interrupted, or never started) rather than crash on it.
+"""Recording a run's failure, and reading run directories back (their layout: ``cmdp_rl/run/rundir.py``): an
+aggregator reads results from here instead of re-training, and reports every run that did not finish (failed,
+interrupted, or never started) rather than crash on it.
 """
 
 from __future__ import annotations
@@ -30,17 +23,9 @@ from cmdp_rl.run.rundir import METRICS as METRICS_FILE
 from cmdp_rl.run.rundir import POPULATION_CONFIG
 
 HYDRA_DIR = ".hydra"
-MULTIRUN_FILE = "multirun.yaml"
 
 OK, FAILED, INCOMPLETE, MISSING = "ok", "failed", "incomplete", "missing"
 SUPERSEDED = "superseded"  # the same job ran again (a rerun) and that run is the one kept
-
-
-def clear_outputs(out_dir: str | Path) -> None:
-    """Remove a previous run's result and error from ``out_dir``, so that a rerun into the same
-    directory that dies early cannot be mistaken for a finished one."""
-    for name in (EVAL_FILE, ERROR_FILE):
-        (Path(out_dir) / name).unlink(missing_ok=True)
 
 
 def record_failure(out_dir: str | Path, exc: BaseException) -> None:
@@ -107,17 +92,12 @@ def load_run(path: str | Path) -> RunRecord:
     )
     if (path / EVAL_FILE).is_file():
         try:
-            record.eval = json.loads((path / EVAL_FILE).read_text())
-            record.status = OK
-            return record
+            record.eval, record.status = json.loads((path / EVAL_FILE).read_text()), OK
         except (OSError, ValueError) as exc:
             record.status, record.error = FAILED, f"{EVAL_FILE} unreadable: {exc}"
-            return record
-    if (path / ERROR_FILE).is_file():
-        record.status = FAILED
-        record.error = (
-            (path / ERROR_FILE).read_text().splitlines()[0] if (path / ERROR_FILE).stat().st_size else "error"
-        )
+    elif (path / ERROR_FILE).is_file():
+        text = (path / ERROR_FILE).read_text()
+        record.status, record.error = FAILED, text.splitlines()[0] if text else "error"
     return record
 
 
@@ -132,20 +112,6 @@ def find_runs(root: str | Path) -> list[RunRecord]:
     dirs |= {p.parent for p in root.rglob(CONFIG_FILE) if not inside_hydra(p)}
     # A population's own directory (cmdp_rl/population/) is not a run: its agents' directories are.
     return [load_run(d) for d in sorted(dirs) if not (d / POPULATION_CONFIG).is_file()]
-
-
-def _runs_holding(sweep_dir: str | Path, name: str) -> list[RunRecord]:
-    return [load_run(p.parent) for p in sorted(Path(sweep_dir).glob(f"*/{name}"))]
-
-
-def finished_runs(sweep_dir: str | Path) -> list[RunRecord]:
-    """The sweep's run directories (one level down) that hold a result (``eval.json``)."""
-    return _runs_holding(sweep_dir, EVAL_FILE)
-
-
-def started_runs(sweep_dir: str | Path) -> list[RunRecord]:
-    """The sweep's run directories (one level down) whose training started (``metrics.csv``)."""
-    return _runs_holding(sweep_dir, METRICS_FILE)
 
 
 def _finished_at(record: RunRecord) -> float:

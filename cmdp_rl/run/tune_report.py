@@ -16,8 +16,6 @@ from typing import Any, Sequence
 
 from cmdp_rl.run.tune_trial import best_feasible, feasible
 
-PLOTS = {"history": "history.png", "importances": "importances.png", "front": "front.png"}
-
 
 def _ci(pair: Sequence[float], fmt: str) -> str:
     return f"95% CI [{pair[0]:{fmt}}, {pair[1]:{fmt}}]"
@@ -130,9 +128,9 @@ def write_plots(study: Any, out: Path, best: Any, notes: list[str]) -> list[str]
                 continue
             fig = ax.figure if hasattr(ax, "figure") else ax.flat[0].figure
             fig.tight_layout()
-            fig.savefig(out / PLOTS[name], dpi=110)
+            fig.savefig(out / f"{name}.png", dpi=110)
             plt.close(fig)
-            written.append(PLOTS[name])
+            written.append(f"{name}.png")
     return written
 
 
@@ -169,15 +167,8 @@ def _front(study: Any, best: Any) -> Any:
         ax.step(*zip(*front), where="post", color="grey", lw=1, label="front")
         ax.axvline(budget[k], color="k", ls="--", lw=1, label=f"budget {budget[k]:g}")
         if best is not None:
-            ax.plot(
-                best.user_attrs["cost"][k],
-                best.user_attrs["return"],
-                "*",
-                color="gold",
-                ms=16,
-                mec="k",
-                label=f"best (trial {best.number})",
-            )
+            star = dict(color="gold", ms=16, mec="k", label=f"best (trial {best.number})")
+            ax.plot(best.user_attrs["cost"][k], best.user_attrs["return"], "*", **star)
         ax.set_xlabel(f"eval cost{'' if len(names) == 1 else ' ' + name} (mean over seeds, to its 95% upper bound)")
         ax.set_ylabel("eval return (mean over seeds, 95% CI)")
         ax.legend(fontsize=8)
@@ -200,7 +191,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.exit(2, f"tune_report: no such file: {path}\n")
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     try:
-        names = [s.study_name for s in optuna.get_all_study_summaries(url, include_best_trial=False)]
+        names = optuna.get_all_study_names(url)
     except Exception as exc:  # noqa: BLE001 - SQLAlchemy's and the drivers' errors have no common base
         parser.exit(2, f"tune_report: cannot open storage {args.storage}: {str(exc).splitlines()[0]}\n")
     name = args.study or (names[0] if len(names) == 1 else None)

@@ -1,25 +1,11 @@
-"""A search's trial (docs/tuning.md): its job's training curve to the study and pruning, its outcome, and the
-feasibility rule.
+"""A search's trial (docs/tuning.md, "A trial and its verdict" and "Pruning"): its job's training curve to the
+study's pruner, its outcome over its seeds, and the feasibility rule (``constraint = bound - budget`` per cost, the
+bound by ``feasible_by``), which Optuna's samplers take as a constraint (``constraints_func``), never as a penalty.
 
-A trial trains ``seeds`` seeds of one set of options in one job (a population, ``population.seeds``). Its value is
-the mean over the seeds of the deployed policy's eval return; for each cost, its constraint is ``bound - budget``
-with ``bound`` the 95% upper bound of the seeds' mean eval cost (``feasible_by=upper``, the default) or that mean
-(``feasible_by=mean``). The upper bound is the default because the search picks the best of many noisy trials: the
-trials whose seeds happened to come out cheap are the ones a mean would let through, and their options then go over
-budget on new seeds. Optuna's samplers take the constraint as a constraint (``constraints_func``), never as a
-penalty on the value.
-
-Inside the job: the sweeper (run/tune_search.py) names the trial in the job's ``hydra.job.env_set``; the Hydra
-callback below (``hydra.callbacks`` in configs/config.yaml, a no-op in any other job) then watches the training
-loop's rows (``run/loop.py``'s ITERATION_OBSERVERS). Past the warm-up (``hydra.sweeper.prune_after`` of the
-iterations), each iteration it reports the mean over the trial's seeds of the training batches' episode return as
-Optuna's intermediate value and asks the study's pruner whether to stop. Only the return is reported, so a trial is
-never pruned for its cost, which early in training is over budget in most runs that end within it. Nothing before
-the warm-up is reported either: early on, a constrained run's return is what it gains by going over budget before its
-multiplier rises, and Optuna's median and percentile pruners judge a trial by the best value it ever reported, so an
-early over-budget peak would shield a trial that then collapses, and a run that is cautious from the start would be
-pruned against the others' peaks (both seen on Reach1D: docs/tuning.md). And the pruner compares the trial with the
-finished trials within budget only (:class:`FeasibleOnly`): a return bought by going over budget is no bar to clear.
+Inside a job the search (run/tune.py) names the trial in ``hydra.job.env_set``; :class:`ReportToTrial`
+(``hydra.callbacks`` in configs/config.yaml, a no-op in any other job) then watches the training loop's rows
+(``run/loop.py``'s ITERATION_OBSERVERS). Past the warm-up (``prune_after``) it reports the return only, never the
+cost, and the pruner compares it with the trials within budget only (:class:`FeasibleOnly`).
 """
 
 from __future__ import annotations
@@ -33,9 +19,11 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl.run.loop import ITERATION_OBSERVERS
-from cmdp_rl.run.tune import STORAGE_ENV, STUDY_ENV, TRIAL_ENV
 
 LEVEL = 0.95
+TRIAL_ENV = "CMDP_TUNE_TRIAL"  # hydra.job.env_set keys: how a job learns which trial of which study it is
+STUDY_ENV = "CMDP_TUNE_STUDY"
+STORAGE_ENV = "CMDP_TUNE_STORAGE"
 
 
 class ReportToTrial(Callback):
@@ -75,8 +63,7 @@ class Observer:
     def __call__(self, iteration: int, iterations: int, rows: list[dict[str, Any]]) -> None:
         import optuna
 
-        # A population that trains its seeds one after another goes through the iterations once per seed: the
-        # first seed's curve is the one reported and judged (a step is reported once).
+        # Seeds trained one after another go through the iterations once each: the first seed's curve is reported.
         returns = [r["episode_return"] for r in rows if not math.isnan(r["episode_return"])]
         if iteration in self.reported or not returns or iteration < math.ceil(self.prune_after * iterations):
             return
@@ -154,17 +141,18 @@ def outcome(results: Sequence[Mapping[str, Any]], names: Sequence[str], budget: 
 
     k = len(names)
     returns = [float(r["episode_return"]) for r in results]
-    ret_ci = list(results[0]["episode_return_ci95"]) if len(results) == 1 else _interval(returns)
+    ret_ci = list(results[0]["episode_return_ci95"]) if len(results) == 1 else _t_bounds(returns)[0]
     costs, cost_ci, upper = [], [], []
     for c in names:
         values = [float(r[constraint_name("episode_cost", c, k)]) for r in results]
         costs.append(values)
         if len(results) == 1:
-            cost_ci.append(list(results[0][constraint_name("episode_cost_ci95", c, k)]))
-            upper.append(float(results[0][constraint_name("episode_cost_ucb95", c, k)]))
+            ci = list(results[0][constraint_name("episode_cost_ci95", c, k)])
+            up = float(results[0][constraint_name("episode_cost_ucb95", c, k)])
         else:
-            cost_ci.append(_interval(values))
-            upper.append(_upper(values))
+            ci, up = _t_bounds(values)
+        cost_ci.append(ci)
+        upper.append(up)
     mean_cost = [sum(v) / len(v) for v in costs]
     bound = upper if by == "upper" else mean_cost
     return {
@@ -179,14 +167,10 @@ def outcome(results: Sequence[Mapping[str, Any]], names: Sequence[str], budget: 
     }
 
 
-def _interval(values: Sequence[float]) -> list[float]:
+def _t_bounds(values: Sequence[float]) -> tuple[list[float], float]:
+    """Student's t over ``values``: the 95% interval of their mean, and its one-sided 95% upper bound."""
     from scipy import stats  # here: every run imports this module (its Hydra callback), few of them need scipy
 
-    mean = sum(values) / len(values)
-    return [float(b) for b in stats.t.interval(LEVEL, len(values) - 1, loc=mean, scale=stats.sem(values))]
-
-
-def _upper(values: Sequence[float]) -> float:
-    from scipy import stats
-
-    return float(sum(values) / len(values) + stats.t.ppf(LEVEL, len(values) - 1) * stats.sem(values))
+    mean, sem, dof = sum(values) / len(values), stats.sem(values), len(values) - 1
+    interval = [float(b) for b in stats.t.interval(LEVEL, dof, loc=mean, scale=sem)]
+    return interval, float(mean + stats.t.ppf(LEVEL, dof) * sem)

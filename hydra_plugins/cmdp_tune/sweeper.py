@@ -64,6 +64,6 @@ class ConstrainedOptunaSweeper(Sweeper):
         )
 
     def sweep(self, arguments: List[str]) -> Any:
-        from cmdp_rl.run.tune_search import sweep
+        from cmdp_rl.run.tune import sweep
 
         return sweep(self, arguments)

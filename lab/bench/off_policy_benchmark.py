@@ -25,11 +25,10 @@ from pathlib import Path
 from typing import Any
 
 from cmdp_rl.report.plot import pyplot, save_figure
-from cmdp_rl.run import sweeps
 from lab.studies import tables
 from lab.studies.stats import population_mean_std
 from lab.studies.tables import markdown_table, pm
-from lab.sweeps import experiment_arg_parser, experiment_sweep_dir
+from lab.sweeps import experiment_arg_parser, experiment_sweep_dir, finished_runs
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout
 SMOKE = ["total_steps=6144", "env.max_steps=200"]  # sac_lag: 5,000 warm-up steps, then 1,144 trained
@@ -44,7 +43,7 @@ def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
             "eval": run.eval,
             "rows": run.metrics,
         }
-        for run in sweeps.finished_runs(sweep_dir)
+        for run in finished_runs(sweep_dir)
     ]
 
 

@@ -24,11 +24,10 @@ from typing import Any
 
 from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.report.safety_metrics import Reference, normalized_scores
-from cmdp_rl.run import sweeps
 from lab.studies import tables
 from lab.studies.stats import population_mean_std
 from lab.studies.tables import markdown_table, pm
-from lab.sweeps import experiment_arg_parser, experiment_sweep_dir
+from lab.sweeps import experiment_arg_parser, experiment_sweep_dir, finished_runs
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: its train.py, Makefile, docs/ and multirun/
 REFERENCE_ALGO = "ppo"
@@ -45,7 +44,7 @@ def load_runs(sweep_dir: Path) -> list[dict[str, Any]]:
             "eval": run.eval,
             "rows": run.metrics,
         }
-        for run in sweeps.finished_runs(sweep_dir)
+        for run in finished_runs(sweep_dir)
     ]
 
 

@@ -36,7 +36,7 @@ from cmdp_rl.run import sweeps
 from cmdp_rl.run.migrations import saved_config_nodes
 from lab.studies.stats import count_finite, sample_mean_std
 from lab.studies.tables import markdown_table, pm
-from lab.sweeps import experiment_arg_parser, experiment_sweep_dir
+from lab.sweeps import experiment_arg_parser, experiment_sweep_dir, started_runs
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: its train.py, Makefile, docs/ and multirun/
 METRICS = ("first_crossing", "overshoot", "overshoot_smooth", "violation", "oscillation", "eval_return", "eval_cost")
@@ -166,7 +166,7 @@ def plot(runs: list[dict], out: Path) -> None:
 
 
 def analyse(sweep_dir: Path) -> str:
-    runs = [load_run(r) for r in sweeps.started_runs(sweep_dir)]
+    runs = [load_run(r) for r in started_runs(sweep_dir)]
     if not runs:
         raise SystemExit(f"no runs (*/metrics.csv) under {sweep_dir}")
     for r in runs:

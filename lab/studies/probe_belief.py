@@ -30,14 +30,13 @@ import torch
 from cmdp_rl import Collector, RunConfig, load_config, make_agent, make_env
 from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.rollout import keys
-from cmdp_rl.run import sweeps
 from cmdp_rl.run.checkpoint import load_checkpoint
 from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET
 from cmdp_rl.run.migrations import member, migrate
 from lab.studies import tables
 from lab.studies.stats import population_mean_std
 from lab.studies.tables import markdown_table, pm
-from lab.sweeps import experiment_arg_parser, experiment_sweep_dir
+from lab.sweeps import experiment_arg_parser, experiment_sweep_dir, finished_runs
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: its train.py, Makefile, docs/ and multirun/
 POLICY_ORDER = ("mlp", "lstm", "gru", "transformer")
@@ -73,7 +72,7 @@ def load_runs(sweep_dir: Path, probe_steps: int = PROBE_STEPS) -> list[dict[str,
     """Every finished run under ``sweep_dir``: config, eval.json, probe.json (written first where
     missing, from the run's checkpoint) and metrics rows."""
     runs = []
-    for run in sweeps.finished_runs(sweep_dir):
+    for run in finished_runs(sweep_dir):
         run_dir, cfg = run.path, run.config
         probe_path = run_dir / "probe.json"
         if not probe_path.is_file():
