@@ -7,8 +7,7 @@ import math
 
 import pytest
 
-from cmdp_rl.envs.suite.model import generate
-from cmdp_rl.envs.suite.optimum import solve
+from cmdp_rl.envs.suite.model import generate, solve
 from lab.studies.cmdp_suite import NEAR, SLACK, SuiteRun, parse_ids, run_one, split_of, step_budget, table
 
 

@@ -11,7 +11,8 @@ from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs.fork.env import TorchFork
 from cmdp_rl.envs.fork.model import ADVANCE, GOAL, fork_cmdp
 from cmdp_rl.envs.grid.optimum import solve_constrained
-from cmdp_rl.envs.grid.tabular import evaluate, value_iteration
+from cmdp_rl.envs.grid.tabular import evaluate
+from lab.studies.grid_policy import value_iteration
 
 
 def route_policy(model, route: int) -> np.ndarray:

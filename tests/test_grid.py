@@ -9,7 +9,8 @@ import pytest
 
 from cmdp_rl.envs.grid.env import COST_NAMES, DEFAULT_BUDGETS, GRID_ID, GridWorld, parse_layout
 from cmdp_rl.envs.grid.optimum import InfeasibleBudgets, solve_constrained
-from cmdp_rl.envs.grid.tabular import evaluate, grid_cmdp, value_iteration
+from cmdp_rl.envs.grid.tabular import evaluate, grid_cmdp
+from lab.studies.grid_policy import value_iteration
 
 SMALL = ("SaG", ".b.", "...")  # 8 states: 4^8 = 65536 deterministic policies, enumerable
 SMALL_KW = dict(slip=0.1, end_prob=0.1)

@@ -16,7 +16,7 @@ from cmdp_rl.envs import GymVecEnv, Reach1D, TorchReach1D
 
 
 class GymDraws:
-    """A :class:`~cmdp_rl.envs.reach1d.batched.NoiseSource` drawing, env by env, from the generators
+    """A :class:`~cmdp_rl.envs.reach1d.batched.TorchNoise` drawing, env by env, from the generators
     gymnasium's vector env would give its sub-envs: only the envs in ``where`` consume a draw."""
 
     def __init__(self, num_envs):

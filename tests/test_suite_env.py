@@ -13,8 +13,7 @@ from cmdp_rl import load_config, train
 from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.envs import check_env, make_env
 from cmdp_rl.envs.suite.env import TorchSuite
-from cmdp_rl.envs.suite.model import HELD_ASIDE, TUNING, FiniteCMDP, draw, evaluate, generate
-from cmdp_rl.envs.suite.optimum import solve
+from cmdp_rl.envs.suite.model import HELD_ASIDE, TUNING, FiniteCMDP, draw, evaluate, generate, solve
 from cmdp_rl.envs.suite.task import SuiteConfig
 from cmdp_rl.run.rundir import load_trained
 from lab.studies.suite_valuation import deployed_values

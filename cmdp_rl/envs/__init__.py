@@ -10,21 +10,12 @@ from cmdp_rl.config.registry import component
 from cmdp_rl.config.validation import per_constraint
 from cmdp_rl.envs.contract import EnvContractError, check_env
 from cmdp_rl.envs.early_termination import EarlyTerminated
-from cmdp_rl.envs.grid.env import GRID_ID, GridWorld
-from cmdp_rl.envs.grid.task import GridEnvConfig
 from cmdp_rl.envs.gym_cost import make_cost_env
-from cmdp_rl.envs.reach1d.batched import NoiseSource, TorchNoise, TorchReach1D
+from cmdp_rl.envs.reach1d.batched import TorchReach1D
 from cmdp_rl.envs.reach1d.env import Reach1D
-from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.envs.vector import GymVecEnv, Step, VecEnv
-from cmdp_rl.envs.velocity import make_velocity_env
 
 REACH1D_ID = "cmdp_rl/Reach1D-v0"
-
-
-def reach1d_kwargs(cfg: Reach1DConfig) -> dict:
-    """The Reach1D constructor arguments a :class:`Reach1DConfig` asks for."""
-    return cfg.env_kwargs()
 
 
 def make_env(
@@ -35,15 +26,11 @@ def make_env(
     evaluation: bool = False,
     cut_at: float | Sequence[float] | None = None,
 ) -> VecEnv:
-    """Build the batched env a config names (``num_envs`` overrides ``cfg.num_envs``).
-
-    ``device`` is where the env's tensors live: a torch backend steps there; a gymnasium backend
-    steps on the CPU and moves its tensors there. ``algo``: the algorithm's options; the env their
-    ``wrap_env(env, evaluation)`` returns (``AlgoConfig``'s: the env itself; Sauté's budget state).
-    ``cut_at``: the budget(s) of the early-terminated MDP (``early_terminate: true``, a training env
-    only): each episode ends once a cost's sum passes its budget (``envs/early_termination.py``),
-    inside the algorithm's wrapper, so Sauté's budget state restarts with the cut episode.
-    """
+    """Build the batched env a config names (``num_envs`` overrides ``cfg.num_envs``), its tensors on
+    ``device`` (a gymnasium backend steps on the CPU). ``algo``: the algorithm's options, whose
+    ``wrap_env(env, evaluation)`` gives the env returned (Sauté's budget state). ``cut_at``: the
+    budget(s) of the early-terminated MDP (``envs/early_termination.py``, training envs only), inside
+    the algorithm's wrapper, so Sauté's budget state restarts with the cut episode."""
     n = cfg.num_envs if num_envs is None else num_envs
     env = component("env", cfg.name).build(cfg, n, device)
     if cut_at is not None:
@@ -59,24 +46,16 @@ def make_eval_env(cfg: Any, num_envs: int | None = None, device: str = "cpu", al
 
 
 __all__ = [
-    "GRID_ID",
     "REACH1D_ID",
     "EarlyTerminated",
     "EnvContractError",
-    "GridEnvConfig",
-    "GridWorld",
     "GymVecEnv",
-    "NoiseSource",
     "Reach1D",
-    "Reach1DConfig",
     "Step",
-    "TorchNoise",
     "TorchReach1D",
     "VecEnv",
     "check_env",
     "make_cost_env",
     "make_env",
     "make_eval_env",
-    "make_velocity_env",
-    "reach1d_kwargs",
 ]

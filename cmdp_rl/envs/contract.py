@@ -1,38 +1,15 @@
-"""The CMDP contract an env must keep, checked by stepping it briefly before training.
-
-A broken env otherwise surfaces far from its cause: a NaN cost as "loss is nan: training diverged",
-a cost of the wrong length as a numpy broadcasting traceback, a missing cost as a perfectly safe
-run. :func:`check_env` steps the env with random actions and stops at the first breach with one
-line naming the env, the env index, the step and the field.
-
-What is checked:
-
-- the action space is a ``Box``, ``Discrete``, ``MultiDiscrete``, or a hybrid ``Tuple``/``Dict`` of
-  one ``Discrete`` and one ``Box`` (what the policy heads know);
-  the observation space is a ``Box``, ``Discrete``, ``MultiDiscrete`` or ``MultiBinary`` (the
-  collector flattens observations into one float vector);
-- every observation (after reset, after each step) is finite and inside the observation space:
-  its shape, a dtype that casts safely to the space's, its bounds;
-- the reward is a finite number; ``terminated`` and ``truncated`` are bools;
-- ``info["cost"]`` is there on every step, a number (one constraint) or a 1-D array of K numbers,
-  with the same K on every step and in every env, finite, and not negative;
-- ``cost_names``, where the env declares them, are K distinct strings.
-
-Why a negative cost is an error (unless ``allow_negative_cost``): a CMDP's costs are non-negative,
-``c_i(s, a) >= 0`` (Altman 1999; the seed's definition), and the budget ``J_c <= d`` means "at
-most d units of harm" only then. A negative cost lets a policy buy credit (harm here, paid back by
-a negative cost there) that the budget cannot tell from safety, and the logged cost rate and
-violation stop meaning what they say. An env that knows why it wants signed costs can say so.
-
-The check steps and resets the env it is given: pass one built for the check, not the training
-env (whose random generators it would move on).
+"""The CMDP contract an env must keep, checked by stepping it briefly before training
+(:func:`check_env`) and on every rollout (:func:`check_rollout`): the first breach stops the run with
+one line naming the env, the env index, the step and the field. What is checked, and why a negative
+cost is a breach: docs/guide/env_contract.md. The check steps and resets the env it is given: pass
+one built for it, not the training env (whose random generators it would move on).
 """
 
 from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -40,6 +17,7 @@ import torch
 from gymnasium import spaces
 
 from cmdp_rl.config.validation import ConfigError
+from cmdp_rl.envs.vector import declared_cost_names, default_cost_names
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.actions import SUPPORTED, hybrid
 
@@ -49,8 +27,7 @@ COST = 'info["cost"]'
 
 
 class EnvContractError(ConfigError):
-    """An env breaks the CMDP contract. A :class:`ConfigError`, so ``train.py`` reports it in one
-    line and exits with status 2."""
+    """An env breaks the CMDP contract (a :class:`ConfigError`: ``train.py`` says so in one line)."""
 
 
 @dataclass(frozen=True)
@@ -71,8 +48,9 @@ def _short(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
-class _Checker:
-    """Checks one env's (or one batch's) steps; remembers K across steps and envs."""
+class Checker:
+    """Checks one env's (or one batch's) steps; remembers K across steps and envs. An env that checks
+    its own raw steps (``check_contract``: a multi-agent env names the agent) uses it too."""
 
     def __init__(self, env_id: str, cost_names: Any, allow_negative_cost: bool) -> None:
         self.env_id = env_id
@@ -93,7 +71,6 @@ class _Checker:
             self.fail(None, "cost_names", f"must be distinct, got {_short(tuple(names))}")
         return tuple(names)
 
-    # --- the spaces ---
     def spaces(self, action_space: Any, observation_space: Any) -> None:
         if not isinstance(action_space, ACTION_SPACES) and hybrid(action_space) is None:
             self.fail(None, "action_space", f"{action_space} is not supported; supported: {SUPPORTED}")
@@ -104,7 +81,6 @@ class _Checker:
                 f"{observation_space} is not supported; supported: Box, Discrete, MultiDiscrete, MultiBinary",
             )
 
-    # --- one env's values ---
     def observation(self, where: tuple[int, int], obs: Any, space: gym.Space, field: str = "observation") -> None:
         if isinstance(space, spaces.Box):
             if not isinstance(obs, np.ndarray):
@@ -137,23 +113,20 @@ class _Checker:
             self.fail(
                 where, COST, f"is missing (info keys: {sorted(map(str, info))}); a CMDP env reports its cost there"
             )
-        value = info["cost"]
+        value, wanted = info["cost"], "must be a number or a 1-D array of numbers, got"
         if isinstance(value, (bool, np.bool_)):
-            self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {value!r}")
+            self.fail(where, COST, f"{wanted} {value!r}")
         if isinstance(value, numbers.Real):
             cost = np.array([float(value)])
         elif isinstance(value, (np.ndarray, list, tuple, torch.Tensor)):
             cost = np.asarray(value)
             if cost.dtype.kind not in "iuf":
-                self.fail(where, COST, f"must be a number or a 1-D array of numbers, got {_short(value)}")
-            if cost.ndim == 0:
-                cost = cost.reshape(1)
+                self.fail(where, COST, f"{wanted} {_short(value)}")
+            cost = cost.reshape(1) if cost.ndim == 0 else cost
             if cost.ndim != 1 or cost.size == 0:
-                self.fail(where, COST, f"must be a number or a 1-D array of numbers, got shape {cost.shape}")
+                self.fail(where, COST, f"{wanted} shape {cost.shape}")
         else:
-            self.fail(
-                where, COST, f"must be a number or a 1-D array of numbers, got {_short(value)} ({type(value).__name__})"
-            )
+            self.fail(where, COST, f"{wanted} {_short(value)} ({type(value).__name__})")
         self.cost_vector(where, cost)
 
     def cost_vector(self, where: tuple[int, int], cost: np.ndarray) -> None:
@@ -180,18 +153,7 @@ class _Checker:
 
     def result(self) -> EnvContract:
         k = self.num_costs or 1
-        return EnvContract(k, self.cost_names or tuple(f"cost_{i}" for i in range(k)))
-
-
-def _env_id(env: gym.Env) -> str:
-    return env.spec.id if env.spec is not None else type(env.unwrapped).__name__
-
-
-def _cost_names(env: gym.Env) -> Any:
-    try:
-        return env.get_wrapper_attr("cost_names")
-    except AttributeError:
-        return None
+        return EnvContract(k, self.cost_names or default_cost_names(k))
 
 
 def _check_gym_envs(
@@ -199,7 +161,8 @@ def _check_gym_envs(
 ) -> EnvContract:
     """Each gymnasium env in turn: reset, ``steps`` random actions, a reset after every episode end."""
     first = envs[0]
-    check = _Checker(env_id or _env_id(first), _cost_names(first), allow_negative_cost)
+    env_id = env_id or (first.spec.id if first.spec is not None else type(first.unwrapped).__name__)
+    check = Checker(env_id, declared_cost_names(first), allow_negative_cost)
     for index, env in enumerate(envs):
         check.spaces(env.action_space, env.observation_space)
         env.action_space.seed(seed + index)
@@ -228,51 +191,41 @@ def _check_gym_envs(
     return check.result()
 
 
-def _is_float(dtype: torch.dtype) -> bool:
-    return dtype.is_floating_point
-
-
 def _check_tensor_env(env: Any, steps: int, seed: int, allow_negative_cost: bool, env_id: str | None) -> EnvContract:
     """A batched torch env (``cmdp_rl.envs.VecEnv``): the same rules on its ``[N, ...]`` tensors,
     vectorised over the batch; the first failing env is named."""
-    check = _Checker(env_id or type(env).__name__, getattr(env, "cost_names", None), allow_negative_cost)
+    check = Checker(env_id or type(env).__name__, getattr(env, "cost_names", None), allow_negative_cost)
     n = env.num_envs
     gen = torch.Generator(device=env.device).manual_seed(seed)
 
     def first_bad(bad: torch.Tensor) -> int:
         return int(torch.nonzero(bad.reshape(n, -1).any(-1))[0, 0])
 
-    def batch(
-        t: int,
-        field: str,
-        value: torch.Tensor,
-        shape: tuple[int, ...],
-        finite: bool = True,
-        dtype_check: Callable[[torch.dtype], bool] | None = None,
-    ) -> None:
+    def batch(t: int, field: str, value: torch.Tensor, shape: tuple[int, ...], kind: str = "") -> None:
+        """``kind``: the dtype wanted, "float" (and finite), "bool", or any (and finite)."""
         if tuple(value.shape) != shape:
             check.fail((0, t), field, f"has shape {tuple(value.shape)} over the batch, expected {shape}")
-        if dtype_check is not None and not dtype_check(value.dtype):
+        if (kind == "float" and not value.dtype.is_floating_point) or (kind == "bool" and value.dtype != torch.bool):
             check.fail((0, t), field, f"has dtype {value.dtype}")
-        if finite and not torch.isfinite(value).all():
+        if kind != "bool" and not torch.isfinite(value).all():
             i = first_bad(~torch.isfinite(value))
             check.fail((i, t), field, f"is not finite: {_short(value[i].cpu())}")
 
     obs = env.reset(seed=seed)
-    batch(0, "observation", obs, (n, env.obs_dim), dtype_check=_is_float)
+    batch(0, "observation", obs, (n, env.obs_dim), "float")
     low, high = env.action_low, env.action_high
     for t in range(1, steps + 1):
         u = torch.rand((n, env.action_dim), generator=gen, device=env.device)
         step = env.step(low + (high - low) * u)
         for field, value in (("observation", step.next_obs), ("observation after reset", step.obs)):
-            batch(t, field, value, (n, env.obs_dim), dtype_check=_is_float)
+            batch(t, field, value, (n, env.obs_dim), "float")
         batch(t, "reward", step.reward, (n, 1))
         for name in ("terminated", "truncated"):
-            batch(t, name, getattr(step, name), (n, 1), finite=False, dtype_check=lambda d: d == torch.bool)
+            batch(t, name, getattr(step, name), (n, 1), "bool")
         cost = step.cost
         if cost.dim() != 2 or cost.shape[0] != n:
             check.fail((0, t), COST, f"has shape {tuple(cost.shape)} over the batch, expected ({n}, K)")
-        bad = ~torch.isfinite(cost) | (torch.zeros_like(cost, dtype=torch.bool) if allow_negative_cost else cost < 0)
+        bad = ~torch.isfinite(cost) | ((cost < 0) & (not allow_negative_cost))
         i = first_bad(bad) if bad.any() else 0
         check.cost_vector((i, t), cost[i].detach().cpu().numpy().astype(np.float64))
     return check.result()
@@ -281,13 +234,9 @@ def _check_tensor_env(env: Any, steps: int, seed: int, allow_negative_cost: bool
 def check_rollout(batch: Any, env_id: str, allow_negative_cost: bool = False, first_step: int = 1) -> None:
     """The per-rollout part of the contract on a collector batch ``[N, T]`` (before any scaling):
     observations, rewards and costs finite, costs not negative unless ``allow_negative_cost``.
-    ``first_step``: each env's step number of the batch's first step (the count since the run
-    started, 1-based), for the message.
-
-    Cheap where all is well: four reductions over the batch and one host sync. Only a batch that
-    fails them is searched for its first breach (earliest step, then lowest env index), raised as
-    :class:`EnvContractError` in the same words as :func:`check_env`. (A sum of finite values that
-    overflows also fails the cheap test; the search then finds nothing and the batch passes.)
+    ``first_step``: each env's step number of the batch's first step (1-based), for the message.
+    A batch that fails the cheap test is searched for its first breach (earliest step, then lowest
+    env index); one whose finite values only overflowed a sum passes.
     """
     nxt = batch.get(keys.NEXT)
     obs, next_obs = batch.get(keys.OBS), nxt.get(keys.OBS)
@@ -298,14 +247,14 @@ def check_rollout(batch: Any, env_id: str, allow_negative_cost: bool = False, fi
     if bool(ok):
         return
     n, t_len = batch.shape[:2]
-    check = _Checker(env_id, None, allow_negative_cost)
+    check = Checker(env_id, None, allow_negative_cost)
 
     def first(bad: torch.Tensor) -> tuple[int, int] | None:
         """(t, i) of the earliest breach in ``bad`` ``[N, T, ...]``, or None."""
         hits = torch.nonzero(bad.reshape(n, t_len, -1).any(-1).T)  # rows (t, i), in order of t then i
         return None if hits.numel() == 0 else (int(hits[0, 0]), int(hits[0, 1]))
 
-    bad_cost = ~torch.isfinite(cost) | (torch.zeros_like(cost, dtype=torch.bool) if allow_negative_cost else cost < 0)
+    bad_cost = ~torch.isfinite(cost) | ((cost < 0) & (not allow_negative_cost))
     # (t offset of the env step the entry came from, entry, breach mask); root observations at t
     # were returned by step t - 1 (by the reset at step 0).
     found = []
@@ -334,11 +283,8 @@ def check_env(
 ) -> EnvContract:
     """Step ``env`` (a gymnasium env, a gymnasium ``SyncVectorEnv``, or a ``cmdp_rl.envs.VecEnv``)
     ``steps`` times per env with random actions and raise :class:`EnvContractError` at the first
-    breach of the CMDP contract (module docstring); return K and the cost names found.
-
-    A ``GymVecEnv`` is checked through its gymnasium envs, one by one (their raw ``info``, before
-    the vector env fills in or reshapes anything); other ``VecEnv``s through their batched tensors.
-    ``env_id`` names the env in the message (default: its registered id, else its class).
+    breach of the CMDP contract; return K and the cost names found. ``env_id`` names the env in the
+    message (default: its registered id, else its class).
     """
     if isinstance(env, gym.Env):
         return _check_gym_envs([env], steps, seed, allow_negative_cost, env_id)
@@ -352,18 +298,3 @@ def check_env(
     if isinstance(vector, gym.vector.VectorEnv):
         raise TypeError(f"check_env: pass the single env or a SyncVectorEnv, got {type(vector).__name__}")
     return _check_tensor_env(env, steps, seed, allow_negative_cost, env_id)
-
-
-# The per-value checks, for an env that checks its own raw steps (``check_contract``: a multi-agent
-# env checks each agent's values and names the agent).
-Checker = _Checker
-
-__all__ = [
-    "ACTION_SPACES",
-    "OBSERVATION_SPACES",
-    "Checker",
-    "EnvContract",
-    "EnvContractError",
-    "check_env",
-    "check_rollout",
-]

@@ -1,26 +1,15 @@
 """The early-terminated MDP: a training episode ends at the first step after which its cost passes the
-budget (Sun et al., 2021, "Safe Exploration by Solving Early Terminated MDP", arXiv 2107.04200; cited
-by name, docs/references.md).
-
-The paper's point: ending the episode where the constraint is broken turns the CMDP into an MDP
-whose plain return already pays for the violation (every reward the rest of the episode would have
-brought is lost), so maximising return favours staying within budget, with or without a multiplier
-(not always: the step that passes the budget keeps its own reward, so a violation that pays at once
-can still be worth it). Here the cut is a termination (``terminated``: no bootstrap from the value after it),
-with the running undiscounted episode cost of each constraint compared with its budget d
-(``algo.cost_limit``): the episode ends when *any* constraint's sum exceeds its budget, strictly
-(a cost exactly at d is within budget, as the evaluation's verdict counts it).
-
-The cut is the env's, applied to training envs only (``run.early_terminate``, ``envs.make_env``'s
-``cut_at``): the evaluation env, the mixture's valuation and ``evaluate.py`` step whole episodes.
-It needs an env that can start one row's episode afresh, :meth:`VecEnv.reset_rows`.
+budget (Sun et al., 2021, "Safe Exploration by Solving Early Terminated MDP", arXiv 2107.04200), so
+its plain return already pays for a violation. The cut is a termination (no bootstrap after it), when
+*any* constraint's undiscounted episode sum exceeds its budget d strictly (a sum at d is within
+budget, as the evaluation's verdict counts it); training envs only (``envs.make_env``'s ``cut_at``).
+Why, and what it does with each algorithm and env: docs/constraint_satisfaction.md.
 """
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-import gymnasium as gym
 import torch
 
 from cmdp_rl.config.validation import ConfigError
@@ -28,10 +17,10 @@ from cmdp_rl.envs.vector import Step, VecEnv
 
 
 class EarlyTerminated(VecEnv):
-    """``env`` whose episodes end (``terminated``) at the first step after which some cost's running
-    episode sum exceeds its budget (module docstring). ``budgets``: ``[K]`` (every row the same) or
-    ``[N, K]`` (a row's own, as a population's agents have). Reward, cost and observations pass
-    through; the cut rows restart through ``env.reset_rows``."""
+    """``env`` cut at its budgets (module docstring): ``[K]``, or ``[N, K]`` (a row's own, as a
+    population's agents have). The cut rows restart through ``env.reset_rows``."""
+
+    saved = ("env", "spent")
 
     def __init__(self, env: VecEnv, budgets: Sequence[float] | torch.Tensor) -> None:
         if type(env).reset_rows is VecEnv.reset_rows:
@@ -39,31 +28,14 @@ class EarlyTerminated(VecEnv):
                 f"early_terminate: true needs an env that can restart single episodes (VecEnv.reset_rows); "
                 f"{type(env).__name__} has none: false, or give it one"
             )
-        self.env = env
-        self.num_envs, self.num_costs, self.device = env.num_envs, env.num_costs, env.device
-        self.obs_dim = env.obs_dim
-        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
+        self.wrap(env)
         b = torch.as_tensor(budgets, dtype=torch.float32, device=self.device)
         self.budgets = b.view(1, -1) if b.dim() == 1 else b
         self.spent = torch.zeros(self.num_envs, self.num_costs, device=self.device)  # running episode costs
 
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.env.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return self.env.action_space
-
     def __getattr__(self, name: str) -> Any:
-        # What an env declares besides the VecEnv interface (a team env's agents_per_env, which
-        # evaluation and the multi-agent algorithm read) is the wrapped env's.
-        if name == "env":  # not yet set: no recursion
-            raise AttributeError(name)
+        # What an env declares besides the VecEnv interface (a team env's agents_per_env) is the wrapped env's.
         return getattr(self.env, name)
-
-    def check_action(self, action: torch.Tensor) -> None:
-        self.env.check_action(action)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         self.spent = torch.zeros_like(self.spent)
@@ -88,16 +60,3 @@ class EarlyTerminated(VecEnv):
         terminated = s.terminated | over
         # A step that both times out and passes the budget ends by the budget: no bootstrap.
         return s._replace(terminated=terminated, truncated=s.truncated & ~terminated, obs=obs)
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"env": self.env.state_dict(), "spent": self.spent.clone()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.env.load_state_dict(state["env"])
-        self.spent = state["spent"].to(self.device).clone()
-
-    def close(self) -> None:
-        self.env.close()
-
-
-__all__ = ["EarlyTerminated"]

@@ -1,19 +1,12 @@
 """Saving one gymnasium env in the middle of an episode, and restoring it into a fresh copy.
 
-Gymnasium has no API for this, and pickling does not do it: its MuJoCo envs pickle their
-constructor arguments only (``EzPickle``) and come back freshly built. So we save what an env's
-future depends on, layer by layer:
-
-- each wrapper's plain attributes (``TimeLimit``'s elapsed steps, statistics wrappers' sums);
-- the base env's own ``state_dict()`` where it has one (Reach1D); otherwise its random generator
-  (numpy's ``bit_generator.state``, a dict of ints), its plain attributes (classic-control ``state``
-  arrays, counters) and, for a MuJoCo env, its ``MjData`` as arrays (:func:`mujoco_data_state`).
-
-Every value saved is a number, a string, an array or a plain container of them: a checkpoint holds
-no pickled object (docs/checkpoints.md).
-
-Attributes that are configuration (spaces, specs, the MuJoCo model, renderers) are skipped. Any
-other attribute is state we do not know how to save (a Box2D world, say): :func:`env_state` raises
+Gymnasium has no API for this, and pickling does not do it (its MuJoCo envs pickle their constructor
+arguments only, ``EzPickle``). So we save what an env's future depends on, layer by layer: each
+wrapper's plain attributes (``TimeLimit``'s elapsed steps); the base env's own ``state_dict()`` where
+it has one (Reach1D), else its random generator's state, its plain attributes and, for a MuJoCo
+env, its ``MjData`` as arrays. Every value saved is a number, a string, an array or a plain container
+of them: a checkpoint holds no pickled object (docs/checkpoints.md). Configuration (spaces, specs,
+the MuJoCo model, renderers) is skipped; any other attribute (a Box2D world, say) raises
 ``NotImplementedError`` naming it rather than save a state that would resume inexactly.
 """
 
@@ -27,25 +20,10 @@ import gymnasium as gym
 import numpy as np
 
 # Attributes that hold configuration or plumbing, never episode state.
-_SKIPPED_NAMES = {
-    "env",
-    "spec",
-    "metadata",
-    "_saved_kwargs",
-    "_ezpickle_args",
-    "_ezpickle_kwargs",
-    "_cached_spec",
-    "_metadata",
-    "_action_space",
-    "_observation_space",
-    "_np_random_seed",
-    "mujoco_renderer",
-    "screen",
-    "clock",
-    "model",
-    "np_random",
-    "_np_random",
-}
+_SKIPPED_NAMES = set(
+    "env spec metadata _saved_kwargs _ezpickle_args _ezpickle_kwargs _cached_spec _metadata _action_space "
+    "_observation_space _np_random_seed mujoco_renderer screen clock model np_random _np_random".split()
+)
 
 
 def _plain(value: Any) -> bool:
@@ -84,13 +62,11 @@ def _is_mujoco_data(value: Any) -> bool:
 
 
 def mujoco_data_state(model: Any, data: Any) -> dict[str, Any]:
-    """An ``MjData`` as arrays: MuJoCo's integration state (``mj_getState``: time, positions,
-    velocities, activations, warm-start accelerations, controls, applied forces) and every array of
-    the data whose size the model fixes. The second part matters: after ``mj_step`` the derived
-    fields (body positions, contact forces) are those of the last substep's start, and an env reads
-    them before its next step (gymnasium's Ant takes its torso position before stepping), so
-    recomputing them with ``mj_forward`` would not continue the episode bit for bit. Arrays sized by
-    the step's contacts and constraints are left out: the next step recomputes them before use."""
+    """An ``MjData`` as arrays: MuJoCo's integration state (``mj_getState``) and every array of the
+    data whose size the model fixes. The second part matters: after ``mj_step`` the derived fields
+    (body positions, contact forces) are those of the last substep's start, and an env may read them
+    before its next step (gymnasium's Ant does), so ``mj_forward`` would not continue the episode bit
+    for bit. Arrays sized by the step's contacts are left out: the next step recomputes them."""
     import mujoco
 
     spec = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -117,11 +93,6 @@ def load_mujoco_data_state(model: Any, data: Any, state: dict[str, Any]) -> None
         getattr(data, name)[...] = value
 
 
-def _rng(env: gym.Env) -> dict | None:
-    rng = getattr(env, "_np_random", None)
-    return None if rng is None else rng.bit_generator.state
-
-
 def env_state(env: gym.Env) -> dict[str, Any]:
     """The state of ``env`` (wrappers included) that :func:`load_env_state` restores."""
     wrappers, base = [], env
@@ -132,7 +103,8 @@ def env_state(env: gym.Env) -> dict[str, Any]:
     if hasattr(base, "state_dict"):
         state["own"] = base.state_dict()
         return state
-    state["np_random"] = _rng(base)
+    rng = getattr(base, "_np_random", None)
+    state["np_random"] = None if rng is None else rng.bit_generator.state
     state["attributes"] = _attributes(base, type(base).__name__)
     data = getattr(base, "data", None)
     if _is_mujoco_data(data):

@@ -1,27 +1,15 @@
 """Hold each chosen skill for ``k`` steps: the seed's ``pi = pi_hi o pi_lo`` with two time scales.
 
 :class:`HeldSkill` wraps a batched env whose actions are hybrid (``[skill, params...]``,
-``cmdp_rl.rollout.actions.hybrid``). On a decision step (an episode's first step, then every ``k``-th) the
-skill the policy emits is taken and held; on the ``k - 1`` steps after it the env steps with the
-held skill whatever the policy emits, and the policy's parameters every step. The observation
-gains what the low-level policy needs to know: a one-hot of the held skill (zeros on a decision
-step, where a new one is chosen) and the hold's phase ``j / k`` (0 on a decision step).
-
-Credit (docs/multi_agent_and_hybrid.md): the batch stays one row per env step, so GAE runs as for
-any env. The skill chosen at a decision step t is credited through that step's advantage
-``A_t = sum_l (gamma lambda)^l delta_{t+l}``, whose TD errors include the rewards and costs of the
-held steps that follow it; the parameters at each step are credited with their own step's
-advantage, as for a plain Box. The skill the policy emits on a held step has no effect on the env;
-its log-probability still enters the loss, with an expected gradient of zero (the advantage does
-not depend on it) but some variance: the price of keeping the distribution and the algorithms
-unchanged.
+``cmdp_rl.rollout.actions.hybrid``). On a decision step (an episode's first step, then every
+``k``-th) the skill the policy emits is taken and held; on the ``k - 1`` steps after it the env steps
+with the held skill whatever the policy emits, and the policy's parameters every step. The
+observation gains a one-hot of the held skill and the hold's phase ``j / k`` (both 0 on a decision
+step). How the held steps are credited: docs/multi_agent_and_hybrid.md.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-import gymnasium as gym
 import torch
 
 from cmdp_rl.envs.vector import Step, VecEnv
@@ -31,24 +19,16 @@ from cmdp_rl.rollout.actions import hybrid
 class HeldSkill(VecEnv):
     """``env`` with each skill held for ``k`` steps (module docstring)."""
 
+    saved = ("env", "held", "phase")
+
     def __init__(self, env: VecEnv, k: int) -> None:
         parts = hybrid(env.action_space)
         if parts is None:
             raise ValueError(f"hold: the env's action space {env.action_space} is not a hybrid skill space")
-        self.env, self.k, self.skills = env, k, parts.skills
-        self.num_envs, self.device, self.num_costs = env.num_envs, env.device, env.num_costs
-        self.obs_dim = env.obs_dim + parts.skills + 1
-        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
+        self.k, self.skills = k, parts.skills
+        self.wrap(env, obs_dim=env.obs_dim + parts.skills + 1)
         self.held = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
         self.phase = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.env.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return self.env.action_space
 
     def _obs(self, obs: torch.Tensor, held: torch.Tensor, phase: torch.Tensor) -> torch.Tensor:
         onehot = torch.nn.functional.one_hot(held, self.skills).float() * (phase > 0).unsqueeze(-1)
@@ -77,17 +57,3 @@ class HeldSkill(VecEnv):
         self.held = skill.masked_fill(done, 0)
         self.phase = phase.masked_fill(done, 0)
         return step._replace(next_obs=next_obs, obs=self._obs(step.obs, self.held, self.phase))
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"env": self.env.state_dict(), "held": self.held.clone(), "phase": self.phase.clone()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.env.load_state_dict(state["env"])
-        self.held = state["held"].to(self.device).clone()
-        self.phase = state["phase"].to(self.device).clone()
-
-    def close(self) -> None:
-        self.env.close()
-
-
-__all__ = ["HeldSkill"]

@@ -18,17 +18,15 @@ SAFETY_GYM_BUDGET = 25.0
 
 @options
 class EnvOptions:
-    """``allow_negative_cost``: accept negative costs (a CMDP's costs are >= 0, and the env contract
-    stops a run on a negative one, ``envs/contract.py``; set it for an env whose signed costs you
-    mean)."""
+    """``allow_negative_cost``: accept negative costs, which the env contract otherwise refuses (a
+    CMDP's costs are >= 0: docs/guide/env_contract.md)."""
 
     allow_negative_cost: Bool = False
     # Evaluation reports the fraction of episodes that terminated under this name (e.g. a goal
     # reached); None: the env's termination means nothing worth reporting.
     termination_metric: ClassVar[Optional[str]] = None
-    # Whether a run's snapshots may be valued on deploy.snapshots x deploy.episodes of this env's episodes
-    # whatever that costs (deploy/selection.py): True where an episode is cheap, at most a few hundred steps
-    # of a batched env. Elsewhere the valuation is held to a share of the run's steps (deploy/options.py).
+    # Whether a run's snapshots may be valued on deploy.snapshots x deploy.episodes episodes whatever that costs
+    # (cheap episodes of a batched env); else the valuation is held to a share of the run's steps (deploy/options.py).
     values_snapshots: ClassVar[bool] = False
 
     def check(self, run: Any) -> None:
@@ -56,10 +54,9 @@ class EnvOptions:
     def population_env(
         self, env_cfgs: Sequence[Any], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
     ) -> Any:
-        """The envs of P agents (``env_cfgs``, each agent's options of this env, these first),
-        ``num_envs`` each, agent i's seeded with ``seeds[i]``, as one batched env whose agent i's rows
-        step exactly as its single run's envs (``cmdp_rl/population/``); None: the population steps
-        each agent's own env in turn (``population.env.AgentEnvs``)."""
+        """The envs of P agents (``env_cfgs``, these options first), ``num_envs`` each, agent i's seeded
+        with ``seeds[i]``, as one batched env whose agent i's rows step exactly as its single run's envs;
+        None: the population steps each agent's own env in turn (``population.env.AgentEnvs``)."""
         return None
 
 

@@ -1,26 +1,20 @@
 """Sauté's env transform: the remaining safety budget joins the state and the reward is replaced once
-the budget is spent (Sootla, Cowen-Rivers, Jafferjee, Wang, Mguni, Wang, Bou-Ammar, 2022, "Sauté RL:
-Almost Surely Safe Reinforcement Learning Using State Augmentation", ICML: its safety augmented
-MDP, cited by name; docs/references.md says why without equation numbers).
+the budget is spent: the safety augmented MDP of Sootla et al. (2022, "Sauté RL: Almost Surely Safe
+Reinforcement Learning Using State Augmentation", ICML; docs/references.md).
 
 The paper's safety state starts at the budget, ``z_0 = d``, and moves by ``z_{t+1} = (z_t - c_t) /
-gamma_c`` (dividing by the safety discount keeps ``z_t >= 0`` equivalent to
-``sum_{k<t} gamma_c^k c_k <= d``); the policy sees ``(s_t, z_t)``, and the objective is reshaped so
-that any step taken with the budget spent is worth a fixed penalty instead of the task's reward.
-Here ``z`` is normalised by ``d`` (``z_0 = 1``, as the paper's experiments feed it to the networks),
-one ``z`` per constraint (the construction is per constraint; the reward is replaced when any of
-them is spent), and the check reads the state *after* the step: a step's reward is replaced exactly
-when the costs up to and including it exceed the budget, so the step that overspends is penalised
-itself (with a finite penalty the pre-step reading would let the overspending step keep its reward).
-``gamma_c = 1`` (the default of ``algo.budget_discount``) counts this toolkit's budget, the
-undiscounted episode cost.
+gamma_c`` (so ``z_t >= 0`` is ``sum_{k<t} gamma_c^k c_k <= d``); the policy sees ``(s_t, z_t)``, and
+a step taken with the budget spent is worth a fixed penalty instead of the task's reward. Here ``z``
+is normalised by ``d`` (``z_0 = 1``, as the paper's experiments feed it to the networks), one per
+constraint (the reward is replaced when any is spent), and read *after* the step, so the step that
+overspends is penalised itself (the pre-step reading would let it keep its reward). ``gamma_c = 1``,
+``algo.budget_discount``'s default, counts this toolkit's budget, the undiscounted episode cost.
 """
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-import gymnasium as gym
 import torch
 
 from cmdp_rl.envs.vector import Step, VecEnv
@@ -65,11 +59,9 @@ class BudgetState:
 
 
 class BudgetStateEnv(VecEnv):
-    """``env`` with each observation followed by the K normalised remaining budgets ``z`` (module
-    docstring) and, if ``reshape_reward``, every reward replaced by ``unsafe_reward`` on steps after
-    which some ``z_k < 0``. Costs, flags and everything else pass through unchanged; an episode's
-    end (terminated or truncated) restores the full budget, ``z = 1``, in the observation the agent
-    acts on next."""
+    """``env`` with each observation followed by the K budgets ``z`` (``z = 1`` again in the
+    observation after an episode's end) and, if ``reshape_reward``, every reward replaced by
+    ``unsafe_reward`` on steps after which some ``z_k < 0``; everything else passes through."""
 
     def __init__(
         self,
@@ -82,27 +74,12 @@ class BudgetStateEnv(VecEnv):
         if len(budgets) != env.num_costs:
             raise ValueError(f"budget state: one budget > 0 per cost ({env.num_costs}) needed, got {list(budgets)}")
         self.state = BudgetState(budgets, discount, env.num_envs, env.device)
-        self.env = env
-        self.num_envs, self.num_costs = env.num_envs, env.num_costs
-        self.obs_dim = env.obs_dim + env.num_costs
-        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
-        self.device = env.device
+        self.wrap(env, obs_dim=env.obs_dim + env.num_costs)
         self.unsafe_reward, self.reshape_reward = float(unsafe_reward), reshape_reward
 
     @property
     def z(self) -> torch.Tensor:
         return self.state.z
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.env.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return self.env.action_space
-
-    def check_action(self, action: torch.Tensor) -> None:
-        self.env.check_action(action)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         obs = self.env.reset(seed=seed)
@@ -118,13 +95,8 @@ class BudgetStateEnv(VecEnv):
             reward = torch.where(spent, torch.full_like(reward, self.unsafe_reward), reward)
         done = s.terminated | s.truncated
         self.state.z = torch.where(done, self.state.full(), z_next)  # a new episode starts with the whole budget
-        return Step(
-            next_obs=self.state.augment(s.next_obs, z_next),
-            reward=reward,
-            cost=s.cost,
-            terminated=s.terminated,
-            truncated=s.truncated,
-            obs=self.state.observation(s.obs),
+        return s._replace(
+            next_obs=self.state.augment(s.next_obs, z_next), reward=reward, obs=self.state.observation(s.obs)
         )
 
     def state_dict(self) -> dict[str, Any]:
@@ -133,9 +105,3 @@ class BudgetStateEnv(VecEnv):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.env.load_state_dict(state["env"])
         self.state.z = state["z"].to(self.device).clone()
-
-    def close(self) -> None:
-        self.env.close()
-
-
-__all__ = ["BudgetState", "BudgetStateEnv"]

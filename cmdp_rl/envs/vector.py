@@ -1,9 +1,5 @@
-"""The batched env interface the collector drives, and its gymnasium implementation.
-
-Why not torchrl's ``EnvBase``/``GymWrapper``: on this machine torchrl's env + collector machinery
-costs about 1.3 ms per step (specs, step_mdp, info readers), several times the cost of stepping
-8 Reach1D envs. The collector only needs tensors in and tensors out, so envs expose exactly that.
-"""
+"""The batched env interface the collector drives, tensors in and tensors out (torchrl's env machinery
+would cost more than the envs' steps: docs/guide/design.md), and its gymnasium implementation."""
 
 from __future__ import annotations
 
@@ -41,7 +37,12 @@ def default_cost_names(num_costs: int) -> tuple[str, ...]:
 
 class VecEnv(ABC):
     """N environments stepped together, with per-env auto-reset. ``num_costs`` (K) costs per step,
-    named ``cost_names`` (the env's names, else :func:`default_cost_names`)."""
+    named ``cost_names`` (the env's names, else :func:`default_cost_names`).
+
+    A wrapper (Sauté's budget state, the held skill, the early-terminated MDP) keeps the env it wraps
+    as ``env`` (:meth:`wrap`): its cost names, action space and ``close`` are that env's. ``saved``
+    names the attributes a resume restores (:meth:`state_dict`): tensors, torch generators, objects
+    with a ``state_dict`` (a wrapper's ``env``)."""
 
     num_envs: int
     num_costs: int = 1
@@ -50,6 +51,11 @@ class VecEnv(ABC):
     action_low: torch.Tensor
     action_high: torch.Tensor
     device: torch.device
+    env: VecEnv | None = None
+    saved: tuple[str, ...] = ()
+    # What an env declares instead of the defaults below: its cost names, its action space.
+    _cost_names: tuple[str, ...] = ()
+    _action_space: gym.Space | None = None
 
     @abstractmethod
     def reset(self, seed: int | None = None) -> torch.Tensor:
@@ -59,9 +65,16 @@ class VecEnv(ABC):
     def step(self, action: torch.Tensor) -> Step:
         """Apply ``action`` ``[N, action_dim]``; envs whose episode ended are reset."""
 
+    def wrap(self, env: VecEnv, obs_dim: int | None = None) -> None:
+        """Wrap ``env``: take its interface, with ``obs_dim`` where the wrapper adds to the observation."""
+        self.env, self.num_envs, self.num_costs, self.device = env, env.num_envs, env.num_costs, env.device
+        self.obs_dim = env.obs_dim if obs_dim is None else obs_dim
+        self.action_dim, self.action_low, self.action_high = env.action_dim, env.action_low, env.action_high
+        self._cost_names, self._action_space = env.cost_names, env.action_space
+
     @property
     def cost_names(self) -> tuple[str, ...]:
-        return default_cost_names(self.num_costs)
+        return self._cost_names or default_cost_names(self.num_costs)
 
     def reset_rows(self, rows: torch.Tensor) -> torch.Tensor:
         """Start a new episode in each env where ``rows`` (``[N]`` bool) is set, between steps, as the
@@ -69,23 +82,38 @@ class VecEnv(ABC):
         Optional: the early-terminated MDP (``envs/early_termination.py``) needs it to cut an episode."""
         raise NotImplementedError(f"{type(self).__name__} cannot restart single episodes")
 
-    def close(self) -> None:  # noqa: B027 - optional hook
-        pass
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
 
     def state_dict(self) -> dict[str, Any]:
-        """Everything a resumed run needs to continue exactly where this env stands: the episodes
-        in progress and the envs' random generators. ``load_state_dict`` on a fresh env built from
-        the same config restores it."""
-        raise NotImplementedError(f"{type(self).__name__} cannot save its state, so a run on it cannot resume")
+        """Everything a resumed run needs to continue exactly where this env stands (episodes in
+        progress, random generators), for ``load_state_dict`` on a fresh env of the same config."""
+        if not self.saved:
+            raise NotImplementedError(f"{type(self).__name__} cannot save its state, so a run on it cannot resume")
+        return {"num_envs": self.num_envs, **{name: _saved(getattr(self, name)) for name in self.saved}}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        raise NotImplementedError(f"{type(self).__name__} cannot restore a saved state")
+        if not self.saved:
+            raise NotImplementedError(f"{type(self).__name__} cannot restore a saved state")
+        if state.get("num_envs", self.num_envs) != self.num_envs:
+            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
+        for name in self.saved:
+            value = getattr(self, name)
+            if isinstance(value, torch.Tensor):
+                setattr(self, name, state[name].to(self.device).clone())
+            elif isinstance(value, torch.Generator):
+                value.set_state(state[name])
+            else:
+                value.load_state_dict(state[name])
 
     @property
     def action_space(self) -> gym.Space:
         """One env's action space, which the agent's action distribution is chosen from
         (``policies/distributions.py``): the box ``[action_low, action_high]`` unless the env says
         otherwise."""
+        if self._action_space is not None:
+            return self._action_space
         return gym.spaces.Box(self.action_low.cpu().numpy(), self.action_high.cpu().numpy(), dtype=np.float32)
 
     def check_action(self, action: torch.Tensor) -> None:
@@ -94,12 +122,44 @@ class VecEnv(ABC):
             raise ValueError(f"action: expected shape {expected} (num_envs, action_dim), got {tuple(action.shape)}")
 
 
+def _saved(value: Any) -> Any:
+    """One of ``VecEnv.saved``'s attributes as a checkpoint holds it."""
+    if isinstance(value, torch.Tensor):
+        return value.clone()
+    if isinstance(value, torch.Generator):
+        return value.get_state()
+    if not hasattr(value, "state_dict"):
+        raise NotImplementedError(f"{type(value).__name__} cannot save its state")
+    return value.state_dict()
+
+
+def tabular(env: VecEnv, model: Any, num_envs: int, device: str | torch.device) -> None:
+    """Set ``env`` up as N batched copies of a tabular ``model`` (the suite's, the fork's): one action,
+    an index of ``Discrete(A)``; K costs named ``model.cost_names``; the reward ``[S, A]`` and costs
+    ``[S, A, K]`` as float32 tables; a generator; every env in state 0."""
+    env.num_envs, env.device, env.num_costs, env.action_dim = num_envs, torch.device(device), model.num_costs, 1
+    env.action_low = torch.zeros(1, device=env.device)
+    env.action_high = torch.full((1,), model.num_actions - 1.0, device=env.device)
+    env._cost_names, env._action_space = model.cost_names, gym.spaces.Discrete(model.num_actions)
+    env._reward = torch.as_tensor(model.r, dtype=torch.float32, device=env.device)
+    env._cost = torch.as_tensor(model.c, dtype=torch.float32, device=env.device).permute(1, 2, 0)
+    env.generator = torch.Generator(device=env.device)
+    env.state = torch.zeros(num_envs, dtype=torch.int64, device=env.device)
+
+
+def table_actions(env: VecEnv, action: torch.Tensor, name: str) -> torch.Tensor:
+    """A :func:`tabular` env's actions ``[N, 1]`` as indices ``[N]``, each checked to be an action."""
+    env.check_action(action)
+    a = action[:, 0].to(device=env.device, dtype=torch.int64)
+    if bool(((a < 0) | (a >= env.action_space.n)).any()):
+        raise ValueError(f"{name} action must be in 0..{env.action_space.n - 1}, got {action.flatten().tolist()}")
+    return a
+
+
 def _probe_num_costs(make_one: Callable[[], gym.Env]) -> int:
-    """K of an env that does not declare ``cost_names``: the length of ``info["cost"]`` on one step
-    of a throwaway instance (seeded, random action; the training envs and every global random
-    generator are left untouched). A missing cost, or a probe step that fails, counts as one
-    constraint: the training env's own steps then report the problem where they always did (the
-    contract check, or the env's wrappers, name it)."""
+    """K of an env that does not declare ``cost_names``: the length of ``info["cost"]`` on one seeded
+    step of a throwaway instance. A missing cost, or a probe step that fails, counts as one
+    constraint: the training env's own steps then report the problem (the contract check names it)."""
     env = make_one()
     try:
         env.reset(seed=0)
@@ -112,27 +172,22 @@ def _probe_num_costs(make_one: Callable[[], gym.Env]) -> int:
         env.close()
 
 
-def _declared_cost_names(env: gym.Env) -> tuple[str, ...] | None:
+def declared_cost_names(env: gym.Env) -> Any:
+    """The ``cost_names`` a gymnasium env (or one of its wrappers) declares, as it declares them; else None."""
     try:
-        names = env.get_wrapper_attr("cost_names")
+        return env.get_wrapper_attr("cost_names")
     except AttributeError:
         return None
-    return None if names is None else tuple(names)
 
 
 class GymVecEnv(VecEnv):
-    """Gymnasium envs that report cost in ``info["cost"]``, in gymnasium's synchronous vector env.
-    ``info["cost"]`` is a number (K = 1) or a 1-D array of K numbers; K comes from the env's
-    ``cost_names`` if it declares them, else from one probe step (:func:`_probe_num_costs`).
-
-    SAME_STEP autoreset: the done step's final observation and info (its cost) come in
-    ``final_obs``/``final_info``. Never NEXT_STEP, the default, which would give a phantom step at
-    every episode end.
-
-    ``asynchronous=True`` steps the envs in worker processes (gymnasium's ``AsyncVectorEnv``): worth
-    it only where one env step costs far more than the inter-process round trip (milliseconds, as
-    Safety-Gymnasium's navigation tasks do; docs/benchmarks.md). Its envs live in other processes,
-    so :meth:`state_dict` is left to subclasses that know how to fetch their envs' state.
+    """Gymnasium envs that report cost in ``info["cost"]`` (a number, or a 1-D array of K numbers),
+    in gymnasium's synchronous vector env; K from the env's ``cost_names`` if it declares them, else
+    from one probe step. SAME_STEP autoreset (the done step's final observation and cost come in
+    ``final_obs``/``final_info``), never NEXT_STEP, the default, which gives a phantom step at every
+    episode end. ``asynchronous=True`` steps the envs in worker processes (``AsyncVectorEnv``): worth
+    it only where a step costs far more than the round trip (docs/benchmarks.md); its envs' state is
+    then left to subclasses that know how to fetch it.
     """
 
     def __init__(
@@ -158,16 +213,15 @@ class GymVecEnv(VecEnv):
         self.obs_dim = int(np.prod(obs_space.shape))
         # Actions are stored flat (cmdp_rl/rollout/actions.py): a box's numbers, or one index per component.
         self.action_dim = action_dim(act_space)
-        # Gymnasium steps on the CPU; tensors handed out live on ``device``.
         self.device = torch.device(device)
         # the range of each stored entry: a box's bounds, a discrete index's [0, n - 1]
         low, high = action_bounds(act_space)
         self.action_low, self.action_high = low.to(self.device), high.to(self.device)
         # an async vector env keeps its envs in worker processes: ask a local probe copy instead
         local = getattr(self.envs, "envs", None)
-        names = _declared_cost_names(local[0]) if local else None
+        names = declared_cost_names(local[0]) if local else None
         self.num_costs = len(names) if names is not None else _probe_num_costs(make_one)
-        self._cost_names = names if names is not None else default_cost_names(self.num_costs)
+        self._cost_names = tuple(names) if names is not None else default_cost_names(self.num_costs)
         if cost_names is not None:  # the user's names (env.cost_names), one per cost the env reports
             if len(cost_names) != self.num_costs:
                 self.envs.close()
@@ -178,18 +232,9 @@ class GymVecEnv(VecEnv):
             self._cost_names = tuple(cost_names)
         self._zeros = np.zeros((num_envs, self.num_costs), dtype=np.float32)
 
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self._cost_names
-
     def _cost(self, info: dict) -> np.ndarray:
         """``info["cost"]`` of the N envs as ``[N, K]`` float32 (a fresh array)."""
         return np.array(info.get("cost", self._zeros), dtype=np.float32).reshape(self.num_envs, self.num_costs)
-
-    @property
-    def action_space(self) -> gym.Space:
-        """The env's own action space (a box, or discrete actions)."""
-        return self._action_space
 
     def _obs(self, obs: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.asarray(obs, dtype=np.float32).reshape(self.num_envs, self.obs_dim)).to(self.device)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from cmdp_rl.envs import Reach1D, reach1d_kwargs
+from cmdp_rl.envs import Reach1D
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.plot import pyplot, save_figure
@@ -43,7 +43,7 @@ def record_reach1d(
     agent: Agent, env_cfg: Reach1DConfig, episodes: int, deterministic: bool = True, seed: int = 0
 ) -> list[Reach1DEpisode]:
     """``episodes`` episodes of ``agent`` on one Reach1D (reset with ``seed`` once), with the true positions."""
-    env = Reach1D(**reach1d_kwargs(env_cfg))
+    env = Reach1D(**env_cfg.env_kwargs())
     memory = PolicyMemory(agent, 1, env.action_space, torch.device("cpu"))
     out: list[Reach1DEpisode] = []
     with torch.random.fork_rng(devices=[]):

@@ -16,9 +16,39 @@ import numpy as np
 import torch
 
 from cmdp_rl.envs.grid.optimum import ConstrainedOptimum
-from cmdp_rl.envs.grid.tabular import GridCMDP, PolicyValue, evaluate
+from cmdp_rl.envs.grid.tabular import GridCMDP, PolicyValue, TabularCMDP, evaluate
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
+
+
+@dataclass(frozen=True, eq=False)
+class Optimum:
+    """An optimal deterministic policy for one reward, and its exact values."""
+
+    policy: np.ndarray  # [S, A] one-hot
+    value: np.ndarray  # [S] optimal values of the reward optimised
+    of_policy: PolicyValue  # the policy's return and costs on the CMDP's own r and c
+
+
+def value_iteration(
+    cmdp: TabularCMDP, reward: np.ndarray | None = None, tol: float = 1e-12, max_iterations: int = 1_000_000
+) -> Optimum:
+    """The optimum of the unconstrained MDP with ``reward`` (default ``cmdp.r``; pass e.g.
+    ``-cmdp.c.sum(0)`` for the least-cost policy, or ``r - lambda . c`` for a Lagrangian) by value
+    iteration to ``max |V_{n+1} - V_n| < tol``; the greedy policy is returned with its exact values."""
+    rew = cmdp.r if reward is None else np.asarray(reward, dtype=np.float64)
+    v = np.zeros(cmdp.num_states)
+    for _ in range(max_iterations):
+        q = rew + cmdp.gamma * cmdp.P @ v
+        v_new = q.max(axis=1)
+        done = np.max(np.abs(v_new - v)) < tol
+        v = v_new
+        if done:
+            break
+    else:
+        raise RuntimeError(f"value iteration did not reach tol={tol} in {max_iterations} iterations")
+    greedy = np.eye(cmdp.num_actions)[np.argmax(rew + cmdp.gamma * cmdp.P @ v, axis=1)]
+    return Optimum(policy=greedy, value=v, of_policy=evaluate(cmdp, greedy))
 
 
 def policy_table(agent: Agent, cmdp: GridCMDP) -> np.ndarray:

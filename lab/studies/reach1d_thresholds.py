@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cmdp_rl.envs.reach1d.env import GOAL_TOLERANCE, MAX_SPEED
-from cmdp_rl.envs.reach1d.optimum import Reach1DConfig, grid_tables, start_indices
+from cmdp_rl.envs.reach1d.optimum import grid_tables, start_indices
+from cmdp_rl.envs.reach1d.task import Reach1DConfig
 
 
 @dataclass(frozen=True)

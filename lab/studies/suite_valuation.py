@@ -17,7 +17,6 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from cmdp_rl.envs.suite.env import observations
 from cmdp_rl.envs.suite.model import FiniteCMDP, Values, evaluate
 from cmdp_rl.policies.agent import Actor
 from cmdp_rl.rollout import keys
@@ -40,6 +39,13 @@ def action_table(actor: Actor, cmdp: FiniteCMDP, deterministic: bool = False) ->
     if deterministic:  # the mode, ties to the first action as torch's argmax breaks them
         probs = torch.nn.functional.one_hot(probs.argmax(-1), cmdp.num_actions).double()
     return probs.reshape(H, S, cmdp.num_actions).numpy()
+
+
+def observations(cmdp: FiniteCMDP, states: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
+    """The env's observations ``[N, S + H + 1]`` of states ``[N]`` at time steps ``[N]`` (``envs/suite/env.py``)."""
+    eye_s = torch.eye(cmdp.num_states, device=states.device)
+    eye_t = torch.eye(cmdp.horizon + 1, device=states.device)
+    return torch.cat([eye_s[states], eye_t[steps]], dim=-1)
 
 
 def mixture_values(

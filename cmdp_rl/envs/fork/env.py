@@ -1,55 +1,30 @@
-"""The fork CMDP (``model.py``) as one tensor program over N envs (``env=fork``).
-
-Each step looks up the next state, reward and costs of every env's (state, action) in the model's
-tables and draws one uniform number per env for the random end, whether or not the episode could
-end there, so a seed fixes one stream whatever the policy does. Envs whose episode ended restart
-at the fork in the same step (gymnasium's SAME_STEP autoreset, as every ``VecEnv``). No Python loop
-over envs and no host sync: thousands of envs step in microseconds, so a learning run on the fork
-takes seconds and its time is the update's.
-"""
+"""The fork CMDP (``model.py``) as one tensor program over N envs (``env=fork``): each step looks up
+every env's next state, reward and costs in the model's tables and draws one uniform number per env
+for the random end, whether or not the episode could end there, so a seed fixes one stream whatever
+the policy does; envs whose episode ended restart at the fork in the same step."""
 
 from __future__ import annotations
 
-from typing import Any
-
-import gymnasium as gym
 import torch
 
-from cmdp_rl.envs.fork.model import GOAL, NUM_ACTIONS, ForkCMDP
-from cmdp_rl.envs.vector import Step, VecEnv
+from cmdp_rl.envs.fork.model import GOAL, ForkCMDP
+from cmdp_rl.envs.vector import Step, VecEnv, table_actions, tabular
 
 
 class TorchFork(VecEnv):
     """N forks in tensors. Observation: one-hot over the model's states and the goal (float32,
     ``[N, S + 1]``); action: one index in ``[0, 3)``; cost ``[N, K]`` named ``model.cost_names``."""
 
+    saved = ("state", "generator")
+
     def __init__(self, model: ForkCMDP, num_envs: int, device: str | torch.device = "cpu") -> None:
-        self.model = model
-        self.num_envs = num_envs
-        self.device = torch.device(device)
-        self.num_costs = model.num_costs
-        self.obs_dim = model.obs_dim
-        self.action_dim = 1
-        self.action_low = torch.zeros(1, device=self.device)
-        self.action_high = torch.full((1,), NUM_ACTIONS - 1.0, device=self.device)
+        tabular(self, model, num_envs, device)
+        self.model, self.obs_dim = model, model.obs_dim
         self.end_prob = 1.0 - model.gamma
-        goal_index = model.num_states  # the goal's entry of the one-hot observation
+        self.goal_index = model.num_states  # the goal's entry of the one-hot observation
         nxt = torch.as_tensor(model.next_state, device=self.device)
-        self._next = torch.where(nxt == GOAL, torch.full_like(nxt, goal_index), nxt)  # [S, A]
-        self._reward = torch.as_tensor(model.r, dtype=torch.float32, device=self.device)  # [S, A]
-        self._cost = torch.as_tensor(model.c, dtype=torch.float32, device=self.device).permute(1, 2, 0)  # [S, A, K]
+        self._next = torch.where(nxt == GOAL, torch.full_like(nxt, self.goal_index), nxt)  # [S, A]
         self._eye = torch.eye(model.obs_dim, device=self.device)
-        self.goal_index = goal_index
-        self.generator = torch.Generator(device=self.device)
-        self.state = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.model.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return gym.spaces.Discrete(NUM_ACTIONS)
 
     def reset(self, seed: int | None = None) -> torch.Tensor:
         if seed is not None:
@@ -62,10 +37,7 @@ class TorchFork(VecEnv):
         return self._eye[self.state[rows]]
 
     def step(self, action: torch.Tensor) -> Step:
-        self.check_action(action)
-        a = action[:, 0].to(device=self.device, dtype=torch.int64)
-        if bool(((a < 0) | (a >= NUM_ACTIONS)).any()):
-            raise ValueError(f"fork action must be in 0..{NUM_ACTIONS - 1}, got {action.flatten().tolist()}")
+        a = table_actions(self, action, "fork")
         s = self.state
         nxt = self._next[s, a]
         at_goal = nxt == self.goal_index
@@ -80,15 +52,3 @@ class TorchFork(VecEnv):
             truncated=torch.zeros_like(terminated).unsqueeze(-1),
             obs=self._eye[self.state],
         )
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"num_envs": self.num_envs, "state": self.state.clone(), "generator": self.generator.get_state()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["num_envs"] != self.num_envs:
-            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
-        self.state = state["state"].to(self.device).clone()
-        self.generator.set_state(state["generator"])
-
-
-__all__ = ["TorchFork"]

@@ -1,24 +1,14 @@
-"""The fork CMDP as arrays: three routes from a start to a goal, each with its own hazard, and
-an optimum that is a randomised policy. ``env.py`` steps it in torch; ``task.py`` solves it.
+"""The fork CMDP as arrays: three routes from a start to a goal, each with its own hazard, and an
+optimum that is a randomised policy (docs/fork.md). ``env.py`` steps it in torch; ``task.py`` solves it.
 
-The MDP (docs/fork.md). State 0 is the fork, where every episode starts. From it, action ``r``
-(0, 1, 2) enters route ``r``, whose cells lead to the goal in ``lengths[r]`` moves:
-
-- route 0 (``lengths[0]`` moves, the short one) runs over hazard ``a`` cells,
-- route 1 (the middle one) over hazard ``b`` cells,
-- route 2 (the long one) is hazard-free.
-
-On a route cell, action 0 advances one cell and actions 1 and 2 wait where they are. Arriving at
-(or waiting on) a hazard cell costs 1 of its kind; arriving at the goal pays ``goal_reward`` and
-ends the episode. After every other step the episode ends with probability ``end_prob``: as on
-env=grid, the expected undiscounted episode totals are then exactly the discounted values with
-``gamma = 1 - end_prob`` of the occupancy LP (``cmdp_rl/envs/grid/optimum.py``), so the LP's
-optimum is the number an evaluation approaches.
-
-Costs: with ``num_costs=2`` the env reports ``hazard_a`` and ``hazard_b`` (K = 2, one budget
-each); with ``num_costs=1`` one cost, ``hazard``, the two kinds together. Either way the
-constrained optimum mixes routes at the fork (a randomised policy): the short route pays more than
-the budget, the hazard-free one is within it and worth less, and the budget binds in between.
+State 0 is the fork, where every episode starts; action ``r`` (0, 1, 2) enters route ``r``, whose
+cells lead to the goal in ``lengths[r]`` moves: route 0 (the short one) runs over hazard ``a`` cells,
+route 1 over hazard ``b`` cells, route 2 (the long one) is hazard-free. On a route cell, action 0
+advances one cell and actions 1 and 2 wait. Arriving at (or waiting on) a hazard cell costs 1 of its
+kind; arriving at the goal pays ``goal_reward`` and ends the episode. After every other step the
+episode ends with probability ``end_prob``, so the discounted values with ``gamma = 1 - end_prob``
+are the episode totals (``grid/env.py`` says why). ``num_costs=2`` reports ``hazard_a`` and
+``hazard_b``; ``num_costs=1`` one cost, ``hazard``, the two kinds together.
 """
 
 from __future__ import annotations
@@ -42,9 +32,8 @@ GOAL = -1  # next_state's entry for a move that arrives at the goal
 
 @dataclass(frozen=True, eq=False)
 class ForkCMDP(TabularCMDP):
-    """The fork as a :class:`TabularCMDP` (transitions deterministic, the random end in ``gamma``),
-    with what the batched env steps: ``next_state[s, a]`` (``GOAL`` at the goal) and, per state,
-    its route and position (``-1`` for the fork)."""
+    """The fork as a :class:`TabularCMDP` (the random end in ``gamma``), with what the batched env
+    steps: ``next_state[s, a]`` (``GOAL`` at the goal), and each state's route (``-1``: the fork)."""
 
     next_state: np.ndarray = None  # type: ignore[assignment]  # [S, A] int
     route: np.ndarray = None  # type: ignore[assignment]  # [S] int, -1 at the fork
@@ -107,16 +96,3 @@ def fork_cmdp(
         route=np.array(route),
         lengths=lengths,
     )
-
-
-__all__ = [
-    "ADVANCE",
-    "COST_NAMES",
-    "DEFAULT_END_PROB",
-    "DEFAULT_GOAL_REWARD",
-    "DEFAULT_LENGTHS",
-    "ForkCMDP",
-    "GOAL",
-    "NUM_ACTIONS",
-    "fork_cmdp",
-]

@@ -35,13 +35,11 @@ class ForkConfig(EnvOptions):
         return fork_cmdp(self.num_costs, self.lengths, self.goal_reward, self.end_prob)
 
     def solve(self, cost_limit: float | Sequence[float]) -> ConstrainedOptimum:
-        """The exact constrained optimum at these budgets (one number: every constraint's), by the
-        occupancy-measure LP (``envs/grid/optimum.py``)."""
+        """The exact constrained optimum at these budgets (one number: every constraint's)."""
         return solve_constrained(self.model(), cost_limit)
 
     def optimum(self, cost_limit: float | Sequence[float]) -> float:
-        """The optimal expected episode return within the budgets (undiscounted, as ``eval.json``
-        reports it). Read by the end-of-run summary."""
+        """The optimal expected episode return within the budgets, read by the end-of-run summary."""
         return self.solve(cost_limit).ret
 
 

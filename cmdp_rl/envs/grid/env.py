@@ -1,8 +1,7 @@
 """A slippery gridworld with two kinds of hazard: a small CMDP with discrete actions and K = 2
-costs whose exact constrained optimum is known (``tabular.py`` writes it as arrays, ``grid_lp.py``
-solves it).
-
-The gymnasium env is ``cmdp_rl/Grid-v0`` (registered when this module is imported). One step:
+costs whose exact constrained optimum is known (``tabular.py`` writes it as arrays, ``optimum.py``
+solves it). The gymnasium env is ``cmdp_rl/Grid-v0`` (registered when this module is imported).
+One step:
 
 1. the action picks a direction (0 up, 1 right, 2 down, 3 left); with probability ``slip`` the
    agent moves instead in one of the two perpendicular directions (``slip / 2`` each);
@@ -11,16 +10,10 @@ The gymnasium env is ``cmdp_rl/Grid-v0`` (registered when this module is importe
    hazard cell costs 1 of its kind: ``info["cost"] = [on an 'a' cell, on a 'b' cell]``;
 4. otherwise the episode ends with probability ``end_prob``.
 
-Why the random end: with it, an episode's expected undiscounted return and cost, which the toolkit
-logs and budgets, are exactly the ``gamma = 1 - end_prob`` discounted return and cost of the same
-grid without the random end, the quantities of Altman's discounted CMDP and its linear program.
-So the LP's optimum is directly the number a trained policy's ``eval.json`` should approach. Such
-an end is a true termination (nothing is bootstrapped past it), not a truncation, and there is no
-time limit: episodes last ``1 / end_prob`` steps on average, longer with probability ``< (1 -
-end_prob)^t``.
-
-The observation is a one-hot float32 vector over the grid's open cells (goal included), so a
-policy network can represent any state-dependent, randomised policy, the LP's included.
+Why the random end (a termination, and no time limit): an episode's expected undiscounted return and
+cost, which the toolkit logs and budgets, are then exactly the ``gamma = 1 - end_prob`` discounted
+ones of the grid without it, those of Altman's discounted CMDP and its LP, whose optimum is then what
+``eval.json`` should approach. The one-hot observation lets a network represent any randomised policy.
 """
 
 from __future__ import annotations
@@ -37,13 +30,8 @@ COST_NAMES = ("hazard_a", "hazard_b")
 HAZARD_CHARS = ("a", "b")  # the layout character of each cost, in COST_NAMES order
 # Directions as (row, col) offsets: up, right, down, left. Perpendicular to d: (d + 1) % 4, (d + 3) % 4.
 MOVES = ((-1, 0), (0, 1), (1, 0), (0, -1))
-ACTION_NAMES = ("up", "right", "down", "left")
 
-# The default grid (docs/grid.md has its optima). From S, three ways to G: straight along the
-# middle row (6 moves) through one 'a' cell, where a slip up lands on the 'b' strip; over the top
-# (10 moves), where a slip down lands on the 'b' strip; or round the bottom (12 moves), which no
-# slip can turn into a hazard. The walls beside S's row keep the start itself out of every
-# hazard's reach, so the hazard-free route is a plain detour, not a wait for a lucky slip.
+# The default grid: three routes from S to G, two past hazards (docs/grid.md, with its optima).
 DEFAULT_LAYOUT = (
     ".......",
     ".#bbbb.",
@@ -103,8 +91,8 @@ def parse_layout(layout: Sequence[str]) -> Layout:
 
 
 class GridWorld(gym.Env):
-    """The slippery two-hazard gridworld (module docstring). ``cost_names`` names ``info["cost"]``'s
-    entries; ``default_budgets`` are budgets at which both constraints matter on the default grid."""
+    """The slippery two-hazard gridworld (module docstring); ``default_budgets``: budgets at which both
+    constraints matter on the default grid."""
 
     # rgb_array: a drawn frame (render_grid below), for gymnasium's RecordVideo; 4 steps a second
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -219,18 +207,3 @@ def render_grid(layout: Layout, cell: int, cost: np.ndarray) -> np.ndarray:
 
 if GRID_ID not in gym.registry:
     gym.register(id=GRID_ID, entry_point="cmdp_rl.envs.grid.env:GridWorld")
-
-__all__ = [
-    "ACTION_NAMES",
-    "COST_NAMES",
-    "DEFAULT_BUDGETS",
-    "DEFAULT_END_PROB",
-    "DEFAULT_LAYOUT",
-    "DEFAULT_SLIP",
-    "GRID_ID",
-    "GridWorld",
-    "Layout",
-    "MOVES",
-    "parse_layout",
-    "render_grid",
-]

@@ -1,15 +1,8 @@
 """A finite discounted CMDP as explicit arrays, with exact policy evaluation and the unconstrained
-optimum; :func:`grid_cmdp` writes the gridworld of ``grid.py`` in this form.
-
-Conventions (those of Altman 1999, discounted criterion, with the goal as an absorbing end):
-
-- ``P[s, a, s']`` is the probability of moving from ``s`` to the non-terminal state ``s'``. Rows
-  may sum to less than 1: the missing mass ends the episode (the grid's goal).
-- ``r[s, a]`` and ``c[k, s, a]`` are the expected reward and costs of one step from ``s`` under ``a``.
-- ``J(pi) = E[sum_t gamma^t r(s_t, a_t)]`` with ``s_0 ~ mu0``, and ``J_c[k]`` likewise.
-
-On the grid, ``gamma = 1 - end_prob``: there these discounted values are the expected undiscounted
-episode totals the gym env produces (see ``grid.py``).
+optimum; :func:`grid_cmdp` writes the gridworld of ``env.py`` in this form. Conventions (Altman 1999,
+discounted criterion): ``P[s, a, s']`` moves to the non-terminal state ``s'``, and a row's missing
+mass ends the episode (the grid's goal); ``r[s, a]`` and ``c[k, s, a]`` are one step's expected
+reward and costs; ``J(pi) = E[sum_t gamma^t r(s_t, a_t)]`` with ``s_0 ~ mu0``, ``J_c[k]`` likewise.
 """
 
 from __future__ import annotations
@@ -63,8 +56,7 @@ class TabularCMDP(Sizes):
 
 @dataclass(frozen=True, eq=False)
 class PolicyValue:
-    """A policy's exact values. With a batch of policies ``[..., S, A]`` every field gains the
-    batch's leading dimensions."""
+    """A policy's exact values (a batch of policies ``[..., S, A]`` adds its leading dimensions)."""
 
     ret: np.ndarray | float  # J(pi)
     costs: np.ndarray  # [..., K] J_c(pi)
@@ -95,36 +87,6 @@ def evaluate(cmdp: TabularCMDP, policy: np.ndarray) -> PolicyValue:
 
 
 @dataclass(frozen=True, eq=False)
-class Optimum:
-    """An optimal deterministic policy for one reward, and its exact values."""
-
-    policy: np.ndarray  # [S, A] one-hot
-    value: np.ndarray  # [S] optimal values of the reward optimised
-    of_policy: PolicyValue  # the policy's return and costs on the CMDP's own r and c
-
-
-def value_iteration(
-    cmdp: TabularCMDP, reward: np.ndarray | None = None, tol: float = 1e-12, max_iterations: int = 1_000_000
-) -> Optimum:
-    """The optimum of the unconstrained MDP with ``reward`` (default ``cmdp.r``; pass e.g.
-    ``-cmdp.c.sum(0)`` for the least-cost policy, or ``r - lambda . c`` for a Lagrangian) by value
-    iteration to ``max |V_{n+1} - V_n| < tol``; the greedy policy is returned with its exact values."""
-    rew = cmdp.r if reward is None else np.asarray(reward, dtype=np.float64)
-    v = np.zeros(cmdp.num_states)
-    for _ in range(max_iterations):
-        q = rew + cmdp.gamma * cmdp.P @ v
-        v_new = q.max(axis=1)
-        done = np.max(np.abs(v_new - v)) < tol
-        v = v_new
-        if done:
-            break
-    else:
-        raise RuntimeError(f"value iteration did not reach tol={tol} in {max_iterations} iterations")
-    greedy = np.eye(cmdp.num_actions)[np.argmax(rew + cmdp.gamma * cmdp.P @ v, axis=1)]
-    return Optimum(policy=greedy, value=v, of_policy=evaluate(cmdp, greedy))
-
-
-@dataclass(frozen=True, eq=False)
 class GridCMDP(TabularCMDP):
     """The gridworld as a :class:`TabularCMDP`: its states are the open cells other than the goal;
     ``arrive[s, a, cell]`` is where one step lands (the goal included), from which the gym env's
@@ -141,14 +103,14 @@ class GridCMDP(TabularCMDP):
 def grid_cmdp(
     layout: Sequence[str] = DEFAULT_LAYOUT, slip: float = DEFAULT_SLIP, end_prob: float = DEFAULT_END_PROB
 ) -> GridCMDP:
-    """The gridworld of ``grid.py`` with these options, as arrays (``gamma = 1 - end_prob``)."""
+    """The gridworld of ``env.py`` with these options, as arrays (``gamma = 1 - end_prob``)."""
     lay = parse_layout(layout)
     state_cells = np.array([n for n in range(lay.num_cells) if n != lay.goal])
     num_actions = len(MOVES)
     arrive = np.zeros((len(state_cells), num_actions, lay.num_cells))
     for s, cell in enumerate(state_cells):
         for a in range(num_actions):
-            # intended move with 1 - slip, each perpendicular one with slip / 2 (grid.py, step 1)
+            # intended move with 1 - slip, each perpendicular one with slip / 2 (env.py, step 1)
             for direction, p in ((a, 1.0 - slip), ((a + 1) % 4, slip / 2), ((a + 3) % 4, slip / 2)):
                 arrive[s, a, lay.next_cell(int(cell), direction)] += p
     return GridCMDP(
@@ -162,6 +124,3 @@ def grid_cmdp(
         state_cells=state_cells,
         arrive=arrive,
     )
-
-
-__all__ = ["GridCMDP", "Optimum", "PolicyValue", "TabularCMDP", "evaluate", "grid_cmdp", "value_iteration"]

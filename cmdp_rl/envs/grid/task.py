@@ -1,8 +1,5 @@
 """The slippery two-hazard gridworld as a component (``env=grid``): its options, checked before
-anything is built, and its vector env (gymnasium's, one :class:`~cmdp_rl.envs.grid.env.GridWorld` per
-env). Discrete actions (4 directions) and K = 2 costs (``hazard_a``, ``hazard_b``): train it with an
-algorithm that takes several constraints; the budgets default to ``grid.env.DEFAULT_BUDGETS``
-(hazard_a 0.3, hazard_b 0.15), e.g. ``python train.py env=grid algo=ppo_lag``."""
+anything is built, and its vector env of gymnasium ``GridWorld`` envs, each cost's budget its default."""
 
 from __future__ import annotations
 
@@ -11,7 +8,7 @@ from functools import partial
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import ConfigError, Field, PositiveInt, finite, options
+from cmdp_rl.config.validation import ConfigError, Field, PositiveInt, finite, options, require
 from cmdp_rl.envs.grid.env import (
     COST_NAMES,
     DEFAULT_BUDGETS,
@@ -32,7 +29,7 @@ if TYPE_CHECKING:
 @options
 class GridEnvConfig(EnvOptions):
     """``env=grid``: layout rows ('S' start, 'G' goal, '#' wall, 'a'/'b' hazards, '.' open), the
-    slip probability and the per-step end probability (grid.py says why the episodes end at random)."""
+    slip probability and the per-step end probability (``env.py`` says why the episodes end at random)."""
 
     name: str = "grid"
     values_snapshots: ClassVar[bool] = True  # deploy.policy=auto (EnvOptions.values_snapshots)
@@ -50,10 +47,8 @@ class GridEnvConfig(EnvOptions):
     ] = field(default_factory=lambda: list(COST_NAMES))
 
     def check(self, run: RunConfig) -> None:
-        if len(set(self.costs)) != len(self.costs):
-            raise ConfigError(
-                f"env.costs must be a non-empty list of distinct names from hazard_a, hazard_b, got {self.costs!r}"
-            )
+        allowed = "a non-empty list of distinct names from hazard_a, hazard_b"
+        require(len(set(self.costs)) == len(self.costs), "env.costs", allowed, self.costs)
         try:
             parse_layout(self.layout)
         except ValueError as exc:  # the layout's own words: which row or character is wrong
@@ -63,7 +58,6 @@ class GridEnvConfig(EnvOptions):
         return GRID_ID
 
     def budget(self) -> list[float]:
-        """Each reported cost's budget from ``DEFAULT_BUDGETS`` (in ``COST_NAMES`` order), in ``costs`` order."""
         budgets = dict(zip(COST_NAMES, DEFAULT_BUDGETS))
         return [budgets[name] for name in self.costs]
 

@@ -1,22 +1,16 @@
 """Reach1D as one tensor program over N environments: the batched backend (``env.backend=torch``).
 
 The state is a float64 tensor ``x[N]``, so every step does the gymnasium :class:`Reach1D`'s float64
-arithmetic elementwise and, fed the same noise draws, produces the same observations, rewards,
-costs, flags and positions to the last bit (``tests/test_reach1d_torch.py`` checks this step for
-step, episode resets included). Actions are cast to float32 and clipped to the float32 bound
-first, as the gymnasium path does, so the seed's float64 wall edge (see ``envs/reach1d/env.py``) is
-out of reach here too. One vectorized step moves all N envs; envs whose episode ended are reset
-in the same step (gymnasium's SAME_STEP autoreset), with no Python loop over envs and no host
-sync, so it runs on CPU or CUDA alike.
-
-Noise comes from a :class:`NoiseSource`. The default, :class:`TorchNoise`, is a ``torch.Generator``
-on the env's device seeded by ``reset(seed)``; a test can inject a source that replays another
-generator's draws.
+arithmetic elementwise and, fed the same noise draws, gives the same observations, rewards, costs,
+flags and positions to the last bit (``tests/test_reach1d_torch.py``), episode resets included
+(SAME_STEP, in the gymnasium env's draw order). Actions are cast to float32 and clipped to the
+float32 bound first, as the gymnasium path does, so the seed's float64 wall edge (``env.py``) is out
+of reach here too. No Python loop over envs and no host sync: CPU or CUDA alike.
 """
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Any
 
 import torch
 
@@ -24,25 +18,14 @@ from cmdp_rl.envs.reach1d.env import WALL_MODES
 from cmdp_rl.envs.vector import Step, VecEnv
 
 
-class NoiseSource(Protocol):
-    """Standard normal and standard uniform [0, 1) draws for the N envs, float64, shape ``[N]``.
-
-    ``where`` (bool ``[N]`` or None for all envs) says which envs consume a draw in this call; the
-    entries of the others are ignored by the env, so a source may fill them with anything. Per env,
-    the draws are consumed in the gymnasium env's order: at a step, one normal (the reading); at a
-    reset, one uniform if the start is a range, then one normal.
-    """
-
-    def seed(self, seed: int) -> None: ...
-
-    def normal(self, where: torch.Tensor | None) -> torch.Tensor: ...
-
-    def uniform(self, where: torch.Tensor | None) -> torch.Tensor: ...
-
-
 class TorchNoise:
-    """The default source: one ``torch.Generator`` on the env's device, drawing for all N envs at
-    every call (cheaper than gathering the envs that need a draw, and sync-free on CUDA)."""
+    """The noise source of the N envs: standard normal and standard uniform [0, 1) draws, float64
+    ``[N]``; ``where`` (bool ``[N]``, None for all) says which envs consume this call's draw, the
+    others' entries being ignored. Per env, draws come in the gymnasium env's order: at a step, one
+    normal (the reading); at a reset, one uniform if the start is a range, then one normal. This one,
+    the default, is a ``torch.Generator`` on the env's device (seeded by ``reset(seed)``) drawing for
+    all N envs at every call (cheaper than gathering the envs that need a draw, and sync-free on
+    CUDA); a test injects a source with the same methods that replays another generator's draws."""
 
     def __init__(self, num_envs: int, device: torch.device) -> None:
         self.num_envs = num_envs
@@ -68,18 +51,18 @@ class TorchNoise:
 class TorchReach1D(VecEnv):
     """N Reach1D envs in tensors; the options and their meaning are :class:`~cmdp_rl.envs.Reach1D`'s.
 
-    ``stagger``: at ``reset``, each env's step counter starts at a random value in
-    ``[0, max_steps)``, so its first episode is cut short by a random amount and the envs' episodes
-    end at different steps from then on, as in massively parallel PPO (Rudin et al., 2022,
+    ``stagger``: at ``reset``, each env's step counter starts at a random value in ``[0, max_steps)``,
+    so the envs' episodes end at different steps, as in massively parallel PPO (Rudin et al., 2022,
     "Learning to Walk in Minutes Using Massively Parallel Deep RL"). Without it, N envs started
-    together from a fixed start all time out at the same step: with rollouts shorter than an
-    episode, most batches then hold no finished episode (no new cost estimate for the Lagrange
-    multiplier) and each batch covers one phase of the episode only. Off by default (the
-    gymnasium env's behaviour); evaluation always runs without it.
+    together all time out at once: with rollouts shorter than an episode, most batches hold no
+    finished episode (no new cost estimate for the multiplier) and cover one phase of the episode
+    only. Off by default (the gymnasium env's behaviour); evaluation always runs without it.
 
     After each step, ``final_x`` holds every env's true position after the move (before any reset,
     gymnasium's ``info["true_x"]``) and ``x`` the position the next step starts from.
     """
+
+    saved = ("x", "final_x", "steps", "last_probe", "noise")
 
     def __init__(
         self,
@@ -93,7 +76,7 @@ class TorchReach1D(VecEnv):
         probe: bool = False,
         stagger: bool = False,
         device: str | torch.device = "cpu",
-        noise: NoiseSource | None = None,
+        noise: Any = None,
     ) -> None:
         if wall not in WALL_MODES:
             raise ValueError(f"env.wall must be one of {WALL_MODES}, got {wall!r}")
@@ -121,28 +104,6 @@ class TorchReach1D(VecEnv):
         self.last_probe = torch.full((num_envs,), -1.0, **f64)
         self._goal32 = torch.full((num_envs,), self.goal, dtype=torch.float32, device=self.device)
 
-    # --- resume ------------------------------------------------------------------------------------
-    def state_dict(self) -> dict[str, Any]:
-        """The episodes in progress and the noise generator's state (see ``VecEnv.state_dict``)."""
-        if not hasattr(self.noise, "state_dict"):
-            raise NotImplementedError(f"{type(self.noise).__name__} (the noise source) cannot save its state")
-        return {
-            "num_envs": self.num_envs,
-            "x": self.x.clone(),
-            "final_x": self.final_x.clone(),
-            "steps": self.steps.clone(),
-            "last_probe": self.last_probe.clone(),
-            "noise": self.noise.state_dict(),
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["num_envs"] != self.num_envs:
-            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
-        for name in ("x", "final_x", "steps", "last_probe"):
-            setattr(self, name, state[name].to(self.device).clone())
-        self.noise.load_state_dict(state["noise"])
-
-    # --- the gymnasium env's arithmetic, elementwise -------------------------------------------
     def _start_x(self, where: torch.Tensor | None) -> torch.Tensor:
         if isinstance(self.start, tuple):
             lo, hi = self.start

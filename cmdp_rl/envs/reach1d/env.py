@@ -3,14 +3,9 @@
 A point effector at true position ``x`` (hidden) moves by a box-bounded velocity command towards a
 goal, with a wall between the start and the goal. The agent sees ``[clip(x + noise, 0, 1), goal]``.
 Reward is shaped progress plus 1 on reaching the goal; a move across the wall costs 1 in
-``info["cost"]`` and is never subtracted from the reward.
-
-With default options the arithmetic is the seed's to the last bit (tests/test_reach1d.py checks
-hand-computed trajectories), including one float edge the seed's crossing test has: it is strict,
-``(prev - wall) * (proposed - wall) < 0``, so an effector that lands on the wall exactly passes on
-its next move at no cost. Float32 actions at the bound (0.10000000149...) never land there from the
-default start; float64 actions of exactly 0.1 do (0.1 + 4 * 0.1 == 0.5 in float64). The toolkit's
-own action path always sends float32 actions (see ``envs/vector.py``).
+``info["cost"]``. With default options the arithmetic is the seed's to the last bit, including its
+strict crossing test: an effector that lands on the wall exactly passes on its next move at no cost
+(float64 actions of 0.1 land there, 0.1 + 4 * 0.1 == 0.5; the toolkit's float32 actions never do).
 """
 
 from __future__ import annotations
@@ -27,24 +22,14 @@ GOAL_TOLERANCE = 0.02  # the episode terminates when |goal - x| < this
 
 
 class Reach1D(gym.Env):
-    """Seed-exact Reach1D with options.
+    """Seed-exact Reach1D with options: ``obs_noise`` the position sensor's std; ``wall_x``; ``goal``
+    (the episode terminates within ``GOAL_TOLERANCE`` of it); ``max_steps`` the time limit; ``wall``
+    ``"block"`` (the seed's: a crossing move is cancelled and costs 1) or ``"pass"`` (it goes through
+    and costs 1); ``start`` a position (the seed's 0.1) or a ``[low, high]`` pair drawn uniformly at
+    every reset; ``probe`` adds a second action entry, > 0 making the step a probe (no motion, half
+    the noise) and a third observation entry, the last probe reading (-1 until the first)."""
 
-    Args:
-        obs_noise: std of the position sensor.
-        wall_x: wall position.
-        goal: goal position; the episode terminates within 0.02 of it.
-        max_steps: time limit (truncation).
-        wall: ``"block"`` (seed): a crossing move is cancelled and costs 1. ``"pass"``: the move
-            goes through and costs 1, so reaching the goal has to be paid for.
-        start: the start state, a float (seed: 0.1) or a ``[low, high]`` pair drawn uniformly
-            at every reset.
-        probe: adds a second action dimension; when it is > 0 the step is a probe: no motion, and
-            the reading is taken with half the noise. The observation gains a third entry, the last
-            probe reading (-1 until the first probe of the episode).
-    """
-
-    # rgb_array: a drawn frame (render_reach1d below), for gymnasium's RecordVideo; 8 steps a second
-    # (a power of two: see cmdp_rl/report/video.py's exact_fps).
+    # 8 steps a second: a power of two (cmdp_rl/report/video.py's exact_fps)
     metadata = {"render_modes": ["rgb_array"], "render_fps": 8}
 
     def __init__(
@@ -71,18 +56,11 @@ class Reach1D(gym.Env):
         self.wall = wall
         self.start = tuple(start) if isinstance(start, (tuple, list)) else float(start)
         self.probe = probe
-        act_dim = 2 if probe else 1
         # float32 bounds as in the seed: np.clip against them keeps a float32 action float32.
-        self.action_space = spaces.Box(low=-MAX_SPEED, high=MAX_SPEED, shape=(act_dim,), dtype=np.float32)
-        if probe:
-            self.action_space = spaces.Box(
-                low=np.array([-MAX_SPEED, -1.0], dtype=np.float32),
-                high=np.array([MAX_SPEED, 1.0], dtype=np.float32),
-                dtype=np.float32,
-            )
-        low = [0.0, 0.0] + ([-1.0] if probe else [])
-        high = [1.0, 1.0] + ([1.0] if probe else [])
-        self.observation_space = spaces.Box(low=np.array(low, dtype=np.float32), high=np.array(high, dtype=np.float32))
+        low, high = [-MAX_SPEED] + ([-1.0] if probe else []), [MAX_SPEED] + ([1.0] if probe else [])
+        self.action_space = spaces.Box(np.array(low, dtype=np.float32), np.array(high, dtype=np.float32))
+        low, high = [0.0, 0.0] + ([-1.0] if probe else []), [1.0, 1.0] + ([1.0] if probe else [])
+        self.observation_space = spaces.Box(np.array(low, dtype=np.float32), np.array(high, dtype=np.float32))
 
     def _reading(self, noise_std: float) -> float:
         return float(np.clip(self.x + self.np_random.normal(0.0, noise_std), 0.0, 1.0))
@@ -135,10 +113,8 @@ class Reach1D(gym.Env):
         reading, cost = self._seen
         return render_reach1d(self.x, reading, cost > 0, self.steps / self.max_steps, self.wall_x, self.goal)
 
-    # --- saving and restoring a running episode (for resuming training) ---------------------------
     def state_dict(self) -> dict[str, Any]:
-        """The episode in progress and the env's generator: restoring them continues the same
-        stream of readings and starts as if the process had never stopped."""
+        """The episode in progress and the env's generator (``env_state.py`` saves it this way)."""
         return {
             "np_random": self.np_random.bit_generator.state,
             "x": getattr(self, "x", None),
@@ -155,14 +131,7 @@ FRAME_H, FRAME_W = 128, 512  # multiples of 16: video encoders want even sizes, 
 _MARGIN = 16
 
 
-def render_reach1d(
-    x: float,
-    reading: float,
-    collided: bool,
-    elapsed: float,
-    wall_x: float,
-    goal: float,
-) -> np.ndarray:
+def render_reach1d(x: float, reading: float, collided: bool, elapsed: float, wall_x: float, goal: float) -> np.ndarray:
     """A ``FRAME_H x FRAME_W`` RGB frame of Reach1D drawn with numpy: the track [0, 1] left to right,
     the wall (dark bar), the goal (green line in its reach band), the true position (blue disc),
     the noisy reading the agent saw (orange tick above the track), a red border on a step that

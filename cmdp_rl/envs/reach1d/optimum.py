@@ -1,42 +1,22 @@
-"""Reach1D's exact constrained optimum, by dynamic programming on its true-state dynamics on a grid.
-
-The best expected return of any policy whose expected number of wall crossings is within the budget
-(``wall="pass"``: a crossing move goes through and costs 1), from the env's parameters, with no
-learning involved; the summary's "constrained optimum" line. The penalty thresholds of the seed's
-second exercise, built on the same grid, are a study's (``lab/studies/reach1d_thresholds.py``).
-
-Model (stated, because the learned agent does not share all of it):
-
-- the planner sees the true position x (the agent sees x + noise, sigma = ``obs_noise``); the
-  dynamics are deterministic, so an optimal plan is a path;
-- positions and moves live on a grid of step ``resolution`` (default 0.001); moves are integers in
-  ``[-max_speed, max_speed]`` (the env's action bound);
-- the wall point itself belongs to the far side (a move onto x = wall_x counts as a crossing).
-  This closes the seed's float edge (landing exactly on the wall, then passing at no cost), which
-  float32 actions do not hit (see ``reach1d.py``);
-- the time limit ``max_steps`` bounds the planning horizon.
+"""Reach1D's exact constrained optimum (the summary's "constrained optimum" line), by dynamic
+programming on its true-state dynamics on a grid, from the env's parameters alone. The model: the
+planner sees the true position (the agent a noisy reading, so this is an upper bound for it), the
+dynamics are deterministic, positions and moves live on a grid of step ``resolution`` (moves within
+the env's action bound), the time limit bounds the horizon, and the wall point belongs to the far
+side (a move onto x = wall_x crosses: this closes the seed's float edge, ``env.py``, which float32
+actions do not hit). The penalty thresholds of the seed's second exercise, on the same grid, are a
+study's (``lab/studies/reach1d_thresholds.py``).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol, Union
+from typing import Any
 
 import numpy as np
 
 from cmdp_rl.envs.reach1d.env import GOAL_TOLERANCE, MAX_SPEED
-
-
-class Reach1DConfig(Protocol):
-    """The options the planner reads (``reach1d_task.Reach1DConfig`` has them; that class calls
-    this module's solver, so it is not imported here)."""
-
-    wall_x: float
-    goal: float
-    max_steps: int
-    wall: str
-    start: Union[float, list]
 
 
 def start_indices(x: np.ndarray, start: float | list | tuple) -> np.ndarray:
@@ -51,8 +31,9 @@ def start_indices(x: np.ndarray, start: float | list | tuple) -> np.ndarray:
     return np.array([int(np.clip(np.rint(point / u), 0, len(x) - 1))])
 
 
-def grid_tables(env: Reach1DConfig, resolution: float):
-    """Transition tables over grid positions k (x = k * resolution) and moves m."""
+def grid_tables(env: Any, resolution: float):
+    """Transition tables over grid positions k (x = k * resolution) and moves m of ``env``'s options
+    (a ``Reach1DConfig``: ``wall_x``, ``goal``, ``wall``; the solvers below read ``max_steps`` and ``start`` too)."""
     n = int(round(1.0 / resolution))
     wall = env.wall_x / resolution
     goal = env.goal / resolution
@@ -69,11 +50,9 @@ def grid_tables(env: Reach1DConfig, resolution: float):
 
 @dataclass(frozen=True)
 class ConstrainedOptimum:
-    """The best expected return of any policy whose expected cost is at most the budget.
-
-    ``value``: that return; ``cost``: the optimal policy's expected cost (at most the budget; below
-    it when the budget does not bind); ``penalty``: the Lagrange multiplier at which the optimal
-    mixture is a tie between its plans (0 when the budget does not bind)."""
+    """``value``: the best expected return within the budget; ``cost``: the optimal policy's expected
+    cost (below the budget where it does not bind); ``penalty``: the Lagrange multiplier at which the
+    optimal mixture is a tie between its plans (0 where the budget does not bind)."""
 
     value: float
     cost: float
@@ -82,11 +61,10 @@ class ConstrainedOptimum:
 
 
 def best_returns_by_crossings(
-    env: Reach1DConfig, max_crossings: int, gamma: float = 1.0, resolution: float = 1e-3
+    env: Any, max_crossings: int, gamma: float = 1.0, resolution: float = 1e-3
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``V[k, i]``: the best return (discount ``gamma``) from grid start ``x[i]`` of a path with at
-    most ``k`` crossings, ``k = 0 .. max_crossings``; by backward induction over ``env.max_steps``
-    steps on the state (position, crossings left). Returns ``(x, V)``."""
+    """``(x, V)``, ``V[k, i]`` the best return (discount ``gamma``) from grid start ``x[i]`` of a path
+    with at most ``k <= max_crossings`` crossings, by backward induction on (position, crossings left)."""
     x, crossed, nxt, terminal, reward = grid_tables(env, resolution)
     cont = ~terminal
     value = np.zeros((max_crossings + 1, len(x)))
@@ -102,23 +80,18 @@ def best_returns_by_crossings(
 
 
 def constrained_optimum(
-    env: Reach1DConfig, cost_limit: float, gamma: float = 1.0, resolution: float = 1e-3
+    env: Any, cost_limit: float, gamma: float = 1.0, resolution: float = 1e-3
 ) -> ConstrainedOptimum:
-    """The constrained optimum of Reach1D: max E[return] s.t. E[crossings] <= ``cost_limit``, over
-    all policies of the true state (randomised ones included), from ``env.start``.
+    """max E[return] s.t. E[crossings] <= ``cost_limit`` over all policies of the true state
+    (randomised ones included), from ``env.start``; undiscounted by default, as ``eval.json`` reports.
 
-    Both sums are undiscounted by default (``gamma=1``), as ``eval.json`` reports them. The planner
-    sees the true position, so for the learning agent, which sees a noisy reading, this is an upper
-    bound. Each crossing costs exactly 1, so a plan's cost is its number of crossings k, and from
-    each start the plans worth considering are the best with at most k crossings, ``V_k``. A
-    randomised policy mixes them, per start, with the budget holding on average over starts: a
-    linear programme whose value, by its duality (Altman 1999, *Constrained Markov Decision
-    Processes*, ch. 3), is ``min_{lambda >= 0} lambda * d + E_start max_k (V_k - lambda * k)``.
-    That function of lambda is convex and piecewise linear, with its kinks at the slopes
-    ``(V_j - V_k) / (j - k)``: its minimum is at one of them (or at 0).
-
-    k runs up to ``ceil(cost_limit) + 1`` and on while another crossing still gains anywhere (plans
-    with more crossings than the budget can still be part of a mixture)."""
+    A plan's cost is its number of crossings k, so from each start the plans worth considering are
+    the best with at most k crossings, ``V_k``. A randomised policy mixes them per start, the budget
+    holding on average over starts: a linear programme whose value, by its duality (Altman 1999,
+    ch. 3), is ``min_{lambda >= 0} lambda * d + E_start max_k (V_k - lambda * k)``, convex and
+    piecewise linear in lambda with its kinks at the slopes ``(V_j - V_k) / (j - k)``: its minimum is
+    at one of them (or at 0). k runs up to ``ceil(cost_limit) + 1`` and on while another crossing
+    still gains anywhere (plans over the budget can still be part of a mixture)."""
     if not (cost_limit >= 0 and math.isfinite(cost_limit)):
         raise ValueError(f"constrained_optimum: cost_limit must be a finite number >= 0, got {cost_limit}")
     k_max = int(math.ceil(cost_limit)) + 1

@@ -1,13 +1,9 @@
 """Reach1D's envs of P agents as one batched env (the ``population_env`` hook of its options, for
-``cmdp_rl/population/``): agent i owns envs ``[i N, (i + 1) N)``.
-
-:class:`PopulationReach1D` is :class:`~cmdp_rl.envs.reach1d.batched.TorchReach1D` on ``P N`` envs
-whose per-agent options (``obs_noise``, ``wall_x``, ``goal``, ``start``) are float64 tensors
-``[P N]`` instead of Python floats: the same float64 arithmetic elementwise, so each agent's envs
-step exactly as a single run's ``TorchReach1D`` with its options does. Noise comes from
-:class:`PopulationNoise`: one generator per agent, seeded with the agent's seed and drawing the
-agent's N values per call in the single run's order, so each agent's envs see the single run's
-draws. An agent with a fixed start draws no uniform at a reset, as in its single run.
+``cmdp_rl/population/``): agent i owns envs ``[i N, (i + 1) N)``. :class:`PopulationReach1D` is
+``TorchReach1D`` on ``P N`` envs whose per-agent options (``obs_noise``, ``wall_x``, ``goal``,
+``start``) are float64 tensors ``[P N]``, the same arithmetic elementwise, and whose noise
+(:class:`PopulationNoise`) gives each agent its single run's draws: so each agent's envs step exactly
+as its single run's ``TorchReach1D`` does (an agent with a fixed start draws no uniform at a reset).
 """
 
 from __future__ import annotations
@@ -20,9 +16,9 @@ from cmdp_rl.envs.reach1d.batched import TorchReach1D
 
 
 class PopulationNoise:
-    """A :class:`~cmdp_rl.envs.reach1d.batched.NoiseSource` for P agents of N envs each: agent i's
-    draws come from its own generator, N at every call (as :class:`TorchNoise` draws for all its
-    envs); :meth:`uniform` draws only for the agents in ``agents``."""
+    """A noise source (:class:`~cmdp_rl.envs.reach1d.batched.TorchNoise`'s methods) for P agents of N
+    envs each: agent i's draws come from its own generator, N at every call (as ``TorchNoise`` draws
+    for all its envs); :meth:`uniform` draws only for the agents in ``agents``."""
 
     def __init__(self, num_agents: int, envs_per_agent: int, device: torch.device) -> None:
         self.num_agents, self.n, self.device = num_agents, envs_per_agent, device
@@ -42,20 +38,17 @@ class PopulationNoise:
     def seed(self, seed: int) -> None:
         raise ValueError("PopulationNoise: each agent has its own seed (seed_agents)")
 
-    def normal(self, where: torch.Tensor | None) -> torch.Tensor:
-        opts = dict(dtype=torch.float64, device=self.device)
-        if self.drawing is None:
-            return torch.cat([torch.randn(self.n, generator=g, **opts) for g in self.generators])
-        out = torch.zeros(self.num_agents, self.n, **opts)
-        for i in self._agents(None):
-            out[i] = torch.randn(self.n, generator=self.generators[i], **opts)
-        return out.reshape(-1)
-
-    def uniform(self, where: torch.Tensor | None, agents: Sequence[int] | None = None) -> torch.Tensor:
+    def _draw(self, sample: Any, agents: Sequence[int] | None) -> torch.Tensor:
         out = torch.zeros(self.num_agents, self.n, dtype=torch.float64, device=self.device)
         for i in self._agents(agents):
-            out[i] = torch.rand(self.n, dtype=torch.float64, device=self.device, generator=self.generators[i])
+            out[i] = sample(self.n, dtype=torch.float64, device=self.device, generator=self.generators[i])
         return out.reshape(-1)
+
+    def normal(self, where: torch.Tensor | None) -> torch.Tensor:
+        return self._draw(torch.randn, None)
+
+    def uniform(self, where: torch.Tensor | None, agents: Sequence[int] | None = None) -> torch.Tensor:
+        return self._draw(torch.rand, agents)
 
     def state_dict(self) -> dict[str, Any]:
         return {"generators": [g.get_state() for g in self.generators]}
@@ -76,27 +69,15 @@ class PopulationReach1D(TorchReach1D):
         p, n = len(env_cfgs), envs_per_agent
         dev = torch.device(device)
         noise = PopulationNoise(p, n, dev)
-        super().__init__(
-            p * n,
-            obs_noise=first.obs_noise,
-            wall_x=first.wall_x,
-            max_steps=first.max_steps,
-            goal=first.goal,
-            wall=first.wall,
-            start=first.start,
-            probe=False,
-            stagger=stagger,
-            device=dev,
-            noise=noise,
-        )
+        kwargs = {**first.env_kwargs(), "probe": False}
+        super().__init__(p * n, **kwargs, stagger=stagger, device=dev, noise=noise)
         self.num_agents, self.envs_per_agent = p, n
 
         def per_env(values: list[float]) -> torch.Tensor:
             return torch.tensor(values, dtype=torch.float64, device=dev).repeat_interleave(n)
 
-        self.obs_noise = per_env([float(c.obs_noise) for c in env_cfgs])
-        self.wall_x = per_env([float(c.wall_x) for c in env_cfgs])
-        self.goal = per_env([float(c.goal) for c in env_cfgs])
+        for name in ("obs_noise", "wall_x", "goal"):
+            setattr(self, name, per_env([float(getattr(c, name)) for c in env_cfgs]))
         self._goal32 = self.goal.to(torch.float32)
         starts = [c.start if isinstance(c.start, list) else [c.start, c.start] for c in env_cfgs]
         self.start_lo = per_env([float(s[0]) for s in starts])
@@ -124,6 +105,3 @@ class PopulationReach1D(TorchReach1D):
         # numpy's Generator.uniform(lo, hi) is lo + (hi - lo) * u, as the single env computes it.
         drawn = self.start_lo + (self.start_hi - self.start_lo) * self.noise.uniform(where, self.range_agents)
         return torch.where(self.start_is_range, drawn, fixed)
-
-
-__all__ = ["PopulationNoise", "PopulationReach1D"]

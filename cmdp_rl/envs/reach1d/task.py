@@ -1,6 +1,6 @@
 """Reach1D as a component (``env=reach1d``): its options, checked before anything is built, and
-the backend that runs them: the seed-exact gymnasium env (``reach1d.py``) in a synchronous vector
-env, or its batched torch twin (``reach1d_torch.py``)."""
+the backend that runs them: the seed-exact gymnasium env (``env.py``) in a synchronous vector
+env, or its batched torch twin (``batched.py``)."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ class Reach1DConfig(EnvOptions):
     """``env=reach1d``: Reach1D's options, on the gymnasium backend or the batched torch twin."""
 
     name: str = "reach1d"
-    # gym: gymnasium envs in a synchronous vector env; torch: one batched tensor program (reach1d_torch.py)
+    # gym: gymnasium envs in a synchronous vector env; torch: one batched tensor program (batched.py)
     backend: Literal["gym", "torch"] = "gym"
     num_envs: PositiveInt = 8
     obs_noise: NonNegativeFloat = 0.02
@@ -38,40 +38,26 @@ class Reach1DConfig(EnvOptions):
     wall: Literal["block", "pass"] = "block"
     start: Annotated[Union[float, list[float]], Field(description=ALLOWED_START)] = 0.1
     probe: Bool = False
-    # torch backend only: the first episode of each env starts at a random step count, so that
-    # episodes end at different iterations (the envs would otherwise all time out together).
+    # torch backend only: the first episodes end at random steps (TorchReach1D says why)
     stagger: Bool = False
-    # Evaluation reports the fraction of episodes that terminated under this name: in Reach1D an
-    # episode terminates only at the goal.
+    # In Reach1D an episode terminates only at the goal.
     termination_metric: ClassVar[str] = "goal_reached"
     values_snapshots: ClassVar[bool] = True  # deploy.policy=auto (EnvOptions.values_snapshots)
 
     def env_kwargs(self) -> dict[str, Any]:
         """The :class:`Reach1D` constructor arguments these options ask for."""
-        return dict(
-            obs_noise=self.obs_noise,
-            wall_x=self.wall_x,
-            max_steps=self.max_steps,
-            goal=self.goal,
-            wall=self.wall,
-            start=self.start,
-            probe=self.probe,
-        )
+        return {k: getattr(self, k) for k in ("obs_noise", "wall_x", "max_steps", "goal", "wall", "start", "probe")}
 
     def render_env(self) -> Reach1D:
-        """One gymnasium Reach1D of these options drawing ``rgb_array`` frames (for video; the torch
-        backend renders through this gym twin)."""
+        """One gymnasium Reach1D of these options drawing ``rgb_array`` frames (either backend's video)."""
         return Reach1D(**self.env_kwargs(), render_mode="rgb_array")
 
     def optimum(self, cost_limit: float) -> float:
-        """The constrained optimum of the eval return at budget ``cost_limit`` (undiscounted, as
-        ``eval.json`` reports it), by dynamic programming on the true state (``reach1d_dp.py``): an
-        upper bound for a policy that sees noisy readings. Read by the end-of-run summary."""
+        """The end-of-run summary's constrained optimum at ``cost_limit`` (``optimum.py``: true state)."""
         return constrained_optimum(self, cost_limit).value
 
     def termination_note(self) -> str | None:
-        """Why no episode can reach the goal with these options, if none can: with the blocking
-        wall between every start and the goal. Read by the end-of-run summary."""
+        """For the end-of-run summary: why no episode can reach the goal (a blocking wall in the way), if so."""
         lo, hi = (self.start[0], self.start[-1]) if isinstance(self.start, list) else (self.start, self.start)
         goal_right = self.goal > self.wall_x
         starts_opposite = hi < self.wall_x if goal_right else lo > self.wall_x
@@ -84,16 +70,14 @@ class Reach1DConfig(EnvOptions):
         return None
 
     def valuation_options(self) -> Reach1DConfig:
-        """The torch twin: the same CMDP to the last bit (batched.py), one tensor program over the
-        valuation's thousand-odd episodes instead of as many gymnasium envs stepped in Python
-        (on the gym backend the valuation took longer than 120k steps of training)."""
+        """The torch twin: the same CMDP to the last bit (``batched.py``), one tensor program over the
+        valuation's thousand-odd episodes instead of as many gymnasium envs stepped in Python."""
         return dataclasses.replace(self, backend="torch", stagger=False)
 
     def population_env(
         self, env_cfgs: Sequence[Reach1DConfig], num_envs: int, seeds: Sequence[int], device: Any, evaluation: bool
     ) -> VecEnv | None:
-        """On the torch backend: one :class:`~cmdp_rl.envs.reach1d.population.PopulationReach1D` of
-        every agent's envs, each agent's options as tensors (evaluation: no staggered start)."""
+        """On the torch backend: one ``PopulationReach1D`` of every agent's envs (evaluation: no stagger)."""
         if self.backend != "torch":
             return None
         env = PopulationReach1D(env_cfgs, num_envs, stagger=self.stagger and not evaluation, device=device)
@@ -101,14 +85,8 @@ class Reach1DConfig(EnvOptions):
         return env
 
     def check(self, run: RunConfig) -> None:
-        if isinstance(self.start, list):
-            ok = (
-                len(self.start) == 2
-                and all(is_finite(s) for s in self.start)
-                and 0 <= self.start[0] <= self.start[1] <= 1
-            )
-        else:
-            ok = 0.0 <= self.start <= 1.0
+        s = self.start if isinstance(self.start, list) else [self.start, self.start]
+        ok = len(s) == 2 and all(is_finite(x) for x in s) and 0 <= s[0] <= s[1] <= 1
         require(ok, "env.start", ALLOWED_START, self.start)
         require(
             not self.stagger or self.backend == "torch", "env.stagger", "false unless env.backend=torch", self.stagger

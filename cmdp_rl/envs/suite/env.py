@@ -2,72 +2,38 @@
 
 Each step looks up every env's reward and costs in the instance's tables, draws its next state
 from ``P[s, a]`` by inverting the cumulative row with one uniform number, and ends the episode
-after ``H`` steps; envs whose episode ended restart (a start state drawn from ``mu0``) in the same
-step (gymnasium's SAME_STEP autoreset, as every ``VecEnv``). Two uniform numbers per env per step,
-used or not, so a seed fixes one stream whatever the policy does. No Python loop over envs.
+after ``H`` steps, a true termination (time is part of the state); envs whose episode ended restart
+(a start state drawn from ``mu0``) in the same step. Two uniform numbers per env per step, used or
+not, so a seed fixes one stream whatever the policy does.
 
-The observation is ``[one-hot(s) (S entries), one-hot(t) (H + 1 entries)]``. Why the time step:
-the optimum of a finite-horizon CMDP is not stationary (near the end, an action whose pay-off
-comes later is worth less, and the LP's optimum randomises at particular (t, s) pairs), so a
-policy that sees the state alone cannot represent it, and its critic could not value "k steps
-left". Why one-hot and side by side: an MLP's first layer then computes ``W_s + W_t``, which
-holds what is common to all steps in the state's columns (shared across time, so learnt from every
-step) and the time's effect in its own; a hidden unit over both can pick out one (t, s) pair, so
-any table ``pi[t, s, a]`` is representable. Entry ``H`` of the time part appears only in the final
-observation of an episode, which nothing bootstraps from: the end at ``H`` is a true termination
-(time is part of the state), not a truncation.
+The observation is ``[one-hot(s), one-hot(t)]`` (S + H + 1 entries): the finite-horizon optimum is
+not stationary, nor is "k steps left" for a critic. Side by side, an MLP's first layer computes
+``W_s + W_t`` (what all steps share, learnt from every step), and a unit can pick out one (t, s).
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-import gymnasium as gym
 import torch
 
 from cmdp_rl.envs.suite.model import FiniteCMDP
-from cmdp_rl.envs.vector import Step, VecEnv
-
-
-def observations(cmdp: FiniteCMDP, states: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
-    """The observations ``[N, S + H + 1]`` of states ``[N]`` at time steps ``[N]`` (module docstring)."""
-    eye_s = torch.eye(cmdp.num_states, device=states.device)
-    eye_t = torch.eye(cmdp.horizon + 1, device=states.device)
-    return torch.cat([eye_s[states], eye_t[steps]], dim=-1)
+from cmdp_rl.envs.vector import Step, VecEnv, table_actions, tabular
 
 
 class TorchSuite(VecEnv):
     """N copies of one suite instance in tensors: Discrete(A) actions, K costs ``cost_0..``."""
 
+    saved = ("state", "t", "generator")
+
     def __init__(self, cmdp: FiniteCMDP, num_envs: int, device: str | torch.device = "cpu") -> None:
-        self.cmdp = cmdp
-        self.num_envs = num_envs
-        self.device = torch.device(device)
-        self.num_costs = cmdp.num_costs
-        self.horizon = cmdp.horizon
-        self.obs_dim = cmdp.num_states + cmdp.horizon + 1
-        self.action_dim = 1
-        self.action_low = torch.zeros(1, device=self.device)
-        self.action_high = torch.full((1,), cmdp.num_actions - 1.0, device=self.device)
+        tabular(self, cmdp, num_envs, device)
+        self.cmdp, self.horizon, self.obs_dim = cmdp, cmdp.horizon, cmdp.num_states + cmdp.horizon + 1
         f64 = dict(dtype=torch.float64, device=self.device)
         # float64 cumulative rows, so that the sampled transitions are those of P to ~1e-16
         self._cdf = torch.as_tensor(cmdp.P, **f64).cumsum(-1)  # [S, A, S]
         self._cdf0 = torch.as_tensor(cmdp.mu0, **f64).cumsum(-1)  # [S]
-        self._reward = torch.as_tensor(cmdp.r, dtype=torch.float32, device=self.device)  # [S, A]
-        self._cost = torch.as_tensor(cmdp.c, dtype=torch.float32, device=self.device).permute(1, 2, 0)  # [S, A, K]
         self._eye_s = torch.eye(cmdp.num_states, device=self.device)
         self._eye_t = torch.eye(cmdp.horizon + 1, device=self.device)
-        self.generator = torch.Generator(device=self.device)
-        self.state = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
         self.t = torch.zeros(num_envs, dtype=torch.int64, device=self.device)
-
-    @property
-    def cost_names(self) -> tuple[str, ...]:
-        return self.cmdp.cost_names
-
-    @property
-    def action_space(self) -> gym.Space:
-        return gym.spaces.Discrete(self.cmdp.num_actions)
 
     def _obs(self, states: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
         return torch.cat([self._eye_s[states], self._eye_t[steps]], dim=-1)
@@ -96,10 +62,7 @@ class TorchSuite(VecEnv):
         return self._obs(self.state[rows], self.t[rows])
 
     def step(self, action: torch.Tensor) -> Step:
-        self.check_action(action)
-        a = action[:, 0].to(device=self.device, dtype=torch.int64)
-        if bool(((a < 0) | (a >= self.cmdp.num_actions)).any()):
-            raise ValueError(f"suite action must be in 0..{self.cmdp.num_actions - 1}, got {action.flatten().tolist()}")
+        a = table_actions(self, action, "suite")
         s = self.state
         u = torch.rand(2, self.num_envs, dtype=torch.float64, device=self.device, generator=self.generator)
         nxt = self._draw(self._cdf[s, a], u[0])
@@ -116,21 +79,3 @@ class TorchSuite(VecEnv):
             truncated=torch.zeros_like(terminated).unsqueeze(-1),
             obs=self._obs(self.state, self.t),
         )
-
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "num_envs": self.num_envs,
-            "state": self.state.clone(),
-            "t": self.t.clone(),
-            "generator": self.generator.get_state(),
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["num_envs"] != self.num_envs:
-            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
-        self.state = state["state"].to(self.device).clone()
-        self.t = state["t"].to(self.device).clone()
-        self.generator.set_state(state["generator"])
-
-
-__all__ = ["TorchSuite", "observations"]

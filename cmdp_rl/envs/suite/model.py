@@ -1,55 +1,27 @@
 """The generated suite's CMDPs as arrays: how an instance is drawn from its number, and the exact
 value of any policy by backward induction.
 
-One instance is a finite-horizon CMDP (Altman 1999, ch. 2: the finite-horizon criterion)
-``(S, A, P, r, c_1..c_K, mu0, H, d)``: ``S`` states, ``A`` actions, transitions ``P[s, a, s']``,
-reward ``r[s, a] >= 0``, ``K`` costs ``c[k, s, a] >= 0``, a start distribution ``mu0`` and a horizon
-``H``; every episode lasts exactly ``H`` steps. Its values are the undiscounted episode sums
-
-    J(pi) = E[sum_{t < H} r(s_t, a_t)],   J_c[k](pi) = E[sum_{t < H} c_k(s_t, a_t)],
-
-which are what ``eval.json`` reports (mean episode return and cost): no discount, because the
-toolkit budgets and reports the undiscounted episode cost. The optimum of a finite-horizon CMDP
-depends on the time step as well as the state, so policies here are tables ``pi[t, s, a]``.
-
-How an instance is drawn (:func:`generate`, from ``numpy.random.default_rng((SUITE_STREAM, i))``):
-
-- sizes: ``K`` in 1..3 (1 half of the time, so the algorithms that take one constraint have
-  instances), ``S`` in 3..8, ``A`` in 2..4, ``H`` log-uniform in 10..200;
-- scales: the reward's ``R`` and each cost's ``C_k``, each log-uniform in [1e-2, 1e2] and drawn
-  independently, so the reward-to-cost ratio ranges over 1e-4..1e4 (a multiplier must then reach
-  values of that ratio's order: what a default with units fails on);
-- tables: each (s, a) leads to 1 to 3 successor states (Dirichlet weights), ``r = R u`` with
-  ``u = U(0, 1)^2`` and ``c_k = C_k (rho_k u + (1 - rho_k) w) m`` with ``rho_k`` in [0.5, 1], ``w``
-  uniform and ``m`` a 0/1 mask (70% ones): what pays tends to cost, so the budget trades reward away;
-- the budget, one of three kinds, each between the least and the greatest achievable cost (both
-  computed exactly here), and always feasible by construction:
-  - ``mixed`` (half of the instances): ``d = (1 - f) J_c(pi_safe) + f J_c(pi_r)`` with ``f`` in
-    [0.15, 0.85], between the costs of the least-cost policy ``pi_safe`` (least sum of the costs in
-    their own scales) and the reward-optimal ``pi_r``; it binds, and the optimum is usually
-    randomised (the LP, ``optimum.py``, says which);
-  - ``vertex`` (a quarter): ``d = J_c(pi_lambda)``, the costs of the optimal deterministic policy of
-    ``r - lambda . c`` for a drawn ``lambda > 0``; by Lagrangian sufficiency that deterministic
-    policy is optimal at ``d``: a budget that binds with a deterministic optimum;
-  - ``slack`` (a quarter): ``d`` between ``J_c(pi_r)`` and the greatest achievable cost: the
-    constraint does not bind and the optimum is ``pi_r`` (a Lagrangian method should leave it be).
-- an instance is redrawn (its tables, not its sizes or scales) until the trade-off is real:
-  ``J(pi_safe) <= 0.75 J(pi_r)``, every cost can be changed by the policy, and every budget is at
-  least 1% of that cost's greatest achievable value (a budget of 0 would make the budget-relative
-  multiplier step divide by zero).
-
-Which instances choose defaults: ids in :data:`TUNING` (0..29) may be used to choose or tune
-anything; ids in :data:`HELD_ASIDE` (1000..1029) never are, and are only ever measured. The suite
-is reported with the two sets separately (``docs/constraint_satisfaction.md``, "The generated suite").
+One instance is a finite-horizon CMDP (Altman 1999, ch. 2) ``(S, A, P, r, c_1..c_K, mu0, H, d)``
+whose every episode lasts exactly ``H`` steps. Its values are the undiscounted episode sums
+``J(pi) = E[sum_{t < H} r(s_t, a_t)]`` and ``J_c[k]`` likewise, what ``eval.json`` reports; its
+optimum depends on the time step as well as the state, so policies here are tables ``pi[t, s, a]``.
+What :func:`generate` draws (sizes, scales, the three kinds of budget) and why:
+docs/constraint_satisfaction.md, "The generated suite". Tables are redrawn until the trade-off is
+real: ``J(pi_safe) <= 0.75 J(pi_r)``, every cost can be changed by the policy, and every budget is at
+least 1% of that cost's greatest achievable value (a budget of 0 would make the budget-relative
+multiplier step divide by zero).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Sequence
 
 import numpy as np
+from scipy import sparse
 
+from cmdp_rl.envs.grid.optimum import ConstrainedOptimum, budgets_of, occupancy_lp
 from cmdp_rl.envs.grid.tabular import Sizes
 
 TUNING = range(0, 30)  # instance ids that may be used to choose defaults
@@ -88,28 +60,22 @@ class FiniteCMDP(Sizes):
 
 @dataclass(frozen=True, eq=False)
 class Values:
-    """A policy's exact values; a batch of policies adds its leading dimensions to each field."""
+    """A policy's exact values (a batch of policies adds its leading dimensions)."""
 
     ret: np.ndarray  # [...] J(pi)
     costs: np.ndarray  # [..., K] J_c(pi)
 
 
-def as_table(cmdp: FiniteCMDP, policy: np.ndarray) -> np.ndarray:
-    """``policy`` as ``[..., H, S, A]``: a stationary ``[S, A]`` table is repeated over the steps."""
+def evaluate(cmdp: FiniteCMDP, policy: np.ndarray) -> Values:
+    """Exact ``J`` and ``J_c`` of ``policy[..., t, s, a] = pi_t(a | s)`` (a stationary ``[S, A]`` table:
+    the same at every step) by backward induction: ``V_H = 0``, ``V_t(s) = sum_a pi_t(a | s) (g(s, a) +
+    sum_s' P(s' | s, a) V_{t+1}(s'))`` for the reward and each cost ``g`` at once; then ``J = mu0 . V_0``."""
     pi = np.asarray(policy, dtype=np.float64)
     shape = (cmdp.num_states, cmdp.num_actions)
     if pi.shape == shape:
-        return np.broadcast_to(pi, (cmdp.horizon, *shape))
+        pi = np.broadcast_to(pi, (cmdp.horizon, *shape))
     if pi.shape[-3:] != (cmdp.horizon, *shape):
         raise ValueError(f"policy: expected shape [..., {cmdp.horizon}, {shape[0]}, {shape[1]}], got {pi.shape}")
-    return pi
-
-
-def evaluate(cmdp: FiniteCMDP, policy: np.ndarray) -> Values:
-    """Exact ``J`` and ``J_c`` of ``policy[..., t, s, a] = pi_t(a | s)`` by backward induction:
-    ``V_H = 0``, ``V_t(s) = sum_a pi_t(a | s) (g(s, a) + sum_s' P(s' | s, a) V_{t+1}(s'))`` for the
-    reward and each cost ``g`` at once; then ``J = mu0 . V_0``."""
-    pi = as_table(cmdp, policy)
     signals = np.concatenate([cmdp.r[None], cmdp.c])  # [1 + K, S, A]
     v = np.zeros((*pi.shape[:-3], 1 + cmdp.num_costs, cmdp.num_states))
     for t in reversed(range(cmdp.horizon)):
@@ -225,15 +191,24 @@ def generate(instance: int) -> FiniteCMDP:
     return draw(rng, S, A, H, kind, reward_scale, cost_scales, int(instance))
 
 
-__all__ = [
-    "BUDGET_KINDS",
-    "HELD_ASIDE",
-    "TUNING",
-    "FiniteCMDP",
-    "Values",
-    "as_table",
-    "draw",
-    "evaluate",
-    "generate",
-    "greedy",
-]
+def solve(cmdp: FiniteCMDP, budgets: float | Sequence[float] | None = None) -> ConstrainedOptimum:
+    """``max_pi J(pi)`` s.t. ``J_c[k](pi) <= budgets[k]`` (None: the instance's budgets; an infinite
+    budget: no constraint), exactly: ``grid/optimum.py``'s occupancy LP over the states (t, s)
+    (Altman 1999, ch. 3; Puterman 1994, sec. 6.9), whose flow rows are
+
+        sum_a x_0(s, a)     = mu0(s)
+        sum_a x_{t+1}(s, a) = sum_{s', a'} P(s | s', a') x_t(s', a')      for t < H - 1
+
+    for the occupancy ``x_t(s, a) = P(s_t = s, a_t = a)``; the optimum's arrays are ``[H, S, ...]``
+    (where it randomises in no (t, s), a deterministic policy is optimal)."""
+    h, s, a, k = cmdp.horizon, cmdp.num_states, cmdp.num_actions, cmdp.num_costs
+    # Variables x_t(s, a) in (t, s, a) order; step t - 1 sends P's mass into step t.
+    inflow = sparse.kron(sparse.eye(h, k=-1), sparse.csr_matrix(cmdp.P.reshape(s * a, s).T))
+    return occupancy_lp(
+        inflow,
+        np.tile(cmdp.r.reshape(-1), h),
+        np.tile(cmdp.c.reshape(k, -1), (1, h)),
+        np.concatenate([cmdp.mu0, np.zeros((h - 1) * s)]),
+        budgets_of(budgets, k, cmdp.budgets),
+        (h, s, a),
+    )

@@ -1,21 +1,17 @@
-"""The generated suite as a component (``env=suite``): its options, the batched env, the instance's
-budgets as the task's, and the exact constrained optimum the end-of-run summary compares with.
-
-``python train.py env=suite env.instance=7 algo=ppo_lag`` trains on instance 7. Instances
-:data:`~cmdp_rl.envs.suite.model.TUNING` (0..29) may be used to choose defaults; instances
-:data:`~cmdp_rl.envs.suite.model.HELD_ASIDE` (1000..1029) never are (``model.py``).
-"""
+"""The generated suite as a component (``env=suite``, ``env.instance=<i>``): its options, the batched
+env, the instance's budgets as the task's, and the exact constrained optimum the end-of-run summary
+compares with."""
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal, Sequence
+from typing import Literal, Sequence
 
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeInt, PositiveInt, options
+from cmdp_rl.envs.grid.optimum import ConstrainedOptimum
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.suite.env import TorchSuite
-from cmdp_rl.envs.suite.model import FiniteCMDP, generate
-from cmdp_rl.envs.suite.optimum import FiniteOptimum, solve
+from cmdp_rl.envs.suite.model import FiniteCMDP, generate, solve
 from cmdp_rl.envs.vector import VecEnv
 
 
@@ -24,10 +20,6 @@ class SuiteConfig(EnvOptions):
     """``env=suite``: instance ``instance`` of the generated finite-horizon CMDPs (``model.py``)."""
 
     name: str = "suite"
-    # The suite stands for a user's own env: a run on it gets what any env with a known episode length
-    # gets (snapshots valued within a share of the run's steps, not at will: EnvOptions.values_snapshots),
-    # so what it measures carries over.
-    values_snapshots: ClassVar[bool] = False
     backend: Literal["torch"] = "torch"  # one tensor program over the envs (env.py), on `device`
     num_envs: PositiveInt = 16
     instance: NonNegativeInt = 0
@@ -45,14 +37,12 @@ class SuiteConfig(EnvOptions):
         d = [float(x) for x in self.model().budgets]
         return d[0] if len(d) == 1 else d
 
-    def solve(self, cost_limit: float | Sequence[float] | None = None) -> FiniteOptimum:
-        """The exact constrained optimum at these budgets (None: the instance's), by the finite-horizon
-        occupancy LP (``optimum.py``)."""
+    def solve(self, cost_limit: float | Sequence[float] | None = None) -> ConstrainedOptimum:
+        """The exact constrained optimum at these budgets (None: the instance's), ``model.solve``."""
         return solve(self.model(), cost_limit)
 
     def optimum(self, cost_limit: float | Sequence[float]) -> float:
-        """J* within the budgets: the optimal expected episode return (undiscounted, as ``eval.json``
-        reports it). Read by the end-of-run summary."""
+        """The optimal expected episode return within the budgets, read by the end-of-run summary."""
         return self.solve(cost_limit).ret
 
 
