@@ -47,7 +47,7 @@ class EnvOptions:
         return getattr(self, "max_steps", None) or None
 
     def valuation_options(self) -> EnvOptions:
-        """The options the snapshot valuation (mixture_selection.py) builds its env from: the same
+        """The options the snapshot valuation (``deploy.selection``) builds its env from: the same
         CMDP, on a batched backend where this env has one (these options themselves here)."""
         return self
 
@@ -56,7 +56,7 @@ class EnvOptions:
     ) -> Any:
         """The envs of P agents (``env_cfgs``, these options first), ``num_envs`` each, agent i's seeded
         with ``seeds[i]``, as one batched env whose agent i's rows step exactly as its single run's envs;
-        None: the population steps each agent's own env in turn (``population.env.AgentEnvs``)."""
+        None: the population steps each agent's own env in turn (``population.kernel.AgentEnvs``)."""
         return None
 
 

@@ -25,7 +25,7 @@ class PolicyMemory:
     """What a history-dependent agent carries between steps of N envs, as torchrl's env transforms would:
     its initial state, the state it returns under ``"next"`` (reset where an episode ended, as
     ``TensorDictPrimer`` does), and the previous action and cost if its ``in_keys`` ask. The collector's,
-    and ``replay.py``'s, which steps one plain env."""
+    the deployed policy's (``deploy.policy``) and the Reach1D replay's (``report.reach1d_episodes``)."""
 
     def __init__(
         self, agent: Agent, num_envs: int, action_space: gym.Space, device: torch.device, num_costs: int = 1
