@@ -71,3 +71,15 @@ def test_tests_share_code_through_helpers_only():
             offenders.append(f"{path.relative_to(ROOT).as_posix()} imports {sorted(reached)}")
     assert not offenders, f"move what is shared into tests/helpers/: {offenders}"
     assert (tests / "helpers" / "__init__.py").is_file()
+
+
+def _lines(folder: Path) -> int:
+    return sum(len(p.read_text().splitlines()) for p in folder.rglob("*.py"))
+
+
+def test_the_library_stays_small_enough_to_read():
+    """Issue 40's bounds: the library at most 17k lines, the population's kernel and grid expansion at most 600
+    (population/ holds no trainer: one run path, run/trainer.py, trains one agent or many)."""
+    assert _lines(ROOT / "cmdp_rl") <= 17_000, "cmdp_rl/ is over 17,000 lines: merge or move before adding"
+    assert _lines(ROOT / "cmdp_rl" / "population") <= 600
+    assert not (ROOT / "cmdp_rl" / "population" / "trainer.py").exists()
