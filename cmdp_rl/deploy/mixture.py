@@ -181,6 +181,3 @@ def weights_of(actor: Actor) -> list[float]:
     members = members_of(actor)
     weights = actor.body.weights if isinstance(actor.body, MixtureBody) else None
     return [1.0 / len(members)] * len(members) if weights is None else weights.tolist()
-
-
-__all__ = ["IterateSnapshots", "MixtureBody", "members_of", "mixture_actor", "weights_of"]

@@ -64,6 +64,3 @@ def resolve_auto(cfg: RunConfig) -> None:
     if mixture and not cfg.env.values_snapshots and plan is not None:
         deploy.snapshots, deploy.episodes = plan
     deploy.policy = "mixture" if mixture and (cfg.env.values_snapshots or plan is not None) else "last"
-
-
-__all__ = ["MIN_VALUED_EPISODES", "VALUATION_SHARE", "DeployConfig", "resolve_auto", "valuation_plan"]

@@ -260,5 +260,3 @@ def make_pettingzoo(cfg: PettingZooConfig, num_envs: int, device: str = "cpu") -
 
 
 register("env", "pettingzoo", PettingZooConfig, make_pettingzoo)
-
-__all__ = ["PettingZooConfig", "PettingZooVecEnv", "load_factory", "make_pettingzoo"]

@@ -118,5 +118,3 @@ def make_skills(cfg: SkillsConfig, num_envs: int, device: str = "cpu") -> VecEnv
 
 
 register("env", "skills", SkillsConfig, make_skills)
-
-__all__ = ["SKILLS", "SkillsConfig", "TorchSkills", "make_skills"]

@@ -102,6 +102,3 @@ class TeamWork(ParallelEnv):
     def optimum(cost_limit: float | Sequence[float], horizon: int = 10, synergy: float = 0.5) -> float:
         """The exact constrained optimum (:func:`constrained_optimum`), which the end-of-run summary prints."""
         return constrained_optimum(cost_limit, horizon, synergy)[0]
-
-
-__all__ = ["ACTIONS", "AGENTS", "TeamWork", "constrained_optimum", "joint_tables"]

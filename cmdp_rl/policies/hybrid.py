@@ -100,6 +100,3 @@ class HybridHead(nn.Module):
     @staticmethod
     def dist(params: dict[str, torch.Tensor]) -> SkillParameters:
         return SkillParameters(params[keys.LOGITS], params[keys.LOC], params[keys.SCALE])
-
-
-__all__ = ["HybridHead", "SkillParameters"]

@@ -23,7 +23,7 @@ from cmdp_rl.envs.safe_nav.button import ButtonTask
 from cmdp_rl.envs.safe_nav.circle import CircleTask
 from cmdp_rl.envs.safe_nav.goal import GoalTask
 from cmdp_rl.envs.safe_nav.layout import LayoutSampler
-from cmdp_rl.envs.safe_nav.lidar import LIDAR_BINS, pseudo_lidar
+from cmdp_rl.envs.safe_nav.lidar import LIDAR_BINS
 from cmdp_rl.envs.safe_nav.push import PushTask
 from cmdp_rl.envs.safe_nav.spec import ROBOTS, nav_spec
 from cmdp_rl.envs.safe_nav.warp_world import WARP_TASKS, WarpWorlds, warp_problem
@@ -285,5 +285,3 @@ def make_safe_nav_vec_env(cfg: SafeNavEnvConfig, num_envs: int, device: str = "c
 
 
 register("env", "safe_nav", SafeNavEnvConfig, make_safe_nav_vec_env)
-
-__all__ = ["TASKS", "SafeNavEnvConfig", "SafeNavVecEnv", "make_safe_nav_vec_env", "pseudo_lidar", "task_problem"]

@@ -183,6 +183,3 @@ def import_safety_gymnasium() -> types.ModuleType:
         _patch(importlib.import_module("safety_gymnasium.bases.base_agent").BaseAgent, "get_sensor", _get_sensor)
         _patch(importlib.import_module("safety_gymnasium.bases.underlying"), "OffScreenViewer", _offscreen_viewer)
         return module
-
-
-__all__ = ["import_safety_gymnasium"]

@@ -163,5 +163,3 @@ def make_safety_gym_vec_env(cfg: SafetyGymEnvConfig, num_envs: int, device: str 
 
 
 register("env", "safety_gym", SafetyGymEnvConfig, make_safety_gym_vec_env)
-
-__all__ = ["SafetyGymEnvConfig", "SafetyGymTask", "SafetyGymVecEnv", "make_safety_gym_vec_env", "make_task"]

@@ -56,6 +56,3 @@ def task_problem(task: str) -> str | None:
             instead = f"; use {hint}" if hint in TASKS else ""
             return f"env.task must be an offered Safety-Gymnasium task, got {task!r}: it {why}{instead}"
     return f"env.task must be one of {ALLOWED}, got {task!r}"
-
-
-__all__ = ["ALLOWED", "TASKS", "task_problem"]

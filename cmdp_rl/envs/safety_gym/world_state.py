@@ -137,6 +137,3 @@ def load_world_state(builder: Any, state: dict[str, Any]) -> None:
     data = mujoco.MjData(model)
     load_mujoco_data_state(model, data, state["data"])
     builder.task.world.engine.update(model, data)
-
-
-__all__ = ["BUILDER_CONFIG", "load_world_state", "world_state"]
