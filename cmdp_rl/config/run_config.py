@@ -52,10 +52,9 @@ class NormalizeConfig:
 
 @options
 class LoggerConfig:
-    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else,
-    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory, ``wandb`` also a
-    Weights & Biases run (files in the run's ``wandb/`` directory; ``project``, ``entity`` and
-    ``mode`` are wandb's, read only with ``logger=wandb``)."""
+    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else, ``tensorboard`` also TensorBoard
+    event files in the run's ``tb/`` directory, ``wandb`` also a Weights & Biases run (files in the run's ``wandb/``
+    directory; ``project``, ``entity`` and ``mode`` are wandb's, read only with ``logger=wandb``)."""
 
     name: Literal["csv", "tensorboard", "wandb"] = "csv"
     project: Annotated[str, Field(pattern=r"\S", description="a wandb project name")] = "cmdp_rl"
@@ -198,10 +197,9 @@ def budget_source(cfg: RunConfig) -> str:
 
 
 def validate(cfg: RunConfig) -> None:
-    """Check every field against its declared range (again: a script may have assigned fields),
-    fill the task's budget (:func:`resolve_budget`) and the ``"auto"`` options (:func:`resolve_auto`),
-    then run the rules each component declares across fields (its ``check(run)``) and the run's own;
-    raise :class:`ConfigError` on the first violation."""
+    """Check every field against its declared range (again: a script may have assigned fields), fill the task's budget
+    (:func:`resolve_budget`) and the ``"auto"`` options (:func:`resolve_auto`), then run the rules each component
+    declares across fields (its ``check(run)``) and the run's own; raise :class:`ConfigError` on the first violation."""
     for kind in KINDS:
         part = getattr(cfg, kind)
         expected = component(kind, getattr(part, "name", None)).options

@@ -42,8 +42,7 @@ class RecurrentPolicyConfig:
     init_log_std: LogStd = -0.5
     include_prev_action: Bool = True
     include_prev_cost: Bool = True
-    # Training segments: steps per segment, a divisor of rollout_steps; 0 or >= rollout_steps:
-    # whole rollout rows.
+    # Training segments: steps per segment, a divisor of rollout_steps; 0 or >= rollout_steps: whole rollout rows.
     segment_length: NonNegativeInt = 32
 
     def check(self, run: RunConfig) -> None:

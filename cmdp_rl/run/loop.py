@@ -105,10 +105,9 @@ class Members:
 
 
 def train_iterations(m: Members, first: int, iterations: int, start: float, progress: Progress | None = None) -> float:
-    """Iterations ``first`` to ``iterations`` (a resume starts past its checkpoint's); ``start`` is
-    the ``perf_counter`` at which training time began (earlier by the time a resumed run had);
-    ``progress`` shows the first member's rows. The loggers, the envs and ``progress`` are closed
-    when it ends, however it ends. Returns the training time."""
+    """Iterations ``first`` to ``iterations`` (a resume starts past its checkpoint's); ``start`` is the ``perf_counter``
+    at which training time began (earlier by the time a resumed run had); ``progress`` shows the first member's rows.
+    The loggers, the envs and ``progress`` are closed when it ends, however it ends. Returns the training time."""
     try:
         _iterations(m, first, iterations, start, progress)
     finally:

@@ -328,9 +328,8 @@ def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
 
 
 def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
-    """A saved run config with the defaults it ran with made explicit (a run config written since
-    ``mixture_weights`` existed records every option), in the current layout (:func:`saved_config_nodes`,
-    :func:`deploy_node`)."""
+    """A saved run config with the defaults it ran with made explicit (a run config written since ``mixture_weights``
+    existed records every option), in the current layout (:func:`saved_config_nodes`, :func:`deploy_node`)."""
     if "mixture_weights" not in config and "deploy" not in config:
         config = {**_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS, **config}
         algo = dict(config.get("algo") or {})

@@ -160,10 +160,9 @@ def check_space(
 
 
 def budgets(budget: Any, raw: Mapping[str, Any], searched: Sequence[str] = ()) -> tuple[tuple[str, ...], list[float]]:
-    """The env's cost names (a 2-env copy of the base config's env is built: only the env knows them) and the
-    search's budget per cost: ``budget`` (a number, a list of K, or ``{cost: budget}`` naming every cost), or,
-    when null, the config's own ``algo.cost_limit`` (the task's unless given), unless that is among the
-    ``searched`` options."""
+    """The env's cost names (a 2-env copy of the base config's env is built: only the env knows them) and the search's
+    budget per cost: ``budget`` (a number, a list of K, or ``{cost: budget}`` naming every cost), or, when null, the
+    config's own ``algo.cost_limit`` (the task's unless given), unless that is among the ``searched`` options."""
     from cmdp_rl.config.run_config import load_config
     from cmdp_rl.envs import make_env
 

@@ -1,10 +1,9 @@
-"""A Safety-Gymnasium navigation task's state as plain fields, and restoring it into a fresh task
-(docs/checkpoints.md). The object graph (builder, task, world, agent, obstacles) is saved by attribute
-path, each node a one-key dict: ``value`` (a number, string, array or plain container), ``fields`` (an
-object of the package), ``items`` / ``entries`` (a list, tuple or dict holding such objects), ``set``,
-``random_state``. Restoring walks the same paths in a task built from the same id and only sets
-values on objects the code built. The model is rebuilt from the MJCF plus its small arrays; an object
-of an unknown type stops the save with its path named, rather than resume inexactly."""
+"""A Safety-Gymnasium navigation task's state as plain fields, and restoring it into a fresh task (docs/checkpoints.md).
+The object graph (builder, task, world, agent, obstacles) is saved by attribute path, each node a one-key dict:
+``value`` (a number, string, array or plain container), ``fields`` (an object of the package), ``items`` / ``entries``
+(a list, tuple or dict holding such objects), ``set``, ``random_state``. Restoring walks the same paths in a task built
+from the same id and only sets values on objects the code built. The model is rebuilt from the MJCF plus its small
+arrays; an object of an unknown type stops the save with its path named, rather than resume inexactly."""
 
 from __future__ import annotations
 
