@@ -105,10 +105,9 @@ def write_plots(study: Any, out: Path, best: Any, notes: list[str]) -> list[str]
     """Optuna's optimisation history and parameter importances, and the return-cost plane with the budgets (Optuna's
     Pareto-front plot is for multi-objective studies and draws no budget). A plot the study cannot have yet (too few
     trials) is left out, with a line saying why."""
-    import matplotlib
+    from cmdp_rl.report.plot import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    pyplot()  # the file-only backend, before Optuna's plots import pyplot
     import optuna.visualization.matplotlib as ovm
     from optuna.importance import PedAnovaImportanceEvaluator
 
@@ -126,10 +125,7 @@ def write_plots(study: Any, out: Path, best: Any, notes: list[str]) -> list[str]
             except (ValueError, RuntimeError, ZeroDivisionError) as exc:
                 notes.append(f"no {name} plot: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
                 continue
-            fig = ax.figure if hasattr(ax, "figure") else ax.flat[0].figure
-            fig.tight_layout()
-            fig.savefig(out / f"{name}.png", dpi=110)
-            plt.close(fig)
+            save_figure(ax.figure if hasattr(ax, "figure") else ax.flat[0].figure, out / f"{name}.png", dpi=110)
             written.append(f"{name}.png")
     return written
 
