@@ -54,12 +54,8 @@ class Progress:
             return "/".join(format(v, fmt) for k, v in row.items() if k == name or k.startswith(name + "/"))
 
         lam = each("lagrange_multiplier", ".3f")  # absent for an algorithm that reports no multiplier
-        self._bar.set_postfix_str(
-            f"return {row['episode_return']:.3f}, cost {each('episode_cost', '.2f')}"
-            + (f", lambda {lam}" if lam else "")
-            + window,
-            refresh=False,
-        )
+        lam, cost = f", lambda {lam}" if lam else "", each("episode_cost", ".2f")
+        self._bar.set_postfix_str(f"return {row['episode_return']:.3f}, cost {cost}{lam}{window}", refresh=False)
         self._bar.update(row["step"] - self._bar.n)
 
     def write(self, line: str) -> None:
