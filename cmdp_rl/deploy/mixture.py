@@ -174,10 +174,3 @@ def mixture_actor(
 def members_of(actor: Actor) -> list[Actor]:
     """The member actors of a mixture; any other actor is its own one member."""
     return list(actor.body.members) if isinstance(actor.body, MixtureBody) else [actor]
-
-
-def weights_of(actor: Actor) -> list[float]:
-    """The probability of drawing each of :func:`members_of`'s actors."""
-    members = members_of(actor)
-    weights = actor.body.weights if isinstance(actor.body, MixtureBody) else None
-    return [1.0 / len(members)] * len(members) if weights is None else weights.tolist()
