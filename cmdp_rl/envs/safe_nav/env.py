@@ -144,10 +144,6 @@ class SafeNavVecEnv(VecEnv):
         self.logic.start(envs, layouts, world)
         return self._obs(envs, world)
 
-    def start_from(self, i: int, layout: dict[str, Any]) -> torch.Tensor:
-        """Env ``i`` starts a new episode from ``layout`` (e.g. a reference env's); its first observation."""
-        return self._tensor(self._start([i], [layout]))[0]
-
     def reset(self, seed: int | None = None) -> torch.Tensor:
         if seed is not None:
             seeds = [seed + i for i in range(self.num_envs)]
