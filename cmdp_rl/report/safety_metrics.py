@@ -37,6 +37,7 @@ class Reference:
 
 
 FiniteOrNull = Optional[Annotated[float, finite()]]
+Divisor = Annotated[float, finite(gt=0, description="a positive number (it divides the cost rate)")]
 
 
 @options
@@ -46,7 +47,7 @@ class ReferenceConfig:
     run: Optional[str] = None
     episode_return: FiniteOrNull = None
     episode_cost: FiniteOrNull = None
-    cost_rate: FiniteOrNull = None
+    cost_rate: Optional[Divisor] = None
 
     def check(self, run: RunConfig) -> None:
         numbers = {k: getattr(self, k) for k in ("episode_return", "episode_cost", "cost_rate")}
@@ -70,12 +71,6 @@ class ReferenceConfig:
             "reference.episode_return",
             "null or a nonzero number (it divides the return)",
             self.episode_return,
-        )
-        require(
-            self.cost_rate is None or self.cost_rate > 0,
-            "reference.cost_rate",
-            "null or a positive number (it divides the cost rate)",
-            self.cost_rate,
         )
 
 
