@@ -114,12 +114,14 @@ def normalized_scores(
     }
 
 
+def per_constraint_values(row: dict[str, Any], name: str) -> list:
+    """``name``'s values in a metrics row or eval.json: its one entry, or its ``name/<cost>`` entries in order."""
+    return [row[name]] if name in row else [v for k, v in row.items() if k.startswith(name + "/")]
+
+
 def _per_constraint_result(result: dict[str, Any], name: str) -> Any:
     """``name`` from an eval.json: its one value, or the list of its ``name/<cost>`` values."""
-    if name in result:
-        return result[name]
-    values = [v for key, v in result.items() if key.startswith(name + "/")]
-    return values or None
+    return result[name] if name in result else per_constraint_values(result, name) or None
 
 
 def _reference_run(run: str) -> tuple[dict[str, Any], dict[str, Any]]:
