@@ -172,8 +172,7 @@ class SafeNavVecEnv(VecEnv):
         reward, cost, terminated = self.logic.step(world)
         self.steps += 1
         truncated = self.steps >= self.max_steps
-        next_obs = self._obs(every, world)
-        obs = next_obs
+        obs = next_obs = self._obs(every, world)
         next_obs_t = obs_t = self._tensor(next_obs)
         done = np.flatnonzero(to_host(terminated) | truncated)
         if len(done):
