@@ -94,15 +94,13 @@ class RunConfig:
 
 @options
 class EvalConfig:
-    """Options of ``cmdp-evaluate`` (``cmdp-evaluate run=<run dir> [key=value ...]``)."""
+    """Options of ``cmdp-evaluate run=<run dir> [key=value ...]``, each documented in its help (cli/evaluate.py)."""
 
     run: Annotated[str, Field(pattern=r"\S", description="a run directory (run=<dir>)")]
     checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
-    # default: the run's eval_episodes
     episodes: Annotated[Optional[PositiveInt], Field(description="a positive integer")] = None
     deterministic: Optional[Bool] = None  # mean action; default: the run's eval_deterministic
     seed: Optional[int] = None  # default: the run's evaluation seed (reproduces its eval.json)
-    # Reach1D: write a PNG of replayed episodes to this path
     plot: Annotated[Optional[str], Field(pattern=r"(?i)\.png$", description="a path ending in .png")] = None
     plot_episodes: PositiveInt = 3  # episodes drawn in the PNG
     output: Optional[str] = None  # also write the results as JSON to this path
@@ -110,8 +108,7 @@ class EvalConfig:
     video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
     video_dir: Optional[str] = None  # default: <run>/videos
     video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps
-    # Load a checkpoint of an older format, which runs code from the file (docs/checkpoints.md).
-    trust_checkpoint: Bool = False
+    trust_checkpoint: Bool = False  # runs code from an old checkpoint (docs/checkpoints.md)
 
 
 # The Hydra configs. The checkout keeps them at its root (configs/, beside cmdp_rl/); the wheel ships that
@@ -229,10 +226,9 @@ def validate(cfg: RunConfig) -> None:
         import torch
 
         require(torch.cuda.is_available(), "device", "cpu on this machine (torch sees no CUDA device)", cfg.device)
-    if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
-        raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
-    if cfg.logger.name == "wandb" and importlib.util.find_spec("wandb") is None:
-        raise ConfigError(f"logger.name: {WANDB_MISSING}")
+    missing = {"tensorboard": TENSORBOARD_MISSING, "wandb": WANDB_MISSING}.get(cfg.logger.name)
+    if missing and importlib.util.find_spec(cfg.logger.name) is None:  # the logger's package, named as it
+        raise ConfigError(f"logger.name: {missing}")
     require(
         not (cfg.normalize.cost and cfg.algo.reads_raw_cost),
         "normalize.cost",
