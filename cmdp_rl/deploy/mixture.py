@@ -169,8 +169,3 @@ def mixture_actor(
     head = nn.Identity()
     head.dist = members[0].head.dist
     return Actor(MixtureBody(members, weights, assigned), head)
-
-
-def members_of(actor: Actor) -> list[Actor]:
-    """The member actors of a mixture; any other actor is its own one member."""
-    return list(actor.body.members) if isinstance(actor.body, MixtureBody) else [actor]
