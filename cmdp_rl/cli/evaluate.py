@@ -30,8 +30,7 @@ Options (cmdp_rl.config.run_config.EvalConfig):
                        instead (docs/checkpoints.md)
 
 Video without a display: MuJoCo renders through EGL (MUJOCO_GL=egl is set when no DISPLAY is);
-on Debian that needs libegl1, libegl-mesa0 and libgl1-mesa-dri (see cmdp_rl/report/video.py).
-"""
+on Debian that needs libegl1, libegl-mesa0 and libgl1-mesa-dri (see cmdp_rl/report/video.py)."""
 
 from __future__ import annotations
 

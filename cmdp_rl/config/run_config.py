@@ -1,8 +1,7 @@
 """The run-level options (:class:`RunConfig`) and loading, the one place a run's options are put together: Hydra
 composes ``configs/`` (every option documented there), :func:`load_config` builds each component's part from the
 options class registered under its name (``cmdp_rl.config.registry``), and :func:`validate` runs every part's checks.
-Every error names the field and what is allowed, before a single environment step.
-"""
+Every error names the field and what is allowed, before a single environment step."""
 
 from __future__ import annotations
 

@@ -3,8 +3,7 @@
 A component declares its options as an :func:`options` dataclass beside its code, each field's allowed range in
 its type (``gamma: Annotated[float, Field(ge=0, lt=1)] = 0.99``). pydantic checks them; this module turns its report
 into one line naming the field and everything it allows (``algo.gamma must be in [0, 1), got 1.0``), not the one
-bound that failed. A rule across fields is the component's ``check(self, run)``, calling :func:`require`.
-"""
+bound that failed. A rule across fields is the component's ``check(self, run)``, calling :func:`require`."""
 
 from __future__ import annotations
 

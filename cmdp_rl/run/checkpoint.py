@@ -4,8 +4,7 @@ A checkpoint holds tensors, numbers, strings and plain containers of them, so to
 (``torch.load(weights_only=True)``) reads it and loading someone else's run cannot run their code. No type is
 allow-listed: numpy values and deques are written as tagged tensors and lists (:func:`encode`, :func:`decode`), and
 anything else is refused when saving, naming where it sits. Older formats, which only the full unpickler reads, load
-only when trusted (``trust_checkpoint=true``); :mod:`cmdp_rl.run.migrations` brings them to this one.
-"""
+only when trusted (``trust_checkpoint=true``); :mod:`cmdp_rl.run.migrations` brings them to this one."""
 
 from __future__ import annotations
 

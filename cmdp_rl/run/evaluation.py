@@ -44,8 +44,7 @@ def evaluate(
     ``goal_reached``) adds the fraction of episodes that terminated rather than timed out. ``seed`` seeds a
     stochastic policy's samples inside ``fork_rng`` (the caller's generator is left as it was). ``cost_limit``
     (d, one for every constraint or a list of K) adds 95% intervals over the episodes
-    (:func:`cmdp_rl.report.intervals.summarize`): mean return and cost, cost's upper bound, the violation rate.
-    """
+    (:func:`cmdp_rl.report.intervals.summarize`): mean return and cost, cost's upper bound, the violation rate."""
     with torch.random.fork_rng(devices=[]):
         if seed is not None:
             torch.manual_seed(seed)

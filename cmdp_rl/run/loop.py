@@ -76,8 +76,7 @@ class Members:
     - ``update(batch, iteration)``: every member's update on the batch, each member's statistics;
     - ``cost_totals(batch)``: each member's costs collected so far, this batch included;
     - ``checkpoint(iteration, time_s)``: the checkpoint at ``checkpoint_path``;
-    - ``report(iteration, rows, seconds)``: anything to say after an iteration's rows (optional).
-    """
+    - ``report(iteration, rows, seconds)``: anything to say after an iteration's rows (optional)."""
 
     cfgs: Sequence[RunConfig]
     loggers: Sequence[MetricsLogger]

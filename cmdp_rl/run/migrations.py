@@ -2,8 +2,7 @@
 here, keyed on the format a checkpoint was written in (:data:`STEPS`), so the algorithms, envs and trainer read only
 the current one. What each step changes, and why format 2 loads only on the user's word (its files pickle numpy
 objects and may hold pickled bytes): docs/checkpoints.md, "Old run directories". ``python -m cmdp_rl.run.convert``
-applies these rules to a run's files once.
-"""
+applies these rules to a run's files once."""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """A run directory belongs to one run (docs/architecture.md, "Run directories"): a new run into a directory that holds a
 run stops before it writes anything, naming ``resume=<dir>`` and ``overwrite=true``; while a run lives it holds
 ``fcntl.flock`` on ``<dir>/.run.lock``, which the kernel drops when the process ends, killed or not, so a crashed run
-never blocks its resume. Claims within one process are counted (``train.py``'s Hydra callback's, then ``train()``'s).
-"""
+never blocks its resume. Claims within one process are counted (``train.py``'s Hydra callback's, then ``train()``'s)."""
 
 from __future__ import annotations
 

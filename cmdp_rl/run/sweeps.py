@@ -1,7 +1,6 @@
 """Recording a run's failure, and reading run directories back (their layout: ``cmdp_rl/run/rundir.py``): an
 aggregator reads results from here instead of re-training, and reports every run that did not finish (failed,
-interrupted, or never started) rather than crash on it.
-"""
+interrupted, or never started) rather than crash on it."""
 
 from __future__ import annotations
 

@@ -6,8 +6,7 @@ rule) is :mod:`cmdp_rl.run.tune_trial`; the report :mod:`cmdp_rl.run.tune_report
 
 Not ``study.optimize``, which runs the objective in its own process and threads while a Hydra job runs where its
 launcher puts it; what ``optimize`` adds is done here with Optuna's public pieces: heartbeats while a trial runs
-(a killed worker's trial is failed and queued again) and ``n_trials`` counted across every worker on the storage.
-"""
+(a killed worker's trial is failed and queued again) and ``n_trials`` counted across every worker on the storage."""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """The search's report (docs/tuning.md): the best options within budget, their return and costs with intervals, the
 command that reruns them, ``tune.json`` and Optuna's plots in the sweep directory. The search writes it when it ends;
 ``python -m cmdp_rl.run.tune_report <storage> [--study NAME] [--out DIR]`` writes it again from the storage (a URL, or
-the path of the SQLite file), while the search runs or after.
-"""
+the path of the SQLite file), while the search runs or after."""
 
 from __future__ import annotations
 

@@ -4,8 +4,7 @@ The same tasks as ``env=safety_gym`` (Safety-Gymnasium 1.0.0's), rebuilt for spe
 (tests/test_safe_nav.py; docs/safe_nav.md): physics compiled once, N worlds stepped in one loop (``world.py``, or MuJoCo
 Warp with ``env.physics=mjwarp``: ``warp_world.py``); layouts drawn from the reference's random streams (``layout.py``);
 each family's reward, cost and lidar written once over the N envs (``FAMILIES``). This module: the batch itself (physics
-step, the robot's sensors, time limit, per-env automatic reset, resume).
-"""
+step, the robot's sensors, time limit, per-env automatic reset, resume)."""
 
 from __future__ import annotations
 
