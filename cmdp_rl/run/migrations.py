@@ -110,12 +110,9 @@ def _safety_gym_world_from_2(state: dict[str, Any], task: str) -> dict[str, Any]
     import mujoco
 
     from cmdp_rl.envs.safety_gym.env import make_task
+    from cmdp_rl.envs.safety_gym.world_state import saved_model
 
-    model = None
-    if state["xml"] is not None:
-        model = mujoco.MjModel.from_xml_string(state["xml"])
-        for name, value in state["model_arrays"].items():
-            getattr(model, name)[...] = value
+    model = None if state["xml"] is None else saved_model(state)
 
     class Format2Unpickler(pickle.Unpickler):  # trusted: the user's word on a format 2 file
         data = None
