@@ -70,8 +70,7 @@ def evaluate_members(
     m = getattr(env, "agents_per_env", 1)
     teams = n // m
     quota = [episodes // teams + (1 if i // m < episodes % teams else 0) for i in range(n)]
-    chunk = 128
-    collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
+    collector = Collector(env, agent, 128, seed=seed, deterministic=deterministic)  # 128 steps a collect
     everyone = episode_rows(collector, quota * parts)
     results = []
     for j, cost_limit in enumerate(cost_limits):
