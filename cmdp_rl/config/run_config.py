@@ -123,8 +123,7 @@ CONFIG_SOURCE = "pkg://cmdp_rl.configs" if _IN_WHEEL else str(CONFIG_DIR)
 
 def compose_config(overrides: Sequence[str] = (), config_dir: str | Path | None = None) -> RunConfig:
     """The validated config ``cmdp-train <overrides>`` runs: Hydra's compose over the shipped configs
-    (:data:`CONFIG_SOURCE`) or over ``config_dir`` (groups, presets and tuning files included), then
-    :func:`load_config`."""
+    (:data:`CONFIG_SOURCE`) or ``config_dir`` (groups, presets and tuning files included), then :func:`load_config`."""
     from hydra import compose, initialize_config_dir, initialize_config_module  # the rest needs no Hydra
     from omegaconf import OmegaConf
 
@@ -138,9 +137,8 @@ def compose_config(overrides: Sequence[str] = (), config_dir: str | Path | None 
 
 
 def load_config(raw: Mapping[str, Any]) -> RunConfig:
-    """Build and validate a :class:`RunConfig` from a plain mapping (e.g. a resolved Hydra config),
-    and set torch's thread count to its ``threads`` (process-wide, as :func:`cmdp_rl.train` does), so
-    that a script building the pieces itself from this config gets the same speed."""
+    """Build and validate a :class:`RunConfig` from a plain mapping (a resolved Hydra config) and set torch's thread
+    count to its ``threads`` as :func:`cmdp_rl.train` does, so that a script building its own pieces runs as fast."""
     raw = dict(raw)
     raw.pop("hydra", None)
     raw.pop("population", None)  # several agents: cmdp_rl/population/ reads it (spec.agent_configs)
@@ -150,7 +148,7 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
         parts[kind] = build(component(kind, data.get("name", DEFAULTS[kind])).options, data, kind)
     cfg = build(RunConfig, {**raw, **parts}, "")  # its nested nodes (logger, deploy, ...) built field by field
     validate(cfg)
-    apply_threads(cfg)  # as train() does: a script building its own pieces runs as fast (threads.py)
+    apply_threads(cfg)
     return cfg
 
 
@@ -180,9 +178,8 @@ def resolve_auto(cfg: RunConfig) -> None:
 
 
 def resolve_budget(cfg: RunConfig) -> None:
-    """``algo.cost_limit`` left unset (None) becomes the task's budget, ``env.budget()``
-    (``envs/options.py``): d = 25 on the Safety-Gymnasium tasks, 1 on Reach1D. A value given in the
-    config wins. Works in place, so ``config.yaml`` records the budget in force."""
+    """``algo.cost_limit`` left unset (None) becomes the task's budget ``env.budget()`` (d = 25 on the Safety-Gymnasium
+    tasks, 1 on Reach1D); a value given wins. In place, so ``config.yaml`` records the budget in force."""
     if cfg.algo.cost_limit is None:
         cfg.algo.cost_limit = cfg.env.budget()
 

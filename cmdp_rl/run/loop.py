@@ -48,9 +48,8 @@ def metrics_row(
     names: tuple[str, ...],
     reference: Any,
 ) -> dict[str, Any]:
-    """One ``metrics.csv`` row: the episodes ``eps`` that ended in one member's batch
-    (:func:`~cmdp_rl.rollout.collector.finished_episodes`), the update's ``stats``, the costs collected so
-    far; per-constraint values spread over columns."""
+    """One ``metrics.csv`` row: the episodes ``eps`` that ended in one member's batch (``finished_episodes``), the
+    update's ``stats``, the costs collected so far; per-constraint values spread over columns."""
     row = {
         "iteration": iteration,
         "step": step,

@@ -200,9 +200,8 @@ def member(state: dict[str, Any], i: int = 0) -> dict[str, Any]:
 
 
 def migrate(state: dict[str, Any], agent: nn.Module | None = None) -> dict[str, Any]:
-    """``state`` (as :func:`~cmdp_rl.run.checkpoint.load_checkpoint` returned it, any format it reads)
-    in the current format's layout. ``agent``, the run's, names the networks of a checkpoint from
-    before the agent model; without it they are left as they are."""
+    """``state`` (as :func:`~cmdp_rl.run.checkpoint.load_checkpoint` returned it) in the current format's layout.
+    ``agent``, the run's, names the networks of a checkpoint from before the agent model (without it: left as is)."""
     version = state["format"]
     for v in range(version, FORMAT_VERSION):
         state = STEPS[v](state, agent)

@@ -127,9 +127,8 @@ def corners(space: Mapping[str, Any]) -> list[list[str]]:
 def check_space(
     space: Mapping[str, Any], fixed: Sequence[str], seeds: int, compose: Callable[[list[str]], dict]
 ) -> dict[str, Any]:
-    """Compose and validate a job at each end of the space (an option the config lacks, or a value its rules
-    refuse, stops here in one line); returns the low end's config. ``compose(overrides)`` is Hydra's composition
-    of a job's task config, resolved."""
+    """Compose (``compose(overrides)``: a job's task config, resolved) and validate a job at each end of the space: an
+    option the config lacks, or a value its rules refuse, stops here in one line. Returns the low end's config."""
     from cmdp_rl.config.run_config import load_config
     from cmdp_rl.population.spec import agent_configs
 
