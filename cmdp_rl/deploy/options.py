@@ -48,9 +48,7 @@ def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
         return None
     episodes = int(VALUATION_SHARE * cfg.total_steps // steps)
     size = min(cfg.deploy.snapshots, episodes // MIN_VALUED_EPISODES)
-    if size < 1:
-        return None
-    return size, min(cfg.deploy.episodes, episodes // size)
+    return (size, min(cfg.deploy.episodes, episodes // size)) if size >= 1 else None
 
 
 def resolve_auto(cfg: RunConfig) -> None:
