@@ -125,7 +125,8 @@ class MixtureBody(Body):
         member = d[keys.MIXTURE_MEMBER].squeeze(-1)
         if member.dim() != 1:  # rows over time as well: every member on every row, then pick
             params = [m.params(d) for m in self.members]
-            return ({k: torch.stack([p[k] for p in params])[(member, *_grid(member))] for k in params[0]},)
+            grid = torch.meshgrid(*[torch.arange(s, device=member.device) for s in member.shape], indexing="ij")
+            return ({k: torch.stack([p[k] for p in params])[(member, *grid)] for k in params[0]},)
         # Each member on its own rows only: a valuation runs M members on M x E rows.
         out: dict[str, torch.Tensor] = {}
         n = member.shape[0]
@@ -153,11 +154,6 @@ class MixtureBody(Body):
 
     def initial_state(self, num_envs: int, device: torch.device) -> dict:
         return {keys.MIXTURE_MEMBER: torch.zeros(num_envs, 1, dtype=torch.long, device=device)}
-
-
-def _grid(member: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """Index tensors of every position of ``member``, to pick each position's member's output."""
-    return torch.meshgrid(*[torch.arange(s, device=member.device) for s in member.shape], indexing="ij")
 
 
 def mixture_actor(
