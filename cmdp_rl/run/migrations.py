@@ -34,11 +34,6 @@ def is_legacy(networks: dict) -> bool:
     return any(k.startswith(("critic.", "cost_critic.")) for k in networks)
 
 
-def _is_statistic(key: str) -> bool:
-    """A running statistic of an observation normalizer (``...stats.mean``), shared with ``normalizers.obs``."""
-    return ".stats." in key or key.startswith("stats.")
-
-
 def convert_networks(networks: dict[str, torch.Tensor], agent: nn.Module) -> dict[str, torch.Tensor]:
     """An old ``ActorCritic`` state dict as ``agent``'s state dict. Raises ``KeyError`` naming the
     first entry that does not fit."""
@@ -55,7 +50,8 @@ def convert_networks(networks: dict[str, torch.Tensor], agent: nn.Module) -> dic
                 raise KeyError(f"old checkpoint lacks {source!r} (the statistics of {key!r})")
             out[key] = out[source]
     for old_prefix, new_prefix in NETWORKS.items():
-        old = [k for k in networks if k.startswith(old_prefix) and not _is_statistic(k)]
+        # Not an observation normalizer's running statistics (``...stats.mean``), which normalizers.obs holds.
+        old = [k for k in networks if k.startswith(old_prefix) and ".stats." not in k and not k.startswith("stats.")]
         # The old MLP actor kept its input encoder (previous action and cost) inside the Gaussian
         # head's network (``...module.net.encoder.``); the agent keeps it in the body, which comes first.
         old.sort(key=lambda k: 0 if ".module.net.encoder." in k else 1)
