@@ -10,9 +10,8 @@ import pytest
 
 from cmdp_rl import train
 from cmdp_rl.config.run_config import compose_config
-from cmdp_rl.deploy.mixture import members_of, weights_of
 from cmdp_rl.run.rundir import load_trained
-from lab.studies.fork_policy import mixture_gap
+from lab.studies.fork_policy import members_of, mixture_gap, weights_of
 
 # (method, total_steps): each method's run length here; see docs/constraint_satisfaction.md for
 # the same runs over more seeds.

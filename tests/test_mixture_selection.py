@@ -12,10 +12,11 @@ from helpers.runs import eval_result, tiny
 
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli
-from cmdp_rl.deploy.mixture import mixture_actor, weights_of
+from cmdp_rl.deploy.mixture import mixture_actor
 from cmdp_rl.deploy.selection import MemberValue, feasible_weights
 from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.run.rundir import load_trained
+from lab.studies.fork_policy import weights_of
 
 
 def _member(ret: float, costs: list[float], se: list[float] | None = None) -> MemberValue:

@@ -14,9 +14,10 @@ from helpers.runs import eval_result, tiny
 from cmdp_rl import keys, load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # noqa: E402  (the command's main, in-process)
 from cmdp_rl.config.run_config import ConfigError
-from cmdp_rl.deploy.mixture import IterateSnapshots, members_of
+from cmdp_rl.deploy.mixture import IterateSnapshots
 from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.run.rundir import load_trained
+from lab.studies.fork_policy import members_of
 
 
 def test_one_member_per_episode_drawn_uniformly():

@@ -24,9 +24,9 @@ from cmdp_rl.config import registry
 from cmdp_rl.config.registry import component, names
 from cmdp_rl.config.run_config import CONFIG_DIR
 from cmdp_rl.config.validation import ConfigError
-from cmdp_rl.deploy.mixture import members_of
 from cmdp_rl.run.checkpoint import load_checkpoint
 from cmdp_rl.run.rundir import load_trained
+from lab.studies.fork_policy import members_of
 
 ALGOS = names("algo")
 

@@ -118,7 +118,7 @@ def test_an_imposed_layout_gives_the_reference_trajectory():
     }
     env = SafeNavVecEnv("PointGoal1", 1)
     env.reset(seed=0)
-    env.start_from(0, imposed)
+    env._start([0], [imposed])  # env 0 starts a new episode from the reference's layout
     actions = np.random.default_rng(1).uniform(-1, 1, (100, 1, 2)).astype(np.float32)
     for action in actions:
         obs = ref.step(action[0])[0]

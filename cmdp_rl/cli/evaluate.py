@@ -30,8 +30,7 @@ Options (cmdp_rl.config.run_config.EvalConfig):
                        instead (docs/checkpoints.md)
 
 Video without a display: MuJoCo renders through EGL (MUJOCO_GL=egl is set when no DISPLAY is);
-on Debian that needs libegl1, libegl-mesa0 and libgl1-mesa-dri (see cmdp_rl/report/video.py).
-"""
+on Debian that needs libegl1, libegl-mesa0 and libgl1-mesa-dri (see cmdp_rl/report/video.py)."""
 
 from __future__ import annotations
 
@@ -44,9 +43,8 @@ from omegaconf.errors import OmegaConfBaseException
 
 from cmdp_rl.config.run_config import ConfigError, EvalConfig
 from cmdp_rl.config.validation import build
-from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.report.reach1d_episodes import plot_reach1d, record_reach1d
-from cmdp_rl.report.summary import interval_summary
+from cmdp_rl.report.summary import constraints_of, interval_summary
 from cmdp_rl.report.video import VideoError, make_render_env, record_video
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, evaluate
@@ -59,16 +57,12 @@ def _line(name: str, r: dict, fmt: str) -> str:
 
 
 def _cost_lines(r: dict, cost_names: tuple[str, ...], cost_limit: float | list[float]) -> list[str]:
-    """The episode cost line, one per constraint for an env with K > 1 costs (keys
-    ``episode_cost/<cost>``, ``episode_cost_std/<cost>``, ...)."""
-    k = len(cost_names)
-    if k == 1:
-        return [_line("episode_cost", r, ".2f") + f"   (limit {cost_limit})"]
-    limits = cost_limit if isinstance(cost_limit, list) else [cost_limit] * k
+    """The episode cost line, one per constraint (``cost/<name>``) for an env with K > 1 costs."""
     lines = []
-    for c, d in zip(cost_names, limits):
-        own = {f"cost/{c}{s}": r[constraint_name(f"episode_cost{s}", c, k)] for s in ("", "_std", "_min", "_max")}
-        lines.append(_line(f"cost/{c}", own, ".2f") + f"   (limit {d})")
+    for name, suffix, d in constraints_of(cost_limit, cost_names):
+        label = f"cost/{name}" if suffix else "episode_cost"
+        own = {f"{label}{s}": r[f"episode_cost{s}{suffix}"] for s in ("", "_std", "_min", "_max")}
+        lines.append(_line(label, own, ".2f") + f"   (limit {d})")
     return lines
 
 

@@ -1,7 +1,6 @@
 """Train a constrained-RL agent: ``cmdp-train algo=ppo_lag env=reach1d [overrides]`` (also ``python -m cmdp_rl`` and,
 in a checkout, ``python train.py``). Options: ``configs/``; outputs: Hydra's run directory. ``resume=<run dir>``
-continues that run in its directory (``cmdp_rl/run/resume.py``); sweeps are Hydra multiruns (``-m``).
-"""
+continues that run in its directory (``cmdp_rl/run/resume.py``); sweeps are Hydra multiruns (``-m``)."""
 
 from __future__ import annotations
 

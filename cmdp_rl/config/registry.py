@@ -1,8 +1,7 @@
 """Components by name: what ``algo=``, ``env=`` and ``policy=`` select. A component module declares its options and
 registers itself when imported (``register("algo", "ppo", PPOConfig, PPO)``); nothing central lists them:
 :func:`load_builtins` imports every module of ``cmdp_rl.algos``, ``cmdp_rl.envs`` and ``cmdp_rl.policies``, and a
-user's own component is one ``register`` call in the user's code.
-"""
+user's own component is one ``register`` call in the user's code."""
 
 from __future__ import annotations
 

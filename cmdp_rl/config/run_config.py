@@ -1,8 +1,7 @@
 """The run-level options (:class:`RunConfig`) and loading, the one place a run's options are put together: Hydra
 composes ``configs/`` (every option documented there), :func:`load_config` builds each component's part from the
 options class registered under its name (``cmdp_rl.config.registry``), and :func:`validate` runs every part's checks.
-Every error names the field and what is allowed, before a single environment step.
-"""
+Every error names the field and what is allowed, before a single environment step."""
 
 from __future__ import annotations
 
@@ -52,10 +51,9 @@ class NormalizeConfig:
 
 @options
 class LoggerConfig:
-    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else,
-    ``tensorboard`` also TensorBoard event files in the run's ``tb/`` directory, ``wandb`` also a
-    Weights & Biases run (files in the run's ``wandb/`` directory; ``project``, ``entity`` and
-    ``mode`` are wandb's, read only with ``logger=wandb``)."""
+    """Where metrics go besides metrics.csv (always written): ``csv`` nowhere else, ``tensorboard`` also TensorBoard
+    event files in the run's ``tb/`` directory, ``wandb`` also a Weights & Biases run (files in the run's ``wandb/``
+    directory; ``project``, ``entity`` and ``mode`` are wandb's, read only with ``logger=wandb``)."""
 
     name: Literal["csv", "tensorboard", "wandb"] = "csv"
     project: Annotated[str, Field(pattern=r"\S", description="a wandb project name")] = "cmdp_rl"
@@ -95,15 +93,13 @@ class RunConfig:
 
 @options
 class EvalConfig:
-    """Options of ``cmdp-evaluate`` (``cmdp-evaluate run=<run dir> [key=value ...]``)."""
+    """Options of ``cmdp-evaluate run=<run dir> [key=value ...]``, each documented in its help (cli/evaluate.py)."""
 
     run: Annotated[str, Field(pattern=r"\S", description="a run directory (run=<dir>)")]
     checkpoint: Optional[str] = None  # another checkpoint file to load into the run's config
-    # default: the run's eval_episodes
     episodes: Annotated[Optional[PositiveInt], Field(description="a positive integer")] = None
     deterministic: Optional[Bool] = None  # mean action; default: the run's eval_deterministic
     seed: Optional[int] = None  # default: the run's evaluation seed (reproduces its eval.json)
-    # Reach1D: write a PNG of replayed episodes to this path
     plot: Annotated[Optional[str], Field(pattern=r"(?i)\.png$", description="a path ending in .png")] = None
     plot_episodes: PositiveInt = 3  # episodes drawn in the PNG
     output: Optional[str] = None  # also write the results as JSON to this path
@@ -111,8 +107,7 @@ class EvalConfig:
     video_episodes: PositiveInt = 1  # episodes recorded, one mp4 each
     video_dir: Optional[str] = None  # default: <run>/videos
     video_steps: Optional[PositiveInt] = None  # cut each recorded episode after this many steps
-    # Load a checkpoint of an older format, which runs code from the file (docs/checkpoints.md).
-    trust_checkpoint: Bool = False
+    trust_checkpoint: Bool = False  # runs code from an old checkpoint (docs/checkpoints.md)
 
 
 # The Hydra configs. The checkout keeps them at its root (configs/, beside cmdp_rl/); the wheel ships that
@@ -128,8 +123,7 @@ CONFIG_SOURCE = "pkg://cmdp_rl.configs" if _IN_WHEEL else str(CONFIG_DIR)
 
 def compose_config(overrides: Sequence[str] = (), config_dir: str | Path | None = None) -> RunConfig:
     """The validated config ``cmdp-train <overrides>`` runs: Hydra's compose over the shipped configs
-    (:data:`CONFIG_SOURCE`) or over ``config_dir`` (groups, presets and tuning files included), then
-    :func:`load_config`."""
+    (:data:`CONFIG_SOURCE`) or ``config_dir`` (groups, presets and tuning files included), then :func:`load_config`."""
     from hydra import compose, initialize_config_dir, initialize_config_module  # the rest needs no Hydra
     from omegaconf import OmegaConf
 
@@ -143,9 +137,8 @@ def compose_config(overrides: Sequence[str] = (), config_dir: str | Path | None 
 
 
 def load_config(raw: Mapping[str, Any]) -> RunConfig:
-    """Build and validate a :class:`RunConfig` from a plain mapping (e.g. a resolved Hydra config),
-    and set torch's thread count to its ``threads`` (process-wide, as :func:`cmdp_rl.train` does), so
-    that a script building the pieces itself from this config gets the same speed."""
+    """Build and validate a :class:`RunConfig` from a plain mapping (a resolved Hydra config) and set torch's thread
+    count to its ``threads`` as :func:`cmdp_rl.train` does, so that a script building its own pieces runs as fast."""
     raw = dict(raw)
     raw.pop("hydra", None)
     raw.pop("population", None)  # several agents: cmdp_rl/population/ reads it (spec.agent_configs)
@@ -155,7 +148,7 @@ def load_config(raw: Mapping[str, Any]) -> RunConfig:
         parts[kind] = build(component(kind, data.get("name", DEFAULTS[kind])).options, data, kind)
     cfg = build(RunConfig, {**raw, **parts}, "")  # its nested nodes (logger, deploy, ...) built field by field
     validate(cfg)
-    apply_threads(cfg)  # as train() does: a script building its own pieces runs as fast (threads.py)
+    apply_threads(cfg)
     return cfg
 
 
@@ -185,9 +178,8 @@ def resolve_auto(cfg: RunConfig) -> None:
 
 
 def resolve_budget(cfg: RunConfig) -> None:
-    """``algo.cost_limit`` left unset (None) becomes the task's budget, ``env.budget()``
-    (``envs/options.py``): d = 25 on the Safety-Gymnasium tasks, 1 on Reach1D. A value given in the
-    config wins. Works in place, so ``config.yaml`` records the budget in force."""
+    """``algo.cost_limit`` left unset (None) becomes the task's budget ``env.budget()`` (d = 25 on the Safety-Gymnasium
+    tasks, 1 on Reach1D); a value given wins. In place, so ``config.yaml`` records the budget in force."""
     if cfg.algo.cost_limit is None:
         cfg.algo.cost_limit = cfg.env.budget()
 
@@ -198,10 +190,9 @@ def budget_source(cfg: RunConfig) -> str:
 
 
 def validate(cfg: RunConfig) -> None:
-    """Check every field against its declared range (again: a script may have assigned fields),
-    fill the task's budget (:func:`resolve_budget`) and the ``"auto"`` options (:func:`resolve_auto`),
-    then run the rules each component declares across fields (its ``check(run)``) and the run's own;
-    raise :class:`ConfigError` on the first violation."""
+    """Check every field against its declared range (again: a script may have assigned fields), fill the task's budget
+    (:func:`resolve_budget`) and the ``"auto"`` options (:func:`resolve_auto`), then run the rules each component
+    declares across fields (its ``check(run)``) and the run's own; raise :class:`ConfigError` on the first violation."""
     for kind in KINDS:
         part = getattr(cfg, kind)
         expected = component(kind, getattr(part, "name", None)).options
@@ -231,10 +222,9 @@ def validate(cfg: RunConfig) -> None:
         import torch
 
         require(torch.cuda.is_available(), "device", "cpu on this machine (torch sees no CUDA device)", cfg.device)
-    if cfg.logger.name == "tensorboard" and importlib.util.find_spec("tensorboard") is None:
-        raise ConfigError(f"logger.name: {TENSORBOARD_MISSING}")
-    if cfg.logger.name == "wandb" and importlib.util.find_spec("wandb") is None:
-        raise ConfigError(f"logger.name: {WANDB_MISSING}")
+    missing = {"tensorboard": TENSORBOARD_MISSING, "wandb": WANDB_MISSING}.get(cfg.logger.name)
+    if missing and importlib.util.find_spec(cfg.logger.name) is None:  # the logger's package, named as it
+        raise ConfigError(f"logger.name: {missing}")
     require(
         not (cfg.normalize.cost and cfg.algo.reads_raw_cost),
         "normalize.cost",

@@ -3,8 +3,7 @@
 A component declares its options as an :func:`options` dataclass beside its code, each field's allowed range in
 its type (``gamma: Annotated[float, Field(ge=0, lt=1)] = 0.99``). pydantic checks them; this module turns its report
 into one line naming the field and everything it allows (``algo.gamma must be in [0, 1), got 1.0``), not the one
-bound that failed. A rule across fields is the component's ``check(self, run)``, calling :func:`require`.
-"""
+bound that failed. A rule across fields is the component's ``check(self, run)``, calling :func:`require`."""
 
 from __future__ import annotations
 
@@ -128,11 +127,10 @@ def build(cls: type[T], data: Mapping[str, Any], prefix: str) -> T:
 
 
 def _nodes(cls: type, data: Mapping[str, Any], prefix: str) -> dict[str, Any]:
-    """The nested option nodes among ``data`` (a field whose type is itself an :func:`options` class,
-    e.g. ``algo.multiplier``) built first, so that an error names the nested field
-    (``algo.multiplier.lr``). A mapping fills in only what it names: the rest are the values of the
-    field's default (the algorithm's own defaults of the node, as Hydra's merge of a YAML node gives);
-    an instance is validated again (:func:`recheck`)."""
+    """The nested option nodes among ``data`` (a field whose type is itself an :func:`options` class, e.g.
+    ``algo.multiplier``) built first, so that an error names the nested field (``algo.multiplier.lr``). A mapping fills
+    in only what it names: the rest are the values of the field's default (the algorithm's own defaults of the node, as
+    Hydra's merge of a YAML node gives); an instance is validated again (:func:`recheck`)."""
     out = {}
     for f in dataclasses.fields(cls):
         node = cls.__pydantic_fields__[f.name].annotation
@@ -159,10 +157,9 @@ def is_finite(x: Any) -> bool:
 
 
 def per_constraint(value: float | Sequence[float], field: str, cost_names: Sequence[str]) -> list[float]:
-    """``value`` (a number, or a list of K numbers) as K numbers, one per cost of ``cost_names``; a
-    list of another length is a config error naming ``field`` and K. Only the env tells K, so this
-    runs where the env is known (the algorithm built on the agent, the early-terminated env), before
-    the run writes anything."""
+    """``value`` (a number, or a list of K numbers) as K numbers, one per cost of ``cost_names``; a list of another
+    length is a config error naming ``field`` and K. Only the env tells K, so this runs where the env is known (the
+    algorithm built on the agent, the early-terminated env), before the run writes anything."""
     k = len(cost_names)
     # None is "the task's budget", which config.validate fills in before anything is built.
     require(value is not None, field, "a number or a list of numbers (config.validate fills in the task's)", value)

@@ -65,6 +65,3 @@ def deploy_saved(cfg: RunConfig, state: dict[str, Any], agent: Agent) -> None:
     kept = ParameterAverage() if cfg.deploy.policy == "average" else IterateSnapshots(1, 1, 1)
     kept.load_state_dict(state[key])
     kept.deploy(agent)
-
-
-__all__ = ["FinalPolicy", "deploy_saved"]

@@ -125,7 +125,8 @@ class MixtureBody(Body):
         member = d[keys.MIXTURE_MEMBER].squeeze(-1)
         if member.dim() != 1:  # rows over time as well: every member on every row, then pick
             params = [m.params(d) for m in self.members]
-            return ({k: torch.stack([p[k] for p in params])[(member, *_grid(member))] for k in params[0]},)
+            grid = torch.meshgrid(*[torch.arange(s, device=member.device) for s in member.shape], indexing="ij")
+            return ({k: torch.stack([p[k] for p in params])[(member, *grid)] for k in params[0]},)
         # Each member on its own rows only: a valuation runs M members on M x E rows.
         out: dict[str, torch.Tensor] = {}
         n = member.shape[0]
@@ -155,11 +156,6 @@ class MixtureBody(Body):
         return {keys.MIXTURE_MEMBER: torch.zeros(num_envs, 1, dtype=torch.long, device=device)}
 
 
-def _grid(member: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """Index tensors of every position of ``member``, to pick each position's member's output."""
-    return torch.meshgrid(*[torch.arange(s, device=member.device) for s in member.shape], indexing="ij")
-
-
 def mixture_actor(
     members: list[Actor], weights: list[float] | None = None, assigned: torch.Tensor | None = None
 ) -> Actor:
@@ -169,18 +165,3 @@ def mixture_actor(
     head = nn.Identity()
     head.dist = members[0].head.dist
     return Actor(MixtureBody(members, weights, assigned), head)
-
-
-def members_of(actor: Actor) -> list[Actor]:
-    """The member actors of a mixture; any other actor is its own one member."""
-    return list(actor.body.members) if isinstance(actor.body, MixtureBody) else [actor]
-
-
-def weights_of(actor: Actor) -> list[float]:
-    """The probability of drawing each of :func:`members_of`'s actors."""
-    members = members_of(actor)
-    weights = actor.body.weights if isinstance(actor.body, MixtureBody) else None
-    return [1.0 / len(members)] * len(members) if weights is None else weights.tolist()
-
-
-__all__ = ["IterateSnapshots", "MixtureBody", "members_of", "mixture_actor", "weights_of"]

@@ -48,9 +48,7 @@ def valuation_plan(cfg: RunConfig) -> tuple[int, int] | None:
         return None
     episodes = int(VALUATION_SHARE * cfg.total_steps // steps)
     size = min(cfg.deploy.snapshots, episodes // MIN_VALUED_EPISODES)
-    if size < 1:
-        return None
-    return size, min(cfg.deploy.episodes, episodes // size)
+    return (size, min(cfg.deploy.episodes, episodes // size)) if size >= 1 else None
 
 
 def resolve_auto(cfg: RunConfig) -> None:
@@ -64,6 +62,3 @@ def resolve_auto(cfg: RunConfig) -> None:
     if mixture and not cfg.env.values_snapshots and plan is not None:
         deploy.snapshots, deploy.episodes = plan
     deploy.policy = "mixture" if mixture and (cfg.env.values_snapshots or plan is not None) else "last"
-
-
-__all__ = ["MIN_VALUED_EPISODES", "VALUATION_SHARE", "DeployConfig", "resolve_auto", "valuation_plan"]

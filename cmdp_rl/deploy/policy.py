@@ -59,6 +59,3 @@ class DeployedPolicy:
         if action.dtype.kind in "iu" and action.shape[-1:] == (1,):  # a Discrete index: one int per env
             action = action[..., 0]
         return (action[0] if single else action), {**state, "out": out}
-
-
-__all__ = ["DeployedPolicy"]

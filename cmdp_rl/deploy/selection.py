@@ -118,6 +118,3 @@ def choose_weights(snapshots: IterateSnapshots, agent: Agent, cfg: RunConfig, na
         f"{valued}; no mixture is within budget on their values "
         f"(costs + {cfg.deploy.margin:g} standard errors); deployed the least violating, {chosen}"
     )
-
-
-__all__ = ["VALUATION_SEED_OFFSET", "MemberValue", "choose_weights", "feasible_weights", "value_members"]

@@ -1,10 +1,9 @@
-"""Any registered gymnasium env that reports a cost, for ``env=gym env.id=<id>`` (``"module:EnvId-v0"``
-imports ``module`` first, so that it can register its envs, as ``gymnasium.make`` does).
+"""Any registered gymnasium env that reports a cost, for ``env=gym env.id=<id>`` (``"module:EnvId-v0"`` imports
+``module`` first, so that it can register its envs, as ``gymnasium.make`` does).
 
-``env.step_api=five`` (gymnasium's step, the cost in ``info["cost"]``): built by ``gymnasium.make``.
-``six`` (Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)``, which gymnasium's
-wrappers cannot unpack): built from its registered entry point, converted by :class:`SixValueStep`,
-given gymnasium's ``TimeLimit``."""
+``env.step_api=five`` (gymnasium's step, the cost in ``info["cost"]``): built by ``gymnasium.make``. ``six``
+(Safety-Gymnasium's ``(obs, reward, cost, terminated, truncated, info)``, which gymnasium's wrappers cannot unpack):
+built from its registered entry point, converted by :class:`SixValueStep`, given gymnasium's ``TimeLimit``."""
 
 from __future__ import annotations
 

@@ -1,13 +1,12 @@
 """``env=pettingzoo env.factory=<module>:<callable>``: a PettingZoo ``ParallelEnv`` as a batched CMDP
 (docs/multi_agent_and_hybrid.md).
 
-N envs of M agents are ``N * M`` rows, row ``i * M + j`` agent ``j`` of env ``i``, so everything per
-row (collector, GAE, critics, J_c) runs unchanged; an env's rows share its episode (it ends when any
-agent's does). A row's observation is ``[own | one-hot agent id | every agent's]`` (a decentralised
-actor reads the first ``actor_obs_dim`` entries, the critics all); its reward the agent's own; its
-cost, from each agent's ``info[agent]["cost"]``, the team's sum (``constraint="team"``) or every
-agent's (``"per_agent"``, named ``<agent>/<cost>``). Every agent has the same action space (one
-shared policy). Not SuperSuit: it drops ``info`` and resets agents independently."""
+N envs of M agents are ``N * M`` rows, row ``i * M + j`` agent ``j`` of env ``i``, so everything per row (collector,
+GAE, critics, J_c) runs unchanged; an env's rows share its episode (it ends when any agent's does). A row's observation
+is ``[own | one-hot agent id | every agent's]`` (a decentralised actor reads the first ``actor_obs_dim`` entries, the
+critics all); its reward the agent's own; its cost, from each agent's ``info[agent]["cost"]``, the team's sum
+(``constraint="team"``) or every agent's (``"per_agent"``, named ``<agent>/<cost>``). Every agent has the same action
+space (one shared policy). Not SuperSuit: it drops ``info`` and resets agents independently."""
 
 from __future__ import annotations
 
@@ -260,5 +259,3 @@ def make_pettingzoo(cfg: PettingZooConfig, num_envs: int, device: str = "cpu") -
 
 
 register("env", "pettingzoo", PettingZooConfig, make_pettingzoo)
-
-__all__ = ["PettingZooConfig", "PettingZooVecEnv", "load_factory", "make_pettingzoo"]

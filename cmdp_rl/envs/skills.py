@@ -1,11 +1,10 @@
-"""``env=skills``: a point on a line reaches a goal with two skills that differ in cost, a hybrid action
-space (the skill and its parameter; docs/multi_agent_and_hybrid.md gives the returns of each policy).
+"""``env=skills``: a point on a line reaches a goal with two skills that differ in cost, a hybrid action space (the
+skill and its parameter; docs/multi_agent_and_hybrid.md gives the returns of each policy).
 
-The point starts at ``x = 0`` and must reach ``x >= goal`` within ``max_steps``. ``walk``: ``x +=
-walk_step * a``, free; ``dash``: ``x -= dash_step * a``, cost 1 (its parameter points the other way,
-so the best parameter depends on the skill); ``x`` stays in ``[0, 1]``. Reward: the progress, minus
-``step_penalty`` a step, plus ``goal_reward`` on arrival. Observation ``[x, t / max_steps]``;
-``hold = k > 1``: :class:`~cmdp_rl.envs.hold.HeldSkill`."""
+The point starts at ``x = 0`` and must reach ``x >= goal`` within ``max_steps``. ``walk``: ``x += walk_step * a``, free;
+``dash``: ``x -= dash_step * a``, cost 1 (its parameter points the other way, so the best parameter depends on the
+skill); ``x`` stays in ``[0, 1]``. Reward: the progress, minus ``step_penalty`` a step, plus ``goal_reward`` on arrival.
+Observation ``[x, t / max_steps]``; ``hold = k > 1``: :class:`~cmdp_rl.envs.hold.HeldSkill`."""
 
 from __future__ import annotations
 
@@ -118,5 +117,3 @@ def make_skills(cfg: SkillsConfig, num_envs: int, device: str = "cpu") -> VecEnv
 
 
 register("env", "skills", SkillsConfig, make_skills)
-
-__all__ = ["SKILLS", "SkillsConfig", "TorchSkills", "make_skills"]

@@ -1,10 +1,9 @@
 """Team work: a two-agent cooperative CMDP with an exact constrained optimum (``env=pettingzoo``'s default;
-docs/multi_agent_and_hybrid.md). Two workers act for ``horizon`` steps; each picks ``idle``, ``work`` or
-``sprint``; the team is paid ``PAY`` per worker plus ``synergy`` when both are busy, every worker
-receives that team reward, and each worker's cost is its own ``STRAIN``. A worker observes
-``t / horizon``. :func:`constrained_optimum` solves the occupancy LP over the *joint* action, an upper
-bound for any pair of decentralised policies; with the budget ``d = horizon`` it is both working every
-step (25), the greedy policy at every lambda in (0.5, 2.5)."""
+docs/multi_agent_and_hybrid.md). Two workers act for ``horizon`` steps; each picks ``idle``, ``work`` or ``sprint``; the
+team is paid ``PAY`` per worker plus ``synergy`` when both are busy, every worker receives that team reward, and each
+worker's cost is its own ``STRAIN``. A worker observes ``t / horizon``. :func:`constrained_optimum` solves the occupancy
+LP over the *joint* action, an upper bound for any pair of decentralised policies; with the budget ``d = horizon`` it is
+both working every step (25), the greedy policy at every lambda in (0.5, 2.5)."""
 
 from __future__ import annotations
 
@@ -102,6 +101,3 @@ class TeamWork(ParallelEnv):
     def optimum(cost_limit: float | Sequence[float], horizon: int = 10, synergy: float = 0.5) -> float:
         """The exact constrained optimum (:func:`constrained_optimum`), which the end-of-run summary prints."""
         return constrained_optimum(cost_limit, horizon, synergy)[0]
-
-
-__all__ = ["ACTIONS", "AGENTS", "TeamWork", "constrained_optimum", "joint_tables"]

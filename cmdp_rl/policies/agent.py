@@ -224,6 +224,3 @@ def make_agent(cfg: Any, env: Any, normalizers: Normalizers | None = None, algo:
     agent = component("policy", cfg.name).build(cfg, env, normalizers if normalizers is not None else Normalizers())
     agent = agent.to(env.device)
     return agent if algo is None else algo.shape_agent(agent)
-
-
-__all__ = ["Actor", "Agent", "Body", "CHUNK_ROWS", "Critic", "actor_and_critics", "critic_outputs", "make_agent"]

@@ -1,9 +1,9 @@
-"""The action distribution of a hybrid action space, one ``Discrete(n)`` skill and a ``Box`` of its ``p``
-parameters (``rollout.actions.hybrid``): ``pi(k, x | s) = pi_hi(k | s) pi_lo(x | s, k)``, a categorical times
-the chosen skill's diagonal Gaussian (state-independent std), with exact log-probability, entropy and KL by the
-chain rules (docs/multi_agent_and_hybrid.md); the KL is registered with torch for CPO's Fisher-vector product.
-By hand: torch has no distribution whose continuous part is conditioned on the discrete one. Stored actions
-are float ``[..., 1 + p]``: the skill index, then the parameters in the box's units (the env clips)."""
+"""The action distribution of a hybrid action space, one ``Discrete(n)`` skill and a ``Box`` of its ``p`` parameters
+(``rollout.actions.hybrid``): ``pi(k, x | s) = pi_hi(k | s) pi_lo(x | s, k)``, a categorical times the chosen skill's
+diagonal Gaussian (state-independent std), with exact log-probability, entropy and KL by the chain rules
+(docs/multi_agent_and_hybrid.md); the KL is registered with torch for CPO's Fisher-vector product. By hand: torch has
+no distribution whose continuous part is conditioned on the discrete one. Stored actions are float ``[..., 1 + p]``:
+the skill index, then the parameters in the box's units (the env clips)."""
 
 from __future__ import annotations
 
@@ -100,6 +100,3 @@ class HybridHead(nn.Module):
     @staticmethod
     def dist(params: dict[str, torch.Tensor]) -> SkillParameters:
         return SkillParameters(params[keys.LOGITS], params[keys.LOC], params[keys.SCALE])
-
-
-__all__ = ["HybridHead", "SkillParameters"]

@@ -22,10 +22,8 @@ BINOMIAL_METHOD = "exact binomial, Clopper-Pearson (scipy.stats.binomtest)"
 VIOLATION_TOLERANCE = 1e-9
 
 
-def mean_interval(
-    values: Sequence[float], level: float = LEVEL, resamples: int = RESAMPLES, seed: int = SEED
-) -> dict[str, Any]:
-    """Mean of ``values`` with a two-sided BCa bootstrap interval at ``level`` (``low``, ``high``) and the
+def mean_interval(values: Sequence[float], resamples: int = RESAMPLES, seed: int = SEED) -> dict[str, Any]:
+    """Mean of ``values`` with a two-sided 95% BCa bootstrap interval (``low``, ``high``) and the
     one-sided upper bound (``upper``); ``no_spread`` when all values are equal; None bounds for one value."""
     x = np.asarray(values, dtype=np.float64)
     if x.ndim != 1 or x.size == 0:
@@ -38,7 +36,7 @@ def mean_interval(
     if out["no_spread"]:
         out.update(low=mean, high=mean, upper=mean)
         return out
-    kwargs = dict(statistic=np.mean, confidence_level=level, method="BCa")
+    kwargs = dict(statistic=np.mean, confidence_level=LEVEL, method="BCa")
     with warnings.catch_warnings():
         # BCa is undefined for some near-degenerate samples (scipy warns and returns NaN); the
         # percentile interval of the same resamples is used there instead (below).
@@ -56,16 +54,16 @@ def mean_interval(
     return out
 
 
-def violation_interval(costs: Sequence[float], cost_limit: float, level: float = LEVEL) -> dict[str, Any]:
-    """The fraction of episodes with cost above ``cost_limit``, with its Clopper-Pearson two-sided interval
+def violation_interval(costs: Sequence[float], cost_limit: float) -> dict[str, Any]:
+    """The fraction of episodes with cost above ``cost_limit``, with its 95% Clopper-Pearson two-sided interval
     (``low``, ``high``) and one-sided upper bound (``upper``)."""
     c = np.asarray(costs, dtype=np.float64)
     if c.ndim != 1 or c.size == 0:
         raise ValueError(f"violation_interval: need a non-empty 1-D sample, got shape {c.shape}")
     n = int(c.size)
     k = int(np.sum(c > cost_limit + VIOLATION_TOLERANCE * max(1.0, abs(cost_limit))))
-    two = stats.binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
-    one = stats.binomtest(k, n, alternative="less").proportion_ci(confidence_level=level, method="exact")
+    two = stats.binomtest(k, n).proportion_ci(confidence_level=LEVEL, method="exact")
+    one = stats.binomtest(k, n, alternative="less").proportion_ci(confidence_level=LEVEL, method="exact")
     return dict(rate=k / n, violations=k, n=n, low=float(two.low), high=float(two.high), upper=float(one.high))
 
 
@@ -73,9 +71,8 @@ def summarize(
     returns: Sequence[float], costs: Sequence[float], cost_limit: float, resamples: int = RESAMPLES, seed: int = SEED
 ) -> dict[str, Any]:
     """The interval keys eval.json carries (``[low, high]`` lists; None for unknown bounds)."""
-    ret = mean_interval(returns, LEVEL, resamples, seed)
-    cost = mean_interval(costs, LEVEL, resamples, seed)
-    viol = violation_interval(costs, cost_limit, LEVEL)
+    ret, cost = mean_interval(returns, resamples, seed), mean_interval(costs, resamples, seed)
+    viol = violation_interval(costs, cost_limit)
 
     def pair(r: dict[str, Any]) -> list[float] | None:
         return None if r["low"] is None else [r["low"], r["high"]]

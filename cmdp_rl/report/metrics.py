@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from cmdp_rl.config.run_config import TENSORBOARD_MISSING, WANDB_MISSING, RunConfig
+from cmdp_rl.report.safety_metrics import per_constraint_values
 
 WANDB_ID = "wandb_id.txt"  # the wandb run's id, for a resume to continue the same run
 _SINGLE = ("cost_0",)  # the cost names of an env with one cost (its columns keep plain names)
@@ -267,18 +268,13 @@ def _fmt(x: float, spec: str) -> str:
     return "   n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
 
 
-def _per_constraint(row: dict[str, Any], name: str) -> list:
-    """``name``'s values in a row: its one column, or its ``name/<cost>`` columns in order."""
-    return [row[name]] if name in row else [v for k, v in row.items() if k.startswith(name + "/")]
-
-
 def format_row(row: dict[str, Any], recent: RecentEpisodes | None = None) -> str:
     """The progress line: ``recent``'s window once it holds an episode, else the row's own (``lambda`` if reported)."""
     window = ""
     if recent is not None and len(recent):
         row, window = recent.over(row), f" | last {len(recent)} episodes"
-    cost = "/".join(_fmt(c, ".2f") for c in _per_constraint(row, "episode_cost"))
-    lams = _per_constraint(row, "lagrange_multiplier")
+    cost = "/".join(_fmt(c, ".2f") for c in per_constraint_values(row, "episode_cost"))
+    lams = per_constraint_values(row, "lagrange_multiplier")
     lam = "/".join(_fmt(x, ".3f") for x in lams)
     if "episode_cost" in row:  # one constraint: fixed width
         cost = _fmt(row["episode_cost"], "6.2f")

@@ -8,7 +8,6 @@ by a trailing mean over ``K`` iterations that skips those in which no episode en
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import warnings
@@ -22,6 +21,7 @@ from cmdp_rl.config.run_config import flatten_dict
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.migrations import deploy_node
 from cmdp_rl.run.rundir import CONFIG, METRICS, read_yaml
+from cmdp_rl.run.sweeps import read_metrics
 
 PANELS = (
     ("episode_return", "episode return"),
@@ -84,11 +84,10 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]
     if not (run / METRICS).is_file():
         raise FileNotFoundError(f"plot: no {METRICS} in {run}")
     cfg = flatten_dict(deploy_node(read_yaml(run / CONFIG, "plot"))) if (run / CONFIG).is_file() else {}
-    with open(run / METRICS) as f:
-        rows = list(csv.DictReader(f))
+    rows = read_metrics(run / METRICS)
     if not rows:
         raise ValueError(f"plot: {run / METRICS} has no rows yet")
-    cols = {k: np.array([float(r[k]) if r[k] not in ("", None) else np.nan for r in rows]) for k in rows[0]}
+    cols = {k: np.array([r[k] for r in rows]) for k in rows[0]}
     return cfg, cols
 
 

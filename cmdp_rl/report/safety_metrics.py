@@ -37,6 +37,7 @@ class Reference:
 
 
 FiniteOrNull = Optional[Annotated[float, finite()]]
+Divisor = Annotated[float, finite(gt=0, description="a positive number (it divides the cost rate)")]
 
 
 @options
@@ -46,7 +47,7 @@ class ReferenceConfig:
     run: Optional[str] = None
     episode_return: FiniteOrNull = None
     episode_cost: FiniteOrNull = None
-    cost_rate: FiniteOrNull = None
+    cost_rate: Optional[Divisor] = None
 
     def check(self, run: RunConfig) -> None:
         numbers = {k: getattr(self, k) for k in ("episode_return", "episode_cost", "cost_rate")}
@@ -70,12 +71,6 @@ class ReferenceConfig:
             "reference.episode_return",
             "null or a nonzero number (it divides the return)",
             self.episode_return,
-        )
-        require(
-            self.cost_rate is None or self.cost_rate > 0,
-            "reference.cost_rate",
-            "null or a positive number (it divides the cost rate)",
-            self.cost_rate,
         )
 
 
@@ -119,12 +114,14 @@ def normalized_scores(
     }
 
 
+def per_constraint_values(row: dict[str, Any], name: str) -> list:
+    """``name``'s values in a metrics row or eval.json: its one entry, or its ``name/<cost>`` entries in order."""
+    return [row[name]] if name in row else [v for k, v in row.items() if k.startswith(name + "/")]
+
+
 def _per_constraint_result(result: dict[str, Any], name: str) -> Any:
     """``name`` from an eval.json: its one value, or the list of its ``name/<cost>`` values."""
-    if name in result:
-        return result[name]
-    values = [v for key, v in result.items() if key.startswith(name + "/")]
-    return values or None
+    return result[name] if name in result else per_constraint_values(result, name) or None
 
 
 def _reference_run(run: str) -> tuple[dict[str, Any], dict[str, Any]]:

@@ -25,7 +25,9 @@ class Constraint:
         return self.mean <= self.budget
 
 
-def _named(cost_limit: float | Sequence[float], cost_names: Sequence[str] | None) -> list[tuple[str, str, float]]:
+def constraints_of(
+    cost_limit: float | Sequence[float], cost_names: Sequence[str] | None
+) -> list[tuple[str, str, float]]:
     """(name, eval.json key suffix, budget) per constraint: (``cost``, ``""``) for one cost, else ``/<name>``."""
     if cost_names is None or len(cost_names) == 1:
         return [("cost", "", *per_constraint(cost_limit, "algo.cost_limit", ["cost"]))]
@@ -67,7 +69,7 @@ def interval_summary(
 ) -> list[str]:
     """The interval estimates' lines (``intervals.summary_lines``) where ``result`` has them: the return's
     once, then each constraint's cost and violation lines, prefixed by its name for K > 1 costs."""
-    named = _named(cost_limit, cost_names)
+    named = constraints_of(cost_limit, cost_names)
     if f"violation_rate_ucb95{named[0][1]}" not in result:
         return []
     if len(named) == 1:
@@ -91,7 +93,7 @@ def summary_lines(
 ) -> list[str]:
     """The summary: ``header`` and episode count, return (against the env's optimum, or ``optimum``), each
     constraint against its budget, the intervals and the termination metric where the task has one."""
-    named = _named(cost_limit, cost_names)
+    named = constraints_of(cost_limit, cost_names)
     if optimum is None:
         optimum = optimum_of(env_cfg, named[0][2] if len(named) == 1 else [d for _, _, d in named])
     constraints = [Constraint(n, result[f"episode_cost{s}"], result[f"episode_cost_std{s}"], d) for n, s, d in named]

@@ -116,7 +116,6 @@ def record_video(
     deterministic: bool = True,
     seed: int = 0,
     max_steps: int | None = None,
-    name_prefix: str = "policy",
     algo: Any = None,
 ) -> list[VideoEpisode]:
     """``episodes`` episodes of ``agent`` on one rendering env of ``env_cfg`` (reset with ``seed`` once), one mp4
@@ -128,7 +127,7 @@ def record_video(
         env,
         str(video_dir),
         episode_trigger=lambda i: i < episodes,
-        name_prefix=name_prefix,
+        name_prefix="policy",
         fps=exact_fps(env.metadata.get("render_fps", 30)),
     )
     policy = DeployedPolicy(agent, env.action_space, agent.num_costs)
@@ -139,8 +138,7 @@ def record_video(
         obs, _ = env.reset(seed=seed)
         for i in range(episodes):
             state = step_cost = None
-            ret = cost = 0.0
-            steps = 0
+            ret, cost, steps = 0.0, 0.0, 0
             if extra is not None:
                 extra.start()
             while True:
@@ -157,7 +155,7 @@ def record_video(
                 if terminated or truncated or (max_steps is not None and steps >= max_steps):
                     break
             episode_cost = float(cost[0]) if np.size(cost) == 1 else tuple(float(c) for c in cost)
-            out.append(VideoEpisode(Path(video_dir) / f"{name_prefix}-episode-{i}.mp4", steps + 1, ret, episode_cost))
+            out.append(VideoEpisode(Path(video_dir) / f"policy-episode-{i}.mp4", steps + 1, ret, episode_cost))
             if i + 1 < episodes:
                 obs, _ = env.reset()  # writes episode i's video
     env.close()  # writes the last one

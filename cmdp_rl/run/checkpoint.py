@@ -4,8 +4,7 @@ A checkpoint holds tensors, numbers, strings and plain containers of them, so to
 (``torch.load(weights_only=True)``) reads it and loading someone else's run cannot run their code. No type is
 allow-listed: numpy values and deques are written as tagged tensors and lists (:func:`encode`, :func:`decode`), and
 anything else is refused when saving, naming where it sits. Older formats, which only the full unpickler reads, load
-only when trusted (``trust_checkpoint=true``); :mod:`cmdp_rl.run.migrations` brings them to this one.
-"""
+only when trusted (``trust_checkpoint=true``); :mod:`cmdp_rl.run.migrations` brings them to this one."""
 
 from __future__ import annotations
 
@@ -111,9 +110,8 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
 
 
 def _what_it_holds(path: Path, exc: Exception) -> tuple[list[str], str]:
-    """The globals (importable names) the file's pickle would call, found by reading its opcodes
-    (nothing is run), and, for a file torch cannot scan (not a torch zip file), the first line of
-    the safe unpickler's error."""
+    """The globals (importable names) the file's pickle would call, found by reading its opcodes (nothing is run), and,
+    for a file torch cannot scan (not a torch zip file), the first line of the safe unpickler's error."""
     try:
         return sorted(torch.serialization.get_unsafe_globals_in_checkpoint(path)), "no pickled object in it"
     except Exception:  # noqa: BLE001 - not a zip checkpoint: torch's own reason is all there is
@@ -144,11 +142,10 @@ def _refusal(path: Path, found: list[str]) -> UnsafeCheckpointError:
 def load_checkpoint(
     path: str | Path, algo: str | None = None, policy: str | None = None, trust: bool = False
 ) -> dict[str, Any]:
-    """Load a checkpoint with torch's safe unpickler, refusing one for another algorithm or policy
-    than expected. A file that needs the full unpickler raises :class:`UnsafeCheckpointError`
-    unless ``trust`` (which runs whatever the file holds). The state comes back in the format it
-    was written in (``state["format"]``); :func:`cmdp_rl.run.migrations.migrate` brings an older one
-    to :data:`FORMAT_VERSION`."""
+    """Load a checkpoint with torch's safe unpickler, refusing one for another algorithm or policy than expected. A file
+    that needs the full unpickler raises :class:`UnsafeCheckpointError` unless ``trust`` (which runs whatever the file
+    holds). The state comes back in the format it was written in (``state["format"]``);
+    :func:`cmdp_rl.run.migrations.migrate` brings an older one to :data:`FORMAT_VERSION`."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"checkpoint: no file at {path}")

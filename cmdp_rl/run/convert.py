@@ -19,9 +19,8 @@ from cmdp_rl.run.rundir import CHECKPOINT, POPULATION_CHECKPOINT, run_config
 
 
 def convert_run(run_dir: str | Path, echo: Callable[[str], None] = print) -> Path:
-    """Rewrite the checkpoint of ``run_dir`` (a run's or a population's, and its agents') in the
-    current format, keeping the old file beside it as ``<name>.format<N>``. Reads the old file with
-    Python's full unpickler: only for runs whose author you trust."""
+    """Rewrite the checkpoint of ``run_dir`` (a run's or a population's, and its agents') in the current format, the
+    old file kept as ``<name>.format<N>``. Reads it with the full unpickler: only for runs whose author you trust."""
     run = Path(run_dir)
     files = [run / POPULATION_CHECKPOINT] if (run / POPULATION_CHECKPOINT).is_file() else []
     files += sorted(run.glob(f"**/{CHECKPOINT}")) if files else [run / CHECKPOINT]

@@ -37,15 +37,13 @@ def evaluate(
     cost_limit: float | Sequence[float] | None = None,
 ) -> dict[str, float]:
     """Run ``episodes`` whole episodes and return means and spreads of return, cost and length; with K > 1 costs
-    each constraint's keys carry ``/<cost>`` (``episode_cost/<cost>``, ...: ``metrics.constraint_name``).
+    each constraint's keys carry ``/<cost>`` (``metrics.constraint_name``).
 
-    Each env contributes a fixed quota of its first episodes, so short episodes are not over-represented (counting
-    whichever end first would favour them). ``termination_metric`` (an env's name for termination, e.g. Reach1D's
-    ``goal_reached``) adds the fraction of episodes that terminated rather than timed out. ``seed`` seeds a
-    stochastic policy's samples inside ``fork_rng`` (the caller's generator is left as it was). ``cost_limit``
-    (d, one for every constraint or a list of K) adds 95% intervals over the episodes
-    (:func:`cmdp_rl.report.intervals.summarize`): mean return and cost, cost's upper bound, the violation rate.
-    """
+    Each env contributes a fixed quota of its first episodes, so that short episodes (which end first) are not
+    over-represented. ``termination_metric`` (an env's name for termination, e.g. Reach1D's ``goal_reached``) adds the
+    fraction of episodes that terminated rather than timed out. ``seed`` seeds a stochastic policy's samples inside
+    ``fork_rng`` (the caller's generator is left as it was). ``cost_limit`` (d, one or a list of K) adds 95% intervals
+    over the episodes (:func:`cmdp_rl.report.intervals.summarize`)."""
     with torch.random.fork_rng(devices=[]):
         if seed is not None:
             torch.manual_seed(seed)
@@ -71,8 +69,7 @@ def evaluate_members(
     m = getattr(env, "agents_per_env", 1)
     teams = n // m
     quota = [episodes // teams + (1 if i // m < episodes % teams else 0) for i in range(n)]
-    chunk = 128
-    collector = Collector(env, agent, chunk, seed=seed, deterministic=deterministic)
+    collector = Collector(env, agent, 128, seed=seed, deterministic=deterministic)  # 128 steps a collect
     everyone = episode_rows(collector, quota * parts)
     results = []
     for j, cost_limit in enumerate(cost_limits):

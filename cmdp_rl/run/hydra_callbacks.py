@@ -2,8 +2,7 @@
 run (or sweep) directory and writes its record there: an uncreatable directory stops in one line (exit 2) instead of
 Hydra's pathlib traceback, and a single run claims its directory (``run/ownership.py``) for the process's life, so
 a directory holding another run, or held by a live one, is refused with its files untouched. (Hydra's ``now``
-resolver caches its value, so the directory checked is the one Hydra then uses.)
-"""
+resolver caches its value, so the directory checked is the one Hydra then uses.)"""
 
 from __future__ import annotations
 

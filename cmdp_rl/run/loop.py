@@ -48,9 +48,8 @@ def metrics_row(
     names: tuple[str, ...],
     reference: Any,
 ) -> dict[str, Any]:
-    """One ``metrics.csv`` row: the episodes ``eps`` that ended in one member's batch
-    (:func:`~cmdp_rl.rollout.collector.finished_episodes`), the update's ``stats``, the costs collected so
-    far; per-constraint values spread over columns."""
+    """One ``metrics.csv`` row: the episodes ``eps`` that ended in one member's batch (``finished_episodes``), the
+    update's ``stats``, the costs collected so far; per-constraint values spread over columns."""
     row = {
         "iteration": iteration,
         "step": step,
@@ -76,8 +75,7 @@ class Members:
     - ``update(batch, iteration)``: every member's update on the batch, each member's statistics;
     - ``cost_totals(batch)``: each member's costs collected so far, this batch included;
     - ``checkpoint(iteration, time_s)``: the checkpoint at ``checkpoint_path``;
-    - ``report(iteration, rows, seconds)``: anything to say after an iteration's rows (optional).
-    """
+    - ``report(iteration, rows, seconds)``: anything to say after an iteration's rows (optional)."""
 
     cfgs: Sequence[RunConfig]
     loggers: Sequence[MetricsLogger]
@@ -105,10 +103,9 @@ class Members:
 
 
 def train_iterations(m: Members, first: int, iterations: int, start: float, progress: Progress | None = None) -> float:
-    """Iterations ``first`` to ``iterations`` (a resume starts past its checkpoint's); ``start`` is
-    the ``perf_counter`` at which training time began (earlier by the time a resumed run had);
-    ``progress`` shows the first member's rows. The loggers, the envs and ``progress`` are closed
-    when it ends, however it ends. Returns the training time."""
+    """Iterations ``first`` to ``iterations`` (a resume starts past its checkpoint's); ``start`` is the ``perf_counter``
+    at which training time began (earlier by the time a resumed run had); ``progress`` shows the first member's rows.
+    The loggers, the envs and ``progress`` are closed when it ends, however it ends. Returns the training time."""
     try:
         _iterations(m, first, iterations, start, progress)
     finally:

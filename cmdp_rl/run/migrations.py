@@ -2,8 +2,7 @@
 here, keyed on the format a checkpoint was written in (:data:`STEPS`), so the algorithms, envs and trainer read only
 the current one. What each step changes, and why format 2 loads only on the user's word (its files pickle numpy
 objects and may hold pickled bytes): docs/checkpoints.md, "Old run directories". ``python -m cmdp_rl.run.convert``
-applies these rules to a run's files once.
-"""
+applies these rules to a run's files once."""
 
 from __future__ import annotations
 
@@ -35,11 +34,6 @@ def is_legacy(networks: dict) -> bool:
     return any(k.startswith(("critic.", "cost_critic.")) for k in networks)
 
 
-def _is_statistic(key: str) -> bool:
-    """A running statistic of an observation normalizer (``...stats.mean``), shared with ``normalizers.obs``."""
-    return ".stats." in key or key.startswith("stats.")
-
-
 def convert_networks(networks: dict[str, torch.Tensor], agent: nn.Module) -> dict[str, torch.Tensor]:
     """An old ``ActorCritic`` state dict as ``agent``'s state dict. Raises ``KeyError`` naming the
     first entry that does not fit."""
@@ -56,7 +50,8 @@ def convert_networks(networks: dict[str, torch.Tensor], agent: nn.Module) -> dic
                 raise KeyError(f"old checkpoint lacks {source!r} (the statistics of {key!r})")
             out[key] = out[source]
     for old_prefix, new_prefix in NETWORKS.items():
-        old = [k for k in networks if k.startswith(old_prefix) and not _is_statistic(k)]
+        # Not an observation normalizer's running statistics (``...stats.mean``), which normalizers.obs holds.
+        old = [k for k in networks if k.startswith(old_prefix) and ".stats." not in k and not k.startswith("stats.")]
         # The old MLP actor kept its input encoder (previous action and cost) inside the Gaussian
         # head's network (``...module.net.encoder.``); the agent keeps it in the body, which comes first.
         old.sort(key=lambda k: 0 if ".module.net.encoder." in k else 1)
@@ -111,12 +106,9 @@ def _safety_gym_world_from_2(state: dict[str, Any], task: str) -> dict[str, Any]
     import mujoco
 
     from cmdp_rl.envs.safety_gym.env import make_task
+    from cmdp_rl.envs.safety_gym.world_state import saved_model
 
-    model = None
-    if state["xml"] is not None:
-        model = mujoco.MjModel.from_xml_string(state["xml"])
-        for name, value in state["model_arrays"].items():
-            getattr(model, name)[...] = value
+    model = None if state["xml"] is None else saved_model(state)
 
     class Format2Unpickler(pickle.Unpickler):  # trusted: the user's word on a format 2 file
         data = None
@@ -204,9 +196,8 @@ def member(state: dict[str, Any], i: int = 0) -> dict[str, Any]:
 
 
 def migrate(state: dict[str, Any], agent: nn.Module | None = None) -> dict[str, Any]:
-    """``state`` (as :func:`~cmdp_rl.run.checkpoint.load_checkpoint` returned it, any format it reads)
-    in the current format's layout. ``agent``, the run's, names the networks of a checkpoint from
-    before the agent model; without it they are left as they are."""
+    """``state`` (as :func:`~cmdp_rl.run.checkpoint.load_checkpoint` returned it) in the current format's layout.
+    ``agent``, the run's, names the networks of a checkpoint from before the agent model (without it: left as is)."""
     version = state["format"]
     for v in range(version, FORMAT_VERSION):
         state = STEPS[v](state, agent)
@@ -328,9 +319,8 @@ def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
 
 
 def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
-    """A saved run config with the defaults it ran with made explicit (a run config written since
-    ``mixture_weights`` existed records every option), in the current layout (:func:`saved_config_nodes`,
-    :func:`deploy_node`)."""
+    """A saved run config with the defaults it ran with made explicit (a run config written since ``mixture_weights``
+    existed records every option), in the current layout (:func:`saved_config_nodes`, :func:`deploy_node`)."""
     if "mixture_weights" not in config and "deploy" not in config:
         config = {**_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS, **config}
         algo = dict(config.get("algo") or {})

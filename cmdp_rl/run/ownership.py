@@ -1,9 +1,7 @@
-"""A run directory belongs to one run (docs/architecture.md, "Run directories"): a new run into a directory that
-holds a run stops before it writes anything, naming ``resume=<dir>`` and ``overwrite=true``; while a run lives it
-holds ``fcntl.flock`` on ``<dir>/.run.lock``, which the kernel drops when the process ends, killed or not, so a
-crashed run never blocks its resume. Claims within one process are counted (``train.py``'s Hydra callback's, then
-``train()``'s).
-"""
+"""A run directory belongs to one run (docs/architecture.md, "Run directories"): a new run into a directory that holds a
+run stops before it writes anything, naming ``resume=<dir>`` and ``overwrite=true``; while a run lives it holds
+``fcntl.flock`` on ``<dir>/.run.lock``, which the kernel drops when the process ends, killed or not, so a crashed run
+never blocks its resume. Claims within one process are counted (``train.py``'s Hydra callback's, then ``train()``'s)."""
 
 from __future__ import annotations
 
@@ -75,11 +73,10 @@ def _lock(path: Path, create: bool) -> int | None:
 
 
 def acquire(run_dir: str | Path, new_run: bool, overwrite: bool = False, hydra_record: bool = False) -> Path:
-    """Claim ``run_dir`` for this process and hold its lock until :func:`release` (or the process
-    ends). ``new_run``: refuse a directory that holds a run, unless ``overwrite`` (then its outputs
-    are removed first); a resume (``new_run=False``) only takes the lock. Nothing in a refused
-    directory is created or changed. Claiming a directory this process holds counts one more.
-    ``hydra_record``: overwrite removes Hydra's record and log as well (:data:`HYDRA_RECORD`)."""
+    """Claim ``run_dir`` for this process and hold its lock until :func:`release` (or the process ends). ``new_run``:
+    refuse a directory that holds a run, unless ``overwrite`` (then its outputs are removed first); a resume
+    (``new_run=False``) only takes the lock. Nothing in a refused directory is created or changed. Claiming a directory
+    this process holds counts one more. ``hydra_record``: overwrite removes Hydra's record and log too."""
     path = Path(run_dir).resolve()
     if path in _held:
         fd, count = _held[path]

@@ -12,6 +12,7 @@ from typing import Any, Callable, TextIO
 from tqdm import tqdm
 
 from cmdp_rl.report.metrics import RecentEpisodes
+from cmdp_rl.report.safety_metrics import per_constraint_values
 
 
 class Progress:
@@ -49,17 +50,10 @@ class Progress:
         window = ""
         if recent is not None and len(recent):
             row, window = recent.over(row), f" ({len(recent)} episodes)"
-
-        def each(name: str, fmt: str) -> str:  # one value, or K joined by '/' (episode_cost/<cost> columns)
-            return "/".join(format(v, fmt) for k, v in row.items() if k == name or k.startswith(name + "/"))
-
-        lam = each("lagrange_multiplier", ".3f")  # absent for an algorithm that reports no multiplier
-        self._bar.set_postfix_str(
-            f"return {row['episode_return']:.3f}, cost {each('episode_cost', '.2f')}"
-            + (f", lambda {lam}" if lam else "")
-            + window,
-            refresh=False,
-        )
+        lam = "/".join(format(v, ".3f") for v in per_constraint_values(row, "lagrange_multiplier"))
+        lam = f", lambda {lam}" if lam else ""  # absent for an algorithm that reports no multiplier
+        cost = "/".join(format(v, ".2f") for v in per_constraint_values(row, "episode_cost"))
+        self._bar.set_postfix_str(f"return {row['episode_return']:.3f}, cost {cost}{lam}{window}", refresh=False)
         self._bar.update(row["step"] - self._bar.n)
 
     def write(self, line: str) -> None:

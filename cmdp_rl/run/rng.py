@@ -1,6 +1,5 @@
 """The process-wide random number generators (torch's, numpy's global one, Python's ``random``): seeding them, and
-saving them for a resume. Each env owns and saves its own generator (``VecEnv.state_dict``).
-"""
+saving them for a resume. Each env owns and saves its own generator (``VecEnv.state_dict``)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """Recording a run's failure, and reading run directories back (their layout: ``cmdp_rl/run/rundir.py``): an
 aggregator reads results from here instead of re-training, and reports every run that did not finish (failed,
-interrupted, or never started) rather than crash on it.
-"""
+interrupted, or never started) rather than crash on it."""
 
 from __future__ import annotations
 
@@ -66,7 +65,8 @@ def _read_yaml(path: Path) -> Any:
         return None
 
 
-def _read_metrics(path: Path) -> list[dict[str, float]]:
+def read_metrics(path: Path) -> list[dict[str, float]]:
+    """metrics.csv's rows as floats (blank: NaN) up to any row a kill cut short; none without the file."""
     if not path.is_file():
         return []
     rows = []
@@ -87,9 +87,7 @@ def load_run(path: str | Path) -> RunRecord:
     # there from the job's start, also for runs that failed validation.
     config = _read_yaml(path / CONFIG_FILE) or _read_yaml(path / HYDRA_DIR / "config.yaml") or {}
     config = deploy_node(config)  # a run saved with the flat deployment options groups with the node's
-    record = RunRecord(
-        path, INCOMPLETE, [str(o) for o in overrides], config, metrics=_read_metrics(path / METRICS_FILE)
-    )
+    record = RunRecord(path, INCOMPLETE, [str(o) for o in overrides], config, metrics=read_metrics(path / METRICS_FILE))
     if (path / EVAL_FILE).is_file():
         try:
             record.eval, record.status = json.loads((path / EVAL_FILE).read_text()), OK

@@ -6,8 +6,7 @@ rule) is :mod:`cmdp_rl.run.tune_trial`; the report :mod:`cmdp_rl.run.tune_report
 
 Not ``study.optimize``, which runs the objective in its own process and threads while a Hydra job runs where its
 launcher puts it; what ``optimize`` adds is done here with Optuna's public pieces: heartbeats while a trial runs
-(a killed worker's trial is failed and queued again) and ``n_trials`` counted across every worker on the storage.
-"""
+(a killed worker's trial is failed and queued again) and ``n_trials`` counted across every worker on the storage."""
 
 from __future__ import annotations
 
@@ -128,9 +127,8 @@ def corners(space: Mapping[str, Any]) -> list[list[str]]:
 def check_space(
     space: Mapping[str, Any], fixed: Sequence[str], seeds: int, compose: Callable[[list[str]], dict]
 ) -> dict[str, Any]:
-    """Compose and validate a job at each end of the space (an option the config lacks, or a value its rules
-    refuse, stops here in one line); returns the low end's config. ``compose(overrides)`` is Hydra's composition
-    of a job's task config, resolved."""
+    """Compose (``compose(overrides)``: a job's task config, resolved) and validate a job at each end of the space: an
+    option the config lacks, or a value its rules refuse, stops here in one line. Returns the low end's config."""
     from cmdp_rl.config.run_config import load_config
     from cmdp_rl.population.spec import agent_configs
 
@@ -160,10 +158,9 @@ def check_space(
 
 
 def budgets(budget: Any, raw: Mapping[str, Any], searched: Sequence[str] = ()) -> tuple[tuple[str, ...], list[float]]:
-    """The env's cost names (a 2-env copy of the base config's env is built: only the env knows them) and the
-    search's budget per cost: ``budget`` (a number, a list of K, or ``{cost: budget}`` naming every cost), or,
-    when null, the config's own ``algo.cost_limit`` (the task's unless given), unless that is among the
-    ``searched`` options."""
+    """The env's cost names (a 2-env copy of the base config's env is built: only the env knows them) and the search's
+    budget per cost: ``budget`` (a number, a list of K, or ``{cost: budget}`` naming every cost), or, when null, the
+    config's own ``algo.cost_limit`` (the task's unless given), unless that is among the ``searched`` options."""
     from cmdp_rl.config.run_config import load_config
     from cmdp_rl.envs import make_env
 

@@ -1,8 +1,7 @@
 """The search's report (docs/tuning.md): the best options within budget, their return and costs with intervals, the
 command that reruns them, ``tune.json`` and Optuna's plots in the sweep directory. The search writes it when it ends;
 ``python -m cmdp_rl.run.tune_report <storage> [--study NAME] [--out DIR]`` writes it again from the storage (a URL, or
-the path of the SQLite file), while the search runs or after.
-"""
+the path of the SQLite file), while the search runs or after."""
 
 from __future__ import annotations
 
@@ -105,10 +104,9 @@ def write_plots(study: Any, out: Path, best: Any, notes: list[str]) -> list[str]
     """Optuna's optimisation history and parameter importances, and the return-cost plane with the budgets (Optuna's
     Pareto-front plot is for multi-objective studies and draws no budget). A plot the study cannot have yet (too few
     trials) is left out, with a line saying why."""
-    import matplotlib
+    from cmdp_rl.report.plot import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    pyplot()  # the file-only backend, before Optuna's plots import pyplot
     import optuna.visualization.matplotlib as ovm
     from optuna.importance import PedAnovaImportanceEvaluator
 
@@ -126,10 +124,7 @@ def write_plots(study: Any, out: Path, best: Any, notes: list[str]) -> list[str]
             except (ValueError, RuntimeError, ZeroDivisionError) as exc:
                 notes.append(f"no {name} plot: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
                 continue
-            fig = ax.figure if hasattr(ax, "figure") else ax.flat[0].figure
-            fig.tight_layout()
-            fig.savefig(out / f"{name}.png", dpi=110)
-            plt.close(fig)
+            save_figure(ax.figure if hasattr(ax, "figure") else ax.flat[0].figure, out / f"{name}.png", dpi=110)
             written.append(f"{name}.png")
     return written
 

@@ -5,8 +5,7 @@ bound by ``feasible_by``), which Optuna's samplers take as a constraint (``const
 Inside a job the search (run/tune.py) names the trial in ``hydra.job.env_set``; :class:`ReportToTrial`
 (``hydra.callbacks`` in configs/config.yaml, a no-op in any other job) then watches the training loop's rows
 (``run/loop.py``'s ITERATION_OBSERVERS). Past the warm-up (``prune_after``) it reports the return only, never the
-cost, and the pruner compares it with the trials within budget only (:class:`FeasibleOnly`).
-"""
+cost, and the pruner compares it with the trials within budget only (:class:`FeasibleOnly`)."""
 
 from __future__ import annotations
 

@@ -101,8 +101,8 @@ def run_one(case: str, method: str, seed: int, out: Path, extra: Sequence[str] =
 def exact_value(out: Path, cfg) -> tuple[float | None, list[float] | None]:
     """The exact return and costs of a run's deployed policy (its members', weighted: a mixture
     drawn per episode has the weighted mean of its members' values) on env=fork and env=grid K = 2."""
-    from cmdp_rl.deploy.mixture import members_of, weights_of
     from cmdp_rl.run.rundir import load_trained
+    from lab.studies.fork_policy import members_of, weights_of
 
     if cfg.env.name == "fork":
         from lab.studies.fork_policy import mixture_gap

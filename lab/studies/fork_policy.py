@@ -12,6 +12,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from cmdp_rl.deploy.mixture import MixtureBody
 from cmdp_rl.envs.fork.model import ForkCMDP
 from cmdp_rl.envs.grid.optimum import ConstrainedOptimum
 from cmdp_rl.envs.grid.tabular import evaluate
@@ -46,4 +47,16 @@ def mixture_gap(
     )
 
 
-__all__ = ["action_table", "mixture_gap"]
+def members_of(actor: Actor) -> list[Actor]:
+    """The member actors of a mixture; any other actor is its own one member."""
+    return list(actor.body.members) if isinstance(actor.body, MixtureBody) else [actor]
+
+
+def weights_of(actor: Actor) -> list[float]:
+    """The probability of drawing each of :func:`members_of`'s actors."""
+    members = members_of(actor)
+    weights = actor.body.weights if isinstance(actor.body, MixtureBody) else None
+    return [1.0 / len(members)] * len(members) if weights is None else weights.tolist()
+
+
+__all__ = ["action_table", "members_of", "mixture_gap", "weights_of"]

@@ -60,7 +60,7 @@ def mixture_values(
 
 def deployed_values(agent: Any, cmdp: FiniteCMDP, deterministic: bool = False) -> Values:
     """Exact values of what a run deploys: its actor, or the mixture ``deploy.policy=mixture`` built."""
-    from cmdp_rl.deploy.mixture import members_of, weights_of
+    from lab.studies.fork_policy import members_of, weights_of
 
     return mixture_values(members_of(agent.actor), cmdp, weights_of(agent.actor), deterministic)
 

@@ -42,6 +42,3 @@ def like(values: Any, ref: Array) -> Array:
     if isinstance(ref, torch.Tensor):
         return torch.as_tensor(np.asarray(values), dtype=ref.dtype, device=ref.device)
     return np.asarray(values, dtype=ref.dtype)
-
-
-__all__ = ["Array", "distance", "like", "namespace", "to_host", "zeros"]

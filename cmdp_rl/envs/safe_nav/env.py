@@ -1,12 +1,10 @@
 """Safety-Gymnasium's navigation tasks, N at a time: ``env=safe_nav env.task=PointGoal1``.
 
-The same tasks as ``env=safety_gym`` (Safety-Gymnasium 1.0.0's), rebuilt for speed and equal to
-them step for step (tests/test_safe_nav.py; docs/safe_nav.md): physics compiled once, N worlds
-stepped in one loop (``world.py``, or MuJoCo Warp with ``env.physics=mjwarp``: ``warp_world.py``);
-layouts drawn from the reference's random streams (``layout.py``); each family's reward, cost and
-lidar written once over the N envs (``FAMILIES``). This module: the batch itself (physics step, the
-robot's sensors, time limit, per-env automatic reset, resume).
-"""
+The same tasks as ``env=safety_gym`` (Safety-Gymnasium 1.0.0's), rebuilt for speed and equal to them step for step
+(tests/test_safe_nav.py; docs/safe_nav.md): physics compiled once, N worlds stepped in one loop (``world.py``, or MuJoCo
+Warp with ``env.physics=mjwarp``: ``warp_world.py``); layouts drawn from the reference's random streams (``layout.py``);
+each family's reward, cost and lidar written once over the N envs (``FAMILIES``). This module: the batch itself (physics
+step, the robot's sensors, time limit, per-env automatic reset, resume)."""
 
 from __future__ import annotations
 
@@ -23,7 +21,7 @@ from cmdp_rl.envs.safe_nav.button import ButtonTask
 from cmdp_rl.envs.safe_nav.circle import CircleTask
 from cmdp_rl.envs.safe_nav.goal import GoalTask
 from cmdp_rl.envs.safe_nav.layout import LayoutSampler
-from cmdp_rl.envs.safe_nav.lidar import LIDAR_BINS, pseudo_lidar
+from cmdp_rl.envs.safe_nav.lidar import LIDAR_BINS
 from cmdp_rl.envs.safe_nav.push import PushTask
 from cmdp_rl.envs.safe_nav.spec import ROBOTS, nav_spec
 from cmdp_rl.envs.safe_nav.warp_world import WARP_TASKS, WarpWorlds, warp_problem
@@ -145,10 +143,6 @@ class SafeNavVecEnv(VecEnv):
         self.logic.start(envs, layouts, world)
         return self._obs(envs, world)
 
-    def start_from(self, i: int, layout: dict[str, Any]) -> torch.Tensor:
-        """Env ``i`` starts a new episode from ``layout`` (e.g. a reference env's); its first observation."""
-        return self._tensor(self._start([i], [layout]))[0]
-
     def reset(self, seed: int | None = None) -> torch.Tensor:
         if seed is not None:
             seeds = [seed + i for i in range(self.num_envs)]
@@ -177,8 +171,7 @@ class SafeNavVecEnv(VecEnv):
         reward, cost, terminated = self.logic.step(world)
         self.steps += 1
         truncated = self.steps >= self.max_steps
-        next_obs = self._obs(every, world)
-        obs = next_obs
+        obs = next_obs = self._obs(every, world)
         next_obs_t = obs_t = self._tensor(next_obs)
         done = np.flatnonzero(to_host(terminated) | truncated)
         if len(done):
@@ -285,5 +278,3 @@ def make_safe_nav_vec_env(cfg: SafeNavEnvConfig, num_envs: int, device: str = "c
 
 
 register("env", "safe_nav", SafeNavEnvConfig, make_safe_nav_vec_env)
-
-__all__ = ["TASKS", "SafeNavEnvConfig", "SafeNavVecEnv", "make_safe_nav_vec_env", "pseudo_lidar", "task_problem"]

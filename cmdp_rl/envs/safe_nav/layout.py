@@ -9,22 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav.spec import (
-    AGENT_KEEPOUT,
-    BUTTON_GOAL_KEEPOUT,
-    BUTTON_HAZARD_KEEPOUT,
-    BUTTON_KEEPOUT,
-    GOAL_KEEPOUT,
-    GREMLIN_KEEPOUT,
-    HAZARD_KEEPOUT,
-    PILLAR_KEEPOUT,
-    PUSH_BOX,
-    PUSH_GOAL_KEEPOUT,
-    PUSH_HAZARD_KEEPOUT,
-    SIGWALL_AT,
-    VASE_KEEPOUT,
-    NavSpec,
-)
+from cmdp_rl.envs.safe_nav import spec as sg  # Safety-Gymnasium 1.0.0's object sizes and keep-outs
+from cmdp_rl.envs.safe_nav.spec import NavSpec
 
 LAYOUT_TRIES = 10_000  # whole layouts, and goal places mid-episode
 OBJECT_TRIES = 100  # places per object within one layout
@@ -41,29 +27,29 @@ def _fixed(x: float, y: float, keepout: float) -> Box:
 def placements(spec: NavSpec) -> list[tuple[str, float, Box | None]]:
     """The objects a layout places, in the reference's order: (kind, keep-out, box drawn in or None: the square)."""
     if spec.family == "Circle":
-        walls = [(SIGWALL_AT, 0.0), (-SIGWALL_AT, 0.0), (0.0, SIGWALL_AT), (0.0, -SIGWALL_AT)]
+        walls = [(sg.SIGWALL_AT, 0.0), (-sg.SIGWALL_AT, 0.0), (0.0, sg.SIGWALL_AT), (0.0, -sg.SIGWALL_AT)]
         return [("agent", 0.0, (-0.8, -0.8, 0.8, 0.8)), ("circle", 0.0, _fixed(0.0, 0.0, 0.0))] + [
             ("sigwalls", 0.0, _fixed(*walls[k], 0.0)) for k in range(spec.sigwalls)
         ]
     if spec.family == "Button":
         return (
-            [("agent", AGENT_KEEPOUT, None)]
-            + [("buttons", BUTTON_KEEPOUT, None)] * spec.buttons
-            + [("goal", BUTTON_GOAL_KEEPOUT, None)]
-            + [("hazards", BUTTON_HAZARD_KEEPOUT, None)] * spec.hazards
-            + [("gremlins", GREMLIN_KEEPOUT, None)] * spec.gremlins
+            [("agent", sg.AGENT_KEEPOUT, None)]
+            + [("buttons", sg.BUTTON_KEEPOUT, None)] * spec.buttons
+            + [("goal", sg.BUTTON_GOAL_KEEPOUT, None)]
+            + [("hazards", sg.BUTTON_HAZARD_KEEPOUT, None)] * spec.hazards
+            + [("gremlins", sg.GREMLIN_KEEPOUT, None)] * spec.gremlins
         )
     if spec.family == "Push":
         return (
-            [("agent", AGENT_KEEPOUT, None), ("goal", PUSH_GOAL_KEEPOUT, None)]
-            + [("hazards", PUSH_HAZARD_KEEPOUT, None)] * spec.hazards
-            + [("pillars", PILLAR_KEEPOUT, None)] * spec.pillars
-            + [("push_box", PUSH_BOX[spec.robot][0], None)]
+            [("agent", sg.AGENT_KEEPOUT, None), ("goal", sg.PUSH_GOAL_KEEPOUT, None)]
+            + [("hazards", sg.PUSH_HAZARD_KEEPOUT, None)] * spec.hazards
+            + [("pillars", sg.PILLAR_KEEPOUT, None)] * spec.pillars
+            + [("push_box", sg.PUSH_BOX[spec.robot][0], None)]
         )
     return (
-        [("agent", AGENT_KEEPOUT, None), ("goal", GOAL_KEEPOUT, None)]
-        + [("hazards", HAZARD_KEEPOUT, None)] * spec.hazards
-        + [("vases", VASE_KEEPOUT, None)] * spec.vases
+        [("agent", sg.AGENT_KEEPOUT, None), ("goal", sg.GOAL_KEEPOUT, None)]
+        + [("hazards", sg.HAZARD_KEEPOUT, None)] * spec.hazards
+        + [("vases", sg.VASE_KEEPOUT, None)] * spec.vases
     )
 
 

@@ -54,6 +54,3 @@ def _lit(objects_xy: Array, agent_pos: Array, agent_mat: Array, max_dist: float)
     lit = xp.where(at[0], reading[..., None], 0.0)
     lit = xp.maximum(lit, xp.where(at[1], (alias * reading)[..., None], 0.0))
     return xp.maximum(lit, xp.where(at[2], ((1 - alias) * reading)[..., None], 0.0))
-
-
-__all__ = ["LIDAR_BINS", "LIDAR_MAX", "pseudo_lidar", "pseudo_lidars"]

@@ -10,19 +10,8 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from cmdp_rl.envs.safe_nav.spec import (
-    BUTTON_SIZE,
-    CIRCLE_RADIUS,
-    GREMLIN_DENSITY,
-    GREMLIN_SIZE,
-    PILLAR_HEIGHT,
-    PILLAR_SIZE,
-    PUSH_BOX,
-    SIGWALL_SIZE,
-    VASE_DENSITY,
-    VASE_SIZE,
-    NavSpec,
-)
+from cmdp_rl.envs.safe_nav import spec as sg  # Safety-Gymnasium 1.0.0's object sizes and keep-outs
+from cmdp_rl.envs.safe_nav.spec import NavSpec
 
 CORNERS = ((1, 1), (-1, 1), (1, -1), (-1, -1))  # the push box's four smaller boxes
 
@@ -50,14 +39,14 @@ def world_xml(spec: NavSpec) -> str:
     # free bodies: (name, its box geoms (name, half sizes, offset or None), density, group)
     frees = []
     if spec.push_box:
-        size, density = PUSH_BOX[spec.robot]
+        size, density = sg.PUSH_BOX[spec.robot]
         corners = [
             (f"col{k + 1}", [size / 2, size / 2, size], [x * size, y * size, 0.0]) for k, (x, y) in enumerate(CORNERS)
         ]
         frees.append(("push_box", [("push_box", [size] * 3, None), *corners], density, "1"))
-    frees += [(f"vase{i}", [(f"vase{i}", [VASE_SIZE] * 3, None)], VASE_DENSITY, "4") for i in range(spec.vases)]
+    frees += [(f"vase{i}", [(f"vase{i}", [sg.VASE_SIZE] * 3, None)], sg.VASE_DENSITY, "4") for i in range(spec.vases)]
     for i in range(spec.gremlins):
-        frees.append((f"gremlin{i}obj", [(f"gremlin{i}obj", [GREMLIN_SIZE] * 3, None)], GREMLIN_DENSITY, "5"))
+        frees.append((f"gremlin{i}obj", [(f"gremlin{i}obj", [sg.GREMLIN_SIZE] * 3, None)], sg.GREMLIN_DENSITY, "5"))
     for name, geoms, density, group in frees:
         body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
         ET.SubElement(body, "freejoint", name=name)
@@ -72,18 +61,20 @@ def world_xml(spec: NavSpec) -> str:
         # frame, so that the compiler does not merge the two frames).
         name = f"gremlin{i}mocap"
         body = ET.SubElement(worldbody, "body", name=name, mocap="true")
-        box = dict(name=name, type="box", size=_fmt([GREMLIN_SIZE] * 3), pos="0.5 0.5 0.1", quat=_fmt(rot_quat(1.0)))
+        box = dict(name=name, type="box", size=_fmt([sg.GREMLIN_SIZE] * 3), pos="0.5 0.5 0.1", quat=_fmt(rot_quat(1.0)))
         ET.SubElement(body, "geom", box, contype="0", conaffinity="0", group="5")
         ET.SubElement(equality, "weld", name=name, body1=name, body2=f"gremlin{i}obj", solref=".02 1.5")
     # (name, type, size, group, has contacts)
     if spec.family == "Circle":
-        statics = [("circle", "cylinder", [CIRCLE_RADIUS, 1e-2], "6", False)]
-        statics += [(f"sigwall{i}", "box", SIGWALL_SIZE, "10", False) for i in range(spec.sigwalls)]
+        statics = [("circle", "cylinder", [sg.CIRCLE_RADIUS, 1e-2], "6", False)]
+        statics += [(f"sigwall{i}", "box", sg.SIGWALL_SIZE, "10", False) for i in range(spec.sigwalls)]
     else:
-        statics = [(f"button{i}", "sphere", [BUTTON_SIZE] * 3, "1", True) for i in range(spec.buttons)]
+        statics = [(f"button{i}", "sphere", [sg.BUTTON_SIZE] * 3, "1", True) for i in range(spec.buttons)]
         statics += [("goal", "cylinder", [spec.goal_size, spec.goal_size / 2], "9", False)]
         statics += [(f"hazard{i}", "cylinder", [spec.hazard_size, 1e-2], "3", False) for i in range(spec.hazards)]
-        statics += [(f"pillar{i}", "cylinder", [PILLAR_SIZE, PILLAR_HEIGHT], "2", True) for i in range(spec.pillars)]
+        statics += [
+            (f"pillar{i}", "cylinder", [sg.PILLAR_SIZE, sg.PILLAR_HEIGHT], "2", True) for i in range(spec.pillars)
+        ]
     for name, kind, size, group, touch in statics:
         body = ET.SubElement(worldbody, "body", name=name, pos="0 0 0", quat="1 0 0 0")
         contacts = "1" if touch else "0"

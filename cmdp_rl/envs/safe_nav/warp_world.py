@@ -155,6 +155,3 @@ class WarpWorlds:
 
     def close(self) -> None:
         self.host.close()
-
-
-__all__ = ["NCONMAX", "NJMAX", "PER_WORLD", "WARP_TASKS", "WarpWorlds", "warp_problem"]

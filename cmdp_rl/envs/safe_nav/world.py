@@ -9,21 +9,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from cmdp_rl.envs.safe_nav import spec as sg  # Safety-Gymnasium 1.0.0's object sizes and keep-outs
 from cmdp_rl.envs.safe_nav.mjcf import rot_quat, world_xml
-from cmdp_rl.envs.safe_nav.spec import (
-    BUTTON_SIZE,
-    CIRCLE_Z,
-    FRAMESKIP,
-    GREMLIN_SIZE,
-    GREMLIN_TRAVEL,
-    HAZARD_Z,
-    PILLAR_HEIGHT,
-    PUSH_BOX,
-    SIGWALL_Z,
-    VASE_SINK,
-    VASE_SIZE,
-    NavSpec,
-)
+from cmdp_rl.envs.safe_nav.spec import NavSpec
 
 
 class NavWorlds:
@@ -95,23 +83,25 @@ class NavWorlds:
             m.body_pos[self.goal] = [*layout["goal"], self.goal_z]
             m.body_quat[self.goal] = rot_quat(layout["goal_rot"])
         if self.circle >= 0:  # the reference gives the circle and sigwalls fixed rotations
-            m.body_pos[self.circle] = [*layout["circle"], CIRCLE_Z]
+            m.body_pos[self.circle] = [*layout["circle"], sg.CIRCLE_Z]
         for k, b in enumerate(self.sigwalls):
-            m.body_pos[b] = [*layout["sigwalls"][k], SIGWALL_Z]
+            m.body_pos[b] = [*layout["sigwalls"][k], sg.SIGWALL_Z]
             m.body_quat[b] = rot_quat(math.pi / 2 if k >= 2 else 0.0)
-        for bodies, kind, z in ((self.hazards, "hazards", HAZARD_Z), (self.pillars, "pillars", PILLAR_HEIGHT)):
+        for bodies, kind, z in ((self.hazards, "hazards", sg.HAZARD_Z), (self.pillars, "pillars", sg.PILLAR_HEIGHT)):
             for k, b in enumerate(bodies):
                 m.body_pos[b] = [*layout[kind][k], z]
                 m.body_quat[b] = rot_quat(layout[f"{kind}_rot"][k])
         for k, b in enumerate(self.buttons):
-            m.body_pos[b] = [*layout["buttons"][k], BUTTON_SIZE]
+            m.body_pos[b] = [*layout["buttons"][k], sg.BUTTON_SIZE]
             m.body_quat[b] = rot_quat(layout["buttons_rot"][k])
         for k, b in enumerate(self.vases):
-            self._place_free(m, b, layout["vases"][k], VASE_SIZE - VASE_SINK, layout["vases_rot"][k])
+            self._place_free(m, b, layout["vases"][k], sg.VASE_SIZE - sg.VASE_SINK, layout["vases_rot"][k])
         if self.push_box >= 0:
-            self._place_free(m, self.push_box, layout["push_box"], PUSH_BOX[self.spec.robot][0], layout["push_box_rot"])
+            self._place_free(
+                m, self.push_box, layout["push_box"], sg.PUSH_BOX[self.spec.robot][0], layout["push_box_rot"]
+            )
         for k, (b, mocap) in enumerate(zip(self.gremlins, self.gremlin_mocaps)):
-            pos, quat = self._place_free(m, b, layout["gremlins"][k], GREMLIN_SIZE, layout["gremlins_rot"][k])
+            pos, quat = self._place_free(m, b, layout["gremlins"][k], sg.GREMLIN_SIZE, layout["gremlins_rot"][k])
             # what the compiler derives from the placed geom: the mocap body's inertial frame, the weld's pose
             g = m.body_geomadr[mocap]
             m.geom_pos[g] = m.body_ipos[mocap] = m.eq_data[k, 3:6] = pos
@@ -213,7 +203,7 @@ class NavWorlds:
         for i in envs:
             m, d = models[i], datas[i]
             d.ctrl[:] = ctrl[i]
-            step(m, d, FRAMESKIP)  # FRAMESKIP steps in one call (one GIL release)
+            step(m, d, sg.FRAMESKIP)  # FRAMESKIP steps in one call (one GIL release)
             forward(m, d)
             copy_out(i, d)
 
@@ -224,9 +214,9 @@ class NavWorlds:
         targets = self._targets.get(time)
         if targets is None:
             points, t = [], time
-            for _ in range(FRAMESKIP):
-                target = np.array([np.sin(t), np.cos(t)]) * GREMLIN_TRAVEL
-                points.append(np.r_[target, [GREMLIN_SIZE]])
+            for _ in range(sg.FRAMESKIP):
+                target = np.array([np.sin(t), np.cos(t)]) * sg.GREMLIN_TRAVEL
+                points.append(np.r_[target, [sg.GREMLIN_SIZE]])
                 t += timestep
             targets = self._targets[time] = tuple(points)
         return targets

@@ -92,13 +92,6 @@ def _robotics_stand_ins() -> dict[str, types.ModuleType]:
     return mods
 
 
-def _registration_helpers() -> dict[str, Any]:
-    """Fix 2: ``_check_metadata`` (0.28 only warned on odd metadata) and ``_find_spec`` of 0.28's registration."""
-    import gymnasium
-
-    return {"_check_metadata": lambda metadata: None, "_find_spec": gymnasium.spec}
-
-
 def _patch(owner: Any, name: str, wrap: Callable[[Any], Any]) -> None:
     """``owner.<name> = wrap(original)``, once (the replacement is marked)."""
     original = getattr(owner, name)
@@ -163,7 +156,9 @@ def import_safety_gymnasium() -> types.ModuleType:
 
         stand_ins = {**_gymnasium_stand_ins(), **_robotics_stand_ins()}
         stand_ins = {k: v for k, v in stand_ins.items() if k not in sys.modules}
-        helpers = {k: v for k, v in _registration_helpers().items() if not hasattr(registration, k)}
+        # Fix 2: 0.28's registration helpers ``_check_metadata`` (which only warned on odd metadata) and ``_find_spec``.
+        helpers = {"_check_metadata": lambda metadata: None, "_find_spec": registration.spec}
+        helpers = {k: v for k, v in helpers.items() if not hasattr(registration, k)}
         finder = _ColorFix()
         sys.modules.update(stand_ins)
         for k, v in helpers.items():
@@ -183,6 +178,3 @@ def import_safety_gymnasium() -> types.ModuleType:
         _patch(importlib.import_module("safety_gymnasium.bases.base_agent").BaseAgent, "get_sensor", _get_sensor)
         _patch(importlib.import_module("safety_gymnasium.bases.underlying"), "OffScreenViewer", _offscreen_viewer)
         return module
-
-
-__all__ = ["import_safety_gymnasium"]

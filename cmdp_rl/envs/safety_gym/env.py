@@ -1,11 +1,10 @@
 """Safety-Gymnasium's own tasks (``env=safety_gym env.task=SafetyPointGoal1-v0``), unchanged.
 
-Built from the registered entry point and kwargs (``compat.py`` says why not by
-``safety_gymnasium.make``); :class:`SafetyGymTask` turns its six-value step into gymnasium's five,
-the cost in ``info["cost"]``, and :class:`GymVecEnv` steps N of them (``env.vector=async``: in worker
-processes). Navigation tasks truncate at their step limit and terminate only when the robot dies or
-the task says so (a goal reached is rewarded and replaced); velocity tasks terminate as gymnasium's
-MuJoCo envs do."""
+Built from the registered entry point and kwargs (``compat.py`` says why not by ``safety_gymnasium.make``);
+:class:`SafetyGymTask` turns its six-value step into gymnasium's five, the cost in ``info["cost"]``, and
+:class:`GymVecEnv` steps N of them (``env.vector=async``: in worker processes). Navigation tasks truncate at their step
+limit and terminate only when the robot dies or the task says so (a goal reached is rewarded and replaced); velocity
+tasks terminate as gymnasium's MuJoCo envs do."""
 
 from __future__ import annotations
 
@@ -163,5 +162,3 @@ def make_safety_gym_vec_env(cfg: SafetyGymEnvConfig, num_envs: int, device: str 
 
 
 register("env", "safety_gym", SafetyGymEnvConfig, make_safety_gym_vec_env)
-
-__all__ = ["SafetyGymEnvConfig", "SafetyGymTask", "SafetyGymVecEnv", "make_safety_gym_vec_env", "make_task"]

@@ -66,6 +66,3 @@ class SafetyMaMuJoCo(ParallelEnv):
 
     def close(self) -> None:
         self.env.close()
-
-
-__all__ = ["SafetyMaMuJoCo"]

@@ -11,19 +11,10 @@ LEVELS = (0, 1, 2)
 VELOCITY_ROBOTS = ("HalfCheetah", "Hopper", "Swimmer", "Walker2d", "Ant", "Humanoid")
 
 
-def _navigation() -> dict[str, int]:
-    tasks = {}
-    for robot in ROBOTS:
-        for family in NAVIGATION:
-            for level in LEVELS:
-                tasks[f"Safety{robot}{family}{level}-v0"] = 500 if family == "Circle" else 1000
-        tasks[f"Safety{robot}Run0-v0"] = 500
-    return tasks
-
-
 # id -> the episode limit Safety-Gymnasium registers it with (steps).
 TASKS: dict[str, int] = {
-    **_navigation(),
+    **{f"Safety{r}{f}{lv}-v0": 500 if f == "Circle" else 1000 for r in ROBOTS for f in NAVIGATION for lv in LEVELS},
+    **{f"Safety{robot}Run0-v0": 500 for robot in ROBOTS},
     **{f"Safety{robot}Velocity-v{v}": 1000 for robot in VELOCITY_ROBOTS for v in (0, 1)},
 }
 
@@ -56,6 +47,3 @@ def task_problem(task: str) -> str | None:
             instead = f"; use {hint}" if hint in TASKS else ""
             return f"env.task must be an offered Safety-Gymnasium task, got {task!r}: it {why}{instead}"
     return f"env.task must be one of {ALLOWED}, got {task!r}"
-
-
-__all__ = ["ALLOWED", "TASKS", "task_problem"]

@@ -1,10 +1,9 @@
-"""A Safety-Gymnasium navigation task's state as plain fields, and restoring it into a fresh task
-(docs/checkpoints.md). The object graph (builder, task, world, agent, obstacles) is saved by attribute
-path, each node a one-key dict: ``value`` (a number, string, array or plain container), ``fields`` (an
-object of the package), ``items`` / ``entries`` (a list, tuple or dict holding such objects), ``set``,
-``random_state``. Restoring walks the same paths in a task built from the same id and only sets
-values on objects the code built. The model is rebuilt from the MJCF plus its small arrays; an object
-of an unknown type stops the save with its path named, rather than resume inexactly."""
+"""A Safety-Gymnasium navigation task's state as plain fields, and restoring it into a fresh task (docs/checkpoints.md).
+The object graph (builder, task, world, agent, obstacles) is saved by attribute path, each node a one-key dict:
+``value`` (a number, string, array or plain container), ``fields`` (an object of the package), ``items`` / ``entries``
+(a list, tuple or dict holding such objects), ``set``, ``random_state``. Restoring walks the same paths in a task built
+from the same id and only sets values on objects the code built. The model is rebuilt from the MJCF plus its small
+arrays; an object of an unknown type stops the save with its path named, rather than resume inexactly."""
 
 from __future__ import annotations
 
@@ -48,14 +47,8 @@ def _node(value: Any, where: str, seen: set[int]) -> dict[str, Any] | None:
 
 
 def _fields(obj: Any, where: str, seen: set[int], skip: set[str] = _SKIPPED) -> dict[str, Any]:
-    out = {}
-    for name, value in vars(obj).items():
-        if name in skip:
-            continue
-        node = _node(value, f"{where}.{name}", seen)
-        if node is not None:
-            out[name] = node
-    return out
+    nodes = {name: _node(value, f"{where}.{name}", seen) for name, value in vars(obj).items() if name not in skip}
+    return {name: node for name, node in nodes.items() if node is not None}
 
 
 def _restored(live: Any, node: dict[str, Any], where: str) -> Any:
@@ -122,6 +115,16 @@ def world_state(builder: Any) -> dict[str, Any]:
     }
 
 
+def saved_model(state: dict[str, Any]) -> Any:
+    """The ``MjModel`` a saved world holds: compiled from its MJCF, then its small arrays set."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string(state["xml"])
+    for name, value in state["model_arrays"].items():
+        getattr(model, name)[...] = value
+    return model
+
+
 def load_world_state(builder: Any, state: dict[str, Any]) -> None:
     """Restore :func:`world_state`'s ``state`` into a builder made from the same task id."""
     import mujoco
@@ -131,12 +134,7 @@ def load_world_state(builder: Any, state: dict[str, Any]) -> None:
     _load_fields(builder, state["fields"], "builder")
     if state["xml"] is None:
         return
-    model = mujoco.MjModel.from_xml_string(state["xml"])
-    for name, value in state["model_arrays"].items():
-        getattr(model, name)[...] = value
+    model = saved_model(state)
     data = mujoco.MjData(model)
     load_mujoco_data_state(model, data, state["data"])
     builder.task.world.engine.update(model, data)
-
-
-__all__ = ["BUILDER_CONFIG", "load_world_state", "world_state"]
