@@ -116,8 +116,7 @@ def _controllers(algo: dict):
 )
 def test_every_lagrangian_algorithm_builds_the_chosen_update_on_the_relative_violation(algo, cls):
     built = _controllers({**algo, "cost_limit": 0.5})
-    multipliers = built.lagrange.multipliers if hasattr(built, "lagrange") else built.multiplier
-    (c,) = multipliers.controllers
+    (c,) = built.multiplier.controllers
     assert isinstance(c, cls) and c.scale == pytest.approx(c.cost_limit)  # sac/td3: the discounted budget
 
 
