@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Iterator
 
 from cmdp_rl.run.rundir import (
+    AGENTS_DIR,
     CHECKPOINT,
     CONFIG,
     ERROR,
@@ -32,7 +33,7 @@ LOCK = ".run.lock"
 RUN_FILES = (CONFIG, METRICS, CHECKPOINT, EVAL, POPULATION_CONFIG, POPULATION_CHECKPOINT)
 # What overwrite=true removes: every output of a run. Hydra's record and log too where the claim
 # comes before Hydra writes them (train.py's callback), never after (a sweep's job).
-OUTPUTS = (*RUN_FILES, RUN_INFO, ERROR, POPULATION_SUMMARY, "wandb_id.txt", TENSORBOARD, "wandb", "videos", "agents")
+OUTPUTS = (*RUN_FILES, RUN_INFO, ERROR, POPULATION_SUMMARY, "wandb_id.txt", TENSORBOARD, "wandb", "videos", AGENTS_DIR)
 HYDRA_RECORD = (".hydra", "train.log")
 
 _held: dict[Path, tuple[int, int]] = {}  # directory -> (lock file descriptor, claims in this process)

@@ -46,6 +46,7 @@ TENSORBOARD = "tb"
 # A population's directory (cmdp_rl/population/): its composed config and summary beside its CHECKPOINT.
 POPULATION_CONFIG = "population.yaml"
 POPULATION_SUMMARY = "population.json"
+AGENTS_DIR = "agents"  # a population's agents' run directories
 # A population's checkpoint before it took CHECKPOINT's name (same layout): still read by a resume.
 POPULATION_CHECKPOINT = "population.pt"
 
@@ -133,7 +134,7 @@ def checkpoint_path(run_dir: str | Path, what: str = "run") -> Path:
     if not run.is_dir():
         raise CheckpointError(f"{what}: no run directory at {run}")
     if (run / POPULATION_CONFIG).is_file():
-        raise CheckpointError(f"{what}: {run} is a population; its agents' runs are under {run / 'agents'}")
+        raise CheckpointError(f"{what}: {run} is a population; its agents' runs are under {run / AGENTS_DIR}")
     ckpt = run / CHECKPOINT
     if not ckpt.is_file():
         raise CheckpointError(f"{what}: no {CHECKPOINT} in {run} (did the run stop before its first checkpoint?)")

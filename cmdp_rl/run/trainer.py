@@ -43,6 +43,7 @@ from cmdp_rl.run.progress import Progress
 from cmdp_rl.run.resume import load_resume_state
 from cmdp_rl.run.rng import load_rng_state, rng_state, seed_everything
 from cmdp_rl.run.rundir import (
+    AGENTS_DIR,
     CHECKPOINT,
     CONFIG,
     EVAL,
@@ -440,7 +441,8 @@ def _train(
         save_checkpoint(
             out / CHECKPOINT, checkpoint_state(cfg, it, steps, time_s, entries(it), rollout, kernel.rng(), **more)
         )
-        (out / POPULATION_CHECKPOINT).unlink(missing_ok=True)  # an older population's, now superseded
+        if not run:
+            (out / POPULATION_CHECKPOINT).unlink(missing_ok=True)  # an older population's, now superseded
 
     progress, report = None, None
     if run:
@@ -505,12 +507,13 @@ def _train(
         results = [evaluate_run(c, a) for c, a in zip(cfgs, kernel.agents)]
     else:
         results = kernel.evaluate(cfgs, torch.device(cfg.device))
+    totals = kernel.cost_totals()
     for k, (d, c, result, f) in enumerate(zip(dirs, cfgs, results, finals)):
         if not run:  # the agent's entry of the last checkpoint as its own (it evaluates; the population resumes)
             save_checkpoint(
                 d / CHECKPOINT, checkpoint_state(c, iterations, steps, train_time, [final_entries[k]], None, None)
             )
-        write_result(d, result, c, steps, train_time, kernel.cost_totals()[k], names, reference, f.kept)
+        write_result(d, result, c, steps, train_time, totals[k], names, reference, f.kept)
         loggers[k].finish(result)  # the summary beside the metrics (logger=wandb)
     if run:
         header = f"done: {cfg.algo.name} {collector.total_steps:,} steps in {train_time:.1f}s; {deployed(results[0])}"
@@ -520,7 +523,6 @@ def _train(
 
 
 # --- P agents ------------------------------------------------------------------------------------
-AGENTS_DIR = "agents"
 
 
 def agent_dir_name(k: int, overrides: dict[str, Any]) -> str:
