@@ -201,11 +201,14 @@ class NaturalGradient:
         return units, self.policy_step(units, episode_cost, estimate.length)
 
     def linearise(
-        self, units: dict[str, torch.Tensor], adv: torch.Tensor
-    ) -> tuple[Surrogates, tuple[float, float], torch.Tensor, torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
+        self, units: dict[str, torch.Tensor], adv: torch.Tensor, cost_gradient: bool = True
+    ) -> tuple[
+        Surrogates, tuple[float, float], torch.Tensor, torch.Tensor | None, Callable[[torch.Tensor], torch.Tensor]
+    ]:
         """The subproblem at the current policy for the policy advantage ``adv`` (standardised if
         ``normalize_advantage``): the surrogates (for the line search), their values, the gradients ``g``
-        (policy) and ``b`` (cost) and the Fisher-vector product ``v -> H v``."""
+        (policy) and ``b`` (cost; None without ``cost_gradient``, a backward pass trpo_lag does not need)
+        and the Fisher-vector product ``v -> H v``."""
         params = self.policy_params
         cost_adv = units[keys.COST_ADVANTAGE]
         if self.cfg.normalize_advantage:
@@ -214,7 +217,7 @@ class NaturalGradient:
         surrogates = Surrogates(self.agent, units, adv, cost_adv - cost_adv.mean())
         reward_surr, cost_surr, kl = surrogates()
         g = flat(torch.autograd.grad(reward_surr, params, retain_graph=True))
-        b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True))
+        b = flat(torch.autograd.grad(cost_surr, params, retain_graph=True)) if cost_gradient else None
         fvp = fisher_vector_product(kl, params, self.cfg.cg_damping)
         return surrogates, (reward_surr.item(), cost_surr.item()), g, b, fvp
 

@@ -60,7 +60,7 @@ class TRPOLagrangian(NaturalGradient):
         lams = self.multiplier.update([episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost)
         # The cost surrogate is logged only (with K > 1: the mean over the constraints').
         adv = lagrangian_advantage(units, lams, cfg.advantage_scale)
-        surrogates, surr_values, g, _, fvp = self.linearise(units, adv)
+        surrogates, surr_values, g, _, fvp = self.linearise(units, adv, cost_gradient=False)
         h_inv_g = conjugate_gradient(fvp, g, cfg.cg_iters)
         q = g.dot(h_inv_g).item()
         check_finite(gradient=g.norm(), q=q)
