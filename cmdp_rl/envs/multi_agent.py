@@ -14,7 +14,6 @@ import importlib
 from dataclasses import field
 from typing import Annotated, Any, Callable, Literal
 
-import gymnasium as gym
 import numpy as np
 import torch
 
@@ -126,10 +125,6 @@ class PettingZooVecEnv(VecEnv):
         if self.constraint == "team":
             return self.agent_cost_names
         return tuple(f"{a}/{c}" for a in self.agents for c in self.agent_cost_names)
-
-    @property
-    def action_space(self) -> gym.Space:
-        return self._action_space
 
     def _rows(self, obs: dict) -> np.ndarray:
         """One env's ``[M, obs_dim]`` rows from its agents' observations."""

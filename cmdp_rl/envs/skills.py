@@ -8,7 +8,7 @@ Observation ``[x, t / max_steps]``; ``hold = k > 1``: :class:`~cmdp_rl.envs.hold
 
 from __future__ import annotations
 
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -43,7 +43,8 @@ class SkillsConfig(EnvOptions):
 class TorchSkills(VecEnv):
     """N envs of the module docstring in tensors; actions ``[N, 2]``: skill index, parameter."""
 
-    cost_names = ("dash",)
+    _cost_names = ("dash",)
+    saved = ("x", "t")  # positions and step counts: VecEnv saves and restores them
 
     def __init__(self, cfg: SkillsConfig, num_envs: int, device: str | torch.device = "cpu") -> None:
         self.cfg = cfg
@@ -100,15 +101,6 @@ class TorchSkills(VecEnv):
             truncated=truncated.unsqueeze(-1),
             obs=self._obs(self.x, self.t),
         )
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"num_envs": self.num_envs, "x": self.x.clone(), "t": self.t.clone()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state["num_envs"] != self.num_envs:
-            raise ValueError(f"env: saved state is for {state['num_envs']} envs, this one has {self.num_envs}")
-        self.x = state["x"].to(self.device).clone()
-        self.t = state["t"].to(self.device).clone()
 
 
 def make_skills(cfg: SkillsConfig, num_envs: int, device: str = "cpu") -> VecEnv:

@@ -221,7 +221,7 @@ class GymVecEnv(VecEnv):
         local = getattr(self.envs, "envs", None)
         names = declared_cost_names(local[0]) if local else None
         self.num_costs = len(names) if names is not None else _probe_num_costs(make_one)
-        self._cost_names = tuple(names) if names is not None else default_cost_names(self.num_costs)
+        self._cost_names = tuple(names) if names is not None else ()  # () reads as the default names
         if cost_names is not None:  # the user's names (env.cost_names), one per cost the env reports
             if len(cost_names) != self.num_costs:
                 self.envs.close()
