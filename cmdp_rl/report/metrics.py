@@ -102,6 +102,40 @@ def truncate_metrics(path: str | Path, iteration: int) -> list[str]:
 RECENT_EPISODES = 100
 
 
+def read_metrics(path: str | Path) -> list[dict[str, float]]:
+    """metrics.csv's rows as floats (blank: NaN) up to any row a kill cut short; none without the file."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    rows = []
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            try:
+                rows.append({k: float(v) if v not in ("", None) else float("nan") for k, v in row.items()})
+            except (TypeError, ValueError):
+                break  # a row cut short by a kill: keep what came before it
+    return rows
+
+
+def training_episodes(rows: Sequence[Mapping[str, float]], episodes: int = RECENT_EPISODES) -> dict[str, Any] | None:
+    """The training episodes' mean return and cost (each ``episode_cost*`` column) over the last iterations of
+    ``rows`` (metrics.csv's) that hold at least ``episodes`` finished episodes, whole iterations only, each episode
+    counted once: what published learning curves show (OmniSafe's ``Metrics/EpRet`` is its last 100 episodes).
+    ``episodes`` counts them; fewer where the run has not finished that many. None before the first ends."""
+    taken: list[Mapping[str, float]] = []
+    for row in reversed(rows):
+        if sum(r["episodes"] for r in taken) >= episodes:
+            break
+        if row.get("episodes", 0) > 0:
+            taken.append(row)
+    count = sum(r["episodes"] for r in taken)
+    if not count:
+        return None
+    names = [k for k in taken[0] if k == "episode_cost" or k.startswith("episode_cost/")]
+    mean = {k: sum(r[k] * r["episodes"] for r in taken) / count for k in ("episode_return", *names)}
+    return {**mean, "episodes": int(count), "first_step": int(taken[-1]["step"]), "last_step": int(taken[0]["step"])}
+
+
 class RecentEpisodes:
     """The last :data:`RECENT_EPISODES` finished episodes' returns and costs (K per episode)."""
 

@@ -18,10 +18,10 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from cmdp_rl.config.run_config import flatten_dict
+from cmdp_rl.report.metrics import read_metrics
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.migrations import deploy_node
 from cmdp_rl.run.rundir import CONFIG, METRICS, read_yaml
-from cmdp_rl.run.sweeps import read_metrics
 
 PANELS = (
     ("episode_return", "episode return"),

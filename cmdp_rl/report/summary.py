@@ -104,4 +104,33 @@ def summary_lines(
         *("  " + line for line in interval_summary(result, cost_limit, cost_names)),
     ]
     term = termination_line(result, env_cfg)
-    return lines if term is None else [*lines, "  " + term]
+    lines = lines if term is None else [*lines, "  " + term]
+    return [*lines, *("  " + line for line in other_lines(result, named))]
+
+
+def _interval(pair: Sequence[float] | None, fmt: str) -> str:
+    return "" if pair is None else f" [{pair[0]:{fmt}}, {pair[1]:{fmt}}]"
+
+
+def other_lines(result: Mapping[str, Any], named: Sequence[tuple[str, str, float]]) -> list[str]:
+    """The other evaluation mode's line (sampled actions beside the mean action's, or the reverse) and the
+    training episodes' line, where ``result`` has them (``modes``, ``training_episodes``)."""
+    lines = []
+    modes = result.get("modes") or {}
+    for r in modes.values():
+        if r.get("deterministic") == result.get("deterministic"):
+            continue
+        costs = [
+            f"{n} {r[f'episode_cost{s}']:.2f}{_interval(r.get(f'episode_cost_ci95{s}'), '.2f')}" for n, s, _ in named
+        ]
+        what = "mean action" if r.get("deterministic") else "sampled actions"
+        ret = f"return {r['episode_return']:.3f}{_interval(r.get('episode_return_ci95'), '.3f')}"
+        lines.append(f"{what} ({r['episodes']} episodes): {ret} | " + " | ".join(costs))
+    train = result.get("training_episodes")
+    if train:
+        costs = [f"{n} {train[f'episode_cost{s}']:.2f}" for n, s, _ in named]
+        lines.append(
+            f"training episodes (the last {train['episodes']}, sampled actions): return {train['episode_return']:.3f} | "
+            + " | ".join(costs)
+        )
+    return lines

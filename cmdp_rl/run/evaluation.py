@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import torch
 
@@ -15,6 +15,21 @@ from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.collector import Collector
 
 EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
+# The two ways to act with a stochastic policy, by their eval.json names: its mean action, and sampled actions (what
+# the field's published on-policy curves measure: training episodes of the sampled policy).
+MODES = {"mean_action": True, "sampled": False}
+
+
+def mode_name(deterministic: bool) -> str:
+    return "mean_action" if deterministic else "sampled"
+
+
+def both_modes(evaluate_mode: Callable[[bool], dict[str, Any]], deterministic: bool) -> dict[str, Any]:
+    """An evaluation in both :data:`MODES`: the headline mode's result (``deterministic``: the run's
+    ``eval_deterministic``, the mode its deployed policy was valued in) at the top level, as before, and
+    each mode's under ``modes``; ``evaluate_mode(deterministic)`` runs one."""
+    modes = {name: evaluate_mode(det) for name, det in MODES.items()}
+    return {**modes[mode_name(deterministic)], "modes": modes}
 
 
 def _spread(name: str, values: list[float]) -> dict[str, float]:

@@ -4,7 +4,6 @@ interrupted, or never started) rather than crash on it."""
 
 from __future__ import annotations
 
-import csv
 import json
 import traceback
 from collections import defaultdict
@@ -14,6 +13,7 @@ from typing import Any
 
 import yaml
 
+from cmdp_rl.report.metrics import read_metrics
 from cmdp_rl.run.migrations import deploy_node
 from cmdp_rl.run.rundir import CONFIG as CONFIG_FILE
 from cmdp_rl.run.rundir import ERROR as ERROR_FILE
@@ -63,20 +63,6 @@ def _read_yaml(path: Path) -> Any:
         return yaml.safe_load(path.read_text()) if path.is_file() else None
     except (OSError, yaml.YAMLError):
         return None
-
-
-def read_metrics(path: Path) -> list[dict[str, float]]:
-    """metrics.csv's rows as floats (blank: NaN) up to any row a kill cut short; none without the file."""
-    if not path.is_file():
-        return []
-    rows = []
-    with open(path, newline="") as f:
-        for row in csv.DictReader(f):
-            try:
-                rows.append({k: float(v) if v not in ("", None) else float("nan") for k, v in row.items()})
-            except ValueError:
-                break  # a row cut short by a kill: keep what came before it
-    return rows
 
 
 def load_run(path: str | Path) -> RunRecord:

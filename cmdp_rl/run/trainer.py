@@ -28,14 +28,22 @@ from cmdp_rl.envs import check_env, make_env, make_eval_env
 from cmdp_rl.policies import make_agent
 from cmdp_rl.population.kernel import PopulationAgent, StackedBackend, population_env
 from cmdp_rl.population.spec import Population, label, stacked, unbatched, unbatched_head
-from cmdp_rl.report.metrics import MetricsLogger, columns, constraint_name, spread, wandb_for
+from cmdp_rl.report.metrics import (
+    MetricsLogger,
+    columns,
+    constraint_name,
+    read_metrics,
+    spread,
+    training_episodes,
+    wandb_for,
+)
 from cmdp_rl.report.safety_metrics import cost_rate, load_reference, normalized_scores
 from cmdp_rl.report.summary import summary_lines
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.rollout.normalization import make_normalizers
 from cmdp_rl.run.checkpoint import CheckpointError, save_checkpoint
-from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, evaluate, evaluate_members
+from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, MODES, both_modes, evaluate, evaluate_members, mode_name
 from cmdp_rl.run.loop import Members, contract_options, train_iterations
 from cmdp_rl.run.migrations import migrate, population_from_stacked
 from cmdp_rl.run.ownership import acquire, owned, release
@@ -203,6 +211,7 @@ def restore(state: dict[str, Any], algos: Sequence[Any], collector: Collector) -
 def write_result(out: Path, result: dict[str, Any], cfg: RunConfig, *args: Any) -> None:
     """:func:`complete_result` (``args`` are its after ``cfg``), then the run's ``eval.json``."""
     complete_result(result, cfg, *args)
+    result["training_episodes"] = training_episodes(read_metrics(out / METRICS))
     (out / EVAL).write_text(json.dumps(result, indent=2))
 
 
@@ -232,23 +241,28 @@ def build_run(cfg: RunConfig) -> tuple[Any, Any, Any]:
 
 
 def evaluate_run(cfg: RunConfig, agent: Any) -> dict[str, Any]:
-    """A run's final evaluation of ``agent``: ``eval_episodes`` episodes on min(eval_episodes,
-    num_envs) envs of its own, seeded with the run's evaluation seed."""
-    eval_env = make_eval_env(
-        cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
-    )
-    try:
-        return evaluate(
-            agent,
-            eval_env,
-            cfg.eval_episodes,
-            cfg.eval_deterministic,
-            seed=cfg.seed + EVAL_SEED_OFFSET,
-            termination_metric=cfg.env.termination_metric,  # what the env says termination means
-            cost_limit=cfg.algo.cost_limit,
+    """A run's final evaluation of ``agent`` in both modes (:func:`~cmdp_rl.run.evaluation.both_modes`):
+    ``eval_episodes`` episodes on min(eval_episodes, num_envs) envs of its own, seeded with the run's
+    evaluation seed, for the mean action and for sampled actions."""
+
+    def one_mode(deterministic: bool) -> dict[str, Any]:
+        eval_env = make_eval_env(
+            cfg.env, num_envs=min(cfg.eval_episodes, cfg.env.num_envs), device=cfg.device, algo=cfg.algo
         )
-    finally:
-        eval_env.close()
+        try:
+            return evaluate(
+                agent,
+                eval_env,
+                cfg.eval_episodes,
+                deterministic,
+                seed=cfg.seed + EVAL_SEED_OFFSET,
+                termination_metric=cfg.env.termination_metric,  # what the env says termination means
+                cost_limit=cfg.algo.cost_limit,
+            )
+        finally:
+            eval_env.close()
+
+    return both_modes(one_mode, cfg.eval_deterministic)
 
 
 def train(
@@ -376,17 +390,23 @@ class Stacked:
         return {"generators": [g.get_state() for g in self.generators]}
 
     def evaluate(self, cfgs: list[RunConfig], device: torch.device) -> list[dict[str, Any]]:
-        """Each agent's single-run evaluation, side by side: min(eval_episodes, num_envs) envs of its
-        own seeded with its evaluation seed, which also seeds its action samples."""
-        cfg = cfgs[0]
+        """Each agent's single-run evaluation in both modes (``evaluation.both_modes``), side by side."""
         self.backend.copy_actors(to_modules=False)  # the deployed actors (an average) into the stacked rows
+        per_mode = {name: self._evaluate_mode(cfgs, device, det) for name, det in MODES.items()}
+        head = mode_name(cfgs[0].eval_deterministic)
+        return [{**per_mode[head][k], "modes": {n: r[k] for n, r in per_mode.items()}} for k in range(len(cfgs))]
+
+    def _evaluate_mode(self, cfgs: list[RunConfig], device: torch.device, deterministic: bool) -> list[dict[str, Any]]:
+        """min(eval_episodes, num_envs) envs per agent, seeded with its evaluation seed, which also seeds its
+        action samples."""
+        cfg = cfgs[0]
         seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
         eval_env = population_env(cfgs, min(cfg.eval_episodes, cfg.env.num_envs), seeds, device, evaluation=True)
         self.agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
         limits = [c.algo.cost_limit for c in cfgs]
         try:
             return evaluate_members(
-                self.agent, eval_env, cfg.eval_episodes, cfg.eval_deterministic, limits, cfg.env.termination_metric
+                self.agent, eval_env, cfg.eval_episodes, deterministic, limits, cfg.env.termination_metric
             )
         finally:
             self.agent.generators = self.generators
