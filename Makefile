@@ -4,7 +4,7 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup setup-safety-gym setup-mjwarp train test bench bench-velocity bench-velocity-smoke bench-safety-gym \
+.PHONY: setup setup-safety-gym setup-mjwarp train test test-cpus bench bench-velocity bench-velocity-smoke bench-safety-gym \
 	bench-safety-gym-smoke sweep probe-belief clean
 
 .venv/.installed: pyproject.toml setup.py
@@ -70,8 +70,17 @@ train: setup
 # The tests include Safety-Gymnasium's tasks (tests/test_safety_gym.py), so CI installs it.
 # One pytest worker per core (pytest-xdist, -n auto: 2 here); worksteal hands a worker that runs dry the
 # queued tests of the other, so a few long learning tests do not leave a core idle at the end (docs/testing.md).
+# `make test PYTEST_ARGS="-p no:xdist"` runs them in one process.
+PYTEST_ARGS := -n auto --dist worksteal
 test: setup setup-safety-gym
-	$(PY) -m pytest tests -n auto --dist worksteal
+	$(PY) -m pytest tests $(PYTEST_ARGS)
+
+# Other CPUs on this one (docs/testing.md, "Other CPUs on this one"): the tests marked cpu_kernels again under
+# each setting of tests/helpers/kernels.py, torch's, numpy's and the BLAS libraries' kernels picked as an AVX2
+# CPU, an x86-64-v2 CPU and other BLAS kernels would pick them; then the share of each tolerance they used.
+CPU_SETTINGS := avx2 sse4 blas
+test-cpus: setup setup-safety-gym
+	PYTHONPATH=tests $(PY) -m helpers.kernels $(CPU_SETTINGS) -- $(PYTEST_ARGS)
 
 # Throughput table (env, rollout, training steps/s, peak memory); writes outputs/benchmark_throughput.json.
 # Takes a few minutes; pass options with BENCH_ARGS, e.g. `make bench BENCH_ARGS="--device cuda"`.
