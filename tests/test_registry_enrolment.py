@@ -69,6 +69,7 @@ def test_evaluation_loads_the_policy_without_building_the_algorithm(algo, tmp_pa
     trained.env.close()
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("algo", ALGOS)
 def test_crash_then_resume_equals_the_uninterrupted_run(algo, tmp_path, monkeypatch, quiet):
     def crashed_past_the_last_checkpoint(broken) -> None:  # checkpoints at 2 and 4, then row 5

@@ -194,6 +194,7 @@ def test_ppo_lag_trains_and_a_resumed_run_equals_an_uninterrupted_one(tmp_path, 
     assert eval_result(tmp_path / "part") == eval_result(tmp_path / "whole")
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("task", ["PointGoal1", "PointCircle2", "CarButton2", "PointPush2"])
 def test_threads_and_a_restored_state_give_the_same_steps(task):
     """env.threads=2 steps the same worlds in two threads; a fresh env loaded from state_dict()

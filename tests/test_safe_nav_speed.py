@@ -24,6 +24,7 @@ from cmdp_rl.policies.distributions import GaussianHead, sample  # noqa: E402
 from lab.fidelity.safe_nav_fidelity import steer  # noqa: E402
 
 
+@pytest.mark.cpu_kernels
 def test_env_threads_2_trains_to_the_same_numbers(tmp_path):
     base = ["env=safe_nav", "env.task=PointButton1", "env.num_envs=4", "env.max_steps=30", "rollout_steps=16"]
     base += ["algo=ppo_lag", "total_steps=192", "eval_episodes=2"]
@@ -53,6 +54,7 @@ def test_lidar_groups_in_one_pass_equal_one_pass_per_group():
             assert_close(reading, pseudo_lidar(g, pos, mat), LIDAR, f"{g.shape[1]} objects")
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("deterministic", [False, True])
 def test_the_gaussian_acting_step_equals_the_distribution(deterministic):
     """Same action, same log-probability, and the same draws taken from torch's generator."""
