@@ -43,8 +43,8 @@ SAFETY_GYM_VERSION := 1.0.0
 
 setup-safety-gym: .venv/.safety_gym
 
-# MuJoCo Warp for env=safe_nav env.physics=mjwarp (docs/safe_nav.md): the `mjwarp` extra, 149 MB.
-# Optional: tests/test_safe_nav_warp.py skips without it.
+# MuJoCo Warp for env=safe_nav env.physics=mjwarp (docs/safe_nav.md): the `mjwarp` extra, 149 MB. make test
+# installs it, so that tests/test_safe_nav_warp.py checks that physics on Warp's CPU device (it skips without it).
 .venv/.mjwarp: .venv/.safety_gym
 	$(PY) -m pip install -q -e '.[mjwarp]'
 	touch $@
@@ -67,12 +67,13 @@ bench-safety-gym-smoke: .venv/.safety_gym
 train: setup
 	$(PY) train.py algo=ppo_lag env=reach1d_torch total_steps=3145728
 
-# The tests include Safety-Gymnasium's tasks (tests/test_safety_gym.py), so CI installs it.
+# The tests include Safety-Gymnasium's tasks (tests/test_safety_gym.py) and MuJoCo Warp's physics
+# (tests/test_safe_nav_warp.py, on Warp's CPU device: about 105 s of CPU with a fresh kernel cache), so CI installs both.
 # One pytest worker per core (pytest-xdist, -n auto: 2 here); worksteal hands a worker that runs dry the
 # queued tests of the other, so a few long learning tests do not leave a core idle at the end (docs/testing.md).
 # `make test PYTEST_ARGS="-p no:xdist"` runs them in one process.
 PYTEST_ARGS := -n auto --dist worksteal
-test: setup setup-safety-gym
+test: setup setup-safety-gym setup-mjwarp
 	$(PY) -m pytest tests $(PYTEST_ARGS)
 
 # Other CPUs on this one (docs/testing.md, "Other CPUs on this one"): the tests marked cpu_kernels again under
