@@ -4,7 +4,7 @@
 PY := .venv/bin/python
 TORCH_VERSION := 2.13.0
 
-.PHONY: setup setup-safety-gym setup-mjwarp train test bench bench-velocity bench-velocity-smoke bench-safety-gym \
+.PHONY: setup setup-safety-gym setup-mjwarp train test test-cpus bench bench-velocity bench-velocity-smoke bench-safety-gym \
 	bench-safety-gym-smoke sweep probe-belief clean
 
 .venv/.installed: pyproject.toml setup.py
@@ -43,8 +43,8 @@ SAFETY_GYM_VERSION := 1.0.0
 
 setup-safety-gym: .venv/.safety_gym
 
-# MuJoCo Warp for env=safe_nav env.physics=mjwarp (docs/safe_nav.md): the `mjwarp` extra, 149 MB.
-# Optional: tests/test_safe_nav_warp.py skips without it.
+# MuJoCo Warp for env=safe_nav env.physics=mjwarp (docs/safe_nav.md): the `mjwarp` extra, 149 MB. make test
+# installs it, so that tests/test_safe_nav_warp.py checks that physics on Warp's CPU device (it skips without it).
 .venv/.mjwarp: .venv/.safety_gym
 	$(PY) -m pip install -q -e '.[mjwarp]'
 	touch $@
@@ -67,11 +67,21 @@ bench-safety-gym-smoke: .venv/.safety_gym
 train: setup
 	$(PY) train.py algo=ppo_lag env=reach1d_torch total_steps=3145728
 
-# The tests include Safety-Gymnasium's tasks (tests/test_safety_gym.py), so CI installs it.
+# The tests include Safety-Gymnasium's tasks (tests/test_safety_gym.py) and MuJoCo Warp's physics
+# (tests/test_safe_nav_warp.py, on Warp's CPU device: about 105 s of CPU with a fresh kernel cache), so CI installs both.
 # One pytest worker per core (pytest-xdist, -n auto: 2 here); worksteal hands a worker that runs dry the
 # queued tests of the other, so a few long learning tests do not leave a core idle at the end (docs/testing.md).
-test: setup setup-safety-gym
-	$(PY) -m pytest tests -n auto --dist worksteal
+# `make test PYTEST_ARGS="-p no:xdist"` runs them in one process.
+PYTEST_ARGS := -n auto --dist worksteal
+test: setup setup-safety-gym setup-mjwarp
+	$(PY) -m pytest tests $(PYTEST_ARGS)
+
+# Other CPUs on this one (docs/testing.md, "Other CPUs on this one"): the tests marked cpu_kernels again under
+# each setting of tests/helpers/kernels.py, torch's, numpy's and the BLAS libraries' kernels picked as an AVX2
+# CPU, an x86-64-v2 CPU and other BLAS kernels would pick them; then the share of each tolerance they used.
+CPU_SETTINGS := avx2 sse4 blas
+test-cpus: setup setup-safety-gym
+	PYTHONPATH=tests $(PY) -m helpers.kernels $(CPU_SETTINGS) -- $(PYTEST_ARGS)
 
 # Throughput table (env, rollout, training steps/s, peak memory); writes outputs/benchmark_throughput.json.
 # Takes a few minutes; pass options with BENCH_ARGS, e.g. `make bench BENCH_ARGS="--device cuda"`.

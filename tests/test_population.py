@@ -11,6 +11,7 @@ import pytest
 import torch
 import yaml
 from helpers.runs import eval_result, metrics_rows, run_script, tiny
+from helpers.tolerance import Tolerance, assert_close, record, share
 
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.config.registry import component
@@ -25,28 +26,36 @@ from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/kernel.py) rounds differently from torch's fused
 # kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)
-# sum in another order; training carries these last-bit differences to at most ~5e-4 relative in
-# quantities near zero (loss_pi of 1e-4), so: relative 1e-3 or absolute 1e-6, every other entry
-# (episode counts and costs, steps, multipliers here) equal.
-REL, ABS = 1e-3, 1e-6
+# sum in another order; a few iterations carry these last-bit differences further. Measured on 2026-12-07, on this
+# CPU and under make test-cpus' settings: at most 1.9e-4 relative (or 1.9e-7 absolute near zero) but for pcpo, whose
+# projection steps (coefficients near 90) amplify them to 8.8e-4 relative here (episode_return, 0.0052) and 1.0e-3
+# under sse4 (entropy, 0.547). Relative 3e-3 is three times that; episode counts, costs, steps and multipliers come
+# out equal.
+POPULATION = Tolerance("a population's agent against its single run", rel=3e-3, abs=1e-6)
+# One batch of P N worlds or P batches of N: the same arithmetic on arrays of another length, whose lidar may take
+# other kernels (tests/test_safe_nav_speed.py's LIDAR: float64 readings 3.2e-14 apart at most), then rounded to the
+# float32 observation: one float32 rounding step (1.2e-7 relative) where a reading lies that close to a rounding
+# boundary. Measured equal under every make test-cpus setting; 2.5e-7 relative covers one rounding step twice over.
+WORLDS = Tolerance("safe_nav worlds in one batch or one per agent", rel=2.5e-7, abs=1e-12)
 
 
 def torch_tiny(**overrides) -> dict:
     return tiny(env={"backend": "torch", "num_envs": 4, "stagger": True}, total_steps=4 * 64, **overrides)
 
 
-def assert_close(a, b, where: str) -> None:
+def assert_same_outputs(a, b, where: str) -> None:
     if isinstance(b, dict):
         assert set(a) == set(b), where
         for k in b:
-            assert_close(a[k], b[k], f"{where}.{k}")
+            assert_same_outputs(a[k], b[k], f"{where}.{k}")
     elif isinstance(b, list):
         assert len(a) == len(b), where
         for i, (x, y) in enumerate(zip(a, b)):
-            assert_close(x, y, f"{where}[{i}]")
+            assert_same_outputs(x, y, f"{where}[{i}]")
     elif isinstance(b, float) or (isinstance(b, str) and _is_float(b)):
-        x, y = float(a), float(b)
-        assert (math.isnan(x) and math.isnan(y)) or x == pytest.approx(y, rel=REL, abs=ABS), f"{where}: {a} != {b}"
+        used = share(float(a), float(b), POPULATION)
+        record(POPULATION, used)
+        assert used <= 1.0, f"{where}: {a} != {b} ({used:.3g} of {POPULATION})"
     else:
         assert a == b, where
 
@@ -65,6 +74,7 @@ def _population(tmp_path: Path, raw: dict, name: str = "pop") -> Path:
     return out
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize(
     "algo, grid, agents",
     [
@@ -104,8 +114,8 @@ def test_agent_trains_as_its_single_run(tmp_path, algo, grid, agents):
         train(cfg, single, echo=lambda s: None)
         rows, expected = metrics_rows(dirs[i]), metrics_rows(single)
         assert len(rows) == len(expected) == 4
-        assert_close(rows, expected, f"agent {i} metrics")
-        assert_close(eval_result(dirs[i]), eval_result(single), f"agent {i} eval")
+        assert_same_outputs(rows, expected, f"agent {i} metrics")
+        assert_same_outputs(eval_result(dirs[i]), eval_result(single), f"agent {i} eval")
     deployed = top.get("deploy", {}).get("policy", {"ppo_lag": "mixture", "penalty": "last"}.get(algo["name"]))
     assert deployed is None or eval_result(dirs[0])["final_policy"] == deployed  # the option is exercised
 
@@ -127,6 +137,7 @@ def _tiny_algo(name: str) -> dict:
     return {"name": name, **own, **ALGO_OPTIONS.get(name, {})}
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("name", batched_algos())
 def test_every_batched_algorithm_trains_as_its_single_runs(tmp_path, name):
     """Enumerated from the registry: each algorithm a population accepts, two agents with their own
@@ -141,8 +152,8 @@ def test_every_batched_algorithm_trains_as_its_single_runs(tmp_path, name):
         train(cfg, single, echo=lambda s: None)
         rows, expected = metrics_rows(d), metrics_rows(single)
         assert len(rows) == len(expected) == 4
-        assert_close(rows, expected, f"{name} agent {i} metrics")
-        assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
+        assert_same_outputs(rows, expected, f"{name} agent {i} metrics")
+        assert_same_outputs(eval_result(d), eval_result(single), f"{name} agent {i} eval")
 
 
 def _fork(name: str) -> dict:
@@ -160,6 +171,7 @@ def _fork(name: str) -> dict:
     }
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("name", batched_algos())
 def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_and_two_costs(tmp_path, name):
     """Enumerated from the registry, on the fork (a Discrete action; K = 2 costs where the algorithm
@@ -176,14 +188,16 @@ def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_a
         rows, expected = metrics_rows(d), metrics_rows(single)
         assert len(rows) == len(expected) == 4
         assert ("episode_cost/hazard_b" in rows[0]) == (k == 2)  # one column per constraint
-        assert_close(rows, expected, f"{name} agent {i} metrics")
-        assert_close(eval_result(d), eval_result(single), f"{name} agent {i} eval")
+        assert_same_outputs(rows, expected, f"{name} agent {i} metrics")
+        assert_same_outputs(eval_result(d), eval_result(single), f"{name} agent {i} eval")
 
 
+@pytest.mark.cpu_kernels
 def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(tmp_path):
     """env=safe_nav: P N worlds in one env (its options' population_env), agent i's world j seeded
-    as its single run's: the worlds step bit for bit as each agent's own N-world env under the same
-    actions, resets included, and the population trains into one run directory per agent. Its
+    as its single run's: the worlds step as each agent's own N-world env under the same actions,
+    resets included (the same physics, rewards, costs and ends; observations within :data:`WORLDS`),
+    and the population trains into one run directory per agent. Its
     agents are not compared with their single runs: the batched forward pass (baddbmm) rounds
     differently from nn.Linear in the last bit on these 60 inputs, and MuJoCo's contacts amplify
     that within one rollout (docs/population.md, measured there)."""
@@ -192,6 +206,7 @@ def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(t
     if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
         pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`")  # as tests/test_safe_nav.py
     from cmdp_rl.envs import make_env
+    from cmdp_rl.envs.vector import Step
     from cmdp_rl.population.kernel import population_env
 
     raw = {
@@ -208,13 +223,17 @@ def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(t
     env = population_env(cfgs, 2, [c.seed for c in cfgs], torch.device("cpu"))
     assert type(env).__name__ == "SafeNavVecEnv" and env.num_envs == 8  # one batch of worlds, not AgentEnvs
     own = [make_env(c.env) for c in cfgs]
-    assert torch.equal(env.reset(), torch.cat([e.reset(seed=c.seed) for e, c in zip(own, cfgs)]))
+    first = torch.cat([e.reset(seed=c.seed) for e, c in zip(own, cfgs)])
+    assert_close(env.reset(), first, WORLDS, "reset")
     gen = torch.Generator().manual_seed(0)
     for _ in range(90):  # past the 40-step episodes' resets
         actions = [torch.rand(2, 2, generator=gen) * 2 - 1 for _ in own]
         steps = [e.step(a) for e, a in zip(own, actions)]
-        for joint, *each in zip(env.step(torch.cat(actions)), *steps):
-            assert torch.equal(joint, torch.cat(each))
+        for field, joint, *each in zip(Step._fields, env.step(torch.cat(actions)), *steps):
+            if field.endswith("obs"):
+                assert_close(joint, torch.cat(each), WORLDS, field)
+            else:  # the physics is MuJoCo's per world, its rewards differences of two-axis distances: exact
+                assert torch.equal(joint, torch.cat(each)), field
     env.close()
     pop = _population(tmp_path, raw)
     runs = find_runs(pop)
@@ -225,6 +244,7 @@ def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(t
         assert math.isfinite(eval_result(d)["episode_return"])
 
 
+@pytest.mark.cpu_kernels
 def test_an_agent_s_own_env_takes_its_own_options(tmp_path):
     """On an env stepped as each agent's own (the fork), the env's grid fields are each agent's:
     agents with their own end probability and goal reward equal their single runs."""
@@ -237,8 +257,8 @@ def test_an_agent_s_own_env_takes_its_own_options(tmp_path):
         assert (cfg.env.end_prob, cfg.env.goal_reward) == ([0.05, 0.2][i], 5.0)
         single = tmp_path / f"single{i}"
         train(cfg, single, echo=lambda s: None)
-        assert_close(metrics_rows(d), metrics_rows(single), f"agent {i} metrics")
-        assert_close(eval_result(d), eval_result(single), f"agent {i} eval")
+        assert_same_outputs(metrics_rows(d), metrics_rows(single), f"agent {i} metrics")
+        assert_same_outputs(eval_result(d), eval_result(single), f"agent {i} eval")
     assert metrics_rows(dirs[0]) != metrics_rows(dirs[1])  # the options acted
 
 
@@ -249,6 +269,7 @@ def test_the_ppo_family_is_batched():
     assert {"cpo", "pcpo", "trpo_lag"} <= set(batched_algos())  # their own updates, envs and acting batched
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize(
     "algo",
     [
@@ -268,8 +289,8 @@ def test_per_agent_schedules_match_single_runs(tmp_path, algo):
         cfg = load_config(yaml.safe_load((d / "config.yaml").read_text()))
         single = tmp_path / f"single{i}"
         train(cfg, single, echo=lambda s: None)
-        assert_close(metrics_rows(d), metrics_rows(single), f"agent {i} metrics")
-        assert_close(eval_result(d), eval_result(single), f"agent {i} eval")
+        assert_same_outputs(metrics_rows(d), metrics_rows(single), f"agent {i} metrics")
+        assert_same_outputs(eval_result(d), eval_result(single), f"agent {i} eval")
 
 
 def test_population_outputs_are_runs(tmp_path):
@@ -361,6 +382,7 @@ def test_a_population_resume_changes_what_a_run_s_resume_may(tmp_path):
 OLD_POPULATION = Path(__file__).parent / "fixtures" / "old_population" / "ppo_lag"
 
 
+@pytest.mark.cpu_kernels
 def test_a_population_of_the_stacked_layout_resumes(tmp_path):
     """A population killed at iteration 3 by commit 8dc7aaa (the stacked checkpoint layout: every
     agent's networks and Adam moments as rows of one tensor; ``test_population_resumes_after_a_kill``'s
@@ -375,8 +397,8 @@ def test_a_population_of_the_stacked_layout_resumes(tmp_path):
     raw = saved_config_defaults(yaml.safe_load((OLD_POPULATION / "population.yaml").read_text()))
     whole = _population(tmp_path, raw, "whole")
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((killed / "agents").iterdir())):
-        assert_close(metrics_rows(b), metrics_rows(a), b.name)
-        assert_close(eval_result(b), eval_result(a), b.name)
+        assert_same_outputs(metrics_rows(b), metrics_rows(a), b.name)
+        assert_same_outputs(eval_result(b), eval_result(a), b.name)
     new = torch.load(killed / "checkpoint.pt", weights_only=True)
     assert "update" not in new and [e["algo_state"]["iteration"] for e in new["members"]] == [4, 4]
 
@@ -512,6 +534,7 @@ def test_the_exercise_grid_as_populations():
     assert [c.seed for c in cfgs[:3]] == [0, 1, 2] and cfgs[0].algo.update_epochs == 10
 
 
+@pytest.mark.cpu_kernels
 def test_fused_pass_gradients_equal_autograd_path():
     """population/kernel.py's hand-written backward (FusedTanhMLP) gives the per-layer autograd path's outputs and
     gradients bit for bit (same kernels, same order), on sizes past the sigmoid-tanh threshold."""

@@ -49,6 +49,10 @@ OPTIONS = [
 ]
 
 
+# Two implementations compared exactly: each step is elementwise float64 +, -, *, abs and clamping in the same order
+# on both sides, each correctly rounded whatever kernel runs it, so the equality holds on any IEEE 754 CPU (and
+# under every make test-cpus setting).
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("options", OPTIONS)
 def test_matches_gymnasium_step_for_step_with_the_same_noise(options):
     n, seed, steps = 5, 11, 210

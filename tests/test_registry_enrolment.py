@@ -8,14 +8,13 @@ algorithm joins every check by registering. Each trains with the tiny options it
 declares beside it (``AlgoConfig.tiny``) on helpers.runs' TINY Reach1D run.
 """
 
-import json
 import re
 from dataclasses import replace
 
 import pytest
 import torch
 from helpers.cost_envs import MATCH_ID, MULTI_MATCH_ID, TWO_COST_ID
-from helpers.golden import GOLDEN, WRITE, machine, mismatch, outputs
+from helpers.golden import GOLDEN, WRITE, check, outputs
 from helpers.resume import assert_same_run, crash_then_resume
 from helpers.runs import eval_result, metrics_rows, tiny
 
@@ -70,6 +69,7 @@ def test_evaluation_loads_the_policy_without_building_the_algorithm(algo, tmp_pa
     trained.env.close()
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("algo", ALGOS)
 def test_crash_then_resume_equals_the_uninterrupted_run(algo, tmp_path, monkeypatch, quiet):
     def crashed_past_the_last_checkpoint(broken) -> None:  # checkpoints at 2 and 4, then row 5
@@ -79,6 +79,7 @@ def test_crash_then_resume_equals_the_uninterrupted_run(algo, tmp_path, monkeypa
     assert_same_run(*crash_then_resume(cfg, tmp_path, monkeypatch, quiet, checked=crashed_past_the_last_checkpoint))
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("algo", ALGOS)
 def test_a_short_run_gives_its_golden_numbers(algo, tmp_path, quiet):
     """A short run writes a row per iteration and a result, and the numbers recorded for
@@ -91,24 +92,11 @@ def test_a_short_run_gives_its_golden_numbers(algo, tmp_path, quiet):
     assert [r["iteration"] for r in rows] == [str(i) for i in range(1, 8)]
     assert result["episodes"] == 4 and eval_result(tmp_path)["episodes"] == 4
     assert all(r["cost_limit"] == "0.2" and r["lagrange_multiplier"] != "" for r in rows)
-    got = outputs(tmp_path)
-    first = GOLDEN / f"{name}.json"
-    if WRITE:
-        path = first if not first.exists() else GOLDEN / "machines" / machine() / f"{name}.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(got, indent=1, sort_keys=True))
-        pytest.skip(f"wrote {path}")
-    if not first.exists():
+    if not (GOLDEN / f"{name}.json").exists() and not WRITE:
         pytest.skip(
             f"no golden numbers for {algo}: CMDP_RL_WRITE_GOLDEN=1 python -m pytest tests/test_registry_enrolment.py -k {algo}"
         )
-    recorded = [first, *sorted(GOLDEN.glob(f"machines/*/{name}.json"))]
-    if any(mismatch(got, json.loads(p.read_text()), close=False) is None for p in recorded):
-        return
-    own = GOLDEN / "machines" / machine() / f"{name}.json"
-    assert own not in recorded, f"{name}: differs from this machine's own recording"
-    problem = mismatch(got, json.loads(first.read_text()), close=True)
-    assert problem is None, f"{name}: {problem}"
+    check(name, outputs(tmp_path))
 
 
 def _takes(algo: str) -> int | None:

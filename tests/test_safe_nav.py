@@ -1,8 +1,14 @@
 """env=safe_nav: Safety-Gymnasium's navigation tasks, batched, against the real tasks (env=safety_gym).
 
 Fidelity is the contract: with the same seed (hence the same layouts) and the same actions, the
-batched env's observations, rewards, costs and episode ends equal the reference's over a whole
-episode, goals reached, hazards entered and the automatic reset included.
+batched env's layouts, rewards, costs and episode ends equal the reference's, and its observations
+are within :data:`REFERENCE` of them, over a whole episode, goals reached, hazards entered and the
+automatic reset included. Exact where the arithmetic is exact on any CPU: both sides run MuJoCo's
+physics, place bodies from the same draws (with the C library's cos and sin on both sides), and
+compute a reward from distances over two axes (each step correctly rounded whatever the kernel: a
+sum of two numbers has one order); costs and ends are events. Not the observations: the batched
+lidar multiplies all objects' offsets at once where the reference goes object by object, and the
+BLAS and numpy kernels picked for each shape round otherwise.
 """
 
 import importlib.util
@@ -15,6 +21,7 @@ if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_s
     pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`", allow_module_level=True)
 
 from helpers.runs import eval_result, metrics_rows  # noqa: E402
+from helpers.tolerance import Tolerance, assert_close  # noqa: E402
 
 from cmdp_rl import train  # noqa: E402
 from cmdp_rl.config.run_config import ConfigError, compose_config  # noqa: E402
@@ -22,6 +29,11 @@ from cmdp_rl.envs.safe_nav.env import SafeNavVecEnv  # noqa: E402
 from cmdp_rl.envs.safe_nav.spec import AGENT_KEEPOUT, GOAL_KEEPOUT, HAZARD_KEEPOUT, VASE_KEEPOUT  # noqa: E402
 from cmdp_rl.envs.safety_gym.env import make_task  # noqa: E402
 from lab.fidelity.safe_nav_fidelity import steer as toward_goal  # noqa: E402  (the fidelity table's steering)
+
+# The lidar in one batch against object by object (see the module's docstring); its readings lie in [0, 1], the
+# other observations are MuJoCo's sensors, copied. Measured under every make test-cpus setting: 2.3e-15 apart at
+# most; the lidar alone, near a bin's edge, 3.2e-14 (tests/test_safe_nav_speed.py's LIDAR): 1e-12 is 30 times that.
+REFERENCE = Tolerance("safe_nav's observations against Safety-Gymnasium's", rel=0.0, abs=1e-12)
 
 
 def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int = 0) -> dict:
@@ -35,18 +47,15 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int
         model = r.inner.task.model
         np.testing.assert_array_equal(env.worlds.models[i].body_pos, model.body_pos)
         np.testing.assert_array_equal(env.worlds.models[i].body_quat, model.body_quat)
-    np.testing.assert_allclose(
-        env._obs(list(range(num_envs)), env.worlds.gather(range(num_envs))), ref_obs, rtol=0, atol=1e-12
-    )
+    assert_close(env._obs(list(range(num_envs)), env.worlds.gather(range(num_envs))), ref_obs, REFERENCE, "reset")
     rng = np.random.default_rng(0)
-    seen = {"obs_error": 0.0, "cost": 0.0, "goals": 0, "truncated": 0, "reward": 0.0, "cost_kinds": set()}
+    seen = {"cost": 0.0, "goals": 0, "truncated": 0, "reward": 0.0, "cost_kinds": set()}
     for t in range(steps):
         action = toward_goal(env, rng)
         out = [r.step(a) for r, a in zip(refs, action)]
         s = env.step(torch.from_numpy(action))
         obs = np.stack([o[0] for o in out])
-        seen["obs_error"] = max(seen["obs_error"], float(np.abs(env.last["next_obs"] - obs).max()))
-        assert seen["obs_error"] < 1e-9, t
+        assert_close(env.last["next_obs"], obs, REFERENCE, f"step {t}")
         np.testing.assert_array_equal(env.last["reward"], [o[1] for o in out], err_msg=f"step {t}")
         cost = np.array([o[4]["cost"] for o in out])
         np.testing.assert_array_equal(s.cost[:, 0].numpy(), cost, err_msg=f"step {t}")
@@ -65,16 +74,19 @@ def compare(task: str, num_envs: int, steps: int, seed: int = 11, max_steps: int
     return seen
 
 
+@pytest.mark.cpu_kernels
 def test_point_goal1_equals_the_reference_over_a_whole_episode_and_the_next_reset():
     seen = compare("PointGoal1", num_envs=1, steps=1010)
     assert seen["truncated"] == 1 and seen["goals"] >= 5 and seen["cost"] >= 10  # every path was taken
 
 
+@pytest.mark.cpu_kernels
 def test_car_goal2_equals_the_reference_vases_included():
     seen = compare("CarGoal2", num_envs=1, steps=150, seed=3)
     assert seen["goals"] >= 1 and seen["cost"] >= 1
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("task, num_envs, steps", [("PointCircle1", 1, 510), ("CarCircle2", 1, 300)])
 def test_circle_equals_the_reference(task, num_envs, steps):
     """Circle: the circle reward, the sigwalls' cost (x only at level 1, x or y at level 2), the
@@ -84,6 +96,7 @@ def test_circle_equals_the_reference(task, num_envs, steps):
     assert seen["truncated"] == (1 if steps > 500 else 0)
 
 
+@pytest.mark.cpu_kernels
 def test_button_equals_the_reference():
     """Button: goal buttons pressed (reward, a new goal button, the 10-step timer blanking the
     button lidar), hazards, gremlins (mocap bodies moved before every physics step) and wrong
@@ -93,6 +106,7 @@ def test_button_equals_the_reference():
     assert seen["cost_kinds"] == {"cost_hazards", "cost_gremlins", "cost_buttons"}
 
 
+@pytest.mark.cpu_kernels
 def test_push_equals_the_reference():
     """Push: the robot-box and box-goal reward terms, the box reaching the goal (a new goal drawn
     clear of where the robot, hazards, pillar and box are now), hazards, and a reset."""
@@ -100,6 +114,7 @@ def test_push_equals_the_reference():
     assert seen["goals"] >= 1 and seen["cost"] >= 5 and seen["truncated"] == 1
 
 
+@pytest.mark.cpu_kernels
 def test_an_imposed_layout_gives_the_reference_trajectory():
     """A layout taken from a reference env (not drawn from the same seed) and imposed."""
     ref = make_task("SafetyPointGoal1-v0")
@@ -123,7 +138,7 @@ def test_an_imposed_layout_gives_the_reference_trajectory():
     for action in actions:
         obs = ref.step(action[0])[0]
         env.step(torch.from_numpy(action))
-        np.testing.assert_allclose(env.last["next_obs"][0], obs, rtol=0, atol=1e-12)
+        assert_close(env.last["next_obs"][0], obs, REFERENCE, "imposed layout")
 
 
 @pytest.mark.parametrize("task", ["PointGoal2", "CarGoal1"])
@@ -179,6 +194,7 @@ def test_ppo_lag_trains_and_a_resumed_run_equals_an_uninterrupted_one(tmp_path, 
     assert eval_result(tmp_path / "part") == eval_result(tmp_path / "whole")
 
 
+@pytest.mark.cpu_kernels
 @pytest.mark.parametrize("task", ["PointGoal1", "PointCircle2", "CarButton2", "PointPush2"])
 def test_threads_and_a_restored_state_give_the_same_steps(task):
     """env.threads=2 steps the same worlds in two threads; a fresh env loaded from state_dict()

@@ -77,6 +77,7 @@ def _twin_nets(seed: int = 0) -> tuple:
     return a, b
 
 
+@pytest.mark.cpu_kernels
 def test_a_runs_optimiser_step_is_torchs_bit_for_bit():
     """OneRun.step (one backward, the foreach clipping, torch's functional fused Adam on the
     optimiser's state) against torch's own calls (``clip_grad_norm_``, ``Adam.step``), over steps
@@ -99,6 +100,7 @@ def test_a_runs_optimiser_step_is_torchs_bit_for_bit():
     assert opt_b.state[next(b.parameters())]["step"].item() == 6
 
 
+@pytest.mark.cpu_kernels
 def test_the_clipping_is_torchs():
     a, b = _twin_nets()
     x = 10 * torch.randn(8, 3)

@@ -1,7 +1,8 @@
 """Twin critics, twin GAEs: torchrl's GAE for reward and for cost on values the critics wrote beforehand
 (one critic pass serves GAE and the logging); a truncated step bootstraps unless ``terminated``. With K
-costs the cost GAE runs on a view whose done flags are expanded to ``[N, T, K]``: elementwise in K, exactly
-each cost's own GAE (tests/test_cost_vector.py checks it bit for bit).
+costs the cost GAE runs on a view whose done flags are expanded to ``[N, T, K]``: elementwise in K, each
+cost's own GAE (to float32 rounding, as the convolution that sums it may pick another kernel for another batch:
+tests/test_cost_vector.py).
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """Safety-Gymnasium's 16-bin pseudo-lidar, batched over envs and object groups. Each object's 16 bins are
-built whole and the maximum taken over objects: the reference's bin-by-bin maximum, value for value,
-with no scatter (which numpy and torch spell differently)."""
+built whole and the maximum taken over objects: the reference's bin-by-bin maximum, to the last bits
+the kernels picked for each shape move (tests/test_safe_nav.py), with no scatter (which numpy and torch
+spell differently)."""
 
 from __future__ import annotations
 
@@ -21,7 +22,8 @@ def pseudo_lidar(objects_xy: Array, agent_pos: Array, agent_mat: Array, max_dist
 
 def pseudo_lidars(groups: list[Array], agent_pos: Array, agent_mat: Array, max_dist: float = LIDAR_MAX) -> list[Array]:
     """:func:`pseudo_lidar` of each group of objects (``[N, M_g, 2]`` each), in one pass over all the groups'
-    objects (an object's arithmetic is the same whatever it is batched with: tested bit for bit)."""
+    objects: an object's arithmetic is the same whatever it is batched with, though the kernels that run it may
+    round the last bits otherwise for another shape (tests/test_safe_nav_speed.py: within 1e-12)."""
     xp = namespace(agent_pos)
     n, sizes = agent_pos.shape[0], [g.shape[1] for g in groups]
     if sum(sizes):
