@@ -15,11 +15,11 @@ from helpers.runs import eval_result, metrics_rows, run_script, tiny
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.config.registry import component
 from cmdp_rl.population import population
+from cmdp_rl.population.resume import resume_population
 from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.ownership import RunDirTaken
-from cmdp_rl.run.resume import resume_population
 from cmdp_rl.run.rundir import load_trained
 from cmdp_rl.run.sweeps import find_runs
 
@@ -192,7 +192,7 @@ def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(t
     if importlib.util.find_spec("safety_gymnasium") is None or importlib.util.find_spec("mujoco") is None:
         pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`")  # as tests/test_safe_nav.py
     from cmdp_rl.envs import make_env
-    from cmdp_rl.population.kernel import population_env
+    from cmdp_rl.population.envs import population_env
 
     raw = {
         "env": {"name": "safe_nav", "num_envs": 2, "max_steps": 40},
@@ -287,7 +287,7 @@ def test_population_outputs_are_runs(tmp_path):
 
 
 def test_each_agent_logs_to_its_own_tensorboard_directory(tmp_path):
-    """logger=tensorboard: each agent's directory opens its log as a single run's (trainer.open_run),
+    """logger=tensorboard: each agent's directory opens its log as a single run's (run.start.open_run),
     its scalars those of its metrics.csv."""
     pytest.importorskip("tensorboard")
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -402,7 +402,7 @@ def test_bad_population_config_is_one_line(population, message):
 
 
 # What the batched program does not cover, one case each: such a population's agents train one
-# after another through the single-run path (trainer.train).
+# after another through the single-run path (run.trainer.train).
 UNBATCHED = [
     ({"algo": {"name": "sac_lag"}}, "algo=sac_lag is not batched"),
     ({"policy": {"name": "gru"}}, "policy=gru is not batched"),
@@ -519,7 +519,7 @@ def test_fused_pass_gradients_equal_autograd_path():
 
     from cmdp_rl.envs import make_env
     from cmdp_rl.policies import make_agent
-    from cmdp_rl.population.kernel import PopulationAgent
+    from cmdp_rl.population.stacked import PopulationAgent
     from cmdp_rl.rollout.normalization import make_normalizers
     from cmdp_rl.run.rng import seed_everything
 
