@@ -105,3 +105,35 @@ def test_every_module_of_the_library_holds_one_concept():
         if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES
     ]
     assert not offenders, f"split these by concept: {offenders}"
+
+
+def _layers() -> list[str]:
+    """The layer order docs/architecture.md draws (its "Layers" section's block), bottom to top."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    block = text.split("## Layers", 1)[1].split("```", 2)[1]
+    return [line.split()[0] for line in block.strip().splitlines()]
+
+
+def _layer_of(module: str) -> str:
+    """``cmdp_rl.<package>...``'s layer: the package's name, ``cmdp_rl`` for the package root."""
+    parts = module.split(".")
+    return "cmdp_rl" if len(parts) == 1 or parts[1] in {"__init__", "__main__"} else parts[1]
+
+
+def test_no_module_imports_from_a_layer_above_its_own():
+    """Every import of the library, type-only ones included, goes down the layer order (or stays in its package):
+    a reader can learn the library bottom-up, and a lower layer stands without the ones above it."""
+    order = _layers()
+    rank = {name: i for i, name in enumerate(order)}
+    packages = {p.name for p in (ROOT / "cmdp_rl").iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert packages | {"cmdp_rl"} == set(order), f"every package has its place in the layers: {sorted(packages)}"
+    offenders = []
+    for path in sorted((ROOT / "cmdp_rl").rglob("*.py")):
+        rel = path.relative_to(ROOT / "cmdp_rl").parts
+        own = "cmdp_rl" if len(rel) == 1 and rel[0] == "__init__.py" else rel[0]
+        if own == "__main__.py":  # python -m cmdp_rl: the command line's entry, above every layer
+            continue
+        for module in sorted(m for m in _imports(path) if m == "cmdp_rl" or m.startswith("cmdp_rl.")):
+            if rank[_layer_of(module)] > rank[own]:
+                offenders.append(f"{path.relative_to(ROOT).as_posix()} ({own}) imports {module}")
+    assert not offenders, f"imports from a higher layer: {offenders}"

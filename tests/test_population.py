@@ -17,11 +17,11 @@ from cmdp_rl.config.registry import component
 from cmdp_rl.population import population
 from cmdp_rl.population.resume import resume_population
 from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
+from cmdp_rl.report.sweeps import find_runs
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.ownership import RunDirTaken
 from cmdp_rl.run.rundir import load_trained
-from cmdp_rl.run.sweeps import find_runs
 
 # Not bit for bit: the population's Adam (population/kernel.py) rounds differently from torch's fused
 # kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)

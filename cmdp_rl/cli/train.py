@@ -15,13 +15,13 @@ from omegaconf import DictConfig, OmegaConf
 
 from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
 from cmdp_rl.config.run_config import CONFIG_SOURCE
+from cmdp_rl.config.saved import ERROR, EVAL, POPULATION_CONFIG
 from cmdp_rl.population.resume import resume_population
 from cmdp_rl.population.spec import population, population_active
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, remove_outputs, resumable
 from cmdp_rl.run.resume import resume_config
-from cmdp_rl.run.rundir import ERROR, EVAL, POPULATION_CONFIG, RunDirError
-from cmdp_rl.run.sweeps import record_failure
+from cmdp_rl.run.rundir import RunDirError, record_failure
 from cmdp_rl.tune.trial import trial_observers
 
 # How a single run ends on each error (inside a sweep the command raises instead: see _fail).

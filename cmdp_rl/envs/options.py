@@ -26,7 +26,7 @@ class EnvOptions:
     # reached); None: the env's termination means nothing worth reporting.
     termination_metric: ClassVar[Optional[str]] = None
     # Whether a run's snapshots may be valued on deploy.snapshots x deploy.episodes episodes whatever that costs
-    # (cheap episodes of a batched env); else the valuation is held to a share of the run's steps (deploy/options.py).
+    # (cheap episodes of a batched env); else the valuation is held to a share of the run's steps (config/deploy.py).
     values_snapshots: ClassVar[bool] = False
 
     def check(self, run: Any) -> None:

@@ -11,6 +11,7 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.config.run_config import RunConfig
+from cmdp_rl.config.saved import POPULATION_CHECKPOINT
 from cmdp_rl.population.envs import population_env
 from cmdp_rl.population.learner import StackedLearner
 from cmdp_rl.population.spec import stacked
@@ -21,7 +22,6 @@ from cmdp_rl.run.checkpoint import member_entry
 from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, MODES, evaluate_members, mode_name
 from cmdp_rl.run.kernel import restore
 from cmdp_rl.run.migrations import population_from_stacked
-from cmdp_rl.run.rundir import POPULATION_CHECKPOINT
 from cmdp_rl.run.start import build_run
 
 

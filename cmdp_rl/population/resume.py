@@ -7,11 +7,11 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from cmdp_rl.config.run_config import ConfigError
+from cmdp_rl.config.saved import CHECKPOINT, POPULATION_CHECKPOINT, POPULATION_CONFIG, deploy_node, read_yaml
 from cmdp_rl.population.spec import Population, population
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.run.migrations import deploy_node, member, migrate, saved_config_defaults, saved_config_nodes
+from cmdp_rl.run.migrations import member, migrate, saved_config_defaults, saved_config_nodes
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
-from cmdp_rl.run.rundir import CHECKPOINT, POPULATION_CHECKPOINT, POPULATION_CONFIG, read_yaml
 
 
 def resume_population(

@@ -15,6 +15,7 @@ import torch
 import yaml
 
 from cmdp_rl.config.run_config import RunConfig
+from cmdp_rl.config.saved import AGENTS_DIR, CHECKPOINT, POPULATION_CONFIG, POPULATION_SUMMARY
 from cmdp_rl.config.threads import apply_threads
 from cmdp_rl.population.kernel import StackedKernel
 from cmdp_rl.population.spec import Population, label, unbatched, unbatched_head
@@ -23,7 +24,7 @@ from cmdp_rl.run.checkpoint import CheckpointError, checkpoint_state, save_check
 from cmdp_rl.run.finish import evaluate_run, write_result
 from cmdp_rl.run.loop import Observer, TrainingLoop
 from cmdp_rl.run.ownership import owned
-from cmdp_rl.run.rundir import AGENTS_DIR, CHECKPOINT, POPULATION_CONFIG, POPULATION_SUMMARY, ensure_writable
+from cmdp_rl.run.rundir import ensure_writable
 from cmdp_rl.run.start import build_run, check_env_contracts, open_members
 from cmdp_rl.run.trainer import train
 

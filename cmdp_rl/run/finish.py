@@ -13,6 +13,7 @@ import torch
 
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.config.run_config import RunConfig
+from cmdp_rl.config.saved import EVAL, METRICS
 from cmdp_rl.deploy.average import ParameterAverage, deployed
 from cmdp_rl.deploy.final_policy import FinalPolicy
 from cmdp_rl.deploy.mixture import IterateSnapshots
@@ -22,7 +23,6 @@ from cmdp_rl.report.safety_metrics import cost_rate, normalized_scores
 from cmdp_rl.report.summary import summary_lines
 from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, both_modes, evaluate
 from cmdp_rl.run.kernel import Kernel
-from cmdp_rl.run.rundir import EVAL, METRICS
 
 
 def complete_result(

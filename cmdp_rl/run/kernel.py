@@ -24,11 +24,22 @@ class Kernel(Protocol):
     the end of a run ask for them. ``agents[k]`` and ``algos[k]`` are member k's single-run objects: what its
     checkpoint entry, its deployed policy and its evaluation read (after :meth:`sync_agents`)."""
 
-    env: VecEnv
-    agents: Sequence[Agent]
-    algos: Sequence[Any]
-    collector: Collector
-    per_iter: int  # env steps per member per iteration
+    @property
+    def env(self) -> VecEnv: ...
+
+    @property
+    def agents(self) -> Sequence[Agent]: ...
+
+    @property
+    def algos(self) -> Sequence[Any]: ...
+
+    @property
+    def collector(self) -> Collector: ...
+
+    @property
+    def per_iter(self) -> int:
+        """Env steps per member per iteration."""
+        ...
 
     def restore(self, state: dict[str, Any], saved_cfgs: list[dict]) -> dict[str, Any]:
         """A resume's checkpoint ``state`` into the members (``saved_cfgs``: their config.yaml as written);
@@ -75,7 +86,7 @@ class AgentKernel:
         self.collector = Collector(
             env, agent, cfg.rollout_steps, seed=cfg.seed, uniform_steps=cfg.algo.uniform_action_steps
         )
-        self.per_iter = cfg.rollout_steps * env.num_envs
+        self.per_iter = int(cfg.rollout_steps) * env.num_envs  # rollout_steps: "auto" is resolved by now
 
     def restore(self, state: dict[str, Any], saved_cfgs: list[dict]) -> dict[str, Any]:
         state = migrate(state, self.agents[0])  # an older format's layout (a trusted file) in the current one

@@ -17,6 +17,7 @@ from tensordict import TensorDictBase
 from cmdp_rl.algos import TrainingDiverged
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.config.run_config import RunConfig
+from cmdp_rl.config.saved import CHECKPOINT
 from cmdp_rl.deploy.final_policy import FinalPolicy
 from cmdp_rl.envs.contract import check_rollout, contract_options
 from cmdp_rl.report.metrics import MetricsLogger, spread
@@ -25,7 +26,6 @@ from cmdp_rl.rollout.collector import finished_episodes
 from cmdp_rl.run.checkpoint import checkpoint_state, member_entry, save_checkpoint
 from cmdp_rl.run.kernel import Kernel
 from cmdp_rl.run.progress import Progress
-from cmdp_rl.run.rundir import CHECKPOINT
 
 # Who else reads each iteration's rows, as ``observe(iteration, iterations, rows)``: a search's trial
 # (tune/trial.py, which may raise optuna.TrialPruned), a population's progress lines.

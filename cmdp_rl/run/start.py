@@ -13,6 +13,7 @@ import yaml
 
 from cmdp_rl.algos import make_algo
 from cmdp_rl.config.run_config import RunConfig
+from cmdp_rl.config.saved import CONFIG, METRICS, RUN_INFO, TENSORBOARD
 from cmdp_rl.deploy.final_policy import FinalPolicy
 from cmdp_rl.envs import check_env, make_env
 from cmdp_rl.envs.contract import contract_options
@@ -22,7 +23,7 @@ from cmdp_rl.rollout.normalization import make_normalizers
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.kernel import Kernel
 from cmdp_rl.run.rng import seed_everything
-from cmdp_rl.run.rundir import CONFIG, METRICS, RUN_INFO, TENSORBOARD, ensure_writable, write_run_info
+from cmdp_rl.run.rundir import ensure_writable, write_run_info
 
 # The env contract's check before training (envs/contract.py): steps per env, on envs of its own.
 CONTRACT_STEPS = 100

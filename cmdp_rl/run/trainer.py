@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from cmdp_rl.algos.base import per_constraint
+from cmdp_rl.config.reference import load_reference
 from cmdp_rl.config.run_config import RunConfig, budget_source, validate
 from cmdp_rl.config.threads import apply_threads
-from cmdp_rl.report.safety_metrics import load_reference
 from cmdp_rl.run.finish import finish_run
 from cmdp_rl.run.kernel import AgentKernel
 from cmdp_rl.run.loop import Observer, TrainingLoop
