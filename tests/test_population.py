@@ -23,7 +23,7 @@ from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.ownership import RunDirTaken
 from cmdp_rl.run.rundir import load_trained
 
-# Not bit for bit: the population's Adam (population/kernel.py) rounds differently from torch's fused
+# Not bit for bit: the population's Adam (population/stacked.py) rounds differently from torch's fused
 # kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)
 # sum in another order; training carries these last-bit differences to at most ~5e-4 relative in
 # quantities near zero (loss_pi of 1e-4), so: relative 1e-3 or absolute 1e-6, every other entry
@@ -163,7 +163,7 @@ def _fork(name: str) -> dict:
 @pytest.mark.parametrize("name", batched_algos())
 def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_and_two_costs(tmp_path, name):
     """Enumerated from the registry, on the fork (a Discrete action; K = 2 costs where the algorithm
-    takes them, each agent's env its single run's, population.kernel.AgentEnvs): each agent equal to
+    takes them, each agent's env its single run's, population.envs.AgentEnvs): each agent equal to
     ``train()`` on its own config.yaml."""
     raw = _fork(name)
     raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}

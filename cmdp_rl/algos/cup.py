@@ -25,7 +25,7 @@ from torch.distributions import Distribution, kl_divergence
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.learner import Learner
 from cmdp_rl.algos.minibatch import Tally, joined, stopped
-from cmdp_rl.algos.multiplier import EpisodeCost, MultiplierConfig
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, MultiplierConfig, logged_multiplier
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, options
@@ -65,10 +65,27 @@ class CUP(PPO):
         cost_limit = single_constraint(cfg.cost_limit, agent, "cup", "cup has one cost multiplier nu")
         super().__init__(cfg, agent)
         self.multiplier = cfg.multiplier.build(cost_limit)
+        self.episode_cost = EpisodeCostEstimate()  # J_c, measured on each batch before the policy advantage
         self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.cost)
+
+    def before_advantage(self, batch: TensorDictBase) -> None:
+        self.update_multiplier(self.episode_cost.update(batch))
+
+    @property
+    def lagrange_multiplier(self) -> float | list[float]:
+        return logged_multiplier(self.multiplier.values)
+
+    def state_dict(self) -> dict:
+        own = {"episode_cost": self.episode_cost.state_dict(), "multiplier": self.multiplier.state_dict()}
+        return {**super().state_dict(), **own}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.episode_cost.load_state_dict(state["episode_cost"])
+        self.multiplier.load_state_dict(state["multiplier"])
 
     def second_stage(self, algos: Sequence[CUP], rows: Sequence[TensorDictBase], learner: Learner) -> dict:
         """Stage 2 of every member in minibatch epochs as PPO's, KL early stopping included: mean loss and KL."""

@@ -64,7 +64,7 @@ class Learner(Protocol):
 
 
 class SingleLearner:
-    """A run's reducer (``torch.mean``) and optimiser step; ``population.kernel.StackedBackend`` is P agents'."""
+    """A run's reducer (``torch.mean``) and optimiser step; ``population.learner.StackedLearner`` is P agents'."""
 
     mean = staticmethod(torch.mean)
 

@@ -10,7 +10,7 @@ networks is the :class:`~cmdp_rl.algos.learner.Learner` it is given: a run's ``S
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, ClassVar, Optional, Sequence
+from typing import TYPE_CHECKING, ClassVar, Optional, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -19,7 +19,6 @@ from torch import distributions as D
 from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite, require_minibatches
 from cmdp_rl.algos.learner import Learner, SingleLearner, Units
 from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, stopped
-from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, Bool, NonNegativeFloat, PositiveFloat, UnitOpen, options
 from cmdp_rl.policies.agent import Agent
@@ -109,12 +108,13 @@ STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
 class PPO:
     name = "ppo"
     stats = STATS  # what update() returns besides lagrange_multiplier: metrics.csv's columns
-    multiplier: Any = None  # a constrained variant's lambda (multiplier.py), logged and checkpointed
+    # The lambda metrics.csv logs: plain PPO prices no cost. A constrained variant (ppo_lag.py, FOCOPS, CUP, CRPO)
+    # measures J_c and keeps its multiplier itself (``before_advantage``, its state_dict).
+    lagrange_multiplier: float | list[float] = 0.0
 
     def __init__(self, cfg: PPOConfig, agent: Agent) -> None:
         self.cfg, self.agent = cfg, agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
-        self.episode_cost = EpisodeCostEstimate()  # J_c, for the constrained variants
         self.log_clip = (math.log1p(-cfg.clip_epsilon), math.log1p(cfg.clip_epsilon))
         self.critics = CriticRegression(agent)
         self.kl_limit = None if cfg.target_kl is None else KL_STOP * cfg.target_kl
@@ -138,12 +138,9 @@ class PPO:
         return stats
 
     # --- what the variants change -------------------------------------------------------------
-    @property
-    def lagrange_multiplier(self) -> float | list[float]:
-        return 0.0 if self.multiplier is None else logged_multiplier(self.multiplier.values)
-
-    def update_multiplier(self, estimate: EpisodeCost) -> None:
-        """Constrained variants adapt lambda here, before the policy update."""
+    def before_advantage(self, batch: TensorDictBase) -> None:
+        """On this member's rows, before its policy advantage: a constrained variant measures J_c and moves its
+        multiplier here."""
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return batch.get(keys.ADVANTAGE)
@@ -176,8 +173,8 @@ class PPO:
 
     # --- around the epochs, per member --------------------------------------------------------
     def prepare(self, batch: TensorDictBase) -> torch.Tensor:
-        """After GAE, on this member's rows: J_c, the multiplier, the (standardised) policy advantage."""
-        self.update_multiplier(self.episode_cost.update(batch))
+        """After GAE, on this member's rows: what a variant measures first, the (standardised) policy advantage."""
+        self.before_advantage(batch)
         adv = self.policy_advantage(batch)
         if self.cfg.normalize_advantage:
             adv = standardized(adv)
@@ -200,23 +197,18 @@ class PPO:
 
     # --- checkpointing --------------------------------------------------------------------------
     def state_dict(self) -> dict:
-        state = {
+        return {
             "networks": self.agent.state_dict(),
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
-            "episode_cost": self.episode_cost.state_dict(),
             "iteration": self.iteration,
         }
-        return state if self.multiplier is None else {**state, "multiplier": self.multiplier.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
         self.actor_opt.load_state_dict(state["actor_opt"])
-        self.critic_opt.load_state_dict(state["critic_opt"])
-        self.episode_cost.load_state_dict(state["episode_cost"])
+        self.critic_opt.load_state_dict(state["critic_opt"])  # (a checkpoint's J_c window, before issue 52: unread)
         self.iteration = int(state["iteration"])
-        if self.multiplier is not None:
-            self.multiplier.load_state_dict(state["multiplier"])
 
 
 def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, learner: Learner) -> list[dict[str, float]]:
@@ -224,7 +216,7 @@ def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, learner: Learner) ->
     ppo, cfg = algos[0], algos[0].cfg
     ppo.gae(batch, learner.agent)  # A_r, A_c and the critics' targets V^targ = A + V, every member's rows at once
     rows = member_rows(batch, len(algos))
-    # Each member's J_c, its multiplier, its policy advantage A (PPO: A_r; ppo_lag: (A_r - lam A_c) / (1 + lam)).
+    # Each member's policy advantage A (PPO: A_r; ppo_lag: (A_r - lam A_c) / (1 + lam), after J_c moved lam).
     batch.set(keys.POLICY_ADVANTAGE, joined([a.prepare(r) for a, r in zip(algos, rows)]))
     units = learner.agent.training_units({k: batch.get(k) for k in ppo.update_keys(batch)})
     mean, optimisers = learner.mean, learner.optimisers(algos)  # the reducer: torch.mean for a run

@@ -56,7 +56,7 @@ class EnvOptions:
     ) -> Any:
         """The envs of P agents (``env_cfgs``, these options first), ``num_envs`` each, agent i's seeded
         with ``seeds[i]``, as one batched env whose agent i's rows step exactly as its single run's envs;
-        None: the population steps each agent's own env in turn (``population.kernel.AgentEnvs``)."""
+        None: the population steps each agent's own env in turn (``population.envs.AgentEnvs``)."""
         return None
 
 

@@ -10,6 +10,7 @@ from typing import Any, Protocol, Sequence, runtime_checkable
 
 from tensordict import TensorDictBase
 
+from cmdp_rl.algos.base import Algorithm
 from cmdp_rl.config.run_config import RunConfig
 from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
@@ -31,7 +32,7 @@ class Kernel(Protocol):
     def agents(self) -> Sequence[Agent]: ...
 
     @property
-    def algos(self) -> Sequence[Any]: ...
+    def algos(self) -> Sequence[Algorithm]: ...
 
     @property
     def collector(self) -> Collector: ...
@@ -80,7 +81,7 @@ class AgentKernel:
     """A run's kernel (P = 1): its own networks and torch's Adam (``algo.update``), its collector's seed and
     warm-up, reward and observation scaling; the global random state."""
 
-    def __init__(self, cfg: RunConfig, env: VecEnv, agent: Agent, algo: Any) -> None:
+    def __init__(self, cfg: RunConfig, env: VecEnv, agent: Agent, algo: Algorithm) -> None:
         self.env, self.agents, self.algos = env, [agent], [algo]
         # An off-policy algorithm's options may ask for uniformly random actions during its warm-up.
         self.collector = Collector(

@@ -125,7 +125,12 @@ class TrainingLoop:
         # The contract on what was collected (raw values): finite, costs >= 0; vectorised.
         first_step = steps // self.envs_per_member - cfg.rollout_steps + 1
         check_rollout(batch, *self.contract, first_step=first_step)
-        stats = self.update(batch, it)
+        try:
+            stats = self.update(batch, it)
+        except TrainingDiverged as exc:
+            path = self.checkpoint_path
+            last = f"the last good checkpoint is {path}" if path.exists() else "no checkpoint was written yet"
+            raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
         totals = self.kernel.cost_totals(batch)
         dt = time.perf_counter() - t0
         timing = {"sps": cfg.rollout_steps * self.envs_per_member / dt, "time_s": time.perf_counter() - start}
@@ -141,12 +146,7 @@ class TrainingLoop:
 
     def update(self, batch: TensorDictBase, it: int) -> list[dict[str, Any]]:
         """Every member's update, then what each deploys reads its actor (when its ``deploy.policy`` keeps one)."""
-        try:
-            stats = self.kernel.update(batch)
-        except TrainingDiverged as exc:
-            path = self.checkpoint_path
-            last = f"the last good checkpoint is {path}" if path.exists() else "no checkpoint was written yet"
-            raise TrainingDiverged(f"iteration {it}: {exc}; stopped, {last}") from exc
+        stats = self.kernel.update(batch)
         if any(f.wants(it) for f in self.finals):  # the actors as their members' modules hold them
             self.kernel.sync_actors()
             names = self.kernel.env.cost_names
