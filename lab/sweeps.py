@@ -1,7 +1,7 @@
 """Launching and reading back the lab's sweeps: the command line every ``experiments/`` report script shares
 (``--run [overrides]`` starts its ``train.py -m +experiment=...`` sweep), the jobs a sweep's ``multirun.yaml``
 expected, those that left no run directory, and the command that reruns one. Reading one run directory is
-:mod:`cmdp_rl.run.sweeps`, in the library."""
+:mod:`cmdp_rl.report.sweeps`, in the library."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from typing import Any
 
 import yaml
 
-from cmdp_rl.run.rundir import EVAL, METRICS
-from cmdp_rl.run.sweeps import RunRecord, _read_yaml, find_runs, load_run, mark_superseded
+from cmdp_rl.config.saved import EVAL, METRICS
+from cmdp_rl.report.sweeps import RunRecord, _read_yaml, find_runs, load_run, mark_superseded
 
 MULTIRUN_FILE = "multirun.yaml"
 

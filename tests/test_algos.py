@@ -200,10 +200,10 @@ def test_fast_tanh_matches_torch_tanh_and_its_gradient():
 
 
 def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monkeypatch):
-    from cmdp_rl.algos import ppo
+    from cmdp_rl.algos import learner
 
     calls = {"n": 0}
-    original = ppo.adam_step
+    original = learner.adam_step
 
     def step_then_break(opt):
         original(opt)
@@ -213,7 +213,7 @@ def test_a_non_finite_parameter_after_a_finite_loss_stops_the_run(tmp_path, monk
             with torch.no_grad():
                 opt.param_groups[0]["params"][0].fill_(float("inf"))  # the reward critic's first weight
 
-    monkeypatch.setattr(ppo, "adam_step", step_then_break)
+    monkeypatch.setattr(learner, "adam_step", step_then_break)
     cfg = load_config(
         {
             "algo": {"name": "ppo", "update_epochs": 1, "num_minibatches": 2},

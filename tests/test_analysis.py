@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from cmdp_rl.run.sweeps import FAILED, MISSING, OK
+from cmdp_rl.report.sweeps import FAILED, MISSING, OK
 from lab.studies.penalty_constraint import (
     GroupKey,
     Run,

@@ -118,11 +118,11 @@ def test_check_rollout_passes_finite_values_whose_sum_overflows():
 
 def test_the_check_leaves_the_training_numbers_alone(tmp_path, quiet, monkeypatch):
     """Same config and seed, with and without the pre-training check: the same metrics.csv."""
-    import cmdp_rl.run.trainer as trainer
+    import cmdp_rl.run.start as start
 
     cfg = tiny()
     train(load_config(cfg), tmp_path / "with", echo=quiet)
-    monkeypatch.setattr(trainer, "check_env_contract", lambda cfg: None)
+    monkeypatch.setattr(start, "check_env_contract", lambda cfg: None)
     train(load_config(cfg), tmp_path / "without", echo=quiet)
     assert metrics_rows(tmp_path / "with") == metrics_rows(tmp_path / "without")
 

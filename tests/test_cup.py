@@ -9,7 +9,8 @@ from helpers.runs import tail_means
 from torch.distributions import kl_divergence
 
 from cmdp_rl import Collector, keys, load_config, make_agent, make_algo, make_env, train
-from cmdp_rl.algos.ppo import PPO, OneRun
+from cmdp_rl.algos.learner import SingleLearner
+from cmdp_rl.algos.ppo import PPO
 from cmdp_rl.config.run_config import compose_config
 
 
@@ -36,7 +37,7 @@ def stage_one(algo, batch):
 
 def project(algo, batch):
     """CUP's stage 2 alone on a batch whose stage 1 ran: its mean loss and KL."""
-    members = OneRun(algo.agent, algo.cfg.max_grad_norm)
+    members = SingleLearner(algo.agent, algo.cfg.max_grad_norm)
     return {k: v.item() for k, v in algo.second_stage([algo], [batch], members).items()}
 
 

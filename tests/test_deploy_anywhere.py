@@ -7,7 +7,7 @@ import json
 import pytest
 
 from cmdp_rl import load_config, train
-from cmdp_rl.deploy.options import MIN_VALUED_EPISODES, VALUATION_SHARE, valuation_plan
+from cmdp_rl.config.deploy import MIN_VALUED_EPISODES, VALUATION_SHARE, valuation_plan
 
 
 def nav(**top) -> dict:

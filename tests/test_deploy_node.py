@@ -16,11 +16,11 @@ from cmdp_rl import load_config, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main, in-process
 from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.population import population
+from cmdp_rl.population.resume import resume_population
 from cmdp_rl.report.plot import group_runs
+from cmdp_rl.report.sweeps import load_run
 from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.run.migrations import saved_config_defaults
-from cmdp_rl.run.resume import resume_population
-from cmdp_rl.run.sweeps import load_run
 
 # Each flat option, by its name in the node.
 FLAT = {

@@ -38,7 +38,7 @@ from cmdp_rl.config.run_config import CONFIG_DIR, ConfigError, load_config
 from cmdp_rl.population.spec import agent_configs, population_active
 from cmdp_rl.report.compare import parse_args as compare_args
 from cmdp_rl.run.resume import _resumable
-from cmdp_rl.run.tune import Settings, check_space, parse_space
+from cmdp_rl.tune.search import Settings, check_space, parse_space
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md")), *sorted((ROOT / "configs").rglob("*.yaml"))]
@@ -251,7 +251,7 @@ def _jobs(sweeper, overrides: list[str]) -> list[list[str]]:
 
 def _check_search(hydra_compose, sweeper, overrides: list[str]) -> None:
     """A hyperparameter search (hydra/sweeper=cmdp_optuna, docs/tuning.md) checked as its sweeper checks it before
-    its first trial (cmdp_rl/run/tune.py): the settings, the space, and a job composed and validated at
+    its first trial (cmdp_rl/tune/search.py): the settings, the space, and a job composed and validated at
     each end of the space (``check_space``)."""
     options = OmegaConf.to_container(sweeper, resolve=True)
     settings = Settings.of(options)

@@ -20,7 +20,8 @@ from cmdp_rl.envs import EarlyTerminated, GymVecEnv, Reach1D, TorchReach1D, make
 from cmdp_rl.envs.options import EnvOptions
 from cmdp_rl.envs.vector import Step, VecEnv
 from cmdp_rl.population import population
-from cmdp_rl.run.trainer import build_run, evaluate_run
+from cmdp_rl.run.finish import evaluate_run
+from cmdp_rl.run.start import build_run
 
 
 def over_the_wall(obs):

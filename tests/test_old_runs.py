@@ -34,11 +34,13 @@ from helpers.tolerance import Tolerance, assert_close, record, share
 
 from cmdp_rl import Collector, keys, train
 from cmdp_rl.cli import evaluate as evaluate_cli  # the command's main in-process: no interpreter per fixture
+from cmdp_rl.config.saved import deploy_node
 from cmdp_rl.population import population
+from cmdp_rl.population.resume import resume_population
 from cmdp_rl.run.checkpoint import FORMAT_VERSION, UnsafeCheckpointError, load_checkpoint
 from cmdp_rl.run.convert import convert_run
-from cmdp_rl.run.migrations import deploy_node, is_legacy, saved_config_nodes
-from cmdp_rl.run.resume import resume_config, resume_population
+from cmdp_rl.run.migrations import is_legacy, saved_config_nodes
+from cmdp_rl.run.resume import resume_config
 from cmdp_rl.run.rundir import load_trained
 
 # Every test here compares with numbers an AMD EPYC recorded: make test-cpus reruns them all.

@@ -16,15 +16,15 @@ from helpers.tolerance import Tolerance, assert_close, record, share
 from cmdp_rl import ConfigError, load_config, train
 from cmdp_rl.config.registry import component
 from cmdp_rl.population import population
+from cmdp_rl.population.resume import resume_population
 from cmdp_rl.population.spec import agent_configs, batched_algos, stacked, unbatched
+from cmdp_rl.report.sweeps import find_runs
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.migrations import saved_config_defaults
 from cmdp_rl.run.ownership import RunDirTaken
-from cmdp_rl.run.resume import resume_population
 from cmdp_rl.run.rundir import load_trained
-from cmdp_rl.run.sweeps import find_runs
 
-# Not bit for bit: the population's Adam (population/kernel.py) rounds differently from torch's fused
+# Not bit for bit: the population's Adam (population/stacked.py) rounds differently from torch's fused
 # kernel (about 1e-7 after 20 steps) and per-agent reductions (advantage moments, gradient norms)
 # sum in another order; a few iterations carry these last-bit differences further. Measured on 2026-12-07, on this
 # CPU and under make test-cpus' settings: at most 1.9e-4 relative (or 1.9e-7 absolute near zero) but for pcpo, whose
@@ -175,7 +175,7 @@ def _fork(name: str) -> dict:
 @pytest.mark.parametrize("name", batched_algos())
 def test_every_batched_algorithm_trains_as_its_single_runs_on_discrete_actions_and_two_costs(tmp_path, name):
     """Enumerated from the registry, on the fork (a Discrete action; K = 2 costs where the algorithm
-    takes them, each agent's env its single run's, population.kernel.AgentEnvs): each agent equal to
+    takes them, each agent's env its single run's, population.envs.AgentEnvs): each agent equal to
     ``train()`` on its own config.yaml."""
     raw = _fork(name)
     raw["population"] = {"seeds": 1, "grid": {"algo": {"cost_limit": [0.05, 0.5]}, "seed": [3]}}
@@ -207,7 +207,7 @@ def test_safe_nav_agents_are_one_batch_of_worlds_stepping_as_their_single_runs(t
         pytest.skip("Safety-Gymnasium is installed by `make setup-safety-gym`")  # as tests/test_safe_nav.py
     from cmdp_rl.envs import make_env
     from cmdp_rl.envs.vector import Step
-    from cmdp_rl.population.kernel import population_env
+    from cmdp_rl.population.envs import population_env
 
     raw = {
         "env": {"name": "safe_nav", "num_envs": 2, "max_steps": 40},
@@ -308,7 +308,7 @@ def test_population_outputs_are_runs(tmp_path):
 
 
 def test_each_agent_logs_to_its_own_tensorboard_directory(tmp_path):
-    """logger=tensorboard: each agent's directory opens its log as a single run's (trainer.open_run),
+    """logger=tensorboard: each agent's directory opens its log as a single run's (run.start.open_run),
     its scalars those of its metrics.csv."""
     pytest.importorskip("tensorboard")
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -424,7 +424,7 @@ def test_bad_population_config_is_one_line(population, message):
 
 
 # What the batched program does not cover, one case each: such a population's agents train one
-# after another through the single-run path (trainer.train).
+# after another through the single-run path (run.trainer.train).
 UNBATCHED = [
     ({"algo": {"name": "sac_lag"}}, "algo=sac_lag is not batched"),
     ({"policy": {"name": "gru"}}, "policy=gru is not batched"),
@@ -542,7 +542,7 @@ def test_fused_pass_gradients_equal_autograd_path():
 
     from cmdp_rl.envs import make_env
     from cmdp_rl.policies import make_agent
-    from cmdp_rl.population.kernel import PopulationAgent
+    from cmdp_rl.population.stacked import PopulationAgent
     from cmdp_rl.rollout.normalization import make_normalizers
     from cmdp_rl.run.rng import seed_everything
 

@@ -292,7 +292,7 @@ def test_video_of_a_navigation_run_renders_headless(run, tmp_path):
 def test_the_contract_check_of_an_async_run_steps_its_probe_in_this_process():
     # An async run's envs live in worker processes, where the check cannot read their raw info; its
     # separate probe envs run in this process instead (this was a TypeError before training).
-    from cmdp_rl.run.trainer import check_env_contract
+    from cmdp_rl.run.start import check_env_contract
 
     cfg = compose_config(["env=safety_gym", "env.task=SafetyPointGoal1-v0", "env.vector=async", "env.num_envs=2"])
     check_env_contract(cfg)  # raises on a breach or an unsupported env

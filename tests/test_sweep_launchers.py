@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cmdp_rl.run.sweeps import FAILED, OK, find_runs
+from cmdp_rl.report.sweeps import FAILED, OK, find_runs
 from lab.sweeps import missing_jobs
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -20,10 +20,10 @@ from omegaconf import OmegaConf
 from optuna.distributions import FloatDistribution
 from optuna.trial import TrialState, create_trial
 
-from cmdp_rl.run.tune import Settings, TuneError, budgets, check_space, open_storage, parse_space, sweep
-from cmdp_rl.run.tune_report import main as report_main
-from cmdp_rl.run.tune_report import report
-from cmdp_rl.run.tune_trial import FeasibleOnly, Observer, best_feasible, outcome
+from cmdp_rl.tune.report import main as report_main
+from cmdp_rl.tune.report import report
+from cmdp_rl.tune.search import Settings, TuneError, budgets, check_space, open_storage, parse_space, sweep
+from cmdp_rl.tune.trial import FeasibleOnly, Observer, best_feasible, outcome
 
 ROOT = Path(__file__).resolve().parents[1]
 # A search of 4 trials of a second or two: 2 seeds, one iteration of 16 envs (one pass over the batch), a 4-episode

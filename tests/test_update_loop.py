@@ -1,4 +1,4 @@
-"""The PPO family's update loop (algos/ppo.py: ppo_update, OneRun; algos/minibatch.py): a run's
+"""The PPO family's update loop (algos/ppo.py: ppo_update, SingleLearner; algos/minibatch.py): a run's
 minibatch order is ``minibatches()``'s under the same seed, a KL stop ends the update after
 evaluating its minibatch and draws no further order, the statistics average the minibatches each
 member evaluated, and a run's optimiser step is torch's, bit for bit."""
@@ -8,8 +8,8 @@ import torch
 from torch import nn
 
 from cmdp_rl import Collector, load_config, make_agent, make_algo, make_env
+from cmdp_rl.algos.learner import SingleLearner, clip_grad_norm_
 from cmdp_rl.algos.minibatch import Tally, minibatches
-from cmdp_rl.algos.ppo import OneRun, clip_grad_norm_
 
 
 def _data() -> dict:
@@ -20,7 +20,7 @@ def test_a_run_visits_the_minibatches_of_minibatches():
     torch.manual_seed(0)
     expected = [{k: v.clone() for k, v in mb.items()} for _, mb in minibatches(_data(), 3, 2)]
     torch.manual_seed(0)
-    run = OneRun(None, 1.0)
+    run = SingleLearner(None, 1.0)
     seen = [{k: v.clone() for k, v in mb.items()} for _ in range(2) for mb in run.minibatches(_data(), 3)]
     assert len(seen) == len(expected) == 6
     for a, b in zip(seen, expected):
@@ -79,13 +79,13 @@ def _twin_nets(seed: int = 0) -> tuple:
 
 @pytest.mark.cpu_kernels
 def test_a_runs_optimiser_step_is_torchs_bit_for_bit():
-    """OneRun.step (one backward, the foreach clipping, torch's functional fused Adam on the
+    """SingleLearner.step (one backward, the foreach clipping, torch's functional fused Adam on the
     optimiser's state) against torch's own calls (``clip_grad_norm_``, ``Adam.step``), over steps
     that clip and an annealed learning rate."""
     a, b = _twin_nets()
     opt_a = torch.optim.Adam(a.parameters(), lr=1e-2, fused=True)
     opt_b = torch.optim.Adam(b.parameters(), lr=1e-2, fused=True)
-    run = OneRun(None, max_grad_norm=0.5)
+    run = SingleLearner(None, max_grad_norm=0.5)
     gen = torch.Generator().manual_seed(1)
     for i in range(6):
         x = 10 * torch.randn(32, 3, generator=gen)  # large inputs: gradients over the clip
@@ -120,7 +120,7 @@ def test_the_mlp_computes_what_nn_sequential_computes():
 def test_after_its_first_step_a_fused_adam_steps_through_the_functional_api(monkeypatch):
     """The first step creates Adam's moments (``Adam.step``); later ones skip ``Optimizer.step``'s
     wrappers (the reason for ``adam_step``): a silent fallback would cost the run its speed."""
-    from cmdp_rl.algos.ppo import adam_step
+    from cmdp_rl.algos.learner import adam_step
 
     net, _ = _twin_nets()
     opt = torch.optim.Adam(net.parameters(), lr=1e-2, fused=True)

@@ -12,7 +12,7 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import single_constraint
-from cmdp_rl.algos.multiplier import EpisodeCost
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import NonNegativeFloat, options
@@ -40,10 +40,21 @@ class CRPO(PPO):
         )
         super().__init__(cfg, agent)
         self.cost_step = False
+        self.episode_cost = EpisodeCostEstimate()  # J_c, measured on each batch before the policy advantage
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         """Algorithm 1's switch: the constraint is violated beyond the tolerance -> a cost step."""
         self.cost_step = estimate.cost > self.cost_limit + self.cfg.tolerance
+
+    def before_advantage(self, batch: TensorDictBase) -> None:
+        self.update_multiplier(self.episode_cost.update(batch))
+
+    def state_dict(self) -> dict:
+        return {**super().state_dict(), "episode_cost": self.episode_cost.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.episode_cost.load_state_dict(state["episode_cost"])
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return -batch.get(keys.COST_ADVANTAGE) if self.cost_step else batch.get(keys.ADVANTAGE)

@@ -23,9 +23,10 @@ from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
+from cmdp_rl.algos.learner import Learner
 from cmdp_rl.algos.minibatch import Tally, joined, stopped
-from cmdp_rl.algos.multiplier import EpisodeCost, MultiplierConfig
-from cmdp_rl.algos.ppo import PPO, STATS, OneRun, PPOConfig
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, MultiplierConfig, logged_multiplier
+from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, options
 from cmdp_rl.policies.agent import Agent
@@ -64,30 +65,47 @@ class CUP(PPO):
         cost_limit = single_constraint(cfg.cost_limit, agent, "cup", "cup has one cost multiplier nu")
         super().__init__(cfg, agent)
         self.multiplier = cfg.multiplier.build(cost_limit)
+        self.episode_cost = EpisodeCostEstimate()  # J_c, measured on each batch before the policy advantage
         self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.cost)
 
-    def second_stage(self, algos: Sequence[CUP], rows: Sequence[TensorDictBase], members: OneRun) -> dict:
+    def before_advantage(self, batch: TensorDictBase) -> None:
+        self.update_multiplier(self.episode_cost.update(batch))
+
+    @property
+    def lagrange_multiplier(self) -> float | list[float]:
+        return logged_multiplier(self.multiplier.values)
+
+    def state_dict(self) -> dict:
+        own = {"episode_cost": self.episode_cost.state_dict(), "multiplier": self.multiplier.state_dict()}
+        return {**super().state_dict(), **own}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.episode_cost.load_state_dict(state["episode_cost"])
+        self.multiplier.load_state_dict(state["multiplier"])
+
+    def second_stage(self, algos: Sequence[CUP], rows: Sequence[TensorDictBase], learner: Learner) -> dict:
         """Stage 2 of every member in minibatch epochs as PPO's, KL early stopping included: mean loss and KL."""
         cfg = self.cfg
-        units = members.agent.training_units(joined([a.projection_inputs(r) for a, r in zip(algos, rows)]))
+        units = learner.agent.training_units(joined([a.projection_inputs(r) for a, r in zip(algos, rows)]))
         with torch.no_grad():  # pi_{k+1/2}: the actor as stage 1 left it
-            units.update({(HALF, k): v for k, v in members.actor_params(units).items()})
+            units.update({(HALF, k): v for k, v in learner.actor_params(units).items()})
         # The cost surrogate's weight: nu (1 - gamma_c gae_lambda) / (1 - gamma_c), one per member.
-        nu_coef = members.per_member([a.multiplier.value * a.cost_coef for a in algos])
-        kl_limit = None if self.kl_limit is None else members.per_member([a.kl_limit for a in algos])
-        optimiser = members.fresh_actor_optimiser(algos)  # fresh: see the module's docstring
+        nu_coef = learner.per_member([a.multiplier.value * a.cost_coef for a in algos])
+        kl_limit = None if self.kl_limit is None else learner.per_member([a.kl_limit for a in algos])
+        optimiser = learner.fresh_actor_optimiser(algos)  # fresh: see the module's docstring
         tally, active = Tally(), True
         for _ in range(cfg.projection_epochs):
-            for mb in members.minibatches(units, cfg.num_minibatches, active):
-                terms, kl_terms = self.projection_terms(members.dist(mb), mb, nu_coef)
-                loss, kl = members.mean(terms), members.mean(kl_terms)
+            for mb in learner.minibatches(units, cfg.num_minibatches, active):
+                terms, kl_terms = self.projection_terms(learner.dist(mb), mb, nu_coef)
+                loss, kl = learner.mean(terms), learner.mean(kl_terms)
                 evaluated = active
                 if kl_limit is not None:
                     active = active & ~(kl.detach() > kl_limit)
-                members.step(loss, optimiser, active)
+                learner.step(loss, optimiser, active)
                 tally.add({"loss_projection": loss, "kl_projection": kl}, evaluated)
                 if stopped(active):
                     break

@@ -25,7 +25,7 @@ from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
-from cmdp_rl.algos.multiplier import EpisodeCost, MultiplierConfig
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, MultiplierConfig, logged_multiplier
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import PositiveFloat, options
@@ -75,9 +75,26 @@ class FOCOPS(PPO):
         super().__init__(cfg, agent)
         self.kl_limit = cfg.target_kl  # Algorithm 1 stops at delta itself, not PPO's 1.5 delta
         self.multiplier = cfg.multiplier.build(cost_limit)
+        self.episode_cost = EpisodeCostEstimate()  # J_c, measured on each batch before the policy advantage
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.cost)
+
+    def before_advantage(self, batch: TensorDictBase) -> None:
+        self.update_multiplier(self.episode_cost.update(batch))
+
+    @property
+    def lagrange_multiplier(self) -> float | list[float]:
+        return logged_multiplier(self.multiplier.values)
+
+    def state_dict(self) -> dict:
+        own = {"episode_cost": self.episode_cost.state_dict(), "multiplier": self.multiplier.state_dict()}
+        return {**super().state_dict(), **own}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.episode_cost.load_state_dict(state["episode_cost"])
+        self.multiplier.load_state_dict(state["multiplier"])
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return batch.get(keys.ADVANTAGE) - self.multiplier.value * batch.get(keys.COST_ADVANTAGE)

@@ -1,24 +1,24 @@
 """PPO (Schulman et al., 2017, "Proximal Policy Optimization Algorithms") and the update every PPO-family
 algorithm runs, :func:`ppo_update`, on one screen. A variant changes what the loop reads, never the loop:
 the multiplier and policy advantage (ppo_lag.py, FOCOPS, CRPO), the per-sample loss (FOCOPS), a stage after
-the epochs (CUP). A population runs the same loop with its own reducer and optimiser step
-(``population.kernel.StackedBackend``; :class:`OneRun` is a run's). The clipped surrogate is written out, equal to torchrl's
+the epochs (CUP). What reduces the per-sample losses and steps the
+networks is the :class:`~cmdp_rl.algos.learner.Learner` it is given: a run's ``SingleLearner``, or a population's
+``StackedLearner`` (P agents' stacked rows, ``population/learner.py``), so a population runs the same loop. The clipped surrogate is written out, equal to torchrl's
 ``ClipPPOLoss`` (tests/test_algos.py), which spent most of each minibatch on unused TensorDict work.
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, ClassVar, Iterator, Optional, Sequence
+from typing import TYPE_CHECKING, ClassVar, Optional, Sequence
 
 import torch
 from tensordict import TensorDictBase
 from torch import distributions as D
-from torch.optim.adam import adam as functional_adam
 
 from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check_parameters_finite, require_minibatches
-from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, minibatches, stopped
-from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier
+from cmdp_rl.algos.learner import Learner, SingleLearner, Units
+from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, stopped
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, Bool, NonNegativeFloat, PositiveFloat, UnitOpen, options
 from cmdp_rl.policies.agent import Agent
@@ -30,9 +30,6 @@ if TYPE_CHECKING:
 
 # KL early stopping stops at KL_STOP * target_kl: Spinning Up's and Stable-Baselines3's factor.
 KL_STOP = 1.5
-Units = dict[str, torch.Tensor]
-# An optimiser and the parameters it steps (a run's network; a population's stacked rows).
-Optimiser = tuple[Any, Any]
 
 
 @options
@@ -111,12 +108,13 @@ STATS = ("loss_pi", "loss_v", "loss_vc", "entropy", "kl", "clip_fraction")
 class PPO:
     name = "ppo"
     stats = STATS  # what update() returns besides lagrange_multiplier: metrics.csv's columns
-    multiplier: Any = None  # a constrained variant's lambda (multiplier.py), logged and checkpointed
+    # The lambda metrics.csv logs: plain PPO prices no cost. A constrained variant (ppo_lag.py, FOCOPS, CUP, CRPO)
+    # measures J_c and keeps its multiplier itself (``before_advantage``, its state_dict).
+    lagrange_multiplier: float | list[float] = 0.0
 
     def __init__(self, cfg: PPOConfig, agent: Agent) -> None:
         self.cfg, self.agent = cfg, agent
         self.gae = TwinGAE(cfg.gamma, cfg.cost_gamma, cfg.gae_lambda)
-        self.episode_cost = EpisodeCostEstimate()  # J_c, for the constrained variants
         self.log_clip = (math.log1p(-cfg.clip_epsilon), math.log1p(cfg.clip_epsilon))
         self.critics = CriticRegression(agent)
         self.kl_limit = None if cfg.target_kl is None else KL_STOP * cfg.target_kl
@@ -135,17 +133,14 @@ class PPO:
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         if self.cfg.anneal_lr:
             self.actor_opt.param_groups[0]["lr"], self.critic_opt.param_groups[0]["lr"] = self.learning_rates()
-        stats = ppo_update([self], batch, OneRun(self.agent, self.cfg.max_grad_norm))[0]
+        stats = ppo_update([self], batch, SingleLearner(self.agent, self.cfg.max_grad_norm))[0]
         check_parameters_finite(self.agent)
         return stats
 
     # --- what the variants change -------------------------------------------------------------
-    @property
-    def lagrange_multiplier(self) -> float | list[float]:
-        return 0.0 if self.multiplier is None else logged_multiplier(self.multiplier.values)
-
-    def update_multiplier(self, estimate: EpisodeCost) -> None:
-        """Constrained variants adapt lambda here, before the policy update."""
+    def before_advantage(self, batch: TensorDictBase) -> None:
+        """On this member's rows, before its policy advantage: a constrained variant measures J_c and moves its
+        multiplier here."""
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return batch.get(keys.ADVANTAGE)
@@ -168,7 +163,7 @@ class PPO:
             }
         return -gain, diagnostics
 
-    def second_stage(self, algos: Sequence[PPO], rows: Sequence[TensorDictBase], members: OneRun) -> Units:
+    def second_stage(self, algos: Sequence[PPO], rows: Sequence[TensorDictBase], learner: Learner) -> Units:
         """A stage after the epochs for every member, on its ``rows``: its statistics' means (CUP's projection)."""
         return {}
 
@@ -178,8 +173,8 @@ class PPO:
 
     # --- around the epochs, per member --------------------------------------------------------
     def prepare(self, batch: TensorDictBase) -> torch.Tensor:
-        """After GAE, on this member's rows: J_c, the multiplier, the (standardised) policy advantage."""
-        self.update_multiplier(self.episode_cost.update(batch))
+        """After GAE, on this member's rows: what a variant measures first, the (standardised) policy advantage."""
+        self.before_advantage(batch)
         adv = self.policy_advantage(batch)
         if self.cfg.normalize_advantage:
             adv = standardized(adv)
@@ -202,40 +197,35 @@ class PPO:
 
     # --- checkpointing --------------------------------------------------------------------------
     def state_dict(self) -> dict:
-        state = {
+        return {
             "networks": self.agent.state_dict(),
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
-            "episode_cost": self.episode_cost.state_dict(),
             "iteration": self.iteration,
         }
-        return state if self.multiplier is None else {**state, "multiplier": self.multiplier.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
         self.actor_opt.load_state_dict(state["actor_opt"])
-        self.critic_opt.load_state_dict(state["critic_opt"])
-        self.episode_cost.load_state_dict(state["episode_cost"])
+        self.critic_opt.load_state_dict(state["critic_opt"])  # (a checkpoint's J_c window, before issue 52: unread)
         self.iteration = int(state["iteration"])
-        if self.multiplier is not None:
-            self.multiplier.load_state_dict(state["multiplier"])
 
 
-def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> list[dict[str, float]]:
+def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, learner: Learner) -> list[dict[str, float]]:
     """One iteration of every member on its rows of the ``[N, T]`` batch; returns each member's statistics."""
     ppo, cfg = algos[0], algos[0].cfg
-    ppo.gae(batch, members.agent)  # A_r, A_c and the critics' targets V^targ = A + V, every member's rows at once
+    ppo.gae(batch, learner.agent)  # A_r, A_c and the critics' targets V^targ = A + V, every member's rows at once
     rows = member_rows(batch, len(algos))
-    # Each member's J_c, its multiplier, its policy advantage A (PPO: A_r; ppo_lag: (A_r - lam A_c) / (1 + lam)).
+    # Each member's policy advantage A (PPO: A_r; ppo_lag: (A_r - lam A_c) / (1 + lam), after J_c moved lam).
     batch.set(keys.POLICY_ADVANTAGE, joined([a.prepare(r) for a, r in zip(algos, rows)]))
-    units = members.agent.training_units({k: batch.get(k) for k in ppo.update_keys(batch)})
-    mean, optimisers = members.mean, members.optimisers(algos)  # the reducer: torch.mean for a run
-    entropy_coef = members.per_member([a.entropy_coef for a in algos])
-    kl_limit = None if ppo.kl_limit is None else members.per_member([a.kl_limit for a in algos])
+    units = learner.agent.training_units({k: batch.get(k) for k in ppo.update_keys(batch)})
+    mean, optimisers = learner.mean, learner.optimisers(algos)  # the reducer: torch.mean for a run
+    entropy_coef = learner.per_member([a.entropy_coef for a in algos])
+    kl_limit = None if ppo.kl_limit is None else learner.per_member([a.kl_limit for a in algos])
     tally, active = Tally(), True
     for _ in range(cfg.update_epochs):
-        for mb in members.minibatches(units, cfg.num_minibatches, active):  # a fresh order each epoch
-            dist, values = members.forward(mb)  # pi_theta(.|s) and the critics' V_r(s), V_c(s)
+        for mb in learner.minibatches(units, cfg.num_minibatches, active):  # a fresh order each epoch
+            dist, values = learner.forward(mb)  # pi_theta(.|s) and the critics' V_r(s), V_c(s)
             # Clipped surrogate (eq. 7): L^CLIP = E[min(r A, clip(r, 1 - eps, 1 + eps) A)] with
             # r = pi_theta(a|s) / pi_old(a|s); terms: -min(...) per sample (FOCOPS: its own loss).
             terms, diagnostics = ppo.policy_terms(dist, mb)
@@ -251,14 +241,14 @@ def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> 
             evaluated = active
             if kl_limit is not None:
                 active = active & ~(stats["kl_stop"] > kl_limit)
-            members.step(sum(critic_losses.values(), loss_pi), optimisers, active)
+            learner.step(sum(critic_losses.values(), loss_pi), optimisers, active)
             tally.add(stats, evaluated)
             if stopped(active):
                 break
         if stopped(active):
             break
     means = tally.means()  # each member's mean over the minibatches it evaluated
-    means.update(ppo.second_stage(algos, rows, members))
+    means.update(ppo.second_stage(algos, rows, learner))
     out = []
     for i, (algo, values) in enumerate(zip(algos, member_stats(means, len(algos)))):
         try:
@@ -268,101 +258,6 @@ def ppo_update(algos: Sequence[PPO], batch: TensorDictBase, members: OneRun) -> 
                 raise
             raise TrainingDiverged(f"agent {i}: {exc}") from exc
     return out
-
-
-class OneRun:
-    """A run's reducer (``torch.mean``) and optimiser step; ``population.kernel.StackedBackend`` is P agents'."""
-
-    mean = staticmethod(torch.mean)
-
-    def __init__(self, agent: Agent, max_grad_norm: float) -> None:
-        self.agent, self.max_grad_norm = agent, max_grad_norm
-
-    @staticmethod
-    def per_member(values: Sequence[Any]) -> Any:
-        """One number per member (a run's one)."""
-        return values[0]
-
-    def minibatches(self, units: Units, num_minibatches: int, active: Any = True) -> Iterator[Units]:
-        """One pass over the units in a fresh order (torch's global generator, as a seeded run repeats)."""
-        return (mb for _, mb in minibatches(units, num_minibatches))
-
-    def forward(self, mb: Units) -> tuple[D.Distribution, Units]:
-        """The actor's distribution and the critics' values by signal."""
-        return self.agent.dist(mb), self.values(mb)
-
-    def dist(self, mb: Units) -> D.Distribution:
-        return self.agent.dist(mb)
-
-    def values(self, mb: Units) -> Units:
-        return {signal: self.agent.value(signal, mb) for signal in self.agent.critics}
-
-    def actor_params(self, units: Units) -> Units:
-        """The actor's distribution parameters (CUP's pi_{k+1/2})."""
-        return self.agent.actor.params(units)
-
-    def optimisers(self, algos: Sequence[PPO]) -> list[Optimiser]:
-        a = algos[0]
-        return [(a.actor_opt, a.actor_params), (a.critic_opt, a.critic_params)]
-
-    def fresh_actor_optimiser(self, algos: Sequence[PPO]) -> list[Optimiser]:
-        """Adam on the actor with no moments yet, at the actor's rate this iteration (CUP's stage 2)."""
-        a = algos[0]
-        return [(torch.optim.Adam(a.actor_params, lr=a.actor_opt.param_groups[0]["lr"], fused=True), a.actor_params)]
-
-    def step(self, loss: torch.Tensor, optimisers: Sequence[Optimiser], stepping: Any = True) -> None:
-        """Backward, clip each network's gradient norm, step its Adam; nothing once ``stepping`` is false."""
-        if not stepping:
-            return
-        for _, params in optimisers:
-            for p in params:  # optimizer.zero_grad(set_to_none=True), without its per-call profiling
-                p.grad = None
-        loss.backward()  # one pass: the networks share no parameter
-        for _, params in optimisers:
-            clip_grad_norm_(params, self.max_grad_norm)
-        for opt, _ in optimisers:
-            adam_step(opt)
-
-
-def adam_step(opt: torch.optim.Optimizer) -> None:
-    """``opt.step()``; for torch's fused Adam with one parameter group, default options and its moments
-    created, the same kernel through torch's functional ``torch.optim.adam.adam``: ``Optimizer.step``'s
-    wrappers cost more than the kernel on small networks (docs/throughput.md; tests/test_update_loop.py
-    checks the two bit for bit)."""
-    group, params = opt.param_groups[0], opt.param_groups[0]["params"]
-    options = ("amsgrad", "maximize", "weight_decay", "capturable", "differentiable", "decoupled_weight_decay")
-    plain = type(opt) is torch.optim.Adam and len(opt.param_groups) == 1 and not any(group.get(k) for k in options)
-    if not (plain and group["fused"] and len(opt.state) == len(params) and all(p.grad is not None for p in params)):
-        opt.step()
-        return
-    states = [opt.state[p] for p in params]
-    beta1, beta2 = group["betas"]
-    with torch.no_grad():
-        functional_adam(
-            params,
-            [p.grad for p in params],
-            [s["exp_avg"] for s in states],
-            [s["exp_avg_sq"] for s in states],
-            [],
-            [s["step"] for s in states],
-            fused=True,
-            amsgrad=False,
-            beta1=beta1,
-            beta2=beta2,
-            lr=group["lr"],
-            weight_decay=0.0,
-            eps=group["eps"],
-            maximize=False,
-        )
-
-
-@torch.no_grad()
-def clip_grad_norm_(params: Sequence[torch.Tensor], max_norm: float) -> None:
-    """``torch.nn.utils.clip_grad_norm_``'s arithmetic without its per-call grouping (docs/throughput.md)."""
-    grads = [p.grad for p in params if p.grad is not None]
-    if grads:
-        total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads, 2.0)), 2.0)
-        torch._foreach_mul_(grads, torch.clamp(max_norm / (total + 1e-6), max=1.0))
 
 
 register("algo", "ppo", PPOConfig, PPO)

@@ -17,7 +17,14 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import PerConstraint, per_constraint
-from cmdp_rl.algos.multiplier import AdvantageScale, EpisodeCost, MultiplierConfig, Multipliers, logged_multiplier
+from cmdp_rl.algos.multiplier import (
+    AdvantageScale,
+    EpisodeCost,
+    EpisodeCostEstimate,
+    MultiplierConfig,
+    Multipliers,
+    logged_multiplier,
+)
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
@@ -101,12 +108,29 @@ class PPOLagrangian(PPO):
         super().__init__(cfg, agent)
         limits = per_constraint(cfg.cost_limit, "algo.cost_limit", agent.cost_names)
         self.multiplier = Multipliers(cfg.multiplier.build, limits)
+        self.episode_cost = EpisodeCostEstimate()  # J_c, measured on each batch before the policy advantage
         if cfg.multiplier.kind == "regularized":
             # The policy side of Ding et al.'s regularised Lagrangian: an entropy bonus tau.
             self.entropy_coef = cfg.entropy_coef + cfg.multiplier.tau
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
         self.multiplier.update(estimate.costs)
+
+    def before_advantage(self, batch: TensorDictBase) -> None:
+        self.update_multiplier(self.episode_cost.update(batch))
+
+    @property
+    def lagrange_multiplier(self) -> float | list[float]:
+        return logged_multiplier(self.multiplier.values)
+
+    def state_dict(self) -> dict:
+        own = {"episode_cost": self.episode_cost.state_dict(), "multiplier": self.multiplier.state_dict()}
+        return {**super().state_dict(), **own}
+
+    def load_state_dict(self, state: dict) -> None:
+        super().load_state_dict(state)
+        self.episode_cost.load_state_dict(state["episode_cost"])
+        self.multiplier.load_state_dict(state["multiplier"])
 
     def policy_advantage(self, batch: TensorDictBase) -> torch.Tensor:
         return lagrangian_advantage(batch, self.multiplier.values, self.cfg.advantage_scale)

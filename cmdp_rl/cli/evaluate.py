@@ -37,6 +37,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -114,17 +115,29 @@ def main(argv: list[str] | None = None) -> int:
         f"{opts.run}: {cfg.algo.name} on {cfg.env.name}, checkpoint of iteration {iteration} (step {step:,}); "
         f"{result['episodes']} episodes, {mode} policy, seed {seed}; deployed policy: {cfg.deploy.policy}"
     )
+    _print_result(result, cost_names, cfg.algo.cost_limit, metric)
+    if opts.output:
+        Path(opts.output).write_text(json.dumps(result, indent=2))
+        print(f"wrote {opts.output}")
+    _record(opts, cfg, agent, deterministic, seed)
+    return 0
+
+
+def _print_result(result: dict, cost_names: tuple[str, ...], cost_limit: Any, metric: str | None) -> None:
+    """The evaluation's lines: return, each cost against its budget, length, the termination rate, the intervals."""
     print(_line("episode_return", result, ".3f"))
-    for line in _cost_lines(result, cost_names, cfg.algo.cost_limit):
+    for line in _cost_lines(result, cost_names, cost_limit):
         print(line)
     print(_line("episode_length", result, ".1f"))
     if metric:
         print(f"  {metric:<15} {result[metric]:.0%}")
-    for line in interval_summary(result, cfg.algo.cost_limit, cost_names):
+    for line in interval_summary(result, cost_limit, cost_names):
         print(f"  {line}")
-    if opts.output:
-        Path(opts.output).write_text(json.dumps(result, indent=2))
-        print(f"wrote {opts.output}")
+
+
+def _record(opts: EvalConfig, cfg: Any, agent: Any, deterministic: bool, seed: int) -> None:
+    """What ``plot=`` and ``video=true`` ask for: Reach1D's episode plot, the episodes' videos."""
+    mode = "deterministic" if deterministic else "stochastic"
     if opts.plot:
         eps = record_reach1d(agent, cfg.env, opts.plot_episodes, deterministic, seed=seed)
         title = f"{opts.run}: {cfg.algo.name}, {mode} policy, cost limit {cfg.algo.cost_limit}"
@@ -139,7 +152,6 @@ def main(argv: list[str] | None = None) -> int:
                 f"wrote {v.path} ({v.frames} frames: return {v.episode_return:.3f}, "
                 f"cost {'/'.join(f'{c:.0f}' for c in costs)})"
             )
-    return 0
 
 
 if __name__ == "__main__":

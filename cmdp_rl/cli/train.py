@@ -13,15 +13,16 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from cmdp_rl import ConfigError, TrainingDiverged, load_config
+from cmdp_rl import ConfigError, TrainingDiverged, load_config, train
 from cmdp_rl.config.run_config import CONFIG_SOURCE
+from cmdp_rl.config.saved import ERROR, EVAL, POPULATION_CONFIG
+from cmdp_rl.population.resume import resume_population
 from cmdp_rl.population.spec import population, population_active
 from cmdp_rl.run.checkpoint import CheckpointError
 from cmdp_rl.run.ownership import RunDirTaken, acquire, holds_run, release, remove_outputs, resumable
-from cmdp_rl.run.resume import resume_config, resume_population
-from cmdp_rl.run.rundir import ERROR, EVAL, POPULATION_CONFIG, RunDirError
-from cmdp_rl.run.sweeps import record_failure
-from cmdp_rl.run.trainer import train
+from cmdp_rl.run.resume import resume_config
+from cmdp_rl.run.rundir import RunDirError, record_failure
+from cmdp_rl.tune.trial import trial_observers
 
 # How a single run ends on each error (inside a sweep the command raises instead: see _fail).
 EXIT_CODES = (
@@ -108,7 +109,9 @@ def _main(raw: dict, new_dir: str | None) -> None:
         if new_dir is not None:
             remove_outputs(new_dir, (EVAL, ERROR))  # an earlier result or error must not outlive this run
         # A resumed run writes into its own directory, whatever hydra.run.dir says.
-        train(run_cfg, new_dir or raw.get("resume"))
+        # A search's job hands its trial an observer of the training curve (tune/trial.py).
+        observers = trial_observers(HydraConfig.get().job.env_set)
+        train(run_cfg, new_dir or raw.get("resume"), observers=observers)
     except Exception as exc:  # noqa: BLE001 - every failure is recorded, then handled by _fail
         _fail(exc, new_dir)
 

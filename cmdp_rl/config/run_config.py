@@ -10,6 +10,9 @@ from dataclasses import field
 from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping, Optional, Sequence
 
+from cmdp_rl.config.deploy import DeployConfig
+from cmdp_rl.config.deploy import resolve_auto as resolve_deploy
+from cmdp_rl.config.reference import ReferenceConfig
 from cmdp_rl.config.registry import KINDS, component, declared_base
 from cmdp_rl.config.threads import apply_threads
 from cmdp_rl.config.validation import (
@@ -25,9 +28,6 @@ from cmdp_rl.config.validation import (
     recheck,
     require,
 )
-from cmdp_rl.deploy.options import DeployConfig
-from cmdp_rl.deploy.options import resolve_auto as resolve_deploy
-from cmdp_rl.report.safety_metrics import ReferenceConfig
 
 TENSORBOARD_MISSING = "logger=tensorboard needs the tensorboard package: pip install 'cmdp_rl[tensorboard]'"
 WANDB_MISSING = "logger=wandb needs the wandb package: pip install 'cmdp_rl[wandb]'"
@@ -169,7 +169,7 @@ def resolve_auto(cfg: RunConfig) -> None:
     rollouts and one pass over a large one, as in massively parallel PPO (Rudin et al., 2022, "Learning to Walk in
     Minutes Using Massively Parallel Deep RL"): ``rollout_steps`` = 2048 / N within [32, 256], the gym default's 256
     at N <= 8; the algorithm resolves its own (``PPOConfig.resolve_auto``), ``deploy.policy: auto`` becomes
-    ``mixture`` or ``last`` (``cmdp_rl/deploy/options.py``)."""
+    ``mixture`` or ``last`` (``cmdp_rl/config/deploy.py``)."""
     if cfg.rollout_steps == AUTO:
         auto = cfg.algo.auto_rollout_steps(cfg)  # an off-policy algorithm's few steps
         cfg.rollout_steps = auto if auto is not None else min(256, max(32, 2048 // cfg.env.num_envs))

@@ -20,8 +20,7 @@ from scipy.optimize import linprog
 from cmdp_rl.algos.base import per_constraint
 from cmdp_rl.deploy.mixture import mixture_actor
 from cmdp_rl.envs import make_eval_env
-from cmdp_rl.rollout.collector import Collector
-from cmdp_rl.run.evaluation import episode_rows
+from cmdp_rl.rollout.collector import Collector, episode_rows
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig

@@ -231,6 +231,11 @@ def _check_tensor_env(env: Any, steps: int, seed: int, allow_negative_cost: bool
     return check.result()
 
 
+def contract_options(env_cfg: Any) -> tuple[str, bool]:
+    """How contract messages name the env, and whether it allows negative costs (``EnvOptions``)."""
+    return env_cfg.env_id(), bool(env_cfg.allow_negative_cost)
+
+
 def check_rollout(batch: Any, env_id: str, allow_negative_cost: bool = False, first_step: int = 1) -> None:
     """The per-rollout part of the contract on a collector batch ``[N, T]`` (before any scaling):
     observations, rewards and costs finite, costs not negative unless ``allow_negative_cost``.

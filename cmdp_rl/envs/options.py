@@ -26,7 +26,7 @@ class EnvOptions:
     # reached); None: the env's termination means nothing worth reporting.
     termination_metric: ClassVar[Optional[str]] = None
     # Whether a run's snapshots may be valued on deploy.snapshots x deploy.episodes episodes whatever that costs
-    # (cheap episodes of a batched env); else the valuation is held to a share of the run's steps (deploy/options.py).
+    # (cheap episodes of a batched env); else the valuation is held to a share of the run's steps (config/deploy.py).
     values_snapshots: ClassVar[bool] = False
 
     def check(self, run: Any) -> None:
@@ -56,7 +56,7 @@ class EnvOptions:
     ) -> Any:
         """The envs of P agents (``env_cfgs``, these options first), ``num_envs`` each, agent i's seeded
         with ``seeds[i]``, as one batched env whose agent i's rows step exactly as its single run's envs;
-        None: the population steps each agent's own env in turn (``population.kernel.AgentEnvs``)."""
+        None: the population steps each agent's own env in turn (``population.envs.AgentEnvs``)."""
         return None
 
 

@@ -73,6 +73,18 @@ STATE_KEYS = {
 }
 
 
+def memory_module(cfg: RecurrentPolicyConfig, input_size: int, state: tuple[str, ...]) -> LSTMModule | GRUModule:
+    """torchrl's recurrent module from ``keys.NET_INPUT`` to ``keys.FEATURES``, its state under ``state``."""
+    module = LSTMModule if cfg.name == "lstm" else GRUModule
+    return module(
+        input_size=input_size,
+        hidden_size=cfg.hidden_size,
+        num_layers=cfg.num_layers,
+        in_keys=[keys.NET_INPUT, *state, keys.IS_INIT],
+        out_keys=[keys.FEATURES, *((keys.NEXT, k) for k in state)],
+    )
+
+
 class RecurrentBody(Body):
     """inputs -> encoder -> torchrl LSTM/GRU module, stepped once when acting (state zeroed where ``is_init``), run
     in recurrent mode on ``[B, L]`` segments from their stored state for training."""
@@ -82,13 +94,7 @@ class RecurrentBody(Body):
     def __init__(self, cfg: RecurrentPolicyConfig, encoder: InputEncoder, state: tuple[str, ...]) -> None:
         super().__init__()
         self.encoder = encoder
-        self.memory = (LSTMModule if cfg.name == "lstm" else GRUModule)(  # torchrl's, NET_INPUT -> FEATURES
-            input_size=encoder.out_dim,
-            hidden_size=cfg.hidden_size,
-            num_layers=cfg.num_layers,
-            in_keys=[keys.NET_INPUT, *state, keys.IS_INIT],
-            out_keys=[keys.FEATURES, *((keys.NEXT, k) for k in state)],
-        )
+        self.memory = memory_module(cfg, encoder.out_dim, state)
         self.inputs = input_keys(cfg.include_prev_action, cfg.include_prev_cost)
         self.state_keys = state
         self.in_keys = [*self.inputs, *state, keys.IS_INIT]

@@ -96,6 +96,13 @@ class QBody(Body):
         return (torch.cat([obs, (d[keys.ACTION] - self.center) / self.half_width], dim=-1),)
 
 
+def _mlp_shape(net: nn.Sequential) -> tuple[int, list[int], str]:
+    """(input size, hidden widths, activation) of a network :func:`mlp` built."""
+    linear = [m for m in net if isinstance(m, nn.Linear)]
+    act = next(name for name, cls in _ACTIVATIONS.items() if any(isinstance(m, cls) for m in net))
+    return linear[0].in_features, [m.out_features for m in linear[:-1]], act
+
+
 def check_off_policy_agent(agent: Agent, algo: str) -> None:
     """One-line config errors for the agents an off-policy algorithm cannot train."""
     body = agent.actor.body
@@ -126,9 +133,7 @@ def to_off_policy(agent: Agent, actor: str, td3_noise: float = 0.1) -> Agent:
     ``"tanh_gaussian"`` or ``"deterministic"``) and the Q-critics, in place; returns it."""
     head = agent.actor.head
     low, high = head.center - head.half_width, head.center + head.half_width
-    linear = [m for m in head.net if isinstance(m, nn.Linear)]  # the policy's MLP: the same shape again
-    in_dim, hidden = linear[0].in_features, [m.out_features for m in linear[:-1]]
-    activation = next(name for name, cls in _ACTIVATIONS.items() if any(isinstance(m, cls) for m in head.net))
+    in_dim, hidden, activation = _mlp_shape(head.net)  # the policy's MLP: the same shape again
     act_dim = low.numel()
     device = head.center.device
     if actor == "tanh_gaussian":

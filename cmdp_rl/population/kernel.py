@@ -1,423 +1,111 @@
-"""The stacked kernel: P agents as one tensor program, each agent's numbers its single run's. Each
-agent's networks, built by the single-run code under its seed, are rows of two leaves ``[P, n]``: one
-Adam over them is P Adams, clipping reduces over dim 1, a layer is one ``baddbmm`` (no slower than
-``vmap``, docs/population.md). Each agent draws actions and minibatch orders from its own generator;
-its envs are rows ``[i N, (i + 1) N)``; its algorithm object keeps its multiplier, J_c window and clock."""
+"""A population's kernel (:class:`StackedKernel`, a ``run.kernel.Kernel``): P agents, each built, seeded and
+budgeted as its single run builds it, trained as one tensor program (``stacked.py``, ``learner.py``) in one env of
+P N rows (``envs.py``); the run's loop, opening and checkpoint drive it as they drive a run's one agent."""
 
 from __future__ import annotations
 
-import contextlib
-import itertools
-from typing import Any, Iterator, Sequence
+from pathlib import Path
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from torch import distributions as D
-from torch import nn
 
-from cmdp_rl.algos.base import TrainingDiverged, per_constraint
-from cmdp_rl.algos.minibatch import member_rows
-from cmdp_rl.algos.ppo import ppo_update
-from cmdp_rl.envs import make_env, make_eval_env
-from cmdp_rl.envs.early_termination import EarlyTerminated
-from cmdp_rl.envs.saute import BudgetState
-from cmdp_rl.envs.vector import Step, VecEnv
-from cmdp_rl.policies.agent import Agent
-from cmdp_rl.policies.distributions import GaussianHead
-from cmdp_rl.policies.mlp import Tanh
+from cmdp_rl.config.run_config import RunConfig
+from cmdp_rl.config.saved import POPULATION_CHECKPOINT
+from cmdp_rl.population.envs import population_env
+from cmdp_rl.population.learner import StackedLearner
+from cmdp_rl.population.spec import stacked
+from cmdp_rl.population.stacked import PopulationAgent
 from cmdp_rl.rollout import keys
+from cmdp_rl.rollout.collector import Collector
+from cmdp_rl.run.checkpoint import member_entry
+from cmdp_rl.run.evaluation import EVAL_SEED_OFFSET, MODES, evaluate_members, mode_name
+from cmdp_rl.run.kernel import restore
+from cmdp_rl.run.migrations import population_from_stacked
+from cmdp_rl.run.start import build_run
 
 
-class StackedParams:
-    """The parameters of ``modules`` of P agents (one architecture) as one leaf ``[P, n]``."""
+class StackedKernel:
+    """P agents on the stacked program: each agent's networks and algorithm state as its single run builds them,
+    under its seed, and the generator it then has (where its single run's action samples and permutations
+    start); their envs, acting and update as one. Each agent's costs so far are counted here (``costs``)."""
 
-    def __init__(self, per_agent: Sequence[nn.Module], device: torch.device) -> None:
-        self.shapes = {n: p.shape for n, p in per_agent[0].named_parameters()}
-        sizes = [s.numel() for s in self.shapes.values()]
-        self.offsets = {n: (end - k, end) for n, k, end in zip(self.shapes, sizes, itertools.accumulate(sizes))}
-        rows = [torch.cat([p.detach().reshape(-1) for p in m.parameters()]) for m in per_agent]
-        self.flat = torch.stack(rows).to(device).requires_grad_(True)
+    def __init__(self, cfgs: list[RunConfig], device: torch.device) -> None:
+        self.agents, self.algos, self.generators = [], [], []
+        for c in cfgs:
+            probe, agent, algo = build_run(c)
+            probe.close()
+            self.agents.append(agent)
+            self.algos.append(algo)
+            g = torch.Generator(device=device)
+            g.set_state(torch.get_rng_state() if device.type == "cpu" else torch.cuda.get_rng_state(device))
+            self.generators.append(g)
+        cfg, self.P = cfgs[0], len(cfgs)
+        self.env = population_env(cfgs, cfg.env.num_envs, [c.seed for c in cfgs], device)
+        self.agent = PopulationAgent(self.agents, self.generators, device)
+        self.learner = StackedLearner(self.agent, self.algos, stacked(cfg.algo.name, getattr(cfg.algo, "base", None)))
+        self.collector = Collector(self.env, self.agent, cfg.rollout_steps, seed=None)
+        self.per_iter = cfg.rollout_steps * cfg.env.num_envs  # steps per agent
+        self.costs = torch.zeros(self.P, len(self.env.cost_names), dtype=torch.float64)  # each agent's so far
 
-    def view(self, name: str) -> torch.Tensor:
-        """Parameter ``name`` of every agent, ``[P, *shape]``."""
-        return self.flat[:, slice(*self.offsets[name])].view(self.flat.shape[0], *self.shapes[name])
-
-    def row(self, t: torch.Tensor, i: int) -> dict[str, torch.Tensor]:
-        """Agent ``i``'s row of ``t`` (``[P, n]``: these parameters or their Adam moments) by name."""
-        return {n: t[i, a:b].view(self.shapes[n]) for n, (a, b) in self.offsets.items()}
-
-    def clip_grad_norm_(self, max_norm: float) -> None:
-        """``nn.utils.clip_grad_norm_`` per agent (torch's coefficient ``min(1, max_norm / (norm + 1e-6))``)."""
-        coef = (max_norm / (torch.linalg.vector_norm(self.flat.grad, dim=1) + 1e-6)).clamp_(max=1.0)
-        self.flat.grad.mul_(coef.unsqueeze(1))
-
-    def sequential(self, net: nn.Sequential, prefix: str, x: torch.Tensor) -> torch.Tensor:
-        """The single-run MLP ``net`` on ``x [P, B, in]``, per agent, with the parameters ``prefix.<i>.*``."""
-        for i, module in enumerate(net):
-            if isinstance(module, nn.Linear):
-                w, b = self.view(f"{prefix}.{i}.weight"), self.view(f"{prefix}.{i}.bias")
-                x = torch.baddbmm(b.unsqueeze(1), x, w.transpose(1, 2))
-            else:  # elementwise activation
-                x = module(x)
-        return x
-
-
-class StackedAdam:
-    """Adam (Kingma & Ba, 2015) on a ``[P, n]`` leaf with one learning rate per agent: torch's Adam
-    takes one per parameter group, and a row cannot be a group. Torch's formulas (bias corrections in
-    float64 on the host, as its fused CPU kernel); equal to the single run's to float rounding."""
-
-    def __init__(self, params: torch.Tensor, lr: Sequence[float], betas=(0.9, 0.999), eps: float = 1e-8) -> None:
-        self.params, self.lr, self.eps = params, torch.tensor(list(lr), dtype=torch.float64), eps
-        self.beta1, self.beta2 = betas
-        self.steps = torch.zeros(params.shape[0], dtype=torch.float64)  # per agent: KL early stopping skips some
-        self.exp_avg, self.exp_avg_sq = torch.zeros_like(params), torch.zeros_like(params)
-
-    @torch.no_grad()
-    def step(self, active: torch.Tensor | None = None) -> None:
-        """One step of every agent, or of those where ``active`` (``[P]`` bool) holds."""
-        g = self.params.grad
-        if active is not None:
-            keep = ~active.unsqueeze(1).to(g.device)
-            old = (self.params.clone(), self.exp_avg.clone(), self.exp_avg_sq.clone())
-        self.steps += 1 if active is None else active.to(torch.float64).cpu()
-        self.exp_avg.lerp_(g, 1 - self.beta1)
-        self.exp_avg_sq.mul_(self.beta2).addcmul_(g, g, value=1 - self.beta2)
-        bias1 = 1 - self.beta1**self.steps
-        bias2_sqrt = (1 - self.beta2**self.steps).sqrt()
-        step_size = (self.lr / bias1).to(self.params.dtype).to(self.params.device).unsqueeze(1)
-        denom = (self.exp_avg_sq.sqrt() / bias2_sqrt.to(self.params.dtype).to(g.device).unsqueeze(1)).add_(self.eps)
-        self.params.sub_(step_size * self.exp_avg / denom)
-        if active is not None:
-            for now, before in zip((self.params, self.exp_avg, self.exp_avg_sq), old):
-                now.copy_(torch.where(keep, before, now))
-
-
-class FusedTanhMLP(torch.autograd.Function):
-    """The actor's output network and both critics (tanh MLPs of one shape) as 3P networks, ``x [3P, B,
-    in] -> [3P, B, out]``; the backward writes each gradient straight into the flat ones (through
-    autograd: a dozen nodes per layer, a slow weight-gradient layout; docs/population.md). ``layout``:
-    per layer, per group (actor, reward, cost) ``(flat, w_from, w_to, b_from, b_to)``, and ``(out, in)``."""
-
-    @staticmethod
-    def forward(ctx, x: torch.Tensor, actor: torch.Tensor, critics: torch.Tensor, layout: tuple) -> torch.Tensor:
-        flats, p = (actor, critics), actor.shape[0]
-        weights, hs, h = [], [x], x
-        for layer, (groups, (out, inp)) in enumerate(layout):
-            w = torch.cat([flats[f][:, wa:wb].view(p, out, inp) for f, wa, wb, _, _ in groups])
-            b = torch.cat([flats[f][:, ba:bb] for f, _, _, ba, bb in groups])
-            h = torch.baddbmm(b.unsqueeze(1), h, w.transpose(1, 2))
-            weights.append(w)
-            if layer < len(layout) - 1:  # policies.mlp.Tanh, in place on a fresh tensor
-                cpu = h.device.type == "cpu" and h.numel() >= Tanh.MIN_NUMEL
-                h = h.mul_(2).sigmoid_().mul_(2).sub_(1) if cpu else h.tanh_()
-                hs.append(h)
-        ctx.layout, ctx.shapes = layout, (actor.shape, critics.shape)
-        ctx.save_for_backward(*weights, *hs)
-        return h
-
-    @staticmethod
-    def backward(ctx, g: torch.Tensor):
-        n = len(ctx.layout)
-        weights, hs = ctx.saved_tensors[:n], ctx.saved_tensors[n:]
-        grads = (g.new_zeros(ctx.shapes[0]), g.new_zeros(ctx.shapes[1]))
-        p, g = ctx.shapes[0][0], g.contiguous()
-        for layer in range(n - 1, -1, -1):
-            groups, (out, inp) = ctx.layout[layer]
-            gw = torch.bmm(hs[layer].transpose(1, 2), g).transpose(1, 2)  # (h^T g)^T: faster when ``in`` is small
-            gb = g.sum(1)
-            for s, (f, wa, wb, ba, bb) in enumerate(groups):
-                grads[f][:, wa:wb].view(p, out, inp).copy_(gw[s * p : (s + 1) * p])
-                grads[f][:, ba:bb].copy_(gb[s * p : (s + 1) * p])
-            if layer > 0:  # one output: an outer product, the same products as bmm's at a quarter of its time
-                g = g * weights[layer] if out == 1 else torch.bmm(g, weights[layer])
-                g = torch.ops.aten.tanh_backward.grad_input(g, hs[layer], grad_input=g)
-        return None, grads[0], grads[1], None
-
-
-class PopulationAgent:
-    """What the collector and GAE ask of an :class:`~cmdp_rl.policies.agent.Agent`, for P MLP agents
-    on the flat env batch ``[P N, ...]``; ``agents[0]`` gives the architecture and the head."""
-
-    in_keys = [keys.OBS]
-    recurrent = False
-
-    def __init__(self, agents: Sequence[Agent], generators: Sequence[torch.Generator], device: torch.device) -> None:
-        self.head = agents[0].actor.head  # a Box's Gaussian or a Discrete's categorical (spec.unbatched_head)
-        self.actor_net = self.head.net
-        self.critic_nets = {s: c.net for s, c in agents[0].critics.items()}
-        self.actor = StackedParams([a.actor for a in agents], device)
-        self.critics = StackedParams([a.critics for a in agents], device)
-        self.generators = list(generators)
-        self.num_agents = len(agents)
-        nets = [self.actor_net, *self.critic_nets.values()]
-        nets = [[(type(m), [p.shape for p in m.parameters()]) for m in n] for n in nets]
-        types, linears = [t for t, _ in nets[0]], range(0, len(nets[0]), 2)
-        self.layout = None  # the fused pass: Gaussian tanh MLPs of one shape, one cost (Reach1D)
-        if isinstance(self.head, GaussianHead) and len(nets) == 3 and nets[0] == nets[1] == nets[2]:
-            if types == [nn.Linear, Tanh] * (len(types) // 2) + [nn.Linear]:
-                o, groups = (self.actor.offsets, self.critics.offsets), [(0, "head"), (1, "reward"), (1, "cost")]
-                at = [
-                    [(f, *o[f][f"{g}.net.{i}.weight"], *o[f][f"{g}.net.{i}.bias"]) for f, g in groups] for i in linears
-                ]
-                self.layout = tuple((tuple(a), tuple(self.actor_net[i].weight.shape)) for a, i in zip(at, linears))
-
-    def params(self, obs: torch.Tensor | None, out: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """The head's distribution parameters per agent on ``obs [P, rows, obs]`` (or its network's ``out``)."""
-        out = self.actor.sequential(self.actor_net, "head.net", obs) if out is None else out
-        log_std = self.actor.view("head.log_std").unsqueeze(1) if isinstance(self.head, GaussianHead) else None
-        return self.head.params(out, log_std)
-
-    def training_pass(self, obs: torch.Tensor) -> tuple[D.Distribution, torch.Tensor, torch.Tensor]:
-        """The action distribution and both critics' values on a minibatch ``[P, B, obs]``."""
-        if self.layout is None:
-            return self.head.dist(self.params(obs)), self.value("reward", obs), self.value("cost", obs)
-        x = FusedTanhMLP.apply(obs.repeat(3, 1, 1), self.actor.flat, self.critics.flat, self.layout)
-        net, reward, cost = x.split(self.num_agents)
-        return self.head.dist(self.params(None, net)), reward, cost
-
-    def value(self, signal: str, obs: torch.Tensor) -> torch.Tensor:
-        return self.critics.sequential(self.critic_nets[signal], f"{signal}.net", obs)
-
-    def training_units(self, data: dict) -> dict:
-        """Entries of the ``[P N, T, ...]`` batch as each agent's training units, ``[P, N T, ...]``."""
-        return {k: v.reshape(self.num_agents, -1, *v.shape[2:]) for k, v in data.items()}
-
-    def _agents(self, x: torch.Tensor) -> torch.Tensor:  # [P N, (T,) features] -> [P, rows, features]
-        return x.reshape(self.num_agents, -1, x.shape[-1])
-
-    def initial_state(self, num_envs: int, device: torch.device | str = "cpu") -> dict:
-        return {}
-
-    @torch.no_grad()
-    def act(self, d: dict, deterministic: bool = False) -> dict:
-        params = self.params(self._agents(d[keys.OBS]))
-        dist = self.head.dist(params)
-        if deterministic:
-            action = dist.deterministic_sample
-        elif keys.LOGITS in params:  # Categorical.sample's multinomial, from each agent's generator
-            probs = dist.probs
-            draws = [torch.multinomial(p, 1, True, generator=g).T for p, g in zip(probs, self.generators)]
-            action = torch.stack(draws).reshape(*probs.shape[:-1], 1)
-        else:  # Normal.rsample: loc + eps * scale, eps by normal_ on the action's shape
-            loc, scale = params[keys.LOC], params[keys.SCALE]
-            eps = [torch.empty(loc.shape[1:], device=loc.device).normal_(generator=g) for g in self.generators]
-            action = loc + torch.stack(eps) * scale
-        out = {k: v.reshape(-1, v.shape[-1]) for k, v in {**params, keys.ACTION: action}.items()}
-        return {**out, keys.LOG_PROB: dist.log_prob(action).reshape(-1)}
-
-    @torch.no_grad()
-    def rollout_values(self, batch: TensorDictBase, signal: str) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(V(obs), V(next obs))`` of ``[P N, T]`` as ``Agent.rollout_values``; every next obs valued (one call, not P)."""
-        rows, T = batch.shape
-        values = self.value(signal, self._agents(batch.get(keys.OBS))).reshape(rows, T, -1)
-        next_all = self.value(signal, self._agents(batch.get((keys.NEXT, keys.OBS)))).reshape(rows, T, -1)
-        fresh = batch.get((keys.NEXT, keys.DONE)).clone()
-        fresh[:, -1] = True
-        return values, torch.where(fresh, next_all, torch.cat([values[:, 1:], next_all[:, -1:]], 1))
-
-
-class AgentEnvs(VecEnv):
-    """Each agent's own env, built and seeded as its single run's, stepped one after another: any
-    batched env (K costs, a Discrete action), at P env steps per step where a population form takes one."""
-
-    def __init__(self, envs: Sequence[VecEnv], seeds: Sequence[int]) -> None:
-        self.envs, self.seeds = list(envs), [int(s) for s in seeds]
-        self.rows = [e.num_envs for e in self.envs]
-        self.num_envs = sum(self.rows)
-        for k in ("num_costs", "obs_dim", "action_dim", "action_low", "action_high", "device"):
-            setattr(self, k, getattr(self.envs[0], k))
-
-    cost_names = property(lambda self: self.envs[0].cost_names)
-    action_space = property(lambda self: self.envs[0].action_space)
-
-    def reset(self, seed: int | None = None) -> torch.Tensor:
-        return torch.cat([e.reset(seed=s) for e, s in zip(self.envs, self.seeds)])
-
-    def step(self, action: torch.Tensor) -> Step:
-        steps = [e.step(a) for e, a in zip(self.envs, action.split(self.rows))]
-        return Step(*(torch.cat(field) for field in zip(*steps)))
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"envs": [e.state_dict() for e in self.envs]}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        for e, s in zip(self.envs, state["envs"]):
-            e.load_state_dict(s)
-
-    def close(self) -> None:
-        for e in self.envs:
-            e.close()
-
-
-def population_env(
-    cfgs: Sequence[Any], n: int, seeds: Sequence[int], device: torch.device, evaluation: bool = False
-) -> VecEnv:
-    """The agents' envs, ``n`` each, seeded per agent, as ``envs.make_env`` builds one agent's (``wrap_env``,
-    the early-terminated MDP's cut in training) with each agent's own budgets."""
-    env = cfgs[0].env.population_env([c.env for c in cfgs], n, seeds, device, evaluation)
-    if env is None:
-        if evaluation:
-            return AgentEnvs([make_eval_env(c.env, n, device=device, algo=c.algo) for c in cfgs], seeds)
-        cuts = [c.algo.cost_limit if c.early_terminate else None for c in cfgs]
-        return AgentEnvs([make_env(c.env, n, device, c.algo, cut_at=d) for c, d in zip(cfgs, cuts)], seeds)
-    budgets = [per_constraint(c.algo.cost_limit, "algo.cost_limit", env.cost_names) for c in cfgs]
-    if cfgs[0].early_terminate and not evaluation:  # one option for all (no grid field)
-        env = EarlyTerminated(env, torch.tensor(budgets, device=device).repeat_interleave(n, 0))
-    wrapped = cfgs[0].algo.wrap_env(env, evaluation=evaluation)
-    state = getattr(wrapped, "state", None)
-    if isinstance(state, BudgetState):  # one row of budgets per env: its agent's
-        state.budgets = torch.tensor(budgets, dtype=state.budgets.dtype, device=device).repeat_interleave(n, 0)
-    return wrapped
-
-
-class StackedBackend:
-    """What an update loop asks of P agents (``algos/ppo.OneRun`` answers it for a run). ``whole``
-    (``spec.stacked``): every agent's ``ppo.ppo_update`` at once. Else (trust region) each agent's own
-    ``policy_update`` on its rows (the global generator holding its stream), then one ``fit_critics``."""
-
-    def __init__(self, agent: PopulationAgent, algos: Sequence[Any], whole: bool) -> None:
-        self.agent, self.algos, self.whole = agent, list(algos), whole
-        self.rows = torch.arange(agent.num_agents, device=agent.actor.flat.device).unsqueeze(1)
-        self.critic_opt = StackedAdam(agent.critics.flat, [a.cfg.critic_lr for a in self.algos])
-        self.pairs = [("critics", agent.critics, self.critic_opt, "critic_opt")]  # (module, rows, Adam, optimiser)
-        if whole:
-            self.actor_opt = StackedAdam(agent.actor.flat, [a.cfg.lr for a in self.algos])
-            self.pairs.insert(0, ("actor", agent.actor, self.actor_opt, "actor_opt"))
+    def restore(self, state: dict[str, Any], saved_cfgs: list[dict]) -> dict[str, Any]:
+        if "members" not in state:  # the stacked layout of earlier populations
+            fresh = [member_entry(r, a) for r, a in zip(saved_cfgs, self.algos)]
+            modules = {"actor": self.agents[0].actor, "critics": self.agents[0].critics}
+            state = population_from_stacked(state, fresh, modules)
+        restore(state, self.algos, self.collector)  # each agent as its run resumes
+        self.learner.transfer(to_agents=False)
+        for g, s in zip(self.generators, state["rng"]["generators"]):
+            g.set_state(s)
+        # a list of P before K costs
+        self.costs = torch.as_tensor(state["costs"], dtype=torch.float64).view(self.P, len(self.env.cost_names))
+        return state
 
     def update(self, batch: TensorDictBase) -> list[dict[str, Any]]:
-        """One iteration for every agent on the ``[P N, T]`` batch; each agent's logged statistics."""
-        if self.whole:
-            if self.algos[0].cfg.anneal_lr:
-                rates = torch.tensor([a.learning_rates() for a in self.algos], dtype=torch.float64)
-                self.actor_opt.lr, self.critic_opt.lr = rates[:, 0].clone(), rates[:, 1].clone()
-            stats = ppo_update(self.algos, batch, self)
-        else:
-            stats = self._agent_updates(batch)
-        for name, stacked in (("actor", self.agent.actor), ("critics", self.agent.critics)):
-            bad = (~torch.isfinite(stacked.flat).all(1)).nonzero().flatten().tolist()
-            if bad:
-                raise TrainingDiverged(f"agent {bad[0]}: a parameter of the {name} is not finite after the update")
-        return stats
+        return self.learner.update(batch)
 
-    def _agent_updates(self, batch: TensorDictBase) -> list[dict[str, Any]]:
-        first = self.algos[0]
-        first.gae(batch, self.agent)  # every agent's rows at once
-        done = []
-        for algo, rows, g in zip(self.algos, member_rows(batch, len(self.algos)), self.agent.generators):
-            with _global_generator(g):
-                done.append(algo.policy_update(rows))
-        self.copy_actors(to_modules=False)
-        units, stats = [list(x) for x in zip(*done)]
-        stacked = {k: torch.stack([u[k] for u in units]) for k in [*self.agent.in_keys, *first.critics.target_keys()]}
-        losses = first.fit_critics(stacked, self, [(self.critic_opt, self.agent.critics)])
-        values = {k: v.tolist() for k, v in losses.items()}
-        for i, (algo, s) in enumerate(zip(self.algos, stats)):
-            s.update({k: v[i] for k, v in values.items()})
-            s["lagrange_multiplier"] = algo.lagrange_multiplier
-        return stats
+    def cost_totals(self, batch: TensorDictBase | None = None) -> list[list[float]]:
+        """Each agent's costs so far, ``batch``'s included."""
+        if batch is not None:
+            costs = batch.get((keys.NEXT, keys.COST)).reshape(self.P, -1, self.costs.shape[1]).sum(1)
+            self.costs = self.costs + costs.to(self.costs)
+        return self.costs.tolist()
 
-    # --- the update loops' calls ---------------------------------------------------------------------
-    def mean(self, x: torch.Tensor) -> torch.Tensor:
-        """The mean over each agent's rows: ``[P, B, ...]`` -> ``[P]``."""
-        return x.reshape(self.agent.num_agents, -1).mean(1)
+    def rng(self) -> dict[str, Any]:
+        return {"generators": [g.get_state() for g in self.generators]}
 
-    def per_member(self, values: Sequence[float]) -> torch.Tensor:
-        return torch.tensor(values, dtype=torch.float32, device=self.rows.device)
+    def sync_agents(self) -> None:
+        """The stacked rows into each agent's own objects (its ``state_dict`` its single run's)."""
+        self.learner.transfer(to_agents=True)
 
-    def minibatches(self, units: dict, num_minibatches: int, active: Any = True) -> Iterator[dict]:
-        """One pass, each agent's units in its own fresh order; one stopped by KL (``active`` false) draws none."""
-        total = next(iter(units.values())).shape[1]
-        size = total // num_minibatches
-        if size < 1:
-            raise ValueError(f"{num_minibatches} minibatches of {total} units: at most {total} allowed")
-        on = [True] * self.agent.num_agents if active is True else active.tolist()
-        ids = torch.arange(total, device=self.rows.device)
-        gens = zip(self.agent.generators, on)
-        perm = torch.stack([torch.randperm(total, generator=g, device=g.device) if a else ids for g, a in gens])
-        shuffled = {k: v[self.rows, perm] for k, v in units.items()}
-        for j in range(num_minibatches):
-            yield {k: v[:, j * size : (j + 1) * size] for k, v in shuffled.items()}
+    def sync_actors(self) -> None:
+        self.learner.copy_actors(to_modules=True)
 
-    def step(
-        self, loss: torch.Tensor, optimisers: Sequence[tuple[StackedAdam, StackedParams]], stepping: Any = True
-    ) -> None:
-        """Backward, clip and step the agents ``stepping`` holds (True: all)."""
-        for _, stacked in optimisers:
-            stacked.flat.grad = None
-        loss.sum().backward()  # agents share no parameter: each one's gradient is its own loss's
-        for _, stacked in optimisers:
-            stacked.clip_grad_norm_(self.algos[0].cfg.max_grad_norm)  # shared, as every shape and schedule
-        for opt, _ in optimisers:
-            opt.step(None if stepping is True else stepping)
+    def checkpoint_extras(self) -> dict[str, Any]:
+        return {"costs": self.costs}
 
-    def forward(self, mb: dict) -> tuple[Any, dict[str, torch.Tensor]]:
-        dist, value, cost_value = self.agent.training_pass(mb[keys.OBS])
-        return dist, {"reward": value, "cost": cost_value}
+    def after_checkpoint(self, path: Path) -> None:
+        (path.parent / POPULATION_CHECKPOINT).unlink(missing_ok=True)  # an older population's, now superseded
 
-    def dist(self, mb: dict) -> Any:
-        return self.agent.head.dist(self.agent.params(mb[keys.OBS]))
+    def evaluate(self, cfgs: list[RunConfig], device: torch.device) -> list[dict[str, Any]]:
+        """Each agent's single-run evaluation in both modes (``evaluation.both_modes``), side by side."""
+        self.learner.copy_actors(to_modules=False)  # the deployed actors (an average) into the stacked rows
+        per_mode = {name: self._evaluate_mode(cfgs, device, det) for name, det in MODES.items()}
+        head = mode_name(cfgs[0].eval_deterministic)
+        return [{**per_mode[head][k], "modes": {n: r[k] for n, r in per_mode.items()}} for k in range(len(cfgs))]
 
-    def values(self, mb: dict) -> dict[str, torch.Tensor]:
-        return {s: self.agent.value(s, mb[keys.OBS]) for s in self.agent.critic_nets}
-
-    def actor_params(self, units: dict) -> dict[str, torch.Tensor]:
-        return self.agent.params(units[keys.OBS])
-
-    def optimisers(self, algos: Sequence[Any]) -> list:
-        return [(self.actor_opt, self.agent.actor), (self.critic_opt, self.agent.critics)]
-
-    def fresh_actor_optimiser(self, algos: Sequence[Any]) -> list:
-        return [(StackedAdam(self.agent.actor.flat, self.actor_opt.lr.tolist()), self.agent.actor)]
-
-    # --- between the stacked rows and the agents' own objects -------------------------------------------
-    @torch.no_grad()
-    def copy_actors(self, to_modules: bool) -> None:
-        """The stacked actors' rows into each agent's single-run actor (``to_modules``), or back."""
-        for i, algo in enumerate(self.algos):
-            row = self.agent.actor.row(self.agent.actor.flat, i)
-            for n, p in algo.agent.actor.named_parameters():
-                p.copy_(row[n]) if to_modules else row[n].copy_(p)
-
-    @torch.no_grad()
-    def transfer(self, to_agents: bool) -> None:
-        """Each agent's networks and Adam moments into its algorithm object (``to_agents``), whose
-        ``state_dict`` is then its single run's; else back, after a resume loaded the objects (no step
-        yet: zero moments), the actors too."""
-        if not to_agents:
-            self.copy_actors(to_modules=False)
-        for i, algo in enumerate(self.algos):
-            for name, stacked, adam, opt_name in self.pairs:
-                opt = getattr(algo, opt_name)
-                saved = opt.state_dict()
-                rows = [stacked.row(t, i) for t in (stacked.flat, adam.exp_avg, adam.exp_avg_sq)]
-                named = getattr(algo.agent, name).named_parameters()
-                if to_agents:
-                    step = adam.steps[i].to(torch.float32)
-                    for k, (n, p) in enumerate(named):
-                        p.copy_(rows[0][n])
-                        moments = {"exp_avg": rows[1][n].clone(), "exp_avg_sq": rows[2][n].clone()}
-                        saved["state"][k] = {"step": step.clone(), **moments}
-                    opt.load_state_dict(saved)
-                    continue
-                adam.steps[i] = 0.0
-                for k, (n, p) in enumerate(named):
-                    state = saved["state"].get(k, {})
-                    for row, value in zip(rows, (p, state.get("exp_avg"), state.get("exp_avg_sq"))):
-                        row[n].zero_() if value is None else row[n].copy_(value)
-                    adam.steps[i] = float(state.get("step", 0.0))
-
-
-@contextlib.contextmanager
-def _global_generator(g: torch.Generator) -> Iterator[None]:
-    """Torch's global generator holding ``g``'s state for the block, ``g`` taking the state it leaves."""
-    cpu = g.device.type == "cpu"
-    get = torch.get_rng_state if cpu else lambda: torch.cuda.get_rng_state(g.device)
-    put = torch.set_rng_state if cpu else lambda s: torch.cuda.set_rng_state(s, g.device)
-    saved = get()
-    put(g.get_state())
-    try:
-        yield
-    finally:
-        g.set_state(get())
-        put(saved)
+    def _evaluate_mode(self, cfgs: list[RunConfig], device: torch.device, deterministic: bool) -> list[dict[str, Any]]:
+        """min(eval_episodes, num_envs) envs per agent, seeded with its evaluation seed, which also seeds its
+        action samples."""
+        cfg = cfgs[0]
+        seeds = [c.seed + EVAL_SEED_OFFSET for c in cfgs]
+        eval_env = population_env(cfgs, min(cfg.eval_episodes, cfg.env.num_envs), seeds, device, evaluation=True)
+        self.agent.generators = [torch.Generator(device=device).manual_seed(s) for s in seeds]
+        limits = [c.algo.cost_limit for c in cfgs]
+        try:
+            return evaluate_members(
+                self.agent, eval_env, cfg.eval_episodes, deterministic, limits, cfg.env.termination_metric
+            )
+        finally:
+            self.agent.generators = self.generators
+            eval_env.close()

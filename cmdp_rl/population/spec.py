@@ -120,7 +120,7 @@ def agent_configs(raw: Mapping[str, Any]) -> tuple[list[dict[str, Any]], list[Ru
 
 @dataclass
 class Population:
-    """What ``trainer.train`` trains as P members: the composed config (``population.yaml``), each agent's
+    """What ``population.training.train_population`` trains as P members: the composed config (``population.yaml``), each agent's
     ``overrides`` and config, a resume's checkpoint ``state`` (None where agents keep their own)."""
 
     raw: dict[str, Any]

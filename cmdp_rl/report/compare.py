@@ -24,7 +24,7 @@ import numpy as np
 
 from cmdp_rl.config.run_config import flatten_dict
 from cmdp_rl.report.plot import IGNORED, PANELS, Curve, config_key, draw, smooth, varying
-from cmdp_rl.run.sweeps import OK, RunRecord, find_runs, mark_superseded
+from cmdp_rl.report.sweeps import OK, RunRecord, find_runs, mark_superseded
 
 # (eval.json key, table name, number format)
 METRICS = (

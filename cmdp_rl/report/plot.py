@@ -18,10 +18,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from cmdp_rl.config.run_config import flatten_dict
+from cmdp_rl.config.saved import CONFIG, METRICS, deploy_node, read_yaml
 from cmdp_rl.report.metrics import read_metrics
-from cmdp_rl.run.checkpoint import CheckpointError
-from cmdp_rl.run.migrations import deploy_node
-from cmdp_rl.run.rundir import CONFIG, METRICS, read_yaml
 
 PANELS = (
     ("episode_return", "episode return"),
@@ -216,7 +214,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--smooth must be a positive integer, got {args.smooth}")
     try:
         path = plot_runs(args.runs, args.out, args.smooth)
-    except (FileNotFoundError, ValueError, CheckpointError) as exc:
+    except (FileNotFoundError, ValueError) as exc:  # ValueError: ConfigError too (a config.yaml not valid YAML)
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"wrote {path}")

@@ -7,12 +7,22 @@ tests/test_cost_vector.py).
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives.value import GAE
 
-from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
+
+
+class Valuing(Protocol):
+    """What GAE asks of an agent: each critic's values on a batch (``policies.agent.Agent.rollout_values``, and a
+    population's ``PopulationAgent``'s)."""
+
+    def rollout_values(self, batch: TensorDictBase, signal: str) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(V(obs), V(next obs))`` of ``signal``'s critic on ``batch`` ``[N, T]``."""
+        ...
 
 
 def _gae(gamma: float, lmbda: float, signal: str) -> GAE:
@@ -28,7 +38,7 @@ class TwinGAE:
         self.reward, self.cost = _gae(gamma, lmbda, "reward"), _gae(cost_gamma, lmbda, "cost")
 
     @torch.no_grad()
-    def __call__(self, batch: TensorDictBase, agent: Agent) -> TensorDictBase:
+    def __call__(self, batch: TensorDictBase, agent: Valuing) -> TensorDictBase:
         """Write both critics' values, advantages and value targets into ``batch`` ``[N, T]``."""
         for signal in ("reward", "cost"):
             value_key = keys.SIGNALS[signal][1]

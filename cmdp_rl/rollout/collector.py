@@ -1,5 +1,5 @@
-"""The one rollout collector every algorithm shares: it steps a :class:`~cmdp_rl.envs.VecEnv` with an
-:class:`~cmdp_rl.policies.agent.Agent` on plain tensors and returns one ``[num_envs, T]`` TensorDict in
+"""The one rollout collector every algorithm shares: it steps N envs (:class:`Envs`: an ``envs.VecEnv``) with an
+agent (:class:`Acting`: a ``policies.agent.Agent``, or a population's ``PopulationAgent``) on plain tensors and returns one ``[num_envs, T]`` TensorDict in
 torchrl's layout (``is_init``, ``"next"``, so torchrl's GAE reads it), reward and cost side by side under
 ``"next"``, with the running undiscounted episode sums on every step. Not torchrl's ``Collector``: it cost
 more per step than stepping eight Reach1D envs (docs/guide/design.md).
@@ -7,18 +7,50 @@ more per step than stepping eight Reach1D envs (docs/guide/design.md).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol, Sequence
 
 import gymnasium as gym
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-from cmdp_rl.envs import VecEnv
-from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.actions import action_dim, is_discrete, uniform_actions
 
 Entries = dict  # key (a string, or a tuple for a nested key) -> tensor of one step, batch [N]
+
+
+class Acting(Protocol):
+    """What the collector and a policy's memory ask of an agent: ``policies.agent.Agent``, and P agents'
+    ``population.stacked.PopulationAgent``."""
+
+    @property
+    def in_keys(self) -> list: ...
+
+    def initial_state(self, num_envs: int, device: torch.device | str = "cpu") -> dict: ...
+
+    def act(self, d: Entries, deterministic: bool = False) -> dict:
+        """One step of N envs: the action, its log-prob and what the agent carries to the next step."""
+        ...
+
+
+class Envs(Protocol):
+    """What the collector asks of the N envs it steps: ``envs.vector.VecEnv``'s interface (``step`` returns its
+    ``Step``: next_obs, reward, cost, terminated, truncated, obs)."""
+
+    num_envs: int
+    num_costs: int
+    device: Any
+
+    @property
+    def action_space(self) -> gym.Space: ...
+
+    def reset(self, seed: int | None = None) -> torch.Tensor: ...
+
+    def step(self, action: torch.Tensor) -> Any: ...
+
+    def state_dict(self) -> dict[str, Any]: ...
+
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
 
 
 class PolicyMemory:
@@ -28,7 +60,7 @@ class PolicyMemory:
     the deployed policy's (``deploy.policy``) and the Reach1D replay's (``report.reach1d_episodes``)."""
 
     def __init__(
-        self, agent: Agent, num_envs: int, action_space: gym.Space, device: torch.device, num_costs: int = 1
+        self, agent: Acting, num_envs: int, action_space: gym.Space, device: torch.device, num_costs: int = 1
     ) -> None:
         self.initial = agent.initial_state(num_envs, device)
         in_keys = agent.in_keys
@@ -78,8 +110,8 @@ class Collector:
 
     def __init__(
         self,
-        env: VecEnv,
-        agent: Agent,
+        env: Envs,
+        agent: Acting,
         rollout_steps: int,
         seed: int | None = None,
         deterministic: bool = False,
@@ -198,3 +230,24 @@ def finished_episodes(batch: TensorDictBase) -> dict[str, torch.Tensor]:
         "cost": nxt.get(keys.EPISODE_COST)[done].float(),
         "length": nxt.get(keys.EPISODE_LENGTH).squeeze(-1)[done].float(),
     }
+
+
+def episode_rows(collector: Collector, quota: Sequence[int]) -> list[list[tuple[float, ...]]]:
+    """Env i's first ``quota[i]`` whole episodes from ``collector``, each as (return, length,
+    terminated, cost_0, ..., cost_{K-1})."""
+    rows: list[list[tuple[float, ...]]] = [[] for _ in quota]
+    while any(len(r) < q for r, q in zip(rows, quota)):
+        batch = collector.collect()
+        nxt = batch.get(keys.NEXT)
+        done = nxt.get(keys.DONE).squeeze(-1)
+        for i, t in done.nonzero().tolist():
+            if len(rows[i]) < quota[i]:
+                rows[i].append(
+                    (
+                        nxt.get(keys.EPISODE_RETURN)[i, t, 0].item(),
+                        float(nxt.get(keys.EPISODE_LENGTH)[i, t, 0].item()),
+                        float(nxt.get(keys.TERMINATED)[i, t, 0].item()),
+                        *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
+                    )
+                )
+    return rows

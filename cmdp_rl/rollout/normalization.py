@@ -11,7 +11,7 @@ the update) and :meth:`Normalizers.update_observation_stats` (after it, so the f
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import torch
 from tensordict import TensorDictBase
@@ -23,7 +23,6 @@ from cmdp_rl.rollout import keys
 
 if TYPE_CHECKING:
     from cmdp_rl.config.run_config import RunConfig
-    from cmdp_rl.envs import VecEnv
 
 _EPS = 1e-8
 
@@ -104,8 +103,9 @@ class Normalizers(nn.Module):
             self.obs.update(batch.get(keys.OBS))
 
 
-def make_normalizers(cfg: RunConfig, env: VecEnv) -> Normalizers:
-    """The normalizers ``cfg.normalize`` asks for, with the algorithm's discounts."""
+def make_normalizers(cfg: RunConfig, env: Any) -> Normalizers:
+    """The normalizers ``cfg.normalize`` asks for, with the algorithm's discounts, for ``env`` (an ``envs.VecEnv``:
+    its ``obs_dim``, ``num_envs`` and ``num_costs``)."""
     return Normalizers.from_config(
         cfg.normalize, env.obs_dim, env.num_envs, cfg.algo.gamma, cfg.algo.cost_gamma, getattr(env, "num_costs", 1)
     )

@@ -1,1 +1,2 @@
-"""Run plumbing: the run directory, resume, the progress line, sweeps and Hydra callbacks."""
+"""One run: opening it (``start``), the training loop (``loop``) and what it trains (``kernel``), the end (``finish``),
+its entry (``trainer``), checkpoints, resume, the run directory, the progress line and Hydra callbacks."""

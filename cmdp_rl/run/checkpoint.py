@@ -90,6 +90,22 @@ def decode(value: Any) -> Any:
     return value
 
 
+def checkpoint_state(
+    cfg: Any, iteration: int, step: int, time_s: float, members: list[dict], collector: Any, rng: Any, **more: Any
+) -> dict[str, Any]:
+    """A checkpoint (format 4, docs/checkpoints.md), a run's or a population's: what its members share
+    (the iteration, each member's env ``step``s, the training time, the ``collector``'s state and the
+    random state ``rng``), their entries (:func:`member_entry`) and ``more`` (a population's costs)."""
+    shared = {"algo": cfg.algo.name, "policy": cfg.policy.name, "iteration": iteration, "step": step}
+    return {**shared, "time_s": time_s, "collector": collector, "rng": rng, "members": members, **more}
+
+
+def member_entry(run_cfg: dict[str, Any], algo: Any, final: Any = None) -> dict[str, Any]:
+    """A member's entry of a checkpoint: its config, its algorithm's ``state_dict`` (networks,
+    optimisers, its own state) and what it deploys (``final``, a ``deploy.final_policy.FinalPolicy``: its state)."""
+    return {**(final.state_dict() if final else {}), "config": run_cfg, "algo_state": algo.state_dict()}
+
+
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
     """Write ``state`` to ``path`` so that a kill at any moment leaves the old file or the new one,
     never a partial one: write a sibling temp file, fsync it, then rename over the target."""

@@ -13,9 +13,10 @@ from typing import Callable
 
 from torch import nn
 
+from cmdp_rl.config.saved import CHECKPOINT, POPULATION_CHECKPOINT
 from cmdp_rl.run.checkpoint import FORMAT_VERSION, CheckpointError, load_checkpoint, save_checkpoint
 from cmdp_rl.run.migrations import migrate
-from cmdp_rl.run.rundir import CHECKPOINT, POPULATION_CHECKPOINT, run_config
+from cmdp_rl.run.rundir import run_config
 
 
 def convert_run(run_dir: str | Path, echo: Callable[[str], None] = print) -> Path:

@@ -11,8 +11,7 @@ from cmdp_rl.envs import VecEnv
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.report.intervals import summarize as interval_estimates
 from cmdp_rl.report.metrics import constraint_name
-from cmdp_rl.rollout import keys
-from cmdp_rl.rollout.collector import Collector
+from cmdp_rl.rollout.collector import Collector, episode_rows
 
 EVAL_SEED_OFFSET = 1_000_003  # a run's evaluation seed is its seed plus this: never a training seed
 # The two ways to act with a stochastic policy, by their eval.json names: its mean action, and sampled actions (what
@@ -97,27 +96,6 @@ def evaluate_members(
         flat = [row for r in rows for row in r]
         results.append(summarize_episodes(flat, env.cost_names, deterministic, termination_metric, cost_limit))
     return results
-
-
-def episode_rows(collector: Collector, quota: Sequence[int]) -> list[list[tuple[float, ...]]]:
-    """Env i's first ``quota[i]`` whole episodes from ``collector``, each as (return, length,
-    terminated, cost_0, ..., cost_{K-1})."""
-    rows: list[list[tuple[float, ...]]] = [[] for _ in quota]
-    while any(len(r) < q for r, q in zip(rows, quota)):
-        batch = collector.collect()
-        nxt = batch.get(keys.NEXT)
-        done = nxt.get(keys.DONE).squeeze(-1)
-        for i, t in done.nonzero().tolist():
-            if len(rows[i]) < quota[i]:
-                rows[i].append(
-                    (
-                        nxt.get(keys.EPISODE_RETURN)[i, t, 0].item(),
-                        float(nxt.get(keys.EPISODE_LENGTH)[i, t, 0].item()),
-                        float(nxt.get(keys.TERMINATED)[i, t, 0].item()),
-                        *nxt.get(keys.EPISODE_COST)[i, t].tolist(),
-                    )
-                )
-    return rows
 
 
 def summarize_episodes(

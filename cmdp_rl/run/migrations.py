@@ -13,6 +13,7 @@ from typing import Any, Callable
 import torch
 from torch import nn
 
+from cmdp_rl.config.saved import deploy_node, flat_keys, into_node
 from cmdp_rl.envs.env_state import mujoco_data_state
 from cmdp_rl.run.checkpoint import FORMAT_VERSION
 
@@ -257,30 +258,6 @@ _FLAT_MULTIPLIER = {
     **{f"nu_{k}": k for k in ("init", "lr", "max", "scale")},  # FOCOPS's and CUP's cost multiplier
     "anneal_lambda_lr": None,
 }
-# The flat run options that became the ``deploy`` node, each by its name there.
-_DEPLOY_FIELDS = {
-    "final_policy": "policy",
-    "average_last": "window",
-    "mixture_size": "snapshots",
-    "mixture_weights": "weights",
-    "mixture_episodes": "episodes",
-    "mixture_margin": "margin",
-}
-
-
-def _flat(config: dict[str, Any], names: dict[str, Any], node: str) -> list[str]:
-    """The keys of ``config`` that are flat options of ``node`` (a mapping under ``node`` is the node itself)."""
-    return [k for k in config if k in names and not (k == node and isinstance(config[k], dict))]
-
-
-def _into_node(config: dict[str, Any], names: dict[str, Any], node: str, **fixed: Any) -> dict[str, Any]:
-    """``config`` with its :func:`_flat` keys moved into the node under their names there (None: dropped), and
-    ``fixed``; a value the node already holds wins (a flat default added to a config already moved)."""
-    flat = _flat(config, names, node)
-    own = config.get(node) if isinstance(config.get(node), dict) else {}
-    out = {k: v for k, v in config.items() if k not in flat}
-    out[node] = {**{names[k]: config[k] for k in flat if names[k]}, **fixed, **own}
-    return out
 
 
 def _has_multiplier_node(name: Any) -> bool:
@@ -298,9 +275,9 @@ def multiplier_node(algo: dict[str, Any]) -> dict[str, Any]:
     (:data:`_FLAT_MULTIPLIER`). Fields the old config does not name take the algorithm's defaults when it is built."""
     name = algo.get("name", "ppo_lag")
     kindless_pid = name == "pid_lag" and not isinstance(algo.get("multiplier"), dict)
-    if not _has_multiplier_node(name) or not (_flat(algo, _FLAT_MULTIPLIER, "multiplier") or kindless_pid):
+    if not _has_multiplier_node(name) or not (flat_keys(algo, _FLAT_MULTIPLIER, "multiplier") or kindless_pid):
         return algo
-    return _into_node(algo, _FLAT_MULTIPLIER, "multiplier", **({"kind": "pid"} if name == "pid_lag" else {}))
+    return into_node(algo, _FLAT_MULTIPLIER, "multiplier", **({"kind": "pid"} if name == "pid_lag" else {}))
 
 
 def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
@@ -312,8 +289,8 @@ def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
     grid = (out.get("population") or {}).get("grid") or {}
     varied = grid.get("algo") if isinstance(grid, dict) else None
     name = (out.get("algo") or {}).get("name", "ppo_lag")
-    if isinstance(varied, dict) and _has_multiplier_node(name) and _flat(varied, _FLAT_MULTIPLIER, "multiplier"):
-        varied = _into_node(varied, _FLAT_MULTIPLIER, "multiplier")
+    if isinstance(varied, dict) and _has_multiplier_node(name) and flat_keys(varied, _FLAT_MULTIPLIER, "multiplier"):
+        varied = into_node(varied, _FLAT_MULTIPLIER, "multiplier")
         out["population"] = {**out["population"], "grid": {**grid, "algo": varied}}
     return out
 
@@ -329,11 +306,3 @@ def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
             algo.setdefault("nu_scale" if name in ("focops", "cup") else "lambda_scale", "none")
         config["algo"] = algo
     return deploy_node(saved_config_nodes(config))
-
-
-def deploy_node(config: Any) -> Any:
-    """A config saved with the flat deployment options (``final_policy``, ``average_last``, ``mixture_*``)
-    with them as the ``deploy`` node, the same values under their new names; any other config as it is."""
-    if not isinstance(config, dict) or not _DEPLOY_FIELDS.keys() & config.keys():
-        return config
-    return _into_node(config, _DEPLOY_FIELDS, "deploy")

@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from cmdp_rl.run.rundir import (
+from cmdp_rl.config.saved import (
     AGENTS_DIR,
     CHECKPOINT,
     CONFIG,
@@ -24,9 +24,8 @@ from cmdp_rl.run.rundir import (
     POPULATION_SUMMARY,
     RUN_INFO,
     TENSORBOARD,
-    RunDirError,
-    ensure_writable,
 )
+from cmdp_rl.run.rundir import RunDirError, ensure_writable
 
 LOCK = ".run.lock"
 # What a run leaves behind from its first write on: a directory holding any of these holds a run.

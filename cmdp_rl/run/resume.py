@@ -1,4 +1,4 @@
-"""Continuing a run (or a population) from its directory: which config it resumes with, and what may change.
+"""Continuing a run from its directory (a population: ``population/resume.py``): which config it resumes with, and what may change.
 
 A resumed run must end with the numbers of one never stopped, so its config is its own (``config.yaml``);
 options on the resume command line apply only where they cannot change the trajectory so far or the
@@ -15,17 +15,9 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from cmdp_rl.config.run_config import ConfigError, RunConfig, flatten_dict, load_config
-from cmdp_rl.population.spec import Population, population
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.run.migrations import deploy_node, member, migrate, saved_config_defaults, saved_config_nodes
-from cmdp_rl.run.rundir import (
-    CHECKPOINT,
-    POPULATION_CHECKPOINT,
-    POPULATION_CONFIG,
-    checkpoint_path,
-    read_yaml,
-    saved_config,
-)
+from cmdp_rl.run.migrations import member, saved_config_defaults
+from cmdp_rl.run.rundir import checkpoint_path, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
 # shape of anything saved. Prefixes: every field under ``logger.``.
@@ -135,38 +127,3 @@ def load_resume_state(cfg: RunConfig) -> dict[str, Any]:
         raise CheckpointError(f"resume: {ckpt} lacks {missing}; it cannot continue a run")
     check_resume_config(load_config({**saved_config_defaults(entry["config"]), "resume": None}), cfg)
     return state
-
-
-def resume_population(
-    out: str | Path, requested: Mapping[str, Any] | None = None, explicit: Iterable[str] = (), trust: bool = False
-) -> Population:
-    """The population in ``out`` to continue, as :func:`resume_config` continues a run: its own config
-    (``population.yaml``) with the options named in ``explicit`` taken from ``requested`` where a
-    run's resume may change them, and its checkpoint (``checkpoint.pt``, else an older population's
-    ``population.pt``; an older format's only with ``trust``) migrated to the current layout. A population whose
-    agents trained one after another has no checkpoint of its own: each agent resumes as a run."""
-    out = Path(out)
-    if not (out / POPULATION_CONFIG).is_file():
-        raise CheckpointError(f"resume: no {POPULATION_CONFIG} in {out}")
-    saved_raw = read_yaml(out / POPULATION_CONFIG, "resume")
-    state, stacked = None, False
-    ckpt = next((out / n for n in (CHECKPOINT, POPULATION_CHECKPOINT) if (out / n).is_file()), None)
-    if ckpt is not None:
-        saved = load_checkpoint(ckpt, trust=trust)
-        stacked = "update" in saved
-        state = migrate(saved)
-    # In the current layout: the stacked layout predates defaults that its config does not name
-    # (saved_config_defaults); a population.yaml names only what its author gave, so any other has
-    # only its flat multiplier and deployment options moved into their nodes.
-    saved_raw = saved_config_defaults(saved_raw) if stacked else deploy_node(saved_config_nodes(saved_raw))
-    deploy = saved_raw.setdefault("deploy", {})
-    if state is not None and deploy.get("policy", "auto") == "auto":  # as its agents resolved it (the
-        # last iterate, before populations deployed what a run deploys)
-        deploy["policy"] = deploy_node(member(state)["config"])["deploy"]["policy"] if "members" in state else "last"
-    raw = resumed_raw(saved_raw, requested or {}, explicit, out)
-    if raw.get("population") != saved_raw.get("population"):
-        raise ConfigError(f"population cannot change when resuming {out}")
-    before, after = population(saved_raw), population(raw, resume=True, state=state)
-    for a, b in zip(before.cfgs, after.cfgs):
-        check_resume_config(a, b)
-    return after

@@ -1,17 +1,5 @@
-"""A run directory: what it holds, and reading a trained policy back from it.
-
-::
-
-    config.yaml     the run's resolved config (cmdp_rl.config.run_config.RunConfig), what a resume continues with
-    run_info.json   package version, git commit, library versions, command; one entry per resume
-    metrics.csv     one row per iteration (cmdp_rl.report.metrics.COLUMNS)
-    checkpoint.pt   the last checkpoint (cmdp_rl.run.checkpoint), written atomically
-    eval.json       the final evaluation
-    error.txt       why the run failed, if it did (train.py; cmdp_rl.run.sweeps reads it back)
-    tb/             TensorBoard events, with ``logger=tensorboard``
-    wandb/          Weights & Biases files, with ``logger=wandb`` (wandb_id.txt: its run id, for a resume)
-    .hydra/         Hydra's record of the command (train.py only)
-"""
+"""A run directory (what it holds: ``config/saved.py``): claiming it writable, its provenance, and reading a trained
+policy back from it."""
 
 from __future__ import annotations
 
@@ -21,13 +9,21 @@ import os
 import platform
 import subprocess
 import sys
+import traceback
 from importlib import metadata
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import yaml
-
 from cmdp_rl.config.run_config import ConfigError, RunConfig, load_config
+from cmdp_rl.config.saved import (
+    AGENTS_DIR,
+    CHECKPOINT,
+    CONFIG,
+    ERROR,
+    POPULATION_CONFIG,
+    RUN_INFO,
+    read_yaml,
+)
 from cmdp_rl.deploy.final_policy import deploy_saved
 from cmdp_rl.deploy.policy import DeployedPolicy
 from cmdp_rl.envs import VecEnv, make_eval_env
@@ -35,20 +31,6 @@ from cmdp_rl.policies import Agent, make_agent
 from cmdp_rl.rollout.normalization import Normalizers
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
 from cmdp_rl.run.migrations import member, migrate, saved_config_defaults
-
-CHECKPOINT = "checkpoint.pt"
-CONFIG = "config.yaml"
-METRICS = "metrics.csv"
-EVAL = "eval.json"
-ERROR = "error.txt"
-RUN_INFO = "run_info.json"
-TENSORBOARD = "tb"
-# A population's directory (cmdp_rl/population/): its composed config and summary beside its CHECKPOINT.
-POPULATION_CONFIG = "population.yaml"
-POPULATION_SUMMARY = "population.json"
-AGENTS_DIR = "agents"  # a population's agents' run directories
-# A population's checkpoint before it took CHECKPOINT's name (same layout): still read by a resume.
-POPULATION_CHECKPOINT = "population.pt"
 
 
 class RunDirError(ConfigError):
@@ -84,11 +66,17 @@ def _git(*args: str) -> str | None:
     return out.stdout.strip() if out.returncode == 0 else None
 
 
+def _version() -> str | None:
+    """The installed package's version (pyproject.toml's); None where cmdp_rl runs from a checkout not installed."""
+    try:
+        return metadata.version("cmdp_rl")
+    except metadata.PackageNotFoundError:
+        return None
+
+
 def provenance() -> dict[str, Any]:
     """What produced a run: the package version, the git commit of its source (and whether the
     working tree had uncommitted changes), library versions, Python, platform and command line."""
-    from cmdp_rl import __version__
-
     # Only the checkout the package's source lives in (not, say, a repo that holds a virtualenv).
     top = _git("rev-parse", "--show-toplevel")
     here = Path(__file__).resolve().parents[1]  # the cmdp_rl package directory
@@ -101,7 +89,7 @@ def provenance() -> dict[str, Any]:
         except metadata.PackageNotFoundError:
             libs[lib] = None
     return {
-        "version": __version__,
+        "version": _version(),
         "git_commit": commit,  # None: not run from a git checkout
         "git_dirty": None if status is None else bool(status),
         "libraries": libs,
@@ -141,16 +129,6 @@ def checkpoint_path(run_dir: str | Path, what: str = "run") -> Path:
     return ckpt
 
 
-def read_yaml(path: Path, what: str = "run") -> Any:
-    """A YAML file of a run directory, read with YAML's safe loader (plain values only: a Python
-    tag, which the full loader would run, is refused in one line)."""
-    try:
-        return yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        reason = " ".join(str(exc).split())[:200]
-        raise CheckpointError(f"{what}: {path} is not valid YAML ({reason})") from None
-
-
 def saved_config(run_dir: str | Path, what: str = "run", trust: bool = False) -> dict[str, Any]:
     """The run's own config as a plain mapping: its ``config.yaml`` (read with YAML's safe loader),
     else the one in its checkpoint (``trust``: see :func:`~cmdp_rl.run.checkpoint.load_checkpoint`)."""
@@ -162,8 +140,9 @@ def saved_config(run_dir: str | Path, what: str = "run", trust: bool = False) ->
 
 
 def run_config(run_dir: str | Path, what: str = "run", trust: bool = False) -> RunConfig:
+    saved = saved_config(run_dir, what, trust)
     try:
-        return load_config({**saved_config(run_dir, what, trust), "resume": None})
+        return load_config({**saved, "resume": None})
     except ConfigError as exc:
         raise CheckpointError(f"{what}: the config of {run_dir} is not valid here: {exc}") from exc
 
@@ -213,3 +192,11 @@ def load(run_dir: str | Path, checkpoint: str | Path | None = None, trust: bool 
         return DeployedPolicy(trained.agent, trained.env.action_space, trained.env.num_costs, trained.cfg)
     finally:
         trained.env.close()
+
+
+def record_failure(out_dir: str | Path, exc: BaseException) -> None:
+    """Write ``error.txt`` (exception type, message, traceback) into the run directory."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    text = f"{type(exc).__name__}: {exc}\n\n" + "".join(traceback.format_exception(exc))
+    (out / ERROR).write_text(text)

@@ -6,7 +6,7 @@ trial's costs beside its objective: Optuna's ``constraints_func`` reads them fro
 ``n_trials`` per process (two workers on one study would run twice as many), leaves a killed job's trial
 RUNNING for ever, and has no pruning. What it does do, we reuse: the override grammar for the space
 (``interval``, ``range``, ``choice``, ``tag(log, ...)``) and any ``hydra/launcher`` for the jobs. The search is
-:mod:`cmdp_rl.run.tune`; this module is only Hydra's entry point to it, and imports nothing heavy, because
+:mod:`cmdp_rl.tune.search`; this module is only Hydra's entry point to it, and imports nothing heavy, because
 Hydra imports every plugin module at the start of every command.
 """
 
@@ -64,6 +64,6 @@ class ConstrainedOptunaSweeper(Sweeper):
         )
 
     def sweep(self, arguments: List[str]) -> Any:
-        from cmdp_rl.run.tune import sweep
+        from cmdp_rl.tune.search import sweep
 
         return sweep(self, arguments)

@@ -15,7 +15,7 @@ from cmdp_rl.report.compare import curve_band, group_runs
 from cmdp_rl.report.metrics import constraint_name
 from cmdp_rl.report.plot import pyplot, save_figure
 from cmdp_rl.report.safety_metrics import Reference, normalized_scores
-from cmdp_rl.run.sweeps import RunRecord
+from cmdp_rl.report.sweeps import RunRecord
 from lab.studies.stats import sample_mean_std
 from lab.studies.tables import markdown_table, pm
 

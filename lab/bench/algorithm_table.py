@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from cmdp_rl.report.compare import load_runs
-from cmdp_rl.run.sweeps import RunRecord
+from cmdp_rl.report.sweeps import RunRecord
 from lab.bench.algorithm_rows import (
     FULL_VELOCITY_STEPS,
     OMNISAFE_SOURCE,

@@ -30,9 +30,8 @@ from cmdp_rl.envs import make_env
 from cmdp_rl.policies import make_agent
 from cmdp_rl.rollout.collector import Collector
 from cmdp_rl.rollout.normalization import make_normalizers
-from cmdp_rl.run.checkpoint import save_checkpoint
+from cmdp_rl.run.checkpoint import checkpoint_state, member_entry, save_checkpoint
 from cmdp_rl.run.rng import rng_state, seed_everything
-from cmdp_rl.run.trainer import checkpoint_state, member_entry
 
 
 def main() -> None:

@@ -3,7 +3,7 @@ throughput, measured with ``benchmark_throughput.train_rate`` on the batched Rea
 
     python experiments/speed/contract_overhead.py [--pairs 6] [--iterations 10]
 
-Runs with the check off (``trainer.check_rollout`` replaced by a no-op) and on alternate in one
+Runs with the check off (``loop.check_rollout`` replaced by a no-op) and on alternate in one
 process, the order flipped every pair so that drift in the machine's load falls on both; reports
 the median steps/s (``metrics.csv``'s ``sps``, after the warm-up iteration) of each and their ratio,
 with the load average before and after. On a shared machine those whole-run figures move by more
@@ -19,7 +19,8 @@ import os
 import statistics
 import time
 
-import cmdp_rl.run.trainer as trainer  # noqa: E402
+import cmdp_rl.run.loop as loop  # noqa: E402
+import cmdp_rl.run.start as start  # noqa: E402
 from cmdp_rl import Collector, make_agent, make_env  # noqa: E402
 from cmdp_rl.config.run_config import compose_config  # noqa: E402
 from cmdp_rl.envs.contract import check_rollout  # noqa: E402
@@ -51,19 +52,19 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--pairs", type=int, default=6)
     p.add_argument("--iterations", type=int, default=10)
     args = p.parse_args(argv)
-    real = trainer.check_rollout
+    real = loop.check_rollout
     print(f"load average before: {os.getloadavg()}")
     for name, overrides in SETTINGS.items():
         cfg = compose_config(["algo=ppo_lag", *overrides])
         t0 = time.perf_counter()
-        trainer.check_env_contract(cfg)
+        start.check_env_contract(cfg)
         once = time.perf_counter() - t0
         sps: dict[str, list[float]] = {"off": [], "on": []}
         for pair in range(args.pairs):
             for mode in ("off", "on") if pair % 2 == 0 else ("on", "off"):
-                trainer.check_rollout = real if mode == "on" else (lambda *a, **k: None)
+                loop.check_rollout = real if mode == "on" else (lambda *a, **k: None)
                 sps[mode].append(train_rate(overrides, args.iterations, "cpu", 1)["train_sps"])
-        trainer.check_rollout = real
+        loop.check_rollout = real
         off, on = statistics.median(sps["off"]), statistics.median(sps["on"])
         per_iter = cfg.rollout_steps * cfg.env.num_envs
         alone = check_seconds(cfg)

@@ -13,7 +13,7 @@
 - scan: summed steps/s of populations of each size in ``--scan`` (same shapes): where it stops
   growing with P, the update is bound by arithmetic, not by per-operation overhead;
 - layers: one forward + backward of the agents' 3-layer MLPs on a minibatch, as batched matmuls
-  (``torch.baddbmm``, what population/kernel.py uses) and as ``torch.func.functional_call`` under
+  (``torch.baddbmm``, what population/stacked.py uses) and as ``torch.func.functional_call`` under
   ``vmap`` over the stacked parameters, per population size (the fastest of many repetitions).
 
 Prints a table and writes the figures, with the load average before and after, as JSON.

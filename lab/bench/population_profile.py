@@ -20,19 +20,19 @@ from pathlib import Path
 import torch
 
 from cmdp_rl import train  # noqa: E402
-from cmdp_rl.population import kernel, population  # noqa: E402
+from cmdp_rl.population import learner, population, stacked  # noqa: E402
 from cmdp_rl.rollout import advantages, collector  # noqa: E402
 from lab.bench.population_benchmark import base, composed  # noqa: E402
 
 PARTS = [
     (collector.Collector, "collect", "rollout (Collector.collect)"),
     (advantages.TwinGAE, "__call__", "GAE (critic values + torchrl GAE)"),
-    (kernel.StackedBackend, "update", "update() total (GAE included)"),
-    (kernel.PopulationAgent, "training_pass", "  forward: the 3P networks"),
-    (kernel.StackedBackend, "step", "  optimiser steps total"),
+    (learner.StackedLearner, "update", "update() total (GAE included)"),
+    (stacked.PopulationAgent, "training_pass", "  forward: the 3P networks"),
+    (learner.StackedLearner, "step", "  optimiser steps total"),
     (torch.Tensor, "backward", "    backward (losses + networks)"),
-    (kernel.StackedParams, "clip_grad_norm_", "    grad-norm clipping"),
-    (kernel.StackedAdam, "step", "    Adam (stacked)"),
+    (stacked.StackedParams, "clip_grad_norm_", "    grad-norm clipping"),
+    (stacked.StackedAdam, "step", "    Adam (stacked)"),
 ]
 
 

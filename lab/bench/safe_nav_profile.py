@@ -145,15 +145,13 @@ def profile_training(overrides: list[str]) -> dict[str, Any]:
     each part's."""
     clock = Clock()
     cfg = compose_config(overrides)
-    original_iterations = loop._iterations
+    original_run = loop.TrainingLoop.run
 
-    def iterations(m: loop.Members, *args: Any) -> None:
-        m.update = clock.wrap("update", m.update)
-        m.checkpoint = clock.wrap("checkpoint", m.checkpoint)
+    def run(self: loop.TrainingLoop, *args: Any) -> float:
         clock.on = True
         try:
             with clock.part("loop"):
-                original_iterations(m, *args)
+                return original_run(self, *args)
         finally:
             clock.on = False
 
@@ -168,10 +166,12 @@ def profile_training(overrides: list[str]) -> dict[str, Any]:
             (collector.Collector, "collect", "rollout"),
             (advantages.TwinGAE, "__call__", "GAE"),
             (loop, "check_rollout", "rollout check"),
+            (loop.TrainingLoop, "update", "update"),
+            (loop.TrainingLoop, "checkpoint", "checkpoint"),
         ):
             stack.enter_context(patched(obj, attr, clock.wrap(name, getattr(obj, attr))))
         stack.enter_context(patched(loop, "metrics_row", logged(loop.metrics_row)))
-        stack.enter_context(patched(loop, "_iterations", iterations))
+        stack.enter_context(patched(loop.TrainingLoop, "run", run))
         # logging's other half: the logger's and the progress bar's per-iteration calls
         from cmdp_rl.report.metrics import MetricsLogger
         from cmdp_rl.run.progress import Progress

@@ -15,5 +15,5 @@
 
 ``experiments/studies/`` holds the thin command lines over these.
 
-Reading run directories is ``cmdp_rl.run.sweeps``; the study commands start sweeps through ``train.py``.
+Reading run directories is ``cmdp_rl.report.sweeps``; the study commands start sweeps through ``train.py``.
 """

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cmdp_rl.run.sweeps import RunRecord
+from cmdp_rl.report.sweeps import RunRecord
 from lab.studies.stats import sample_mean_std
 from lab.studies.tables import markdown_table, pm
 from lab.sweeps import finished_runs

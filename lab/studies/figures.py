@@ -16,7 +16,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from cmdp_rl.report.plot import pyplot, save_figure
-from cmdp_rl.run.sweeps import OK
+from cmdp_rl.report.sweeps import OK
 from lab.studies.penalty_constraint import Reference, Run
 
 

@@ -5,7 +5,7 @@ constrained algorithm with a budget d, from some start distribution. Runs of one
 d, start) are one group; the table gives each group's seed statistics and compares them with a
 :class:`Reference`, the exact answer of the env the study ran on (for Reach1D:
 ``lab.studies.reach1d_reference``). Every job a sweep expected is listed with its status
-(``cmdp_rl.run.sweeps``), so that a report says what is missing rather than silently averaging less.
+(``cmdp_rl.report.sweeps``), so that a report says what is missing rather than silently averaging less.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any, Protocol, Sequence
 
 import numpy as np
 
-from cmdp_rl.run.sweeps import MISSING, OK, SUPERSEDED, RunRecord
+from cmdp_rl.report.sweeps import MISSING, OK, SUPERSEDED, RunRecord
 from lab.studies.stats import sample_mean_std, tail_mean
 from lab.studies.tables import markdown_table, pm
 from lab.sweeps import MissingJob, job_values, read_sweeps, rerun_command, sweep_dir_of

@@ -46,7 +46,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from cmdp_rl.run.sweeps import MISSING, SUPERSEDED
+from cmdp_rl.report.sweeps import MISSING, SUPERSEDED
 from lab.studies.figures import penalty_constraint_figure
 from lab.studies.penalty_constraint import (
     gather,

@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cmdp_rl.report import sweeps
 from cmdp_rl.report.plot import pyplot, save_figure
-from cmdp_rl.run import sweeps
 from cmdp_rl.run.migrations import saved_config_nodes
 from lab.studies.stats import count_finite, sample_mean_std
 from lab.studies.tables import markdown_table, pm

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from cmdp_rl.envs.reach1d.task import Reach1DConfig
-from cmdp_rl.run.sweeps import RunRecord
+from cmdp_rl.report.sweeps import RunRecord
 from lab.studies.penalty_constraint import budget_markdown, penalty_markdown, start_label
 from lab.studies.reach1d_thresholds import CrossingThresholds, closed_form_threshold, crossing_thresholds
 

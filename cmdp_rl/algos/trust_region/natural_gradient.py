@@ -16,9 +16,10 @@ from torch import nn
 from torch.distributions import kl_divergence
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, require_minibatches
+from cmdp_rl.algos.learner import Learner, SingleLearner
 from cmdp_rl.algos.minibatch import Tally
 from cmdp_rl.algos.multiplier import EpisodeCostEstimate, logged_multiplier
-from cmdp_rl.algos.ppo import CriticRegression, OneRun
+from cmdp_rl.algos.ppo import CriticRegression
 from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
@@ -182,7 +183,7 @@ class NaturalGradient:
         self.gae(batch, self.agent)
         units, stats = self.policy_update(batch)
         losses = self.fit_critics(
-            units, OneRun(self.agent, self.cfg.max_grad_norm), [(self.critic_opt, self.critic_params)]
+            units, SingleLearner(self.agent, self.cfg.max_grad_norm), [(self.critic_opt, self.critic_params)]
         )
         stats.update({k: v.item() for k, v in losses.items()})
         check_parameters_finite(self.agent)
@@ -225,15 +226,17 @@ class NaturalGradient:
     def entropy(self, units: dict[str, torch.Tensor]) -> float:
         return self.agent.dist(units).entropy().mean().item()
 
-    def fit_critics(self, units: dict[str, torch.Tensor], members: Any, optimisers: list) -> dict[str, torch.Tensor]:
+    def fit_critics(
+        self, units: dict[str, torch.Tensor], learner: Learner, optimisers: list
+    ) -> dict[str, torch.Tensor]:
         """Critic regression, ``critic_epochs`` x ``critic_minibatches`` Adam steps: each loss's mean (per agent)."""
         cfg, tally = self.cfg, Tally()
         for _ in range(cfg.critic_epochs):
-            for mb in members.minibatches(units, cfg.critic_minibatches):
-                losses = {k: members.mean(t) for k, t in self.critics.terms(mb, members.values(mb)).items()}
+            for mb in learner.minibatches(units, cfg.critic_minibatches):
+                losses = {k: learner.mean(t) for k, t in self.critics.terms(mb, learner.values(mb)).items()}
                 check_finite(**losses)
                 first, *rest = losses.values()
-                members.step(sum(rest, first), optimisers)
+                learner.step(sum(rest, first), optimisers)
                 tally.add({k: v.double() for k, v in losses.items()})  # summed in float64, as Python floats would be
         return tally.means()
 

@@ -89,6 +89,13 @@ class GoalTask(NavTask):
             groups += [self.hazards[envs], world["xpos"][:, self.worlds.vases, :2]]
         return pseudo_lidars(groups, pos, mat)
 
+    def _vase_cost(self) -> np.ndarray:
+        """Level 2: a robot geom touching a vase, or a vase moving, costs."""
+        w = self.worlds
+        hit = w.touching(w.geom_is_vase)
+        speed = np.sqrt(np.sum(np.square(w.qvel(w.vase_dof[:, None] + np.arange(3))), axis=-1))  # [N, vases]
+        return hit | np.any(speed >= VASE_SPEED, axis=-1)
+
     def step(self, world: dict) -> tuple:
         """Reward, cost and terminated of every env after a physics step (``world``: all envs)."""
         xp = namespace(self.goal)
@@ -96,10 +103,8 @@ class GoalTask(NavTask):
         reached = dist <= GOAL_SIZE
         reward = xp.clip(self.last_dist - dist + reached * 1.0, -REWARD_CLIP, REWARD_CLIP)
         cost = self._in_hazard(world)
-        if self.spec.vases_constrained:  # level 2: a robot geom touching a vase, or a vase moving, costs
-            w = self.worlds
-            speed = np.sqrt(np.sum(np.square(w.qvel(w.vase_dof[:, None] + np.arange(3))), axis=-1))  # [N, vases]
-            cost |= w.touching(w.geom_is_vase) | np.any(speed >= VASE_SPEED, axis=-1)
+        if self.spec.vases_constrained:
+            cost |= self._vase_cost()
         terminated = zeros(dist, (len(dist),), "bool")
         self.last_dist = dist
         hit = np.flatnonzero(to_host(reached))

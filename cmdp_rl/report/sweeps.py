@@ -1,11 +1,10 @@
-"""Recording a run's failure, and reading run directories back (their layout: ``cmdp_rl/run/rundir.py``): an
-aggregator reads results from here instead of re-training, and reports every run that did not finish (failed,
-interrupted, or never started) rather than crash on it."""
+"""Reading run directories back (what they hold: ``config/saved.py``): an aggregator reads results from here instead
+of re-training, and reports every run that did not finish (failed, interrupted, or never started) rather than crash
+on it."""
 
 from __future__ import annotations
 
 import json
-import traceback
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,26 +12,15 @@ from typing import Any
 
 import yaml
 
+from cmdp_rl.config.saved import CONFIG as CONFIG_FILE
+from cmdp_rl.config.saved import ERROR as ERROR_FILE
+from cmdp_rl.config.saved import EVAL as EVAL_FILE
+from cmdp_rl.config.saved import HYDRA_DIR, POPULATION_CONFIG, deploy_node
+from cmdp_rl.config.saved import METRICS as METRICS_FILE
 from cmdp_rl.report.metrics import read_metrics
-from cmdp_rl.run.migrations import deploy_node
-from cmdp_rl.run.rundir import CONFIG as CONFIG_FILE
-from cmdp_rl.run.rundir import ERROR as ERROR_FILE
-from cmdp_rl.run.rundir import EVAL as EVAL_FILE
-from cmdp_rl.run.rundir import METRICS as METRICS_FILE
-from cmdp_rl.run.rundir import POPULATION_CONFIG
-
-HYDRA_DIR = ".hydra"
 
 OK, FAILED, INCOMPLETE, MISSING = "ok", "failed", "incomplete", "missing"
 SUPERSEDED = "superseded"  # the same job ran again (a rerun) and that run is the one kept
-
-
-def record_failure(out_dir: str | Path, exc: BaseException) -> None:
-    """Write ``error.txt`` (exception type, message, traceback) into the run directory."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    text = f"{type(exc).__name__}: {exc}\n\n" + "".join(traceback.format_exception(exc))
-    (out / ERROR_FILE).write_text(text)
 
 
 @dataclass

@@ -2,7 +2,7 @@
 before anything runs (the space, the settings, the budgets, the storage), and the ask-and-tell loop that launches
 each trial as one Hydra job through the configured ``hydra/launcher`` and tells Optuna its return and, as its
 constraint, its costs against the budgets. A trial's side (its curve to the pruner, its outcome, the feasibility
-rule) is :mod:`cmdp_rl.run.tune_trial`; the report :mod:`cmdp_rl.run.tune_report`.
+rule) is :mod:`cmdp_rl.tune.trial`; the report :mod:`cmdp_rl.tune.report`.
 
 Not ``study.optimize``, which runs the objective in its own process and threads while a Hydra job runs where its
 launcher puts it; what ``optimize`` adds is done here with Optuna's public pieces: heartbeats while a trial runs
@@ -25,7 +25,7 @@ from types import SimpleNamespace
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from cmdp_rl.config.validation import ConfigError, per_constraint
-from cmdp_rl.run.tune_trial import STORAGE_ENV, STUDY_ENV, TRIAL_ENV, constraints, outcome, seed_results
+from cmdp_rl.tune.trial import STORAGE_ENV, STUDY_ENV, TRIAL_ENV, constraints, outcome, seed_results
 
 RESERVED = ("seed", "population")  # the search sets these itself (the seeds of a trial)
 
@@ -374,7 +374,7 @@ class Search:
                 print(f"tune: {failures} trials failed in a row; stopping (their error.txt says why)", file=sys.stderr)
                 sys.exit(1)
         if self.s.report:
-            from cmdp_rl.run.tune_report import report
+            from cmdp_rl.tune.report import report
 
             print(report(self.study, self.sweep_dir))
         return done
@@ -421,7 +421,7 @@ class Search:
             error = exc
         job_dir = Path(str(ret.hydra_cfg.hydra.runtime.output_dir)) if ret.hydra_cfg else None
         if isinstance(error, optuna.TrialPruned):
-            trial.set_user_attr("constraint", [0.0] * len(self.budget))  # see tune_trial.constraints
+            trial.set_user_attr("constraint", [0.0] * len(self.budget))  # see trial.constraints
             self.study.tell(trial, state=TrialState.PRUNED)
             print(f"tune: trial {trial.number} pruned: {error}")
             return True
@@ -437,7 +437,7 @@ class Search:
         for key, value in attrs.items():
             trial.set_user_attr(key, value)
         self.study.tell(trial, attrs["return"])
-        from cmdp_rl.run.tune_report import trial_line
+        from cmdp_rl.tune.report import trial_line
 
         print(f"tune: {trial_line(self.storage.get_trial(self._trial_id(trial)), self.budget)}")
         return True

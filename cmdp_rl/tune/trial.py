@@ -2,10 +2,10 @@
 study's pruner, its outcome over its seeds, and the feasibility rule (``constraint = bound - budget`` per cost, the
 bound by ``feasible_by``), which Optuna's samplers take as a constraint (``constraints_func``), never as a penalty.
 
-Inside a job the search (run/tune.py) names the trial in ``hydra.job.env_set``; :class:`ReportToTrial`
-(``hydra.callbacks`` in configs/config.yaml, a no-op in any other job) then watches the training loop's rows
-(``run/loop.py``'s ITERATION_OBSERVERS). Past the warm-up (``prune_after``) it reports the return only, never the
-cost, and the pruner compares it with the trials within budget only (:class:`FeasibleOnly`)."""
+Inside a job the search (tune/search.py) names the trial in ``hydra.job.env_set``; ``cmdp-train`` then hands the
+training loop :func:`trial_observers`' :class:`Observer` of the job's rows (none in any other job). Past the warm-up
+(``prune_after``) it reports the return only, never the cost, and the pruner compares it with the trials within
+budget only (:class:`FeasibleOnly`)."""
 
 from __future__ import annotations
 
@@ -14,36 +14,25 @@ import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from hydra.experimental.callback import Callback
-from omegaconf import DictConfig, OmegaConf
-
-from cmdp_rl.run.loop import ITERATION_OBSERVERS
-
 LEVEL = 0.95
 TRIAL_ENV = "CMDP_TUNE_TRIAL"  # hydra.job.env_set keys: how a job learns which trial of which study it is
 STUDY_ENV = "CMDP_TUNE_STUDY"
 STORAGE_ENV = "CMDP_TUNE_STORAGE"
 
 
-class ReportToTrial(Callback):
-    """Hydra callback: in a search's job, watch the training loop for its trial."""
-
-    def __init__(self) -> None:
-        self.observer: Observer | None = None
-
-    def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
-        env = OmegaConf.select(config, "hydra.job.env_set") or {}
-        if TRIAL_ENV in env:
-            self.observer = Observer(str(env[STORAGE_ENV]), str(env[STUDY_ENV]), int(env[TRIAL_ENV]))
-            ITERATION_OBSERVERS.append(self.observer)
-
-    def on_job_end(self, config: DictConfig, job_return: Any, **kwargs: Any) -> None:
-        if self.observer is not None and self.observer in ITERATION_OBSERVERS:  # jobs may share this process
-            ITERATION_OBSERVERS.remove(self.observer)
-        self.observer = None
+def trial_observers(env_set: Mapping[str, Any] | None) -> list[Observer]:
+    """The observers of a job's training loop (``run.loop.Observer``): its trial's, where ``env_set`` (the job's
+    ``hydra.job.env_set``) names one; none in any other job."""
+    env = env_set or {}
+    if TRIAL_ENV not in env:
+        return []
+    return [Observer(str(env[STORAGE_ENV]), str(env[STUDY_ENV]), int(env[TRIAL_ENV]))]
 
 
 class Observer:
+    """A trial's watch on its job's training loop: each iteration's mean training return to the study's storage,
+    and the pruner's verdict on it (``optuna.TrialPruned``, which stops the job)."""
+
     def __init__(self, url: str, study_name: str, number: int) -> None:
         import hydra.utils
         import optuna

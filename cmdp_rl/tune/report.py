@@ -1,6 +1,6 @@
 """The search's report (docs/tuning.md): the best options within budget, their return and costs with intervals, the
 command that reruns them, ``tune.json`` and Optuna's plots in the sweep directory. The search writes it when it ends;
-``python -m cmdp_rl.run.tune_report <storage> [--study NAME] [--out DIR]`` writes it again from the storage (a URL, or
+``python -m cmdp_rl.tune.report <storage> [--study NAME] [--out DIR]`` writes it again from the storage (a URL, or
 the path of the SQLite file), while the search runs or after."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import warnings
 from pathlib import Path
 from typing import Any, Sequence
 
-from cmdp_rl.run.tune_trial import best_feasible, feasible
+from cmdp_rl.tune.trial import best_feasible, feasible
 
 
 def _ci(pair: Sequence[float], fmt: str) -> str:
@@ -183,15 +183,15 @@ def main(argv: list[str] | None = None) -> None:
     path = Path(args.storage)
     url = args.storage if "://" in args.storage else f"sqlite:///{path.absolute()}"
     if "://" not in args.storage and not path.is_file():
-        parser.exit(2, f"tune_report: no such file: {path}\n")
+        parser.exit(2, f"cmdp_rl.tune.report: no such file: {path}\n")
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     try:
         names = optuna.get_all_study_names(url)
     except Exception as exc:  # noqa: BLE001 - SQLAlchemy's and the drivers' errors have no common base
-        parser.exit(2, f"tune_report: cannot open storage {args.storage}: {str(exc).splitlines()[0]}\n")
+        parser.exit(2, f"cmdp_rl.tune.report: cannot open storage {args.storage}: {str(exc).splitlines()[0]}\n")
     name = args.study or (names[0] if len(names) == 1 else None)
     if name not in names:
-        parser.exit(2, f"tune_report: give --study, one of: {', '.join(names) or '(none)'}\n")
+        parser.exit(2, f"cmdp_rl.tune.report: give --study, one of: {', '.join(names) or '(none)'}\n")
     out = Path(args.out) if args.out else (path.parent if "://" not in args.storage else Path("."))
     print(report(optuna.load_study(study_name=name, storage=url), out, plots=not args.no_plots))
 

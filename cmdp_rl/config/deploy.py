@@ -1,5 +1,5 @@
-"""The ``deploy:`` node (``RunConfig.deploy``): which policy a run hands back, read by ``final_policy.py`` and
-``selection.py``; :func:`resolve_auto` turns ``policy: auto`` into what the run deploys."""
+"""The ``deploy:`` node (``RunConfig.deploy``): which policy a run hands back, read by ``deploy/final_policy.py``
+and ``deploy/selection.py``; :func:`resolve_auto` turns ``policy: auto`` into what the run deploys."""
 
 from __future__ import annotations
 
