@@ -1,9 +1,12 @@
 """Every range-checked field rejects a bad value with a message naming it, before training."""
 
+import dataclasses
+
 import pytest
 import torch
 
 from cmdp_rl import ConfigError, load_config
+from cmdp_rl.config.run_config import compose_config
 from cmdp_rl.envs import GymVecEnv, Reach1D
 
 BAD = [
@@ -44,7 +47,8 @@ BAD = [
         {"algo": {"name": "ppo_lag", "multiplier": {"kind": "regularized", "lr": 0.5, "tau": 2.0}}},
         "algo.multiplier.tau",
     ),
-    ({"algo": {"name": "ppo_lag", "multiplier": {"nu": 1.0}}}, "algo.multiplier.nu"),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"kind": "optimistic", "nu": 1.0}}}, "algo.multiplier.nu"),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"kind": "dual", "nu": 0.5}}}, "algo.multiplier"),  # not dual's
     ({"algo": {"name": "ppo_lag", "multiplier": {"rho": 1.0}}}, "algo.multiplier"),  # no such field
     ({"algo": {"name": "ppo_lag", "multiplier": "dual"}}, "algo.multiplier"),  # the node, not a kind's name
     ({"algo": {"name": "ppo_lag", "lambda_lr": 0.1}}, "algo"),  # the flat name of before the node
@@ -141,3 +145,17 @@ def test_auto_keeps_given_numbers_and_rejects_other_words():
     ):
         with pytest.raises(ConfigError, match=f"^{field} must be a positive integer or 'auto'"):
             load_config(raw)
+
+
+@pytest.mark.parametrize(
+    "overrides, fields",
+    [
+        (["algo=ppo_lag"], {"kind", "lr", "init", "scale", "max"}),
+        (["algo=pid_lag"], {"kind", "kp", "ki", "kd", "p_ema_alpha", "d_ema_alpha", "d_delay", "init", "scale", "max"}),
+        (["algo=ppo_lag", "algo/multiplier=log"], {"kind", "lr", "init", "floor", "max"}),
+        (["algo=trpo_lag", "algo/multiplier=regularized"], {"kind", "lr", "tau", "init", "scale", "max"}),
+    ],
+)
+def test_the_multiplier_node_holds_only_its_kinds_options(overrides, fields):
+    cfg = compose_config(overrides)
+    assert {f.name for f in dataclasses.fields(cfg.algo.multiplier)} == fields

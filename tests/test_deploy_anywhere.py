@@ -1,6 +1,6 @@
 """A primal-dual run deploys the best mixture of its snapshots within budget on any env: where the env does
 not declare its episodes cheap (EnvOptions.values_snapshots), the valuation is held to a stated share of the
-run's steps (deploy.options.valuation_plan), spent on fewer snapshots rather than fewer episodes each."""
+run's steps (config.deploy.valuation_plan), spent on fewer snapshots rather than fewer episodes each."""
 
 import json
 

@@ -21,7 +21,7 @@ def test_state_round_trip_and_bad_input():
     assert m2.value == 0.7
     with pytest.raises(ValueError, match="episode_cost"):
         m.update(float("nan"))
-    with pytest.raises(ValueError, match="lambda_init"):
+    with pytest.raises(ValueError, match="algo.multiplier.init"):
         DualAscent(1.0, 0.1, init=-1.0)
 
 

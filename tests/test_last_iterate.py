@@ -1,16 +1,25 @@
 """The multiplier updates of algos/multiplier.py and the budget-normalised violation, each against
 a sequence worked out by hand (the arithmetic is in the comments)."""
 
+import math
+
 import pytest
 
 from cmdp_rl.algos.multiplier import (
+    EPISODE_WINDOW,
+    FINISHED,
+    RUNNING,
+    WINDOW,
     AugmentedLagrangian,
     DualAscent,
-    MultiplierConfig,
+    EpisodeCost,
+    LogDual,
+    Multipliers,
     OptimisticDual,
     PIDLagrangian,
     RegularizedDual,
 )
+from cmdp_rl.algos.multiplier_options import multiplier_options
 
 
 def test_budget_scale_makes_dual_ascent_unit_free():
@@ -41,7 +50,7 @@ def test_regularized_dual_ding_et_al():
     # At a fixed point the violation is tau * lambda: g = 0.4 * lambda holds lambda still.
     fixed = RegularizedDual(cost_limit=1.0, lr=0.5, tau=0.4, init=2.0)
     assert fixed.update(1.0 + 0.4 * 2.0) == pytest.approx(2.0)
-    with pytest.raises(ValueError, match="lambda_tau"):
+    with pytest.raises(ValueError, match="algo.multiplier.tau"):
         RegularizedDual(1.0, lr=0.5, tau=2.0)
 
 
@@ -80,9 +89,9 @@ def test_augmented_lagrangian_prices_cost_above_its_multiplier():
     "kind, cls", [("dual", DualAscent), ("regularized", RegularizedDual), ("optimistic", OptimisticDual)]
 )
 def test_options_build_the_named_controller_with_the_budget_scale(kind, cls):
-    m = MultiplierConfig(kind=kind, lr=0.1, scale="budget").build(0.25)
+    m = multiplier_options(kind, lr=0.1, scale="budget").build(0.25)
     assert isinstance(m, cls) and m.scale == 0.25 and m.lr == 0.1
-    assert MultiplierConfig(kind="augmented", lr=0.1, scale="none").build(0.25).scale == 1.0
+    assert multiplier_options("augmented", lr=0.1, scale="none").build(0.25).scale == 1.0
 
 
 def _controllers(algo: dict):
@@ -132,7 +141,33 @@ def test_regularized_ppo_lag_adds_tau_to_the_entropy_bonus_and_the_scale_reaches
 @pytest.mark.parametrize("kind", ["dual", "regularized", "optimistic", "augmented", "pid"])
 def test_max_clamps_every_kind_and_infinity_changes_nothing(kind):
     # d = 1, scale none, J_c = 3: every kind's first step is lr * 2 = 10 (pid: kp 2 * 2 + ki 0.1 * 2), over the clamp.
-    clamped = MultiplierConfig(kind=kind, lr=5.0, scale="none", max=1.5).build(1.0)
+    step = {} if kind == "pid" else {"lr": 5.0}  # pid's gains are its own options
+    clamped = multiplier_options(kind, **step, scale="none", max=1.5).build(1.0)
     assert clamped.update(3.0) == 1.5 and clamped.update(3.0) == 1.5
-    free = MultiplierConfig(kind=kind, lr=5.0, scale="none").build(1.0)
+    free = multiplier_options(kind, **step, scale="none").build(1.0)
     assert free.update(3.0) > 1.5
+
+
+def test_log_dual_steps_log_lambda_per_finished_episode_within_floor_and_max():
+    # d = 1, lr = 1, from 0.01: J_c = 3 (g 2, clipped to 1) with a whole window new: log lambda + 1;
+    # J_c = 1.5 (g 0.5), half the window new: + 0.25; J_c = 0 (g -1): - 1; again: - 1, held at the floor 0.01.
+    m = LogDual(cost_limit=1.0, lr=1.0, init=0.01, floor=0.01, maximum=100.0, scale=1.0)
+    seq = [m.update(3.0, 1.0), m.update(1.5, 0.5), m.update(0.0, 1.0), m.update(0.0, 1.0)]
+    assert seq == pytest.approx([0.01 * math.e, 0.01 * math.exp(1.25), 0.01 * math.exp(0.25), 0.01])
+    high = LogDual(cost_limit=1.0, lr=3.0, init=50.0, floor=0.01, maximum=100.0, scale=1.0)
+    assert high.update(10.0) == pytest.approx(100.0)  # 50 e^3 > max
+    with pytest.raises(ValueError, match="floor <= init <= max"):
+        LogDual(cost_limit=1.0, lr=1.0, init=0.001, floor=0.01, maximum=100.0, scale=1.0)
+
+
+def test_a_per_episode_multiplier_steps_once_per_episode_and_not_before_one_ends():
+    make = multiplier_options("log", lr=1.0).build
+    m = Multipliers(make, [1.0])
+    assert m.update(EpisodeCost((3.0,), 10.0, RUNNING)) == pytest.approx([0.01])  # none has ended: no window
+    # 25 episodes of a 100-episode window ended in this batch: a quarter step on the window's J_c (g 1).
+    assert m.update(EpisodeCost((9.0,), 10.0, FINISHED, (3.0,), 25)) == pytest.approx([0.01 * math.exp(0.25)])
+    # The same window and no episode new (a batch in the middle of long episodes): lambda stays.
+    assert m.update(EpisodeCost((9.0,), 10.0, WINDOW, (3.0,), 0)) == pytest.approx([0.01 * math.exp(0.25)])
+    # 400 new episodes, four windows' worth: one whole step, not four (the window's J_c is measured once).
+    assert m.update(EpisodeCost((9.0,), 10.0, FINISHED, (3.0,), 400)) == pytest.approx([0.01 * math.exp(1.25)])
+    assert EPISODE_WINDOW == 100

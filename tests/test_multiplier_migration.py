@@ -10,7 +10,8 @@ from helpers.resume import assert_same_run
 from helpers.runs import tiny
 
 from cmdp_rl import load, load_config, train
-from cmdp_rl.algos.multiplier import MultiplierConfig, PIDLagrangian
+from cmdp_rl.algos.multiplier import PIDLagrangian
+from cmdp_rl.algos.multiplier_options import multiplier_options
 from cmdp_rl.cli import evaluate as evaluate_cli
 from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
 from cmdp_rl.run.migrations import saved_config_defaults, saved_config_nodes
@@ -66,10 +67,19 @@ def test_an_old_pid_lag_run_evaluates_and_resumes_as_the_run_continued(tmp_path,
             {"name": "ppo_lag", "lambda_lr": 0.5, "lambda_init": 0.0, "anneal_lambda_lr": False, "multiplier": "dual"},
             {"kind": "dual", "lr": 0.5, "init": 0.0},
         ),
-        # Off-policy: pid was a value of `multiplier`; every flat name has its field.
+        # Off-policy: pid was a value of `multiplier`; every flat name has its field, and the node keeps its kind's
+        # (the other kinds' options, which pid never read, are dropped).
         (
             {"name": "sac_lag", "multiplier": "pid", "lambda_lr": 0.01, "kp": 0.5, "lambda_tau": 0.2, "lambda_nu": 0.3},
-            {"kind": "pid", "lr": 0.01, "kp": 0.5, "tau": 0.2, "nu": 0.3},
+            {"kind": "pid", "kp": 0.5},
+        ),
+        # A node saved with every kind's fields (before each kind had its own options) keeps its kind's.
+        (
+            {
+                "name": "ppo_lag",
+                "multiplier": {"kind": "dual", "lr": 0.1, "tau": 0.1, "nu": 0.0, "kp": 2.0, "max": 3.0},
+            },
+            {"kind": "dual", "lr": 0.1, "max": 3.0},
         ),
         # FOCOPS's and CUP's nu: the same node (FOCOPS's clamp is its max).
         (
@@ -126,8 +136,8 @@ def test_focops_old_nu_state_loads_into_the_node_and_continues_the_same():
     the node's dual ascent with max gives the same numbers, and the old saved state loads into it."""
     costs = [3.0, 2.5, 0.2, 0.0, 4.0, 1.0, 0.9]
     old = PIDLagrangian(0.5, kp=0.0, ki=0.3, kd=0.0, init=0.1, lambda_max=1.2, scale=0.5)
-    new = MultiplierConfig(lr=0.3, init=0.1, max=1.2, scale="budget").build(0.5)
+    new = multiplier_options("dual", lr=0.3, init=0.1, max=1.2, scale="budget").build(0.5)
     assert [old.update(c) for c in costs[:4]] == [new.update(c) for c in costs[:4]]
-    resumed = MultiplierConfig(lr=0.3, init=0.1, max=1.2, scale="budget").build(0.5)
+    resumed = multiplier_options("dual", lr=0.3, init=0.1, max=1.2, scale="budget").build(0.5)
     resumed.load_state_dict(old.state_dict())  # an old checkpoint's "multiplier"
     assert [old.update(c) for c in costs[4:]] == [resumed.update(c) for c in costs[4:]]

@@ -27,16 +27,22 @@ def test_j_c_from_this_batch_then_the_window_then_running_cost():
     est = EpisodeCostEstimate(window=2)
     # Nothing has ended yet: the running episodes' cost so far (a lower bound), at the last step.
     first = est.update(batch([[0, 0], [0, 0]], [[0, 1], [2, 2]], [[1, 2], [1, 2]]))
-    assert first == (pytest.approx((1.5,)), pytest.approx(2.0), RUNNING)
+    assert first[:3] == (pytest.approx((1.5,)), pytest.approx(2.0), RUNNING)
+    assert (first.window_costs, first.fresh) == (None, 0)  # no episode has ended: the per-episode window is empty
     # Three episodes end here (costs 4, 1, 3; lengths 10, 20, 30): their mean.
     got = est.update(batch([[1, 0, 1], [0, 1, 0]], [[4, 0, 1], [0, 3, 0]], [[10, 1, 20], [1, 30, 1]]))
-    assert got == (pytest.approx((8 / 3,)), pytest.approx(20.0), FINISHED)
+    assert got[:3] == (pytest.approx((8 / 3,)), pytest.approx(20.0), FINISHED)
+    assert (got.window_costs, got.fresh) == (pytest.approx((8 / 3,)), 3)
     # None ends: the last window=2 episodes to end, in order of the batch's rows (1 and 3).
-    assert est.update(batch([[0], [0]], [[7], [7]], [[5], [5]])) == (pytest.approx((2.0,)), pytest.approx(25.0), WINDOW)
+    later = est.update(batch([[0], [0]], [[7], [7]], [[5], [5]]))
+    assert later[:3] == (pytest.approx((2.0,)), pytest.approx(25.0), WINDOW)
+    assert (later.window_costs, later.fresh) == (pytest.approx((8 / 3,)), 0)  # all three ended episodes, none new
     # The window survives a checkpoint.
     again = EpisodeCostEstimate(window=2)
     again.load_state_dict(est.state_dict())
-    assert again.update(batch([[0], [0]], [[0], [0]], [[1], [1]])) == (
+    restored = again.update(batch([[0], [0]], [[0], [0]], [[1], [1]]))
+    assert restored.window_costs == pytest.approx((8 / 3,))  # the per-episode window too
+    assert restored[:3] == (
         pytest.approx((2.0,)),
         pytest.approx(25.0),
         WINDOW,

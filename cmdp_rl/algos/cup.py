@@ -25,7 +25,8 @@ from torch.distributions import Distribution, kl_divergence
 from cmdp_rl.algos.base import single_constraint
 from cmdp_rl.algos.learner import Learner
 from cmdp_rl.algos.minibatch import Tally, joined, stopped
-from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, MultiplierConfig, logged_multiplier
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier, step
+from cmdp_rl.algos.multiplier_options import DualOptions, MultiplierConfig
 from cmdp_rl.algos.ppo import PPO, STATS, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import AUTO, AutoInt, options
@@ -46,7 +47,7 @@ class CUPConfig(PPOConfig):
     name: str = "cup"
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
     constraints: ClassVar[int] = 1  # one constraint (single_constraint)
-    multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)  # nu
+    multiplier: MultiplierConfig = field(default_factory=DualOptions)  # nu
 
     projection_epochs: AutoInt = AUTO  # auto: update_epochs
 
@@ -69,7 +70,7 @@ class CUP(PPO):
         self.cost_coef = (1 - cfg.cost_gamma * cfg.gae_lambda) / (1 - cfg.cost_gamma)
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
-        self.multiplier.update(estimate.cost)
+        step(self.multiplier, estimate)
 
     def before_advantage(self, batch: TensorDictBase) -> None:
         self.update_multiplier(self.episode_cost.update(batch))

@@ -25,7 +25,8 @@ from tensordict import TensorDictBase
 from torch.distributions import Distribution, kl_divergence
 
 from cmdp_rl.algos.base import single_constraint
-from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, MultiplierConfig, logged_multiplier
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier, step
+from cmdp_rl.algos.multiplier_options import DualOptions, MultiplierConfig
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import PositiveFloat, options
@@ -43,7 +44,7 @@ class FOCOPSConfig(PPOConfig):
     temperature: PositiveFloat = 1.5  # lambda of Theorem 1
     target_kl: PositiveFloat = 0.02  # delta: the per-state indicator's bound and the early stop
     # nu, the paper's: a step of 0.01 and a clamp at 2.
-    multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.01, max=2.0))
+    multiplier: MultiplierConfig = field(default_factory=lambda: DualOptions(lr=0.01, max=2.0))
 
 
 def focops_terms(
@@ -78,7 +79,7 @@ class FOCOPS(PPO):
         self.episode_cost = EpisodeCostEstimate()  # J_c, measured on each batch before the policy advantage
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
-        self.multiplier.update(estimate.cost)
+        step(self.multiplier, estimate)
 
     def before_advantage(self, batch: TensorDictBase) -> None:
         self.update_multiplier(self.episode_cost.update(batch))

@@ -1,11 +1,12 @@
 """The constraint's measured J_c and the multiplier that prices ``J_c - d``: the estimate of J_c every
 constrained algorithm compares with its budget (:class:`EpisodeCostEstimate`), and the lambda controllers
-that step on it, built once per constraint from the one options node ``algo.multiplier``.
+that step on it, one per constraint, built from the options node ``algo.multiplier``
+(``multiplier_options.py``, one options class per kind).
 
 The Lagrangian of ``max J_r  s.t.  J_c <= d`` is ``J_r - lambda (J_c - d)``; every controller steps on
 the violation ``g = (J_c - d) / s``, ``s = d`` with ``scale: budget`` (one step size then means the same
-on a budget of 0.15 as on one of 25), else 1. Why the budget and not a running scale or Adam on lambda,
-and why not cooper-optim's controllers: docs/constraint_satisfaction.md.
+on a budget of 0.15 as on one of 25), else 1. The default, :class:`LogDual`, steps on ``log lambda`` once per
+finished episode; why, and what the others measured: docs/constraint_satisfaction.md.
 """
 
 from __future__ import annotations
@@ -13,12 +14,11 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections import deque
-from typing import Annotated, Callable, Literal, NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import torch
 from tensordict import TensorDictBase
 
-from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveFloat, PositiveInt, finite, options, require
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.collector import finished_episodes
 
@@ -27,14 +27,20 @@ from cmdp_rl.rollout.collector import finished_episodes
 # iteration: 1. the mean cost (and length) of the episodes that ended in this batch; 2. if none did
 # (episodes longer than a rollout), of the last ``window`` that ended before (default: one per env);
 # 3. if none has ended yet, the running episodes' cost so far, a lower bound. So lambda moves every iteration.
+# Beside it, per constraint, the mean of the last EPISODE_WINDOW finished episodes and how many of them ended in
+# this batch: what a dual that steps per finished episode reads (:class:`LogDual`), so that 16 episodes ending
+# together every 8th iteration count once, not 8 times.
 
 FINISHED, WINDOW, RUNNING = "finished", "window", "running"
+EPISODE_WINDOW = 100  # finished episodes the per-episode J_c averages (OmniSafe's window_lens: 100)
 
 
 class EpisodeCost(NamedTuple):
     costs: tuple[float, ...]  # J_c estimate, one per constraint
     length: float  # mean episode length of the same episodes
     source: str  # FINISHED, WINDOW or RUNNING (the cases above)
+    window_costs: tuple[float, ...] | None = None  # the last EPISODE_WINDOW finished episodes' mean, per constraint
+    fresh: int = 0  # how many of them ended in this batch
 
     @property
     def cost(self) -> float:
@@ -53,6 +59,7 @@ class EpisodeCostEstimate:
             raise ValueError(f"window must be a positive integer, got {window}")
         self.window = window
         self._recent: deque[tuple[float, ...]] = deque(maxlen=window)  # (cost_0, ..., cost_{K-1}, length)
+        self._episodes: deque[tuple[float, ...]] = deque(maxlen=EPISODE_WINDOW)  # (cost_0, ..., cost_{K-1})
 
     def update(self, batch: TensorDictBase) -> EpisodeCost:
         if self.window is None:
@@ -60,25 +67,32 @@ class EpisodeCostEstimate:
             self._recent = deque(self._recent, maxlen=self.window)
         eps = finished_episodes(batch)
         cost, length = eps["cost"], eps["length"]  # [E, K], [E]
+        self._episodes.extend(tuple(c) for c in cost.tolist())
+        window = {"fresh": int(length.numel())}
+        if self._episodes:
+            window["window_costs"] = _column_means(torch.tensor(list(self._episodes), dtype=torch.float64))
         if length.numel():
             self._recent.extend((*c, n) for c, n in zip(cost.tolist(), length.tolist()))
-            return EpisodeCost(_column_means(cost), length.mean().item(), FINISHED)
+            return EpisodeCost(_column_means(cost), length.mean().item(), FINISHED, **window)
         if self._recent:
             recent = torch.tensor(list(self._recent), dtype=torch.float64)
-            return EpisodeCost(_column_means(recent[:, :-1]), recent[:, -1].mean().item(), WINDOW)
+            return EpisodeCost(_column_means(recent[:, :-1]), recent[:, -1].mean().item(), WINDOW, **window)
         last = batch.get(keys.NEXT)[:, -1]
         return EpisodeCost(
             _column_means(last.get(keys.EPISODE_COST).float()),
             last.get(keys.EPISODE_LENGTH).float().mean().item(),
             RUNNING,
+            **window,
         )
 
     def state_dict(self) -> dict:
-        return {"recent": list(self._recent), "window": self.window}
+        return {"recent": list(self._recent), "window": self.window, "episodes": list(self._episodes)}
 
     def load_state_dict(self, state: dict) -> None:
         self.window = state.get("window", self.window)
         self._recent = deque((tuple(r) for r in state.get("recent", [])), maxlen=self.window)
+        # (a checkpoint from before the per-episode window holds none: it refills from the next episodes)
+        self._episodes = deque((tuple(r) for r in state.get("episodes", [])), maxlen=EPISODE_WINDOW)
 
 
 def _column_means(x: torch.Tensor) -> tuple[float, ...]:
@@ -95,10 +109,11 @@ class MultiplierController(ABC):
     # The update is projected onto [0, maximum] (``algo.multiplier.max``; FOCOPS's clamp on nu).
     maximum: float = math.inf
     state: tuple[str, ...] = ()  # what a checkpoint keeps besides ``value``
+    per_episode = False  # True: steps on the window's J_c, weighted by its share of fresh episodes (step())
 
     def __init__(self, cost_limit: float, init: float = 0.0, scale: float = 1.0) -> None:
         if init < 0:
-            raise ValueError(f"lambda_init must be >= 0, got {init}")
+            raise ValueError(f"algo.multiplier.init must be >= 0, got {init}")
         if not (math.isfinite(scale) and scale > 0):
             raise ValueError(f"the violation's scale must be a positive number, got {scale}")
         self.cost_limit = cost_limit
@@ -113,16 +128,17 @@ class MultiplierController(ABC):
         """``g = (J_c - d) / scale``: the dual gradient the controllers step on."""
         return (episode_cost - self.cost_limit) / self.scale
 
-    def update(self, episode_cost: float) -> float:
-        """Take in ``J_c`` (finite), update and return the new lambda."""
+    def update(self, episode_cost: float, fresh: float = 1.0) -> float:
+        """Take in ``J_c`` (finite) and, for a per-episode controller, the share ``fresh`` of its window that is new;
+        update and return the new lambda."""
         if not math.isfinite(episode_cost):
             raise ValueError(f"episode_cost must be finite, got {episode_cost}")
-        self.value = min(self.maximum, self._next_value(float(episode_cost)))
+        self.value = min(self.maximum, self._next_value(float(episode_cost), fresh))
         assert self.value >= 0.0
         return self.value
 
     @abstractmethod
-    def _next_value(self, episode_cost: float) -> float:
+    def _next_value(self, episode_cost: float, fresh: float) -> float:
         """The new lambda (>= 0) after measuring ``episode_cost``."""
 
     def state_dict(self) -> dict:
@@ -141,8 +157,43 @@ class DualAscent(MultiplierController):
         super().__init__(cost_limit, init, scale)
         self.lr = lr
 
-    def _next_value(self, episode_cost: float) -> float:
+    def _next_value(self, episode_cost: float, fresh: float = 1.0) -> float:
         return max(0.0, self.value + self.lr * self.violation(episode_cost))
+
+
+class LogDual(MultiplierController):
+    """Dual ascent on ``log lambda``, one step per finished episode (the default of the on-policy Lagrangians)::
+
+        log lambda <- clip(log lambda + lr * w * clip(g, -1, 1), log floor, log max)
+
+    ``g = (J_c - d) / d`` with ``J_c`` the mean cost of the last :data:`EPISODE_WINDOW` finished episodes, ``w``
+    the share of that window that ended since the last step (at most 1): each episode moves lambda once, however
+    many iterations it spans and however many envs end together, so one ``lr`` means the same for 16 envs or 4096.
+
+    - Multiplicative steps reach any scale (lambda* = 0.02 or 50) in ``ln(lambda* / lambda_0) / lr`` windows, as
+      CQL's Adam on ``log alpha`` (Kumar et al. 2020); an additive step needs a summed violation of lambda* / lr.
+    - ``g`` clipped to [-1, 1] bounds each step whatever the violation's size (OmniSafe's Adam on lambda moves it
+      by about its learning rate per step; docs/constraint_satisfaction.md).
+    - ``floor`` stands for 0: a slack constraint's lambda decays to it; ``max`` bounds a runaway where the policy
+      cannot meet the budget (with standardised advantages lambda = 100 already prices cost 100 times reward), so
+      that lambda comes back down in a few windows once it can.
+    """
+
+    per_episode = True
+    state = ("log_value",)
+
+    def __init__(self, cost_limit: float, lr: float, init: float, floor: float, maximum: float, scale: float) -> None:
+        if not 0 < floor <= init <= maximum:
+            raise ValueError(f"the log dual needs 0 < floor <= init <= max, got {floor}, {init}, {maximum}")
+        super().__init__(cost_limit, init, scale)
+        self.lr, self.floor, self.maximum = lr, floor, maximum
+        self.log_value = math.log(init)
+
+    def _next_value(self, episode_cost: float, fresh: float = 1.0) -> float:
+        g = max(-1.0, min(1.0, self.violation(episode_cost)))
+        step = self.lr * min(1.0, max(0.0, fresh)) * g
+        self.log_value = max(math.log(self.floor), min(math.log(self.maximum), self.log_value + step))
+        return math.exp(self.log_value)
 
 
 class PIDLagrangian(MultiplierController):
@@ -155,7 +206,7 @@ class PIDLagrangian(MultiplierController):
         D       = max(0, EMA_d(J_c)_k - EMA_d(J_c)_{k - d_delay})
         lambda  = clip(Kp * P + I + Kd * D, 0, lambda_max)
 
-    ``lambda_init`` starts the integral, so ``Kp = Kd = 0``, ``Ki = lr`` is exactly :class:`DualAscent`.
+    ``init`` starts the integral, so ``Kp = Kd = 0``, ``Ki = lr`` is exactly :class:`DualAscent`.
     Clamping I at 0 is the paper's anti-windup (no negative integral banked over a feasible stretch),
     at ``lambda_max`` so it never winds up past lambda's range. Only a rise of the smoothed cost counts in
     D (falling cost never pushes lambda down faster than I); the first measurement fills the history.
@@ -184,7 +235,7 @@ class PIDLagrangian(MultiplierController):
         if d_delay < 1:
             raise ValueError(f"d_delay must be >= 1, got {d_delay}")
         if not init <= lambda_max:
-            raise ValueError(f"lambda_init ({init}) must be <= lambda_max ({lambda_max})")
+            raise ValueError(f"algo.multiplier.init ({init}) must be <= algo.multiplier.max ({lambda_max})")
         self.kp, self.ki, self.kd = kp, ki, kd
         self.p_ema_alpha, self.d_ema_alpha, self.d_delay = p_ema_alpha, d_ema_alpha, d_delay
         self.maximum = lambda_max
@@ -193,7 +244,7 @@ class PIDLagrangian(MultiplierController):
         self.cost_d: float | None = None  # EMA of J_c
         self.history: deque[float] = deque(maxlen=d_delay)  # past EMA_d(J_c), oldest first
 
-    def _next_value(self, episode_cost: float) -> float:
+    def _next_value(self, episode_cost: float, fresh: float = 1.0) -> float:
         delta = self.violation(episode_cost)
         self.integral = min(self.maximum, max(0.0, self.integral + self.ki * delta))
         self.delta_p = delta if self.delta_p is None else _ema(self.delta_p, delta, self.p_ema_alpha)
@@ -223,11 +274,14 @@ class Multipliers:
     def values(self) -> list[float]:
         return [c.value for c in self.controllers]
 
-    def update(self, episode_costs: Sequence[float]) -> list[float]:
-        """Take in ``J_c,k`` per constraint; returns the new lambdas."""
-        if len(episode_costs) != len(self.controllers):
-            raise ValueError(f"expected {len(self.controllers)} episode costs, got {len(episode_costs)}")
-        return [c.update(j) for c, j in zip(self.controllers, episode_costs)]
+    def update(self, estimate: EpisodeCost | Sequence[float]) -> list[float]:
+        """Step each constraint's controller on ``estimate`` (:func:`step`; a plain sequence: J_c,k per constraint,
+        no window); returns the new lambdas."""
+        if not isinstance(estimate, EpisodeCost):
+            estimate = EpisodeCost(tuple(float(c) for c in estimate), math.nan, FINISHED)
+        if len(estimate.costs) != len(self.controllers):
+            raise ValueError(f"expected {len(self.controllers)} episode costs, got {len(estimate.costs)}")
+        return [step(c, estimate, k) for k, c in enumerate(self.controllers)]
 
     def state_dict(self) -> dict:
         return {"constraints": [c.state_dict() for c in self.controllers]}
@@ -240,6 +294,17 @@ class Multipliers:
             )
         for c, s in zip(self.controllers, states):
             c.load_state_dict(s)
+
+
+def step(controller: MultiplierController, estimate: EpisodeCost, k: int = 0) -> float:
+    """``controller``'s step on constraint ``k`` of ``estimate``: a per-episode controller on the window's J_c,
+    weighted by the share of the window that is new (no step before an episode has ended), any other on the
+    iteration's J_c. Returns lambda."""
+    if not controller.per_episode:
+        return controller.update(estimate.costs[k])
+    if estimate.window_costs is None or not estimate.fresh:
+        return controller.value
+    return controller.update(estimate.window_costs[k], estimate.fresh / EPISODE_WINDOW)
 
 
 def logged_multiplier(values: list[float]) -> float | list[float]:
@@ -272,10 +337,10 @@ class RegularizedDual(MultiplierController):
     def __init__(self, cost_limit: float, lr: float, tau: float, init: float = 0.0, scale: float = 1.0) -> None:
         super().__init__(cost_limit, init, scale)
         if not 0.0 <= lr * tau < 1.0:
-            raise ValueError(f"lambda_lr * lambda_tau must be in [0, 1), got {lr} * {tau}")
+            raise ValueError(f"algo.multiplier.lr * algo.multiplier.tau must be in [0, 1), got {lr} * {tau}")
         self.lr, self.tau = lr, tau
 
-    def _next_value(self, episode_cost: float) -> float:
+    def _next_value(self, episode_cost: float, fresh: float = 1.0) -> float:
         return max(0.0, (1.0 - self.lr * self.tau) * self.value + self.lr * self.violation(episode_cost))
 
 
@@ -297,11 +362,11 @@ class OptimisticDual(MultiplierController):
     def __init__(self, cost_limit: float, lr: float, nu: float = 0.0, init: float = 0.0, scale: float = 1.0) -> None:
         super().__init__(cost_limit, init, scale)
         if not 0.0 <= nu < 1.0:
-            raise ValueError(f"lambda_nu must be in [0, 1), got {nu}")
+            raise ValueError(f"algo.multiplier.nu must be in [0, 1), got {nu}")
         self.lr, self.nu = lr, nu
         self.xi: float | None = None
 
-    def _next_value(self, episode_cost: float) -> float:
+    def _next_value(self, episode_cost: float, fresh: float = 1.0) -> float:
         g = self.violation(episode_cost)
         if self.xi is None:
             xi_prev = xi = g
@@ -332,73 +397,18 @@ class AugmentedLagrangian(MultiplierController):
         self.rho = rho
         self.multiplier = float(init)
 
-    def _next_value(self, episode_cost: float) -> float:
+    def _next_value(self, episode_cost: float, fresh: float = 1.0) -> float:
         step = self.rho * self.violation(episode_cost)
         self.multiplier = max(0.0, self.multiplier + step)
         return max(0.0, self.multiplier + step)
 
 
-# --- The options (algo.multiplier) and the controller they build -------------------------
-Kind = Literal["dual", "pid", "regularized", "optimistic", "augmented"]
-Scale = Literal["none", "budget"]
-AdvantageScale = Literal["raw", "standardized"]  # ppo_lag.lagrangian_advantage
-EMA = Annotated[float, finite(ge=0, lt=1)]  # a weight kept on the past, in [0, 1)
-
-
-@options
-class MultiplierConfig:
-    """``algo.multiplier``: which controller moves lambda (``kind``) and its options; ``lr``, ``init``,
-    ``scale`` and ``max`` are every kind's, the rest one kind's each. ppo_lag, pid_lag, mappo_lag,
-    trpo_lag, sac_lag, td3_lag, FOCOPS and CUP (their nu) take the node, each with its own defaults."""
-
-    # dual: lambda <- max(0, lambda + lr g); pid: Stooke et al. 2020; regularized: Ding et al. 2023;
-    # optimistic: nuPI / optimistic gradient; augmented: augmented Lagrangian with rho = lr.
-    kind: Kind = "dual"
-    lr: PositiveFloat = 0.05  # the step of dual, regularized and optimistic; augmented's rho; pid: ki instead
-    init: NonNegativeFloat = 0.0  # lambda at the start (pid: its integral's)
-    scale: Scale = "budget"  # the violation's units: none: J_c - d; budget: (J_c - d) / d
-    tau: NonNegativeFloat = 0.1  # regularized: tau, of the dual's regulariser (and ppo_lag's entropy bonus)
-    nu: EMA = 0.0  # optimistic: the EMA weight of the violation (0: optimistic gradient)
-    kp: NonNegativeFloat = 2.0  # pid: proportional gain
-    ki: NonNegativeFloat = 0.1  # pid: integral gain (the dual-ascent step: kp = kd = 0 is dual with lr = ki)
-    kd: NonNegativeFloat = 0.0  # pid: derivative gain, on the rise of the smoothed cost
-    p_ema_alpha: EMA = 0.0  # pid: EMA weight on the past of the proportional term's violation
-    d_ema_alpha: EMA = 0.0  # pid: EMA weight on the past of the cost the derivative differences
-    d_delay: PositiveInt = 1  # pid: iterations between the two smoothed costs the derivative differences
-    # An upper clamp on lambda, every kind (pid: on its integral too); .inf: none.
-    max: Annotated[float, Field(gt=0, description="a positive number or .inf")] = math.inf
-
-    def build(self, cost_limit: float) -> MultiplierController:
-        """The controller of one constraint with budget ``cost_limit``. A zero budget has no scale of its own:
-        there the violation stays in the cost's units (the default ``scale: budget`` must serve d = 0 too)."""
-        scale = cost_limit if self.scale == "budget" and cost_limit > 0 else 1.0
-        if self.kind == "pid":
-            gains = {k: getattr(self, k) for k in ("kp", "ki", "kd", "p_ema_alpha", "d_ema_alpha", "d_delay")}
-            return PIDLagrangian(cost_limit, **gains, init=self.init, lambda_max=self.max, scale=scale)
-        if self.kind == "regularized":
-            controller = RegularizedDual(cost_limit, self.lr, self.tau, self.init, scale)
-        elif self.kind == "optimistic":
-            controller = OptimisticDual(cost_limit, self.lr, self.nu, self.init, scale)
-        elif self.kind == "augmented":
-            controller = AugmentedLagrangian(cost_limit, self.lr, self.init, scale)
-        else:
-            controller = DualAscent(cost_limit, self.lr, self.init, scale)
-        controller.maximum = self.max
-        return controller
-
-    def check(self, prefix: str = "algo.multiplier") -> None:
-        """Options that are valid alone but not together (a one-line ConfigError)."""
-        if self.kind == "regularized":
-            require(
-                self.lr * self.tau < 1.0,
-                f"{prefix}.tau",
-                f"< 1 / {prefix}.lr = {1.0 / self.lr:g} (the dual step keeps (1 - lr tau) lambda >= 0)",
-                self.tau,
-            )
-        if self.kind == "pid":
-            gains = self.kp + self.ki + self.kd
-            require(gains > 0, f"{prefix}.kp + {prefix}.ki + {prefix}.kd", "> 0 (some gain must act)", gains)
-        require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
-
-
-__all__ = ["AdvantageScale", "EpisodeCost", "EpisodeCostEstimate", "Kind", "MultiplierConfig", "Scale"]
+__all__ = [
+    "EPISODE_WINDOW",
+    "EpisodeCost",
+    "EpisodeCostEstimate",
+    "LogDual",
+    "MultiplierController",
+    "Multipliers",
+    "step",
+]

@@ -17,14 +17,8 @@ import torch
 from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import PerConstraint, per_constraint
-from cmdp_rl.algos.multiplier import (
-    AdvantageScale,
-    EpisodeCost,
-    EpisodeCostEstimate,
-    MultiplierConfig,
-    Multipliers,
-    logged_multiplier,
-)
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, Multipliers, logged_multiplier
+from cmdp_rl.algos.multiplier_options import AdvantageScale, DualOptions, MultiplierConfig, PIDOptions
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
@@ -74,7 +68,7 @@ class PPOLagConfig(PPOConfig):
 
     name: str = "ppo_lag"
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
-    multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)
+    multiplier: MultiplierConfig = field(default_factory=DualOptions)
     advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
 
 
@@ -83,7 +77,7 @@ class PIDLagConfig(PPOLagConfig):
     """pid_lag: ppo_lag with a PID multiplier (Stooke et al. 2020), the preset of configs/algo/pid_lag.yaml."""
 
     name: str = "pid_lag"
-    multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(kind="pid"))
+    multiplier: MultiplierConfig = field(default_factory=PIDOptions)
 
 
 class PenaltyPPO(PPO):
@@ -114,7 +108,7 @@ class PPOLagrangian(PPO):
             self.entropy_coef = cfg.entropy_coef + cfg.multiplier.tau
 
     def update_multiplier(self, estimate: EpisodeCost) -> None:
-        self.multiplier.update(estimate.costs)
+        self.multiplier.update(estimate)
 
     def before_advantage(self, batch: TensorDictBase) -> None:
         self.update_multiplier(self.episode_cost.update(batch))

@@ -126,24 +126,50 @@ def build(cls: type[T], data: Mapping[str, Any], prefix: str) -> T:
         raise ConfigError(f"{_dotted(prefix, field)} must be {allowed(cls, field)}, got {data.get(field)!r}") from None
 
 
+def _node_classes(info: Any) -> tuple[str | None, dict[Any, type]] | None:
+    """A field's nested option classes: ``(None, {None: cls})`` for an :func:`options` class, ``(key, {value: cls})``
+    for a union of them told apart by the field ``key`` (``algo.multiplier``'s ``kind``); None for any other field."""
+    node = info.annotation
+    if isinstance(node, type) and hasattr(node, "__pydantic_fields__"):
+        return None, {None: node}
+    key = getattr(info, "discriminator", None)
+    if key and get_origin(node) is Union:
+        return key, {c.__pydantic_fields__[key].default: c for c in get_args(node)}
+    return None
+
+
 def _nodes(cls: type, data: Mapping[str, Any], prefix: str) -> dict[str, Any]:
-    """The nested option nodes among ``data`` (a field whose type is itself an :func:`options` class, e.g.
-    ``algo.multiplier``) built first, so that an error names the nested field (``algo.multiplier.lr``). A mapping fills
-    in only what it names: the rest are the values of the field's default (the algorithm's own defaults of the node, as
-    Hydra's merge of a YAML node gives); an instance is validated again (:func:`recheck`)."""
+    """The nested option nodes among ``data`` (a field whose type is itself an :func:`options` class, or a union of
+    them chosen by a key, e.g. ``algo.multiplier`` by its ``kind``) built first, so that an error names the nested field
+    (``algo.multiplier.lr``). A mapping fills in only what it names: the rest are the values of the field's default
+    where that is of the same class (the algorithm's own defaults of the node, as Hydra's merge of a YAML node gives),
+    else the class's own; an instance is validated again (:func:`recheck`)."""
     out = {}
     for f in dataclasses.fields(cls):
-        node = cls.__pydantic_fields__[f.name].annotation
-        if f.name not in data or not (isinstance(node, type) and hasattr(node, "__pydantic_fields__")):
+        classes = _node_classes(cls.__pydantic_fields__[f.name])
+        if f.name not in data or classes is None:
             continue
+        key, by_key = classes
         value, where = data[f.name], _dotted(prefix, f.name)
-        if isinstance(value, node):
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else None
+        if isinstance(value, tuple(by_key.values())):
             value = {g.name: getattr(value, g.name) for g in dataclasses.fields(value)}
-        elif isinstance(value, Mapping) and f.default_factory is not dataclasses.MISSING:
-            default = f.default_factory()
+        if not isinstance(value, Mapping):
+            continue
+        chosen = value.get(key, getattr(default, key, None)) if key else None
+        if chosen not in by_key:
+            raise ConfigError(f"{_dotted(where, key)} must be one of {tuple(by_key)}, got {chosen!r}")
+        node = by_key[chosen]
+        unknown = sorted(set(value) - {g.name for g in dataclasses.fields(node)})
+        if key and unknown:  # e.g. another kind's step, set by the algorithm's config for its default kind
+            own = [g.name for g in dataclasses.fields(node)]
+            raise ConfigError(
+                f"{where}: {key} {chosen} has no option(s) {unknown}; its options: {own} "
+                f"(drop one the algorithm's config sets for another {key} with ~{_dotted(where, unknown[0])})"
+            )
+        if isinstance(default, node):
             value = {**{g.name: getattr(default, g.name) for g in dataclasses.fields(default)}, **value}
-        if isinstance(value, Mapping):
-            out[f.name] = build(node, value, where)
+        out[f.name] = build(node, value, where)
     return out
 
 

@@ -272,12 +272,28 @@ def _has_multiplier_node(name: Any) -> bool:
 
 def multiplier_node(algo: dict[str, Any]) -> dict[str, Any]:
     """An algorithm's saved options with the flat multiplier options of older configs moved into the node
-    (:data:`_FLAT_MULTIPLIER`). Fields the old config does not name take the algorithm's defaults when it is built."""
+    (:data:`_FLAT_MULTIPLIER`), and the node of a config saved before each kind had its own options (every kind's
+    13 fields, the other kinds' unread) cut to its kind's. Fields the old config does not name take the
+    algorithm's defaults when it is built."""
     name = algo.get("name", "ppo_lag")
-    kindless_pid = name == "pid_lag" and not isinstance(algo.get("multiplier"), dict)
-    if not _has_multiplier_node(name) or not (flat_keys(algo, _FLAT_MULTIPLIER, "multiplier") or kindless_pid):
+    if not _has_multiplier_node(name):
         return algo
-    return into_node(algo, _FLAT_MULTIPLIER, "multiplier", **({"kind": "pid"} if name == "pid_lag" else {}))
+    kindless_pid = name == "pid_lag" and not isinstance(algo.get("multiplier"), dict)
+    if flat_keys(algo, _FLAT_MULTIPLIER, "multiplier") or kindless_pid:
+        algo = into_node(algo, _FLAT_MULTIPLIER, "multiplier", **({"kind": "pid"} if name == "pid_lag" else {}))
+    return {**algo, "multiplier": _own_fields(algo["multiplier"])} if isinstance(algo.get("multiplier"), dict) else algo
+
+
+def _own_fields(node: dict[str, Any]) -> dict[str, Any]:
+    """A saved multiplier node with only its kind's options (a node that names no kind is the default's; an
+    unknown kind is left for the config's check to name)."""
+    from cmdp_rl.algos.multiplier_options import KINDS
+
+    kind = node.get("kind")
+    if kind not in KINDS:
+        return node
+    own = KINDS[kind].__pydantic_fields__
+    return {k: v for k, v in node.items() if k in own}
 
 
 def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:

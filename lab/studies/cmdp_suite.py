@@ -134,8 +134,6 @@ def run_one(
     exists) and judge its deployed policy exactly."""
     from cmdp_rl import train
     from cmdp_rl.config.run_config import ConfigError, compose_config
-    from cmdp_rl.run.rundir import load_trained
-    from lab.studies.suite_valuation import deployed_values
 
     model = generate(instance)
     steps = step_budget(model.horizon, episodes, min_steps)
@@ -159,6 +157,15 @@ def run_one(
         out.mkdir(parents=True, exist_ok=True)
         refusal.write_text(str(exc) + "\n")
         return dataclasses.replace(run, refused=str(exc))
+    return judged(run, cfg, out)
+
+
+def judged(run: SuiteRun, cfg, out: Path) -> SuiteRun:
+    """``run`` with the exact values of the policy the run in ``out`` (of config ``cfg``) deployed."""
+    from cmdp_rl.run.rundir import load_trained
+    from lab.studies.suite_valuation import deployed_values
+
+    model = generate(run.instance)
     optimum = cfg.env.solve(cfg.algo.cost_limit)
     trained = load_trained(out)
     trained.env.close()
@@ -179,6 +186,49 @@ def run_one(
         lp_multipliers=[float(x) for x in optimum.multipliers],
         train_time_s=float(result["train_time_s"]),
     )
+
+
+def run_population(
+    instance: int,
+    algo: str,
+    seeds: Sequence[int],
+    out: Path,
+    episodes: int = EPISODES,
+    min_steps: int = MIN_STEPS,
+    extra: Sequence[str] = (),
+) -> list[SuiteRun]:
+    """:func:`run_one` for every seed at once: one population (cmdp_rl/population/) whose agents are the seeds'
+    runs, each the numbers its single run gives (tests/test_population.py), trained as one batched program."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from cmdp_rl import train
+    from cmdp_rl.config.run_config import CONFIG_DIR, ConfigError
+    from cmdp_rl.population.spec import population
+    from cmdp_rl.run.trainer import agent_dir_name
+
+    model = generate(instance)
+    steps = step_budget(model.horizon, episodes, min_steps)
+    overrides = ["env=suite", f"env.instance={instance}", f"algo={algo}", f"total_steps={steps}"]
+    grid = "population.grid.seed=[" + ",".join(str(s) for s in seeds) + "]"
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        raw = OmegaConf.to_container(compose("config", overrides=[*overrides, *extra, grid]), resolve=True)
+    try:
+        pop = population({**raw, "overwrite": True})
+        dirs = [out / "agents" / agent_dir_name(k, ov) for k, ov in enumerate(pop.overrides)]
+        if not all((d / "eval.json").exists() for d in dirs):
+            out.mkdir(parents=True, exist_ok=True)
+            train(pop, out, echo=lambda line: None)
+    except ConfigError:  # refused (K costs, Discrete actions): each seed's run_one records why
+        return [run_one(instance, algo, seed, out / f"s{seed}", episodes, min_steps, extra) for seed in seeds]
+    runs = []
+    for seed, cfg, d in zip(seeds, pop.cfgs, dirs):
+        run = SuiteRun(
+            instance, algo, seed, split_of(instance), steps, model.horizon, model.num_costs, model.reward_scale,
+            [float(c) for c in model.cost_scales], model.budget_kind, False, math.nan, [float(d) for d in model.budgets],
+        )  # fmt: skip
+        runs.append(judged(run, cfg, d))
+    return runs
 
 
 def row(run: SuiteRun) -> dict:
@@ -245,9 +295,11 @@ def parse_ids(specs: Sequence[str]) -> list[int]:
     return ids
 
 
-def _job(args: tuple) -> SuiteRun:
-    instance, algo, seed, out, episodes, min_steps, extra = args
-    return run_one(instance, algo, seed, Path(out), episodes, min_steps, extra)
+def _job(args: tuple) -> list[SuiteRun]:
+    instance, algo, seeds, out, episodes, min_steps, extra = args
+    if isinstance(seeds, int):
+        return [run_one(instance, algo, seeds, Path(out), episodes, min_steps, extra)]
+    return run_population(instance, algo, seeds, Path(out), episodes, min_steps, extra)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -260,6 +312,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="runs in parallel processes (each on one torch thread)")
     ap.add_argument("--out", default="outputs/cmdp_suite")
     ap.add_argument("--existing", action="store_true", help="train nothing: tabulate the runs already under --out")
+    ap.add_argument(
+        "--population", action="store_true", help="each (instance, algorithm)'s seeds as one population: same numbers"
+    )
     ap.add_argument("extra", nargs="*", help="train.py overrides for every run (after --)")
     args = ap.parse_args(argv)
     if args.workers < 1:
@@ -269,6 +324,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     jobs = []
     for instance in parse_ids(args.instances):
         for algo in args.algos:
+            if args.population:
+                run_dir = out / f"i{instance}" / algo / ("pop_s" + "-".join(map(str, args.seeds)))
+                jobs.append(
+                    (instance, algo, tuple(args.seeds), str(run_dir), args.episodes, args.min_steps, tuple(args.extra))
+                )
+                continue
             for seed in args.seeds:
                 run_dir = out / f"i{instance}" / algo / f"s{seed}"
                 if args.existing and not any((run_dir / f).exists() for f in ("eval.json", "refused.txt")):
@@ -287,12 +348,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         if args.workers == 1:
             for job in jobs:
-                record(_job(job))
+                for run in _job(job):
+                    record(run)
         else:
             # spawn, not fork: a forked child would inherit the parent's torch thread pools
             with ProcessPoolExecutor(max_workers=args.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
                 for done in as_completed([pool.submit(_job, job) for job in jobs]):
-                    record(done.result())
+                    for run in done.result():
+                        record(run)
     runs.sort(key=lambda r: (r.instance, r.algo, r.seed))
     text = table(runs)
     print(text)

@@ -22,22 +22,22 @@ CASES: dict[str, list[str]] = {
 METHODS: dict[str, list[str]] = {
     "ppo_lag": ["algo=ppo_lag"],
     "ppo_lag/budget": ["algo=ppo_lag", "algo.multiplier.scale=budget"],
-    "ppo_lag/optimistic": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo.multiplier.kind=optimistic"],
-    "ppo_lag/regularized": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo.multiplier.kind=regularized"],
-    "ppo_lag/augmented": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo.multiplier.kind=augmented"],
+    "ppo_lag/optimistic": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo/multiplier=optimistic"],
+    "ppo_lag/regularized": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo/multiplier=regularized"],
+    "ppo_lag/augmented": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo/multiplier=augmented"],
     "ppo_lag/average": ["algo=ppo_lag", "algo.multiplier.scale=budget", "deploy.policy=average"],
     # The same with a 4x larger dual step (relative units): multiplier.lr = 0.2.
     "ppo_lag/budget-0.2": ["algo=ppo_lag", "algo.multiplier.scale=budget", "algo.multiplier.lr=0.2"],
     "ppo_lag/optimistic-0.2": [
         "algo=ppo_lag",
         "algo.multiplier.scale=budget",
-        "algo.multiplier.kind=optimistic",
+        "algo/multiplier=optimistic",
         "algo.multiplier.lr=0.2",
     ],
     "ppo_lag/augmented-0.2": [
         "algo=ppo_lag",
         "algo.multiplier.scale=budget",
-        "algo.multiplier.kind=augmented",
+        "algo/multiplier=augmented",
         "algo.multiplier.lr=0.2",
     ],
     "ppo_lag/average-0.2": [
@@ -66,7 +66,7 @@ METHODS: dict[str, list[str]] = {
     "ppo_lag/optimistic-0.2-mixture": [
         "algo=ppo_lag",
         "algo.multiplier.scale=budget",
-        "algo.multiplier.kind=optimistic",
+        "algo/multiplier=optimistic",
         "algo.multiplier.lr=0.2",
         "deploy.policy=mixture",
     ],
@@ -93,7 +93,7 @@ METHODS: dict[str, list[str]] = {
     "ppo_lag/optimistic-0.2-feasible-half": [
         "algo=ppo_lag",
         "algo.multiplier.scale=budget",
-        "algo.multiplier.kind=optimistic",
+        "algo/multiplier=optimistic",
         "algo.multiplier.lr=0.2",
         "deploy.policy=mixture",
         "deploy.window=0.5",

@@ -22,7 +22,8 @@ from torch import nn
 from torchrl.data import LazyMemmapStorage, LazyTensorStorage, TensorDictReplayBuffer
 
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, per_constraint
-from cmdp_rl.algos.multiplier import MultiplierConfig, Multipliers, logged_multiplier
+from cmdp_rl.algos.multiplier import Multipliers, logged_multiplier
+from cmdp_rl.algos.multiplier_options import DualOptions, QMultiplierConfig
 from cmdp_rl.config.validation import AUTO, Field, NonNegativeInt, PositiveFloat, PositiveInt, finite, options, require
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.policies.squashed import Q_COST, Q_REWARD, check_off_policy_agent, check_shaped, to_off_policy
@@ -119,7 +120,7 @@ class LagrangeFields:
     """The multiplier of the ``_lag`` variants (mixed into their options)."""
 
     # On the violation Q_c - d_Q; off-policy defaults: a step of 0.01, for kind: pid the integral alone.
-    multiplier: MultiplierConfig = field(default_factory=lambda: MultiplierConfig(lr=0.01, kp=0.0, ki=0.01))
+    multiplier: QMultiplierConfig = field(default_factory=lambda: DualOptions(lr=0.01))
     # Q_c is averaged over the newest cost_window transitions' states; 0: over the replayed minibatches'.
     cost_window: NonNegativeInt = 1000
     # T of the budget conversion: "auto" reads the env's time limit (env.max_steps).

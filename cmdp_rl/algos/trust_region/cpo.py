@@ -23,6 +23,7 @@ from typing import ClassVar
 import torch
 
 from cmdp_rl.algos.base import check_finite, single_constraint
+from cmdp_rl.algos.multiplier import EpisodeCost
 from cmdp_rl.algos.trust_region.natural_gradient import (
     STATS,
     NaturalGradient,
@@ -131,7 +132,11 @@ class CPO(NaturalGradient):
         return self.nu
 
     def policy_step(
-        self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
+        self,
+        units: dict[str, torch.Tensor],
+        episode_cost: float,
+        episode_length: float,
+        estimate: EpisodeCost | None = None,
     ) -> dict[str, float]:
         """Solve the CPO subproblem on the units and take the step the line search accepts (or none)."""
         cfg, params = self.cfg, self.policy_params

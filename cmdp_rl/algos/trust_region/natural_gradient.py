@@ -18,7 +18,7 @@ from torch.distributions import kl_divergence
 from cmdp_rl.algos.base import AlgoConfig, check_finite, check_parameters_finite, require_minibatches
 from cmdp_rl.algos.learner import Learner, SingleLearner
 from cmdp_rl.algos.minibatch import Tally
-from cmdp_rl.algos.multiplier import EpisodeCostEstimate, logged_multiplier
+from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, logged_multiplier
 from cmdp_rl.algos.ppo import CriticRegression
 from cmdp_rl.config.validation import Field, NonNegativeFloat, PositiveInt, options
 from cmdp_rl.policies.agent import Agent
@@ -173,9 +173,14 @@ class NaturalGradient:
         return 0.0 if self.multiplier is None else logged_multiplier(self.multiplier.values)
 
     def policy_step(
-        self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
+        self,
+        units: dict[str, torch.Tensor],
+        episode_cost: float,
+        episode_length: float,
+        estimate: EpisodeCost | None = None,
     ) -> dict[str, float]:
-        """Move the policy on training units carrying GAE advantages; returns its statistics."""
+        """Move the policy on training units carrying GAE advantages (``estimate``: the J_c measurement the costs come
+        from, whose window a per-episode multiplier reads); returns its statistics."""
         raise NotImplementedError
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
@@ -199,7 +204,7 @@ class NaturalGradient:
         units = self.agent.training_units({k: batch.get(k) for k in dict.fromkeys(needed) if k in present})
         # J_c, or K numbers with K constraints (only trpo_lag takes K > 1; the others refuse it when built).
         episode_cost = estimate.costs[0] if len(estimate.costs) == 1 else estimate.costs
-        return units, self.policy_step(units, episode_cost, estimate.length)
+        return units, self.policy_step(units, episode_cost, estimate.length, estimate=estimate)
 
     def linearise(
         self, units: dict[str, torch.Tensor], adv: torch.Tensor, cost_gradient: bool = True

@@ -18,6 +18,7 @@ from typing import Callable, ClassVar, Literal
 import torch
 
 from cmdp_rl.algos.base import check_finite, single_constraint
+from cmdp_rl.algos.multiplier import EpisodeCost
 from cmdp_rl.algos.trust_region.natural_gradient import (
     STATS,
     NaturalGradient,
@@ -76,7 +77,11 @@ class PCPO(NaturalGradient):
         super().__init__(cfg, agent)
 
     def policy_step(
-        self, units: dict[str, torch.Tensor], episode_cost: float, episode_length: float
+        self,
+        units: dict[str, torch.Tensor],
+        episode_cost: float,
+        episode_length: float,
+        estimate: EpisodeCost | None = None,
     ) -> dict[str, float]:
         cfg, params = self.cfg, self.policy_params
         surrogates, surr_values, g, b, fvp = self.linearise(units, units[keys.ADVANTAGE])

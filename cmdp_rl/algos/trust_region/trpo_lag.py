@@ -14,7 +14,8 @@ from typing import ClassVar, Optional, Sequence
 import torch
 
 from cmdp_rl.algos.base import check_finite, per_constraint
-from cmdp_rl.algos.multiplier import AdvantageScale, MultiplierConfig, Multipliers
+from cmdp_rl.algos.multiplier import EpisodeCost, Multipliers
+from cmdp_rl.algos.multiplier_options import AdvantageScale, DualOptions, MultiplierConfig
 from cmdp_rl.algos.ppo_lag import lagrangian_advantage
 from cmdp_rl.algos.trust_region.cpo import CPOConfig
 from cmdp_rl.algos.trust_region.natural_gradient import (
@@ -34,7 +35,7 @@ class TRPOLagConfig(CPOConfig):
     """CPO's trust region and line search, ppo_lag's multiplier (``regularized`` regularises the dual only)."""
 
     name: str = "trpo_lag"
-    multiplier: MultiplierConfig = field(default_factory=MultiplierConfig)
+    multiplier: MultiplierConfig = field(default_factory=DualOptions)
     advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
     # lambda reads J_c from the episodes' raw cost sums; the policy advantage may be scaled.
     reads_raw_cost: ClassVar[bool] = False
@@ -53,11 +54,16 @@ class TRPOLagrangian(NaturalGradient):
         self.multiplier = Multipliers(cfg.multiplier.build, limits)
 
     def policy_step(
-        self, units: dict[str, torch.Tensor], episode_cost: float | Sequence[float], episode_length: float
+        self,
+        units: dict[str, torch.Tensor],
+        episode_cost: float | Sequence[float],
+        episode_length: float,
+        estimate: EpisodeCost | None = None,
     ) -> dict[str, float]:
-        """``episode_cost``: J_c, or K numbers with K constraints."""
+        """``episode_cost``: J_c, or K numbers with K constraints; ``estimate``: the measurement they come from."""
         cfg, params = self.cfg, self.policy_params
-        lams = self.multiplier.update([episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost)
+        costs = [episode_cost] if isinstance(episode_cost, (int, float)) else episode_cost
+        lams = self.multiplier.update(estimate if estimate is not None else costs)
         # The cost surrogate is logged only (with K > 1: the mean over the constraints').
         adv = lagrangian_advantage(units, lams, cfg.advantage_scale)
         surrogates, surr_values, g, _, fvp = self.linearise(units, adv, cost_gradient=False)
