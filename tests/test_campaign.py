@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from lab.bench import campaign_report
-from lab.bench.campaign import CampaignError, load_campaign, pending, read_sessions, record_path
+from lab.bench.campaign import CampaignError, import_run, load_campaign, pending, read_sessions, record_path
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNNER = ROOT / "experiments" / "benchmarks" / "campaign.py"
@@ -145,3 +145,19 @@ def test_a_record_made_with_other_options_than_todays_defaults_is_marked_stale(k
 def test_a_bad_campaign_file_is_refused_in_one_line_naming_the_field(tmp_path, change, message):
     with pytest.raises(CampaignError, match=message):
         load_campaign(write_campaign(tmp_path, **change))
+
+
+def test_a_run_made_elsewhere_is_recorded_from_its_files(killed_and_finished, tmp_path):
+    campaign, _ = killed_and_finished
+    made = campaign.work / "tiny" / campaign.runs[2].id
+    copied = tmp_path / "from_the_device"
+    copied.mkdir()
+    for f in ("config.yaml", "metrics.csv", "eval.json"):  # what lab/bench/gpu_figures.py item 6 brings back
+        (copied / f).write_bytes((made / f).read_bytes())
+    other = load_campaign(write_campaign(tmp_path, name="elsewhere", results=str(tmp_path / "records")))
+    path = import_run(other, copied, TINY, echo=lambda line: None)
+    record = json.loads(path.read_text())
+    original = json.loads(record_path(campaign, campaign.runs[2]).read_text())
+    assert path.name == f"{campaign.runs[2].id}.json"  # the same run: same spec, same options
+    assert record["curve"] == original["curve"] and record["evaluation"] == original["evaluation"]
+    assert record["time"]["sessions"] == [] and record["time"]["train_time_s"] > 0

@@ -446,6 +446,24 @@ def _peer_body(campaign: Campaign, run: RunSpec, run_dir: Path) -> dict[str, Any
     }
 
 
+def import_run(campaign: Campaign, run_dir: Path, options: Sequence[str], echo: Any = print) -> Path:
+    """A record for a run made elsewhere (a lent GPU's: lab/bench/gpu_figures.py item 6 keeps its config.yaml,
+    metrics.csv and eval.json): its spec read from the config, ``options`` the overrides it ran with beyond
+    algorithm, env, task, seed and steps. Its time is the run's training time; no session or load was recorded."""
+    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    env = config["env"]
+    run = RunSpec(
+        config["algo"]["name"], env["name"], env.get("task", ""), config["seed"], config["total_steps"], tuple(options)
+    )
+    record = make_record(campaign, run, run_dir)
+    record["time"]["train_time_s"] = record.get("train_time_s")
+    path = record_path(campaign, run)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+    echo(f"{run.id}: record {path} (imported from {run_dir}, trained on {record['machine']['device']})")
+    return path
+
+
 # --- the command line ------------------------------------------------------------------------------
 
 USAGE = """A benchmark campaign: a resumable queue of runs and the records they leave (docs/benchmarks.md).
@@ -453,6 +471,8 @@ USAGE = """A benchmark campaign: a resumable queue of runs and the records they 
     python experiments/benchmarks/campaign.py experiments/benchmarks/campaigns/safety_gym_2m.yaml --jobs 1
     python experiments/benchmarks/campaign.py CAMPAIGN --list          # each run: recorded, resumable or new
     python experiments/benchmarks/campaign.py CAMPAIGN --report        # docs/benchmarks.md's tables from records
+    python experiments/benchmarks/campaign.py CAMPAIGN --import-run DIR --options +experiment=safe_nav_gpu
+                                                                     # a record of a run made on a lent GPU
 """
 
 
@@ -479,6 +499,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--nice", type=int, default=10, help="niceness of the runs (default 10; 0: none)")
     parser.add_argument("--list", action="store_true", help="list the runs and their state, run nothing")
     parser.add_argument("--report", action="store_true", help="write the report from the records, run nothing")
+    parser.add_argument("--import-run", type=Path, help="record a run made elsewhere (its config.yaml, metrics, eval)")
+    parser.add_argument("--options", nargs="*", default=[], help="with --import-run: the overrides it ran with")
     args = parser.parse_args(argv)
     try:
         campaigns = [load_campaign(p) for p in args.campaign]
@@ -488,6 +510,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.list:
         for c in campaigns:
             print(f"{c.name}:", *status_lines(c), sep="\n")
+        return 0
+    if args.import_run:
+        import_run(campaigns[0], args.import_run, args.options)
         return 0
     if args.report:
         from lab.bench.campaign_report import write_report

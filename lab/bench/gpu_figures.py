@@ -25,7 +25,10 @@ measures, in the issue's order, each item written as JSON under ``--out`` as soo
    N = 4,096, over a measured 1e6 steps, and the time to 1e7 extrapolated from it;
 4. ``item4_population.json``: the Reach1D population benchmark's together side at P = 64 and 256;
 5. ``item5_learning.json``: PointGoal1 ppo_lag for 2M steps on the device, one seed: eval return
-   and cost (the same config on the CPU: docs/safe_nav.md).
+   and cost (the same config on the CPU: docs/safe_nav.md);
+6. ``item6_many_worlds.json`` (``--items 6``, issue 53): the many-worlds preset for what the budget allows of
+   1e8 steps, its run's files kept under ``item6_run/`` for a campaign record
+   (``experiments/benchmarks/campaign.py --import-run``).
 
 ``env.json`` records the machine, the versions, the install and the kernels' compile time (Warp's
 kernel cache is warmed before any timing). Each item has a share of ``--budget-s``; an item that
@@ -602,8 +605,7 @@ def populations(device: str, tiny: bool, results: Results) -> dict:
 def learning(device: str, tiny: bool, left: float, results: Results) -> dict:
     """Item 5: PointGoal1 ppo_lag, one seed, 2M steps (256 envs x 250 steps per iteration, 32
     iterations), evaluated on 10 stochastic episodes; ``python -m cmdp_rl`` in a child
-    process, stopped at ``left`` s. Its metrics.csv is read every 10 s and the item's JSON
-    rewritten, so that a run cut short (here or by the call's limit) leaves its curve so far."""
+    process, stopped at ``left`` s (:func:`child_run`)."""
     n, rollout, total, episodes = (4, 16, 128, 1) if tiny else (256, 250, 2_000_000, 10)
     overrides = [
         "env=safe_nav",
@@ -619,6 +621,26 @@ def learning(device: str, tiny: bool, left: float, results: Results) -> dict:
         "eval_deterministic=false",
         "log_interval=4",
     ]
+    return child_run("item5_learning", overrides, left, results)
+
+
+def many_worlds(device: str, tiny: bool, left: float, results: Results, out: Path) -> dict:
+    """Item 6 (issue 53): the many-worlds preset (configs/experiment/safe_nav_gpu.yaml) on PointGoal1, one seed,
+    for as many of its 1e8 steps as ``left`` s allow at the measured speed (the run's own step budget, so it ends
+    with its deployment and evaluation); the run directory's config.yaml, metrics.csv and eval.json are copied
+    under ``out/item6_run`` for the campaign's record (lab/bench/campaign.py)."""
+    sps = 2_000 if tiny else 200_000  # item 3's steady rate on an H200, at a guess where it did not run
+    steps = max(1, int((left - 120) * sps)) if not tiny else 8192  # start-up, evaluation and checkpoints: 120 s
+    overrides = ["+experiment=safe_nav_gpu", f"device={device}", f"total_steps={min(steps, 100_000_000)}", "seed=0"]
+    if tiny:
+        overrides += ["env.num_envs=8", "eval_episodes=2", "env.max_steps=64"]
+    return child_run("item6_many_worlds", overrides, left, results, keep=out / "item6_run")
+
+
+def child_run(name: str, overrides: list[str], left: float, results: Results, keep: Path | None = None) -> dict:
+    """``python -m cmdp_rl <overrides>`` in a child process, stopped at ``left`` s. Its metrics.csv is read every
+    10 s and the item's JSON rewritten, so that a run cut short (here or by the call's limit) leaves its curve so
+    far; ``keep``: a folder the run's config, metrics and evaluation are copied into."""
     out: dict = {"overrides": overrides, "status": "running"}
     with tempfile.TemporaryDirectory() as d:
         run_dir = Path(d) / "run"
@@ -637,7 +659,7 @@ def learning(device: str, tiny: bool, left: float, results: Results) -> dict:
         while child.poll() is None and time.perf_counter() - t0 < left:
             time.sleep(min(10.0, max(0.1, left - (time.perf_counter() - t0))))
             read()
-            results.write("item5_learning", out, quiet=True)
+            results.write(name, out, quiet=True)
         if child.poll() is None:
             child.kill()
             child.wait()
@@ -645,6 +667,11 @@ def learning(device: str, tiny: bool, left: float, results: Results) -> dict:
         else:
             out["status"] = "finished" if child.returncode == 0 else f"failed, exit {child.returncode}"
         read()
+        if keep is not None:
+            keep.mkdir(parents=True, exist_ok=True)
+            for f in ("config.yaml", "metrics.csv", "eval.json"):
+                if (run_dir / f).exists():
+                    shutil.copy(run_dir / f, keep / f)
     return out
 
 
@@ -687,7 +714,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--device", default="cuda", choices=["cpu", "cuda"])
     p.add_argument("--budget-s", type=float, default=400.0, help="wall seconds for everything after the install")
     p.add_argument("--tiny", action="store_true", help="every item shrunk (a rehearsal on Warp's CPU device)")
-    p.add_argument("--items", default="1,2,3,4,5", help="which items to run")
+    p.add_argument("--items", default="1,2,3,4,5", help="which items to run (6: the many-worlds preset, issue 53)")
     args = p.parse_args(argv)
     if args.stage:
         report = stage(args.stage, args.wheel_cache)
@@ -769,5 +796,9 @@ def main(argv: list[str] | None = None) -> int:
             results.write("item5_learning", {"skipped": f"{left:.0f} s left of the budget"})
         else:
             run_item(results, "item5_learning", learning, args.device, args.tiny, left, results)
+    if 6 in items and not warp_problem:
+        run_item(
+            results, "item6_many_worlds", many_worlds, args.device, args.tiny, budget.left() - 5, results, args.out
+        )
     say(f"done in {budget.elapsed():.0f} s of the {args.budget_s:.0f} s budget")
     return 0
