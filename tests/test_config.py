@@ -42,7 +42,7 @@ BAD = [
     ({"algo": {"name": "ppo_lag", "multiplier": {"init": -1.0}}}, "algo.multiplier.init"),
     ({"algo": {"name": "ppo_lag", "multiplier": {"lr": 0.0}}}, "algo.multiplier.lr"),
     ({"algo": {"name": "ppo_lag", "multiplier": {"kind": "adam"}}}, "algo.multiplier.kind"),
-    ({"algo": {"name": "ppo_lag", "multiplier": {"scale": "cost"}}}, "algo.multiplier.scale"),
+    ({"algo": {"name": "ppo_lag", "multiplier": {"kind": "dual", "scale": "cost"}}}, "algo.multiplier.scale"),
     (
         {"algo": {"name": "ppo_lag", "multiplier": {"kind": "regularized", "lr": 0.5, "tau": 2.0}}},
         "algo.multiplier.tau",
@@ -150,9 +150,9 @@ def test_auto_keeps_given_numbers_and_rejects_other_words():
 @pytest.mark.parametrize(
     "overrides, fields",
     [
-        (["algo=ppo_lag"], {"kind", "lr", "init", "scale", "max"}),
+        (["algo=ppo_lag"], {"kind", "lr", "init", "floor", "max"}),
+        (["algo=ppo_lag", "algo/multiplier=dual"], {"kind", "lr", "init", "scale", "max"}),
         (["algo=pid_lag"], {"kind", "kp", "ki", "kd", "p_ema_alpha", "d_ema_alpha", "d_delay", "init", "scale", "max"}),
-        (["algo=ppo_lag", "algo/multiplier=log"], {"kind", "lr", "init", "floor", "max"}),
         (["algo=trpo_lag", "algo/multiplier=regularized"], {"kind", "lr", "tau", "init", "scale", "max"}),
     ],
 )

@@ -51,6 +51,10 @@ CASES = {
     ),
 }
 for case in CASES.values():
+    if (
+        case["algo"]["name"] == "ppo_lag"
+    ):  # the policy advantage these were recorded with (ppo_lag's default until 2026-12-07)
+        case["algo"]["advantage_scale"] = "raw"
     case["algo"] = {
         k: v
         for k, v in case["algo"].items()

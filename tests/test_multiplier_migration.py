@@ -81,10 +81,10 @@ def test_an_old_pid_lag_run_evaluates_and_resumes_as_the_run_continued(tmp_path,
             },
             {"kind": "dual", "lr": 0.1, "max": 3.0},
         ),
-        # FOCOPS's and CUP's nu: the same node (FOCOPS's clamp is its max).
+        # FOCOPS's and CUP's nu: the same node (FOCOPS's clamp is its max), with the kind of its day.
         (
             {"name": "focops", "nu_init": 0.2, "nu_lr": 0.5, "nu_max": 3.0, "nu_scale": "none"},
-            {"init": 0.2, "lr": 0.5, "max": 3.0, "scale": "none"},
+            {"kind": "dual", "init": 0.2, "lr": 0.5, "max": 3.0, "scale": "none"},
         ),
         # pid_lag without any multiplier option still is PID.
         ({"name": "pid_lag"}, {"kind": "pid"}),
@@ -108,7 +108,8 @@ def test_flat_options_move_into_the_node(old, node):
 def test_a_config_from_before_mixture_weights_ran_with_the_raw_violation():
     """Such a config ran with lambda_scale none (the default of its day); it lands in the node."""
     cfg = load_config(saved_config_defaults({"algo": {"name": "ppo_lag", "lambda_lr": 0.2}}))
-    assert (cfg.algo.multiplier.scale, cfg.algo.multiplier.lr) == ("none", 0.2)
+    assert (cfg.algo.multiplier.kind, cfg.algo.multiplier.scale, cfg.algo.multiplier.lr) == ("dual", "none", 0.2)
+    assert cfg.algo.advantage_scale == "raw"  # the only scale of its day (ppo_lag's default is standardized now)
     assert load_config(saved_config_defaults({"algo": {"name": "focops"}})).algo.multiplier.scale == "none"
 
 
@@ -126,8 +127,8 @@ def test_a_moved_config_keeps_its_node_values_over_flat_defaults():
     (the stacked layout's resume): the flat default lands in the node without replacing its values."""
     moved = saved_config_nodes({"algo": {"name": "ppo_lag", "lambda_lr": 0.5}})
     cfg = load_config(saved_config_defaults(moved))
-    assert (cfg.algo.multiplier.lr, cfg.algo.multiplier.scale) == (0.5, "none")
-    given = saved_config_defaults({"algo": {"name": "ppo_lag", "multiplier": {"scale": "budget"}}})
+    assert (cfg.algo.multiplier.kind, cfg.algo.multiplier.lr, cfg.algo.multiplier.scale) == ("dual", 0.5, "none")
+    given = saved_config_defaults({"algo": {"name": "ppo_lag", "multiplier": {"kind": "dual", "scale": "budget"}}})
     assert load_config(given).algo.multiplier.scale == "budget"
 
 

@@ -258,6 +258,7 @@ def test_a_format_3_population_resumes_into_an_uninterrupted_population(tmp_path
     train(resume_population(pop, {"total_steps": 256}, ["total_steps"]), pop, echo=lambda _: None)
     # its config names the deployment and multiplier options flat, as before their nodes: as its resume reads it
     raw = deploy_node(saved_config_nodes(yaml.safe_load((FORMAT3 / "population" / "population.yaml").read_text())))
+    raw["algo"]["advantage_scale"] = "raw"  # as its agents recorded (ppo_lag's default became standardized since)
     whole = tmp_path / "whole"
     train(population({**raw, "total_steps": 256}), whole, echo=lambda _: None)
     for a, b in zip(sorted((whole / "agents").iterdir()), sorted((pop / "agents").iterdir())):

@@ -40,7 +40,7 @@ class LogDualOptions:
     lr: PositiveFloat = 2.0  # log lambda's step per window of 100 episodes at a violation of d (J_c = 2d)
     init: PositiveFloat = 0.01  # lambda at the start, in [floor, max]
     floor: PositiveFloat = 0.01  # the least lambda: a slack constraint's
-    max: Maximum = 100.0  # the greatest lambda
+    max: Maximum = math.inf  # the greatest lambda
 
     def build(self, cost_limit: float) -> MultiplierController:
         return LogDual(cost_limit, self.lr, self.init, self.floor, self.max, _scale("budget", cost_limit))

@@ -18,7 +18,7 @@ from tensordict import TensorDictBase
 
 from cmdp_rl.algos.base import PerConstraint, per_constraint
 from cmdp_rl.algos.multiplier import EpisodeCost, EpisodeCostEstimate, Multipliers, logged_multiplier
-from cmdp_rl.algos.multiplier_options import AdvantageScale, DualOptions, MultiplierConfig, PIDOptions
+from cmdp_rl.algos.multiplier_options import AdvantageScale, LogDualOptions, MultiplierConfig, PIDOptions
 from cmdp_rl.algos.ppo import PPO, PPOConfig
 from cmdp_rl.config.registry import register
 from cmdp_rl.config.validation import options
@@ -68,8 +68,8 @@ class PPOLagConfig(PPOConfig):
 
     name: str = "ppo_lag"
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
-    multiplier: MultiplierConfig = field(default_factory=DualOptions)
-    advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
+    multiplier: MultiplierConfig = field(default_factory=LogDualOptions)
+    advantage_scale: AdvantageScale = "standardized"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
 
 
 @options
@@ -78,6 +78,7 @@ class PIDLagConfig(PPOLagConfig):
 
     name: str = "pid_lag"
     multiplier: MultiplierConfig = field(default_factory=PIDOptions)
+    advantage_scale: AdvantageScale = "raw"  # its gains were set on raw advantages (not yet measured on both)
 
 
 class PenaltyPPO(PPO):

@@ -10,7 +10,7 @@ from cmdp_rl.config.run_config import ConfigError
 from cmdp_rl.config.saved import CHECKPOINT, POPULATION_CHECKPOINT, POPULATION_CONFIG, deploy_node, read_yaml
 from cmdp_rl.population.spec import Population, population
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
-from cmdp_rl.run.migrations import member, migrate, saved_config_defaults, saved_config_nodes
+from cmdp_rl.run.migrations import member, migrate, recorded_defaults, saved_config_defaults, saved_config_nodes
 from cmdp_rl.run.resume import check_resume_config, resumed_raw
 
 
@@ -36,6 +36,8 @@ def resume_population(
     # (saved_config_defaults); a population.yaml names only what its author gave, so any other has
     # only its flat multiplier and deployment options moved into their nodes.
     saved_raw = saved_config_defaults(saved_raw) if stacked else deploy_node(saved_config_nodes(saved_raw))
+    if state is not None and not stacked and "members" in state:  # defaults changed since: as its members ran
+        saved_raw = recorded_defaults(saved_raw, member(state)["config"])
     deploy = saved_raw.setdefault("deploy", {})
     if state is not None and deploy.get("policy", "auto") == "auto":  # as its agents resolved it (the
         # last iterate, before populations deployed what a run deploys)

@@ -280,7 +280,9 @@ def multiplier_node(algo: dict[str, Any]) -> dict[str, Any]:
         return algo
     kindless_pid = name == "pid_lag" and not isinstance(algo.get("multiplier"), dict)
     if flat_keys(algo, _FLAT_MULTIPLIER, "multiplier") or kindless_pid:
-        algo = into_node(algo, _FLAT_MULTIPLIER, "multiplier", **({"kind": "pid"} if name == "pid_lag" else {}))
+        # Flat options ran with the kind of their day where they name none: pid_lag's PID, the others' dual ascent.
+        day = {} if isinstance(algo.get("multiplier"), str) else {"kind": "pid" if name == "pid_lag" else "dual"}
+        algo = into_node(algo, _FLAT_MULTIPLIER, "multiplier", **day)
     return {**algo, "multiplier": _own_fields(algo["multiplier"])} if isinstance(algo.get("multiplier"), dict) else algo
 
 
@@ -314,6 +316,7 @@ def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
 def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
     """A saved run config with the defaults it ran with made explicit (a run config written since ``mixture_weights``
     existed records every option), in the current layout (:func:`saved_config_nodes`, :func:`deploy_node`)."""
+    config = _advantage_scale_of_its_day(config)
     if "mixture_weights" not in config and "deploy" not in config:
         config = {**_RUN_DEFAULTS_BEFORE_MIXTURE_WEIGHTS, **config}
         algo = dict(config.get("algo") or {})
@@ -322,3 +325,34 @@ def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
             algo.setdefault("nu_scale" if name in ("focops", "cup") else "lambda_scale", "none")
         config["algo"] = algo
     return deploy_node(saved_config_nodes(config))
+
+
+def _advantage_scale_of_its_day(config: dict[str, Any]) -> dict[str, Any]:
+    """A saved run config that names no ``advantage_scale`` for an algorithm that has one ran before the option
+    existed, on raw advantages (ppo_lag's default became standardized later; a saved config records every option)."""
+    import dataclasses
+
+    from cmdp_rl.config.registry import component
+    from cmdp_rl.config.validation import ConfigError
+
+    algo = config.get("algo")
+    if not isinstance(algo, dict) or "advantage_scale" in algo:
+        return config
+    try:
+        fields = {f.name for f in dataclasses.fields(component("algo", algo.get("name", "ppo_lag")).options)}
+    except ConfigError:  # an unknown algorithm: the config's check names it
+        return config
+    return {**config, "algo": {**algo, "advantage_scale": "raw"}} if "advantage_scale" in fields else config
+
+
+def recorded_defaults(author: dict[str, Any], recorded: dict[str, Any]) -> dict[str, Any]:
+    """An author's config (a population.yaml names only what its author gave) with the options whose default has
+    changed since taken, where it names none, from the config a member recorded: what the run was trained with."""
+    algo = dict(author.get("algo") or {})
+    ran = saved_config_defaults(recorded).get("algo") or {}
+    if "advantage_scale" in ran:
+        algo.setdefault("advantage_scale", ran["advantage_scale"])
+    node, ran_node = algo.get("multiplier"), ran.get("multiplier")
+    if isinstance(ran_node, dict) and "kind" in ran_node and isinstance(node, (dict, type(None))):
+        algo["multiplier"] = {"kind": ran_node["kind"], **(node or {})}
+    return {**author, "algo": algo}

@@ -140,8 +140,9 @@ def two_cost_cfg(**overrides) -> dict:
             cfg[k] = {**cfg[k], **v}
         else:
             cfg[k] = v
-    if cfg["algo"]["name"] in ("ppo_lag", "trpo_lag"):
-        cfg["algo"]["multiplier"] = {"lr": 0.5, **cfg["algo"].get("multiplier", {})}
+    if cfg["algo"]["name"] in ("ppo_lag", "trpo_lag"):  # pinned, as helpers.runs' TINY: the dual ascent these checks
+        cfg["algo"]["multiplier"] = {"kind": "dual", "lr": 0.5, **cfg["algo"].get("multiplier", {})}  # compute by hand
+        cfg["algo"].setdefault("advantage_scale", "raw")
     return cfg
 
 

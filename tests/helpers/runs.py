@@ -49,8 +49,13 @@ def cli_args(cfg: dict) -> list[str]:
             for kk, vv in v.items():
                 if k == "algo" and kk == "name":
                     out.insert(0, f"algo={vv}")
-                elif isinstance(vv, dict):
-                    out += [f"{k}.{kk}.{f}={json.dumps(x) if not isinstance(x, str) else x}" for f, x in vv.items()]
+                elif isinstance(vv, dict):  # a node; its kind (the multiplier's) is a group choice
+                    out += [f"{k}/{kk}={vv['kind']}"] if "kind" in vv else []
+                    out += [
+                        f"{k}.{kk}.{f}={json.dumps(x) if not isinstance(x, str) else x}"
+                        for f, x in vv.items()
+                        if f != "kind"
+                    ]
                 else:
                     out.append(f"{k}.{kk}={json.dumps(vv)}")
         else:
