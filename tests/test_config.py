@@ -150,7 +150,7 @@ def test_auto_keeps_given_numbers_and_rejects_other_words():
 @pytest.mark.parametrize(
     "overrides, fields",
     [
-        (["algo=ppo_lag"], {"kind", "lr", "init", "floor", "max"}),
+        (["algo=ppo_lag"], {"kind", "lr", "init", "max"}),
         (["algo=ppo_lag", "algo/multiplier=dual"], {"kind", "lr", "init", "scale", "max"}),
         (["algo=pid_lag"], {"kind", "kp", "ki", "kd", "p_ema_alpha", "d_ema_alpha", "d_delay", "init", "scale", "max"}),
         (["algo=trpo_lag", "algo/multiplier=regularized"], {"kind", "lr", "tau", "init", "scale", "max"}),
@@ -159,3 +159,18 @@ def test_auto_keeps_given_numbers_and_rejects_other_words():
 def test_the_multiplier_node_holds_only_its_kinds_options(overrides, fields):
     cfg = compose_config(overrides)
     assert {f.name for f in dataclasses.fields(cfg.algo.multiplier)} == fields
+
+
+def _leaves(node) -> list[str]:
+    out = []
+    for f in dataclasses.fields(node):
+        value = getattr(node, f.name)
+        out += [f"{f.name}.{x}" for x in _leaves(value)] if dataclasses.is_dataclass(value) else [f.name]
+    return out
+
+
+def test_ppo_lag_shows_at_most_20_options():
+    """What --cfg job lists under algo (issue 52): the options that act, the chosen multiplier kind's only (pid_lag
+    shows PID's gains instead of the step: test_the_multiplier_node_holds_only_its_kinds_options)."""
+    options = [x for x in _leaves(compose_config(["algo=ppo_lag"]).algo) if x != "name"]
+    assert len(options) <= 20, options

@@ -302,7 +302,10 @@ def test_ppo_lagrangian_avoids_the_costly_action(tmp_path, quiet):
             "update_epochs": 2,
             "num_minibatches": 2,
             "cost_limit": 0.5,
-            "multiplier": {"lr": 0.5},
+            "multiplier": {
+                "kind": "dual",
+                "lr": 0.5,
+            },  # the step this check was set with (the log dual from 0.01 needs more episodes than 2048 steps give)
         },
         "rollout_steps": 32,
         "total_steps": 2048,

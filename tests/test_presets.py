@@ -45,7 +45,7 @@ def test_tuning_files_reach_only_their_own_pair():
     lstm = compose_config(["env=reach1d_torch", "policy=lstm"])  # the MLP's tuning stays with the MLP
     assert lstm.policy.init_log_std == -0.5
     gym = compose_config(["env=reach1d"])  # the gym env has no tuning files: the groups' own defaults
-    assert (gym.algo.lr, gym.algo.multiplier.init, gym.policy.hidden_sizes) == (3e-4, 0.0, [64, 64])
+    assert (gym.algo.lr, gym.algo.multiplier.init, gym.policy.hidden_sizes) == (3e-4, 0.01, [64, 64])
 
 
 def test_the_grid_preset_evaluates_the_stochastic_policy_and_every_algorithm_gets_its_budgets():
@@ -59,8 +59,8 @@ def test_the_grid_preset_evaluates_the_stochastic_policy_and_every_algorithm_get
 
 
 def test_the_command_line_wins_over_tuning():
-    cfg = compose_config(["env=reach1d_torch", "algo.lr=5e-4", "algo.multiplier.init=0", "policy.hidden_sizes=[16]"])
-    assert (cfg.algo.lr, cfg.algo.multiplier.init, cfg.policy.hidden_sizes) == (5e-4, 0.0, [16])
+    cfg = compose_config(["env=reach1d_torch", "algo.lr=5e-4", "algo.multiplier.init=0.05", "policy.hidden_sizes=[16]"])
+    assert (cfg.algo.lr, cfg.algo.multiplier.init, cfg.policy.hidden_sizes) == (5e-4, 0.05, [16])
 
 
 @pytest.mark.slow  # a learning run (pyproject: markers)

@@ -174,13 +174,15 @@ class LogDual(MultiplierController):
       CQL's Adam on ``log alpha`` (Kumar et al. 2020); an additive step needs a summed violation of lambda* / lr.
     - ``g`` clipped to [-1, 1] bounds each step whatever the violation's size (OmniSafe's Adam on lambda moves it
       by about its learning rate per step; docs/constraint_satisfaction.md).
-    - ``floor`` stands for 0: a slack constraint's lambda decays to it; ``max`` bounds a runaway where the policy
+    - ``floor`` stands for 0: a slack constraint's lambda decays to it (:attr:`FLOOR`, not an option: on
+      standardised advantages 0.01 prices cost at a hundredth of reward, as good as none); ``max`` bounds a runaway where the policy
       cannot meet the budget (with standardised advantages lambda = 100 already prices cost 100 times reward), so
       that lambda comes back down in a few windows once it can.
     """
 
     per_episode = True
     state = ("log_value",)
+    FLOOR = 0.01
 
     def __init__(self, cost_limit: float, lr: float, init: float, floor: float, maximum: float, scale: float) -> None:
         if not 0 < floor <= init <= maximum:

@@ -38,15 +38,16 @@ class LogDualOptions:
 
     kind: Literal["log"] = "log"
     lr: PositiveFloat = 2.0  # log lambda's step per window of 100 episodes at a violation of d (J_c = 2d)
-    init: PositiveFloat = 0.01  # lambda at the start, in [floor, max]
-    floor: PositiveFloat = 0.01  # the least lambda: a slack constraint's
+    init: PositiveFloat = 0.01  # lambda at the start, in [LogDual.FLOOR (0.01), max]
     max: Maximum = math.inf  # the greatest lambda
 
     def build(self, cost_limit: float) -> MultiplierController:
-        return LogDual(cost_limit, self.lr, self.init, self.floor, self.max, _scale("budget", cost_limit))
+        return LogDual(cost_limit, self.lr, self.init, LogDual.FLOOR, self.max, _scale("budget", cost_limit))
 
     def check(self, prefix: str = "algo.multiplier") -> None:
-        require(self.floor <= self.init <= self.max, f"{prefix}.init", f"in [{prefix}.floor, {prefix}.max]", self.init)
+        require(
+            LogDual.FLOOR <= self.init <= self.max, f"{prefix}.init", f"in [{LogDual.FLOOR}, {prefix}.max]", self.init
+        )
 
 
 @options
