@@ -8,7 +8,17 @@ import math
 import pytest
 
 from cmdp_rl.envs.suite.model import generate, solve
-from lab.studies.cmdp_suite import NEAR, SLACK, SuiteRun, parse_ids, run_one, split_of, step_budget, table
+from lab.studies.cmdp_suite import (
+    NEAR,
+    SLACK,
+    SuiteRun,
+    parse_ids,
+    run_one,
+    run_population,
+    split_of,
+    step_budget,
+    table,
+)
 
 
 def judged(ret: float, costs: list[float], instance: int = 0, algo: str = "ppo_lag", seed: int = 0) -> SuiteRun:
@@ -66,3 +76,11 @@ def test_a_refusal_is_recorded_once_and_read_back(tmp_path):
     assert first.refused is not None and "one constraint" in first.refused
     assert (tmp_path / "run" / "refused.txt").read_text().strip() == first.refused
     assert run_one(0, "cpo", 0, tmp_path / "run").refused == first.refused
+
+
+def test_seeds_as_one_population_are_judged_each_on_its_own(tmp_path):
+    """--population: one population job for an instance's seeds, each seed judged on its own agent's run."""
+    runs = run_population(1, "ppo_lag", [0, 1], tmp_path / "pop", episodes=1, min_steps=4096)
+    assert [r.seed for r in runs] == [0, 1] and all(r.refused is None and r.steps == 4096 for r in runs)
+    assert all(r.optimum == pytest.approx(solve(generate(1)).ret) and len(r.costs) == 1 for r in runs)
+    assert runs[0].ret != runs[1].ret  # two seeds, two policies

@@ -205,7 +205,7 @@ def run_population(
     from cmdp_rl import train
     from cmdp_rl.config.run_config import CONFIG_DIR, ConfigError
     from cmdp_rl.population.spec import population
-    from cmdp_rl.run.trainer import agent_dir_name
+    from cmdp_rl.population.training import agent_dir_name
 
     model = generate(instance)
     steps = step_budget(model.horizon, episodes, min_steps)
