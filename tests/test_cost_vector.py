@@ -343,7 +343,8 @@ def test_trpo_lag_on_two_costs_moves_each_multiplier_on_its_own_constraint(tmp_p
         "name": "trpo_lag",
         "critic_minibatches": 2,
         "cost_limit": [0.5, 1.0],
-        "multiplier": {"lr": 0.5, "scale": "none"},
+        "multiplier": {"kind": "dual", "lr": 0.5, "scale": "none"},  # the dual ascent computed by hand below
+        "advantage_scale": "raw",
     }
     result = train(load_config(cfg), out, echo=quiet)
     rows = read_rows(out / "metrics.csv")

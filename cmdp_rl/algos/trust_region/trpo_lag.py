@@ -15,7 +15,7 @@ import torch
 
 from cmdp_rl.algos.base import check_finite, per_constraint
 from cmdp_rl.algos.multiplier import EpisodeCost, Multipliers
-from cmdp_rl.algos.multiplier_options import AdvantageScale, DualOptions, MultiplierConfig
+from cmdp_rl.algos.multiplier_options import AdvantageScale, LogDualOptions, MultiplierConfig
 from cmdp_rl.algos.ppo_lag import lagrangian_advantage
 from cmdp_rl.algos.trust_region.cpo import CPOConfig
 from cmdp_rl.algos.trust_region.natural_gradient import (
@@ -35,8 +35,8 @@ class TRPOLagConfig(CPOConfig):
     """CPO's trust region and line search, ppo_lag's multiplier (``regularized`` regularises the dual only)."""
 
     name: str = "trpo_lag"
-    multiplier: MultiplierConfig = field(default_factory=DualOptions)
-    advantage_scale: AdvantageScale = "raw"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
+    multiplier: MultiplierConfig = field(default_factory=LogDualOptions)
+    advantage_scale: AdvantageScale = "standardized"  # lambda weighs: raw: A_r and A_c; standardized: each standardised
     # lambda reads J_c from the episodes' raw cost sums; the policy advantage may be scaled.
     reads_raw_cost: ClassVar[bool] = False
     deploys: ClassVar[str] = "mixture"  # deploy.policy=auto (AlgoConfig.deploys)
