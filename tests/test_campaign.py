@@ -131,6 +131,13 @@ def test_a_record_made_with_other_options_than_todays_defaults_is_marked_stale(k
     cache: dict = {}
     assert campaign_report.stale_since(records[0], cache) == records[0]["date"]
     assert campaign_report.stale_since(records[1], cache) is None
+    records[1]["config"]["algo"]["multiplier"]["floor"] = 0.01  # an option removed since, at the value it always
+    assert campaign_report.stale_since(records[1], {}) is None  # had (the log dual's floor): not a change
+
+
+def test_a_run_two_campaigns_list_is_reported_once(killed_and_finished):
+    campaign, _ = killed_and_finished
+    assert campaign_report.read_records([campaign, campaign]) == campaign_report.read_records([campaign])
 
 
 @pytest.mark.parametrize(

@@ -30,11 +30,12 @@ PEER_NAMES = {"PPOLag": "ppo_lag", "CPO": "cpo", "PPO": "ppo", "CPPOPID": "pid_l
 
 def read_records(campaigns: Sequence[Campaign]) -> list[dict[str, Any]]:
     """Every record of the campaigns' runs that exists, in the campaigns' order."""
-    records = []
+    records, seen = [], set()
     for c in campaigns:
         for run in c.runs:
             path = c.results / f"{run.id}.json"
-            if path.is_file():
+            if path.is_file() and path.resolve() not in seen:  # two campaigns may list the same run: one record
+                seen.add(path.resolve())
                 records.append(json.loads(path.read_text()))
     return records
 
@@ -57,7 +58,10 @@ def stale_since(record: dict[str, Any], cache: dict[tuple, Any]) -> str | None:
     if key not in cache:
         cache[key] = today_config(record)
     now = cache[key]
-    then = _plain({k: record["config"].get(k) for k in now})
+    from cmdp_rl.run.migrations import saved_config_defaults
+
+    # The record's config as it reads today (an option since removed, with the value it always had, is not a change).
+    then = _plain({k: saved_config_defaults(record["config"]).get(k) for k in now})
     return None if then == now else record["date"]
 
 
