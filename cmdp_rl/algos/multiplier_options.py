@@ -28,6 +28,11 @@ EMA = Annotated[float, finite(ge=0, lt=1)]  # a weight kept on the past, in [0, 
 Maximum = Annotated[float, Field(gt=0, description="a positive number or .inf")]
 
 
+def _require_init_within_max(options, prefix: str) -> None:
+    """Every additive kind's start: lambda (or PID's integral) from ``init`` in [0, ``max``]."""
+    require(options.init <= options.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", options.init)
+
+
 def _scale(scale: str, cost_limit: float) -> float:
     return cost_limit if scale == "budget" and cost_limit > 0 else 1.0
 
@@ -66,7 +71,7 @@ class DualOptions:
         return controller
 
     def check(self, prefix: str = "algo.multiplier") -> None:
-        require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
+        _require_init_within_max(self, prefix)
 
 
 @options
@@ -93,7 +98,7 @@ class PIDOptions:
     def check(self, prefix: str = "algo.multiplier") -> None:
         gains = self.kp + self.ki + self.kd
         require(gains > 0, f"{prefix}.kp + {prefix}.ki + {prefix}.kd", "> 0 (some gain must act)", gains)
-        require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
+        _require_init_within_max(self, prefix)
 
 
 @options
@@ -115,7 +120,7 @@ class RegularizedOptions:
     def check(self, prefix: str = "algo.multiplier") -> None:
         allowed = f"< 1 / {prefix}.lr = {1.0 / self.lr:g} (the dual step keeps (1 - lr tau) lambda >= 0)"
         require(self.lr * self.tau < 1.0, f"{prefix}.tau", allowed, self.tau)
-        require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
+        _require_init_within_max(self, prefix)
 
 
 @options
@@ -135,7 +140,7 @@ class OptimisticOptions:
         return controller
 
     def check(self, prefix: str = "algo.multiplier") -> None:
-        require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
+        _require_init_within_max(self, prefix)
 
 
 @options
@@ -154,7 +159,7 @@ class AugmentedOptions:
         return controller
 
     def check(self, prefix: str = "algo.multiplier") -> None:
-        require(self.init <= self.max, f"{prefix}.init", f"a number in [0, {prefix}.max]", self.init)
+        _require_init_within_max(self, prefix)
 
 
 KINDS: dict[str, type] = {

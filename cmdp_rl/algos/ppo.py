@@ -207,7 +207,7 @@ class PPO:
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state["networks"])
         self.actor_opt.load_state_dict(state["actor_opt"])
-        self.critic_opt.load_state_dict(state["critic_opt"])  # (a checkpoint's J_c window, before issue 52: unread)
+        self.critic_opt.load_state_dict(state["critic_opt"])  # an older checkpoint's own J_c window is not read
         self.iteration = int(state["iteration"])
 
 
