@@ -58,6 +58,20 @@ def test_the_grid_preset_evaluates_the_stochastic_policy_and_every_algorithm_get
     assert compose_config(["env=grid", "env.slip=0.2"]).env.slip == 0.2
 
 
+@pytest.mark.parametrize("env", ["safe_nav", "safety_gym"])
+def test_the_navigation_family_declares_its_lagrangians_preset(env):
+    lag = compose_config([f"env={env}", "algo=ppo_lag"])  # the whole batch, the slower log dual, capped
+    assert (lag.algo.num_minibatches, lag.algo.update_epochs, lag.algo.advantage_scale) == (1, 10, "standardized")
+    assert (lag.algo.multiplier.kind, lag.algo.multiplier.lr, lag.algo.multiplier.init) == ("log", 0.5, 1.0)
+    assert lag.algo.multiplier.max == 5.0
+    pid = compose_config([f"env={env}", "algo=pid_lag"])  # the same batch and scale under PID's own gains
+    assert (pid.algo.num_minibatches, pid.algo.update_epochs, pid.algo.advantage_scale) == (1, 10, "standardized")
+    assert (pid.algo.multiplier.kind, pid.algo.multiplier.kp, pid.algo.multiplier.max) == ("pid", 2.0, 5.0)
+    assert compose_config(["env=suite", "algo=pid_lag"]).algo.advantage_scale == "raw"  # elsewhere: its defaults
+    trpo = compose_config([f"env={env}", "algo=trpo_lag"])  # no preset: its defaults
+    assert (trpo.algo.multiplier.lr, trpo.algo.multiplier.init) == (2.0, 0.01)
+
+
 def test_the_command_line_wins_over_tuning():
     cfg = compose_config(["env=reach1d_torch", "algo.lr=5e-4", "algo.multiplier.init=0.05", "policy.hidden_sizes=[16]"])
     assert (cfg.algo.lr, cfg.algo.multiplier.init, cfg.policy.hidden_sizes) == (5e-4, 0.05, [16])
