@@ -61,7 +61,8 @@ def stale_since(record: dict[str, Any], cache: dict[tuple, Any]) -> str | None:
     from cmdp_rl.run.migrations import saved_config_defaults
 
     # The record's config as it reads today (an option since removed, with the value it always had, is not a change).
-    then = _plain({k: saved_config_defaults(record["config"]).get(k) for k in now})
+    recorded = saved_config_defaults(record["config"])
+    then = _plain({k: recorded.get(k) for k in now})
     return None if then == now else record["date"]
 
 
