@@ -21,8 +21,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from cmdp_rl.deploy.final_policy import ENTRIES
-from cmdp_rl.deploy.mixture import IterateSnapshots, mixture_actor
+from cmdp_rl.deploy.mixture import mixture_actor
 from cmdp_rl.deploy.selection import MemberValue, feasible_weights
 
 SEED_OFFSET = 7_000_001  # neither a training seed, the run's valuation's (2,000,003) nor its evaluation's
@@ -33,18 +32,12 @@ def snapshot_episodes(run_dir: Path, episodes: int) -> tuple[list[np.ndarray], l
     """Each snapshot's episode returns and first costs over at least ``episodes`` fresh episodes, and the budget."""
     from cmdp_rl.envs import make_eval_env
     from cmdp_rl.rollout.collector import Collector, episode_rows
-    from cmdp_rl.run.checkpoint import load_checkpoint
-    from cmdp_rl.run.migrations import member, migrate
-    from cmdp_rl.run.rundir import checkpoint_path, load_trained
-    from lab.studies.fork_policy import members_of
+    from lab.studies.suite_deploy_rules import saved_snapshots
 
-    trained = load_trained(run_dir)
-    trained.env.close()
+    trained, kept, actors = saved_snapshots(run_dir)
+    if kept is None:
+        raise SystemExit(f"{run_dir}: the run did not deploy a mixture (deploy.policy={trained.cfg.deploy.policy})")
     cfg, agent = trained.cfg, trained.agent
-    state = load_checkpoint(checkpoint_path(run_dir, "evaluate"), algo=cfg.algo.name, policy=cfg.policy.name)
-    kept = IterateSnapshots(1, 1, 1)
-    kept.load_state_dict(member(migrate(state, agent))[ENTRIES["mixture"][0]])
-    actors = kept.actors(members_of(agent.actor)[0])
     m, env_cfg = len(actors), cfg.env.valuation_options()
     rows_each = max(1, env_cfg.num_envs // m)
     env = make_eval_env(env_cfg, num_envs=m * rows_each, device=cfg.device, algo=cfg.algo)

@@ -17,7 +17,7 @@ import copy
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import linprog
@@ -48,23 +48,33 @@ class Snapshots:
     fresh: list[MemberValue] = field(default_factory=list)
 
 
-def load_snapshots(run_dir: Path, revalue: int = 0) -> Snapshots | None:
-    """``run_dir``'s snapshots valued exactly (None where the run did not deploy a valued mixture)."""
+def saved_snapshots(run_dir: Path) -> tuple[Any, IterateSnapshots | None, list]:
+    """A finished run's ``load_trained`` (its config and agent, the deployed policy put in), its checkpoint's
+    snapshots of the actor and one actor per snapshot (None and none where the run did not deploy a mixture)."""
     from cmdp_rl.run.checkpoint import load_checkpoint
     from cmdp_rl.run.migrations import member, migrate
     from cmdp_rl.run.rundir import checkpoint_path, load_trained
     from lab.studies.fork_policy import members_of
-    from lab.studies.suite_valuation import action_table
 
-    trained = load_trained(run_dir)  # its config and agent (the last iterate's networks; the mixture put in)
+    trained = load_trained(run_dir)
     trained.env.close()
     cfg, agent = trained.cfg, trained.agent
-    if cfg.deploy.policy != "mixture" or cfg.deploy.weights != "feasible":
-        return None
+    if cfg.deploy.policy != "mixture":
+        return trained, None, []
     state = load_checkpoint(checkpoint_path(run_dir, "evaluate"), algo=cfg.algo.name, policy=cfg.policy.name)
     kept = IterateSnapshots(1, 1, 1)
     kept.load_state_dict(member(migrate(state, agent))[ENTRIES["mixture"][0]])
-    actors = kept.actors(members_of(agent.actor)[0])  # the members share one architecture
+    return trained, kept, kept.actors(members_of(agent.actor)[0])  # the members share one architecture
+
+
+def load_snapshots(run_dir: Path, revalue: int = 0) -> Snapshots | None:
+    """``run_dir``'s snapshots valued exactly (None where the run did not deploy a valued mixture)."""
+    from lab.studies.suite_valuation import action_table
+
+    trained, kept, actors = saved_snapshots(run_dir)
+    cfg, agent = trained.cfg, trained.agent
+    if kept is None or cfg.deploy.weights != "feasible":
+        return None
     cmdp, optimum = generate(cfg.env.instance), cfg.env.solve(cfg.algo.cost_limit)
     exact = evaluate(cmdp, np.stack([action_table(a, cmdp, cfg.eval_deterministic) for a in actors]))
     measured = [MemberValue(v["episode_return"], tuple(v["episode_cost"]), tuple(v["cost_se"]), v["episodes"])
