@@ -66,30 +66,33 @@ def feasible_weights(
     return [1.0 if i == best else 0.0 for i in range(m)], False
 
 
-def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: int) -> list[MemberValue]:
-    """Each of ``actors``' mean return and costs over at least ``cfg.deploy.episodes`` evaluation episodes
-    (seed + ``VALUATION_SEED_OFFSET``), all in one batch, each on its own env rows."""
+def member_episodes(actors: list[Actor], agent: Agent, cfg: RunConfig, episodes: int, seed: int) -> list[np.ndarray]:
+    """Each of ``actors``' rows (return, length, terminated, cost_0, ...) over at least ``episodes`` evaluation
+    episodes seeded with ``seed``, all in one batch, each actor on its own env rows."""
     m = len(actors)
     env_cfg = cfg.env.valuation_options()  # the same CMDP, batched where the env has a batched twin
     batched = getattr(env_cfg, "backend", None) == "torch"
-    rows_each = max(1, min(cfg.deploy.episodes, 64 if batched else env_cfg.num_envs // m))
-    quota = math.ceil(cfg.deploy.episodes / rows_each)
+    rows_each = max(1, min(episodes, 64 if batched else env_cfg.num_envs // m))
+    quota = math.ceil(episodes / rows_each)
     env = make_eval_env(env_cfg, num_envs=m * rows_each, device=cfg.device, algo=cfg.algo)
     own = agent.actor
     agent.actor = mixture_actor(actors, assigned=torch.arange(m * rows_each, device=env.device) % m)
     try:
         with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(cfg.seed + VALUATION_SEED_OFFSET)
-            collector = Collector(
-                env, agent, 128, seed=cfg.seed + VALUATION_SEED_OFFSET, deterministic=cfg.eval_deterministic
-            )
+            torch.manual_seed(seed)
+            collector = Collector(env, agent, 128, seed=seed, deterministic=cfg.eval_deterministic)
             rows = episode_rows(collector, [quota] * (m * rows_each))
     finally:
         agent.actor = own
         env.close()
+    return [np.array([row for r in rows[i::m] for row in r], dtype=float) for i in range(m)]
+
+
+def value_members(actors: list[Actor], agent: Agent, cfg: RunConfig, num_costs: int) -> list[MemberValue]:
+    """Each of ``actors``' mean return and costs over at least ``cfg.deploy.episodes`` evaluation episodes
+    (seed + ``VALUATION_SEED_OFFSET``, :func:`member_episodes`)."""
     values = []
-    for i in range(m):  # rows (return, length, terminated, cost_0, ...) of member i's env rows
-        mine = np.array([row for r in rows[i::m] for row in r], dtype=float)
+    for mine in member_episodes(actors, agent, cfg, cfg.deploy.episodes, cfg.seed + VALUATION_SEED_OFFSET):
         costs = mine[:, 3 : 3 + num_costs]
         se = costs.std(axis=0, ddof=1) / math.sqrt(len(mine)) if len(mine) > 1 else np.zeros(num_costs)
         ret, steps = float(mine[:, 0].mean()), int(mine[:, 1].sum())

@@ -19,10 +19,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import torch
 
-from cmdp_rl.deploy.mixture import mixture_actor
-from cmdp_rl.deploy.selection import MemberValue, feasible_weights
+from cmdp_rl.deploy.selection import MemberValue, feasible_weights, member_episodes
 
 SEED_OFFSET = 7_000_001  # neither a training seed, the run's valuation's (2,000,003) nor its evaluation's
 SPLITS = 200
@@ -30,24 +28,13 @@ SPLITS = 200
 
 def snapshot_episodes(run_dir: Path, episodes: int) -> tuple[list[np.ndarray], list[np.ndarray], float]:
     """Each snapshot's episode returns and first costs over at least ``episodes`` fresh episodes, and the budget."""
-    from cmdp_rl.envs import make_eval_env
-    from cmdp_rl.rollout.collector import Collector, episode_rows
     from lab.studies.suite_deploy_rules import saved_snapshots
 
     trained, kept, actors = saved_snapshots(run_dir)
     if kept is None:
         raise SystemExit(f"{run_dir}: the run did not deploy a mixture (deploy.policy={trained.cfg.deploy.policy})")
-    cfg, agent = trained.cfg, trained.agent
-    m, env_cfg = len(actors), cfg.env.valuation_options()
-    rows_each = max(1, env_cfg.num_envs // m)
-    env = make_eval_env(env_cfg, num_envs=m * rows_each, device=cfg.device, algo=cfg.algo)
-    agent.actor = mixture_actor(actors, assigned=torch.arange(m * rows_each) % m)
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(cfg.seed + SEED_OFFSET)
-        collector = Collector(env, agent, 128, seed=cfg.seed + SEED_OFFSET, deterministic=cfg.eval_deterministic)
-        rows = episode_rows(collector, [math.ceil(episodes / rows_each)] * (m * rows_each))
-    env.close()
-    mine = [np.array([row for r in rows[i::m] for row in r], dtype=float) for i in range(m)]  # return, length, ...
+    cfg = trained.cfg
+    mine = member_episodes(actors, trained.agent, cfg, episodes, cfg.seed + SEED_OFFSET)  # return, length, ...
     return [x[:, 0] for x in mine], [x[:, 3] for x in mine], float(np.atleast_1d(cfg.algo.cost_limit)[0])
 
 
