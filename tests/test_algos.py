@@ -8,7 +8,9 @@ import torch
 
 from cmdp_rl import Collector, TrainingDiverged, keys, load_config, make_agent, make_algo, make_env, train
 from cmdp_rl.algos.ppo import PPO
+from cmdp_rl.config.validation import ConfigError
 from cmdp_rl.run.checkpoint import CheckpointError, load_checkpoint
+from cmdp_rl.run.migrations import saved_config_nodes
 
 
 def setup(algo: dict, **env):
@@ -254,7 +256,7 @@ def test_anneal_lr_scales_the_rates_linearly_to_zero_over_the_run():
             "total_steps": 200,
         }
     )
-    assert cfg.algo.anneal_iterations == 4  # ceil(200 / 64)
+    assert cfg.algo.anneal_lr == 4  # true: over the run's iterations, ceil(200 / 64)
     torch.manual_seed(0)
     e = make_env(cfg.env)
     lag = make_algo(cfg.algo, make_agent(cfg.policy, e))
@@ -277,3 +279,20 @@ def test_anneal_lr_scales_the_rates_linearly_to_zero_over_the_run():
     plain.update(col.collect())
     assert plain.actor_opt.param_groups[0]["lr"] == plain.cfg.lr
     assert plain.multiplier.controllers[0].lr == plain.cfg.multiplier.lr
+
+
+def test_anneal_lr_spans_the_iterations_it_names_and_a_bad_span_is_named():
+    """``anneal_lr: n`` anneals over n iterations (the rates reach 0 at iteration n and stay there); old configs
+    named the span apart, ``anneal_iterations``, read only when ``anneal_lr`` was true."""
+    _, lag, col = setup({"name": "ppo_lag", "update_epochs": 1, "lr": 1e-3, "anneal_lr": 2})
+    rates = []
+    for _ in range(3):
+        lag.update(col.collect())
+        rates.append(lag.actor_opt.param_groups[0]["lr"])
+    assert rates == pytest.approx([1e-3, 0.5e-3, 0.0])
+    with pytest.raises(ConfigError, match="algo.anneal_lr"):
+        load_config({"algo": {"name": "ppo", "anneal_lr": 0}})
+    old = {"algo": {"name": "ppo_lag", "anneal_lr": True, "anneal_iterations": 7}}
+    assert load_config(saved_config_nodes(old)).algo.anneal_lr == 7
+    old["algo"]["anneal_lr"] = False
+    assert load_config(saved_config_nodes(old)).algo.anneal_lr is False

@@ -20,7 +20,7 @@ from cmdp_rl.algos.base import AlgoConfig, TrainingDiverged, check_finite, check
 from cmdp_rl.algos.learner import Learner, SingleLearner, Units
 from cmdp_rl.algos.minibatch import Tally, joined, member_rows, member_stats, stopped
 from cmdp_rl.config.registry import register
-from cmdp_rl.config.validation import AUTO, AutoInt, Bool, NonNegativeFloat, PositiveFloat, UnitOpen, options
+from cmdp_rl.config.validation import AUTO, AutoInt, AutoSpan, NonNegativeFloat, PositiveFloat, UnitOpen, options
 from cmdp_rl.policies.agent import Agent
 from cmdp_rl.rollout import keys
 from cmdp_rl.rollout.advantages import TwinGAE, standardized
@@ -46,10 +46,9 @@ class PPOConfig(AlgoConfig):
     entropy_coef: NonNegativeFloat = 0.0
     # KL early stopping: null (off), or stop at the first minibatch whose approximate KL exceeds 1.5 target_kl.
     target_kl: Optional[PositiveFloat] = None
-    # Anneal lr and critic_lr linearly to 0 (Huang et al. 2022, "The 37 Implementation Details of PPO", 4).
-    anneal_lr: Bool = False
-    # The iterations the annealing spans; "auto": the run's, ceil(total_steps / batch).
-    anneal_iterations: AutoInt = AUTO
+    # Anneal lr and critic_lr linearly to 0 (Huang et al. 2022, "The 37 Implementation Details of PPO", 4) over this
+    # many iterations: false, off; "auto" (or true), the run's, ceil(total_steps / batch).
+    anneal_lr: AutoSpan = False
 
     def resolve_auto(self, run: RunConfig) -> None:
         """8 minibatches while the batch is at most 2048 steps, else one per 512 steps, at most 64;
@@ -60,8 +59,8 @@ class PPOConfig(AlgoConfig):
             self.num_minibatches = 8 if batch <= 2048 else min(64, batch // 512)
         if self.update_epochs == AUTO:
             self.update_epochs = max(1, round(80 / self.num_minibatches))
-        if self.anneal_iterations == AUTO:
-            self.anneal_iterations = max(1, math.ceil(run.total_steps / batch))
+        if self.anneal_lr == AUTO:
+            self.anneal_lr = max(1, math.ceil(run.total_steps / batch))
 
     def describe_update(self) -> str:
         return f"{self.update_epochs} x {self.num_minibatches} minibatches"
@@ -126,8 +125,8 @@ class PPO:
         self.entropy_coef = cfg.entropy_coef
 
     def learning_rates(self) -> tuple[float, float]:
-        """The actor's and critics' rates at iteration i: ``anneal_lr`` scales them by ``1 - i / anneal_iterations``."""
-        frac = max(0.0, 1.0 - self.iteration / self.cfg.anneal_iterations) if self.cfg.anneal_lr else 1.0
+        """The actor's and critics' rates at iteration i: ``anneal_lr`` (n iterations) scales them by ``1 - i / n``."""
+        frac = max(0.0, 1.0 - self.iteration / self.cfg.anneal_lr) if self.cfg.anneal_lr else 1.0
         return frac * self.cfg.lr, frac * self.cfg.critic_lr
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:

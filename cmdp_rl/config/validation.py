@@ -11,7 +11,7 @@ import dataclasses
 import math
 from typing import Annotated, Any, Literal, Mapping, Sequence, TypeVar, Union, get_args, get_origin
 
-from pydantic import ConfigDict, Field, StrictBool, ValidationError
+from pydantic import AfterValidator, ConfigDict, Field, StrictBool, ValidationError
 from pydantic.dataclasses import dataclass as _pydantic_dataclass
 
 
@@ -47,6 +47,11 @@ Discount = Annotated[float, finite(ge=0, lt=1)]
 UnitOpen = Annotated[float, finite(gt=0, lt=1)]  # (0, 1)
 Bool = StrictBool
 AutoInt = Annotated[Union[PositiveInt, Literal["auto"]], Field(description=f"a positive integer or {AUTO!r}")]
+# Off, or the number of iterations a schedule spans ("auto": the run's; true means "auto").
+AutoSpan = Annotated[
+    Union[Annotated[StrictBool, AfterValidator(lambda on: AUTO if on else False)], PositiveInt, Literal["auto"]],
+    Field(description=f"false, a positive integer or {AUTO!r} (true)"),
+]
 
 
 def _fmt(x: Any) -> str:

@@ -298,12 +298,23 @@ def _own_fields(node: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in node.items() if k in own}
 
 
+def _anneal_span(algo: dict[str, Any]) -> dict[str, Any]:
+    """The PPO family's ``anneal_iterations`` (the span of an annealing switched on by ``anneal_lr: true``) became
+    ``anneal_lr``'s value: the span where it was on, nothing where it was off (the span was unread)."""
+    if "anneal_iterations" not in algo:
+        return algo
+    out = {k: v for k, v in algo.items() if k != "anneal_iterations"}
+    if out.get("anneal_lr") is True:
+        out["anneal_lr"] = algo["anneal_iterations"]
+    return out
+
+
 def saved_config_nodes(config: dict[str, Any]) -> dict[str, Any]:
     """A saved config (a run's, or a population's with its grid) with the options that became nodes in the nodes
     (:func:`multiplier_node`; a population's ``grid.algo.<flat>`` as ``grid.algo.multiplier.<field>``)."""
     out = dict(config)
     if isinstance(out.get("algo"), dict):
-        out["algo"] = multiplier_node(out["algo"])
+        out["algo"] = multiplier_node(_anneal_span(out["algo"]))
     grid = (out.get("population") or {}).get("grid") or {}
     varied = grid.get("algo") if isinstance(grid, dict) else None
     name = (out.get("algo") or {}).get("name", "ppo_lag")

@@ -21,7 +21,8 @@ from cmdp_rl.run.rundir import checkpoint_path, saved_config
 
 # Fields a resume command line may change: none of them alters what the run has done so far or the
 # shape of anything saved. Prefixes: every field under ``logger.``.
-# algo.anneal_iterations: "auto" follows total_steps, so extending a run stretches its lr schedule.
+# algo.anneal_lr: the learning-rate schedule of the iterations still to come ("auto" follows total_steps, so
+# extending a run stretches it).
 RESUMABLE = (
     "total_steps",
     "checkpoint_every",
@@ -32,7 +33,7 @@ RESUMABLE = (
     "resume",
     "trust_checkpoint",
     "logger.",
-    "algo.anneal_iterations",
+    "algo.anneal_lr",
 )
 # Config groups selected by name on a command line (``algo=ppo``); they set ``<group>.name``.
 GROUPS = ("algo", "env", "policy", "logger")
