@@ -150,7 +150,7 @@ def test_auto_keeps_given_numbers_and_rejects_other_words():
 @pytest.mark.parametrize(
     "overrides, fields",
     [
-        (["algo=ppo_lag"], {"kind", "lr", "init", "max"}),
+        (["algo=ppo_lag"], {"kind", "lr", "init", "max", "saturation"}),
         (["algo=ppo_lag", "algo/multiplier=dual"], {"kind", "lr", "init", "scale", "max"}),
         (["algo=pid_lag"], {"kind", "kp", "ki", "kd", "p_ema_alpha", "d_ema_alpha", "d_delay", "init", "scale", "max"}),
         (["algo=trpo_lag", "algo/multiplier=regularized"], {"kind", "lr", "tau", "init", "scale", "max"}),

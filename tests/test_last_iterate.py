@@ -149,15 +149,20 @@ def test_max_clamps_every_kind_and_infinity_changes_nothing(kind):
 
 
 def test_log_dual_steps_log_lambda_per_finished_episode_within_floor_and_max():
-    # d = 1, lr = 1, from 0.01: J_c = 3 (g 2, clipped to 1) with a whole window new: log lambda + 1;
-    # J_c = 1.5 (g 0.5), half the window new: + 0.25; J_c = 0 (g -1): - 1; again: - 1, held at the floor 0.01.
-    m = LogDual(cost_limit=1.0, lr=1.0, init=0.01, floor=0.01, maximum=100.0, scale=1.0)
-    seq = [m.update(3.0, 1.0), m.update(1.5, 0.5), m.update(0.0, 1.0), m.update(0.0, 1.0)]
-    assert seq == pytest.approx([0.01 * math.e, 0.01 * math.exp(1.25), 0.01 * math.exp(0.25), 0.01])
-    high = LogDual(cost_limit=1.0, lr=3.0, init=50.0, floor=0.01, maximum=100.0, scale=1.0)
+    # d = 1, lr = 1, from 0.01, a whole step from a violation of a quarter of the budget (saturation 0.25):
+    # J_c = 3 (g 2) with a whole window new: log lambda + 1; J_c = 1.1 (g 0.1: 0.4 of a step): + 0.4;
+    # J_c = 1.5 (g 0.5), half the window new: + 0.5; J_c = 0 (g -1): - 1; again: - 1, held at the floor 0.01.
+    m = LogDual(cost_limit=1.0, lr=1.0, init=0.01, floor=0.01, maximum=100.0, scale=1.0, saturation=0.25)
+    seq = [m.update(3.0, 1.0), m.update(1.1, 1.0), m.update(1.5, 0.5), m.update(0.0, 1.0), m.update(0.0, 1.0)]
+    want = [math.exp(1.0), math.exp(1.4), math.exp(1.9), math.exp(0.9), 1.0]
+    assert seq == pytest.approx([0.01 * w for w in want])
+    # saturation 1: the step in proportion to g up to J_c = 2d (J_c = 1.1: a tenth of a step)
+    linear = LogDual(cost_limit=1.0, lr=1.0, init=0.01, floor=0.01, maximum=100.0, scale=1.0, saturation=1.0)
+    assert [linear.update(3.0), linear.update(1.1)] == pytest.approx([0.01 * math.e, 0.01 * math.exp(1.1)])
+    high = LogDual(cost_limit=1.0, lr=3.0, init=50.0, floor=0.01, maximum=100.0, scale=1.0, saturation=0.25)
     assert high.update(10.0) == pytest.approx(100.0)  # 50 e^3 > max
     with pytest.raises(ValueError, match="floor <= init <= max"):
-        LogDual(cost_limit=1.0, lr=1.0, init=0.001, floor=0.01, maximum=100.0, scale=1.0)
+        LogDual(cost_limit=1.0, lr=1.0, init=0.001, floor=0.01, maximum=100.0, scale=1.0, saturation=0.25)
 
 
 def test_a_per_episode_multiplier_steps_once_per_episode_and_not_before_one_ends():

@@ -14,7 +14,7 @@ from cmdp_rl.algos.multiplier import PIDLagrangian
 from cmdp_rl.algos.multiplier_options import multiplier_options
 from cmdp_rl.cli import evaluate as evaluate_cli
 from cmdp_rl.run.checkpoint import load_checkpoint, save_checkpoint
-from cmdp_rl.run.migrations import saved_config_defaults, saved_config_nodes
+from cmdp_rl.run.migrations import recorded_defaults, saved_config_defaults, saved_config_nodes
 from cmdp_rl.run.resume import resume_config
 
 # Every term of the PID controller carries state (the integral, both EMAs, the delayed costs), so a
@@ -111,6 +111,19 @@ def test_a_config_from_before_mixture_weights_ran_with_the_raw_violation():
     assert (cfg.algo.multiplier.kind, cfg.algo.multiplier.scale, cfg.algo.multiplier.lr) == ("dual", "none", 0.2)
     assert cfg.algo.advantage_scale == "raw"  # the only scale of its day (ppo_lag's default is standardized now)
     assert load_config(saved_config_defaults({"algo": {"name": "focops"}})).algo.multiplier.scale == "none"
+
+
+def test_a_log_dual_saved_before_its_saturation_existed_keeps_the_step_it_ran_with():
+    """The log dual's step was in proportion to the violation up to J_c = 2d (saturation 1) before the option."""
+    saved = {"algo": {"name": "ppo_lag", "multiplier": {"kind": "log", "lr": 2.0, "init": 0.01}}, "deploy": {}}
+    assert load_config(saved_config_defaults(saved)).algo.multiplier.saturation == 1.0
+    saved["algo"]["multiplier"]["saturation"] = 0.25  # recorded since: kept
+    assert load_config(saved_config_defaults(saved)).algo.multiplier.saturation == 0.25
+    assert load_config({"algo": {"name": "ppo_lag"}}).algo.multiplier.saturation == 0.25  # today's default
+    # a population's config names what its author gave; its members' records say what ran
+    author = {"algo": {"name": "ppo_lag", "multiplier": {"lr": 1.0}}}
+    ran = recorded_defaults(author, {"algo": {"name": "ppo_lag", "multiplier": {"kind": "log"}}, "deploy": {}})
+    assert ran["algo"]["multiplier"] == {"kind": "log", "saturation": 1.0, "lr": 1.0}
 
 
 def test_a_population_grid_over_flat_options_moves_into_the_node():

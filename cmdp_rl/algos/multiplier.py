@@ -164,7 +164,7 @@ class DualAscent(MultiplierController):
 class LogDual(MultiplierController):
     """Dual ascent on ``log lambda``, one step per finished episode (the default of the on-policy Lagrangians)::
 
-        log lambda <- clip(log lambda + lr * w * clip(g, -1, 1), log floor, log max)
+        log lambda <- clip(log lambda + lr * w * clip(g / saturation, -1, 1), log floor, log max)
 
     ``g = (J_c - d) / d`` with ``J_c`` the mean cost of the last :data:`EPISODE_WINDOW` finished episodes, ``w``
     the share of that window that ended since the last step (at most 1): each episode moves lambda once, however
@@ -172,8 +172,10 @@ class LogDual(MultiplierController):
 
     - Multiplicative steps reach any scale (lambda* = 0.02 or 50) in ``ln(lambda* / lambda_0) / lr`` windows, as
       CQL's Adam on ``log alpha`` (Kumar et al. 2020); an additive step needs a summed violation of lambda* / lr.
-    - ``g`` clipped to [-1, 1] bounds each step whatever the violation's size (OmniSafe's Adam on lambda moves it
-      by about its learning rate per step; docs/constraint_satisfaction.md).
+    - ``g / saturation`` clipped to [-1, 1] bounds each step whatever the violation's size (OmniSafe's Adam on lambda
+      moves it by about its learning rate per step; docs/constraint_satisfaction.md); at the default ``saturation``
+      of 0.25 a violation of a quarter of the budget already takes a whole step: a run that hovers 3-10% over its
+      budget otherwise moves lambda too little to close the gap before it ends.
     - ``floor`` stands for 0: a slack constraint's lambda decays to it (:attr:`FLOOR`, not an option: on
       standardised advantages 0.01 prices cost at a hundredth of reward, as good as none); ``max`` bounds a runaway where the policy
       cannot meet the budget (with standardised advantages lambda = 100 already prices cost 100 times reward), so
@@ -184,15 +186,17 @@ class LogDual(MultiplierController):
     state = ("log_value",)
     FLOOR = 0.01
 
-    def __init__(self, cost_limit: float, lr: float, init: float, floor: float, maximum: float, scale: float) -> None:
+    def __init__(
+        self, cost_limit: float, lr: float, init: float, floor: float, maximum: float, scale: float, saturation: float
+    ) -> None:
         if not 0 < floor <= init <= maximum:
             raise ValueError(f"the log dual needs 0 < floor <= init <= max, got {floor}, {init}, {maximum}")
         super().__init__(cost_limit, init, scale)
-        self.lr, self.floor, self.maximum = lr, floor, maximum
+        self.lr, self.floor, self.maximum, self.saturation = lr, floor, maximum, saturation
         self.log_value = math.log(init)
 
     def _next_value(self, episode_cost: float, fresh: float = 1.0) -> float:
-        g = max(-1.0, min(1.0, self.violation(episode_cost)))
+        g = max(-1.0, min(1.0, self.violation(episode_cost) / self.saturation))
         step = self.lr * min(1.0, max(0.0, fresh)) * g
         self.log_value = max(math.log(self.floor), min(math.log(self.maximum), self.log_value + step))
         return math.exp(self.log_value)

@@ -335,7 +335,17 @@ def saved_config_defaults(config: dict[str, Any]) -> dict[str, Any]:
         if _has_multiplier_node(name):  # its scale was none then; flat, as the config's other multiplier options
             algo.setdefault("nu_scale" if name in ("focops", "cup") else "lambda_scale", "none")
         config["algo"] = algo
-    return deploy_node(saved_config_nodes(config))
+    return _log_saturation_of_its_day(deploy_node(saved_config_nodes(config)))
+
+
+def _log_saturation_of_its_day(config: dict[str, Any]) -> dict[str, Any]:
+    """A saved config whose log dual names no ``saturation`` ran before the option existed, with the step in
+    proportion to the violation up to J_c = 2d (saturation 1; the default became 0.25 later)."""
+    algo = config.get("algo")
+    node = algo.get("multiplier") if isinstance(algo, dict) else None
+    if not isinstance(node, dict) or node.get("kind") != "log" or "saturation" in node:
+        return config
+    return {**config, "algo": {**algo, "multiplier": {**node, "saturation": 1.0}}}
 
 
 def _advantage_scale_of_its_day(config: dict[str, Any]) -> dict[str, Any]:
@@ -365,5 +375,6 @@ def recorded_defaults(author: dict[str, Any], recorded: dict[str, Any]) -> dict[
         algo.setdefault("advantage_scale", ran["advantage_scale"])
     node, ran_node = algo.get("multiplier"), ran.get("multiplier")
     if isinstance(ran_node, dict) and "kind" in ran_node and isinstance(node, (dict, type(None))):
-        algo["multiplier"] = {"kind": ran_node["kind"], **(node or {})}
+        since = {k: ran_node[k] for k in ("saturation",) if k in ran_node}  # a default that changed since
+        algo["multiplier"] = {"kind": ran_node["kind"], **since, **(node or {})}
     return {**author, "algo": algo}
