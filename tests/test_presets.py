@@ -86,3 +86,13 @@ def test_the_batched_preset_reaches_the_gym_runs_quality_on_its_budget(tmp_path)
     assert result["steps"] == 1_048_576
     assert result["episode_return"] >= 0.335, result
     assert result["episode_cost"] <= 1.5, result
+
+
+def test_every_algorithm_that_picks_a_multiplier_kind_reads_the_kinds_preset_files():
+    """A preset file for one multiplier kind (configs/tuning/multiplier/<env>_<algo>_<kind>.yaml) is read only where
+    the algorithm's defaults list it: every algorithm that picks a kind lists it (those that override a kind inherit
+    the line), so that such a file is never silently ignored."""
+    include = "optional /tuning/multiplier@_global_: ${env}_${algo}_${algo/multiplier}"
+    pickers = [p for p in sorted((CONFIG_DIR / "algo").glob("*.yaml")) if "\n  - multiplier:" in p.read_text()]
+    assert len(pickers) >= 6, pickers  # ppo_lag, trpo_lag, cup, focops, sac_lag, td3_lag
+    assert [p.name for p in pickers if include not in p.read_text()] == []
