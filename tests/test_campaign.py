@@ -168,3 +168,8 @@ def test_a_run_made_elsewhere_is_recorded_from_its_files(killed_and_finished, tm
     assert path.name == f"{campaign.runs[2].id}.json"  # the same run: same spec, same options
     assert record["curve"] == original["curve"] and record["evaluation"] == original["evaluation"]
     assert record["time"]["sessions"] == [] and record["time"]["train_time_s"] > 0
+
+
+def test_the_page_opens_with_the_2m_table():
+    assert campaign_report.table_order({1_000_000, 10_000_000, 2_000_000, 500_000}) == [2_000_000, 500_000, 1_000_000]
+    assert campaign_report.table_order({1_000_000, 4096}) == [4096, 1_000_000]

@@ -25,6 +25,7 @@ END = "<!-- campaign report: end -->"
 PAGE = ROOT / "docs" / "benchmarks.md"
 FIGURE = ROOT / "docs" / "figures" / "safety_gym_campaign.png"
 BUDGET = 25.0
+HEADLINE_STEPS = 2_000_000  # the step count the page opens with (issue 51: the field's 2M comparison)
 PEER_NAMES = {"PPOLag": "ppo_lag", "CPO": "cpo", "PPO": "ppo", "CPPOPID": "pid_lag"}
 
 
@@ -185,6 +186,12 @@ def one_e7_table(grouped: dict[tuple, list[dict[str, Any]]]) -> list[str]:
     return rows
 
 
+def table_order(step_counts: Iterable[int]) -> list[int]:
+    """The step counts with a table of their own, the headline's first and then in increasing order (1e7 has its own
+    table beside OmniSafe's)."""
+    return sorted((s for s in step_counts if s != 10_000_000), key=lambda s: (s != HEADLINE_STEPS, s))
+
+
 def report_lines(campaigns: Sequence[Campaign], records: Sequence[dict[str, Any]]) -> list[str]:
     grouped, cache = groups(records), {}
     total = sum(len(c.runs) for c in campaigns)
@@ -203,9 +210,7 @@ def report_lines(campaigns: Sequence[Campaign], records: Sequence[dict[str, Any]
         "(OmniSafe's and FSRL's curves read at 1M and 2M; their 1e7 table).",
         "",
     ]
-    for steps in sorted({k[0] for k in grouped}):
-        if steps == 10_000_000:
-            continue
+    for steps in table_order({k[0] for k in grouped}):
         lines += [f"**{steps / 1e6:g}M steps**", "", *table(steps, grouped, cache), ""]
     if any(k[0] == 10_000_000 for k in grouped):
         lines += ["**1e7 steps**", "", *one_e7_table(grouped), ""]
