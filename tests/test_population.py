@@ -536,8 +536,12 @@ def test_the_exercise_grid_as_populations():
 
 @pytest.mark.cpu_kernels
 def test_fused_pass_gradients_equal_autograd_path():
-    """population/kernel.py's hand-written backward (FusedTanhMLP) gives the per-layer autograd path's outputs and
-    gradients bit for bit (same kernels, same order), on sizes past the sigmoid-tanh threshold."""
+    """population/stacked.py's hand-written backward (FusedTanhMLP) gives the per-layer autograd path's outputs and
+    gradients bit for bit (same kernels, same order), on sizes past the sigmoid-tanh threshold. The loss is shaped as
+    training's (squared errors, a log-likelihood), whose gradients are dense: a loss linear in an output (``c *
+    cost.sum()``) hands autograd's path a stride-0 gradient, and on an Intel Xeon with AVX-512 (Sapphire Rapids) torch
+    multiplies that in its own bmm loop where the fused path's dense one goes to MKL, so the last layer's weight
+    gradient then differs in the last bits (measured 2026-12-08: 186 of 8,834 entries, at most 2.6e-4)."""
     import torch
 
     from cmdp_rl.envs import make_env
@@ -564,7 +568,7 @@ def test_fused_pass_gradients_equal_autograd_path():
         pop.layout = fused_layout
         pop.actor.flat.grad = pop.critics.flat.grad = None
         dist, value, cost = pop.training_pass(obs)
-        (dist.log_prob(action).sum() + value.pow(2).sum() + 3 * cost.sum()).backward()
+        (dist.log_prob(action).sum() + value.pow(2).sum() + (cost - 3).pow(2).sum()).backward()
         results.append([dist.mean.detach(), value.detach(), cost.detach(), pop.actor.flat.grad, pop.critics.flat.grad])
     for fused, reference in zip(*results):
         assert torch.equal(fused, reference)
