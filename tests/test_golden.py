@@ -51,9 +51,8 @@ CASES = {
     ),
 }
 for case in CASES.values():
-    if (
-        case["algo"]["name"] == "ppo_lag"
-    ):  # the policy advantage these were recorded with (ppo_lag's default until 2026-12-07)
+    # the policy advantage these were recorded with (ppo_lag's default until 2026-12-07, pid_lag's until 2026-12-08)
+    if case["algo"]["name"] in ("ppo_lag", "pid_lag"):
         case["algo"]["advantage_scale"] = "raw"
     case["algo"] = {
         k: v

@@ -124,6 +124,9 @@ def test_a_log_dual_saved_before_its_saturation_existed_keeps_the_step_it_ran_wi
     author = {"algo": {"name": "ppo_lag", "multiplier": {"lr": 1.0}}}
     ran = recorded_defaults(author, {"algo": {"name": "ppo_lag", "multiplier": {"kind": "log"}}, "deploy": {}})
     assert ran["algo"]["multiplier"] == {"kind": "log", "saturation": 1.0, "lr": 1.0}
+    pid = {"algo": {"name": "pid_lag", "advantage_scale": "raw", "multiplier": {"kind": "pid", "ki": 0.1}}}
+    ran = recorded_defaults({"algo": {"name": "pid_lag"}}, {**pid, "deploy": {}})  # ki's default was 0.1 then
+    assert ran["algo"]["multiplier"] == {"kind": "pid", "ki": 0.1} and ran["algo"]["advantage_scale"] == "raw"
 
 
 def test_a_population_grid_over_flat_options_moves_into_the_node():

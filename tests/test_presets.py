@@ -67,7 +67,9 @@ def test_the_navigation_family_declares_its_lagrangians_preset(env):
     pid = compose_config([f"env={env}", "algo=pid_lag"])  # the same batch and scale under PID's own gains
     assert (pid.algo.num_minibatches, pid.algo.update_epochs, pid.algo.advantage_scale) == (1, 10, "standardized")
     assert (pid.algo.multiplier.kind, pid.algo.multiplier.kp, pid.algo.multiplier.max) == ("pid", 2.0, 5.0)
-    assert compose_config(["env=suite", "algo=pid_lag"]).algo.advantage_scale == "raw"  # elsewhere: its defaults
+    assert pid.algo.multiplier.ki == 0.1  # the gain its runs were measured with
+    suite = compose_config(["env=suite", "algo=pid_lag"]).algo  # elsewhere: its defaults
+    assert (suite.advantage_scale, suite.multiplier.ki, suite.multiplier.max) == ("standardized", 1.0, float("inf"))
     trpo = compose_config([f"env={env}", "algo=trpo_lag"])  # no preset: its defaults
     assert (trpo.algo.multiplier.lr, trpo.algo.multiplier.init) == (2.0, 0.01)
 

@@ -85,7 +85,7 @@ class PIDOptions:
 
     kind: Literal["pid"] = "pid"
     kp: NonNegativeFloat = 2.0
-    ki: NonNegativeFloat = 0.1
+    ki: NonNegativeFloat = 1.0
     kd: NonNegativeFloat = 0.0
     p_ema_alpha: EMA = 0.0
     d_ema_alpha: EMA = 0.0

@@ -375,6 +375,6 @@ def recorded_defaults(author: dict[str, Any], recorded: dict[str, Any]) -> dict[
         algo.setdefault("advantage_scale", ran["advantage_scale"])
     node, ran_node = algo.get("multiplier"), ran.get("multiplier")
     if isinstance(ran_node, dict) and "kind" in ran_node and isinstance(node, (dict, type(None))):
-        since = {k: ran_node[k] for k in ("saturation",) if k in ran_node}  # a default that changed since
+        since = {k: ran_node[k] for k in ("saturation", "ki") if k in ran_node}  # defaults that changed since
         algo["multiplier"] = {"kind": ran_node["kind"], **since, **(node or {})}
     return {**author, "algo": algo}
