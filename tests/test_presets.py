@@ -71,7 +71,7 @@ def test_the_navigation_family_declares_its_lagrangians_preset(env):
     suite = compose_config(["env=suite", "algo=pid_lag"]).algo  # elsewhere: its defaults
     assert (suite.advantage_scale, suite.multiplier.ki, suite.multiplier.max) == ("standardized", 1.0, float("inf"))
     trpo = compose_config([f"env={env}", "algo=trpo_lag"])  # no preset: its defaults
-    assert (trpo.algo.multiplier.lr, trpo.algo.multiplier.init) == (2.0, 0.01)
+    assert (trpo.algo.multiplier.kind, trpo.algo.multiplier.ki, trpo.algo.multiplier.max) == ("pid", 1.0, float("inf"))
 
 
 def test_the_command_line_wins_over_tuning():
